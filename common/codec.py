@@ -1,0 +1,137 @@
+"""msgpack codec for :mod:`common.messages`.
+
+Numpy arrays travel as ``{"__nd__": [dtype, shape], "b": <raw bytes>}``: packing reads the
+array's own buffer (no intermediate ``tobytes`` copy for contiguous arrays) and unpacking
+wraps the received bytes with ``np.frombuffer`` (no copy; the array is read-only).
+
+Wire frames (:func:`encode_frame`) add a one-byte tag so data, event-time watermarks and
+end-of-stream travel in order on the same key: ``D`` + type name + message, ``W`` +
+int64 stamp, ``E`` (end of stream).
+"""
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+import msgpack
+import numpy as np
+from pydantic import ValidationError
+
+from common.messages import Message, message_type
+
+__all__ = [
+    "encode", "decode", "decode_dict", "pack_obj", "unpack_obj", "encode_frame", "encode_watermark",
+    "ENCODED_EOS", "decode_frame", "Frame", "DecodeError",
+]
+
+
+class DecodeError(ValueError):
+    """Bytes that are not a valid message; the text says what is wrong."""
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        arr = obj if obj.flags.c_contiguous else np.ascontiguousarray(obj)
+        if arr.dtype.byteorder == ">":
+            arr = arr.astype(arr.dtype.newbyteorder("<"))
+        return {"__nd__": [arr.dtype.str, list(arr.shape)], "b": memoryview(arr).cast("B")}
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"cannot encode {type(obj).__name__}")
+
+
+def _object_hook(obj: dict) -> Any:
+    nd = obj.get("__nd__")
+    if nd is not None:
+        dtype, shape = nd
+        return np.frombuffer(obj["b"], dtype=np.dtype(dtype)).reshape(shape)
+    return obj
+
+
+def pack_obj(obj: Any) -> bytes:
+    """msgpack-encode plain Python data that may contain numpy arrays."""
+    return msgpack.packb(obj, default=_default, use_bin_type=True)
+
+
+def unpack_obj(data: bytes | memoryview) -> Any:
+    """Inverse of :func:`pack_obj`."""
+    return msgpack.unpackb(data, object_hook=_object_hook, raw=False, strict_map_key=False)
+
+
+def _dump(msg: Message) -> dict:
+    return msg.model_dump(mode="python", round_trip=True)
+
+
+def encode(msg: Message) -> bytes:
+    """Message -> msgpack bytes (the payload recorded in MCAP)."""
+    return pack_obj(_dump(msg))
+
+
+def decode_dict(data: bytes | memoryview) -> dict:
+    """msgpack bytes -> plain dict (arrays as read-only numpy views)."""
+    try:
+        obj = unpack_obj(data)
+    except Exception as exc:  # msgpack raises several unrelated types
+        raise DecodeError(f"not msgpack: {exc}") from None
+    if not isinstance(obj, dict):
+        raise DecodeError(f"expected a map, got {type(obj).__name__}")
+    return obj
+
+
+def decode(data: bytes | memoryview, cls: type[Message]) -> Message:
+    """msgpack bytes -> validated message of type ``cls``; raises DecodeError naming the field."""
+    obj = decode_dict(data)
+    try:
+        return cls.model_validate(obj)
+    except ValidationError as err:
+        first = err.errors()[0]
+        loc = ".".join(str(p) for p in first["loc"])
+        raise DecodeError(f"{cls.type_name}: field {loc}: {first['msg']}") from None
+
+
+_TAG_DATA, _TAG_WM, _TAG_EOS = b"D", b"W", b"E"
+ENCODED_EOS = _TAG_EOS
+
+
+def encode_frame(msg: Message) -> bytes:
+    """Wire frame of a data message: tag, type name, payload."""
+    name = msg.type_name.encode()
+    return _TAG_DATA + bytes([len(name)]) + name + encode(msg)
+
+
+def encode_watermark(stamp: int) -> bytes:
+    """Wire frame promising that nothing older than ``stamp`` (ns) follows on this key."""
+    return _TAG_WM + struct.pack("<q", stamp)
+
+
+class Frame:
+    """A decoded wire frame: ``kind`` is 'data', 'watermark' or 'eos'."""
+
+    __slots__ = ("kind", "type_name", "payload", "stamp")
+
+    def __init__(self, kind: str, type_name: str = "", payload: memoryview | bytes = b"", stamp: int = 0):
+        self.kind = kind
+        self.type_name = type_name
+        self.payload = payload
+        self.stamp = stamp
+
+    def message(self) -> Message:
+        return decode(self.payload, message_type(self.type_name))
+
+
+def decode_frame(data: bytes | memoryview) -> Frame:
+    """Parse a wire frame (no message validation: see :meth:`Frame.message`)."""
+    mv = memoryview(data)
+    if len(mv) == 0:
+        raise DecodeError("empty frame")
+    tag = bytes(mv[:1])
+    if tag == _TAG_DATA:
+        n = mv[1]
+        return Frame("data", bytes(mv[2:2 + n]).decode(), mv[2 + n:])
+    if tag == _TAG_WM:
+        if len(mv) != 9:
+            raise DecodeError(f"watermark frame of {len(mv)} bytes")
+        return Frame("watermark", stamp=struct.unpack("<q", mv[1:9])[0])
+    if tag == _TAG_EOS:
+        return Frame("eos")
+    raise DecodeError(f"unknown frame tag {tag!r}")

@@ -1,0 +1,249 @@
+"""One configuration for the whole system, with the defaults of Table 4.1 of the dissertation.
+
+The file ``deploy/poseidon.yaml`` spells out every default; a user file only needs the keys
+it changes.  Loading validates everything with pydantic: a wrong type, a value out of range
+or an unknown key fails at start-up with the dotted name of the field
+(``htm.sp_numActiveColumns``) and the file it came from.  ``--set key=value`` overrides
+use the same dotted names and YAML syntax for values (``--set vpr_guard.window=30``).
+"""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+__all__ = ["PoseidonConfig", "ConfigError", "load_config", "apply_overrides", "DEFAULT_CONFIG_PATH"]
+
+DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "deploy" / "poseidon.yaml"
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class SyncConfig(_Section):
+    sync_stale_sec: float = Field(0.75, gt=0, description="cross-topic association window (s)")
+
+
+class BusConfig(_Section):
+    namespace: str = Field("poseidon", pattern=r"^[A-Za-z0-9_\-/]+$", description="per-vehicle key prefix")
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    queue_size: int = Field(256, ge=1, description="bounded subscriber queue (messages)")
+    heartbeat_interval_ms: int = Field(100, ge=1, description="event-time heartbeat of silent streams (ms)")
+    startup_timeout_s: float = Field(60.0, gt=0, description="wait for subscribers/services to come alive")
+
+
+class PlayerConfig(_Section):
+    rate: float = Field(0.0, ge=0, description="replay speed: 1 = real time, N = N x, 0 = as fast as taken")
+    keys: list[str] = Field(default_factory=list, description="keys to publish (empty: every key)")
+
+
+class RecorderConfig(_Section):
+    chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size (bytes)")
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+
+
+class EncoderConfig(_Section):
+    fusion_mode: Literal["union", "and", "camera", "sonar"] = "union"
+    cnn_backbone: Literal["shufflenetv2", "alexnet_conv3"] = "shufflenetv2"
+    encoder_mode: Literal["lsbh"] = "lsbh"
+    weights_path: str = Field("", description="torchvision-format state dict; empty: torch hub cache, else seeded init")
+    lsbh_matrix_path: str = Field("state/lsbh_{backbone}_{modality}.npy", description="persisted projection per modality")
+    lsbh_seed: int = 42
+    lsbh_s: float = Field(0.25, gt=0, lt=1)
+    sp_columns: int = Field(2048, ge=16, description="SDR length L")
+    pool_grid: int = Field(4, ge=1, description="embedding pooled to a grid x grid map before LSBH")
+    batch_max: int = Field(8, ge=1)
+    torch_threads: int = Field(2, ge=1)
+    sonar_polar_width: int = Field(224, ge=8)
+    sonar_polar_height: int = Field(224, ge=8)
+    sonar_rmax: float = Field(30.0, gt=0, description="m")
+    sonar_use_intensities: bool = True
+    sonar_topic: Literal["sonar_micron", "sonar_seaking", "sonar_micron_ros", "sonar_seaking_ros"] = "sonar_micron"
+
+
+class HtmConfig(_Section):
+    sp_enable: bool = True
+    sp_columns: int = Field(2048, ge=16)
+    sp_numActiveColumns: int = Field(20, ge=1)
+    sp_potentialRadius: int = Field(600, ge=1)
+    sp_potentialPct: float = Field(0.5, gt=0, le=1)
+    sp_synPermActiveInc: float = Field(0.006, ge=0)
+    sp_synPermInactiveDec: float = Field(0.008, ge=0)
+    sp_synPermConnected: float = Field(0.1, gt=0, lt=1)
+    sp_boostStrength: float = Field(0.0, ge=0)
+    sp_dutyCyclePeriod: int = Field(1000, ge=1)
+    tm_cellsPerColumn: int = Field(40, ge=1)
+    tm_activationThreshold: int = Field(5, ge=1)
+    tm_minThreshold: int = Field(3, ge=1)
+    tm_initialPermanence: float = Field(0.55, ge=0, le=1)
+    tm_connectedPermanence: float = Field(0.5, ge=0, le=1)
+    tm_maxNewSynapseCount: int = Field(20, ge=1)
+    tm_permanenceIncrement: float = Field(0.008, ge=0)
+    tm_permanenceDecrement: float = Field(0.012, ge=0)
+    tm_predictedSegmentDecrement: float = Field(0.0, ge=0)
+    tm_maxSegmentsPerCell: int = Field(255, ge=1)
+    tm_maxSynapsesPerSegment: int = Field(255, ge=1)
+    learning: bool = True
+    seed: int = 42
+    sv_descriptor_source: Literal["tm", "sp", "sdr"] = "tm"
+    sv_tm_window: int = Field(7, ge=1)
+    sv_tm_topk: int = Field(15, ge=1)
+    sv_tm_match_threshold: float = Field(0.30, ge=0, le=1)
+    interval_mode: bool = True
+    theta_alpha: float = Field(0.65, ge=0, le=1)
+    theta_rho: int = Field(3, ge=1)
+    sv_match_threshold: float = Field(0.38, ge=0, le=1)
+    sv_min_intersection: int = Field(12, ge=0)
+    sv_require_multimodal: bool = False
+    sv_min_img_score: float = Field(0.45, ge=0, le=1)
+    sv_min_sonar_score: float = Field(0.35, ge=0, le=1)
+    sv_enable_f1_gate: bool = True
+    min_f1: float = Field(0.55, ge=0, le=1)
+    sv_use_iou_tiebreak: bool = True
+    max_bits: int = Field(0, ge=0, description="cap on descriptor bits after interval union (0: sv_tm_topk)")
+    state_path: str = Field("", description="load SP/TM/LVC state from here at start and save at end (empty: off)")
+
+
+class RobotStateConfig(_Section):
+    use_imu: bool = True
+    imu_topic: Literal["imu_adis_ros", "imu_adis"] = "imu_adis_ros"
+    axis_remap: str = Field("yxz", pattern=r"^[xyz]{3}$", description="dead-reckoning frame alignment")
+    axis_sign_z: float = Field(-1.0, description="sign applied to z of the published position")
+    dvl_rotation_rpy_deg: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    dvl_translation_m: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    imu_rotation_rpy_deg: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    depth_offset_m: float = 0.0
+    dvl_velocity_sigma: float = Field(0.02, gt=0, description="m/s")
+    depth_sigma: float = Field(0.05, gt=0, description="m")
+    heading_sigma_deg: float = Field(1.0, gt=0)
+    process_accel_sigma: float = Field(0.05, gt=0, description="m/s^2 random-walk of velocity")
+    dvl_max_speed: float = Field(3.0, gt=0, description="m/s; faster records are rejected")
+    dvl_timeout_s: float = Field(2.0, gt=0, description="beyond this without DVL the state is in dropout")
+    max_gap_s: float = Field(30.0, gt=0, description="gap after which prediction is bridged and flagged")
+    publish_rate_hz: float = Field(10.0, gt=0)
+
+
+class PoseCellsConfig(_Section):
+    number_of_neurons: list[int] = Field(default_factory=lambda: [15, 15, 15, 8], min_length=4, max_length=4)
+    distance_between_neurons: list[float] = Field(default_factory=lambda: [0.1, 0.1, 0.1], min_length=3, max_length=3)
+    top_k: int = Field(4, ge=1)
+    min_exc: float = Field(0.03, ge=0)
+    excitation_sigma_cells: float = Field(1.0, gt=0)
+    excitation_sigma_yaw_cells: float = Field(1.0, gt=0)
+    global_inhibition: float = Field(0.00002, ge=0)
+    lvc_learning_rate: float = Field(1.0, ge=0, description="lambda of Eq. 4.19")
+    lvc_injection_gain: float = Field(0.1, ge=0, description="delta of Eq. 4.19")
+    multiple_local_view_active: bool = True
+
+
+class VprGuardConfig(_Section):
+    require_vpr_for_event: bool = True
+    vpr_window: int = Field(26, ge=1)
+    vpr_min_rep: int = Field(3, ge=1)
+    vpr_leak_rate: int = Field(20, ge=0)
+    motion_gate_enable: bool = True
+    min_event_trans_xy: float = Field(0.12, ge=0)
+    min_event_dz: float = Field(0.05, ge=0)
+
+
+class ExpMapConfig(_Section):
+    match_threshold: float = Field(0.98, ge=0)
+    lv_factor: float = Field(0.5, ge=0)
+    pc_factor: float = Field(0.5, ge=0)
+    min_experience_age: int = Field(200, ge=0)
+    loop_confirmations: int = Field(2, ge=1)
+    min_correction_route_len: float = Field(250, ge=0)
+    max_correction_norm: float = Field(20.0, gt=0)
+    max_correction_step: float = Field(0.05, gt=0)
+    min_correction_interval_sec: float = Field(15.0, ge=0)
+    image_topic: str = "camera/image_raw"
+    image_transport: Literal["raw"] = "raw"
+    publish_experience_image: bool = True
+    image_buffer_size: int = Field(400, ge=1)
+    image_sync_slop: float = Field(0.75, ge=0)
+
+
+class PoseidonConfig(_Section):
+    """Every parameter of the system; section names follow the services."""
+
+    sync: SyncConfig = Field(default_factory=SyncConfig)
+    bus: BusConfig = Field(default_factory=BusConfig)
+    player: PlayerConfig = Field(default_factory=PlayerConfig)
+    recorder: RecorderConfig = Field(default_factory=RecorderConfig)
+    encoder: EncoderConfig = Field(default_factory=EncoderConfig)
+    htm: HtmConfig = Field(default_factory=HtmConfig)
+    robot_state: RobotStateConfig = Field(default_factory=RobotStateConfig)
+    posecells: PoseCellsConfig = Field(default_factory=PoseCellsConfig)
+    vpr_guard: VprGuardConfig = Field(default_factory=VprGuardConfig)
+    expmap: ExpMapConfig = Field(default_factory=ExpMapConfig)
+    services: list[str] = Field(default_factory=list, description="services the launcher starts (empty: all built)")
+
+
+class ConfigError(ValueError):
+    """A configuration that does not validate; the message names the file and the field."""
+
+
+def _format_errors(err: ValidationError, source: str) -> str:
+    lines = [f"invalid configuration ({source}):"]
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "<root>"
+        if e["type"] == "extra_forbidden":
+            lines.append(f"  {loc}: unknown field")
+        else:
+            lines.append(f"  {loc}: {e['msg']} (got {e.get('input')!r})")
+    return "\n".join(lines)
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Apply ``key.sub=value`` overrides (value parsed as YAML) to a nested dict."""
+    out = copy.deepcopy(data)
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"override {item!r} is not of the form key.sub=value")
+        dotted, raw = item.split("=", 1)
+        parts = [p for p in dotted.strip().split(".") if p]
+        if not parts:
+            raise ConfigError(f"override {item!r} names no field")
+        node = out
+        for p in parts[:-1]:
+            nxt = node.setdefault(p, {})
+            if not isinstance(nxt, dict):
+                raise ConfigError(f"override {item!r}: {p} is not a section")
+            node = nxt
+        node[parts[-1]] = yaml.safe_load(raw)
+    return out
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> PoseidonConfig:
+    """Load and validate a configuration.
+
+    ``path`` None loads the defaults only.  Raises :class:`ConfigError` naming the file and
+    the dotted field of every problem.
+    """
+    data: dict[str, Any] = {}
+    source = "defaults"
+    if path is not None:
+        p = Path(path)
+        source = str(p)
+        try:
+            loaded = yaml.safe_load(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"configuration file not found: {p}") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"configuration file {p} is not valid YAML: {exc}") from None
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"configuration file {p}: top level must be a mapping, got {type(loaded).__name__}")
+        data = loaded
+    if overrides:
+        data = apply_overrides(data, overrides)
+        source += " + --set " + " ".join(overrides)
+    try:
+        return PoseidonConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(_format_errors(err, source)) from None

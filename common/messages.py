@@ -1,0 +1,329 @@
+"""Typed messages of PoseidonSLAM (pydantic models, msgpack on the wire).
+
+Every message carries a :class:`Header` (``seq`` per publisher, ``stamp`` event time in
+integer nanoseconds, ``frame_id``).  Numpy arrays are fields of type :data:`NDArray`; the
+codec (:mod:`common.codec`) carries them as raw bytes with dtype and shape.
+
+Sensor inputs follow the fields of the real Cala Viuda dataset (package
+``cirs_girona_cala_viuda``: Depth, Imu, LinkquestDvl, RangeImageBeam) and the standard
+``sensor_msgs`` / ``nav_msgs`` types it also records (Image, LaserScan, Odometry).
+SLAM outputs follow the dissertation, Section 4.2 (SDRs, LocalViewCells, ExperienceEvent,
+ExperienceMap, ExperienceImage).
+
+:data:`KEYS` maps every key of the architecture (relative to the vehicle namespace, e.g.
+``poseidon/``) to its message type.  Conventions: positions in metres, angles in radians,
+velocities in m/s, world frame NED unless a field says otherwise.
+"""
+from __future__ import annotations
+
+from typing import Annotated, Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSerializer, WithJsonSchema
+
+__all__ = [
+    "NDArray", "Header", "Message", "Image", "RangeImageBeam", "LaserScan", "LinkquestDvl",
+    "Imu", "Depth", "Odometry", "Sdr", "NeocortexSdr", "LocalViewCell", "LocalViewCells",
+    "ExperienceEvent", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
+    "PoseStamped", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
+]
+
+
+def _to_array(value: Any) -> np.ndarray:
+    if isinstance(value, np.ndarray):
+        return value
+    if isinstance(value, dict) and {"dtype", "shape", "data"} <= value.keys():
+        return np.frombuffer(value["data"], dtype=np.dtype(value["dtype"])).reshape(value["shape"])
+    if isinstance(value, (list, tuple)):
+        return np.asarray(value)
+    raise ValueError(f"expected a numpy array, got {type(value).__name__}")
+
+
+#: A numpy array field.  JSON schema: an object with dtype, shape and the raw bytes.
+NDArray = Annotated[
+    np.ndarray,
+    BeforeValidator(_to_array),
+    PlainSerializer(lambda a: a, return_type=Any, when_used="python"),
+    PlainSerializer(lambda a: {"dtype": a.dtype.str, "shape": list(a.shape), "data": a.tobytes().hex()},
+                    return_type=Any, when_used="json"),
+    WithJsonSchema({
+        "type": "object",
+        "description": "numpy array: raw little-endian bytes (msgpack bin) with dtype and shape",
+        "properties": {
+            "dtype": {"type": "string"},
+            "shape": {"type": "array", "items": {"type": "integer"}},
+            "data": {"type": "string", "contentEncoding": "base64"},
+        },
+        "required": ["dtype", "shape", "data"],
+    }),
+]
+
+
+class Header(BaseModel):
+    """ROS-style header: ``seq`` (+1 per message of a publisher), ``stamp`` (event time, ns)."""
+
+    model_config = ConfigDict(extra="forbid")
+    seq: int = Field(ge=0)
+    stamp: int = Field(ge=0, description="event time in nanoseconds since the epoch")
+    frame_id: str = ""
+
+
+class Message(BaseModel):
+    """Base of every message: a header, arrays allowed, unknown fields rejected."""
+
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+    type_name: ClassVar[str] = ""
+    header: Header
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.type_name = f"poseidon_msgs/{cls.__name__}"
+
+
+# --------------------------------------------------------------------------- sensors
+
+
+class Image(Message):
+    """sensor_msgs/Image. ``data`` has shape (height, width, channels) or (height, width)."""
+
+    height: int = Field(ge=1)
+    width: int = Field(ge=1)
+    encoding: Literal["rgb8", "bgr8", "mono8", "rgba8", "bgra8", "mono16"] = "rgb8"
+    data: NDArray
+
+
+class RangeImageBeam(Message):
+    """cirs_girona_cala_viuda/RangeImageBeam: one beam of a mechanically scanned sonar."""
+
+    angle_grad: float
+    angle_rad: float
+    nbins: int = Field(ge=0)
+    max_range: int = Field(ge=0, description="metres")
+    beam_data: NDArray = Field(description="int32 echo intensities, nbins long")
+
+
+class LaserScan(Message):
+    """sensor_msgs/LaserScan (the ``*_ros`` sonar topics of the dataset)."""
+
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    time_increment: float = 0.0
+    scan_time: float = 0.0
+    range_min: float
+    range_max: float
+    ranges: NDArray
+    intensities: NDArray
+
+
+class LinkquestDvl(Message):
+    """cirs_girona_cala_viuda/LinkquestDvl (LinkQuest NavQuest 600 Micro).
+
+    ``velocityinst`` is the bottom velocity in the instrument frame, valid when
+    ``velocityinstflag`` is 1; ``datagood`` flags each of the four beams.  Attitude
+    (roll, pitch, heading) is in degrees as the instrument reports it.
+    """
+
+    errcode: str = ""
+    datagood: list[int] = Field(min_length=4, max_length=4)
+    altitudebeam: list[float] = Field(min_length=4, max_length=4)
+    bottomvelocitybeam: list[float] = Field(min_length=4, max_length=4)
+    watervelocitybeam: list[float] = Field(min_length=4, max_length=4)
+    watervelocitycredit: list[float] = Field(min_length=4, max_length=4)
+    velocityinst: list[float] = Field(min_length=3, max_length=3)
+    velocityinstflag: int
+    velocityearth: list[float] = Field(min_length=3, max_length=3)
+    velocityearthflag: int
+    watervelocityinst: list[float] = Field(min_length=3, max_length=3)
+    watervelocityinstflag: int
+    watervelocityearth: list[float] = Field(min_length=3, max_length=3)
+    watervelocityearthflag: int
+    roll: float
+    pitch: float
+    heading: float
+    altitude: float
+    temperature: float
+    pressure: float
+    salinity: float
+    soundspeed: float
+    rawdata: str = ""
+
+
+class Imu(Message):
+    """cirs_girona_cala_viuda/Imu (ADIS16480): attitude (rad), quaternion, magnetometer,
+    accelerometer (m/s^2), gyro (rad/s), gyro bias; also the target of sensor_msgs/Imu."""
+
+    roll: float
+    pitch: float
+    yaw: float
+    qx: float
+    qy: float
+    qz: float
+    qw: float
+    temp: float = 0.0
+    mx: float = 0.0
+    my: float = 0.0
+    mz: float = 0.0
+    ax: float = 0.0
+    ay: float = 0.0
+    az: float = 0.0
+    gx: float = 0.0
+    gy: float = 0.0
+    gz: float = 0.0
+    bx: float = 0.0
+    by: float = 0.0
+    bz: float = 0.0
+
+
+class Depth(Message):
+    """cirs_girona_cala_viuda/Depth: depth below the surface from pressure, metres (down +)."""
+
+    depth: float
+
+
+class Odometry(Message):
+    """nav_msgs/Odometry: pose (position m, orientation quaternion xyzw) and twist.
+
+    ``pose_covariance`` and ``twist_covariance`` are row-major 6x6 (x y z roll pitch yaw).
+    ``status`` carries flags of the producer (e.g. ``dvl_dropout``) for the audit.
+    """
+
+    child_frame_id: str = ""
+    position: list[float] = Field(min_length=3, max_length=3)
+    orientation: list[float] = Field(min_length=4, max_length=4, description="quaternion x y z w")
+    linear_velocity: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    angular_velocity: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    pose_covariance: list[float] = Field(default_factory=lambda: [0.0] * 36, min_length=36, max_length=36)
+    twist_covariance: list[float] = Field(default_factory=lambda: [0.0] * 36, min_length=36, max_length=36)
+    status: list[str] = Field(default_factory=list)
+
+
+class PoseStamped(Message):
+    """A 3D position (m) with yaw (rad): one sample of a trajectory (``dead_reckoning``)."""
+
+    position: list[float] = Field(min_length=3, max_length=3)
+    yaw: float = 0.0
+
+
+# --------------------------------------------------------------------------- SLAM outputs
+
+
+class Sdr(Message):
+    """A sparse distributed representation: sorted active bit indices (0-based) of ``size`` bits."""
+
+    modality: str = Field(description="camera | sonar | fused")
+    size: int = Field(ge=1)
+    active: NDArray = Field(description="uint32 sorted active indices")
+
+
+class NeocortexSdr(Message):
+    """Encoder output per frame (Eqs. 4.1-4.3): per-modality SDRs and their fusion."""
+
+    modalities: list[Sdr]
+    fused: Sdr
+    fusion_mode: str
+
+
+class LocalViewCell(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    id: int = Field(ge=0)
+    rate: float = Field(ge=0.0, le=1.0, description="overlap-recall R of Eq. 4.7")
+
+
+class LocalViewCells(Message):
+    """``local_view_cells`` (Section 4.2.2): most active LVC id, R as rate, every frame."""
+
+    most_active_cell: int = Field(ge=0)
+    active_cells: list[LocalViewCell]
+    is_new: bool = Field(description="true when Eq. 4.10 created the id on this frame")
+    intersection: int = Field(ge=0, description="I of Eq. 4.6 for the winner (0 if new)")
+
+
+class ExperienceEvent(Message):
+    """``experience_event``: an accepted identity with its pose evidence (Section 4.2.3)."""
+
+    lvc_id: int = Field(ge=0)
+    pc_centroid: list[float] = Field(min_length=4, max_length=4, description="x y z (m) and yaw (rad)")
+    odom_position: list[float] = Field(min_length=3, max_length=3)
+    odom_yaw: float
+    gate: str = Field(description="vpr | leak | off: which rule authorised the event")
+    vpr_count: int = Field(ge=0, description="C_t of Eq. 4.11")
+
+
+class ExperienceNode(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    id: int = Field(ge=0)
+    lvc_id: int = Field(ge=0)
+    position: list[float] = Field(min_length=3, max_length=3)
+    yaw: float
+    stamp: int
+
+
+class ExperienceLink(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    source: int
+    target: int
+    delta: list[float] = Field(min_length=3, max_length=3)
+    duration_s: float
+    weight: float
+    loop_closure: bool = False
+
+
+class ExperienceMap(Message):
+    """``map``: the 3D experience graph (Eqs. 4.20-4.21)."""
+
+    nodes: list[ExperienceNode]
+    links: list[ExperienceLink]
+    current: int = -1
+    corrections: int = 0
+
+
+class ExperienceImage(Image):
+    """``experience_image``: the camera frame closest to an event, header = event header."""
+
+    source_stamp: int = Field(description="stamp of the camera frame used as evidence (ns)")
+
+
+#: key (relative to the vehicle namespace) -> message type
+KEYS: dict[str, type[Message]] = {
+    "camera/image_raw": Image,
+    "sonar_micron": RangeImageBeam,
+    "sonar_seaking": RangeImageBeam,
+    "sonar_micron_ros": LaserScan,
+    "sonar_seaking_ros": LaserScan,
+    "dvl_linkquest": LinkquestDvl,
+    "imu_adis": Imu,
+    "imu_adis_ros": Imu,
+    "depth_sensor": Depth,
+    "odometry": Odometry,
+    "neocortex/sdr": NeocortexSdr,
+    "local_view_cells": LocalViewCells,
+    "Odometry": Odometry,
+    "ground_truth": Odometry,
+    "experience_event": ExperienceEvent,
+    "map": ExperienceMap,
+    "dead_reckoning": PoseStamped,
+    "experience_image": ExperienceImage,
+}
+
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    t.type_name: t
+    for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
+              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage)
+}
+
+
+def message_type(type_name: str) -> type[Message]:
+    """The message class registered under ``type_name`` (e.g. ``poseidon_msgs/Image``)."""
+    try:
+        return MESSAGE_TYPES[type_name]
+    except KeyError:
+        raise KeyError(f"unknown message type {type_name!r}; known: {sorted(MESSAGE_TYPES)}") from None
+
+
+def key_type(key: str) -> type[Message]:
+    """The message class of a namespace-relative key (e.g. ``camera/image_raw``)."""
+    try:
+        return KEYS[key]
+    except KeyError:
+        raise KeyError(f"unknown key {key!r}; known keys: {sorted(KEYS)}") from None

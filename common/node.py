@@ -1,0 +1,105 @@
+"""The contract between an algorithm service and the transport.
+
+A service is a subclass of :class:`ServiceNode`: it names its input keys (in priority
+order for equal stamps) and output keys, receives its inputs already merged in event-time
+order through :meth:`ServiceNode.process`, and emits outputs with :meth:`ServiceNode.publish`.
+It never touches Zenoh: :mod:`common.runtime` feeds it from the bus, and :func:`run_offline`
+feeds it from a list (unit tests, notebooks, ``poseidon deadreckon`` and the like), giving
+exactly the same outputs.
+"""
+from __future__ import annotations
+
+import logging
+from typing import ClassVar, Iterable
+
+from common.config import PoseidonConfig
+from common.messages import Header, Message
+from common.ordering import EventTimeMerger
+
+__all__ = ["ServiceNode", "run_offline", "SERVICE_REGISTRY", "register_service"]
+
+log = logging.getLogger(__name__)
+
+
+class ServiceNode:
+    """Base of every service.  Subclasses set ``name``, ``inputs`` and ``outputs``."""
+
+    name: ClassVar[str] = ""
+    inputs: ClassVar[tuple[str, ...]] = ()
+    outputs: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, config: PoseidonConfig):
+        self.config = config
+        self._outbox: list[tuple[str, Message]] = []
+        self._seq: dict[str, int] = {k: 0 for k in self.outputs}
+        self.counters: dict[str, int] = {}
+
+    # ---- called by the runtime -------------------------------------------------
+    def process(self, key: str, msg: Message) -> None:
+        """Handle one input message (event-time order guaranteed)."""
+        raise NotImplementedError(f"{type(self).__name__} must implement process()")
+
+    def finish(self) -> None:
+        """Every input ended: flush what is pending (default: nothing)."""
+
+    def output_watermark(self, input_watermark: int) -> int:
+        """Event-time promise for the outputs, given the inputs' watermark.
+
+        Default: outputs carry the stamp of the input that caused them, so nothing older
+        than the input watermark can follow.  A node that emits later than it reads
+        (e.g. waiting for evidence) returns something smaller.
+        """
+        return input_watermark
+
+    def close(self) -> None:
+        """Release resources and save state (default: nothing)."""
+
+    # ---- helpers for subclasses ---------------------------------------------------
+    def header(self, key: str, stamp: int, frame_id: str = "") -> Header:
+        """Next header of output ``key``: per-key seq, the given event stamp."""
+        seq = self._seq[key]
+        self._seq[key] = seq + 1
+        return Header(seq=seq, stamp=stamp, frame_id=frame_id)
+
+    def publish(self, key: str, msg: Message) -> None:
+        if key not in self._seq:
+            raise KeyError(f"{self.name}: {key!r} is not one of its outputs {self.outputs}")
+        self._outbox.append((key, msg))
+
+    def count(self, what: str, n: int = 1) -> None:
+        """Count an event of note (rejected records, gaps...) for the run summary."""
+        self.counters[what] = self.counters.get(what, 0) + n
+
+    def take_outbox(self) -> list[tuple[str, Message]]:
+        out, self._outbox = self._outbox, []
+        return out
+
+
+SERVICE_REGISTRY: dict[str, str] = {}
+
+
+def register_service(name: str, dotted_class: str) -> None:
+    """Register ``module:Class`` of a service node under ``name`` for the launcher."""
+    SERVICE_REGISTRY[name] = dotted_class
+
+
+def run_offline(node: ServiceNode, messages: Iterable[tuple[str, Message]]) -> list[tuple[str, Message]]:
+    """Drive ``node`` with ``(key, message)`` pairs without any transport.
+
+    Messages are merged by event time exactly as the bus runtime does (each input key is
+    assumed to arrive in its own order, as a recording or a publisher delivers it).
+    Keys the node does not consume are ignored.  Returns every output in order.
+    """
+    merger = EventTimeMerger(list(node.inputs))
+    for key, msg in messages:
+        if key in node.inputs:
+            merger.push(key, msg.header.stamp, msg.header.seq, msg)
+    for key in node.inputs:
+        merger.end(key)
+    out: list[tuple[str, Message]] = []
+    for key, _stamp, msg in merger.pop_ready():
+        node.process(key, msg)
+        out.extend(node.take_outbox())
+    node.finish()
+    out.extend(node.take_outbox())
+    return out
