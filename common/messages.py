@@ -25,7 +25,7 @@ __all__ = [
     "NDArray", "Header", "Message", "Image", "RangeImageBeam", "LaserScan", "LinkquestDvl",
     "Imu", "Depth", "Odometry", "Sdr", "NeocortexSdr", "LocalViewCell", "LocalViewCells",
     "ExperienceEvent", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
-    "PoseStamped", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
+    "PoseStamped", "RevisitTruth", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
 ]
 
 
@@ -284,6 +284,17 @@ class ExperienceImage(Image):
     source_stamp: int = Field(description="stamp of the camera frame used as evidence (ns)")
 
 
+# --------------------------------------------------------------------------- ground truth
+
+
+class RevisitTruth(Message):
+    """Ground truth for one camera frame (simulated or transformed missions): the indices
+    (0-based, in camera-frame order) of earlier frames that show the same place."""
+
+    frame_index: int = Field(ge=0)
+    same_place: NDArray = Field(description="int32 indices of earlier frames of the same place")
+
+
 #: key (relative to the vehicle namespace) -> message type
 KEYS: dict[str, type[Message]] = {
     "camera/image_raw": Image,
@@ -304,12 +315,14 @@ KEYS: dict[str, type[Message]] = {
     "map": ExperienceMap,
     "dead_reckoning": PoseStamped,
     "experience_image": ExperienceImage,
+    "truth/pose": Odometry,
+    "truth/revisits": RevisitTruth,
 }
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
     t.type_name: t
     for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
-              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage)
+              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, RevisitTruth)
 }
 
 

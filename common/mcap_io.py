@@ -1,0 +1,260 @@
+"""MCAP recordings of PoseidonSLAM messages.
+
+Layout of a recording (what :class:`RecordingWriter` writes and the recorder produces):
+
+- one channel per key; the topic is the namespace-relative key (``camera/image_raw``);
+- one schema per message type, named by its type name (``poseidon_msgs/Image``), encoding
+  ``jsonschema`` with the pydantic JSON schema; message encoding ``msgpack``;
+- log time = publish time = the header stamp (event time, ns); sequence = header seq;
+- metadata records: ``poseidon`` (code revision, configuration snapshot, input hash, tool)
+  and, for simulated missions, whatever the generator adds (e.g. ``ground_truth``).
+
+Reading (:func:`read_messages`) yields messages in event-time order.  A file without a
+summary (a recorder killed with SIGKILL) is read sequentially up to its last complete
+chunk and sorted, and :class:`RecordingError` names the file and the byte offset where a
+corrupt or truncated file stops being readable.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import struct
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, Iterator
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Message as McapMessage, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from common.codec import decode, encode
+from common.messages import Message, message_type
+
+__all__ = [
+    "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
+    "recording_summary", "file_sha256", "code_revision",
+]
+
+log = logging.getLogger(__name__)
+
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+class RecordingError(RuntimeError):
+    """A recording that cannot be read; the message names the file and the byte offset."""
+
+
+def code_revision() -> str:
+    """The git revision of this checkout (with ``-dirty``), or ``unknown`` outside git."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        rev = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                             timeout=5, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return rev + ("-dirty" if dirty else "")
+
+
+def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+class RecordingWriter:
+    """Write PoseidonSLAM messages into one MCAP file.
+
+    ``flush_every`` flushes the OS file after that many messages so that a process killed
+    without warning leaves every complete chunk readable.
+    """
+
+    def __init__(self, path: str | Path, compression: str = "zstd", chunk_size: int = 1 << 20,
+                 profile: str = "poseidon", flush_every: int = 0):
+        self.path = Path(path)
+        if compression not in _COMPRESSION:
+            raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file: IO[bytes] = open(self.path, "wb")
+        self._writer = Writer(self._file, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+        self._writer.start(profile=profile, library="poseidonslam")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._channel_type: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
+        self._flush_every = flush_every
+        self._since_flush = 0
+        self._closed = False
+
+    def _channel(self, key: str, type_name: str) -> int:
+        cid = self._channels.get(key)
+        if cid is not None:
+            if self._channel_type[key] != type_name:
+                raise ValueError(f"key {key!r} carries {self._channel_type[key]}, cannot also carry {type_name}")
+            return cid
+        sid = self._schemas.get(type_name)
+        if sid is None:
+            schema = message_type(type_name).model_json_schema()
+            sid = self._writer.register_schema(type_name, "jsonschema", json.dumps(schema).encode())
+            self._schemas[type_name] = sid
+        cid = self._writer.register_channel(key, "msgpack", sid)
+        self._channels[key] = cid
+        self._channel_type[key] = type_name
+        return cid
+
+    def write(self, key: str, msg: Message) -> None:
+        """Encode and record ``msg`` on ``key``."""
+        self.write_encoded(key, msg.type_name, encode(msg), msg.header.stamp, msg.header.seq)
+
+    def write_encoded(self, key: str, type_name: str, payload: bytes | memoryview, stamp: int, seq: int) -> None:
+        """Record an already encoded payload (the recorder stores what it received, byte for byte)."""
+        cid = self._channel(key, type_name)
+        self._writer.add_message(cid, log_time=stamp, data=bytes(payload), publish_time=stamp, sequence=seq & 0xFFFFFFFF)
+        self.counts[key] = self.counts.get(key, 0) + 1
+        if self._flush_every:
+            self._since_flush += 1
+            if self._since_flush >= self._flush_every:
+                self.flush()
+
+    def add_metadata(self, name: str, data: dict[str, Any]) -> None:
+        """Add a metadata record; values that are not strings are stored as JSON."""
+        self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()})
+
+    def flush(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._since_flush = 0
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._writer.finish()
+        self._file.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class RecordedMessage:
+    """One message of a recording, not yet decoded."""
+
+    key: str
+    type_name: str
+    stamp: int
+    seq: int
+    payload: bytes
+
+    def message(self) -> Message:
+        """Decode and validate (raises :class:`common.codec.DecodeError` naming the field)."""
+        return decode(self.payload, message_type(self.type_name))
+
+
+def _open(path: Path) -> IO[bytes]:
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such recording") from None
+    except IsADirectoryError:
+        raise RecordingError(f"{path}: is a directory, not an MCAP recording") from None
+
+
+def _has_summary(path: Path) -> bool:
+    with _open(path) as f:
+        try:
+            return make_reader(f).get_summary() is not None
+        except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error):
+            return False
+
+
+def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[RecordedMessage], list[Metadata]]:
+    """Read every complete record; stop at the first unreadable one."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    out: list[RecordedMessage] = []
+    metadata: list[Metadata] = []
+    with _open(path) as raw:
+        reader = StreamReader(raw, validate_crcs=True)
+        good_offset = 0
+        try:
+            for record in reader.records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, McapMessage):
+                    ch = channels[record.channel_id]
+                    if keys is None or ch.topic in keys:
+                        out.append(RecordedMessage(ch.topic, schemas[ch.schema_id].name, record.log_time,
+                                                   record.sequence, bytes(record.data)))
+                elif isinstance(record, Metadata):
+                    metadata.append(record)
+                # bytes consumed by the reader: the end of the last complete top-level record
+                good_offset = reader._stream.count
+        except (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error) as exc:
+            msg = (f"{path}: unreadable from about byte {good_offset} of {path.stat().st_size} "
+                   f"({type(exc).__name__}: {exc}); {len(out)} messages before that point are intact")
+            if strict:
+                raise RecordingError(msg) from None
+            log.warning("%s", msg)
+    return out, metadata
+
+
+def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool = False) -> Iterator[RecordedMessage]:
+    """Yield the messages of a recording in event-time order (stamp, then file order).
+
+    A complete file is streamed chunk by chunk.  A file without a summary (killed writer)
+    or with a damaged index is read sequentially: every message up to the first unreadable
+    record is returned (``strict=True`` raises :class:`RecordingError` instead).
+    """
+    p = Path(path)
+    wanted = set(keys) if keys is not None else None
+    if _has_summary(p):
+        with _open(p) as f:
+            reader = make_reader(f, validate_crcs=True)
+            try:
+                for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True):
+                    yield RecordedMessage(channel.topic, schema.name if schema else "", m.log_time, m.sequence,
+                                          bytes(m.data))
+                return
+            except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error) as exc:
+                raise RecordingError(f"{p}: corrupt chunk at or after byte {f.tell()}: {type(exc).__name__}: {exc}") from None
+    messages, _ = _sequential(p, wanted, strict)
+    messages.sort(key=lambda r: r.stamp)
+    yield from messages
+
+
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """Every metadata record of a recording, by name."""
+    p = Path(path)
+    if _has_summary(p):
+        with _open(p) as f:
+            return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+    _, metadata = _sequential(p, set(), strict=False)
+    return {m.name: dict(m.metadata) for m in metadata}
+
+
+def recording_summary(path: str | Path) -> dict[str, Any]:
+    """Per-key message counts, types and time span of a recording."""
+    counts: dict[str, int] = {}
+    types: dict[str, str] = {}
+    first = last = None
+    for r in read_messages(path):
+        counts[r.key] = counts.get(r.key, 0) + 1
+        types[r.key] = r.type_name
+        first = r.stamp if first is None else min(first, r.stamp)
+        last = r.stamp if last is None else max(last, r.stamp)
+    return {"counts": counts, "types": types, "start_ns": first, "end_ns": last,
+            "duration_s": (last - first) / 1e9 if first is not None else 0.0}
