@@ -1,0 +1,152 @@
+"""The multimodal encoder of the neocortical front-end (Eqs. 4.1-4.3), without transport.
+
+Per modality m: y = f_m(o) (Eq. 4.1, :mod:`services.encoder.backbones`: the stage3 /
+conv3 block pooled to ``pool_grid`` x ``pool_grid`` and flattened), s^(m) = LSBH(P_m^T y)
+(Eq. 4.2, :mod:`services.encoder.lsbh`), fused by OR (Eq. 4.3, :mod:`services.encoder.fusion`).
+Camera and sonar share one backbone (the sonar raster is replicated to 3 channels) and have
+separate projections P_camera, P_sonar.
+
+Pre-processing: RGB in [0, 1], resized to 224 x 224 with bilinear
+:func:`torch.nn.functional.interpolate` (antialiased when shrinking), ImageNet mean/std
+normalisation.  Inference: CPU, ``torch.set_num_threads(encoder.torch_threads)``,
+channels_last, :func:`torch.inference_mode`, batches of up to ``encoder.batch_max`` frames.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Mapping, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from common.config import EncoderConfig
+from common.messages import Image
+
+from .backbones import LoadedBackbone, load_backbone
+from .fusion import fuse as fuse_sdrs
+from .lsbh import LsbhEncoder, load_or_create_projection, projection_path
+
+__all__ = ["MultimodalEncoder", "image_to_rgb", "INPUT_SIZE", "IMAGENET_MEAN", "IMAGENET_STD"]
+
+log = logging.getLogger(__name__)
+
+INPUT_SIZE = 224
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+def image_to_rgb(msg: Image) -> np.ndarray:
+    """An :class:`Image` message as an (H, W, 3) float32 RGB array in [0, 1]."""
+    data = np.asarray(msg.data)
+    enc = msg.encoding
+    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "mono16": 1}[enc]
+    expected = (msg.height, msg.width) if channels == 1 else (msg.height, msg.width, channels)
+    if data.shape != expected and not (channels == 1 and data.shape == (msg.height, msg.width, 1)):
+        raise ValueError(f"Image seq {msg.header.seq}: data shape {data.shape} does not match "
+                         f"{msg.height}x{msg.width} {enc} (expected {expected})")
+    scale = 65535.0 if enc == "mono16" else 255.0
+    img = data.astype(np.float32) / scale
+    if channels == 1:
+        img = img.reshape(msg.height, msg.width, 1).repeat(3, axis=2)
+    elif enc in ("bgr8", "bgra8"):
+        img = img[:, :, 2::-1]
+    else:
+        img = img[:, :, :3]
+    return np.ascontiguousarray(img)
+
+
+class MultimodalEncoder:
+    """Backbone + per-modality LSBH + fusion, configured by the ``encoder`` section.
+
+    ``images`` passed to :meth:`embed` are (H, W, 3) RGB (uint8 0-255, or float in [0, 1]) or
+    (H, W) grey arrays of any size.  ``channels_last`` False is only for benchmarking.
+    """
+
+    def __init__(self, cfg: EncoderConfig, backbone: LoadedBackbone | None = None, channels_last: bool = True):
+        self.cfg = cfg
+        torch.set_num_threads(cfg.torch_threads)
+        self.backbone = backbone if backbone is not None else load_backbone(
+            cfg.cnn_backbone, cfg.weights_path, seed=cfg.lsbh_seed)
+        self.channels_last = channels_last
+        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
+        self.model = self.backbone.model.eval().to(memory_format=self.memory_format)
+        self.dim = self.backbone.embedding_channels * cfg.pool_grid ** 2
+        self._mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1)
+        self._std = torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1)
+        self._lsbh: dict[str, LsbhEncoder] = {}
+
+    @property
+    def weights(self) -> str:
+        """``seeded`` or the weights file used."""
+        return self.backbone.weights
+
+    # ------------------------------------------------------------------ Eq. 4.1
+    def _to_tensor(self, img: np.ndarray) -> torch.Tensor:
+        a = np.asarray(img)
+        if a.ndim == 2:
+            a = a[:, :, None].repeat(3, axis=2)
+        if a.ndim != 3 or a.shape[2] not in (3, 4):
+            raise ValueError(f"encoder: image must be (H, W), (H, W, 3) or (H, W, 4), got shape {a.shape}")
+        a = a[:, :, :3]
+        t = torch.from_numpy(np.ascontiguousarray(a))
+        t = t.float() / 255.0 if a.dtype == np.uint8 else t.float()
+        t = t.permute(2, 0, 1).unsqueeze(0)
+        h, w = t.shape[2:]
+        if (h, w) != (INPUT_SIZE, INPUT_SIZE):
+            shrink = h > INPUT_SIZE or w > INPUT_SIZE
+            t = F.interpolate(t, size=(INPUT_SIZE, INPUT_SIZE), mode="bilinear", align_corners=False,
+                              antialias=shrink)
+        return t
+
+    def preprocess(self, images: Sequence[np.ndarray]) -> torch.Tensor:
+        """(N, 3, 224, 224) normalised batch in the encoder's memory format."""
+        batch = torch.cat([self._to_tensor(im) for im in images], dim=0)
+        batch = (batch - self._mean) / self._std
+        return batch.contiguous(memory_format=self.memory_format)
+
+    def embed(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Embeddings y (float32, d_m each) of ``images``, run in batches of ``batch_max``."""
+        out: list[np.ndarray] = []
+        g = self.cfg.pool_grid
+        for i in range(0, len(images), self.cfg.batch_max):
+            x = self.preprocess(images[i:i + self.cfg.batch_max])
+            with torch.inference_mode():
+                f = self.backbone.features(x)
+                f = F.adaptive_avg_pool2d(f, g).reshape(f.shape[0], -1)
+            out.extend(np.ascontiguousarray(r, dtype=np.float32) for r in f.numpy())
+        return out
+
+    def encode_camera(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Camera embeddings y^(cam) (Eq. 4.1)."""
+        return self.embed(images)
+
+    def encode_sonar(self, rasters: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Sonar embeddings y^(son) of rasters from :class:`~services.encoder.sonar.SonarRaster` (Eq. 4.1)."""
+        return self.embed(rasters)
+
+    # ------------------------------------------------------------------ Eq. 4.2
+    def lsbh(self, modality: str) -> LsbhEncoder:
+        """The LSBH of ``modality`` (projection loaded from / saved to ``lsbh_matrix_path``)."""
+        enc = self._lsbh.get(modality)
+        if enc is None:
+            path = None
+            if self.cfg.lsbh_matrix_path:
+                path = projection_path(self.cfg.lsbh_matrix_path, self.cfg.cnn_backbone, modality)
+            p = load_or_create_projection(path, self.dim, self.cfg.sp_columns // 2, self.cfg.lsbh_seed, modality)
+            enc = self._lsbh[modality] = LsbhEncoder(p, self.cfg.sp_columns, self.cfg.lsbh_s)
+        return enc
+
+    def sdr(self, modality: str, embedding: np.ndarray) -> np.ndarray:
+        """Sorted uint32 active bits (2k of L) of one embedding of ``modality`` (Eq. 4.2)."""
+        return self.lsbh(modality).encode(embedding)
+
+    def sdr_batch(self, modality: str, embeddings: Sequence[np.ndarray]) -> list[np.ndarray]:
+        if len(embeddings) == 0:
+            return []
+        return self.lsbh(modality).encode_batch(np.stack(embeddings))
+
+    # ------------------------------------------------------------------ Eq. 4.3
+    def fuse(self, sdrs: Mapping[str, np.ndarray | None], mode: str | None = None) -> np.ndarray:
+        """Fused active bits of the modalities present (``encoder.fusion_mode`` unless ``mode``)."""
+        return fuse_sdrs(sdrs, mode or self.cfg.fusion_mode)

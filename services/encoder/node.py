@@ -1,0 +1,149 @@
+"""``encoder`` service: camera frames + MSIS sonar beams -> ``neocortex/sdr`` (Eqs. 4.1-4.3).
+
+Inputs: ``camera/image_raw`` (:class:`Image`) and the sonar key ``encoder.sonar_topic``
+(``sonar_micron`` by default: :class:`RangeImageBeam`; the ``*_ros`` keys: :class:`LaserScan`).
+Output: ``neocortex/sdr`` (:class:`NeocortexSdr`): per-modality SDRs and the fused SDR.
+
+When an output is produced (the "clock"):
+
+* ``fusion_mode`` union / and / camera: one output per camera frame, header stamp and
+  frame_id = the frame's.  The camera SDR is always in it; the sonar SDR (not in ``camera``
+  mode) when the sonar is *fresh*: the ring holds beams and the newest beam is at most
+  ``sync.sync_stale_sec`` older than the frame.  A stale or absent sonar is simply a missing
+  modality (Eq. 4.3 fuses what is present).
+* Camera dropout (union / and): while the newest camera frame is more than
+  ``sync.sync_stale_sec`` older than the sonar beams, the sonar takes over the clock: one
+  sonar-only output each time the beams have swept a further 360 deg, stamped with the beam
+  that completes the sweep.  Frames resume the clock as soon as they return.  So dropping
+  either modality for a stretch still yields SDRs (a stretch with neither yields nothing).
+* ``fusion_mode`` sonar: the sonar sweep clock only (camera frames are not encoded).
+
+Beams accumulate in :class:`~services.encoder.sonar.SonarRaster` between outputs; a gap of
+more than ``sync.sync_stale_sec`` between consecutive beams resets the ring (counted as
+``sonar_ring_reset``), so an image never mixes sweeps from before and after a dropout.
+Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
+one batch of two); the sonar embedding is reused while no new beam arrived.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from common.config import PoseidonConfig
+from common.messages import Header, Image, LaserScan, NeocortexSdr, RangeImageBeam, Sdr
+from common.node import ServiceNode
+
+from .encoder import MultimodalEncoder, image_to_rgb
+from .sonar import SonarRaster
+
+__all__ = ["EncoderNode"]
+
+TWO_PI = 2.0 * math.pi
+OUT = "neocortex/sdr"
+
+
+class EncoderNode(ServiceNode):
+    """Thin transport wrapper around :class:`MultimodalEncoder` and :class:`SonarRaster`."""
+
+    name = "encoder"
+    inputs = ("camera/image_raw", "sonar_micron")
+    outputs = (OUT,)
+
+    def __init__(self, config: PoseidonConfig, encoder: MultimodalEncoder | None = None):
+        super().__init__(config)
+        cfg = config.encoder
+        # instance attribute: the sonar key comes from the configuration
+        self.inputs = ("camera/image_raw", cfg.sonar_topic)
+        self.sonar_key = cfg.sonar_topic
+        self.encoder = encoder if encoder is not None else MultimodalEncoder(cfg)
+        self.raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax,
+                                  cfg.sonar_use_intensities)
+        self.mode = cfg.fusion_mode
+        self.stale_ns = int(round(config.sync.sync_stale_sec * 1e9))
+        self.length = cfg.sp_columns
+        self._last_camera: int | None = None
+        self._sweep_rad = 0.0
+        self._sonar_cache: tuple[int, np.ndarray] | None = None  # (raster.beams, sdr)
+
+    # ------------------------------------------------------------------ inputs
+    def process(self, key: str, msg) -> None:
+        if key == "camera/image_raw":
+            self._on_camera(msg)
+        elif key == self.sonar_key:
+            self._on_sonar(msg)
+        else:
+            raise KeyError(f"encoder: unexpected input key {key!r}")
+
+    def _on_sonar(self, msg: RangeImageBeam | LaserScan) -> None:
+        stamp = msg.header.stamp
+        if self.raster.last_stamp is not None and stamp - self.raster.last_stamp > self.stale_ns:
+            self.raster.reset()
+            self._sweep_rad = 0.0
+            self.count("sonar_ring_reset")
+        prev = self.raster.last_angle
+        if isinstance(msg, RangeImageBeam):
+            self.raster.add_beam(msg)
+            angles = [msg.angle_rad]
+        elif isinstance(msg, LaserScan):
+            self.raster.add_scan(msg)
+            angles = [msg.angle_min + i * msg.angle_increment for i in range(np.asarray(msg.ranges).size)]
+        else:
+            raise TypeError(f"encoder: {self.sonar_key} carries {type(msg).__name__}, "
+                            "expected RangeImageBeam or LaserScan")
+        for a in angles:
+            if prev is not None:
+                self._sweep_rad += abs((a - prev + math.pi) % TWO_PI - math.pi)
+            prev = a
+        self.count("sonar_beams", len(angles))
+        camera_silent = self._last_camera is None or stamp - self._last_camera > self.stale_ns
+        sonar_clock = self.mode == "sonar" or (self.mode in ("union", "and") and camera_silent)
+        if sonar_clock and self._sweep_rad >= TWO_PI:
+            self._emit(stamp, msg.header.frame_id, {"sonar": self._sonar_sdr()})
+            self.count("sonar_clocked_outputs")
+
+    def _on_camera(self, msg: Image) -> None:
+        self._last_camera = msg.header.stamp
+        if self.mode == "sonar":
+            self.count("camera_frames_unused")
+            return
+        stamp = msg.header.stamp
+        rgb = image_to_rgb(msg)
+        sonar_fresh = (self.mode != "camera" and self.raster.has_data and self.raster.last_stamp is not None
+                       and stamp - self.raster.last_stamp <= self.stale_ns)
+        sdrs: dict[str, np.ndarray] = {}
+        if sonar_fresh and (self._sonar_cache is None or self._sonar_cache[0] != self.raster.beams):
+            y_cam, y_son = self.encoder.embed([rgb, self.raster.image3()])
+            self._sonar_cache = (self.raster.beams, self.encoder.sdr("sonar", y_son))
+        else:
+            (y_cam,) = self.encoder.embed([rgb])
+        sdrs["camera"] = self.encoder.sdr("camera", y_cam)
+        if sonar_fresh:
+            sdrs["sonar"] = self._sonar_cache[1]  # type: ignore[index]
+        else:
+            self.count("frames_without_sonar")
+        self._emit(stamp, msg.header.frame_id, sdrs)
+
+    def _sonar_sdr(self) -> np.ndarray:
+        if self._sonar_cache is None or self._sonar_cache[0] != self.raster.beams:
+            (y,) = self.encoder.embed([self.raster.image3()])
+            self._sonar_cache = (self.raster.beams, self.encoder.sdr("sonar", y))
+        return self._sonar_cache[1]
+
+    # ------------------------------------------------------------------ output
+    def _emit(self, stamp: int, frame_id: str, sdrs: dict[str, np.ndarray]) -> None:
+        self._sweep_rad = 0.0  # the sonar clock counts travel since the last output
+        header = self.header(OUT, stamp, frame_id)
+        fused = self.encoder.fuse(sdrs)
+
+        def sdr(modality: str, bits: np.ndarray) -> Sdr:
+            return Sdr(header=Header(seq=header.seq, stamp=stamp, frame_id=frame_id), modality=modality,
+                       size=self.length, active=np.asarray(bits, dtype=np.uint32))
+
+        self.publish(OUT, NeocortexSdr(
+            header=header,
+            modalities=[sdr(m, sdrs[m]) for m in ("camera", "sonar") if m in sdrs],
+            fused=sdr("fused", fused),
+            fusion_mode=self.mode,
+        ))
+        self.count("outputs")

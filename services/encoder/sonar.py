@@ -1,0 +1,189 @@
+"""Sonar observation o_t^(son) of Eq. 4.1: MSIS beams rasterised into a polar image.
+
+A mechanically scanned imaging sonar (MSIS: Tritech Micron / SeaKing) delivers one beam
+at a time; a full 360 deg sweep takes seconds.  :class:`SonarRaster` keeps the most recent
+sweep as a ring of ``W`` angle bins (``sonar_polar_width``): each incoming beam overwrites
+the bins it covers, so the image always shows the latest echo profile at every bearing.
+
+Polar image (default, the dissertation's "polar tensor"), shape (H, W) =
+(``sonar_polar_height``, ``sonar_polar_width``):
+
+* column j covers bearings [j, j+1) * 2 pi / W (beam angle taken modulo 2 pi);
+* row i covers ranges [i, i+1) * ``sonar_rmax`` / H metres (row 0 nearest the sonar);
+  echoes beyond ``sonar_rmax`` are dropped;
+* value: with ``sonar_use_intensities`` the echo intensity / ``intensity_scale`` clipped to
+  [0, 1] (several range bins falling in one row: their maximum); without, 1 at the range
+  of the strongest echo of the beam (``RangeImageBeam``) or at the measured range
+  (``LaserScan``) and 0 elsewhere.
+
+A beam fills the bins from the previous beam's bearing (exclusive) to its own (inclusive)
+when the step is at most ``max_fill_rad`` (so a 1.8 deg step leaves no empty columns in a
+1.6 deg-per-column ring); a larger jump only writes its own column.
+
+``cartesian=True`` renders the same ring as a top-down fan instead: the sonar at the image
+centre, x to the right = bearing 0, bearing increasing counter-clockwise, ``sonar_rmax`` at
+the half-width (pixels outside the disc are 0).
+
+:meth:`SonarRaster.image3` gives the 3-channel float tensor for the CNN (the grey image
+replicated), so both modalities share the backbone and its ImageNet normalisation.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from common.messages import LaserScan, RangeImageBeam
+
+__all__ = ["SonarRaster"]
+
+TWO_PI = 2.0 * math.pi
+
+
+class SonarRaster:
+    """Ring of the latest beam per bearing bin, rendered as a polar (or Cartesian) image."""
+
+    def __init__(self, width: int = 224, height: int = 224, rmax: float = 30.0,
+                 use_intensities: bool = True, intensity_scale: float = 255.0,
+                 max_fill_rad: float = math.radians(10.0), cartesian: bool = False):
+        if width < 1 or height < 1:
+            raise ValueError(f"sonar raster size must be positive, got {width}x{height}")
+        if rmax <= 0:
+            raise ValueError(f"sonar_rmax must be > 0 m, got {rmax}")
+        if intensity_scale <= 0:
+            raise ValueError(f"intensity_scale must be > 0, got {intensity_scale}")
+        self.width = int(width)
+        self.height = int(height)
+        self.rmax = float(rmax)
+        self.use_intensities = bool(use_intensities)
+        self.intensity_scale = float(intensity_scale)
+        self.max_fill_rad = float(max_fill_rad)
+        self.cartesian = bool(cartesian)
+        self.polar = np.zeros((self.height, self.width), dtype=np.float32)
+        self.filled = np.zeros(self.width, dtype=bool)
+        self.last_angle: float | None = None
+        self.last_stamp: int | None = None
+        self.beams = 0
+        self._cart_lut: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget every beam (e.g. after a sonar dropout)."""
+        self.polar[:] = 0.0
+        self.filled[:] = False
+        self.last_angle = None
+        self.beams = 0
+
+    @property
+    def has_data(self) -> bool:
+        return bool(self.filled.any())
+
+    # ------------------------------------------------------------------ geometry
+    def column(self, angle_rad: float) -> int:
+        """Column of bearing ``angle_rad`` (radians, any turn)."""
+        a = float(angle_rad) % TWO_PI
+        return min(int(a / TWO_PI * self.width), self.width - 1)
+
+    def row(self, range_m: float) -> int:
+        """Row of range ``range_m`` (metres); -1 when outside [0, rmax)."""
+        if not (0.0 <= range_m < self.rmax):
+            return -1
+        return min(int(range_m / self.rmax * self.height), self.height - 1)
+
+    def _columns_for(self, angle: float) -> np.ndarray:
+        col = self.column(angle)
+        if self.last_angle is None:
+            return np.array([col])
+        step = (angle - self.last_angle + math.pi) % TWO_PI - math.pi  # signed, in [-pi, pi)
+        if abs(step) > self.max_fill_rad:
+            return np.array([col])
+        prev = self.column(self.last_angle)
+        n = (col - prev) % self.width if step >= 0 else (prev - col) % self.width
+        if n == 0:
+            return np.array([col])
+        sign = 1 if step >= 0 else -1
+        return (prev + sign * np.arange(1, n + 1)) % self.width
+
+    def _profile_from_bins(self, values: np.ndarray, bin_range: np.ndarray) -> np.ndarray:
+        prof = np.zeros(self.height, dtype=np.float32)
+        ok = (bin_range >= 0) & (bin_range < self.rmax)
+        if not ok.any():
+            return prof
+        rows = np.minimum((bin_range[ok] / self.rmax * self.height).astype(np.int64), self.height - 1)
+        np.maximum.at(prof, rows, values[ok].astype(np.float32))
+        return prof
+
+    # ------------------------------------------------------------------ input
+    def add_beam(self, msg: RangeImageBeam) -> None:
+        """Write one MSIS beam (``beam_data``: ``nbins`` intensities over ``max_range`` m)."""
+        data = np.asarray(msg.beam_data).reshape(-1)
+        if msg.nbins != data.size:
+            raise ValueError(f"RangeImageBeam seq {msg.header.seq}: nbins={msg.nbins} but beam_data has "
+                             f"{data.size} values")
+        if not math.isfinite(msg.angle_rad):
+            raise ValueError(f"RangeImageBeam seq {msg.header.seq}: angle_rad is {msg.angle_rad}")
+        prof = np.zeros(self.height, dtype=np.float32)
+        if data.size and msg.max_range > 0:
+            centres = (np.arange(data.size) + 0.5) * (float(msg.max_range) / data.size)
+            if self.use_intensities:
+                vals = np.clip(data.astype(np.float32) / self.intensity_scale, 0.0, 1.0)
+                prof = self._profile_from_bins(vals, centres)
+            elif data.max() > 0:
+                strongest = int(np.argmax(data))
+                r = self.row(float(centres[strongest]))
+                if r >= 0:
+                    prof[r] = 1.0
+        self._write(msg.angle_rad, prof, msg.header.stamp)
+
+    def add_scan(self, msg: LaserScan) -> None:
+        """Write a LaserScan (one or many rays): a return at ``ranges[i]`` along bearing i."""
+        ranges = np.asarray(msg.ranges, dtype=np.float64).reshape(-1)
+        inten = np.asarray(msg.intensities, dtype=np.float64).reshape(-1)
+        if inten.size not in (0, ranges.size):
+            raise ValueError(f"LaserScan seq {msg.header.seq}: {ranges.size} ranges but {inten.size} intensities")
+        for i, r in enumerate(ranges):
+            angle = msg.angle_min + i * msg.angle_increment
+            prof = np.zeros(self.height, dtype=np.float32)
+            valid = math.isfinite(r) and msg.range_min <= r <= msg.range_max
+            row = self.row(float(r)) if valid else -1
+            if row >= 0:
+                if self.use_intensities and inten.size:
+                    prof[row] = float(np.clip(inten[i] / self.intensity_scale, 0.0, 1.0))
+                else:
+                    prof[row] = 1.0
+            self._write(angle, prof, msg.header.stamp)
+
+    def _write(self, angle: float, profile: np.ndarray, stamp: int) -> None:
+        cols = self._columns_for(angle)
+        self.polar[:, cols] = profile[:, None]
+        self.filled[cols] = True
+        self.last_angle = float(angle)
+        self.last_stamp = int(stamp)
+        self.beams += 1
+
+    # ------------------------------------------------------------------ output
+    def _lut(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._cart_lut is None:
+            h, w = self.height, self.width
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+            dx = (xx + 0.5 - w / 2.0) / (w / 2.0) * self.rmax
+            dy = (h / 2.0 - (yy + 0.5)) / (h / 2.0) * self.rmax  # up = +y
+            rng = np.hypot(dx, dy)
+            ang = np.arctan2(dy, dx) % TWO_PI
+            inside = rng < self.rmax
+            rows = np.minimum((rng / self.rmax * self.height).astype(np.int64), self.height - 1)
+            cols = np.minimum((ang / TWO_PI * self.width).astype(np.int64), self.width - 1)
+            self._cart_lut = (rows, cols, inside)
+        return self._cart_lut
+
+    def image(self) -> np.ndarray:
+        """The current raster, float32 (H, W) in [0, 1]."""
+        if not self.cartesian:
+            return self.polar.copy()
+        rows, cols, inside = self._lut()
+        return np.where(inside, self.polar[np.clip(rows, 0, self.height - 1), cols], 0.0).astype(np.float32)
+
+    def image3(self) -> np.ndarray:
+        """The raster as an (H, W, 3) float32 image in [0, 1] for the CNN."""
+        img = self.image()
+        return np.repeat(img[:, :, None], 3, axis=2)
