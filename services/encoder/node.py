@@ -134,7 +134,7 @@ class EncoderNode(ServiceNode):
     def _emit(self, stamp: int, frame_id: str, sdrs: dict[str, np.ndarray]) -> None:
         self._sweep_rad = 0.0  # the sonar clock counts travel since the last output
         header = self.header(OUT, stamp, frame_id)
-        fused = self.encoder.fuse(sdrs)
+        fused = self.encoder.fuse(sdrs, self.mode)
 
         def sdr(modality: str, bits: np.ndarray) -> Sdr:
             return Sdr(header=Header(seq=header.seq, stamp=stamp, frame_id=frame_id), modality=modality,

@@ -1,0 +1,149 @@
+"""Backbones: torchvision-named state dicts round-trip, clear errors, seeded init, hub cache."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+from common.config import EncoderConfig
+from services.encoder.backbones import (AlexNetConv3, ShuffleNetV2, WeightsError, build_backbone, hub_checkpoint,
+                                        load_backbone)
+from services.encoder.encoder import MultimodalEncoder
+
+# a few names of torchvision's shufflenet_v2_x1_0 / alexnet state dicts
+TORCHVISION_SHUFFLENET_KEYS = [
+    "conv1.0.weight", "conv1.1.running_var", "stage2.0.branch1.0.weight", "stage2.0.branch1.2.weight",
+    "stage2.0.branch2.3.weight", "stage2.1.branch2.6.num_batches_tracked", "stage3.7.branch2.5.weight",
+    "stage4.0.branch1.3.bias", "conv5.0.weight", "conv5.1.running_mean", "fc.weight", "fc.bias",
+]
+
+
+def _perturbed(model: torch.nn.Module, seed: int) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    sd = {}
+    for k, v in model.state_dict().items():
+        if v.is_floating_point():
+            noise = torch.rand(v.shape, generator=g) if "running_var" in k else torch.randn(v.shape, generator=g)
+            sd[k] = noise * 0.5 + (1.0 if "running_var" in k else 0.0)
+        else:
+            sd[k] = v.clone()
+    return sd
+
+
+def test_shufflenet_has_torchvision_names_and_size():
+    m = ShuffleNetV2()
+    keys = m.state_dict().keys()
+    for k in TORCHVISION_SHUFFLENET_KEYS:
+        assert k in keys
+    assert sum(p.numel() for p in m.parameters()) == 2_278_604  # torchvision shufflenet_v2_x1_0
+    x = torch.zeros(1, 3, 224, 224)
+    assert m.eval().features(x).shape == (1, 232, 14, 14)
+    assert AlexNetConv3().eval()(x).shape == (1, 384, 13, 13)
+
+
+def test_weights_round_trip_shufflenet(tmp_path):
+    a = build_backbone("shufflenetv2")
+    a.load_state_dict(_perturbed(a, 1))
+    path = tmp_path / "shufflenetv2_x1-deadbeef.pth"
+    torch.save(a.state_dict(), path)
+    b = load_backbone("shufflenetv2", str(path))
+    assert b.trained and b.weights == str(path)
+    x = torch.randn(2, 3, 224, 224, generator=torch.Generator().manual_seed(0))
+    with torch.inference_mode():
+        assert torch.equal(a.eval()(x), b.model(x))
+        assert torch.equal(a.features(x), b.features(x))
+
+
+def test_weights_round_trip_full_alexnet_state_dict(tmp_path):
+    a = AlexNetConv3()
+    sd = _perturbed(a, 2)
+    # a full torchvision AlexNet also has conv4, conv5 and the classifier: accepted and dropped
+    sd["features.8.weight"] = torch.zeros(256, 384, 3, 3)
+    sd["features.10.bias"] = torch.zeros(256)
+    sd["classifier.6.weight"] = torch.zeros(10, 4096)
+    path = tmp_path / "alexnet-owt-0000.pth"
+    torch.save(sd, path)
+    b = load_backbone("alexnet_conv3", str(path))
+    a.load_state_dict({k: v for k, v in sd.items() if k in a.state_dict()})
+    x = torch.randn(1, 3, 224, 224, generator=torch.Generator().manual_seed(0))
+    with torch.inference_mode():
+        assert torch.equal(a.eval()(x), b.model(x))
+
+
+def test_incompatible_and_missing_weights_give_clear_errors(tmp_path):
+    alex = tmp_path / "alexnet.pth"
+    torch.save(AlexNetConv3().state_dict(), alex)
+    with pytest.raises(WeightsError) as err:
+        load_backbone("shufflenetv2", str(alex))
+    msg = str(err.value)
+    assert str(alex) in msg and "missing keys" in msg and "conv1.0.weight" in msg
+    assert "unexpected keys" in msg and "features.0.weight" in msg
+    sd = ShuffleNetV2().state_dict()
+    sd["fc.weight"] = torch.zeros(10, 1024)
+    sd["fc.bias"] = torch.zeros(10)
+    bad = tmp_path / "shuffle10.pth"
+    torch.save(sd, bad)
+    with pytest.raises(WeightsError, match=r"shape mismatches.*fc\.(bias|weight)"):
+        load_backbone("shufflenetv2", str(bad))
+    with pytest.raises(WeightsError, match="weights file not found: .*nope.pth"):
+        load_backbone("shufflenetv2", str(tmp_path / "nope.pth"))
+    junk = tmp_path / "junk.pth"
+    junk.write_bytes(b"not a torch file")
+    with pytest.raises(WeightsError, match="junk.pth is not a readable"):
+        load_backbone("alexnet_conv3", str(junk))
+    with pytest.raises(ValueError, match="unknown backbone 'vgg'"):
+        load_backbone("vgg")
+
+
+def test_seeded_init_is_deterministic_and_warns(tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_hub"))
+    torch.manual_seed(123)
+    before = torch.rand(1)
+    torch.manual_seed(123)
+    with caplog.at_level(logging.WARNING):
+        a = load_backbone("shufflenetv2", seed=42)
+    assert "UNTRAINED" in caplog.text
+    assert torch.equal(torch.rand(1), before)  # global RNG untouched
+    b = load_backbone("shufflenetv2", seed=42)
+    c = load_backbone("shufflenetv2", seed=7)
+    assert a.weights == "seeded" and not a.trained
+    sa, sb, sc = a.model.state_dict(), b.model.state_dict(), c.model.state_dict()
+    assert all(torch.equal(sa[k], sb[k]) for k in sa)
+    assert not torch.equal(sa["conv1.0.weight"], sc["conv1.0.weight"])
+
+
+def test_hub_cache_is_used(tmp_path, monkeypatch):
+    ckpt = tmp_path / "hub" / "checkpoints"
+    ckpt.mkdir(parents=True)
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    assert hub_checkpoint("alexnet_conv3") is None
+    a = AlexNetConv3()
+    a.load_state_dict(_perturbed(a, 5))
+    torch.save(a.state_dict(), ckpt / "alexnet-owt-7be5be79.pth")
+    assert hub_checkpoint("alexnet_conv3") == ckpt / "alexnet-owt-7be5be79.pth"
+    b = load_backbone("alexnet_conv3")
+    assert b.trained and b.weights.endswith("alexnet-owt-7be5be79.pth")
+    assert torch.equal(b.model.features[0].weight, a.features[0].weight)
+
+
+def test_encoder_embedding_dims_and_batching(tmp_path, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    cfg = EncoderConfig(lsbh_matrix_path=str(tmp_path / "p_{backbone}_{modality}.npy"), batch_max=3, pool_grid=2)
+    enc = MultimodalEncoder(cfg)
+    rng = np.random.default_rng(0)
+    imgs = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(5)]
+    ys = enc.encode_camera(imgs)
+    assert len(ys) == 5 and ys[0].shape == (232 * 4,) and enc.dim == 928
+    single = enc.encode_camera(imgs[4:5])[0]
+    np.testing.assert_allclose(ys[4], single, rtol=1e-4, atol=1e-5)
+    bits = enc.sdr("camera", ys[0])
+    assert bits.size == 2 * (cfg.sp_columns // 2 // 4)
+    assert (tmp_path / "p_shufflenetv2_camera.npy").exists()
+    grey = enc.encode_camera([rng.random((300, 400)).astype(np.float32)])[0]
+    assert grey.shape == (928,)
+    with pytest.raises(ValueError, match="shape"):
+        enc.encode_camera([np.zeros((4, 4, 2))])
+    alex = MultimodalEncoder(cfg.model_copy(update={"cnn_backbone": "alexnet_conv3"}))
+    assert alex.encode_camera(imgs[:1])[0].shape == (384 * 4,)

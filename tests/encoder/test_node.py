@@ -1,0 +1,148 @@
+"""EncoderNode through common.node.run_offline with small synthetic camera and sonar streams."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from common.config import PoseidonConfig
+from common.messages import Header, Image, NeocortexSdr, RangeImageBeam
+from common.node import run_offline
+from services.encoder.encoder import MultimodalEncoder
+from services.encoder.node import EncoderNode
+
+S = 1_000_000_000
+
+
+@pytest.fixture(scope="module")
+def config(tmp_path_factory) -> PoseidonConfig:
+    tmp = tmp_path_factory.mktemp("enc")
+    return PoseidonConfig.model_validate({"encoder": {
+        "lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 2,
+        "sonar_polar_width": 64, "sonar_polar_height": 64}})
+
+
+@pytest.fixture(scope="module")
+def encoder(config) -> MultimodalEncoder:
+    return MultimodalEncoder(config.encoder)
+
+
+def frame(t: float, seq: int) -> Image:
+    rng = np.random.default_rng(int(t * 10) // 20)  # the scene changes every 2 s
+    data = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    return Image(header=Header(seq=seq, stamp=int(round(t * S)), frame_id="cam"), height=24, width=32,
+                 encoding="rgb8", data=data)
+
+
+def ping(t: float, seq: int) -> RangeImageBeam:
+    angle = (seq * math.radians(9.0)) % (2 * math.pi)  # 40 beams per 360 deg sweep
+    data = np.zeros(100, dtype=np.int32)
+    data[(seq * 7) % 100] = 180
+    return RangeImageBeam(header=Header(seq=seq, stamp=int(round(t * S)), frame_id="sonar"),
+                          angle_grad=math.degrees(angle), angle_rad=angle, nbins=100, max_range=30, beam_data=data)
+
+
+def stream(cam_gaps=(), sonar_gaps=(), duration=12.0):
+    """Camera 5 Hz, sonar 20 Hz (a 360 deg sweep every 2 s), each silent inside its gaps."""
+    msgs = []
+    def inside(t, gaps):
+        return any(a <= t < b for a, b in gaps)
+    seq = 0
+    for i in range(int(duration * 5)):
+        t = i / 5
+        if not inside(t, cam_gaps):
+            msgs.append(("camera/image_raw", frame(t, seq)))
+            seq += 1
+    seq = 0
+    for i in range(int(duration * 20)):
+        t = i / 20 + 0.01
+        if not inside(t, sonar_gaps):
+            msgs.append(("sonar_micron", ping(t, seq)))
+            seq += 1
+    return msgs
+
+
+def run(config, encoder, mode="union", **kw):
+    cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"fusion_mode": mode})})
+    node = EncoderNode(cfg, encoder=encoder)
+    out = run_offline(node, stream(**kw))
+    assert all(k == "neocortex/sdr" and isinstance(m, NeocortexSdr) for k, m in out)
+    return node, [m for _, m in out]
+
+
+def check_sdr(msg: NeocortexSdr, config) -> None:
+    k = config.encoder.sp_columns // 2 // 4
+    mods = {s.modality: s.active for s in msg.modalities}
+    for bits in mods.values():
+        assert bits.dtype == np.uint32 and bits.size == 2 * k and np.all(np.diff(bits.astype(int)) > 0)
+    expected = np.unique(np.concatenate(list(mods.values()))) if msg.fusion_mode == "union" else None
+    if expected is not None:
+        assert np.array_equal(msg.fused.active, expected)
+    assert msg.fused.size == config.encoder.sp_columns
+    assert msg.fused.header.stamp == msg.header.stamp
+
+
+def test_one_output_per_frame_with_both_modalities(config, encoder):
+    node, out = run(config, encoder, duration=4.0)
+    cams = [m for k, m in stream(duration=4.0) if k == "camera/image_raw"]
+    assert [o.header.stamp for o in out] == [c.header.stamp for c in cams]
+    assert [o.header.seq for o in out] == list(range(len(out)))
+    assert out[0].header.frame_id == "cam"
+    # first frame at t=0 precedes the first beam: camera only; afterwards both
+    assert [s.modality for s in out[0].modalities] == ["camera"]
+    assert all([s.modality for s in o.modalities] == ["camera", "sonar"] for o in out[1:])
+    for o in out:
+        check_sdr(o, config)
+    # deterministic: same input, same output
+    _, again = run(config, encoder, duration=4.0)
+    assert all(np.array_equal(a.fused.active, b.fused.active) for a, b in zip(out, again))
+
+
+def test_sonar_dropout_still_yields_camera_sdrs(config, encoder):
+    node, out = run(config, encoder, sonar_gaps=[(4.0, 8.0)], duration=10.0)
+    assert len(out) == 50
+    for o in out:
+        t = o.header.stamp / S
+        names = [s.modality for s in o.modalities]
+        if 4.8 <= t < 8.0:
+            assert names == ["camera"]
+        elif t >= 8.2:
+            assert names == ["camera", "sonar"]
+        check_sdr(o, config)
+    assert node.counters["sonar_ring_reset"] == 1
+
+
+def test_camera_dropout_switches_to_sonar_sweep_clock(config, encoder):
+    node, out = run(config, encoder, cam_gaps=[(4.0, 10.0)], duration=12.0)
+    sonar_only = [o for o in out if [s.modality for s in o.modalities] == ["sonar"]]
+    stamps = [o.header.stamp / S for o in sonar_only]
+    # last frame at 3.8 s; a 360 deg sweep takes 2 s -> sonar-clocked outputs about every 2 s
+    assert 2 <= len(sonar_only) <= 3 and all(4.0 < t < 10.0 for t in stamps)
+    assert np.all(np.diff([o.header.stamp for o in out]) > 0)
+    for o in sonar_only:
+        assert np.array_equal(o.fused.active, o.modalities[0].active)
+        check_sdr(o, config)
+    assert sum(1 for o in out if o.header.stamp / S >= 10.0) == 10  # frames resume the clock
+    assert node.counters["sonar_clocked_outputs"] == len(sonar_only)
+
+
+def test_single_modality_and_and_modes(config, encoder):
+    _, cam = run(config, encoder, mode="camera", duration=3.0)
+    assert len(cam) == 15 and all([s.modality for s in o.modalities] == ["camera"] for o in cam)
+    assert all(np.array_equal(o.fused.active, o.modalities[0].active) for o in cam)
+    node, son = run(config, encoder, mode="sonar", duration=7.0)
+    assert len(son) == 3 and node.counters["camera_frames_unused"] == 35
+    assert all(o.header.frame_id == "sonar" for o in son)
+    _, both = run(config, encoder, mode="and", duration=2.0)
+    for o in both[1:]:
+        a, b = (s.active for s in o.modalities)
+        assert np.array_equal(o.fused.active, np.intersect1d(a, b))
+
+
+def test_sonar_topic_from_config(config, encoder):
+    cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_topic": "sonar_seaking"})})
+    node = EncoderNode(cfg, encoder=encoder)
+    assert node.inputs == ("camera/image_raw", "sonar_seaking")
+    out = run_offline(node, [("sonar_seaking", ping(0.0, 0)), ("camera/image_raw", frame(0.1, 0))])
+    assert [s.modality for s in out[0][1].modalities] == ["camera", "sonar"]

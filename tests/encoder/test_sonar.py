@@ -1,0 +1,96 @@
+"""Sonar raster geometry: a beam at bearing a with an echo at range r lights the right pixel."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from common.messages import Header, LaserScan, RangeImageBeam
+from services.encoder.sonar import SonarRaster
+
+
+def beam(angle: float, echo_m: float | None, stamp: int = 0, nbins: int = 300, max_range: int = 30,
+         value: int = 200, seq: int = 0) -> RangeImageBeam:
+    data = np.zeros(nbins, dtype=np.int32)
+    if echo_m is not None:
+        data[int(echo_m / max_range * nbins)] = value
+    return RangeImageBeam(header=Header(seq=seq, stamp=stamp), angle_grad=math.degrees(angle), angle_rad=angle,
+                          nbins=nbins, max_range=max_range, beam_data=data)
+
+
+@pytest.mark.parametrize("angle,r", [(0.0, 0.05), (1.0, 10.0), (math.pi, 29.9), (5.9, 15.0), (-0.5, 7.3)])
+def test_single_beam_lights_expected_polar_pixel(angle, r):
+    ras = SonarRaster(224, 224, rmax=30.0)
+    ras.add_beam(beam(angle, r))
+    img = ras.image()
+    ys, xs = np.nonzero(img)
+    col = int((angle % (2 * math.pi)) / (2 * math.pi) * 224)
+    # the echo is in bin floor(r/0.1); its centre range decides the row
+    centre = (int(r / 30 * 300) + 0.5) * 0.1
+    assert xs.tolist() == [col]
+    assert ys.tolist() == [int(centre / 30 * 224)]
+    assert img[ys[0], xs[0]] == pytest.approx(200 / 255)
+
+
+def test_range_beyond_rmax_is_dropped_and_shorter_rmax_scales_rows():
+    ras = SonarRaster(64, 100, rmax=10.0)
+    ras.add_beam(beam(0.3, 20.0, max_range=50, nbins=500))
+    assert not ras.image().any()
+    ras.add_beam(beam(0.3, 5.0, max_range=50, nbins=500))
+    ys, _ = np.nonzero(ras.image())
+    assert ys.tolist() == [int(5.05 / 10 * 100)]
+
+
+def test_ring_keeps_latest_beam_per_bearing_and_fills_small_steps():
+    ras = SonarRaster(360, 50, rmax=30.0)  # 1 deg per column
+    step = math.radians(1.8)
+    for i in range(201):  # a full sweep plus a bit
+        ras.add_beam(beam(i * step, 10.0, stamp=i))
+    assert ras.filled.all()  # 1.8 deg steps leave no empty 1 deg column
+    assert (ras.image() > 0).sum(axis=0).max() == 1
+    ras.add_beam(beam(200 * step + step, 20.0, stamp=300))  # newest beam overwrites its columns
+    col = ras.column(201 * step)
+    assert np.nonzero(ras.image()[:, col])[0].tolist() == [int(20.05 / 30 * 50)]
+    ras.reset()
+    assert not ras.has_data and not ras.image().any()
+
+
+def test_intensities_off_marks_strongest_echo_only():
+    ras = SonarRaster(90, 60, rmax=30.0, use_intensities=False)
+    data = np.zeros(300, dtype=np.int32)
+    data[50] = 40
+    data[120] = 90  # strongest: 12.05 m
+    ras.add_beam(RangeImageBeam(header=Header(seq=0, stamp=0), angle_grad=0.0, angle_rad=0.0, nbins=300,
+                                max_range=30, beam_data=data))
+    ys, xs = np.nonzero(ras.image())
+    assert ys.tolist() == [int(12.05 / 30 * 60)] and xs.tolist() == [0]
+    assert ras.image().max() == 1.0
+
+
+def test_cartesian_fan_geometry():
+    ras = SonarRaster(200, 200, rmax=30.0, cartesian=True)
+    # straight up, ~half the radius (polar rows are 0.15 m, Cartesian pixels 0.3 m: pick a range
+    # whose polar row contains a pixel centre)
+    ras.add_beam(beam(math.pi / 2, 15.15))
+    img = ras.image()
+    ys, xs = np.nonzero(img)
+    assert ys.size > 0
+    # every lit pixel is ~15 m above the centre
+    dy = (100 - (ys + 0.5)) / 100 * 30
+    dx = (xs + 0.5 - 100) / 100 * 30
+    assert np.all(np.abs(dx) < 1.0) and np.all(np.abs(dy - 15.15) < 0.3)
+
+
+def test_laserscan_form_and_errors():
+    ras = SonarRaster(100, 100, rmax=30.0)
+    scan = LaserScan(header=Header(seq=0, stamp=0), angle_min=1.0, angle_max=1.0, angle_increment=0.0,
+                     range_min=0.1, range_max=50.0, ranges=np.array([12.0]), intensities=np.array([255.0]))
+    ras.add_scan(scan)
+    ys, xs = np.nonzero(ras.image())
+    assert xs.tolist() == [ras.column(1.0)] and ys.tolist() == [ras.row(12.0)] == [40]
+    assert ras.image3().shape == (100, 100, 3)
+    bad = beam(0.0, 5.0)
+    bad.nbins = 10
+    with pytest.raises(ValueError, match="nbins=10 but beam_data has 300"):
+        ras.add_beam(bad)
