@@ -19,8 +19,8 @@ Weights (:func:`load_backbone`): ``encoder.weights_path`` when set (a missing or
 incompatible file is an error naming the file and the missing/unexpected keys), else the
 torch hub cache (``$TORCH_HOME/hub/checkpoints`` or ``~/.cache/torch/hub/checkpoints``, with
 torchvision's file names ``shufflenetv2_x1-*.pth`` or ``shufflenet_v2_x1_0-*.pth`` /
-``alexnet-*.pth``), else a
-deterministic seeded initialisation with a WARNING that the embedding is untrained.
+``alexnet-*.pth``), else a deterministic seeded initialisation (He-normal convolutions,
+torch seed ``encoder.lsbh_seed``) with a WARNING that the embedding is untrained.
 Nothing is ever downloaded.
 """
 from __future__ import annotations
@@ -223,6 +223,25 @@ def _apply_state_dict(model: nn.Module, state: dict[str, torch.Tensor], source: 
     model.load_state_dict(state, strict=True)
 
 
+def _seeded_init(model: nn.Module) -> None:
+    """He-normal (fan_out, ReLU) convolutions, zero biases, unit BatchNorm, N(0, 0.01) linear.
+
+    PyTorch's default init shrinks ShuffleNet's activations ~1000x by stage3; He init keeps
+    random features better spread (the convention of torchvision's MobileNet/ResNet).
+    """
+    for m in model.modules():
+        if isinstance(m, nn.Conv2d):
+            nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+        elif isinstance(m, nn.BatchNorm2d):
+            nn.init.ones_(m.weight)
+            nn.init.zeros_(m.bias)
+        elif isinstance(m, nn.Linear):
+            nn.init.normal_(m.weight, 0.0, 0.01)
+            nn.init.zeros_(m.bias)
+
+
 @dataclass
 class LoadedBackbone:
     """A backbone in eval mode plus where its weights came from (``seeded`` or a file path)."""
@@ -264,6 +283,7 @@ def load_backbone(name: str, weights_path: str = "", seed: int = 42) -> LoadedBa
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         model = build_backbone(name)
+        _seeded_init(model)
     log.warning("encoder: no weights for %s (encoder.weights_path empty, none in the torch hub cache): "
                 "using a seeded random initialisation (seed %d) -- the embedding is UNTRAINED", name, seed)
     return LoadedBackbone(model.eval(), name, "seeded", False)

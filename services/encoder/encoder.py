@@ -89,7 +89,7 @@ class MultimodalEncoder:
         if a.ndim != 3 or a.shape[2] not in (3, 4):
             raise ValueError(f"encoder: image must be (H, W), (H, W, 3) or (H, W, 4), got shape {a.shape}")
         a = a[:, :, :3]
-        t = torch.from_numpy(np.ascontiguousarray(a))
+        t = torch.from_numpy(np.array(a, copy=True, order="C"))
         t = t.float() / 255.0 if a.dtype == np.uint8 else t.float()
         t = t.permute(2, 0, 1).unsqueeze(0)
         h, w = t.shape[2:]
