@@ -106,6 +106,9 @@ class HtmConfig(_Section):
     sv_use_iou_tiebreak: bool = True
     max_bits: int = Field(0, ge=0, description="cap on descriptor bits after interval union (0: sv_tm_topk)")
     state_path: str = Field("", description="load SP/TM/LVC state from here at start and save at end (empty: off)")
+    # --- added for the HTM service (issue 4); see services/htm/
+    input_size: int = Field(2048, ge=16, description="length L of the fused SDR (= encoder.sp_columns)")
+    sp_minPctOverlapDutyCycle: float = Field(0.001, ge=0, le=1, description="BAMI weak-column bump threshold")
 
 
 class RobotStateConfig(_Section):
@@ -125,6 +128,19 @@ class RobotStateConfig(_Section):
     dvl_timeout_s: float = Field(2.0, gt=0, description="beyond this without DVL the state is in dropout")
     max_gap_s: float = Field(30.0, gt=0, description="gap after which prediction is bridged and flagged")
     publish_rate_hz: float = Field(10.0, gt=0)
+    # --- added for the robot_state filter (issue 5); see services/robot_state/filter.py
+    dvl_velocity_sign: float = Field(1.0, description="+1: velocityinst is the vehicle's velocity; -1: the "
+                                     "bottom's velocity relative to the instrument (Girona LinkQuest logs)")
+    dvl_min_good_beams: int = Field(3, ge=1, le=4, description="records with fewer datagood beams are rejected")
+    dvl_gate_chi2: float = Field(0.0, ge=0, description="innovation gate on DVL velocity (chi2, 3 dof); 0: off")
+    dvl_dropout_decay_s: float = Field(5.0, gt=0, description="after dvl_timeout_s velocity decays with this "
+                                       "time constant (s) towards hovering")
+    dropout_speed_sigma: float = Field(0.5, gt=0, description="m/s; std of the unobserved velocity in dropout")
+    depth_timeout_s: float = Field(1.0, gt=0, description="beyond this without depth, z is held (s)")
+    imu_timeout_s: float = Field(0.5, gt=0, description="beyond this without IMU, attitude falls back to DVL (s)")
+    gyro_sigma_deg_s: float = Field(0.05, gt=0, description="gyro noise, deg/s/sqrt(Hz)")
+    roll_pitch_sigma_deg: float = Field(0.5, gt=0, description="IMU roll/pitch measurement sigma (deg)")
+    attitude_rw_sigma_deg_s: float = Field(5.0, gt=0, description="attitude random walk without gyro, deg/sqrt(s)")
 
 
 class PoseCellsConfig(_Section):

@@ -1,0 +1,448 @@
+"""Dead-reckoning navigation filter of ``robot_state`` (dissertation Section 4.2.4).
+
+The back-end's only motion input is the fused ``/Odometry`` stream (Eq. 4.15 differences it),
+built from DVL velocity, IMU attitude/rates and pressure depth.  This is DolphinSLAM's 3D
+path integration (Eqs. 3.10-3.11: body velocity rotated to the world frame by
+``R(phi, theta, psi)`` and integrated) inside an extended Kalman filter so that the
+estimate carries a covariance and survives bad or missing data.
+
+Why an EKF on a 9-state (and not an error-state filter): the attitude is *measured*
+directly (the ADIS16480 AHRS or the DVL's own compass), the filter never has to integrate
+accelerometers, and roll/pitch stay far from the Euler singularity for an AUV; a plain
+EKF on Euler angles is then exact enough, simple to audit, and its prediction reproduces
+Eqs. 3.10-3.11 exactly when the inputs are noise-free (tested to 1e-9).  There are no
+bias states: gyro biases are unobservable against an AHRS attitude that already removed
+them, and the DVL has no observable bias without an absolute position fix.
+
+State ``x`` (conventions in :mod:`services.robot_state.frames`): position NED ``p`` (m),
+body-frame (FRD) velocity ``v`` (m/s), attitude ``e = (roll, pitch, yaw)`` (rad).
+Velocity is kept in the body frame because a vehicle that turns during a DVL dropout keeps
+moving forward, not along its old world direction.
+
+- **Prediction** (at every input's stamp, in event-time order; sub-steps <= 0.5 s while
+  the gyro drives the attitude):
+  ``p += R(e) v dt`` (Eqs. 3.10-3.11), ``e += E(e) w dt`` with the latest gyro rates ``w``
+  (zero-order hold) while the IMU is fresh (``imu_timeout_s``), ``v`` constant with a
+  random-walk ``process_accel_sigma``.  Covariance ``P = F P F' + Q`` with the analytic
+  Jacobian, so heading uncertainty grows cross-track position uncertainty.
+- **DVL velocity update**: ``v_body = sign * R_bd velocityinst - w x r_d`` (extrinsic
+  rotation ``dvl_rotation_rpy_deg``, lever arm ``dvl_translation_m``, sign
+  ``dvl_velocity_sign``).  Records are rejected (and counted) when ``velocityinstflag != 1``
+  (``dvl_invalid_flag``), fewer than ``dvl_min_good_beams`` beams are good
+  (``dvl_few_beams``), a value is NaN/inf (``dvl_nonfinite``), the speed exceeds
+  ``dvl_max_speed`` (``dvl_too_fast``), or (optional) the innovation fails a chi-square gate
+  (``dvl_outlier``; three in a row re-initialise the velocity, ``dvl_reinit``).
+- **Depth update**: ``z = depth + depth_offset_m`` observes ``p_z`` (sigma ``depth_sigma``).
+  z comes from pressure, never from integrated velocity: the vertical velocity only carries
+  z across the interval between two depth records (<= ``depth_timeout_s``); beyond that z
+  is held and its variance grows (``depth_dropout``).
+- **Attitude**: with an IMU, roll/pitch (``roll_pitch_sigma_deg``) and yaw
+  (``heading_sigma_deg``) are measurements and the gyro drives the prediction
+  (``gyro_sigma_deg_s``).  Without a fresh IMU (none recorded, ``use_imu`` false, or older
+  than ``imu_timeout_s``) the DVL's roll/pitch/heading (degrees) are taken as the attitude
+  (a reset: with no rate sensor there is nothing to blend them with).
+- **Updates only correct their own states** (a Schmidt-style restricted gain with the Joseph
+  covariance update, which stays consistent for any gain): the DVL never moves the
+  position, the depth never moves x/y.  The published dead reckoning therefore never
+  jumps horizontally; the back-end differentiates it (Eq. 4.15).
+- **DVL dropout**: for ``dvl_timeout_s`` after the last valid record the velocity is held
+  (variance growing with ``process_accel_sigma``); after that it decays towards zero
+  (hovering) as a first-order Gauss-Markov process with time constant
+  ``dvl_dropout_decay_s`` and stationary std ``dropout_speed_sigma``.  A dropout of any
+  length (a 30 s gap included) therefore moves the estimate by at most
+  ``|v| (dvl_timeout_s + dvl_dropout_decay_s)`` while the covariance keeps growing.
+- **Time**: inputs are processed in event-time order; a record older than its own stream's
+  previous one (stamp or seq going backwards) is rejected (``timestamp_backwards``); one
+  older than the state time but in order on its stream is applied at the state time
+  (``late``).  NaN/inf fields are rejected per source (``*_nonfinite``).
+
+First measurements initialise their block directly (velocity, attitude, depth); the filter
+is ``initialised`` once it has an attitude and a velocity, and the horizontal origin is the
+position at that moment.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.config import RobotStateConfig
+from common.messages import Depth, Imu, LinkquestDvl
+from services.robot_state.frames import euler_to_matrix, matrix_to_euler, rot_x, rot_y, rot_z, wrap_angle
+
+__all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
+
+NS = 1_000_000_000
+MAX_STEP_NS = NS // 2  # prediction sub-step bound (s): keeps the Euler integration of attitude fine
+_GATE_MAX_REJECTS = 3
+
+P_IDX = [0, 1, 2]
+V_IDX = [3, 4, 5]
+E_IDX = [6, 7, 8]
+
+
+@dataclass
+class FilterSnapshot:
+    """The filter at one instant (NED/FRD, SI units)."""
+
+    stamp: int
+    position: np.ndarray
+    velocity_body: np.ndarray
+    euler: np.ndarray
+    angular_velocity: np.ndarray
+    covariance: np.ndarray  # 9x9 over (p, v, e)
+    flags: list[str]
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _euler_rate_matrix(roll: float, pitch: float) -> np.ndarray:
+    """E(phi, theta): body rates -> ZYX Euler angle rates."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    cp = math.cos(pitch)
+    cp = math.copysign(max(abs(cp), 1e-3), cp)
+    tp = math.sin(pitch) / cp
+    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+
+
+def _euler_rate_jacobian(roll: float, pitch: float, w: np.ndarray) -> np.ndarray:
+    """d(E(e) w)/de (3x3; the yaw column is zero)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    cp = math.copysign(max(abs(cp), 1e-3), cp)
+    tp = sp / cp
+    q, r = float(w[1]), float(w[2])
+    j = np.zeros((3, 3))
+    j[0, 0] = cr * tp * q - sr * tp * r
+    j[1, 0] = -sr * q - cr * r
+    j[2, 0] = (cr * q - sr * r) / cp
+    j[0, 1] = (sr * q + cr * r) / (cp * cp)
+    j[2, 1] = (sr * q + cr * r) * sp / (cp * cp)
+    return j
+
+
+def _rotation_jacobian_times(e: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """d(R(e) v)/de (3x3)."""
+    r, p, y = float(e[0]), float(e[1]), float(e[2])
+    rx, ry, rz = rot_x(r), rot_y(p), rot_z(y)
+    sr, cr, sp, cp, sy, cy = math.sin(r), math.cos(r), math.sin(p), math.cos(p), math.sin(y), math.cos(y)
+    drx = np.array([[0.0, 0.0, 0.0], [0.0, -sr, -cr], [0.0, cr, -sr]])
+    dry = np.array([[-sp, 0.0, cp], [0.0, 0.0, 0.0], [-cp, 0.0, -sp]])
+    drz = np.array([[-sy, -cy, 0.0], [cy, -sy, 0.0], [0.0, 0.0, 0.0]])
+    return np.column_stack([rz @ ry @ drx @ v, rz @ dry @ rx @ v, drz @ ry @ rx @ v])
+
+
+class DeadReckoningFilter:
+    """EKF dead reckoning from DVL, IMU and depth; see the module docstring."""
+
+    def __init__(self, cfg: RobotStateConfig):
+        if cfg.dvl_velocity_sign not in (1.0, -1.0):
+            raise ValueError(f"robot_state.dvl_velocity_sign must be 1 or -1, got {cfg.dvl_velocity_sign}")
+        self.cfg = cfg
+        self.r_bd = euler_to_matrix(*np.radians(cfg.dvl_rotation_rpy_deg))
+        self.r_bi = euler_to_matrix(*np.radians(cfg.imu_rotation_rpy_deg))
+        self.dvl_identity = not any(cfg.dvl_rotation_rpy_deg)
+        self.imu_identity = not any(cfg.imu_rotation_rpy_deg)
+        self.r_dvl = np.asarray(cfg.dvl_translation_m, dtype=float)
+        self.x = np.zeros(9)
+        self.P = np.diag([0.0, 0.0, 1e4, 1e2, 1e2, 1e2, 1e2, 1e2, 1e2])
+        self.t: int | None = None  # state time (ns)
+        self.gyro = np.zeros(3)
+        self.have_velocity = False
+        self.have_attitude = False
+        self.have_depth = False
+        self.last_dvl_t: int | None = None
+        self.last_imu_t: int | None = None
+        self.last_depth_t: int | None = None
+        self.attitude_source = "none"
+        self._last: dict[str, tuple[int, int]] = {}
+        self._gate_rejects = 0
+        self.counters: dict[str, int] = {}
+        self.pending: set[str] = set()  # reasons counted since the last take_pending()
+
+    # ------------------------------------------------------------------ bookkeeping
+    def count(self, what: str, n: int = 1) -> None:
+        self.counters[what] = self.counters.get(what, 0) + n
+        self.pending.add(what)
+
+    def take_pending(self) -> list[str]:
+        out = sorted(self.pending)
+        self.pending = set()
+        return out
+
+    @property
+    def initialised(self) -> bool:
+        return self.have_velocity and self.have_attitude
+
+    def imu_fresh(self, t: int) -> bool:
+        return (self.cfg.use_imu and self.last_imu_t is not None
+                and t - self.last_imu_t <= self.cfg.imu_timeout_s * NS)
+
+    def dvl_fresh(self, t: int) -> bool:
+        return self.last_dvl_t is not None and t - self.last_dvl_t <= self.cfg.dvl_timeout_s * NS
+
+    def depth_fresh(self, t: int) -> bool:
+        return self.last_depth_t is not None and t - self.last_depth_t <= self.cfg.depth_timeout_s * NS
+
+    def _admit(self, stream: str, stamp: int, seq: int) -> int | None:
+        """Order checks of one record; returns the time to apply it at, or None (rejected)."""
+        last = self._last.get(stream)
+        if last is not None:
+            last_stamp, last_seq = last
+            if stamp < last_stamp or (seq < last_seq and seq != 0):
+                self.count("timestamp_backwards")
+                self.count(f"{stream}_timestamp_backwards")
+                return None
+            if seq == 0 and last_seq > 0:
+                self.count(f"{stream}_seq_restart")
+        self._last[stream] = (stamp, seq)
+        if self.t is None:
+            self.t = stamp
+            return stamp
+        if stamp < self.t:
+            self.count("late")
+            return self.t
+        self.propagate(stamp)
+        return stamp
+
+    # ------------------------------------------------------------------ prediction
+    def _boundaries(self, t0: int, t1: int) -> list[int]:
+        cuts = {t1}
+        for last, timeout in ((self.last_dvl_t, self.cfg.dvl_timeout_s), (self.last_imu_t, self.cfg.imu_timeout_s),
+                              (self.last_depth_t, self.cfg.depth_timeout_s)):
+            if last is not None:
+                b = last + int(round(timeout * NS)) + 1  # first instant at which the source is stale
+                if t0 < b < t1:
+                    cuts.add(b)
+        out, prev = [], t0
+        for c in sorted(cuts):
+            # sub-steps only while the gyro drives the (nonlinear) attitude integration;
+            # without it the step is exact for any length (constant attitude, closed-form decay)
+            if self.imu_fresh(prev):
+                while c - prev > MAX_STEP_NS:
+                    prev += MAX_STEP_NS
+                    out.append(prev)
+            out.append(c)
+            prev = c
+        return out
+
+    def propagate(self, t: int) -> None:
+        """Predict the state to time ``t`` (ns); no-op for ``t`` at or before the state time."""
+        if self.t is None:
+            self.t = t
+            return
+        if t <= self.t:
+            return
+        for tk in self._boundaries(self.t, t):
+            self._step(self.t, tk)
+            self.t = tk
+
+    def _step(self, t0: int, t1: int) -> None:
+        cfg = self.cfg
+        dt = (t1 - t0) / NS
+        e = self.x[6:9]
+        v = self.x[3:6]
+        gyro_on = self.imu_fresh(t0)
+        w = self.gyro if gyro_on else np.zeros(3)
+        if self.dvl_fresh(t0) or not self.have_velocity:
+            a, g = 1.0, dt
+            qv = cfg.process_accel_sigma ** 2 * dt
+        else:
+            tau = cfg.dvl_dropout_decay_s
+            a = math.exp(-dt / tau)
+            g = tau * (1.0 - a)
+            qv = cfg.dropout_speed_sigma ** 2 * (1.0 - a * a)
+        integrate = self.initialised
+        z_moves = integrate and self.depth_fresh(t0)
+        r = euler_to_matrix(*e)
+        F = np.eye(9)
+        dp = np.zeros(3)
+        if integrate:
+            dp = r @ v * g
+            F[0:3, 3:6] = r * g
+            F[0:3, 6:9] = _rotation_jacobian_times(e, v) * g
+            if not z_moves:
+                dp[2] = 0.0
+                F[2, 3:9] = 0.0
+        F[3:6, 3:6] *= a
+        if gyro_on:
+            F[6:9, 6:9] += _euler_rate_jacobian(e[0], e[1], w) * dt
+        Q = np.zeros(9)
+        Q[3:6] = qv
+        if gyro_on:
+            Q[6:9] = math.radians(cfg.gyro_sigma_deg_s) ** 2 * dt
+        else:
+            Q[6:9] = math.radians(cfg.attitude_rw_sigma_deg_s) ** 2 * dt
+        if integrate and not z_moves:
+            Q[2] = cfg.dropout_speed_sigma ** 2 * dt * 1.0  # z held: random walk, 1 s correlation
+        self.x[0:3] += dp
+        self.x[3:6] = v * a
+        if gyro_on:
+            self.x[6:9] = e + _euler_rate_matrix(e[0], e[1]) @ w * dt
+            self.x[8] = wrap_angle(self.x[8])
+        self.P = F @ self.P @ F.T + np.diag(Q)
+        self.P = 0.5 * (self.P + self.P.T)
+
+    # ------------------------------------------------------------------ updates
+    def _init_block(self, idx: list[int], z: np.ndarray, r: np.ndarray) -> None:
+        self.x[idx] = z
+        self.P[idx, :] = 0.0
+        self.P[:, idx] = 0.0
+        self.P[np.ix_(idx, idx)] = r
+
+    def _update(self, idx: list[int], y: np.ndarray, r: np.ndarray) -> None:
+        """Kalman update of a direct measurement of states ``idx`` with innovation ``y``;
+        the gain is restricted to those states (Joseph form keeps P consistent)."""
+        n = len(idx)
+        H = np.zeros((n, 9))
+        H[np.arange(n), idx] = 1.0
+        S = H @ self.P @ H.T + r
+        K_full = self.P @ H.T @ np.linalg.inv(S)
+        K = np.zeros_like(K_full)
+        K[idx, :] = K_full[idx, :]
+        self.x += K @ y
+        ikh = np.eye(9) - K @ H
+        self.P = ikh @ self.P @ ikh.T + K @ r @ K.T
+        self.P = 0.5 * (self.P + self.P.T)
+
+    def _set_attitude(self, e: np.ndarray, sig: np.ndarray, reset: bool) -> None:
+        r = np.diag(sig ** 2)
+        if reset or not self.have_attitude:
+            self._init_block(E_IDX, np.array([e[0], e[1], wrap_angle(e[2])]), r)
+            self.have_attitude = True
+            return
+        y = e - self.x[6:9]
+        y = np.array([wrap_angle(a) for a in y])
+        self._update(E_IDX, y, r)
+        self.x[8] = wrap_angle(self.x[8])
+
+    def update_imu(self, msg: Imu) -> bool:
+        """IMU attitude (measurement) and gyro rates (prediction input). False: rejected."""
+        stamp = msg.header.stamp
+        vals = (msg.roll, msg.pitch, msg.yaw, msg.gx, msg.gy, msg.gz)
+        if not _finite(*vals):
+            self.count("imu_nonfinite")
+            return False
+        if not self.cfg.use_imu:
+            return False
+        t = self._admit("imu", stamp, msg.header.seq)
+        if t is None:
+            return False
+        w = np.array([msg.gx, msg.gy, msg.gz], dtype=float)
+        e = np.array([msg.roll, msg.pitch, msg.yaw], dtype=float)
+        if not self.imu_identity:
+            w = self.r_bi @ w
+            e = np.array(matrix_to_euler(euler_to_matrix(*e) @ self.r_bi.T))
+        # a switch of attitude source (first IMU record, or the IMU back after a timeout) resets
+        reset = self.attitude_source != "imu" or not self.imu_fresh(t)
+        self.gyro = w
+        self.last_imu_t = t
+        sig = np.radians([self.cfg.roll_pitch_sigma_deg, self.cfg.roll_pitch_sigma_deg, self.cfg.heading_sigma_deg])
+        self._set_attitude(e, sig, reset=reset)
+        self.attitude_source = "imu"
+        return True
+
+    def update_depth(self, msg: Depth) -> bool:
+        """Pressure depth -> z (NED, down +). False: rejected."""
+        if not _finite(msg.depth):
+            self.count("depth_nonfinite")
+            return False
+        t = self._admit("depth", msg.header.stamp, msg.header.seq)
+        if t is None:
+            return False
+        z = msg.depth + self.cfg.depth_offset_m
+        r = np.array([[self.cfg.depth_sigma ** 2]])
+        if not self.have_depth or not self.depth_fresh(t):
+            # first depth, or z was held without depth: pressure is absolute, take it
+            if self.have_depth and abs(z - self.x[2]) > 0:
+                self.count("depth_reacquired")
+            self._init_block([2], np.array([z]), r)
+            self.have_depth = True
+        else:
+            self._update([2], np.array([z - self.x[2]]), r)
+        self.last_depth_t = t
+        return True
+
+    def update_dvl(self, msg: LinkquestDvl) -> bool:
+        """DVL bottom velocity (and, without a fresh IMU, its attitude). False: rejected."""
+        cfg = self.cfg
+        vi = msg.velocityinst
+        att = (msg.roll, msg.pitch, msg.heading)
+        if not _finite(*vi):
+            self.count("dvl_nonfinite")
+            return False
+        t = self._admit("dvl", msg.header.stamp, msg.header.seq)
+        if t is None:
+            return False
+        # attitude from the DVL when there is no fresh IMU
+        if not self.imu_fresh(t):
+            if _finite(*att):
+                e = np.radians(att)
+                if not self.dvl_identity:
+                            e = np.array(matrix_to_euler(euler_to_matrix(*e) @ self.r_bd.T))
+                sig = np.radians([cfg.roll_pitch_sigma_deg, cfg.roll_pitch_sigma_deg, cfg.heading_sigma_deg])
+                self._set_attitude(e, sig, reset=True)
+                self.attitude_source = "dvl"
+            else:
+                self.count("dvl_attitude_nonfinite")
+        if msg.velocityinstflag != 1:
+            self.count("dvl_invalid_flag")
+            return False
+        if sum(1 for g in msg.datagood if g == 1) < cfg.dvl_min_good_beams:
+            self.count("dvl_few_beams")
+            return False
+        v_inst = np.asarray(vi, dtype=float)
+        if float(np.linalg.norm(v_inst)) > cfg.dvl_max_speed:
+            self.count("dvl_too_fast")
+            return False
+        v_b = cfg.dvl_velocity_sign * (v_inst if self.dvl_identity else self.r_bd @ v_inst)
+        w = self.gyro if self.imu_fresh(t) else np.zeros(3)
+        v_b = v_b - np.cross(w, self.r_dvl)
+        r = np.eye(3) * cfg.dvl_velocity_sigma ** 2
+        if not self.have_velocity or not self.dvl_fresh(t):
+            if self.have_velocity:
+                self.count("dvl_reacquired")
+            self._init_block(V_IDX, v_b, r)
+            self.have_velocity = True
+        else:
+            y = v_b - self.x[3:6]
+            if cfg.dvl_gate_chi2 > 0:
+                S = self.P[3:6, 3:6] + r
+                d2 = float(y @ np.linalg.solve(S, y))
+                if d2 > cfg.dvl_gate_chi2:
+                    self._gate_rejects += 1
+                    if self._gate_rejects < _GATE_MAX_REJECTS:
+                        self.count("dvl_outlier")
+                        return False
+                    self.count("dvl_reinit")
+                    self._init_block(V_IDX, v_b, r)
+                    self._gate_rejects = 0
+                    self.last_dvl_t = t
+                    return True
+            self._gate_rejects = 0
+            self._update(V_IDX, y, r)
+        self.last_dvl_t = t
+        return True
+
+    # ------------------------------------------------------------------ output
+    def flags(self, t: int) -> list[str]:
+        """Status flags of the estimate at time ``t``."""
+        out = []
+        if self.cfg.use_imu and not self.imu_fresh(t):
+            out.append("imu_absent")
+        out.append(f"attitude_{self.attitude_source}")
+        if not self.dvl_fresh(t):
+            out.append("dvl_dropout")
+        if not self.depth_fresh(t):
+            out.append("depth_dropout")
+        return out
+
+    def snapshot(self) -> FilterSnapshot:
+        t = self.t if self.t is not None else 0
+        w = self.gyro if self.imu_fresh(t) else np.zeros(3)
+        return FilterSnapshot(stamp=t, position=self.x[0:3].copy(), velocity_body=self.x[3:6].copy(),
+                              euler=self.x[6:9].copy(), angular_velocity=w.copy(), covariance=self.P.copy(),
+                              flags=self.flags(t))

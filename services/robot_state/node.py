@@ -1,0 +1,155 @@
+"""``robot_state`` service: fused dead reckoning ``Odometry`` (dissertation Section 4.2.4).
+
+Inputs (priority order for equal stamps): the IMU (``imu_topic``, default
+``imu_adis_ros``; not subscribed when ``use_imu`` is false; first, so that a DVL record
+stamped like an IMU record sees its rates for the lever-arm term), ``dvl_linkquest``,
+``depth_sensor`` and the recording's reference ``odometry``.  Outputs: ``Odometry`` and ``ground_truth``.
+
+Publication policy (event time only, never the wall clock): ``Odometry`` is published on
+a fixed grid of stamps ``k / publish_rate_hz`` (absolute multiples of the period, so two
+runs over the same inputs give the same stamps).  When a sensor record stamped ``t``
+arrives, every not yet published grid stamp ``g < t`` is published first, from the state
+predicted to ``g``; the output stamped ``g`` therefore reflects every input stamped
+``<= g`` and nothing later (causal).  The grid starts once the filter has an attitude and a
+velocity; the remaining grid stamps up to the last input are published at the end.  DVL
+updates are not published separately: the 10 Hz grid is faster than the DVL (~3 Hz on
+the Girona logs) and a regular stream is what the back-end's Eq. 4.15 differencing wants.
+
+A silence of ``max_gap_s`` or more on every sensor is a gap (counted ``gap``): the grid
+inside it is bridged by prediction (velocity held, then decaying, covariance growing,
+:mod:`services.robot_state.filter`) for up to ``max_gap_s`` and then resumes at the last
+grid stamp before the next input, every bridged output flagged ``gap_bridged``.
+
+``Odometry`` (frame ``odom_<frame>``, child ``base_link``; conventions in
+:mod:`services.robot_state.frames`): ``position`` and ``orientation`` in the published
+frame (``axis_remap``/``axis_sign_z``, default ENU), ``linear_velocity`` and
+``angular_velocity`` in the published body frame, ``pose_covariance`` (x y z roll pitch
+yaw, row-major 6x6) and ``twist_covariance`` transformed to the published frame.
+``status`` holds the state flags (``attitude_imu``/``attitude_dvl``, ``imu_absent``,
+``dvl_dropout``, ``depth_dropout``, ``gap_bridged``) and the name of every rejection or
+event counted since the previous output (``dvl_invalid_flag``, ``dvl_nonfinite``,
+``timestamp_backwards``, ``late``, ...); the totals are in ``counters``.
+
+``ground_truth`` relays each ``odometry`` message unchanged except its header seq.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from common.config import PoseidonConfig
+from common.messages import Depth, Imu, LinkquestDvl, Message, Odometry
+from common.node import ServiceNode
+from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot
+from services.robot_state.frames import OutputFrame, euler_to_matrix, matrix_to_quaternion
+
+__all__ = ["RobotStateNode", "odometry_from_snapshot"]
+
+
+def odometry_from_snapshot(snap: FilterSnapshot, frame: OutputFrame, header, status: list[str],
+                           gyro_sigma_rad_s: float) -> Odometry:
+    """Odometry message of a filter snapshot in the published frame."""
+    p = frame.position(snap.position)
+    r_out = frame.rotation(euler_to_matrix(*snap.euler))
+    P = snap.covariance
+    idx = [0, 1, 2, 6, 7, 8]
+    J = np.zeros((6, 6))
+    J[0:3, 0:3] = frame.m
+    J[3:6, 3:6] = frame.euler_jacobian(*snap.euler)
+    pose_cov = J @ P[np.ix_(idx, idx)] @ J.T
+    twist_cov = np.zeros((6, 6))
+    twist_cov[0:3, 0:3] = frame.b @ P[3:6, 3:6] @ frame.b
+    twist_cov[3:6, 3:6] = np.eye(3) * gyro_sigma_rad_s ** 2
+    return Odometry(
+        header=header, child_frame_id="base_link",
+        position=[float(v) for v in p],
+        orientation=matrix_to_quaternion(r_out),
+        linear_velocity=[float(v) for v in frame.b @ snap.velocity_body],
+        angular_velocity=[float(v) for v in frame.b @ snap.angular_velocity],
+        pose_covariance=[float(v) for v in pose_cov.ravel()],
+        twist_covariance=[float(v) for v in twist_cov.ravel()],
+        status=status,
+    )
+
+
+class RobotStateNode(ServiceNode):
+    """Dead reckoning from DVL, IMU and depth; relays the reference odometry."""
+
+    name = "robot_state"
+    inputs = ("imu_adis_ros", "dvl_linkquest", "depth_sensor", "odometry")
+    outputs = ("Odometry", "ground_truth")
+
+    def __init__(self, config: PoseidonConfig):
+        super().__init__(config)
+        cfg = config.robot_state
+        self.cfg = cfg
+        imu = (cfg.imu_topic,) if cfg.use_imu else ()
+        self.inputs = imu + ("dvl_linkquest", "depth_sensor", "odometry")
+        self.imu_key = cfg.imu_topic
+        self.frame = OutputFrame(cfg.axis_remap, cfg.axis_sign_z)
+        self.filter = DeadReckoningFilter(cfg)
+        self.filter.counters = self.counters  # one set of counters for the run summary
+        self.period = int(round(NS / cfg.publish_rate_hz))
+        self.frame_id = f"odom_{self.frame.name}"
+        self._next_pub: int | None = None
+        self._last_input: int | None = None
+        self._gap_until: int | None = None  # outputs stamped before this are bridged
+        self._gyro_sigma = float(np.radians(cfg.gyro_sigma_deg_s))
+
+    # ------------------------------------------------------------------ publishing
+    def _publish_until(self, t: int, inclusive: bool) -> None:
+        """Publish every grid stamp g < t (or <= t) not yet published."""
+        if self._next_pub is None:
+            return
+        max_gap = int(round(self.cfg.max_gap_s * NS))
+        while self._next_pub < t or (inclusive and self._next_pub == t):
+            g = self._next_pub
+            bridged = self._gap_until is not None and g < self._gap_until
+            if bridged and self._last_input is not None and g > self._last_input + max_gap:
+                # long silence: skip to the last grid stamp before the input that ends it
+                last = ((t - 1) // self.period) * self.period if not inclusive else (t // self.period) * self.period
+                if last > g:
+                    g = last
+            self.filter.propagate(g)
+            snap = self.filter.snapshot()
+            status = snap.flags + (["gap_bridged"] if bridged else []) + self.filter.take_pending()
+            self.publish("Odometry", odometry_from_snapshot(
+                snap, self.frame, self.header("Odometry", g, self.frame_id), status, self._gyro_sigma))
+            self._next_pub = g + self.period
+
+    # ------------------------------------------------------------------ ServiceNode
+    def process(self, key: str, msg: Message) -> None:
+        stamp = msg.header.stamp
+        if key == "odometry":
+            self.publish("ground_truth", msg.model_copy(
+                update={"header": self.header("ground_truth", stamp, msg.header.frame_id)}))
+            return
+        if self._last_input is not None and stamp - self._last_input >= self.cfg.max_gap_s * NS:
+            self.count("gap")
+            self._gap_until = stamp
+        self._publish_until(stamp, inclusive=False)
+        if key == "dvl_linkquest":
+            assert isinstance(msg, LinkquestDvl)
+            self.filter.update_dvl(msg)
+        elif key == self.imu_key:
+            assert isinstance(msg, Imu)
+            self.filter.update_imu(msg)
+        elif key == "depth_sensor":
+            assert isinstance(msg, Depth)
+            self.filter.update_depth(msg)
+        else:
+            raise KeyError(f"robot_state: unexpected input key {key!r} (inputs {self.inputs})")
+        if self._next_pub is None and self.filter.initialised and self.filter.t is not None:
+            self._next_pub = -(-self.filter.t // self.period) * self.period
+            self.count("initialised")
+        self._last_input = stamp if self._last_input is None else max(self._last_input, stamp)
+
+    def finish(self) -> None:
+        if self._last_input is not None:
+            self._publish_until(self._last_input, inclusive=True)
+
+    def output_watermark(self, input_watermark: int) -> int:
+        if self._next_pub is not None:
+            return min(input_watermark, self._next_pub)
+        if self._last_input is not None:
+            return min(input_watermark, self._last_input)
+        return input_watermark
