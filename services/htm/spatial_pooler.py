@@ -111,15 +111,13 @@ def _sp_step(active: np.ndarray, inp_bits: np.ndarray, conn: np.ndarray, pot: np
     for a in range(k):
         active_duty[out[a]] += 1.0 / period
     # BAMI increasePermanences for columns whose overlap duty cycle is too low
-    delta = 0.1 * connected
+    delta = np.float32(0.1 * connected)
     for c in range(ncols):
         if overlap_duty[c] < min_overlap_duty:
             for j in range(npot):
-                p = perm[c, j] + delta
-                if p > 1.0:
-                    p = 1.0
+                p = min(perm[c, j] + delta, np.float32(1.0))
                 perm[c, j] = p
-                _set_conn(conn, c, pot[c, j], p >= connected)
+                _set_conn(conn, c, pot[c, j], p >= fconn)
     if use_boost:
         target = num_active / ncols
         for c in range(ncols):
@@ -214,8 +212,8 @@ class SpatialPooler:
     def set_state(self, st: dict[str, np.ndarray]) -> None:
         if st["pot"].shape != self.pot.shape:
             raise ValueError(f"SP state has potential pools {st['pot'].shape}, configuration expects {self.pot.shape}")
-        self.pot = np.ascontiguousarray(st["pot"], np.int32)
-        self.perm = np.ascontiguousarray(st["perm"], np.float32)
+        self.pot = np.array(st["pot"], np.int32)
+        self.perm = np.array(st["perm"], np.float32)
         self.overlap_duty = np.array(st["overlap_duty"], np.float64)
         self.active_duty = np.array(st["active_duty"], np.float64)
         self.boost = np.array(st["boost"], np.float64)

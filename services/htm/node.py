@@ -1,0 +1,70 @@
+"""HTM service node: ``neocortex/sdr`` -> ``local_view_cells`` (Section 4.2.2).
+
+Every NeocortexSdr frame yields exactly one LocalViewCells message with the frame's stamp
+and frame_id (never suppressed; gating happens downstream in the VPR Guard). With
+``htm.state_path`` set, the SP/TM/LVC state is loaded at start when the file exists and
+saved when the inputs end and when the node closes.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from common.config import PoseidonConfig
+from common.messages import LocalViewCell, LocalViewCells, NeocortexSdr
+from common.node import ServiceNode
+from services.htm.pipeline import NeocortexHtm
+
+__all__ = ["HtmNode"]
+
+log = logging.getLogger(__name__)
+
+
+class HtmNode(ServiceNode):
+    """Runs :class:`NeocortexHtm` on the fused SDR of every encoder frame."""
+
+    name = "htm"
+    inputs = ("neocortex/sdr",)
+    outputs = ("local_view_cells",)
+
+    def __init__(self, config: PoseidonConfig):
+        super().__init__(config)
+        self.cfg = config.htm
+        self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
+        if self.state_path is not None and self.state_path.exists():
+            self.htm = NeocortexHtm.load(self.state_path, self.cfg)
+            log.info("htm: loaded state from %s (%d LVCs)", self.state_path, len(self.htm.lvc))
+        else:
+            self.htm = NeocortexHtm(self.cfg)
+            if self.state_path is not None:
+                log.info("htm: no state at %s yet, starting fresh", self.state_path)
+        self._dirty = False
+
+    def process(self, key: str, msg: NeocortexSdr) -> None:
+        fused = msg.fused
+        if fused.size != self.cfg.input_size:
+            raise ValueError(f"htm: {key} seq {msg.header.seq}: fused.size {fused.size} differs from "
+                             f"htm.input_size {self.cfg.input_size}")
+        res = self.htm.step(fused.active)
+        self._dirty = True
+        if res.is_new:
+            self.count("lvc_created")
+        self.publish("local_view_cells", LocalViewCells(
+            header=self.header("local_view_cells", msg.header.stamp, msg.header.frame_id),
+            most_active_cell=res.lvc_id,
+            active_cells=[LocalViewCell(id=res.lvc_id, rate=min(max(res.rate, 0.0), 1.0))],
+            is_new=res.is_new,
+            intersection=res.intersection,
+        ))
+
+    def _save(self) -> None:
+        if self.state_path is not None and self._dirty:
+            self.htm.save(self.state_path)
+            self._dirty = False
+            log.info("htm: saved state to %s (%d LVCs)", self.state_path, len(self.htm.lvc))
+
+    def finish(self) -> None:
+        self._save()
+
+    def close(self) -> None:
+        self._save()

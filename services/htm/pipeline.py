@@ -1,0 +1,156 @@
+"""NeocortexHtm: fused SDR -> SP -> TM -> descriptor D_t -> LVC id (Section 4.2.2, Fig. 4.2).
+
+``NeocortexHtm(cfg).step(active)`` takes the sorted active indices of one fused SDR
+(Eq. 4.3; ``cfg.input_size`` bits) and returns an :class:`LvcResult` (id, R, is_new, I).
+``sv_descriptor_source`` picks what D_t is built from: ``tm`` TM winner cells (default),
+``sp`` SP active columns, ``sdr`` the fused SDR itself (SP/TM are then not run).
+``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
+``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
+whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
+continues exactly as the saved one would have.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from common.config import HtmConfig
+from services.htm.descriptor import DescriptorBuilder
+from services.htm.lvc import LvcMatcher, LvcResult, overlap_scores
+from services.htm.spatial_pooler import SpatialPooler
+from services.htm.temporal_memory import TemporalMemory
+
+__all__ = ["NeocortexHtm", "LvcResult", "descriptor_similarity"]
+
+STATE_VERSION = 1
+# configuration fields that change the shape or meaning of the saved state
+_STRUCTURAL = ("input_size", "sp_enable", "sp_columns", "sp_potentialRadius", "sp_potentialPct",
+               "tm_cellsPerColumn", "tm_maxSynapsesPerSegment", "sv_descriptor_source",
+               "sv_tm_window", "theta_rho", "seed")
+
+
+def descriptor_similarity(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
+    """I (Eq. 4.6), R = I/|a| (Eq. 4.7), IoU and F1 between two descriptors."""
+    return overlap_scores(a, b)
+
+
+class NeocortexHtm:
+    """The HTM half of the neocortical front-end for one vehicle."""
+
+    def __init__(self, cfg: HtmConfig):
+        self.cfg = cfg
+        self.mode = cfg.sv_descriptor_source
+        run_sp = cfg.sp_enable and self.mode in ("tm", "sp")
+        run_tm = self.mode == "tm"
+        if self.mode == "sp" and not cfg.sp_enable:
+            raise ValueError("htm.sv_descriptor_source 'sp' needs htm.sp_enable true")
+        if run_tm and not cfg.sp_enable and cfg.sp_columns != cfg.input_size:
+            raise ValueError(f"htm.sp_enable false feeds the SDR to the TM: htm.sp_columns ({cfg.sp_columns}) "
+                             f"must equal htm.input_size ({cfg.input_size})")
+        self.sp = SpatialPooler(
+            cfg.input_size, cfg.sp_columns, cfg.sp_numActiveColumns, cfg.sp_potentialRadius,
+            cfg.sp_potentialPct, cfg.sp_synPermActiveInc, cfg.sp_synPermInactiveDec,
+            cfg.sp_synPermConnected, cfg.sp_boostStrength, cfg.sp_dutyCyclePeriod,
+            cfg.sp_minPctOverlapDutyCycle, cfg.seed) if run_sp else None
+        self.tm = TemporalMemory(
+            cfg.sp_columns, cfg.tm_cellsPerColumn, cfg.tm_activationThreshold, cfg.tm_minThreshold,
+            cfg.tm_initialPermanence, cfg.tm_connectedPermanence, cfg.tm_permanenceIncrement,
+            cfg.tm_permanenceDecrement, cfg.tm_predictedSegmentDecrement, cfg.tm_maxNewSynapseCount,
+            cfg.tm_maxSegmentsPerCell, cfg.tm_maxSynapsesPerSegment, cfg.seed + 1) if run_tm else None
+        n_bits = {"tm": cfg.sp_columns * cfg.tm_cellsPerColumn, "sp": cfg.sp_columns,
+                  "sdr": cfg.input_size}[self.mode]
+        self.descriptor = DescriptorBuilder(self.mode, n_bits, cfg.sv_tm_window, cfg.sv_tm_topk,
+                                            cfg.interval_mode, cfg.theta_alpha, cfg.theta_rho,
+                                            cfg.max_bits, cfg.seed + 2)
+        tau_r = cfg.sv_tm_match_threshold if self.mode == "tm" else cfg.sv_match_threshold
+        self.lvc = LvcMatcher(n_bits, cfg.sv_min_intersection, tau_r, cfg.sv_enable_f1_gate,
+                              cfg.min_f1, cfg.sv_use_iou_tiebreak)
+        self.steps = 0
+        self.last_columns = np.zeros(0, np.int32)
+        self.last_descriptor = np.zeros(0, np.int64)
+
+    @property
+    def n_bits(self) -> int:
+        """Size of the descriptor bit space (cells, columns or SDR bits)."""
+        return self.lvc.n_bits
+
+    def _validate(self, active: np.ndarray) -> np.ndarray:
+        a = np.asarray(active)
+        if a.ndim != 1:
+            raise ValueError(f"fused SDR 'active' must be 1-D, got shape {a.shape}")
+        if a.size and not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"fused SDR 'active' must hold integer indices, got {a.dtype}")
+        a = a.astype(np.int64)
+        if a.size and (a[0] < 0 or a[-1] >= self.cfg.input_size or np.any(np.diff(a) <= 0)):
+            raise ValueError(f"fused SDR 'active' must be sorted unique indices in [0, {self.cfg.input_size})")
+        return a
+
+    def encode(self, active: np.ndarray) -> tuple[np.ndarray, float]:
+        """SP/TM on one fused SDR; returns (descriptor source bits, TM anomaly)."""
+        a = self._validate(active)
+        learn = self.cfg.learning
+        if self.mode == "sdr":
+            return a, 0.0
+        cols = self.sp.compute(a, learn) if self.sp is not None else a.astype(np.int32)
+        self.last_columns = cols
+        if self.mode == "sp":
+            return cols.astype(np.int64), 0.0
+        winners = self.tm.compute(cols, learn)
+        return winners.astype(np.int64), float(self.tm.anomaly)
+
+    def step(self, active: np.ndarray) -> LvcResult:
+        """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10)."""
+        src, anomaly = self.encode(active)
+        d = self.descriptor.update(src)
+        self.last_descriptor = d
+        res = self.lvc.match(d)
+        self.steps += 1
+        return LvcResult(res.lvc_id, res.rate, res.is_new, res.intersection, res.best_candidate,
+                         res.best_rate, res.best_intersection, res.descriptor_bits, anomaly)
+
+    # ---- persistence ------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the whole state to ``path`` (npz; written atomically)."""
+        path = Path(path)
+        arrays: dict[str, np.ndarray] = {}
+        for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc)):
+            if part is not None:
+                for k, v in part.state().items():
+                    arrays[f"{prefix}.{k}"] = v
+        meta = {"version": STATE_VERSION, "steps": self.steps,
+                "config": {k: getattr(self.cfg, k) for k in _STRUCTURAL}}
+        arrays["meta_json"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(tmp, **arrays)
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path, cfg: HtmConfig) -> "NeocortexHtm":
+        """A NeocortexHtm with ``cfg`` and the state saved at ``path``."""
+        obj = cls(cfg)
+        obj.load_state(path)
+        return obj
+
+    def load_state(self, path: str | Path) -> None:
+        path = Path(path)
+        try:
+            with np.load(path) as z:
+                data = {k: z[k] for k in z.files}
+        except FileNotFoundError:
+            raise FileNotFoundError(f"HTM state file not found: {path}") from None
+        if "meta_json" not in data:
+            raise ValueError(f"{path}: not an HTM state file (no meta_json)")
+        meta = json.loads(bytes(data["meta_json"]).decode())
+        if meta.get("version") != STATE_VERSION:
+            raise ValueError(f"{path}: HTM state version {meta.get('version')}, expected {STATE_VERSION}")
+        for k, v in meta["config"].items():
+            if getattr(self.cfg, k) != v:
+                raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {getattr(self.cfg, k)!r}")
+        for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc)):
+            if part is not None:
+                pre = prefix + "."
+                part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})
+        self.steps = int(meta["steps"])
