@@ -92,7 +92,8 @@ class RobotStateNode(ServiceNode):
         self.frame_id = f"odom_{self.frame.name}"
         self._next_pub: int | None = None
         self._last_input: int | None = None
-        self._gap_until: int | None = None  # outputs stamped before this are bridged
+        self._gap_from = 0  # outputs stamped strictly between these are bridged
+        self._gap_until: int | None = None
         self._gyro_sigma = float(np.radians(cfg.gyro_sigma_deg_s))
 
     # ------------------------------------------------------------------ publishing
@@ -103,7 +104,7 @@ class RobotStateNode(ServiceNode):
         max_gap = int(round(self.cfg.max_gap_s * NS))
         while self._next_pub < t or (inclusive and self._next_pub == t):
             g = self._next_pub
-            bridged = self._gap_until is not None and g < self._gap_until
+            bridged = self._gap_until is not None and self._gap_from < g < self._gap_until
             if bridged and self._last_input is not None and g > self._last_input + max_gap:
                 # long silence: skip to the last grid stamp before the input that ends it
                 last = ((t - 1) // self.period) * self.period if not inclusive else (t // self.period) * self.period
@@ -125,7 +126,7 @@ class RobotStateNode(ServiceNode):
             return
         if self._last_input is not None and stamp - self._last_input >= self.cfg.max_gap_s * NS:
             self.count("gap")
-            self._gap_until = stamp
+            self._gap_from, self._gap_until = self._last_input, stamp
         self._publish_until(stamp, inclusive=False)
         if key == "dvl_linkquest":
             assert isinstance(msg, LinkquestDvl)
