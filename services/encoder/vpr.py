@@ -132,17 +132,23 @@ def cosine_similarity(q: np.ndarray, r: np.ndarray) -> np.ndarray:
     return qn @ rn.T
 
 
-def _dense(sets: Sequence[np.ndarray], length: int) -> np.ndarray:
-    m = np.zeros((len(sets), length), dtype=np.float32)
+def _dense(sets: Sequence[np.ndarray], used: np.ndarray) -> np.ndarray:
+    m = np.zeros((len(sets), used.size), dtype=np.float32)
     for i, a in enumerate(sets):
-        m[i, np.asarray(a, dtype=np.int64)] = 1.0
+        m[i, np.searchsorted(used, np.asarray(a, dtype=np.int64))] = 1.0
     return m
 
 
-def overlap_similarity(q: Sequence[np.ndarray], r: Sequence[np.ndarray], length: int) -> np.ndarray:
-    """R(A_q, A_r) = |A_q intersect A_r| / |A_q| (Eq. 4.7) for every pair; 0 for an empty A_q."""
-    inter = _dense(q, length) @ _dense(r, length).T
-    size = np.array([max(len(a), 1) for a in q], dtype=np.float32)[:, None]
+def overlap_similarity(q: Sequence[np.ndarray], r: Sequence[np.ndarray]) -> np.ndarray:
+    """R(A_q, A_r) = |A_q intersect A_r| / |A_q| (Eq. 4.7) for every pair; 0 for an empty A_q.
+
+    Only the bits used by some set get a column, so a descriptor space of 2048 x 40 cells
+    costs no more than the bits actually active.
+    """
+    parts = [np.asarray(a, dtype=np.int64) for a in list(q) + list(r)]
+    used = np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+    inter = _dense(q, used) @ _dense(r, used).T
+    size = np.array([max(len(np.unique(a)), 1) for a in q], dtype=np.float32)[:, None]
     return inter / size
 
 
@@ -208,24 +214,29 @@ def ground_truth_from_file(path: str | Path, n_query: int, n_ref: int) -> list[l
 
 
 def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.ndarray], length: int):
-    """LVC ids, rates and descriptors of the reference then the query sequence (one HTM state)."""
-    from services.htm.frontend import NeocortexHtm
+    """LVC ids, rates and descriptors D_t of the reference then the query sequence (one HTM state).
 
-    htm = NeocortexHtm(htm_cfg, input_size=length)
+    Uses :class:`services.htm.pipeline.NeocortexHtm` with ``htm.input_size`` = L; learning as
+    configured (``htm.learning``, on by default: the online system never stops learning).
+    """
+    from services.htm.pipeline import NeocortexHtm
+
+    cfg = htm_cfg.model_copy(update={"input_size": length})
+    htm = NeocortexHtm(cfg)
     out = []
     seq = list(ref_sdrs) + list(query_sdrs)
     for bits in tqdm(seq, desc="htm", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32))
-        out.append((int(r.lvc_id), float(r.rate), np.asarray(r.descriptor, dtype=np.int64)))
+        out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, dtype=np.int64).copy()))
     n = len(ref_sdrs)
     return out[:n], out[n:], htm
 
 
-def htm_similarities(ref_out, query_out, descriptor_size: int) -> tuple[np.ndarray, np.ndarray]:
+def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
     """(htm_lvc, htm_descriptor) similarity matrices from the HTM outputs (see module doc)."""
     d_ref = [d for _, _, d in ref_out]
     d_q = [d for _, _, d in query_out]
-    desc = overlap_similarity(d_q, d_ref, descriptor_size).astype(np.float64)
+    desc = overlap_similarity(d_q, d_ref).astype(np.float64)
     ref_ids = np.array([i for i, _, _ in ref_out])
     lvc = np.full(desc.shape, -np.inf)
     for qi, (lid, rate, _) in enumerate(query_out):
@@ -300,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     length = enc_cfg.sp_columns
     sims = {
         "cnn_cosine": cosine_similarity(np.stack(y_q), np.stack(y_ref)),
-        "lsbh_overlap": overlap_similarity(s_q, s_ref, length),
+        "lsbh_overlap": overlap_similarity(s_q, s_ref),
     }
     result: dict = {}
     t_htm = 0.0
@@ -308,8 +319,7 @@ def main(argv: list[str] | None = None) -> int:
         t1 = time.perf_counter()
         ref_out, q_out, htm = run_htm(cfg.htm, s_ref, s_q, length)
         t_htm = time.perf_counter() - t1
-        desc_size = int(getattr(htm, "descriptor_size", cfg.htm.sp_columns * cfg.htm.tm_cellsPerColumn))
-        sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out, desc_size)
+        sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
         result["n_lvc"] = len({i for i, _, _ in ref_out + q_out})
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result = {
