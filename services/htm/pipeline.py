@@ -3,7 +3,10 @@
 ``NeocortexHtm(cfg).step(active)`` takes the sorted active indices of one fused SDR
 (Eq. 4.3; ``cfg.input_size`` bits) and returns an :class:`LvcResult` (id, R, is_new, I).
 ``sv_descriptor_source`` picks what D_t is built from: ``tm`` TM winner cells (default),
-``sp`` SP active columns, ``sdr`` the fused SDR itself (SP/TM are then not run).
+``sp`` SP active columns, ``sdr`` the fused SDR itself (SP/TM are then not run). In ``tm``
+mode ``sv_tm_bits`` chooses the bit space: ``cells`` (winner cell indices, default, the
+dissertation's reading) or ``columns`` (the winners' columns: the same pooling over the
+window, but a place seen in another temporal context keeps its bits).
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -28,7 +31,7 @@ STATE_VERSION = 1
 # configuration fields that change the shape or meaning of the saved state
 _STRUCTURAL = ("input_size", "sp_enable", "sp_columns", "sp_potentialRadius", "sp_potentialPct",
                "tm_cellsPerColumn", "tm_maxSynapsesPerSegment", "sv_descriptor_source",
-               "sv_tm_window", "theta_rho", "seed")
+               "sv_tm_window", "sv_tm_bits", "theta_rho", "seed")
 
 
 def descriptor_similarity(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
@@ -59,8 +62,9 @@ class NeocortexHtm:
             cfg.tm_initialPermanence, cfg.tm_connectedPermanence, cfg.tm_permanenceIncrement,
             cfg.tm_permanenceDecrement, cfg.tm_predictedSegmentDecrement, cfg.tm_maxNewSynapseCount,
             cfg.tm_maxSegmentsPerCell, cfg.tm_maxSynapsesPerSegment, cfg.seed + 1) if run_tm else None
-        n_bits = {"tm": cfg.sp_columns * cfg.tm_cellsPerColumn, "sp": cfg.sp_columns,
-                  "sdr": cfg.input_size}[self.mode]
+        self.tm_columns = cfg.sv_tm_bits == "columns"
+        n_tm_bits = cfg.sp_columns if self.tm_columns else cfg.sp_columns * cfg.tm_cellsPerColumn
+        n_bits = {"tm": n_tm_bits, "sp": cfg.sp_columns, "sdr": cfg.input_size}[self.mode]
         self.descriptor = DescriptorBuilder(self.mode, n_bits, cfg.sv_tm_window, cfg.sv_tm_topk,
                                             cfg.interval_mode, cfg.theta_alpha, cfg.theta_rho,
                                             cfg.max_bits, cfg.seed + 2)
@@ -97,8 +101,10 @@ class NeocortexHtm:
         self.last_columns = cols
         if self.mode == "sp":
             return cols.astype(np.int64), 0.0
-        winners = self.tm.compute(cols, learn)
-        return winners.astype(np.int64), float(self.tm.anomaly)
+        winners = self.tm.compute(cols, learn).astype(np.int64)
+        if self.tm_columns:
+            winners = np.unique(winners // self.tm.cpc)
+        return winners, float(self.tm.anomaly)
 
     def step(self, active: np.ndarray) -> LvcResult:
         """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10)."""
