@@ -109,6 +109,8 @@ class HtmConfig(_Section):
     # --- added for the HTM service (issue 4); see services/htm/
     input_size: int = Field(2048, ge=16, description="length L of the fused SDR (= encoder.sp_columns)")
     sp_minPctOverlapDutyCycle: float = Field(0.001, ge=0, le=1, description="BAMI weak-column bump threshold")
+    sv_tm_bits: Literal["cells", "columns"] = Field("cells", description="bit space of the tm descriptor: "
+                                                     "winner cell indices, or their columns")
 
 
 class RobotStateConfig(_Section):
