@@ -40,7 +40,10 @@ moving forward, not along its old world direction.
   (``heading_sigma_deg``) are measurements and the gyro drives the prediction
   (``gyro_sigma_deg_s``).  Without a fresh IMU (none recorded, ``use_imu`` false, or older
   than ``imu_timeout_s``) the DVL's roll/pitch/heading (degrees) are taken as the attitude
-  (a reset: with no rate sensor there is nothing to blend them with).
+  (a reset: with no rate sensor there is nothing to blend them with).  A DVL without a
+  compass reports exactly 0 for all three (the Girona LinkQuest logs do, for every record):
+  such records are counted (``dvl_attitude_zero``) and the output is flagged
+  ``heading_unobserved`` -- the heading is then constant and turns are invisible.
 - **Updates only correct their own states** (a Schmidt-style restricted gain with the Joseph
   covariance update, which stays consistent for any gain): the DVL never moves the
   position, the depth never moves x/y.  The published dead reckoning therefore never
@@ -69,7 +72,7 @@ import numpy as np
 
 from common.config import RobotStateConfig
 from common.messages import Depth, Imu, LinkquestDvl
-from services.robot_state.frames import euler_to_matrix, matrix_to_euler, rot_x, rot_y, rot_z, wrap_angle
+from services.robot_state.frames import euler_to_matrix, matrix_to_euler, wrap_angle
 
 __all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
 
@@ -125,14 +128,24 @@ def _euler_rate_jacobian(roll: float, pitch: float, w: np.ndarray) -> np.ndarray
 
 
 def _rotation_jacobian_times(e: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """d(R(e) v)/de (3x3)."""
-    r, p, y = float(e[0]), float(e[1]), float(e[2])
-    rx, ry, rz = rot_x(r), rot_y(p), rot_z(y)
-    sr, cr, sp, cp, sy, cy = math.sin(r), math.cos(r), math.sin(p), math.cos(p), math.sin(y), math.cos(y)
-    drx = np.array([[0.0, 0.0, 0.0], [0.0, -sr, -cr], [0.0, cr, -sr]])
-    dry = np.array([[-sp, 0.0, cp], [0.0, 0.0, 0.0], [-cp, 0.0, -sp]])
-    drz = np.array([[-sy, -cy, 0.0], [cy, -sy, 0.0], [0.0, 0.0, 0.0]])
-    return np.column_stack([rz @ ry @ drx @ v, rz @ dry @ rx @ v, drz @ ry @ rx @ v])
+    """d(R(e) v)/de (3x3), closed form of dR/droll v, dR/dpitch v, dR/dyaw v."""
+    sr, cr = math.sin(e[0]), math.cos(e[0])
+    sp, cp = math.sin(e[1]), math.cos(e[1])
+    sy, cy = math.sin(e[2]), math.cos(e[2])
+    vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
+    # body velocity with roll applied, then with pitch applied (R = Rz Ry Rx)
+    a1, a2 = cr * vy - sr * vz, sr * vy + cr * vz  # Rx v (y, z)
+    dr1, dr2 = -sr * vy - cr * vz, cr * vy - sr * vz  # dRx/droll v (y, z)
+    b0, b2 = cp * vx + sp * a2, -sp * vx + cp * a2  # Ry Rx v (x, z); y = a1
+    # d/droll: Rz Ry (0, dr1, dr2)
+    x0, y0, z0 = sp * dr2, dr1, cp * dr2
+    j_r = (cy * x0 - sy * y0, sy * x0 + cy * y0, z0)
+    # d/dpitch: Rz dRy (vx, a1, a2)
+    x1, z1 = -sp * vx + cp * a2, -cp * vx - sp * a2
+    j_p = (cy * x1, sy * x1, z1)
+    # d/dyaw: dRz (b0, a1, b2)
+    j_y = (-sy * b0 - cy * a1, cy * b0 - sy * a1, 0.0)
+    return np.array([[j_r[0], j_p[0], j_y[0]], [j_r[1], j_p[1], j_y[1]], [j_r[2], j_p[2], j_y[2]]])
 
 
 class DeadReckoningFilter:
@@ -158,6 +171,7 @@ class DeadReckoningFilter:
         self.last_imu_t: int | None = None
         self.last_depth_t: int | None = None
         self.attitude_source = "none"
+        self.dvl_attitude_zero = False
         self._last: dict[str, tuple[int, int]] = {}
         self._gate_rejects = 0
         self.counters: dict[str, int] = {}
@@ -379,6 +393,9 @@ class DeadReckoningFilter:
             return False
         # attitude from the DVL when there is no fresh IMU
         if not self.imu_fresh(t):
+            self.dvl_attitude_zero = att == (0.0, 0.0, 0.0)
+            if self.dvl_attitude_zero:
+                self.count("dvl_attitude_zero")  # no compass: roll, pitch and heading exactly 0
             if _finite(*att):
                 e = np.radians(att)
                 if not self.dvl_identity:
@@ -434,6 +451,8 @@ class DeadReckoningFilter:
         if self.cfg.use_imu and not self.imu_fresh(t):
             out.append("imu_absent")
         out.append(f"attitude_{self.attitude_source}")
+        if self.attitude_source == "dvl" and self.dvl_attitude_zero:
+            out.append("heading_unobserved")
         if not self.dvl_fresh(t):
             out.append("dvl_dropout")
         if not self.depth_fresh(t):

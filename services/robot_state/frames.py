@@ -29,7 +29,7 @@ import numpy as np
 
 from common.config import ConfigError
 
-__all__ = ["rot_x", "rot_y", "rot_z", "euler_to_matrix", "matrix_to_euler", "matrix_to_quaternion",
+__all__ = ["rot_x", "rot_y", "rot_z", "euler_to_matrix", "euler_to_world_rate", "matrix_to_euler", "matrix_to_quaternion",
            "quaternion_to_matrix", "wrap_angle", "OutputFrame"]
 
 
@@ -54,8 +54,23 @@ def rot_z(a: float) -> np.ndarray:
 
 
 def euler_to_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Body->world rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` (Eq. 3.10)."""
-    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+    """Body->world rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` (Eq. 3.10), closed form."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def euler_to_world_rate(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """T(e): ZYX Euler angle rates -> world-frame angular velocity (columns: the axes of
+    roll, pitch and yaw expressed in the world frame)."""
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
 
 
 def matrix_to_euler(r: np.ndarray) -> tuple[float, float, float]:
@@ -146,16 +161,13 @@ class OutputFrame:
     def rotation_to_ned(self, r_out: np.ndarray) -> np.ndarray:
         return self.m.T @ r_out @ self.b
 
-    def euler_jacobian(self, roll: float, pitch: float, yaw: float, eps: float = 1e-6) -> np.ndarray:
-        """d(published Euler)/d(NED Euler) at an attitude, central differences (wrap-safe)."""
+    def euler_jacobian(self, roll: float, pitch: float, yaw: float) -> np.ndarray:
+        """d(published Euler)/d(NED Euler) at an attitude.
+
+        A small change de turns the NED attitude by the world rotation vector T(e) de; the
+        published attitude turns by M T(e) de (M proper), i.e. de_out = T(e_out)^-1 M T(e) de.
+        """
         if self.identity:
             return np.eye(3)
-        j = np.zeros((3, 3))
-        e0 = np.array([roll, pitch, yaw])
-        for k in range(3):
-            d = np.zeros(3)
-            d[k] = eps
-            a = matrix_to_euler(self.rotation(euler_to_matrix(*(e0 + d))))
-            b = matrix_to_euler(self.rotation(euler_to_matrix(*(e0 - d))))
-            j[:, k] = [wrap_angle(a[i] - b[i]) / (2 * eps) for i in range(3)]
-        return j
+        e_out = matrix_to_euler(self.rotation(euler_to_matrix(roll, pitch, yaw)))
+        return np.linalg.solve(euler_to_world_rate(*e_out), self.m @ euler_to_world_rate(roll, pitch, yaw))
