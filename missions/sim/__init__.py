@@ -1,0 +1,1 @@
+"""Synthetic underwater cave missions (``poseidon sim``)."""

@@ -1,0 +1,256 @@
+"""Numba kernels: the downward camera image and the two scanning sonars.
+
+Camera (pinhole, intrinsics of the real Cala Viuda camera): for every pixel the ray is
+intersected with the floor (two fixed-point iterations on the floor relief), the albedo is
+sampled bilinearly from the texture tiles (blended towards the 4 cm level with range x
+turbidity: forward-scatter blur), lit by the vehicle's lamp (a Gaussian spot cone around
+an axis tilted forward, inverse-square fall-off, Lambert incidence) and attenuated by
+water over the two-way path with per-channel coefficients (red dies first: blue-green
+cast), plus backscatter (veiling light) inside the lamp cone.  Marine snow particles are
+splatted as Gaussian blobs, then gamma, sensor noise and 8-bit quantisation.
+
+Sonars: one beam per call-row.  The Micron-like MSIS scans the horizontal plane (vertical
+beam width 35 deg: the floor shows as a diffuse return beyond altitude / sin 17.5 deg);
+the SeaKing-like profiler scans the vertical across-track plane (narrow beam: floor,
+ceiling and walls).  The echo is a near-field ring-down, a Gaussian return at the first
+surface with an incidence factor, an acoustic shadow behind it, multiplicative speckle
+(exponential intensity, i.e. Rayleigh amplitude) and additive noise.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from missions.sim.world import L1_FACTOR, TEX_RES, TILE
+
+__all__ = ["render_linear", "splat_particles", "finish_image", "micron_beams", "seaking_beams"]
+
+_RES1 = TEX_RES * L1_FACTOR
+_T1 = TILE // L1_FACTOR
+
+
+@nb.njit(cache=True, inline="always")
+def _grid(g: np.ndarray, x0: float, y0: float, res: float, x: float, y: float) -> float:
+    ny, nx = g.shape
+    fi = min(max((x - x0) / res, 0.0), ny - 1.001)
+    fj = min(max((y - y0) / res, 0.0), nx - 1.001)
+    i = int(fi)
+    j = int(fj)
+    ti = fi - i
+    tj = fj - j
+    return (g[i, j] * (1 - ti) * (1 - tj) + g[i + 1, j] * ti * (1 - tj) + g[i, j + 1] * (1 - ti) * tj
+            + g[i + 1, j + 1] * ti * tj)
+
+
+@nb.njit(cache=True, inline="always")
+def _free(free: np.ndarray, x0: float, y0: float, res: float, x: float, y: float) -> bool:
+    ny, nx = free.shape
+    i = int((x - x0) / res + 0.5)
+    j = int((y - y0) / res + 0.5)
+    if i < 0 or j < 0 or i >= ny or j >= nx:
+        return False
+    return free[i, j]
+
+
+@nb.njit(cache=True, inline="always")
+def _tex(tiles: np.ndarray, index: np.ndarray, tile: int, fi: float, fj: float, c: int) -> float:
+    """Bilinear texel lookup at continuous texel coordinates (fi, fj); channel c, 0..1."""
+    gi = int(np.floor(fi))
+    gj = int(np.floor(fj))
+    ti = fi - gi
+    tj = fj - gj
+    a = gi // tile
+    b = gj // tile
+    ny, nx = index.shape
+    if a < 0 or b < 0 or a >= ny or b >= nx:
+        return 0.3
+    k = index[a, b]
+    if k < 0:
+        return 0.3
+    li = gi - a * tile + 1
+    lj = gj - b * tile + 1
+    v = (tiles[k, li, lj, c] * (1 - ti) * (1 - tj) + tiles[k, li + 1, lj, c] * ti * (1 - tj)
+         + tiles[k, li, lj + 1, c] * (1 - ti) * tj + tiles[k, li + 1, lj + 1, c] * ti * tj)
+    return v * (1.0 / 255.0)
+
+
+@nb.njit(cache=True, nogil=True)
+def render_linear(out: np.ndarray, r_wc: np.ndarray, cam: np.ndarray, fx: float, fy: float, u0: float, v0: float,
+                  tiles0: np.ndarray, tiles1: np.ndarray, index: np.ndarray, tex_x0: float, tex_y0: float,
+                  floor: np.ndarray, gx0: float, gy0: float, gres: float, lamp_axis: np.ndarray,
+                  lamp_sigma: float, lut_direct: np.ndarray, lut_scatter: np.ndarray, back: np.ndarray,
+                  turbidity: float, blur_k: float, gain: float) -> None:
+    """Linear radiance image (H, W, 3) float32 of the floor seen from camera pose (r_wc, cam).
+
+    ``lut_direct[k, c] = exp(-2 att_c r_k)`` and ``lut_scatter[k, c] = 1 - exp(-att_c r_k)``
+    tabulate the water terms at r_k = k mm."""
+    h, w, _ = out.shape
+    z0 = _grid(floor, gx0, gy0, gres, cam[0], cam[1])
+    inv_s2 = 1.0 / (lamp_sigma * lamp_sigma)
+    nlut = lut_direct.shape[0]
+    for v in nb.prange(h):
+        for u in range(w):
+            xc = (u - u0) / fx
+            yc = (v - v0) / fy
+            dx = r_wc[0, 0] * xc + r_wc[0, 1] * yc + r_wc[0, 2]
+            dy = r_wc[1, 0] * xc + r_wc[1, 1] * yc + r_wc[1, 2]
+            dz = r_wc[2, 0] * xc + r_wc[2, 1] * yc + r_wc[2, 2]
+            norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+            ex = dx / norm
+            ey = dy / norm
+            ez = dz / norm
+            cl = min(max(ex * lamp_axis[0] + ey * lamp_axis[1] + ez * lamp_axis[2], -1.0), 1.0)
+            spot = np.exp(-(1.0 - cl) * inv_s2)  # Gaussian in the angle: 1 - cos(a) ~ a^2 / 2
+            if dz < 0.05:
+                for c in range(3):
+                    out[v, u, c] = gain * back[c] * spot * lut_scatter[nlut - 1, c] * turbidity
+                continue
+            t = (z0 - cam[2]) / dz
+            for _ in range(2):
+                zf = _grid(floor, gx0, gy0, gres, cam[0] + t * dx, cam[1] + t * dy)
+                t = max((zf - cam[2]) / dz, 0.05)
+            px = cam[0] + t * dx
+            py = cam[1] + t * dy
+            r = t * norm
+            wb = min(max(blur_k * turbidity * (r - 0.5), 0.0), 1.0)
+            fi0 = (px - tex_x0) / TEX_RES
+            fj0 = (py - tex_y0) / TEX_RES
+            fi1 = (px - tex_x0 - 1.5 * TEX_RES) / _RES1
+            fj1 = (py - tex_y0 - 1.5 * TEX_RES) / _RES1
+            irr = spot * ez / (r * r)
+            kr = min(int(r * 1000.0), nlut - 1)
+            for c in range(3):
+                alb = _tex(tiles0, index, TILE, fi0, fj0, c) * (1.0 - wb) + _tex(tiles1, index, _T1, fi1, fj1, c) * wb
+                direct = alb * irr * lut_direct[kr, c]
+                scat = back[c] * spot * lut_scatter[kr, c] * turbidity
+                out[v, u, c] = gain * (direct + scat)
+
+
+@nb.njit(cache=True)
+def splat_particles(img: np.ndarray, parts: np.ndarray) -> None:
+    """Add marine-snow blobs: rows (u, v, radius px, brightness r, g, b) in linear units."""
+    h, w, _ = img.shape
+    for k in range(parts.shape[0]):
+        pu = parts[k, 0]
+        pv = parts[k, 1]
+        rad = parts[k, 2]
+        ext = int(3.0 * rad) + 1
+        u_lo = max(int(pu) - ext, 0)
+        u_hi = min(int(pu) + ext, w - 1)
+        v_lo = max(int(pv) - ext, 0)
+        v_hi = min(int(pv) + ext, h - 1)
+        inv = 1.0 / (2.0 * rad * rad)
+        for v in range(v_lo, v_hi + 1):
+            for u in range(u_lo, u_hi + 1):
+                g = np.exp(-((u - pu) ** 2 + (v - pv) ** 2) * inv)
+                for c in range(3):
+                    img[v, u, c] += parts[k, 3 + c] * g
+
+
+@nb.njit(cache=True, nogil=True)
+def finish_image(img: np.ndarray, out: np.ndarray, noise_sigma: float, seed: int, gamma_lut: np.ndarray) -> None:
+    """Gamma 1/2.2 (``gamma_lut[k] = 255 (k / (n - 1)) ** (1 / 2.2)``), additive sensor noise
+    (sigma in 8-bit units, deterministic from ``seed``), quantisation to uint8."""
+    h, w, _ = img.shape
+    nl = gamma_lut.shape[0] - 1
+    for v in nb.prange(h):
+        for u in range(w):
+            for c in range(3):
+                x = gamma_lut[min(max(int(img[v, u, c] * nl + 0.5), 0), nl)]
+                # triangular noise from two hashed uniforms (variance matches sigma)
+                hsh = (((v * 384 + u) * 3 + c) * 2654435761 + seed * 40503) & 0xFFFFFFFF
+                hsh = ((hsh ^ (hsh >> 15)) * 2246822519) & 0xFFFFFFFF
+                hsh = hsh ^ (hsh >> 13)
+                a = (hsh & 0xFFFF) / 65536.0
+                b = ((hsh >> 16) & 0xFFFF) / 65536.0
+                x += (a + b - 1.0) * noise_sigma * 2.449
+                out[v, u, c] = np.uint8(min(max(x + 0.5, 0.0), 255.0))
+
+
+@nb.njit(cache=True, inline="always")
+def _wall_normal_cos(free: np.ndarray, gx0: float, gy0: float, gres: float, x: float, y: float,
+                     bx: float, by: float) -> float:
+    h = 0.25
+    nx = (1.0 if _free(free, gx0, gy0, gres, x + h, y) else 0.0) - (1.0 if _free(free, gx0, gy0, gres, x - h, y) else 0.0)
+    ny = (1.0 if _free(free, gx0, gy0, gres, x, y + h) else 0.0) - (1.0 if _free(free, gx0, gy0, gres, x, y - h) else 0.0)
+    n = np.sqrt(nx * nx + ny * ny)
+    if n == 0.0:
+        return 0.7
+    return abs(bx * nx + by * ny) / n
+
+
+@nb.njit(cache=True)
+def _echo(out: np.ndarray, row: int, dr: float, r_hit: float, amp: float, speckle: np.ndarray, noise: np.ndarray,
+          floor_r: float, floor_amp: float) -> None:
+    nb_ = out.shape[1]
+    for b in range(nb_):
+        r = (b + 0.5) * dr
+        val = 55.0 * np.exp(-r / 0.35)  # transducer ring-down
+        if floor_r > 0.0 and r > floor_r:
+            val += floor_amp * (1.0 - np.exp(-(r - floor_r) / 0.6)) * np.exp(-(r - floor_r) / 5.0)
+        if r_hit > 0.0:
+            if r < r_hit + 0.6:
+                val += amp * np.exp(-0.5 * ((r - r_hit) / 0.18) ** 2)
+            else:
+                val = val * 0.15 + 0.35 * amp * np.exp(-(r - r_hit) / 0.7)
+        val = val * speckle[row, b] + 3.0 + noise[row, b]
+        out[row, b] = np.int32(min(max(val, 0.0), 191.0))
+
+
+@nb.njit(cache=True, nogil=True)
+def micron_beams(out: np.ndarray, pos: np.ndarray, beam_yaw: np.ndarray, altitude: np.ndarray, max_range: float,
+                 free: np.ndarray, gx0: float, gy0: float, gres: float, speckle: np.ndarray,
+                 noise: np.ndarray) -> None:
+    """Horizontal MSIS beams: out[k, :] echo of beam k from pos[k] along world yaw beam_yaw[k]."""
+    n, nbins = out.shape
+    dr = max_range / nbins
+    for k in nb.prange(n):
+        bx = np.cos(beam_yaw[k])
+        by = np.sin(beam_yaw[k])
+        r_hit = -1.0
+        step = dr * 0.5
+        r = step
+        while r < max_range:
+            if not _free(free, gx0, gy0, gres, pos[k, 0] + r * bx, pos[k, 1] + r * by):
+                r_hit = r
+                break
+            r += step
+        amp = 0.0
+        if r_hit > 0:
+            amp = 150.0 * (0.35 + 0.65 * _wall_normal_cos(free, gx0, gy0, gres, pos[k, 0] + r_hit * bx,
+                                                          pos[k, 1] + r_hit * by, bx, by))
+        floor_r = altitude[k] / np.sin(np.deg2rad(17.5))
+        _echo(out, k, dr, r_hit, amp, speckle, noise, floor_r, 22.0)
+
+
+@nb.njit(cache=True, nogil=True)
+def seaking_beams(out: np.ndarray, pos: np.ndarray, dirs: np.ndarray, max_range: float, free: np.ndarray,
+                  floor: np.ndarray, ceiling: np.ndarray, gx0: float, gy0: float, gres: float,
+                  speckle: np.ndarray, noise: np.ndarray) -> None:
+    """Vertical profiler beams: out[k, :] echo from pos[k] along the world unit vector dirs[k]."""
+    n, nbins = out.shape
+    dr = max_range / nbins
+    for k in nb.prange(n):
+        dx = dirs[k, 0]
+        dy = dirs[k, 1]
+        dz = dirs[k, 2]
+        r_hit = -1.0
+        cosinc = 0.7
+        step = dr * 0.5
+        r = step
+        while r < max_range:
+            x = pos[k, 0] + r * dx
+            y = pos[k, 1] + r * dy
+            z = pos[k, 2] + r * dz
+            if not _free(free, gx0, gy0, gres, x, y):
+                r_hit = r
+                hn = np.sqrt(dx * dx + dy * dy)
+                cosinc = _wall_normal_cos(free, gx0, gy0, gres, x, y, dx / max(hn, 1e-6), dy / max(hn, 1e-6)) * hn
+                break
+            if z >= _grid(floor, gx0, gy0, gres, x, y) or z <= _grid(ceiling, gx0, gy0, gres, x, y):
+                r_hit = r
+                cosinc = abs(dz)
+                break
+            r += step
+        amp = 170.0 * (0.35 + 0.65 * cosinc) if r_hit > 0 else 0.0
+        _echo(out, k, dr, r_hit, amp, speckle, noise, -1.0, 0.0)
