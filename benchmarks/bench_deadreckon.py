@@ -1,0 +1,98 @@
+"""Dead-reckoning drift on synthetic cave missions (``poseidon sim``), filter vs plain integration.
+
+For each seed a mission of ``--minutes`` is generated with the simulator's own noise models
+(:mod:`missions.sim.mission`: IMU yaw drift and random walk, gyro bias and noise, DVL noise,
+bias, scale, beam dropouts and flagged bursts, DVL compass offset and noise, depth bias and
+noise) and cached in ``--cache-dir``.  ``robot_state`` runs offline over it
+(:func:`services.robot_state.deadreckon.run_deadreckon`) next to the plain-integration
+baseline of the same run, and both are scored against ``truth/pose``: final position error
+in % of the distance travelled (drift) and ATE RMSE.  Speed: input messages per second of
+the node (``run_offline``) and of the plain integrator over the same messages (the
+baseline measured in the same run), wall clock.
+
+    .venv/bin/python benchmarks/bench_deadreckon.py --minutes 10 --seeds 1 2 3
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from common.config import load_config
+from common.mcap_io import read_messages
+from common.node import run_offline
+from services.robot_state.deadreckon import PlainIntegrator, run_deadreckon
+from services.robot_state.node import RobotStateNode
+
+
+def _mission(cache: Path, minutes: float, seed: int) -> Path:
+    from missions.sim.mission import SimParams, generate
+
+    path = cache / f"sim_{minutes:g}min_seed{seed}.mcap"
+    if not path.exists():
+        print(f"generating {path} ({minutes:g} min, seed {seed}) ...", file=sys.stderr)
+        tmp = path.with_suffix(".part")
+        generate(tmp, SimParams(minutes=minutes, seed=seed), progress=sys.stderr.isatty())
+        tmp.rename(path)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--cache-dir", type=Path, default=Path("/tmp/poseidon_bench"))
+    ap.add_argument("--config", type=Path, default=None)
+    ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    args.cache_dir.mkdir(parents=True, exist_ok=True)
+    config = load_config(args.config, args.overrides)
+    keys = list(RobotStateNode(config).inputs) + ["truth/pose"]
+    rows = []
+    for seed in args.seeds:
+        path = _mission(args.cache_dir, args.minutes, seed)
+        msgs = [(r.key, r.message()) for r in read_messages(path, keys=keys)]
+        node = RobotStateNode(config)
+        n_in = sum(1 for k, _ in msgs if k in node.inputs)
+        t0 = time.perf_counter()
+        run_offline(node, msgs)
+        t_node = time.perf_counter() - t0
+        plain = PlainIntegrator(config.robot_state)
+        nav = [(k, m) for k, m in msgs if k in ("dvl_linkquest", "depth_sensor")]
+        t0 = time.perf_counter()
+        for k, m in nav:
+            plain.process(k, m)
+        t_plain = time.perf_counter() - t0
+        s = run_deadreckon(msgs, config, recording=str(path))
+        tf, tp = s["truth"]["filter"], s["truth"]["plain"]
+        rows.append({
+            "seed": seed, "distance_m": tf["truth_distance_m"],
+            "filter_drift_pct": tf["final_drift_pct"], "plain_drift_pct": tp["final_drift_pct"],
+            "filter_ate_m": tf["ate_rmse_m"], "plain_ate_m": tp["ate_rmse_m"],
+            "filter_max_error_m": tf["max_error_m"], "plain_max_error_m": tp["max_error_m"],
+            "node_msgs_per_s": n_in / t_node, "plain_msgs_per_s": len(nav) / t_plain,
+            "counters": s["counters"],
+        })
+    mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k not in ("seed", "counters")}
+    if args.json:
+        print(json.dumps({"minutes": args.minutes, "runs": rows, "mean": mean}, indent=2))
+        return 0
+    print(f"dead reckoning on {args.minutes:g}-minute simulated missions (drift = final error / distance)")
+    print(f"{'seed':>4} {'dist m':>8} {'filter %':>9} {'plain %':>8} {'filter ATE m':>13} {'plain ATE m':>12} "
+          f"{'node msg/s':>11} {'plain msg/s':>12}")
+    for r in rows + [dict(mean, seed="mean")]:
+        print(f"{r['seed']!s:>4} {r['distance_m']:8.1f} {r['filter_drift_pct']:9.2f} {r['plain_drift_pct']:8.2f} "
+              f"{r['filter_ate_m']:13.2f} {r['plain_ate_m']:12.2f} {r['node_msgs_per_s']:11.0f} "
+              f"{r['plain_msgs_per_s']:12.0f}")
+    print(f"filter / plain drift ratio: {mean['filter_drift_pct'] / mean['plain_drift_pct']:.2f}; "
+          f"node speed = {mean['node_msgs_per_s'] / mean['plain_msgs_per_s']:.3f} x plain integration")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
