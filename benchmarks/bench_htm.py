@@ -1,0 +1,90 @@
+"""SP + TM learning step at the dissertation's parameters (Table 5.1 / Table 4.1), in ms.
+
+Stream: a route of ``--places`` places, each an LSBH-like fused SDR (``--bits`` active of
+L = 2048; 512 = one modality with s = 0.25, ~1024 = camera OR sonar), visited for
+``--hold`` frames with ``--noise`` of its bits replaced per frame, looped for ``--steps``
+frames. The reference is htm.core (C++): ~0.41 ms per SP+TM learning step on this machine
+class (ARCHITECTURE.md); the ratio printed is ours / 0.41 ms.
+
+    NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_htm.py
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from common.config import HtmConfig
+from services.htm.pipeline import NeocortexHtm
+
+HTM_CORE_MS = 0.41
+
+
+def make_stream(steps: int, places: int, hold: int, bits: int, noise: float, seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    L = 2048
+    route = [np.sort(rng.choice(L, bits, replace=False)) for _ in range(places)]
+    out = []
+    for t in range(steps):
+        p = route[(t // hold) % places]
+        keep = rng.random(p.size) >= noise
+        extra = rng.choice(L, int((~keep).sum()), replace=False)
+        out.append(np.unique(np.concatenate([p[keep], extra])).astype(np.uint32))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--places", type=int, default=100)
+    ap.add_argument("--hold", type=int, default=3, help="frames per place")
+    ap.add_argument("--bits", type=int, default=512, help="active bits of the fused SDR")
+    ap.add_argument("--noise", type=float, default=0.05, help="fraction of bits replaced per frame")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+
+    stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
+    cfg = HtmConfig()
+    warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
+    for f in stream[:5]:
+        warm.step(f)
+    h = NeocortexHtm(cfg)
+    t_sp = np.empty(len(stream))
+    t_tm = np.empty(len(stream))
+    t_rest = np.empty(len(stream))
+    anomalies = np.empty(len(stream))
+    for i, f in enumerate(tqdm(stream, desc="htm steps", file=sys.stderr, mininterval=1.0)):
+        a = f.astype(np.int64)
+        t0 = time.perf_counter()
+        cols = h.sp.compute(a, True)
+        t1 = time.perf_counter()
+        winners = h.tm.compute(cols, True)
+        t2 = time.perf_counter()
+        d = h.descriptor.update(winners.astype(np.int64))
+        h.lvc.match(d)
+        t3 = time.perf_counter()
+        t_sp[i], t_tm[i], t_rest[i] = t1 - t0, t2 - t1, t3 - t2
+        anomalies[i] = h.tm.anomaly
+    ms = lambda x: 1e3 * float(np.mean(x))  # noqa: E731
+    med = lambda x: 1e3 * float(np.median(x))  # noqa: E731
+    sptm = t_sp + t_tm
+    print(f"stream: {args.steps} frames, {args.places} places x {args.hold} frames, {args.bits} active bits "
+          f"of 2048, noise {args.noise:.0%}")
+    print(f"parameters: SP 2048 cols / {cfg.sp_numActiveColumns} active, potentialRadius {cfg.sp_potentialRadius}; "
+          f"TM {cfg.tm_cellsPerColumn} cells/col, activationThreshold {cfg.tm_activationThreshold}, learning on")
+    print(f"SP step          mean {ms(t_sp):.3f} ms  median {med(t_sp):.3f} ms")
+    print(f"TM step          mean {ms(t_tm):.3f} ms  median {med(t_tm):.3f} ms")
+    print(f"SP+TM step       mean {ms(sptm):.3f} ms  median {med(sptm):.3f} ms  p95 {1e3 * np.percentile(sptm, 95):.3f} ms")
+    print(f"descriptor+LVC   mean {ms(t_rest):.3f} ms")
+    print(f"ratio SP+TM / htm.core ({HTM_CORE_MS} ms): {ms(sptm) / HTM_CORE_MS:.2f} (mean), "
+          f"{med(sptm) / HTM_CORE_MS:.2f} (median)")
+    print(f"final state: {h.tm.num_segments} segments, {h.tm.num_synapses} synapses, {len(h.lvc)} LVCs, "
+          f"mean anomaly last 500 steps {anomalies[-500:].mean():.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
