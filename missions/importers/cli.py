@@ -1,0 +1,241 @@
+"""``poseidon import SRC [SRC ...] --out FILE.mcap [--topic-map FILE.yaml] [--json]``.
+
+Sources, merged into one recording in chronological order (the camera bag and the
+sensor bag of the caves dataset become one recording):
+
+- ROS1 ``.bag``; ROS2 bag folders (``metadata.yaml``) or their ``.db3`` / ``.mcap`` file
+  (type mapping: :mod:`missions.importers.rosbags_io`);
+- rostopic-echo CSV logs (``.csv``; kind detected from the columns, key = kind:
+  ``dvl_linkquest``, ``depth_sensor``, ``imu_adis``; :mod:`missions.importers.rostopic_csv`);
+- a folder of image frames with a timestamps file (key ``camera/image_raw``;
+  :mod:`missions.importers.frames`).
+
+Topics map to keys by :data:`~missions.importers.rosbags_io.DEFAULT_TOPIC_MAP`, other
+topics to the topic without its leading slash.  ``--topic-map`` is a YAML mapping
+``topic: key`` (overrides; ``topic: null`` drops a topic).  A message type without a
+converter is counted (by type and topic), never an error; a mapped message whose content
+cannot be converted (e.g. an unsupported image encoding) is counted under ``skipped``.
+
+``--json`` summary keys: ``out``; ``inputs`` (path, format, per-topic type and count in
+the source); ``read`` (messages read per topic / CSV key / frames key); ``written``
+(messages written per key); ``unmapped_types`` (type -> count); ``unmapped_topics``
+(topic -> {type, count}); ``dropped_topics`` (topic -> count, dropped by the topic map);
+``skipped`` (reason -> count); ``start_ns``, ``end_ns``, ``duration_s``.
+"""
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import struct
+import sys
+from pathlib import Path
+from typing import Any, Iterator
+
+import yaml
+from pydantic import ValidationError
+from tqdm import tqdm
+
+from common.mcap_io import RecordingWriter
+from common.messages import Header, Message
+from missions.importers import frames as frames_mod
+from missions.importers.errors import InputFormatError
+from missions.importers.rostopic_csv import read_rostopic_csv
+from missions.importers.rosbags_io import CONVERTERS, DEFAULT_TOPIC_MAP, ConversionError, iter_bag, open_bags
+
+__all__ = ["main", "import_sources", "load_topic_map"]
+
+
+def load_topic_map(path: str | Path | None) -> dict[str, str | None]:
+    """The default topic map updated with a YAML ``topic: key`` mapping."""
+    tm: dict[str, str | None] = dict(DEFAULT_TOPIC_MAP)
+    if path is None:
+        return tm
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except FileNotFoundError:
+        raise InputFormatError(f"{p}: no such topic map") from None
+    except yaml.YAMLError as exc:
+        raise InputFormatError(f"{p}: not valid YAML: {exc}") from None
+    if data is None:
+        return tm
+    if not isinstance(data, dict):
+        raise InputFormatError(f"{p}: the topic map must be a mapping 'topic: key', got {type(data).__name__}")
+    for topic, key in data.items():
+        if key is not None and (not isinstance(key, str) or not key or key.startswith("/")):
+            raise InputFormatError(f"{p}: topic {topic!r}: key must be a non-empty string without a leading "
+                                   f"slash or null, got {key!r}")
+        tm[str(topic)] = key
+    return tm
+
+
+def _key_of(topic: str, tm: dict[str, str | None]) -> str | None:
+    if topic in tm:
+        return tm[topic]
+    return topic.lstrip("/")
+
+
+class _Stats:
+    def __init__(self) -> None:
+        self.inputs: list[dict[str, Any]] = []
+        self.read: dict[str, int] = {}
+        self.unmapped_types: dict[str, int] = {}
+        self.unmapped_topics: dict[str, dict[str, Any]] = {}
+        self.dropped: dict[str, int] = {}
+        self.skipped: dict[str, int] = {}
+
+    def bump(self, d: dict[str, int], k: str) -> None:
+        d[k] = d.get(k, 0) + 1
+
+
+def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats) -> Iterator[tuple[int, int, str, Message]]:
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Rosbag1Error
+    from rosbags.rosbag2 import ReaderError as Rosbag2Error
+
+    reader, info = open_bags(paths)
+    topics = {}
+    for c in reader.connections:
+        t = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0})
+        t["count"] += c.msgcount
+    stats.inputs.append({"paths": info["paths"], "format": info["kind"], "topics": topics})
+    seqs: dict[str, int] = {}
+    n = 0
+    try:
+        for bm in iter_bag(reader):
+            n += 1
+            stats.bump(stats.read, bm.topic)
+            key = _key_of(bm.topic, tm)
+            if key is None:
+                stats.bump(stats.dropped, bm.topic)
+                continue
+            conv = CONVERTERS.get(bm.msgtype)
+            if conv is None:
+                stats.bump(stats.unmapped_types, bm.msgtype)
+                u = stats.unmapped_topics.setdefault(bm.topic, {"type": bm.msgtype, "count": 0})
+                u["count"] += 1
+                continue
+            ros = reader.deserialize(bm.raw, bm.connection.msgtype)
+            h = getattr(ros, "header", None)
+            stamp = bm.record_ns
+            if h is not None:
+                hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+                stamp = hs if hs > 0 else bm.record_ns
+            if h is not None and hasattr(h, "seq"):
+                seq = int(h.seq)
+            else:
+                seq = seqs.get(key, 0)
+                seqs[key] = seq + 1
+            header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
+            try:
+                msg = conv(ros, header)
+            except (ConversionError, ValidationError) as exc:
+                reason = f"{bm.topic} ({bm.msgtype}): {str(exc).splitlines()[0]}"
+                stats.bump(stats.skipped, reason)
+                continue
+            yield bm.record_ns, 0, key, msg
+    except (AnyReaderError, Rosbag1Error, Rosbag2Error, struct.error, EOFError) as exc:
+        raise InputFormatError(f"{', '.join(info['paths'])}: unreadable after {n} messages: {exc} "
+                               f"(truncated or corrupt bag?)") from None
+    finally:
+        reader.close()
+
+
+def _list_stream(items: list[tuple[str, Message]], order: int) -> Iterator[tuple[int, int, str, Message]]:
+    for key, msg in sorted(items, key=lambda km: km[1].header.stamp):
+        yield msg.header.stamp, order, key, msg
+
+
+def _frames_stream(plan: list, order: int) -> Iterator[tuple[int, int, str, Message]]:
+    for stamp, key, img in frames_mod.iter_frames(plan):
+        yield stamp, order, key, img
+
+
+def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[str, str | None] | None = None,
+                   frames_timestamps: str | Path | None = None, progress: bool = True) -> dict[str, Any]:
+    """Import every source into one recording at ``out``; returns the summary (see module doc)."""
+    tm = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
+    stats = _Stats()
+    bags: list[Path] = []
+    streams: list[Iterator[tuple[int, int, str, Message]]] = []
+    if not sources:
+        raise InputFormatError("no sources given")
+    for i, s in enumerate(sources):
+        p = Path(s)
+        if not p.exists():
+            raise InputFormatError(f"{p}: no such file or folder")
+        if p.is_file() and p.suffix.lower() == ".csv":
+            recs = read_rostopic_csv(p)
+            key0 = recs[0][0] if recs else p.stem
+            key = _key_of("/" + key0, tm) if ("/" + key0) in tm else key0
+            stats.inputs.append({"paths": [str(p)], "format": "rostopic_csv", "topics": {key0: {"type": key0, "count": len(recs)}}})
+            stats.read[key0] = stats.read.get(key0, 0) + len(recs)
+            if key is None:
+                stats.dropped[key0] = len(recs)
+                continue
+            streams.append(_list_stream([(key, m) for _, m in recs], i + 1))
+        elif p.is_dir() and not (p / "metadata.yaml").exists():
+            plan = frames_mod.frames_plan(p, frames_timestamps)
+            stats.inputs.append({"paths": [str(p)], "format": "frames", "topics": {"camera/image_raw": {"type": "image", "count": len(plan)}}})
+            stats.read["camera/image_raw"] = stats.read.get("camera/image_raw", 0) + len(plan)
+            streams.append(_frames_stream(plan, i + 1))
+        else:
+            bags.append(p)
+    if bags:
+        ros1 = [b for b in bags if b.suffix.lower() == ".bag"]
+        ros2 = [b for b in bags if b.suffix.lower() != ".bag"]
+        if ros1:
+            streams.append(_bag_stream(ros1, tm, stats))
+        if ros2:
+            streams.append(_bag_stream(ros2, tm, stats))
+    writer = RecordingWriter(out)
+    first = last = None
+    bar = tqdm(desc="import", unit="msg", disable=not progress)
+    try:
+        for _, _, key, msg in heapq.merge(*streams, key=lambda x: (x[0], x[1])):
+            writer.write(key, msg)
+            st = msg.header.stamp
+            first = st if first is None else min(first, st)
+            last = st if last is None else max(last, st)
+            bar.update(1)
+        writer.add_metadata("poseidon", {"tool": "poseidon import", "sources": [str(s) for s in sources],
+                                         "topic_map": tm})
+    finally:
+        bar.close()
+        writer.close()
+    return {
+        "out": str(out), "inputs": stats.inputs, "read": dict(sorted(stats.read.items())),
+        "written": dict(sorted(writer.counts.items())), "unmapped_types": dict(sorted(stats.unmapped_types.items())),
+        "unmapped_topics": dict(sorted(stats.unmapped_topics.items())), "dropped_topics": stats.dropped,
+        "skipped": stats.skipped, "start_ns": first, "end_ns": last,
+        "duration_s": (last - first) / 1e9 if first is not None else 0.0,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="poseidon import", description=__doc__.split("\n\n")[0])
+    ap.add_argument("sources", nargs="+", help="ROS1 .bag, ROS2 bag folder/.db3/.mcap, rostopic CSV, frames folder")
+    ap.add_argument("--out", required=True, help="output MCAP recording")
+    ap.add_argument("--topic-map", default=None, help="YAML mapping 'topic: key' (null drops a topic)")
+    ap.add_argument("--frames-timestamps", default=None, help="timestamps file of a frames folder")
+    ap.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        summary = import_sources(args.sources, args.out, load_topic_map(args.topic_map), args.frames_timestamps,
+                                 progress=not args.no_progress)
+    except InputFormatError as exc:
+        print(f"poseidon import: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        json.dump(summary, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(f"wrote {args.out}: {sum(summary['written'].values())} messages {summary['written']}; "
+              f"unmapped types {summary['unmapped_types']}; skipped {summary['skipped']}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

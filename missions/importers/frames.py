@@ -1,0 +1,82 @@
+"""A folder of image frames with a timestamps file -> ``camera/image_raw`` Image messages.
+
+The timestamps file lists ``<frame file name> <stamp>`` per line (tab, space or comma;
+stamp in seconds with a decimal fraction, or integer nanoseconds), as
+``camera_frame_timestamps.txt`` of the Girona caves data.  It is looked for as the given
+path, else a ``*timestamps*.txt``/``.csv`` file inside the folder, else one next to the
+folder.  Frames are yielded in timestamp order, loaded lazily (Pillow), as rgb8 (colour)
+or mono8 (grey) images; seq = position in the timestamps file.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from common.messages import Header, Image
+from missions.importers.errors import InputFormatError
+from missions.importers.rostopic_csv import read_frame_timestamps
+
+__all__ = ["IMAGE_SUFFIXES", "find_timestamps", "frames_plan", "load_frame"]
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
+
+
+def find_timestamps(folder: Path, explicit: Path | None = None) -> Path:
+    if explicit is not None:
+        if not explicit.is_file():
+            raise InputFormatError(f"{explicit}: no such timestamps file")
+        return explicit
+    for where in (folder, folder.parent):
+        cands = sorted(p for p in where.iterdir()
+                       if p.is_file() and "timestamp" in p.name.lower() and p.suffix.lower() in (".txt", ".csv"))
+        if len(cands) == 1:
+            return cands[0]
+        if len(cands) > 1:
+            raise InputFormatError(f"{folder}: several timestamps files {[c.name for c in cands]} in {where}; "
+                                   f"pass one with --frames-timestamps")
+    raise InputFormatError(f"{folder}: no timestamps file (*timestamps*.txt) in the folder or next to it; "
+                           f"pass one with --frames-timestamps")
+
+
+def frames_plan(folder: str | Path, timestamps: str | Path | None = None) -> list[tuple[int, int, Path]]:
+    """``(stamp ns, seq, file)`` of every frame, in stamp order.  Raises :class:`InputFormatError`
+    for an empty folder, a missing timestamps file or a listed frame that does not exist."""
+    d = Path(folder)
+    if not d.is_dir():
+        raise InputFormatError(f"{d}: not a folder of frames")
+    images = {p.name for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    if not images:
+        raise InputFormatError(f"{d}: empty folder: no image frames ({', '.join(sorted(IMAGE_SUFFIXES))})")
+    ts = find_timestamps(d, Path(timestamps) if timestamps else None)
+    plan = []
+    for seq, (name, stamp) in enumerate(read_frame_timestamps(ts)):
+        if name not in images:
+            raise InputFormatError(f"{ts}: frame {name!r} is listed but not in {d}")
+        plan.append((stamp, seq, d / name))
+    plan.sort(key=lambda x: (x[0], x[1]))
+    return plan
+
+
+def load_frame(path: Path, stamp: int, seq: int, frame_id: str = "camera") -> Image:
+    from PIL import Image as PILImage, UnidentifiedImageError
+
+    try:
+        with PILImage.open(path) as pil:
+            pil.load()
+            if pil.mode in ("L", "I;16", "1"):
+                arr = np.asarray(pil.convert("L"))
+                enc = "mono8"
+            else:
+                arr = np.asarray(pil.convert("RGB"))
+                enc = "rgb8"
+    except (UnidentifiedImageError, OSError) as exc:
+        raise InputFormatError(f"{path}: cannot read image: {exc}") from None
+    return Image(header=Header(seq=seq, stamp=stamp, frame_id=frame_id), height=arr.shape[0], width=arr.shape[1],
+                 encoding=enc, data=np.ascontiguousarray(arr))
+
+
+def iter_frames(plan: list[tuple[int, int, Path]]) -> Iterator[tuple[int, str, Image]]:
+    for stamp, seq, path in plan:
+        yield stamp, "camera/image_raw", load_frame(path, stamp, seq)

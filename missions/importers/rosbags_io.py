@@ -1,0 +1,270 @@
+"""ROS1 ``.bag``, ROS2 ``.db3`` and ROS2 ``.mcap`` bags -> PoseidonSLAM messages (via rosbags).
+
+Type mapping (``sensor_msgs`` / ``nav_msgs`` / ``cirs_girona_cala_viuda``):
+
+===================================== ==================================================
+ROS type                              our message
+===================================== ==================================================
+sensor_msgs/Image                     Image (rgb8, bgr8, mono8, rgba8, bgra8, mono16)
+sensor_msgs/CompressedImage           Image rgb8 / mono8 (JPEG or PNG decoded by Pillow)
+sensor_msgs/Imu                       Imu (roll, pitch, yaw from the quaternion, ZYX)
+sensor_msgs/LaserScan                 LaserScan
+nav_msgs/Odometry                     Odometry (pose, twist, covariances)
+cirs_girona_cala_viuda/Depth          Depth
+cirs_girona_cala_viuda/Imu            Imu
+cirs_girona_cala_viuda/LinkquestDvl   LinkquestDvl
+cirs_girona_cala_viuda/RangeImageBeam RangeImageBeam
+===================================== ==================================================
+
+Any other type (``sensor_msgs/NavSatFix``, ``tf2_msgs/TFMessage``, ...) is *unmapped*:
+counted by type and topic, never an error.  Values are copied without frame conversion
+(``frame_id`` is kept).  Stamp = header stamp (ns), or the bag's record time when the
+header stamp is zero; seq = the ROS1 header seq, or a per-key counter (ROS2 headers have
+no seq).
+
+The Cala Viuda custom types are registered from their ``.msg`` definitions (below), so
+ROS2 bags that do not embed definitions read too; ROS1 bags embed their own.
+"""
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Message, Odometry, RangeImageBeam
+from missions.importers.errors import InputFormatError
+
+__all__ = ["CALA_VIUDA_MSGS", "make_typestore", "CONVERTERS", "normalise_type", "open_bags", "BagMessage",
+           "rpy_from_quaternion", "DEFAULT_TOPIC_MAP"]
+
+#: .msg definitions of the package cirs_girona_cala_viuda (Cala Viuda caves dataset)
+CALA_VIUDA_MSGS: dict[str, str] = {
+    "cirs_girona_cala_viuda/msg/Depth": "std_msgs/Header header\nfloat64 depth\n",
+    "cirs_girona_cala_viuda/msg/Imu": (
+        "std_msgs/Header header\n" + "".join(f"float64 {f}\n" for f in
+                                             "roll pitch yaw qx qy qz qw temp mx my mz ax ay az gx gy gz bx by bz".split())),
+    "cirs_girona_cala_viuda/msg/RangeImageBeam": (
+        "std_msgs/Header header\nfloat64 angle_grad\nfloat64 angle_rad\nint32 nbins\nint32 max_range\n"
+        "int32[] beam_data\n"),
+    "cirs_girona_cala_viuda/msg/LinkquestDvl": (
+        "std_msgs/Header header\nstring errcode\nint32[4] datagood\nfloat64[4] altitudebeam\n"
+        "float64[4] bottomvelocitybeam\nfloat64[4] watervelocitybeam\nfloat64[4] watervelocitycredit\n"
+        "float64[3] velocityinst\nint32 velocityinstflag\nfloat64[3] velocityearth\nint32 velocityearthflag\n"
+        "float64[3] watervelocityinst\nint32 watervelocityinstflag\nfloat64[3] watervelocityearth\n"
+        "int32 watervelocityearthflag\nfloat64 roll\nfloat64 pitch\nfloat64 heading\nfloat64 altitude\n"
+        "float64 temperature\nfloat64 pressure\nfloat64 salinity\nfloat64 soundspeed\nstring rawdata\n"),
+}
+
+#: ROS topic -> recording key (topics not listed map to the topic without its leading slash)
+DEFAULT_TOPIC_MAP: dict[str, str] = {
+    "/camera/image_raw": "camera/image_raw",
+    "/sonar_micron": "sonar_micron",
+    "/sonar_micron_ros": "sonar_micron_ros",
+    "/sonar_seaking": "sonar_seaking",
+    "/sonar_seaking_ros": "sonar_seaking_ros",
+    "/dvl_linkquest": "dvl_linkquest",
+    "/imu_adis": "imu_adis",
+    "/imu_adis_ros": "imu_adis_ros",
+    "/depth_sensor": "depth_sensor",
+    "/odometry": "odometry",
+}
+
+
+def make_typestore(ros2: bool = False) -> Any:
+    """A rosbags typestore (ROS1 Noetic or ROS2 Humble) with the Cala Viuda types registered."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    types: dict[str, Any] = {}
+    for name, text in CALA_VIUDA_MSGS.items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return store
+
+
+def normalise_type(msgtype: str) -> str:
+    """``sensor_msgs/msg/Imu`` -> ``sensor_msgs/Imu``."""
+    parts = msgtype.split("/")
+    if len(parts) == 3 and parts[1] == "msg":
+        return f"{parts[0]}/{parts[2]}"
+    return msgtype
+
+
+def rpy_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:
+    """ZYX Euler angles (roll, pitch, yaw), rad, of a unit quaternion."""
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def _stamp(msg: Any, record_ns: int) -> int:
+    h = getattr(msg, "header", None)
+    if h is None:
+        return record_ns
+    ns = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+    return ns if ns > 0 else record_ns
+
+
+class ConversionError(ValueError):
+    """A message of a mapped type whose content cannot be represented (e.g. image encoding)."""
+
+
+_CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1, "rgba8": 4, "bgra8": 4, "mono16": 1}
+
+
+def _image(m: Any, h: Header) -> Image:
+    enc = str(m.encoding).lower()
+    if enc not in _CHANNELS:
+        raise ConversionError(f"image encoding {m.encoding!r} not supported (supported: {sorted(_CHANNELS)})")
+    ch = _CHANNELS[enc]
+    dtype = np.dtype(">u2" if (enc == "mono16" and m.is_bigendian) else "<u2") if enc == "mono16" else np.dtype(np.uint8)
+    raw = np.asarray(m.data, dtype=np.uint8)
+    step = int(m.step)
+    if raw.size < step * int(m.height):
+        raise ConversionError(f"image data has {raw.size} bytes, expected step {step} x height {m.height}")
+    rows = raw[: step * int(m.height)].reshape(int(m.height), step)[:, : int(m.width) * ch * dtype.itemsize]
+    arr = np.ascontiguousarray(rows).view(dtype).reshape(int(m.height), int(m.width), ch)
+    if enc == "mono16":
+        arr = arr.astype("<u2")
+    if ch == 1:
+        arr = arr[:, :, 0]
+    return Image(header=h, height=int(m.height), width=int(m.width), encoding=enc, data=np.ascontiguousarray(arr))
+
+
+def _compressed(m: Any, h: Header) -> Image:
+    from PIL import Image as PILImage, UnidentifiedImageError
+
+    try:
+        pil = PILImage.open(io.BytesIO(bytes(np.asarray(m.data, np.uint8))))
+        pil.load()
+    except (UnidentifiedImageError, OSError) as exc:
+        raise ConversionError(f"compressed image ({m.format!r}) cannot be decoded: {exc}") from None
+    if pil.mode in ("L", "I;16"):
+        arr = np.asarray(pil.convert("L"))
+        return Image(header=h, height=arr.shape[0], width=arr.shape[1], encoding="mono8", data=arr)
+    arr = np.asarray(pil.convert("RGB"))
+    return Image(header=h, height=arr.shape[0], width=arr.shape[1], encoding="rgb8", data=arr)
+
+
+def _imu(m: Any, h: Header) -> Imu:
+    q = m.orientation
+    roll, pitch, yaw = rpy_from_quaternion(q.x, q.y, q.z, q.w)
+    return Imu(header=h, roll=roll, pitch=pitch, yaw=yaw, qx=q.x, qy=q.y, qz=q.z, qw=q.w,
+               ax=m.linear_acceleration.x, ay=m.linear_acceleration.y, az=m.linear_acceleration.z,
+               gx=m.angular_velocity.x, gy=m.angular_velocity.y, gz=m.angular_velocity.z)
+
+
+def _laser(m: Any, h: Header) -> LaserScan:
+    return LaserScan(header=h, angle_min=m.angle_min, angle_max=m.angle_max, angle_increment=m.angle_increment,
+                     time_increment=m.time_increment, scan_time=m.scan_time, range_min=m.range_min,
+                     range_max=m.range_max, ranges=np.asarray(m.ranges, np.float32),
+                     intensities=np.asarray(m.intensities, np.float32))
+
+
+def _odometry(m: Any, h: Header) -> Odometry:
+    p, o = m.pose.pose.position, m.pose.pose.orientation
+    tl, ta = m.twist.twist.linear, m.twist.twist.angular
+    return Odometry(header=h, child_frame_id=m.child_frame_id, position=[p.x, p.y, p.z], orientation=[o.x, o.y, o.z, o.w],
+                    linear_velocity=[tl.x, tl.y, tl.z], angular_velocity=[ta.x, ta.y, ta.z],
+                    pose_covariance=[float(v) for v in m.pose.covariance],
+                    twist_covariance=[float(v) for v in m.twist.covariance])
+
+
+def _cv_depth(m: Any, h: Header) -> Depth:
+    return Depth(header=h, depth=m.depth)
+
+
+def _cv_imu(m: Any, h: Header) -> Imu:
+    return Imu(header=h, **{f: float(getattr(m, f)) for f in Imu.model_fields if f != "header"})
+
+
+def _cv_beam(m: Any, h: Header) -> RangeImageBeam:
+    return RangeImageBeam(header=h, angle_grad=m.angle_grad, angle_rad=m.angle_rad, nbins=m.nbins,
+                          max_range=m.max_range, beam_data=np.asarray(m.beam_data, np.int32))
+
+
+def _cv_dvl(m: Any, h: Header) -> LinkquestDvl:
+    kw: dict[str, Any] = {}
+    for name in LinkquestDvl.model_fields:
+        if name == "header":
+            continue
+        v = getattr(m, name)
+        kw[name] = v.tolist() if isinstance(v, np.ndarray) else v
+    return LinkquestDvl(header=h, **kw)
+
+
+#: normalised ROS type -> converter(ros message, header) -> our message
+CONVERTERS: dict[str, Callable[[Any, Header], Message]] = {
+    "sensor_msgs/Image": _image,
+    "sensor_msgs/CompressedImage": _compressed,
+    "sensor_msgs/Imu": _imu,
+    "sensor_msgs/LaserScan": _laser,
+    "nav_msgs/Odometry": _odometry,
+    "cirs_girona_cala_viuda/Depth": _cv_depth,
+    "cirs_girona_cala_viuda/Imu": _cv_imu,
+    "cirs_girona_cala_viuda/LinkquestDvl": _cv_dvl,
+    "cirs_girona_cala_viuda/RangeImageBeam": _cv_beam,
+}
+
+
+class BagMessage:
+    """One raw message of a bag (decoded lazily)."""
+
+    __slots__ = ("topic", "msgtype", "record_ns", "raw", "connection")
+
+    def __init__(self, topic: str, msgtype: str, record_ns: int, raw: bytes, connection: Any):
+        self.topic, self.msgtype, self.record_ns, self.raw, self.connection = topic, msgtype, record_ns, raw, connection
+
+
+def _bag_kind(path: Path) -> str:
+    if path.is_dir():
+        if (path / "metadata.yaml").exists():
+            return "ros2"
+        raise InputFormatError(f"{path}: a folder without metadata.yaml is not a ROS2 bag")
+    suffix = path.suffix.lower()
+    if suffix == ".bag":
+        return "ros1"
+    if suffix in (".db3", ".mcap"):
+        return "ros2"
+    raise InputFormatError(f"{path}: unknown bag format (expected .bag, .db3, .mcap or a ROS2 bag folder)")
+
+
+def _ros2_dir(path: Path) -> Path:
+    """rosbags reads ROS2 bags by folder; a bare .db3/.mcap file needs its folder with metadata.yaml."""
+    if path.is_dir():
+        return path
+    if (path.parent / "metadata.yaml").exists():
+        return path.parent
+    raise InputFormatError(f"{path}: ROS2 bag file without a metadata.yaml next to it (rosbags needs the bag folder)")
+
+
+def open_bags(paths: list[Path]) -> tuple[Any, dict[str, Any]]:
+    """An opened rosbags AnyReader over ``paths`` (ROS1 and ROS2 may not be mixed in one
+    reader) and per-path info; raises :class:`InputFormatError` naming the file."""
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    kinds = {_bag_kind(p) for p in paths}
+    if len(kinds) > 1:
+        raise InputFormatError(f"{[str(p) for p in paths]}: mixes ROS1 and ROS2 bags in one reader")
+    kind = kinds.pop()
+    real = [(_ros2_dir(p) if kind == "ros2" else p) for p in paths]
+    for p in real:
+        if not p.exists():
+            raise InputFormatError(f"{p}: no such bag")
+    reader = AnyReader(real, default_typestore=make_typestore(ros2=(kind == "ros2")))
+    try:
+        reader.open()
+    except AnyReaderError as exc:
+        raise InputFormatError(f"{', '.join(map(str, real))}: cannot read {kind.upper()} bag: {exc} "
+                               f"(truncated, not indexed or not a bag?)") from None
+    return reader, {"kind": kind, "paths": [str(p) for p in real]}
+
+
+def iter_bag(reader: Any) -> Iterator[BagMessage]:
+    """Every message of an opened reader in bag-time order."""
+    for conn, t, raw in reader.messages():
+        yield BagMessage(conn.topic, normalise_type(conn.msgtype), int(t), raw, conn)
