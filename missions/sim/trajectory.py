@@ -1,7 +1,7 @@
 """Vehicle trajectory of a simulated mission and the revisit ground truth.
 
-The vehicle (a hovering AUV) follows the route of :mod:`missions.sim.world` in cycles:
-three loops of area 1 ("Ellipse"), the transition, three loops of area 2 ("Cave 2"), the
+The vehicle (a hovering AUV) enters area 1 through the last 15 m of the tunnel from
+area 2, then follows the route of :mod:`missions.sim.world` in cycles: three loops of area 1 ("Ellipse"), the transition, three loops of area 2 ("Cave 2"), the
 transition back, and again.  Speed, lateral offset in the tunnel, altitude over the floor,
 roll, pitch and a small crab angle vary smoothly, so passes of the same place differ a
 little.  The state is sampled at 50 Hz and interpolated linearly for every sensor stamp.
@@ -105,6 +105,10 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
     total = 0.0
     cycle = [(a1, 0, k) for k in range(LOOPS_PER_AREA)] + [(tr, 1, 0)] + \
             [(a2, 2, k) for k in range(LOOPS_PER_AREA)] + [(back, 3, 0)]
+    # the mission starts with an approach: the last 15 m of the tunnel from area 2 into area 1
+    entry = back[-150:]
+    plan.append((entry, 3, 0))
+    total += float(np.sum(np.hypot(*np.diff(entry, axis=0).T)))
     while total < s[-1] + 10.0:
         for item in cycle:
             plan.append(item)

@@ -1,0 +1,409 @@
+"""``poseidon transform IN.mcap --out OUT.mcap [--segments ...]``: the Underwater Cave
+Transformed Database protocol (dissertation Section 5.2) on any recording.
+
+Five *source* time ranges of the input (seconds from its first message) are chained into
+nine sequential output segments::
+
+    entry | area1 loop1  loop2* loop3* | transition | area2 loop1  loop2* loop3* | exit
+
+Loop 1 of each area is the source range unaltered; loops 2 and 3 replicate every stream
+of loop 1 (IMU, DVL, depth, sonars, odometry, ground truth) and perturb each camera image
+(``*``): a random horizontal translation of 5 % +- 1 % of the image width (random sign)
+and a rotation of 0 +- 0.5 deg about the image centre (Normal draws, seeded), edges
+clamped.  Optional extra perturbations of loops 2-3 (the dissertation's future work):
+``--illumination G`` (gain change up to +-G and a horizontal lighting gradient),
+``--particles N`` (about N marine-snow blobs per image), ``--blur S`` (Gaussian blur of
+up to S px), ``--occlusion F`` (a dark blob covering up to a fraction F of the image),
+``--scale S`` (zoom by 1 +- S).
+
+``--segments "a:b,c:d,e:f,g:h,i:j"`` gives the five ranges (entry, area-1 loop, transition,
+area-2 loop, exit; seconds; half-open).  Default: from a ``poseidon sim`` recording's
+metadata (entry = the approach, loop = the first complete loop of each area, transition =
+the first transition 1->2, exit = the transition 2->1 that follows the area-2 loops), else
+the fractions 0-10-40-50-80-100 % of the duration.
+
+Output timeline: segment k starts 1 ms after segment k-1 ends; stamps are re-based
+(strictly increasing per key, 1 ns nudges if the input repeats a stamp), seq is renumbered
+per key from 0.  ``truth/revisits`` is rewritten: an image of loop 2 or 3 revisits the
+copies (in earlier loops of the same area) of its source frame and of source frames within
+``--revisit-tolerance`` frames (default 2); revisits the input's own ``truth/revisits``
+declares are carried over to every copy.  Metadata ``poseidon`` records the source
+ranges, the output segment table and the perturbation parameters; ``transform_segments``
+lists the nine output segments with their output time ranges.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import struct
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from tqdm import tqdm
+
+from common.codec import decode_dict, pack_obj
+from common.mcap_io import RecordingError, RecordingWriter, read_messages, read_metadata
+
+__all__ = ["main", "transform", "perturb_image", "Perturbation", "parse_segments", "default_segments"]
+
+GAP_NS = 1_000_000  # 1 ms between output segments
+IMAGE_KEYS = ("camera/image_raw",)
+SEGMENT_NAMES = ["entry", "area1_loop1", "area1_loop2", "area1_loop3", "transition",
+                 "area2_loop1", "area2_loop2", "area2_loop3", "exit"]
+# output segment -> (source range index, copy number within the area: 0 unaltered, 1-2 perturbed)
+PLAN = [(0, 0), (1, 0), (1, 1), (1, 2), (2, 0), (3, 0), (3, 1), (3, 2), (4, 0)]
+
+
+@dataclass
+class Perturbation:
+    """Parameters of the image perturbation of loops 2-3 (0 disables an extra)."""
+
+    shift_mean: float = 0.05       # fraction of the width
+    shift_std: float = 0.01
+    rot_std_deg: float = 0.5
+    illumination: float = 0.0
+    particles: float = 0.0
+    blur: float = 0.0
+    occlusion: float = 0.0
+    scale: float = 0.0
+
+
+def _bilinear(img: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+    h, w = img.shape[:2]
+    sx = np.clip(sx, 0, w - 1.0001)
+    sy = np.clip(sy, 0, h - 1.0001)
+    x0 = sx.astype(np.int32)
+    y0 = sy.astype(np.int32)
+    fx = (sx - x0)[..., None] if img.ndim == 3 else sx - x0
+    fy = (sy - y0)[..., None] if img.ndim == 3 else sy - y0
+    f = img.astype(np.float32)
+    a = f[y0, x0]
+    b = f[y0, x0 + 1]
+    c = f[y0 + 1, x0]
+    d = f[y0 + 1, x0 + 1]
+    return (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy
+
+
+def _gauss_blur(f: np.ndarray, sigma: float) -> np.ndarray:
+    if sigma <= 0.05:
+        return f
+    r = max(1, int(3 * sigma))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k /= k.sum()
+    pad = [(r, r), (0, 0)] + ([(0, 0)] if f.ndim == 3 else [])
+    g = np.pad(f, pad, mode="edge")
+    g = sum(k[i] * g[i:i + f.shape[0]] for i in range(2 * r + 1))
+    pad = [(0, 0), (r, r)] + ([(0, 0)] if f.ndim == 3 else [])
+    g2 = np.pad(g, pad, mode="edge")
+    return sum(k[i] * g2[:, i:i + f.shape[1]] for i in range(2 * r + 1))
+
+
+def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) -> tuple[np.ndarray, dict[str, float]]:
+    """The loop-2/3 image transformation of Section 5.2 (plus enabled extras); returns the
+    image (same dtype and shape) and the drawn parameters."""
+    h, w = img.shape[:2]
+    shift = float(rng.choice([-1.0, 1.0]) * rng.normal(p.shift_mean, p.shift_std) * w)
+    rot = float(rng.normal(0.0, p.rot_std_deg))
+    zoom = float(1.0 + rng.uniform(-p.scale, p.scale)) if p.scale > 0 else 1.0
+    th = math.radians(rot)
+    c, s = math.cos(th), math.sin(th)
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    # output pixel q = R * zoom * (src - centre) + centre + (shift, 0)  ->  src = inverse
+    qx = (xx - cx - shift) / zoom
+    qy = (yy - cy) / zoom
+    sx = c * qx + s * qy + cx
+    sy = -s * qx + c * qy + cy
+    f = _bilinear(img, sx, sy)
+    drawn = {"shift_px": shift, "rotation_deg": rot}
+    if p.scale > 0:
+        drawn["scale"] = zoom
+    if p.illumination > 0:
+        gain = 1.0 + rng.uniform(-p.illumination, p.illumination)
+        grad = rng.uniform(-p.illumination, p.illumination)
+        ramp = 1.0 + grad * (xx / max(w - 1, 1) - 0.5)
+        f = f * (gain * ramp)[..., None] if f.ndim == 3 else f * gain * ramp
+        drawn["gain"] = gain
+        drawn["gradient"] = grad
+    if p.blur > 0:
+        sigma = float(rng.uniform(0.3, p.blur))
+        f = _gauss_blur(f, sigma)
+        drawn["blur_sigma_px"] = sigma
+    if p.particles > 0:
+        n = int(rng.poisson(p.particles))
+        top = 255.0 if img.dtype == np.uint8 else float(np.iinfo(img.dtype).max) if img.dtype.kind == "u" else 1.0
+        for _ in range(n):
+            u, v = rng.uniform(0, w), rng.uniform(0, h)
+            rad = rng.uniform(0.6, 3.0)
+            amp = rng.uniform(0.2, 0.7) * top
+            x0, x1 = max(int(u - 3 * rad), 0), min(int(u + 3 * rad) + 1, w)
+            y0, x1b = max(int(v - 3 * rad), 0), min(int(v + 3 * rad) + 1, h)
+            if x1 <= x0 or x1b <= y0:
+                continue
+            gy, gx = np.mgrid[y0:x1b, x0:x1]
+            blob = amp * np.exp(-((gx - u) ** 2 + (gy - v) ** 2) / (2 * rad * rad))
+            if f.ndim == 3:
+                f[y0:x1b, x0:x1] += blob[..., None]
+            else:
+                f[y0:x1b, x0:x1] += blob
+        drawn["particles"] = n
+    if p.occlusion > 0:
+        frac = float(rng.uniform(0.3, 1.0) * p.occlusion)
+        rad = math.sqrt(frac * w * h / math.pi)
+        u, v = rng.uniform(0, w), rng.uniform(0, h)
+        mask = np.clip((rad - np.hypot(xx - u, yy - v)) / 4.0, 0.0, 1.0) * 0.85
+        f = f * (1 - mask[..., None]) if f.ndim == 3 else f * (1 - mask)
+        drawn["occlusion_fraction"] = frac
+    if img.dtype.kind in "ui":
+        info = np.iinfo(img.dtype)
+        out = np.clip(np.rint(f), info.min, info.max).astype(img.dtype)
+    else:
+        out = f.astype(img.dtype)
+    return out, drawn
+
+
+def parse_segments(text: str) -> list[tuple[float, float]]:
+    """``"a:b,c:d,e:f,g:h,i:j"`` -> five (start_s, end_s) ranges."""
+    parts = [t.strip() for t in text.split(",") if t.strip()]
+    if len(parts) != 5:
+        raise ValueError(f"--segments needs 5 ranges (entry, area-1 loop, transition, area-2 loop, exit), "
+                         f"got {len(parts)}: {text!r}")
+    out = []
+    for name, part in zip(("entry", "area-1 loop", "transition", "area-2 loop", "exit"), parts):
+        try:
+            a, b = (float(x) for x in part.split(":"))
+        except ValueError:
+            raise ValueError(f"--segments: {name} range {part!r} is not 'start_s:end_s'") from None
+        if not (0 <= a < b):
+            raise ValueError(f"--segments: {name} range {part!r} must satisfy 0 <= start < end")
+        out.append((a, b))
+    return out
+
+
+def default_segments(meta: dict[str, dict[str, str]], duration_s: float) -> tuple[list[tuple[float, float]], str]:
+    """Source ranges from a sim recording's route segments, else duration fractions."""
+    segs = json.loads(meta.get("poseidon", {}).get("segments", "null") or "null")
+    if segs:
+        def first(pred: Any, after: float = -1.0) -> dict | None:
+            return next((s for s in segs if pred(s) and s["start_s"] >= after and s["complete"]), None)
+
+        entry = first(lambda s: s["name"] == "transition_2_1")
+        a = first(lambda s: s["name"] == "area1_ellipse", entry["end_s"] - 1e-6 if entry else -1.0)
+        tr = first(lambda s: s["name"] == "transition_1_2", a["end_s"] - 1e-6) if a else None
+        b = first(lambda s: s["name"] == "area2_cave2", tr["end_s"] - 1e-6) if tr else None
+        ex = first(lambda s: s["name"] == "transition_2_1", b["end_s"] - 1e-6) if b else None
+        if entry and a and tr and b and ex:
+            return [(entry["start_s"], entry["end_s"]), (a["start_s"], a["end_s"]), (tr["start_s"], tr["end_s"]),
+                    (b["start_s"], b["end_s"]), (ex["start_s"], ex["end_s"])], "sim route segments"
+    f = [0.0, 0.1, 0.4, 0.5, 0.8, 1.0]
+    return [(f[i] * duration_s, f[i + 1] * duration_s) for i in range(5)], "duration fractions 0-10-40-50-80-100 %"
+
+
+def _span(path: Path) -> tuple[int, int, bool]:
+    """(first, last) log time of the recording and whether it has an index (summary)."""
+    with open(path, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error):
+            summary = None  # no usable index (e.g. a killed recorder): read sequentially below
+    if summary is not None and summary.statistics is not None and summary.statistics.message_count:
+        return summary.statistics.message_start_time, summary.statistics.message_end_time, True
+    first = last = None
+    for r in read_messages(path):
+        first = r.stamp if first is None else first
+        last = r.stamp
+    if first is None:
+        raise RecordingError(f"{path}: no messages")
+    return first, last, False
+
+
+def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tuple[str, str, int, bytes]]:
+    """(key, type name, stamp, payload) of the messages with t0 <= stamp < t1, in time order."""
+    if indexed:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            for schema, channel, m in reader.iter_messages(start_time=t0, end_time=t1, log_time_order=True):
+                yield channel.topic, schema.name if schema else "", m.log_time, bytes(m.data)
+    else:
+        for r in read_messages(path):
+            if t0 <= r.stamp < t1:
+                yield r.key, r.type_name, r.stamp, r.payload
+
+
+def transform(src: str | Path, out: str | Path, segments: list[tuple[float, float]] | None = None,
+              seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
+              progress: bool = True) -> dict[str, Any]:
+    """Write the transformed recording; returns a summary (per-key counts, segment table)."""
+    src, out = Path(src), Path(out)
+    if src.resolve() == out.resolve():
+        raise ValueError(f"{out}: output would overwrite the input")
+    pert = pert or Perturbation()
+    first, last, indexed = _span(src)
+    duration_s = (last - first) / 1e9
+    meta = read_metadata(src)
+    how = "given"
+    if segments is None:
+        segments, how = default_segments(meta, duration_s)
+    for (a, b), name in zip(segments, ("entry", "area-1 loop", "transition", "area-2 loop", "exit")):
+        if a >= duration_s + 1e-9:
+            raise ValueError(f"{src}: {name} range {a}:{b} s starts after the recording ends ({duration_s:.3f} s)")
+    rng = np.random.default_rng([seed, 909])
+
+    # source camera frame index (0-based, recording order) -> its stamp, and the input's own revisits
+    src_frames: list[int] = []
+    src_truth: dict[int, list[int]] = {}
+    for r in read_messages(src, keys=list(IMAGE_KEYS) + ["truth/revisits"]):
+        if r.key in IMAGE_KEYS:
+            src_frames.append(r.stamp)
+        else:
+            d = decode_dict(r.payload)
+            src_truth[int(d["frame_index"])] = [int(x) for x in np.asarray(d["same_place"])]
+    frame_of_stamp = {s: i for i, s in enumerate(src_frames)}
+    rel: dict[int, set[int]] = {}
+    for i, js in src_truth.items():
+        for j in js:
+            rel.setdefault(i, set()).add(j)
+            rel.setdefault(j, set()).add(i)
+
+    writer = RecordingWriter(out)
+    seq: dict[str, int] = {}
+    last_stamp: dict[str, int] = {}
+    cursor = first
+    table = []
+    out_frames: list[tuple[int, int, int, int]] = []  # (output stamp, source frame, output segment, copy)
+    perturb_log: list[dict[str, float]] = []
+    total = 0
+    bar = tqdm(desc="transform", unit="msg", disable=not progress)
+    try:
+        for k, (si, copy) in enumerate(PLAN):
+            a_s, b_s = segments[si]
+            t0 = first + int(round(a_s * 1e9))
+            t1 = min(first + int(round(b_s * 1e9)), last + 1)
+            seg_start = cursor
+            seg_last = cursor
+            n_seg = 0
+            for key, type_name, stamp, payload in _range_messages(src, t0, t1, indexed):
+                if key == "truth/revisits":
+                    continue  # rewritten below
+                new = cursor + (stamp - t0)
+                if key in last_stamp and new <= last_stamp[key]:
+                    new = last_stamp[key] + 1
+                last_stamp[key] = new
+                d = decode_dict(payload)
+                s = seq.get(key, 0)
+                seq[key] = s + 1
+                d["header"] = dict(d["header"], seq=s, stamp=new)
+                if key in IMAGE_KEYS:
+                    if copy > 0:
+                        img, drawn = perturb_image(np.asarray(d["data"]), rng, pert)
+                        d["data"] = img
+                        perturb_log.append(drawn)
+                    out_frames.append((new, frame_of_stamp.get(stamp, -1), k, copy))
+                writer.write_encoded(key, type_name, pack_obj(d), new, s)
+                seg_last = max(seg_last, new)
+                n_seg += 1
+                bar.update(1)
+            total += n_seg
+            end = max(seg_last, seg_start + (t1 - t0))
+            table.append({"name": SEGMENT_NAMES[k], "source_start_s": a_s, "source_end_s": (t1 - first) / 1e9,
+                          "copy": copy, "perturbed": copy > 0, "start_s": (seg_start - first) / 1e9,
+                          "end_s": (end - first) / 1e9, "messages": n_seg})
+            cursor = end + GAP_NS
+        _write_revisits(writer, out_frames, rel, revisit_tolerance, seq)
+        pstats = {}
+        if perturb_log:
+            sh = np.array([abs(p["shift_px"]) for p in perturb_log])
+            ro = np.array([p["rotation_deg"] for p in perturb_log])
+            pstats = {"images": len(perturb_log), "shift_px_mean": float(sh.mean()), "shift_px_std": float(sh.std()),
+                      "rotation_deg_mean": float(ro.mean()), "rotation_deg_std": float(ro.std())}
+        writer.add_metadata("poseidon", {
+            "tool": "poseidon transform", "source": str(src), "seed": seed, "segments_from": how,
+            "source_segments_s": segments, "perturbation": pert.__dict__, "revisit_tolerance_frames": revisit_tolerance,
+            "perturbation_stats": pstats, "source_metadata": meta.get("poseidon", {}),
+        })
+        writer.add_metadata("transform_segments", {"segments": table})
+    finally:
+        bar.close()
+        writer.close()
+    return {"out": str(out), "segments": table, "segments_from": how, "counts": dict(sorted(writer.counts.items())),
+            "frames": len(out_frames), "perturbed_frames": len(perturb_log), "perturbation_stats": pstats,
+            "duration_s": (cursor - GAP_NS - first) / 1e9}
+
+
+def _write_revisits(writer: RecordingWriter, frames: list[tuple[int, int, int, int]], rel: dict[int, set[int]],
+                    tol: int, seq: dict[str, int]) -> None:
+    """truth/revisits for every output frame (see module docstring)."""
+    by_src: dict[int, list[int]] = {}
+    for i, (_, s, _, _) in enumerate(frames):
+        by_src.setdefault(s, []).append(i)
+    area_of = {1: 1, 2: 1, 3: 1, 5: 2, 6: 2, 7: 2}
+    for i, (stamp, s, seg, copy) in enumerate(frames):
+        same: set[int] = set()
+        if s >= 0:
+            cands = set(rel.get(s, ()))
+            if seg in area_of and copy > 0:
+                cands.update(range(s - tol, s + tol + 1))
+            for s2 in cands:
+                for j in by_src.get(s2, ()):
+                    if j >= i:
+                        break
+                    seg_j, copy_j = frames[j][2], frames[j][3]
+                    if s2 in rel.get(s, ()):
+                        same.add(j)
+                    elif seg in area_of and area_of.get(seg_j) == area_of[seg] and copy_j < copy:
+                        same.add(j)
+        q = seq.get("truth/revisits", 0)
+        seq["truth/revisits"] = q + 1
+        payload = pack_obj({"header": {"seq": q, "stamp": stamp, "frame_id": "camera"}, "frame_index": i,
+                            "same_place": np.array(sorted(same), dtype=np.int32)})
+        writer.write_encoded("truth/revisits", "poseidon_msgs/RevisitTruth", payload, stamp, q)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="poseidon transform", description=__doc__.split("\n\n")[0])
+    ap.add_argument("input", help="input MCAP recording")
+    ap.add_argument("--out", required=True, help="output MCAP recording")
+    ap.add_argument("--segments", default=None,
+                    help='five source ranges "entry,loop1,transition,loop2,exit" as start_s:end_s (default: see doc)')
+    ap.add_argument("--seed", type=int, default=0, help="perturbation seed (default 0)")
+    ap.add_argument("--revisit-tolerance", type=int, default=2, help="frames either side counted as the same place")
+    ap.add_argument("--illumination", type=float, nargs="?", const=0.25, default=0.0, help="gain change +- G (0.25)")
+    ap.add_argument("--particles", type=float, nargs="?", const=40.0, default=0.0, help="snow blobs per image (40)")
+    ap.add_argument("--blur", type=float, nargs="?", const=1.5, default=0.0, help="max Gaussian blur sigma px (1.5)")
+    ap.add_argument("--occlusion", type=float, nargs="?", const=0.15, default=0.0, help="max occluded fraction (0.15)")
+    ap.add_argument("--scale", type=float, nargs="?", const=0.05, default=0.0, help="zoom 1 +- S (0.05)")
+    ap.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        segs = parse_segments(args.segments) if args.segments else None
+    except ValueError as exc:
+        ap.error(str(exc))
+    for name in ("illumination", "particles", "blur", "occlusion", "scale"):
+        if getattr(args, name) < 0:
+            ap.error(f"--{name} must be >= 0")
+    pert = Perturbation(illumination=args.illumination, particles=args.particles, blur=args.blur,
+                        occlusion=args.occlusion, scale=args.scale)
+    try:
+        summary = transform(args.input, args.out, segs, args.seed, pert, args.revisit_tolerance,
+                            progress=not args.no_progress)
+    except (RecordingError, ValueError) as exc:
+        print(f"poseidon transform: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        json.dump(summary, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(f"wrote {args.out}: {summary['frames']} frames ({summary['perturbed_frames']} perturbed), "
+              f"{summary['duration_s']:.1f} s, segments from {summary['segments_from']}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
