@@ -371,7 +371,7 @@ class DeadReckoningFilter:
         r = np.array([[self.cfg.depth_sigma ** 2]])
         if not self.have_depth or not self.depth_fresh(t):
             # first depth, or z was held without depth: pressure is absolute, take it
-            if self.have_depth and abs(z - self.x[2]) > 0:
+            if self.have_depth:
                 self.count("depth_reacquired")
             self._init_block([2], np.array([z]), r)
             self.have_depth = True

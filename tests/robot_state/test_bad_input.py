@@ -182,3 +182,37 @@ def test_imu_dropout_falls_back_to_dvl_attitude():
     assert "attitude_dvl" in first[200] and "imu_absent" in first[200]
     t, p = odometry_positions(out)
     assert np.abs(p[:, 0] - U * t).max() < 1e-9
+
+
+def test_innovation_gate_rejects_spikes_and_reinitialises_on_a_real_step():
+    cfg = load_config(overrides=NED + ["robot_state.dvl_gate_chi2=16.27"])
+    msgs = _straight(30.0)
+    msgs = _replace(msgs, "dvl_linkquest", 40, dvl(T0 + 8 * NS, 40, [1.9, 0.0, 0.0]))  # one spike
+    node = RobotStateNode(cfg)
+    out = run_offline(node, msgs)
+    assert node.counters["dvl_outlier"] == 1 and "dvl_reinit" not in node.counters
+    assert "dvl_outlier" in _statuses(out)
+    t, p = odometry_positions(out)
+    assert np.abs(p[:, 0] - U * t).max() < 1e-9
+    # a genuine, lasting change of speed: two rejections, then the third re-initialises
+    step = mission(30, lambda t: (U if t < 10 else 1.5, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0),
+                   lambda t: (0.0, 0.0, 0.0), lambda t: 5.0)
+    node = RobotStateNode(cfg)
+    out = run_offline(node, step)
+    assert node.counters["dvl_outlier"] == 2 and node.counters["dvl_reinit"] == 1
+    t, p = odometry_positions(out)
+    speed = np.diff(p[:, 0]) / np.diff(t)
+    assert abs(speed[-1] - 1.5) < 1e-9
+
+
+def test_enu_covariance_is_the_ned_one_remapped():
+    msgs = mission(20, lambda t: (0.5, 0.0, 0.0), lambda t: (0.0, 0.0, math.radians(60)),
+                   lambda t: (0.0, 0.0, 0.0), lambda t: 5.0)
+    ned = _odometry(run_offline(RobotStateNode(load_config(overrides=NED)), msgs))[-1]
+    enu = _odometry(run_offline(RobotStateNode(load_config()), msgs))[-1]
+    a = np.array(ned.pose_covariance).reshape(6, 6)
+    b = np.array(enu.pose_covariance).reshape(6, 6)
+    perm = [1, 0, 2]
+    assert np.allclose(b[:3, :3], a[np.ix_(perm, perm)] * np.outer([1, 1, -1], [1, 1, -1]), rtol=1e-12, atol=1e-15)
+    assert np.allclose(np.diag(b)[3:], np.diag(a)[3:], rtol=1e-9)
+    assert b[0, 0] != b[1, 1]  # heading 60 deg: along-/cross-track uncertainty differ per axis
