@@ -31,6 +31,9 @@ PB = 64  # postings per block
 class LvcResult:
     """Outcome of one match: the published id, R (rate), whether Eq. 4.10 created it, I.
 
+    ``lvc_id`` is -1 only for query-only matching (``NeocortexHtm.step(store=False)``)
+    when Eq. 4.9 rejects every candidate.
+
     ``best_*`` describe the best stored candidate l* before the new id was created
     (-1 / 0 when there was none) for diagnostics; ``anomaly`` is the TM anomaly of the
     step (0 when the TM did not run) and ``descriptor_bits`` = |D_t|.
@@ -149,6 +152,10 @@ class LvcMatcher:
 
     def __len__(self) -> int:
         return self.size
+
+    def prototype_size(self, lvc_id: int) -> int:
+        """|D_l| of a stored prototype."""
+        return int(self._proto_len[lvc_id])
 
     def prototype(self, lvc_id: int) -> np.ndarray:
         if not 0 <= lvc_id < self.size:

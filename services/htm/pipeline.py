@@ -2,6 +2,9 @@
 
 ``NeocortexHtm(cfg).step(active)`` takes the sorted active indices of one fused SDR
 (Eq. 4.3; ``cfg.input_size`` bits) and returns an :class:`LvcResult` (id, R, is_new, I).
+``describe(active)`` returns D_t only (e.g. to build a similarity matrix with
+:func:`descriptor_similarity`), ``step(active, store=False)`` matches without creating ids,
+``reset_sequence()`` forgets the temporal context between two sequences.
 ``sv_descriptor_source`` picks what D_t is built from: ``tm`` TM winner cells (default),
 ``sp`` SP active columns, ``sdr`` the fused SDR itself (SP/TM are then not run). In ``tm``
 mode ``sv_tm_bits`` chooses the bit space: ``cells`` (winner cell indices, default, the
@@ -15,6 +18,7 @@ continues exactly as the saved one would have.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +78,7 @@ class NeocortexHtm:
         self.steps = 0
         self.last_columns = np.zeros(0, np.int32)
         self.last_descriptor = np.zeros(0, np.int64)
+        self.last_anomaly = 0.0
 
     @property
     def n_bits(self) -> int:
@@ -91,10 +96,13 @@ class NeocortexHtm:
             raise ValueError(f"fused SDR 'active' must be sorted unique indices in [0, {self.cfg.input_size})")
         return a
 
-    def encode(self, active: np.ndarray) -> tuple[np.ndarray, float]:
-        """SP/TM on one fused SDR; returns (descriptor source bits, TM anomaly)."""
+    def encode(self, active: np.ndarray, learn: bool | None = None) -> tuple[np.ndarray, float]:
+        """SP/TM on one fused SDR; returns (descriptor source bits, TM anomaly).
+
+        ``learn`` None uses ``htm.learning``.
+        """
         a = self._validate(active)
-        learn = self.cfg.learning
+        learn = self.cfg.learning if learn is None else bool(learn)
         if self.mode == "sdr":
             return a, 0.0
         cols = self.sp.compute(a, learn) if self.sp is not None else a.astype(np.int32)
@@ -102,19 +110,42 @@ class NeocortexHtm:
         if self.mode == "sp":
             return cols.astype(np.int64), 0.0
         winners = self.tm.compute(cols, learn).astype(np.int64)
+        self.last_anomaly = float(self.tm.anomaly)
         if self.tm_columns:
             winners = np.unique(winners // self.tm.cpc)
         return winners, float(self.tm.anomaly)
 
-    def step(self, active: np.ndarray) -> LvcResult:
-        """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10)."""
-        src, anomaly = self.encode(active)
+    def describe(self, active: np.ndarray, learn: bool | None = None) -> np.ndarray:
+        """D_t for one fused SDR (SP -> TM -> pooling -> Eq. 4.5 -> cap); the LVC store is untouched."""
+        src, _ = self.encode(active, learn)
         d = self.descriptor.update(src)
         self.last_descriptor = d
-        res = self.lvc.match(d)
+        return d
+
+    def step(self, active: np.ndarray, learn: bool | None = None, store: bool = True) -> LvcResult:
+        """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10).
+
+        ``store`` False only queries (for evaluation against a fixed reference map): the
+        result's id is the accepted l* or -1, and no prototype is created.
+        """
+        d = self.describe(active, learn)
+        anomaly = self.last_anomaly if self.mode == "tm" else 0.0
         self.steps += 1
-        return LvcResult(res.lvc_id, res.rate, res.is_new, res.intersection, res.best_candidate,
-                         res.best_rate, res.best_intersection, res.descriptor_bits, anomaly)
+        if store:
+            res = self.lvc.match(d)
+            return replace(res, anomaly=anomaly)
+        best, i = self.lvc.best(d)
+        n = d.size
+        rate = i / n if n else 0.0
+        ok = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best))
+        return LvcResult(best if ok else -1, rate if ok else 0.0, False, i if ok else 0, best, rate, i, n,
+                         anomaly)
+
+    def reset_sequence(self) -> None:
+        """Forget the temporal context (TM predictions, pooling window, interval run); keep learning."""
+        if self.tm is not None:
+            self.tm.reset()
+        self.descriptor.reset()
 
     # ---- persistence ------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

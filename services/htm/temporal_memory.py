@@ -534,11 +534,11 @@ class TemporalMemory:
         self.pb_next = np.full(p0, -1, np.int32)
         self.pb_free = np.zeros(p0, np.int32)
         self.prev_active = np.zeros(n, np.int32)
-        self.prev_winner = np.zeros(self.columns, np.int32)
+        self.prev_winner = np.zeros(n, np.int32)        # predicted columns can have several winners
         self._prev_flag = np.zeros(n, np.bool_)
         self._mark = np.zeros(n, np.bool_)
         self._out_active = np.zeros(n, np.int32)
-        self._out_winner = np.zeros(self.columns, np.int32)
+        self._out_winner = np.zeros(n, np.int32)
         self._out_pred = np.zeros(n, np.int32)
         self.active_cells = np.zeros(0, np.int32)
         self.winner_cells = np.zeros(0, np.int32)

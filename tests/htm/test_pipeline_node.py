@@ -141,3 +141,19 @@ def test_node_rejects_wrong_sdr_size():
     msg = NeocortexSdr(header=h, modalities=[bad], fused=bad, fusion_mode="union")
     with pytest.raises(ValueError, match="htm.input_size"):
         run_offline(HtmNode(PoseidonConfig()), [("neocortex/sdr", msg)])
+
+
+def test_query_only_and_describe():
+    places = route(n_places=6, seed=7)
+    h = NeocortexHtm(HtmConfig(sv_descriptor_source="sp", interval_mode=False))
+    ids = [h.step(p).lvc_id for p in places]
+    assert ids == list(range(6))
+    n = len(h.lvc)
+    q = h.step(places[2], learn=False, store=False)
+    assert (q.lvc_id, q.is_new, q.rate) == (2, False, 1.0)
+    novel = h.step(route(n_places=1, seed=8)[0], learn=False, store=False)
+    assert novel.lvc_id == -1 and not novel.is_new and len(h.lvc) == n
+    d = h.describe(places[4], learn=False)
+    assert np.array_equal(d, h.lvc.prototype(4))
+    h.reset_sequence()
+    assert h.step(places[5], store=False).lvc_id == 5

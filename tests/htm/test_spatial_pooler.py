@@ -110,3 +110,20 @@ def test_boosting_raises_starved_columns():
 def test_rejects_out_of_range_input():
     with pytest.raises(ValueError, match="out of range"):
         make_sp().compute(np.array([0, 2048]))
+
+
+def test_columns_starved_of_overlap_get_their_permanences_raised():
+    # inputs confined to [0, 200): columns centred near 1024 (potential 424..1624) never overlap
+    sp = make_sp()
+    rng = np.random.default_rng(7)
+    far = 1024
+    before = sp.perm[far].copy()
+    for _ in range(60):
+        sp.compute(np.sort(rng.choice(200, 100, replace=False)), learn=True)
+    assert sp.overlap_duty[far] == 0.0 and sp.min_overlap_duty > 0.0
+    # raised by connected/10 = 0.01 per learning step after the first update round (step 50)
+    assert np.all(sp.perm[far] >= np.minimum(before + 0.1 - 1e-5, 1.0))
+    fresh = make_sp()
+    fresh.perm = sp.perm.copy()
+    fresh._rebuild_conn()
+    assert np.array_equal(fresh.conn, sp.conn)
