@@ -43,11 +43,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hold", type=int, default=3, help="frames per place")
     ap.add_argument("--bits", type=int, default=512, help="active bits of the fused SDR")
     ap.add_argument("--noise", type=float, default=0.05, help="fraction of bits replaced per frame")
+    ap.add_argument("--boost", type=float, default=None, help="htm.sp_boostStrength (default: config)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
-    cfg = HtmConfig()
+    cfg = HtmConfig() if args.boost is None else HtmConfig(sp_boostStrength=args.boost)
     warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
     for f in stream[:5]:
         warm.step(f)
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"stream: {args.steps} frames, {args.places} places x {args.hold} frames, {args.bits} active bits "
           f"of 2048, noise {args.noise:.0%}")
     print(f"parameters: SP 2048 cols / {cfg.sp_numActiveColumns} active, potentialRadius {cfg.sp_potentialRadius}; "
-          f"TM {cfg.tm_cellsPerColumn} cells/col, activationThreshold {cfg.tm_activationThreshold}, learning on")
+          f"boostStrength {cfg.sp_boostStrength}; TM {cfg.tm_cellsPerColumn} cells/col, activationThreshold {cfg.tm_activationThreshold}, learning on")
     print(f"SP step          mean {ms(t_sp):.3f} ms  median {med(t_sp):.3f} ms")
     print(f"TM step          mean {ms(t_tm):.3f} ms  median {med(t_tm):.3f} ms")
     print(f"SP+TM step       mean {ms(sptm):.3f} ms  median {med(sptm):.3f} ms  p95 {1e3 * np.percentile(sptm, 95):.3f} ms")
