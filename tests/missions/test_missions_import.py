@@ -1,0 +1,271 @@
+"""`poseidon import`: real ROS1 bags, bags written here with the Cala Viuda types, bad input."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.mcap_io import read_messages
+from common.messages import Depth, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam
+from missions.importers.cli import import_sources, load_topic_map, main
+from missions.importers.errors import InputFormatError
+from missions.importers.rosbags_io import make_typestore, rpy_from_quaternion
+
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+BAGS = DATA / "ros1_bags"
+needs_bags = pytest.mark.skipif(not BAGS.is_dir(), reason=f"real ROS1 bags not present at {BAGS}")
+
+
+def _bag_counts(path: Path) -> dict[str, tuple[str, int]]:
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as r:
+        return {c.topic: (c.msgtype, c.msgcount) for c in r.connections}
+
+
+def _recorded(path: Path) -> dict[str, list]:
+    out: dict[str, list] = {}
+    for r in read_messages(path):
+        out.setdefault(r.key, []).append(r.message())
+    return out
+
+
+@needs_bags
+@pytest.mark.parametrize("name", ["robot_localization_test1.bag", "robot_localization_test2.bag"])
+def test_real_ros1_bags_every_message(tmp_path, name):
+    bag = BAGS / name
+    own = _bag_counts(bag)
+    summary = import_sources([bag], tmp_path / "out.mcap", progress=False)
+    rec = _recorded(tmp_path / "out.mcap")
+    for topic, (msgtype, count) in own.items():
+        assert summary["read"][topic] == count
+        if msgtype.endswith("NavSatFix"):
+            assert summary["unmapped_types"]["sensor_msgs/NavSatFix"] == count
+            assert summary["unmapped_topics"][topic]["count"] == count
+        else:
+            assert len(rec[topic.lstrip("/")]) == count, topic
+    if name.endswith("test1.bag"):  # the README's counts
+        assert summary["read"] == {"/fix": 989, "/husky_velocity_controller/odom": 3952, "/imu/data": 11865}
+        assert summary["written"] == {"husky_velocity_controller/odom": 3952, "imu/data": 11865}
+    imu = rec["imu/data"][0]
+    assert isinstance(imu, Imu)
+    r, p, y = rpy_from_quaternion(imu.qx, imu.qy, imu.qz, imu.qw)
+    assert (imu.roll, imu.pitch, imu.yaw) == (r, p, y)
+    odom_keys = [t.lstrip("/") for t, (mt, _) in own.items() if mt.endswith("Odometry")]
+    assert odom_keys and all(isinstance(rec[k][0], Odometry) for k in odom_keys)
+
+
+def _header(store, seq: int, stamp_ns: int, frame: str, ros2: bool):
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Header = store.types["std_msgs/msg/Header"]
+    t = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    return Header(stamp=t, frame_id=frame) if ros2 else Header(seq=seq, stamp=t, frame_id=frame)
+
+
+def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
+    """(topic, msgtype, stamp, message, expected dict) of every custom and a few standard types."""
+    T = store.types
+    rows = []
+    for k in range(n):
+        st = 1_372_687_208_000_000_000 + k * 100_000_000
+        h = lambda off, fr: _header(store, 10 + k, st + off, fr, ros2)  # noqa: E731
+        dvl = dict(errcode="ok", datagood=np.array([1, 0, 1, 1], np.int32), altitudebeam=np.array([2.0, 2.1, 2.2, 2.3]),
+                   bottomvelocitybeam=np.array([0.1, 0.2, 0.3, 0.4]) * k, watervelocitybeam=np.zeros(4),
+                   watervelocitycredit=np.ones(4), velocityinst=np.array([0.25, -0.1, 0.01 * k]),
+                   velocityinstflag=1, velocityearth=np.array([0.2, 0.1, 0.0]), velocityearthflag=1,
+                   watervelocityinst=np.zeros(3), watervelocityinstflag=0, watervelocityearth=np.zeros(3),
+                   watervelocityearthflag=0, roll=1.5, pitch=-2.0, heading=123.0 + k, altitude=2.05, temperature=15.0,
+                   pressure=2853823.582, salinity=0.0, soundspeed=1500.0, rawdata=f"raw{k}")
+        rows.append(("/dvl_linkquest", "cirs_girona_cala_viuda/msg/LinkquestDvl", st + 1,
+                     T["cirs_girona_cala_viuda/msg/LinkquestDvl"](header=h(1, "dvl"), **dvl), dvl))
+        rows.append(("/depth_sensor", "cirs_girona_cala_viuda/msg/Depth", st + 2,
+                     T["cirs_girona_cala_viuda/msg/Depth"](header=h(2, "depth"), depth=12.5 + k), {"depth": 12.5 + k}))
+        imu = {f: float(i + k) / 7 for i, f in enumerate(
+            "roll pitch yaw qx qy qz qw temp mx my mz ax ay az gx gy gz bx by bz".split())}
+        rows.append(("/imu_adis", "cirs_girona_cala_viuda/msg/Imu", st + 3,
+                     T["cirs_girona_cala_viuda/msg/Imu"](header=h(3, "imu"), **imu), imu))
+        beam = dict(angle_grad=10.0 * k, angle_rad=0.157 * k, nbins=5, max_range=20,
+                    beam_data=np.array([0, 5, 100, 191, k], np.int32))
+        rows.append(("/sonar_micron", "cirs_girona_cala_viuda/msg/RangeImageBeam", st + 4,
+                     T["cirs_girona_cala_viuda/msg/RangeImageBeam"](header=h(4, "micron"), **beam), beam))
+        img = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3) + k
+        rows.append(("/camera/image_raw", "sensor_msgs/msg/Image", st + 5,
+                     T["sensor_msgs/msg/Image"](header=h(5, "camera"), height=4, width=6, encoding="rgb8",
+                                                is_bigendian=0, step=18, data=img.reshape(-1)),
+                     {"height": 4, "width": 6, "encoding": "rgb8", "data": img}))
+        scan = dict(angle_min=0.125 * k, angle_max=0.125 * k, angle_increment=0.03125, time_increment=0.0, scan_time=0.0625,  # float32-exact
+                    range_min=0.0, range_max=20.0, ranges=np.array([1.0, 2.0], np.float32),
+                    intensities=np.array([10.0, 20.0], np.float32))
+        rows.append(("/sonar_micron_ros", "sensor_msgs/msg/LaserScan", st + 6,
+                     T["sensor_msgs/msg/LaserScan"](header=h(6, "micron"), **scan), scan))
+    return rows
+
+
+def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0) -> list:
+    store = make_typestore(ros2=ros2)
+    if extra_unknown:
+        from rosbags.typesys import get_types_from_msg
+
+        store.register(get_types_from_msg("float64 value\nstring note\n", "foo_msgs/msg/Bar"))
+    rows = _cala_viuda_msgs(store, ros2)
+    if ros2:
+        from rosbags.rosbag2 import Writer
+
+        writer = Writer(path, version=9)
+    else:
+        from rosbags.rosbag1 import Writer
+
+        writer = Writer(path)
+    with writer:
+        conns = {}
+        for topic, msgtype, *_ in rows:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+        for topic, msgtype, stamp, msg, _ in rows:
+            raw = store.serialize_cdr(msg, msgtype) if ros2 else store.serialize_ros1(msg, msgtype)
+            writer.write(conns[topic], stamp, raw)
+        if extra_unknown:
+            c = writer.add_connection("/bar", "foo_msgs/msg/Bar", typestore=store)
+            Bar = store.types["foo_msgs/msg/Bar"]
+            for i in range(extra_unknown):
+                m = Bar(value=float(i), note="x")
+                writer.write(c, 1_372_687_208_000_000_000 + i,
+                             store.serialize_cdr(m, "foo_msgs/msg/Bar") if ros2 else store.serialize_ros1(m, "foo_msgs/msg/Bar"))
+    return rows
+
+
+def _check_field_by_field(out: Path, rows: list, ros2: bool) -> None:
+    rec = _recorded(out)
+    by_key: dict[str, list] = {}
+    for topic, msgtype, stamp, msg, exp in rows:
+        by_key.setdefault(topic.lstrip("/"), []).append((msg, exp))
+    assert set(rec) == set(by_key)
+    types = {"dvl_linkquest": LinkquestDvl, "depth_sensor": Depth, "imu_adis": Imu, "sonar_micron": RangeImageBeam,
+             "camera/image_raw": Image, "sonar_micron_ros": LaserScan}
+    for key, items in by_key.items():
+        got = rec[key]
+        assert len(got) == len(items)
+        for i, (g, (ros, exp)) in enumerate(zip(got, items)):
+            assert isinstance(g, types[key])
+            stamp = ros.header.stamp.sec * 1_000_000_000 + ros.header.stamp.nanosec
+            assert g.header.stamp == stamp
+            assert g.header.frame_id == ros.header.frame_id
+            assert g.header.seq == (i if ros2 else ros.header.seq)
+            for f, v in exp.items():
+                gv = getattr(g, f)
+                if isinstance(v, np.ndarray):
+                    np.testing.assert_array_equal(np.asarray(gv), v, err_msg=f"{key}.{f}")
+                else:
+                    assert gv == v, f"{key}.{f}: {gv!r} != {v!r}"
+
+
+def test_ros1_bag_with_cala_viuda_types_field_by_field(tmp_path):
+    rows = _write_bag(tmp_path / "cv.bag", ros2=False)
+    summary = import_sources([tmp_path / "cv.bag"], tmp_path / "out.mcap", progress=False)
+    assert summary["unmapped_types"] == {} and summary["skipped"] == {}
+    _check_field_by_field(tmp_path / "out.mcap", rows, ros2=False)
+
+
+def test_ros2_bag_with_cala_viuda_types_field_by_field(tmp_path):
+    rows = _write_bag(tmp_path / "cv2", ros2=True)
+    db3 = next((tmp_path / "cv2").glob("*.db3"))
+    for src in (tmp_path / "cv2", db3):  # the bag folder or its .db3 file
+        summary = import_sources([src], tmp_path / "out.mcap", progress=False)
+        assert summary["inputs"][0]["format"] == "ros2"
+        _check_field_by_field(tmp_path / "out.mcap", rows, ros2=True)
+
+
+def test_merge_bag_and_csv_chronologically(tmp_path):
+    _write_bag(tmp_path / "cv.bag", ros2=False)
+    csv = tmp_path / "depth.csv"
+    csv.write_text("%time,field.header.seq,field.header.stamp,field.depth\n"
+                   "0,0,1372687208050000000,1.5\n0,1,1372687208150000000,1.6\n")
+    summary = import_sources([tmp_path / "cv.bag", csv], tmp_path / "out.mcap", progress=False)
+    assert summary["written"]["depth_sensor"] == 3 + 2
+    stamps = [m.header.stamp for m in _recorded(tmp_path / "out.mcap")["depth_sensor"]]
+    assert stamps == sorted(stamps) and 1372687208050000000 in stamps
+
+
+def test_unknown_type_is_reported_and_rest_imported(tmp_path, capsys):
+    rows = _write_bag(tmp_path / "u.bag", ros2=False, extra_unknown=7)
+    rc = main([str(tmp_path / "u.bag"), "--out", str(tmp_path / "out.mcap"), "--json", "--no-progress"])
+    assert rc == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["unmapped_types"] == {"foo_msgs/Bar": 7}
+    assert summary["unmapped_topics"] == {"/bar": {"type": "foo_msgs/Bar", "count": 7}}
+    assert sum(summary["written"].values()) == len(rows)
+
+
+def test_topic_map_renames_and_drops(tmp_path):
+    _write_bag(tmp_path / "cv.bag", ros2=False)
+    tm = tmp_path / "map.yaml"
+    tm.write_text("/imu_adis: imu_adis_ros\n/sonar_micron_ros: null\n")
+    summary = import_sources([tmp_path / "cv.bag"], tmp_path / "out.mcap", load_topic_map(tm), progress=False)
+    assert "imu_adis_ros" in summary["written"] and "imu_adis" not in summary["written"]
+    assert summary["dropped_topics"] == {"/sonar_micron_ros": 3}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/imu_adis: /with/slash\n")
+    with pytest.raises(InputFormatError, match=r"bad\.yaml.*/imu_adis"):
+        load_topic_map(bad)
+
+
+@needs_bags
+def test_truncated_bag_clear_error(tmp_path, capsys):
+    src = BAGS / "robot_localization_test2.bag"
+    cut = tmp_path / "cut.bag"
+    data = src.read_bytes()
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    with pytest.raises(InputFormatError, match=r"cut\.bag.*(truncated|unreadable|cannot read)"):
+        import_sources([cut], tmp_path / "out.mcap", progress=False)
+    assert main([str(cut), "--out", str(tmp_path / "o2.mcap"), "--no-progress"]) == 2
+    assert "cut.bag" in capsys.readouterr().err
+
+
+def test_frames_folder(tmp_path):
+    from PIL import Image as PILImage
+
+    d = tmp_path / "frames"
+    d.mkdir()
+    lines = []
+    for i in range(3):
+        PILImage.fromarray(np.full((8, 10, 3), 40 * i, np.uint8)).save(d / f"frame_{i:06d}.png")
+        lines.append(f"frame_{i:06d}.png\t1372687208.{617629 + i * 100000:06d}")
+    (tmp_path / "camera_frame_timestamps.txt").write_text("\n".join(lines) + "\n")
+    summary = import_sources([d], tmp_path / "out.mcap", progress=False)
+    assert summary["written"] == {"camera/image_raw": 3}
+    imgs = _recorded(tmp_path / "out.mcap")["camera/image_raw"]
+    assert [m.header.stamp for m in imgs] == [1372687208617629000, 1372687208717629000, 1372687208817629000]
+    assert int(np.asarray(imgs[2].data)[0, 0, 0]) == 80
+
+
+def test_empty_folder_and_missing_inputs(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputFormatError, match=r"empty.*empty folder"):
+        import_sources([empty], tmp_path / "out.mcap", progress=False)
+    with pytest.raises(InputFormatError, match=r"nothere\.bag: no such"):
+        import_sources([tmp_path / "nothere.bag"], tmp_path / "out.mcap", progress=False)
+    d = tmp_path / "frames"
+    d.mkdir()
+    from PIL import Image as PILImage
+
+    PILImage.fromarray(np.zeros((4, 4, 3), np.uint8)).save(d / "a.png")
+    with pytest.raises(InputFormatError, match=r"frames: no timestamps file"):
+        import_sources([d], tmp_path / "out.mcap", progress=False)
+
+
+def test_csv_missing_column_via_import(tmp_path):
+    p = tmp_path / "dvl.csv"
+    shutil.copyfile(DATA / "girona_caves" / "dvl_linkquest.csv", p) if (DATA / "girona_caves").is_dir() else None
+    if not p.exists():
+        pytest.skip("Girona DVL log not present")
+    lines = p.read_text().splitlines()[:5]
+    header = lines[0].split(",")
+    drop = header.index("field.velocityInst1")
+    cut = [",".join(c for i, c in enumerate(line.split(",")) if i != drop) for line in lines]
+    p.write_text("\n".join(cut) + "\n")
+    with pytest.raises(InputFormatError, match=r"dvl\.csv: missing column 'field\.velocityinst1'"):
+        import_sources([p], tmp_path / "out.mcap", progress=False)
