@@ -121,6 +121,7 @@ class SimParams:
     odom_vel_walk_m_s: float = 0.008
     truth_rate_hz: float = 10.0
     revisit_radius_m: float = 1.5
+    revisit_max_vehicle_m: float = 2.0
     revisit_min_gap_m: float = 10.0
     chunk_s: float = 30.0
 
@@ -155,6 +156,9 @@ class _CameraRenderer:
         self.lut_direct = np.exp(-2.0 * r[:, None] * self.att[None, :])
         self.lut_scatter = 1.0 - np.exp(-r[:, None] * self.att[None, :])
         self.gamma_lut = (255.0 * (np.arange(4097) / 4096.0) ** (1 / 2.2)).astype(np.float64)
+        u = np.array([0.0, cam.width, 0.0, cam.width])
+        v = np.array([0.0, 0.0, cam.height, cam.height])
+        self.corners = np.stack([(u - cam.u0) / cam.fx, (v - cam.v0) / cam.fy, np.ones(4)])
 
     def render(self, pos: np.ndarray, rpy: np.ndarray, altitude: float, turbidity: float,
                rng: np.random.Generator, noise_seed: int) -> np.ndarray:
@@ -164,6 +168,13 @@ class _CameraRenderer:
         cpos = pos + r_wb @ np.asarray(cam.lever)
         lamp = r_wc @ self.lamp_c
         alt = max(altitude - cam.lever[2], 0.3)
+        # texture tiles under the footprint (image corners on a floor up to 1 m deeper, +0.5 m)
+        dirs = r_wc @ self.corners
+        z_far = float(w.floor_at(cpos[0], cpos[1])[0]) + 1.0
+        tt = (z_far - cpos[2]) / np.maximum(dirs[2], 0.15)
+        xs = np.r_[cpos[0] + tt * dirs[0], cpos[0]]
+        ys = np.r_[cpos[1] + tt * dirs[1], cpos[1]]
+        w.ensure_tiles(xs.min() - 0.5, xs.max() + 0.5, ys.min() - 0.5, ys.max() + 0.5)
         # automatic exposure: bring the centre of a mid-grey floor to ~0.3 linear
         e_c = 0.55 / alt ** 2 * math.exp(-2 * self.att[1] * alt) + self.back[1] * (1 - math.exp(-self.att[1] * alt)) * turbidity
         gain = 0.30 / e_c
@@ -306,7 +317,8 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     # camera frames: poses, footprints and revisit ground truth
     cs = traj.at(st.cam)
     centres = footprint_centres(world, cs["pos"], cs["rpy"], np.asarray(p.camera.lever))
-    same = revisits(centres, cs["dist"], cs["rpy"][:, 2], p.revisit_radius_m, p.revisit_min_gap_m)
+    same = revisits(centres, cs["pos"], cs["dist"], cs["rpy"][:, 2], p.revisit_radius_m, p.revisit_max_vehicle_m,
+                    p.revisit_min_gap_m)
     segs = segments_of(traj, duration)
 
     cam_r = _CameraRenderer(world, p.camera)
@@ -316,8 +328,9 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
         "tool": "poseidon sim", "seed": p.seed, "minutes": p.minutes, "code_revision": code_revision(),
         "params": asdict(p), "t0_ns": T0_NS, "duration_s": duration,
         "frames": "world NED (x north, y east, z down); body x forward, y right, z down; quaternion xyzw body->world",
-        "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m "
-                               f"and >= {p.revisit_min_gap_m} m travelled between the frames; heading ignored"),
+        "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m, "
+                               f"vehicle positions within {p.revisit_max_vehicle_m} m, and >= {p.revisit_min_gap_m} m "
+                               f"travelled between the frames; heading ignored"),
         "route": world.route_names, "segments": segs, "features": world.features,
         "dvl_heading_offset_deg": dvl_heading_off, "gyro_bias_rad_s": gyro_bias.tolist(),
     }

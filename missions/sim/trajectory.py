@@ -168,8 +168,8 @@ def footprint_centres(world: World, pos: np.ndarray, rpy: np.ndarray, lever: np.
 
 
 @nb.njit(cache=True)
-def _revisit_pairs(c: np.ndarray, dist: np.ndarray, yaw: np.ndarray, radius: float, min_gap: float,
-                   max_dyaw: float) -> tuple[np.ndarray, np.ndarray]:
+def _revisit_pairs(c: np.ndarray, pos: np.ndarray, dist: np.ndarray, yaw: np.ndarray, radius: float,
+                   max_vehicle: float, min_gap: float, max_dyaw: float) -> tuple[np.ndarray, np.ndarray]:
     n = c.shape[0]
     counts = np.zeros(n + 1, np.int64)
     cap = 1024
@@ -183,6 +183,11 @@ def _revisit_pairs(c: np.ndarray, dist: np.ndarray, yaw: np.ndarray, radius: flo
             dx = c[i, 0] - c[j, 0]
             dy = c[i, 1] - c[j, 1]
             if dx * dx + dy * dy > r2:
+                continue
+            ex = pos[i, 0] - pos[j, 0]
+            ey = pos[i, 1] - pos[j, 1]
+            ez = pos[i, 2] - pos[j, 2]
+            if ex * ex + ey * ey + ez * ez > max_vehicle * max_vehicle:
                 continue
             if max_dyaw >= 0.0:
                 d = (yaw[i] - yaw[j] + np.pi) % (2 * np.pi) - np.pi
@@ -199,17 +204,20 @@ def _revisit_pairs(c: np.ndarray, dist: np.ndarray, yaw: np.ndarray, radius: flo
     return counts, idx[:m].copy()
 
 
-def revisits(centres: np.ndarray, dist: np.ndarray, yaw: np.ndarray, radius: float = 1.5, min_gap: float = 10.0,
+def revisits(centres: np.ndarray, pos: np.ndarray, dist: np.ndarray, yaw: np.ndarray, radius: float = 1.5,
+             max_vehicle_dist: float = 2.0, min_gap: float = 10.0,
              max_heading_diff: float | None = None) -> list[np.ndarray]:
     """For every camera frame, the indices of earlier frames of the same place.
 
-    Same place: footprint centres within ``radius`` metres, and at least ``min_gap``
-    metres travelled between the two frames (so neighbours of the same pass, which trivially
+    Same place: footprint centres within ``radius`` metres, vehicle positions (3D) within
+    ``max_vehicle_dist`` metres, and at least ``min_gap`` metres travelled between the two
+    frames (so neighbours of the same pass, which trivially
     overlap, are not counted as revisits).  ``max_heading_diff`` (rad) additionally bounds
     the heading difference; None (default) ignores heading, since a downward camera sees the
     same floor whatever the heading (only rotated).
     """
-    indptr, idx = _revisit_pairs(np.ascontiguousarray(centres, np.float64), np.asarray(dist, np.float64),
-                                 np.asarray(yaw, np.float64), radius, min_gap,
+    indptr, idx = _revisit_pairs(np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(pos, np.float64),
+                                 np.asarray(dist, np.float64), np.asarray(yaw, np.float64), radius,
+                                 float(max_vehicle_dist), min_gap,
                                  -1.0 if max_heading_diff is None else float(max_heading_diff))
     return [idx[indptr[i]:indptr[i + 1]] for i in range(len(centres))]

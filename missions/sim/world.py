@@ -113,10 +113,12 @@ def _albedo(x: float, y: float, seed: int, fine: bool) -> tuple[float, float, fl
 
 
 @nb.njit(cache=True, parallel=True)
-def _fill_tiles(tiles: np.ndarray, origins: np.ndarray, res: float, seed: int, fine: bool) -> None:
-    """tiles[k, i, j, c]: albedo at origin_k + ((j - 1) * res, (i - 1) * res) (1-texel apron)."""
+def _fill_tiles(tiles: np.ndarray, origins: np.ndarray, which: np.ndarray, res: float, seed: int, fine: bool) -> None:
+    """tiles[k, i, j, c] for k in ``which``: albedo at origin_k + ((i - 1) * res, (j - 1) * res)
+    (1-texel apron)."""
     n, h, w, _ = tiles.shape
-    for k in nb.prange(n):
+    for q in nb.prange(which.shape[0]):
+        k = which[q]
         ox = origins[k, 0]
         oy = origins[k, 1]
         for i in range(h):
@@ -131,10 +133,10 @@ def _fill_tiles(tiles: np.ndarray, origins: np.ndarray, res: float, seed: int, f
 
 
 @nb.njit(cache=True)
-def _paint_disc(tiles: np.ndarray, index: np.ndarray, x0: float, y0: float, res: float, tile: int,
-                cx: float, cy: float, radius: float, col: np.ndarray, kind: int, seed: int) -> None:
-    """Blend a feature into the tiles.  kind 0: rock (shaded dome), 1: cone (orange with a
-    white band, seen from above), 2: guideline dot (flat colour)."""
+def _paint_disc(tiles: np.ndarray, index: np.ndarray, only: np.ndarray, x0: float, y0: float, res: float,
+                tile: int, cx: float, cy: float, radius: float, col: np.ndarray, kind: int, seed: int) -> None:
+    """Blend a feature into the tiles flagged in ``only``.  kind 0: rock (shaded dome), 1: cone
+    (orange with a white band, seen from above), 2: guideline dot (flat colour)."""
     n_ty, n_tx = index.shape
     h = tiles.shape[1]
     i0 = int(np.floor((cx - radius - x0) / res)) - 1
@@ -160,7 +162,7 @@ def _paint_disc(tiles: np.ndarray, index: np.ndarray, x0: float, y0: float, res:
                     if a < 0 or b < 0 or a >= n_ty or b >= n_tx:
                         continue
                     k = index[a, b]
-                    if k < 0:
+                    if k < 0 or not only[k]:
                         continue
                     li = gi - a * tile + 1
                     lj = gj - b * tile + 1
@@ -231,6 +233,18 @@ def _relief(free: np.ndarray, floor: np.ndarray, ceil: np.ndarray, dist: np.ndar
             ceil[i, j] = floor[i, j] - height[k] * np.sqrt(max(1.0 - qq * qq, 0.0)) - 0.05
 
 
+@nb.njit(cache=True)
+def _paint_line(tiles: np.ndarray, index: np.ndarray, only: np.ndarray, x0: float, y0: float, res: float, tile: int,
+                pts: np.ndarray, radius: float, col: np.ndarray, seed: int) -> None:
+    for k in range(pts.shape[0]):
+        _paint_disc(tiles, index, only, x0, y0, res, tile, pts[k, 0], pts[k, 1], radius, col, 2, seed)
+
+
+_ROCK = np.array([0.42, 0.38, 0.33])
+_CONE = np.array([0.95, 0.35, 0.05])
+_LINE = np.array([0.95, 0.9, 0.3])
+
+
 # --------------------------------------------------------------------------- world
 
 
@@ -253,6 +267,52 @@ class World:
     route: list[np.ndarray]   # centre lines: [area 1 loop, transition, area 2 loop, transition back]
     route_names: list[str]
     features: list[dict] = field(default_factory=list)
+    tile_origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (n, 2) world x, y of texel (0, 0)
+    tile_ready: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))  # tiles generated so far
+    guideline: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (m, 2) guideline points, 5 mm apart
+
+    def ensure_tiles(self, x0: float, x1: float, y0: float, y1: float) -> int:
+        """Generate the texture tiles overlapping [x0, x1] x [y0, y1] (m) that do not exist yet.
+
+        A tile's content depends only on its position and the seed (procedural texture, then
+        rocks and cones, then the guideline, then the 4 cm level), so the order in which
+        tiles are generated never changes the result.  Returns the number generated."""
+        tile_m = TILE * TEX_RES
+        nty, ntx = self.tile_index.shape
+        a0 = max(int(np.floor((x0 - self.tex_x0) / tile_m)), 0)
+        a1 = min(int(np.floor((x1 - self.tex_x0) / tile_m)), nty - 1)
+        b0 = max(int(np.floor((y0 - self.tex_y0) / tile_m)), 0)
+        b1 = min(int(np.floor((y1 - self.tex_y0) / tile_m)), ntx - 1)
+        if a1 < a0 or b1 < b0:
+            return 0
+        ids = self.tile_index[a0:a1 + 1, b0:b1 + 1].ravel()
+        ids = np.unique(ids[ids >= 0])
+        ids = ids[~self.tile_ready[ids]].astype(np.int64)
+        if not len(ids):
+            return 0
+        _fill_tiles(self.tiles0, self.tile_origins, ids, TEX_RES, self.seed, True)
+        only = np.zeros(len(self.tile_ready), np.bool_)
+        only[ids] = True
+        lo = self.tile_origins[ids].min(axis=0) - 0.5
+        hi = self.tile_origins[ids].max(axis=0) + tile_m + 0.5
+        for f in self.features:
+            if lo[0] <= f["x"] <= hi[0] and lo[1] <= f["y"] <= hi[1]:
+                _paint_disc(self.tiles0, self.tile_index, only, self.tex_x0, self.tex_y0, TEX_RES, TILE, f["x"],
+                            f["y"], f["r"], _ROCK if f["kind"] == "rock" else _CONE, 0 if f["kind"] == "rock" else 1,
+                            self.seed)
+        g = self.guideline
+        sel = (g[:, 0] >= lo[0]) & (g[:, 0] <= hi[0]) & (g[:, 1] >= lo[1]) & (g[:, 1] <= hi[1])
+        _paint_line(self.tiles0, self.tile_index, only, self.tex_x0, self.tex_y0, TEX_RES, TILE, g[sel], 0.006,
+                    _LINE, self.seed)
+        _downsample_tiles(self.tiles0, self.tiles1, ids, L1_FACTOR)
+        self.tile_ready[ids] = True
+        return len(ids)
+
+    def ensure_all_tiles(self) -> int:
+        """Generate every tile (e.g. before timing the renderer)."""
+        tile_m = TILE * TEX_RES
+        nty, ntx = self.tile_index.shape
+        return self.ensure_tiles(self.tex_x0, self.tex_x0 + nty * tile_m, self.tex_y0, self.tex_y0 + ntx * tile_m)
 
     def floor_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         return _bilinear_grid(self.floor, self.grid_x0, self.grid_y0, self.grid_res,
@@ -337,9 +397,9 @@ def build_world(seed: int) -> World:
 
     # texture tiles wherever the floor can be seen (free cells + a 1.5 m margin)
     tile_m = TILE * TEX_RES
-    nty = int(np.ceil(ny * GRID_RES / tile_m))
-    ntx = int(np.ceil(nx * GRID_RES / tile_m))
     cells = int(round(tile_m / GRID_RES))
+    nty = -(-ny // cells)
+    ntx = -(-nx // cells)
     pad = np.zeros((nty * cells, ntx * cells), np.bool_)
     near = (seg >= 0) & (dist < np.where(seg >= 0, w[np.maximum(seg, 0)] * 1.3 + 1.0, 0.0))
     pad[:ny, :nx] = near
@@ -348,14 +408,12 @@ def build_world(seed: int) -> World:
     index[need] = np.arange(int(need.sum()), dtype=np.int32)
     ty, tx = np.nonzero(need)
     origins = np.c_[gx0 + ty * tile_m, gy0 + tx * tile_m].astype(np.float64)
-    tiles0 = np.empty((len(origins), TILE + 2, TILE + 2, 3), np.uint8)
-    _fill_tiles(tiles0, origins, TEX_RES, seed, True)
+    tiles0 = np.zeros((len(origins), TILE + 2, TILE + 2, 3), np.uint8)
     t1 = TILE // L1_FACTOR
-    tiles1 = np.empty((len(origins), t1 + 2, t1 + 2, 3), np.uint8)
+    tiles1 = np.zeros((len(origins), t1 + 2, t1 + 2, 3), np.uint8)
 
     # distinctive features along the centre line: rocks and traffic cones, plus a guideline
     features: list[dict] = []
-    cum = 0
     for piece, name in zip(route[:3], names[:3]):
         m = len(piece)
         for _ in range(int(m * 0.1 / 12)):  # ~one rock every 12 m
@@ -365,7 +423,6 @@ def build_world(seed: int) -> World:
             p = piece[k] + nrm * rng.uniform(-1.2, 1.2)
             features.append({"kind": "rock", "x": float(p[0]), "y": float(p[1]), "r": float(rng.uniform(0.15, 0.45)),
                              "area": name})
-        cum += m
     for name, piece, fr in (("area1_ellipse", route[0], (0.2, 0.7)), ("transition_1_2", route[1], (0.5,)),
                             ("area2_cave2", route[2], (0.15, 0.6, 0.85))):
         for f in fr:
@@ -374,31 +431,26 @@ def build_world(seed: int) -> World:
             nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
             p = piece[k] + nrm * 0.6
             features.append({"kind": "cone", "x": float(p[0]), "y": float(p[1]), "r": 0.2, "area": name})
-    rock_col = np.array([0.42, 0.38, 0.33])
-    cone_col = np.array([0.95, 0.35, 0.05])
-    for f in features:
-        _paint_disc(tiles0, index, gx0, gy0, TEX_RES, TILE, f["x"], f["y"], f["r"],
-                    rock_col if f["kind"] == "rock" else cone_col, 0 if f["kind"] == "rock" else 1, seed)
     # guideline: a thin yellow line 0.4 m left of the centre line, through every tunnel
-    line_col = np.array([0.95, 0.9, 0.3])
+    gl = []
     for piece in route[:3]:
         tang = np.gradient(piece, axis=0)
         nrm = np.c_[-tang[:, 1], tang[:, 0]] / (np.hypot(tang[:, 0], tang[:, 1])[:, None] + 1e-9)
-        gl = _resample(piece + 0.4 * nrm, 0.005)
-        for p in gl:
-            _paint_disc(tiles0, index, gx0, gy0, TEX_RES, TILE, p[0], p[1], 0.006, line_col, 2, seed)
-    _downsample_tiles(tiles0, tiles1, L1_FACTOR)
+        gl.append(_resample(piece + 0.4 * nrm, 0.005))
+    guideline = np.concatenate(gl)
     return World(seed=seed, grid_x0=gx0, grid_y0=gy0, grid_res=GRID_RES, free=free, floor=floor, ceiling=ceil,
                  tex_x0=gx0, tex_y0=gy0, tile_index=index, tiles0=tiles0, tiles1=tiles1, route=route,
-                 route_names=names, features=features)
+                 route_names=names, features=features, tile_origins=origins,
+                 tile_ready=np.zeros(len(origins), np.bool_), guideline=guideline)
 
 
 @nb.njit(cache=True, parallel=True)
-def _downsample_tiles(t0: np.ndarray, t1: np.ndarray, f: int) -> None:
-    """Level 1 = box mean of f x f level-0 texels (apron by clamping)."""
+def _downsample_tiles(t0: np.ndarray, t1: np.ndarray, which: np.ndarray, f: int) -> None:
+    """Level 1 = box mean of f x f level-0 texels (apron by clamping), tiles in ``which``."""
     n, h1, w1, _ = t1.shape
     h0 = t0.shape[1]
-    for k in nb.prange(n):
+    for q in nb.prange(which.shape[0]):
+        k = which[q]
         for i in range(h1):
             for j in range(w1):
                 for c in range(3):

@@ -1,0 +1,151 @@
+"""`poseidon sim`: determinism, streams and formats, revisit ground truth."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from common.mcap_io import file_sha256, read_messages, read_metadata
+from missions.sim import cli as sim_cli
+from missions.sim.mission import SimParams, generate
+from missions.sim.trajectory import footprint_centres, make_trajectory, revisits
+from missions.sim.world import build_world
+
+SEED = 3
+# 0.5 min at 4.5 m/s: the approach and more than one loop of area 1, so places are revisited
+FAST = dict(minutes=0.5, seed=SEED, speed_m_s=4.5)
+
+
+@pytest.fixture(scope="module")
+def fast_mission(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sim") / "a.mcap"
+    summary = generate(path, SimParams(**FAST), progress=False)
+    return path, summary
+
+
+def _by_key(path):
+    out: dict[str, list] = {}
+    for r in read_messages(path):
+        out.setdefault(r.key, []).append(r.message())
+    return out
+
+
+def test_same_seed_same_bytes(fast_mission, tmp_path):
+    path, _ = fast_mission
+    # the second run rebuilds the world from scratch (not the per-process cache)
+    generate(tmp_path / "b.mcap", SimParams(**FAST), progress=False, world=build_world.__wrapped__(SEED))
+    assert file_sha256(path) == file_sha256(tmp_path / "b.mcap")
+
+
+def test_streams_rates_and_formats(fast_mission):
+    path, summary = fast_mission
+    recs = _by_key(path)
+    dur = FAST["minutes"] * 60
+    expect_hz = {"camera/image_raw": 5.0, "sonar_micron": 23.3, "sonar_micron_ros": 23.3, "sonar_seaking": 50.0,
+                 "sonar_seaking_ros": 50.0, "dvl_linkquest": 2.85, "imu_adis": 10.0, "imu_adis_ros": 10.0,
+                 "depth_sensor": 10.0, "odometry": 11.2, "truth/pose": 10.0, "truth/revisits": 5.0}
+    assert set(recs) == set(expect_hz)
+    for key, hz in expect_hz.items():
+        assert abs(len(recs[key]) - hz * dur) <= 2, key
+        stamps = [m.header.stamp for m in recs[key]]
+        assert all(b > a for a, b in zip(stamps, stamps[1:])), key
+        assert [m.header.seq for m in recs[key]] == list(range(len(stamps))), key
+    assert summary["counts"] == {k: len(v) for k, v in recs.items()}
+    img = recs["camera/image_raw"][10]
+    a = np.asarray(img.data)
+    assert (img.width, img.height, img.encoding, a.shape, a.dtype) == (384, 288, "rgb8", (288, 384, 3), np.uint8)
+    # blue-green cast and a lamp cone: centre brighter than the corners
+    means = a.reshape(-1, 3).mean(axis=0)
+    assert means[1] > 1.3 * means[0] and means[2] > 1.2 * means[0]
+    g = a[..., 1].astype(float)
+    assert g[110:180, 150:230].mean() > 1.3 * np.mean([g[:30, :40].mean(), g[-30:, -40:].mean()])
+    beam = recs["sonar_micron"][0]
+    assert (beam.nbins, beam.max_range, np.asarray(beam.beam_data).shape) == (397, 20, (397,))
+    assert max(int(np.asarray(m.beam_data).max()) for m in recs["sonar_micron"]) > 120  # wall echoes
+    scan = recs["sonar_micron_ros"][5]
+    assert scan.angle_min == scan.angle_max == recs["sonar_micron"][5].angle_rad
+    np.testing.assert_array_equal(np.asarray(scan.intensities), np.asarray(recs["sonar_micron"][5].beam_data))
+    heads = np.array([m.angle_rad for m in recs["sonar_micron"][:3]])
+    np.testing.assert_allclose(np.diff(np.rad2deg(heads)), 1.8)
+    dvl = recs["dvl_linkquest"]
+    assert any(m.velocityinstflag == 1 for m in dvl)
+    ok = [m for m in dvl if m.velocityinstflag == 1]
+    speed = np.median([np.hypot(*m.velocityinst[:2]) for m in ok])
+    assert 3.0 < speed < 6.0  # 4.5 m/s mean, +-12 % smooth variation
+    depth = np.array([m.depth for m in recs["depth_sensor"]])
+    assert 10 < depth.mean() < 20
+    imu = recs["imu_adis"][0]
+    assert abs(imu.az + 9.81) < 0.5  # specific force, z down
+    meta = read_metadata(path)["poseidon"]
+    assert json.loads(meta["seed"]) == SEED and json.loads(meta["minutes"]) == FAST["minutes"]
+    params = json.loads(meta["params"])
+    assert params["imu_yaw_drift_deg_per_min"] > 0 and params["dvl_noise_m_s"] > 0
+
+
+def test_recorded_revisits_against_truth(fast_mission):
+    path, summary = fast_mission
+    recs = _by_key(path)
+    truth = recs["truth/pose"]
+    t = np.array([m.header.stamp for m in truth], float)
+    pos = np.array([m.position for m in truth])
+    frames = recs["camera/image_raw"]
+    fs = np.array([m.header.stamp for m in frames], float)
+    fpos = np.stack([np.interp(fs, t, pos[:, k]) for k in range(3)], axis=1)
+    rev = recs["truth/revisits"]
+    assert [m.frame_index for m in rev] == list(range(len(frames)))
+    pairs = [(m.frame_index, int(j)) for m in rev for j in np.asarray(m.same_place)]
+    assert len(pairs) > 20 and summary["frames_with_revisits"] > 5  # the loop closes
+    for i, j in pairs:
+        assert j < i
+        assert np.linalg.norm(fpos[i] - fpos[j]) <= 2.0 + 1e-6
+    d = np.linalg.norm(fpos[:, None, :] - fpos[None, :, :], axis=2)
+    called = np.zeros_like(d, bool)
+    for i, j in pairs:
+        called[i, j] = True
+    assert not (called & (d > 5.0)).any()
+
+
+def test_revisit_definition_long_mission():
+    """25 minutes of trajectory (no rendering): the definition holds and loops produce revisits."""
+    world = build_world(SEED)
+    p = SimParams(minutes=25, seed=SEED)
+    traj = make_trajectory(world, p.minutes * 60, SEED, p.speed_m_s)
+    times = np.arange(0.05, p.minutes * 60, 0.2)
+    st = traj.at(times)
+    c = footprint_centres(world, st["pos"], st["rpy"], np.asarray(p.camera.lever))
+    same = revisits(c, st["pos"], st["dist"], st["rpy"][:, 2], 1.5, 2.0, 10.0)
+    n_pairs = sum(len(s) for s in same)
+    assert n_pairs > 1000
+    # exactness against brute force on a subsample
+    rng = np.random.default_rng(0)
+    for i in rng.choice(len(times), 300, replace=False):
+        d = np.linalg.norm(c[:i] - c[i], axis=1)
+        dv = np.linalg.norm(st["pos"][:i] - st["pos"][i], axis=1)
+        gap = st["dist"][i] - st["dist"][:i]
+        expect = np.nonzero((d <= 1.5) & (dv <= 2.0) & (gap >= 10.0))[0]
+        np.testing.assert_array_equal(np.sort(same[i]), expect)
+
+
+def test_cli_json_summary(tmp_path, capsys):
+    rc = sim_cli.main(["--minutes", "0.05", "--seed", str(SEED), "--out", str(tmp_path / "c.mcap"), "--json",
+                       "--no-progress"])
+    assert rc == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["counts"]["camera/image_raw"] == s["frames"] == 14
+    assert {"duration_s", "distance_m", "loops", "segments", "wall_s", "realtime_factor"} <= set(s)
+    with pytest.raises(SystemExit):
+        sim_cli.main(["--minutes", "-1", "--out", str(tmp_path / "d.mcap")])
+
+
+def test_lazy_tiles_independent_of_generation_order():
+    a = build_world.__wrapped__(SEED)
+    b = build_world.__wrapped__(SEED)
+    x0, y0 = a.route[0][0]  # the junction of area 1: guideline and tunnel floor
+    assert a.ensure_tiles(x0 - 4, x0 + 4, y0 - 4, y0 + 4) > 4
+    for dx, dy in ((2, 2), (-3, 1), (0, -3), (-4, -4), (4, 4)):  # other order, overlapping pieces
+        b.ensure_tiles(x0 + dx - 1.5, x0 + dx + 1.5, y0 + dy - 1.5, y0 + dy + 1.5)
+    both = a.tile_ready & b.tile_ready
+    assert both.sum() > 4
+    np.testing.assert_array_equal(a.tiles0[both], b.tiles0[both])
+    np.testing.assert_array_equal(a.tiles1[both], b.tiles1[both])
