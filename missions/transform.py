@@ -228,7 +228,7 @@ def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tup
     if indexed:
         with open(path, "rb") as f:
             reader = make_reader(f)
-            for schema, channel, m in reader.iter_messages(start_time=t0, end_time=t1, log_time_order=True):
+            for schema, channel, m in reader.iter_messages(starting_at=t0, ending_before=t1, log_time_order=True):
                 yield channel.topic, schema.name if schema else "", m.log_time, bytes(m.data)
     else:
         for r in read_messages(path):
@@ -244,6 +244,8 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     if src.resolve() == out.resolve():
         raise ValueError(f"{out}: output would overwrite the input")
     pert = pert or Perturbation()
+    if not src.is_file():
+        raise RecordingError(f"{src}: no such recording")
     first, last, indexed = _span(src)
     duration_s = (last - first) / 1e9
     meta = read_metadata(src)
