@@ -34,6 +34,7 @@ class BusConfig(_Section):
     queue_size: int = Field(256, ge=1, description="bounded subscriber queue (messages)")
     heartbeat_interval_ms: int = Field(100, ge=1, description="event-time heartbeat of silent streams (ms)")
     startup_timeout_s: float = Field(60.0, gt=0, description="wait for subscribers/services to come alive")
+    drain_timeout_s: float = Field(3600.0, gt=0, description="a finished publisher waits this long for consumers to finish")
 
 
 class PlayerConfig(_Section):
@@ -143,6 +144,11 @@ class RobotStateConfig(_Section):
     gyro_sigma_deg_s: float = Field(0.05, gt=0, description="gyro noise, deg/s/sqrt(Hz)")
     roll_pitch_sigma_deg: float = Field(0.5, gt=0, description="IMU roll/pitch measurement sigma (deg)")
     attitude_rw_sigma_deg_s: float = Field(5.0, gt=0, description="attitude random walk without gyro, deg/sqrt(s)")
+    dvl_heading_fusion: bool = Field(True, description="with an IMU, also fuse the DVL compass heading, estimating "
+                                     "its mounting offset and the drift of the IMU yaw")
+    dvl_heading_sigma_deg: float = Field(2.0, gt=0, description="DVL compass heading noise (deg)")
+    dvl_heading_offset_sigma_deg: float = Field(5.0, gt=0, description="prior std of the DVL compass offset (deg)")
+    imu_yaw_drift_sigma_deg_s: float = Field(0.05, ge=0, description="random walk of the IMU yaw error, deg/sqrt(s)")
 
 
 class PoseCellsConfig(_Section):
@@ -199,6 +205,9 @@ class PoseidonConfig(_Section):
     vpr_guard: VprGuardConfig = Field(default_factory=VprGuardConfig)
     expmap: ExpMapConfig = Field(default_factory=ExpMapConfig)
     services: list[str] = Field(default_factory=list, description="services the launcher starts (empty: all built)")
+    service_classes: dict[str, str] = Field(
+        default_factory=dict,
+        description="swap or add a service implementation: name -> 'module:Class' (a ServiceNode subclass)")
 
 
 class ConfigError(ValueError):

@@ -6,16 +6,19 @@ path integration (Eqs. 3.10-3.11: body velocity rotated to the world frame by
 ``R(phi, theta, psi)`` and integrated) inside an extended Kalman filter so that the
 estimate carries a covariance and survives bad or missing data.
 
-Why an EKF on a 9-state (and not an error-state filter): the attitude is *measured*
+Why an EKF on Euler angles (and not an error-state filter): the attitude is *measured*
 directly (the ADIS16480 AHRS or the DVL's own compass), the filter never has to integrate
 accelerometers, and roll/pitch stay far from the Euler singularity for an AUV; a plain
-EKF on Euler angles is then exact enough, simple to audit, and its prediction reproduces
-Eqs. 3.10-3.11 exactly when the inputs are noise-free (tested to 1e-9).  There are no
-bias states: gyro biases are unobservable against an AHRS attitude that already removed
-them, and the DVL has no observable bias without an absolute position fix.
+EKF is then exact enough, simple to audit, and its prediction reproduces Eqs. 3.10-3.11
+exactly when the inputs are noise-free (tested to 1e-9).  No gyro or DVL velocity bias
+states: gyro biases are unobservable against an AHRS attitude that already removed them,
+and a DVL velocity bias is unobservable without an absolute position fix.
 
-State ``x`` (conventions in :mod:`services.robot_state.frames`): position NED ``p`` (m),
-body-frame (FRD) velocity ``v`` (m/s), attitude ``e = (roll, pitch, yaw)`` (rad).
+State ``x`` (11; conventions in :mod:`services.robot_state.frames`): position NED ``p``
+(m), body-frame (FRD) velocity ``v`` (m/s), attitude ``e = (roll, pitch, yaw)`` (rad),
+``b_imu`` (error of the IMU's reported yaw, a random walk ``imu_yaw_drift_sigma_deg_s``,
+prior 0: the IMU defines the initial heading) and ``b_dvl`` (the DVL compass mounting
+offset, constant, prior std ``dvl_heading_offset_sigma_deg``).
 Velocity is kept in the body frame because a vehicle that turns during a DVL dropout keeps
 moving forward, not along its old world direction.
 
@@ -36,11 +39,16 @@ moving forward, not along its old world direction.
   z comes from pressure, never from integrated velocity: the vertical velocity only carries
   z across the interval between two depth records (<= ``depth_timeout_s``); beyond that z
   is held and its variance grows (``depth_dropout``).
-- **Attitude**: with an IMU, roll/pitch (``roll_pitch_sigma_deg``) and yaw
+- **Attitude**: with an IMU, roll/pitch (``roll_pitch_sigma_deg``) and yaw + ``b_imu``
   (``heading_sigma_deg``) are measurements and the gyro drives the prediction
-  (``gyro_sigma_deg_s``).  Without a fresh IMU (none recorded, ``use_imu`` false, or older
+  (``gyro_sigma_deg_s``).  With ``dvl_heading_fusion`` the DVL compass heading is a second
+  yaw measurement (yaw + ``b_dvl``, ``dvl_heading_sigma_deg``): while the IMU yaw is still
+  good the compass offset is learned, later the drift-free compass holds the IMU's yaw
+  drift in check (an AHRS yaw drifts; a magnetic compass does not, but sits at an
+  unknown offset).  Without a fresh IMU (none recorded, ``use_imu`` false, or older
   than ``imu_timeout_s``) the DVL's roll/pitch/heading (degrees) are taken as the attitude
-  (a reset: with no rate sensor there is nothing to blend them with).  A DVL without a
+  (a reset, minus the learned compass offset: with no rate sensor there is nothing to
+  blend them with).  A DVL without a
   compass reports exactly 0 for all three (the Girona LinkQuest logs do, for every record):
   such records are counted (``dvl_attitude_zero``) and the output is flagged
   ``heading_unobserved`` -- the heading is then constant and turns are invisible.
@@ -83,6 +91,9 @@ _GATE_MAX_REJECTS = 3
 P_IDX = [0, 1, 2]
 V_IDX = [3, 4, 5]
 E_IDX = [6, 7, 8]
+B_IMU = 9  # IMU yaw error (its reported yaw = yaw + b_imu)
+B_DVL = 10  # DVL compass offset (its reported heading = yaw + b_dvl)
+N_STATE = 11
 
 
 @dataclass
@@ -94,7 +105,7 @@ class FilterSnapshot:
     velocity_body: np.ndarray
     euler: np.ndarray
     angular_velocity: np.ndarray
-    covariance: np.ndarray  # 9x9 over (p, v, e)
+    covariance: np.ndarray  # 11x11 over (p, v, e, b_imu, b_dvl)
     flags: list[str]
 
 
@@ -160,8 +171,9 @@ class DeadReckoningFilter:
         self.dvl_identity = not any(cfg.dvl_rotation_rpy_deg)
         self.imu_identity = not any(cfg.imu_rotation_rpy_deg)
         self.r_dvl = np.asarray(cfg.dvl_translation_m, dtype=float)
-        self.x = np.zeros(9)
-        self.P = np.diag([0.0, 0.0, 1e4, 1e2, 1e2, 1e2, 1e2, 1e2, 1e2])
+        self.x = np.zeros(N_STATE)
+        self.P = np.diag([0.0, 0.0, 1e4, 1e2, 1e2, 1e2, 1e2, 1e2, 1e2, 0.0,
+                          math.radians(cfg.dvl_heading_offset_sigma_deg) ** 2])
         self.t: int | None = None  # state time (ns)
         self.gyro = np.zeros(3)
         self.have_velocity = False
@@ -272,7 +284,7 @@ class DeadReckoningFilter:
         integrate = self.initialised
         z_moves = integrate and self.depth_fresh(t0)
         r = euler_to_matrix(*e)
-        F = np.eye(9)
+        F = np.eye(N_STATE)
         dp = np.zeros(3)
         if integrate:
             dp = r @ v * g
@@ -284,7 +296,7 @@ class DeadReckoningFilter:
         F[3:6, 3:6] *= a
         if gyro_on:
             F[6:9, 6:9] += _euler_rate_jacobian(e[0], e[1], w) * dt
-        Q = np.zeros(9)
+        Q = np.zeros(N_STATE)
         Q[3:6] = qv
         if gyro_on:
             Q[6:9] = math.radians(cfg.gyro_sigma_deg_s) ** 2 * dt
@@ -292,6 +304,8 @@ class DeadReckoningFilter:
             Q[6:9] = math.radians(cfg.attitude_rw_sigma_deg_s) ** 2 * dt
         if integrate and not z_moves:
             Q[2] = cfg.dropout_speed_sigma ** 2 * dt * 1.0  # z held: random walk, 1 s correlation
+        if cfg.dvl_heading_fusion:
+            Q[B_IMU] = math.radians(cfg.imu_yaw_drift_sigma_deg_s) ** 2 * dt
         self.x[0:3] += dp
         self.x[3:6] = v * a
         if gyro_on:
@@ -307,30 +321,46 @@ class DeadReckoningFilter:
         self.P[:, idx] = 0.0
         self.P[np.ix_(idx, idx)] = r
 
-    def _update(self, idx: list[int], y: np.ndarray, r: np.ndarray) -> None:
-        """Kalman update of a direct measurement of states ``idx`` with innovation ``y``;
-        the gain is restricted to those states (Joseph form keeps P consistent)."""
-        n = len(idx)
-        H = np.zeros((n, 9))
-        H[np.arange(n), idx] = 1.0
+    def _update(self, idx: list[int], y: np.ndarray, r: np.ndarray, H: np.ndarray | None = None) -> None:
+        """Kalman update with innovation ``y`` of a linear measurement ``H x`` (default: a
+        direct measurement of states ``idx``); the gain is restricted to the states ``idx``
+        (Joseph form keeps P consistent for any gain)."""
+        n = len(y)
+        if H is None:
+            H = np.zeros((n, N_STATE))
+            H[np.arange(n), idx] = 1.0
         S = H @ self.P @ H.T + r
         K_full = self.P @ H.T @ np.linalg.inv(S)
         K = np.zeros_like(K_full)
         K[idx, :] = K_full[idx, :]
         self.x += K @ y
-        ikh = np.eye(9) - K @ H
+        ikh = np.eye(N_STATE) - K @ H
         self.P = ikh @ self.P @ ikh.T + K @ r @ K.T
         self.P = 0.5 * (self.P + self.P.T)
 
-    def _set_attitude(self, e: np.ndarray, sig: np.ndarray, reset: bool) -> None:
+    def _set_attitude(self, e: np.ndarray, sig: np.ndarray, reset: bool, bias: int) -> None:
+        """Attitude measurement whose yaw carries the bias state ``bias`` (yaw_meas = yaw + b)."""
         r = np.diag(sig ** 2)
         if reset or not self.have_attitude:
-            self._init_block(E_IDX, np.array([e[0], e[1], wrap_angle(e[2])]), r)
+            self._init_block(E_IDX, np.array([e[0], e[1], wrap_angle(e[2] - self.x[bias])]), r)
             self.have_attitude = True
             return
+        H = np.zeros((3, N_STATE))
+        H[0, 6] = H[1, 7] = H[2, 8] = 1.0
+        H[2, bias] = 1.0
         y = e - self.x[6:9]
+        y[2] -= self.x[bias]
         y = np.array([wrap_angle(a) for a in y])
-        self._update(E_IDX, y, r)
+        self._update(E_IDX + [B_IMU, B_DVL], y, r, H)
+        self.x[8] = wrap_angle(self.x[8])
+
+    def _fuse_dvl_heading(self, heading: float) -> None:
+        """DVL compass heading = yaw + b_dvl (with a fresh IMU; corrects yaw and both biases)."""
+        H = np.zeros((1, N_STATE))
+        H[0, 8] = H[0, B_DVL] = 1.0
+        y = np.array([wrap_angle(heading - self.x[8] - self.x[B_DVL])])
+        r = np.array([[math.radians(self.cfg.dvl_heading_sigma_deg) ** 2]])
+        self._update([8, B_IMU, B_DVL], y, r, H)
         self.x[8] = wrap_angle(self.x[8])
 
     def update_imu(self, msg: Imu) -> bool:
@@ -355,7 +385,7 @@ class DeadReckoningFilter:
         self.gyro = w
         self.last_imu_t = t
         sig = np.radians([self.cfg.roll_pitch_sigma_deg, self.cfg.roll_pitch_sigma_deg, self.cfg.heading_sigma_deg])
-        self._set_attitude(e, sig, reset=reset)
+        self._set_attitude(e, sig, reset=reset, bias=B_IMU)
         self.attitude_source = "imu"
         return True
 
@@ -391,20 +421,27 @@ class DeadReckoningFilter:
         t = self._admit("dvl", msg.header.stamp, msg.header.seq)
         if t is None:
             return False
-        # attitude from the DVL when there is no fresh IMU
+        # attitude from the DVL: the attitude itself without a fresh IMU, else (optionally)
+        # its compass heading fused with the IMU yaw
+        zero_att = att == (0.0, 0.0, 0.0)
+        e = None
+        if _finite(*att) and not zero_att:
+            e = np.radians(att)
+            if not self.dvl_identity:
+                e = np.array(matrix_to_euler(euler_to_matrix(*e) @ self.r_bd.T))
         if not self.imu_fresh(t):
-            self.dvl_attitude_zero = att == (0.0, 0.0, 0.0)
-            if self.dvl_attitude_zero:
+            self.dvl_attitude_zero = zero_att
+            if zero_att:
                 self.count("dvl_attitude_zero")  # no compass: roll, pitch and heading exactly 0
-            if _finite(*att):
-                e = np.radians(att)
-                if not self.dvl_identity:
-                            e = np.array(matrix_to_euler(euler_to_matrix(*e) @ self.r_bd.T))
+                e = np.zeros(3)
+            if e is not None:
                 sig = np.radians([cfg.roll_pitch_sigma_deg, cfg.roll_pitch_sigma_deg, cfg.heading_sigma_deg])
-                self._set_attitude(e, sig, reset=True)
+                self._set_attitude(e, sig, reset=True, bias=B_DVL)
                 self.attitude_source = "dvl"
             else:
                 self.count("dvl_attitude_nonfinite")
+        elif cfg.dvl_heading_fusion and e is not None and self.have_attitude:
+            self._fuse_dvl_heading(float(e[2]))
         if msg.velocityinstflag != 1:
             self.count("dvl_invalid_flag")
             return False

@@ -131,3 +131,27 @@ def test_reflection_remap_is_rejected():
     from common.config import ConfigError
     with pytest.raises(ConfigError, match="axis_remap"):
         RobotStateNode(load_config(overrides=["robot_state.axis_remap=yxz", "robot_state.axis_sign_z=1"]))
+
+
+@pytest.mark.parametrize("fusion", [True, False])
+def test_dvl_compass_bounds_imu_yaw_drift(fusion):
+    """IMU yaw drifting 1 deg/min, DVL compass with a constant 2 deg mounting offset: fusing the
+    compass (offset learned while the IMU is still good) bounds the heading error."""
+    from synth import NS, T0, depth, dvl, imu
+
+    msgs = []
+    for k in range(600 * 10 + 1):  # IMU 10 Hz: true yaw 0, reported yaw drifts
+        t = k / 10
+        msgs.append(("imu_adis_ros", imu(T0 + k * NS // 10, k, (0.0, 0.0, math.radians(t / 60.0)), (0, 0, 0))))
+    for k in range(600 * 2 + 1):  # DVL 2 Hz with compass heading 2 deg (offset)
+        msgs.append(("dvl_linkquest", dvl(T0 + k * NS // 2, k, [0.3, 0.0, 0.0], rpy_deg=(0.0, 0.0, 2.0))))
+    for k in range(600 + 1):
+        msgs.append(("depth_sensor", depth(T0 + k * NS, k, 5.0)))
+    node = RobotStateNode(load_config(overrides=NED + [f"robot_state.dvl_heading_fusion={str(fusion).lower()}"]))
+    out = run_offline(node, msgs)
+    yaw_end = math.degrees(_yaws(out, OutputFrame("xyz", 1.0))[-1])
+    if fusion:
+        assert abs(yaw_end) < 2.0
+        assert abs(math.degrees(node.filter.x[10]) - 2.0) < 1.5  # the learned compass offset
+    else:
+        assert abs(yaw_end - 10.0) < 0.5  # follows the IMU (slightly behind: the gyro says 0)
