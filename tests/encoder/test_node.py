@@ -146,3 +146,17 @@ def test_sonar_topic_from_config(config, encoder):
     assert node.inputs == ("camera/image_raw", "sonar_seaking")
     out = run_offline(node, [("sonar_seaking", ping(0.0, 0)), ("camera/image_raw", frame(0.1, 0))])
     assert [s.modality for s in out[0][1].modalities] == ["camera", "sonar"]
+
+
+def test_image_to_rgb_encodings():
+    from services.encoder.encoder import image_to_rgb
+    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    h = Header(seq=0, stamp=0)
+    assert np.array_equal(image_to_rgb(Image(header=h, height=2, width=3, encoding="rgb8", data=rgb)), rgb)
+    bgr = Image(header=h, height=2, width=3, encoding="bgr8", data=rgb[:, :, ::-1].copy())
+    assert np.array_equal(image_to_rgb(bgr), rgb)
+    mono = image_to_rgb(Image(header=h, height=2, width=3, encoding="mono16",
+                              data=np.full((2, 3), 65535, dtype=np.uint16)))
+    assert mono.shape == (2, 3, 3) and mono.dtype == np.float32 and np.all(mono == 1.0)
+    with pytest.raises(ValueError, match="Image seq 0: data shape"):
+        image_to_rgb(Image(header=h, height=3, width=3, encoding="rgb8", data=rgb))
