@@ -37,7 +37,7 @@ from common.messages import Message, message_type
 
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
-    "recording_summary", "file_sha256", "code_revision",
+    "recording_summary", "recording_keys", "file_sha256", "code_revision",
 ]
 
 log = logging.getLogger(__name__)
@@ -234,6 +234,18 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
     messages, _ = _sequential(p, wanted, strict)
     messages.sort(key=lambda r: r.stamp)
     yield from messages
+
+
+def recording_keys(path: str | Path) -> dict[str, str]:
+    """Key -> message type name of every channel of a recording."""
+    p = Path(path)
+    if _has_summary(p):
+        with _open(p) as f:
+            summary = make_reader(f).get_summary()
+            schemas = summary.schemas
+            return {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()}
+    messages, _ = _sequential(p, None, strict=False)
+    return {r.key: r.type_name for r in messages}
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:

@@ -6,9 +6,10 @@ seq)`` order, and only once every input stream has promised (by data or by a hea
 watermark) that nothing older than the released stamp can still arrive.
 
 Watermark semantics: ``W`` on a stream means no later message on it has ``stamp < W``.
-A data message with stamp ``t`` implies ``W >= t``.  A buffered message with stamp ``t``
-is released when every stream's watermark is ``> t`` (strictly: a stream at ``W == t``
-may still send another message stamped ``t`` that sorts first), or at end of stream.
+A data message with stamp ``t`` implies ``W >= t``.  The oldest buffered message
+``(t, p)`` (stamp, priority of its stream) is released when every *other* stream ``s``
+has ``W_s > t``, or ``W_s == t`` and a lower priority than ``p`` (anything it may still
+send sorts after).  Its own stream never holds it back: a stream delivers in its own order.
 """
 from __future__ import annotations
 
@@ -69,9 +70,10 @@ class EventTimeMerger:
         """Yield ``(stream, stamp, item)`` for every message that is safe to process now."""
         names = list(self._priority)
         while self._heap:
-            wm = self.watermark
-            stamp = self._heap[0][0]
-            if not (stamp < wm or wm == END_OF_TIME):
-                return
+            stamp, prio = self._heap[0][0], self._heap[0][1]
+            for other, wm in self._watermark.items():
+                op = self._priority[other]
+                if op != prio and not (wm > stamp or (wm == stamp and op > prio)):
+                    return
             stamp, prio, _seq, _c, item = heapq.heappop(self._heap)
             yield names[prio], stamp, item

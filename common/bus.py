@@ -1,0 +1,186 @@
+"""Zenoh transport: sessions with explicit endpoints, publishers that never drop, liveliness.
+
+Decisions (see ../shared/design/ARCHITECTURE.md):
+
+- Multicast scouting is off everywhere; sessions connect to explicit endpoints.  The
+  launcher's hub is a session in ``router`` mode listening on loopback; services are
+  ``client`` sessions connected to it (``peer`` is available for multi-host set-ups, see
+  ``deploy/``).  A client retries its endpoints forever, so services may start before or
+  after the hub.
+- Keys are ``<namespace>/<key>`` (namespace per vehicle, default ``poseidon``); liveliness
+  tokens are ``<namespace>/@alive/<service>``.
+- Publishers are reliable with ``CongestionControl.BLOCK``: a slow subscriber slows the
+  publisher instead of losing messages.  Subscribers push into a bounded queue whose
+  ``put`` blocks, which propagates that back-pressure to the sender.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import time
+from typing import Callable, Iterable
+
+import zenoh
+
+from common.codec import ENCODED_EOS, encode_frame, encode_watermark
+from common.messages import Message
+
+__all__ = ["zenoh_config", "Bus", "BusPublisher", "open_hub", "ALIVE"]
+
+log = logging.getLogger(__name__)
+
+ALIVE = "@alive"
+
+
+def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iterable[str] = (),
+                 config_file: str | None = None) -> zenoh.Config:
+    """A Zenoh configuration with explicit endpoints and multicast scouting off."""
+    if mode not in ("client", "peer", "router"):
+        raise ValueError(f"zenoh mode must be client, peer or router, got {mode!r}")
+    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    connect, listen = list(connect), list(listen)
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen or mode == "router":
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if mode != "router":
+        conf.insert_json5("connect/timeout_ms", "-1")
+        conf.insert_json5("connect/exit_on_failure", "false")
+    return conf
+
+
+def open_hub(listen: str, config_file: str | None = None) -> zenoh.Session:
+    """Open the hub: a router session listening on ``listen`` (e.g. ``tcp/127.0.0.1:7447``)."""
+    return zenoh.open(zenoh_config("router", listen=[listen], config_file=config_file))
+
+
+class BusPublisher:
+    """Publishes data, watermark and end-of-stream frames on one key, never dropping."""
+
+    def __init__(self, session: zenoh.Session, full_key: str):
+        self.key = full_key
+        self._pub = session.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                              reliability=zenoh.Reliability.RELIABLE)
+        self.sent = 0
+        self.watermark = -1
+
+    def send(self, msg: Message) -> None:
+        self._pub.put(encode_frame(msg))
+        self.sent += 1
+
+    def send_raw(self, frame: bytes) -> None:
+        self._pub.put(frame)
+        self.sent += 1
+
+    def send_watermark(self, stamp: int) -> None:
+        if stamp > self.watermark:
+            self._pub.put(encode_watermark(stamp))
+            self.watermark = stamp
+
+    def send_eos(self) -> None:
+        self._pub.put(ENCODED_EOS)
+
+    def has_subscribers(self) -> bool:
+        return bool(self._pub.matching_status.matching)
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+class Bus:
+    """One Zenoh session of a process, scoped to a vehicle namespace.
+
+    ``session`` may be shared (embedded mode: every service on one session).
+    """
+
+    def __init__(self, namespace: str = "poseidon", connect: Iterable[str] = ("tcp/127.0.0.1:7447",),
+                 mode: str = "client", listen: Iterable[str] = (), session: zenoh.Session | None = None,
+                 config_file: str | None = None):
+        self.namespace = namespace.strip("/")
+        self._own_session = session is None
+        self.session = session if session is not None else zenoh.open(
+            zenoh_config(mode, connect=connect, listen=listen, config_file=config_file))
+        self._keepalive: list[object] = []
+
+    def full_key(self, key: str) -> str:
+        return f"{self.namespace}/{key}"
+
+    def relative_key(self, full_key: str) -> str:
+        prefix = self.namespace + "/"
+        return full_key[len(prefix):] if full_key.startswith(prefix) else full_key
+
+    def publisher(self, key: str) -> BusPublisher:
+        return BusPublisher(self.session, self.full_key(key))
+
+    def subscribe(self, key: str, sink: "queue.Queue[tuple[str, bytes]]") -> None:
+        """Deliver ``(relative key, frame bytes)`` of ``key`` (wildcards allowed) into ``sink``.
+
+        ``sink.put`` blocks when the queue is full: back-pressure, not loss.
+        """
+        def on_sample(sample: zenoh.Sample) -> None:
+            sink.put((self.relative_key(str(sample.key_expr)), sample.payload.to_bytes()))
+        self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
+
+    def subscribe_callback(self, key: str, callback: Callable[[str, bytes], None]) -> None:
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(self.relative_key(str(sample.key_expr)), sample.payload.to_bytes())
+        self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
+
+    def declare_alive(self, service: str) -> None:
+        """Announce that ``service`` has declared its subscribers and is ready."""
+        self._keepalive.append(self.session.liveliness().declare_token(self.full_key(f"{ALIVE}/{service}")))
+
+    def alive(self) -> set[str]:
+        """Names of the services currently alive in this namespace."""
+        names = set()
+        prefix = self.full_key(ALIVE) + "/"
+        for reply in self.session.liveliness().get(self.full_key(f"{ALIVE}/*"), timeout=2.0):
+            if reply.ok is not None:
+                k = str(reply.ok.key_expr)
+                if k.startswith(prefix):
+                    names.add(k[len(prefix):])
+        return names
+
+    def wait_alive(self, services: Iterable[str], timeout_s: float, poll_s: float = 0.05) -> None:
+        """Block until every service in ``services`` is alive; TimeoutError names the missing ones."""
+        wanted = set(services)
+        deadline = time.monotonic() + timeout_s
+        missing = wanted
+        while True:
+            missing = wanted - self.alive()
+            if not missing:
+                return
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {sorted(missing)}")
+            time.sleep(poll_s)
+
+    def drain(self, publishers: Iterable[BusPublisher], timeout_s: float, poll_s: float = 0.05) -> bool:
+        """Wait until no subscriber matches any of ``publishers`` (all consumers have finished).
+
+        Closing a Zenoh session discards frames still queued for sending, so a process
+        that published end-of-stream waits here before it exits: consumers leave only after
+        end-of-stream, which arrives after every data frame of the key.  Returns False (and
+        logs which keys) if consumers are still there after ``timeout_s``.
+        """
+        pubs = list(publishers)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            busy = [p.key for p in pubs if p.has_subscribers()]
+            if not busy:
+                return True
+            if time.monotonic() > deadline:
+                log.warning("consumers of %s still present after %.0f s; closing anyway", busy, timeout_s)
+                return False
+            time.sleep(poll_s)
+
+    def close(self) -> None:
+        for entity in self._keepalive:
+            undeclare = getattr(entity, "undeclare", None)
+            if undeclare is not None:
+                undeclare()
+        self._keepalive.clear()
+        if self._own_session:
+            self.session.close()

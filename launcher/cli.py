@@ -1,0 +1,318 @@
+"""The ``poseidon`` command.
+
+Subcommands:
+
+- ``run --input REC.mcap --out RUN.mcap [--config FILE] [--set key=value ...] [--embedded]
+  [--services a,b] [--rate R] [--timeout S] [--json]``: replay a recording through every
+  built service and record the run (:mod:`launcher.run`).  Exit code 0 on success, 2 on
+  bad configuration/input, 3 when a service failed (its name is printed).
+- ``demo [--minutes M] [--seed S] [--out DIR] [--embedded] [--json]``: the main job on a
+  fresh machine: simulate a short cave mission and run it through every service.
+- ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
+  algorithm service) anywhere, connected to a hub or router.
+- ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
+  several hosts.
+- ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
+- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``: see their own ``--help``.
+
+``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
+{name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"}}``
+(``demo`` adds ``"mission"``: the simulated input file).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+__all__ = ["main"]
+
+log = logging.getLogger("poseidon")
+
+#: subcommands implemented by other parts of the tree: name -> "module:function(argv) -> int"
+DELEGATED = {
+    "sim": "missions.sim.cli:main",
+    "transform": "missions.transform:main",
+    "import": "missions.importers.cli:main",
+    "vpr": "services.encoder.vpr:main",
+    "deadreckon": "services.robot_state.deadreckon:main",
+}
+
+
+def _setup_logging(level: str) -> None:
+    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+def _load_config(args: argparse.Namespace) -> Any:
+    from common.config import load_config
+    return load_config(args.config, args.set)
+
+
+def _add_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="YAML configuration (defaults: deploy/poseidon.yaml values)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one field, e.g. --set vpr_guard.vpr_window=30 (repeatable)")
+    p.add_argument("--log-level", default="INFO")
+
+
+def _print_run(result: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(result, indent=2))
+        return
+    rec = result["recording"]
+    print(f"run finished ({result['mode']}) in {result['wall_s']:.1f} s wall; "
+          f"{rec['duration_s']:.1f} s of mission -> {result['output']}")
+    print("recorded messages per key:")
+    for key, n in sorted(rec["counts"].items()):
+        print(f"  {key:<24} {n:>8}")
+    for name, st in result["services"].items():
+        extra = []
+        if st.get("invalid"):
+            extra.append(f"invalid {st['invalid']}")
+        if st.get("counters"):
+            extra.append(", ".join(f"{k} {v}" for k, v in sorted(st["counters"].items())))
+        if "busy_s" in st:
+            extra.append(f"busy {st['busy_s']:.2f} s")
+        if st.get("real_time_factor"):
+            extra.append(f"{st['real_time_factor']:.1f}x real time")
+        print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from common.config import ConfigError
+    from common.mcap_io import RecordingError
+    from launcher.run import RunFailed, run_distributed, run_embedded
+    try:
+        config = _load_config(args)
+        if args.rate is not None:
+            config.player.rate = args.rate
+        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        runner = run_embedded if args.embedded else run_distributed
+        result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
+                        progress=not args.json)
+    except (ConfigError, RecordingError, ValueError, KeyError, FileNotFoundError) as exc:
+        print(f"poseidon run: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon run: {exc}; what was recorded so far is in {args.out}", file=sys.stderr)
+        return 3
+    _print_run(result.as_dict(), args.json)
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from common.config import ConfigError
+    from launcher.run import RunFailed, run_distributed, run_embedded
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    mission = out_dir / f"cave_{args.minutes:g}min_seed{args.seed}.mcap"
+    sim = _delegate("sim")
+    argv = ["--minutes", str(args.minutes), "--seed", str(args.seed), "--out", str(mission)]
+    print(f"[1/2] simulating a {args.minutes:g}-minute cave mission -> {mission}", file=sys.stderr)
+    rc = sim(argv)
+    if rc != 0:
+        print(f"poseidon demo: simulation failed (exit {rc})", file=sys.stderr)
+        return rc
+    print("[2/2] running every service on it", file=sys.stderr)
+    try:
+        config = _load_config(args)
+        runner = run_embedded if args.embedded else run_distributed
+        result = runner(config, mission, out_dir / "run.mcap", timeout_s=args.timeout, progress=not args.json)
+    except ConfigError as exc:
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 3
+    d = result.as_dict()
+    d["mission"] = str(mission)
+    _print_run(d, args.json)
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from common.mcap_io import RecordingError, read_metadata, recording_keys, recording_summary
+    try:
+        summary = recording_summary(args.recording)
+        summary["types"] = recording_keys(args.recording)
+        meta = read_metadata(args.recording)
+    except RecordingError as exc:
+        print(f"poseidon info: {exc}", file=sys.stderr)
+        return 2
+    summary["metadata"] = {name: sorted(rec) for name, rec in meta.items()}
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{args.recording}: {summary['duration_s']:.1f} s")
+        for k, n in sorted(summary["counts"].items()):
+            print(f"  {k:<24} {n:>8}  {summary['types'].get(k, '')}")
+        for name, fields in summary["metadata"].items():
+            print(f"  metadata {name}: {', '.join(fields)}")
+    return 0
+
+
+def cmd_service(args: argparse.Namespace) -> int:
+    from common.bus import Bus
+    from common.config import ConfigError
+    try:
+        config = _load_config(args)
+    except ConfigError as exc:
+        print(f"poseidon service {args.name}: {exc}", file=sys.stderr)
+        return 2
+    namespace = args.namespace or config.bus.namespace
+    connect = [args.connect] if args.connect else config.bus.connect
+    bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config)
+    stoppable: list[Any] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        log.warning("%s: signal %d, stopping", args.name, signum)
+        for obj in stoppable:
+            obj.stop_event.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        if args.name == "player":
+            from services.player.player import Player
+            if not args.input:
+                print("poseidon service player: --input REC.mcap is required", file=sys.stderr)
+                return 2
+            rate = config.player.rate if args.rate is None else args.rate
+            keys = args.keys.split(",") if args.keys else (config.player.keys or None)
+            worker: Any = Player(bus, args.input, rate=rate, keys=keys,
+                                 wait_for=[w for w in (args.wait_for or "").split(",") if w],
+                                 heartbeat_ms=config.bus.heartbeat_interval_ms,
+                                 startup_timeout_s=config.bus.startup_timeout_s, progress=not args.no_progress,
+                                 drain_timeout_s=config.bus.drain_timeout_s)
+        elif args.name == "recorder":
+            from services.recorder.recorder import Recorder
+            if not args.out:
+                print("poseidon service recorder: --out RUN.mcap is required", file=sys.stderr)
+                return 2
+            metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
+                "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
+            expect = [k for k in (args.expect or "").split(",") if k] or None
+            worker = Recorder(bus, args.out, expect=expect, metadata=metadata,
+                              compression=config.recorder.compression, chunk_size=config.recorder.chunk_size)
+        else:
+            from common.runtime import NodeRunner
+            from launcher.services import build_node
+            worker = NodeRunner(build_node(args.name, config), bus, config.bus.queue_size,
+                                config.bus.heartbeat_interval_ms, drain_timeout_s=config.bus.drain_timeout_s)
+        stoppable.append(worker)
+        stats = worker.run().as_dict()
+    finally:
+        bus.close()
+    if args.stats:
+        Path(args.stats).write_text(json.dumps(stats))
+    else:
+        print(json.dumps(stats))
+    return 0
+
+
+def cmd_hub(args: argparse.Namespace) -> int:
+    """Run a hub (Zenoh router) until interrupted: the meeting point of services on other hosts."""
+    import threading
+
+    from common.bus import open_hub
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    hub = open_hub(args.listen, config_file=args.zenoh_config)
+    print(f"hub listening on {args.listen}", file=sys.stderr)
+    try:
+        stop.wait()
+    finally:
+        hub.close()
+    return 0
+
+
+def _delegate(name: str) -> Callable[[list[str]], int]:
+    module, func = DELEGATED[name].split(":")
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name and module.startswith(exc.name):
+            raise SystemExit(f"poseidon {name}: not available in this build ({module} missing)") from None
+        raise
+    return getattr(mod, func)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="poseidon", description="PoseidonSLAM: underwater SLAM services")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("run", help="replay a recording through the services and record the run")
+    p.add_argument("--input", required=True, help="input recording (MCAP)")
+    p.add_argument("--out", required=True, help="output recording of the run (MCAP)")
+    p.add_argument("--embedded", action="store_true", help="all services in this process")
+    p.add_argument("--services", help="comma-separated algorithm services (default: every built one)")
+    p.add_argument("--rate", type=float, help="replay speed: 1 real time, N x, 0 as fast as possible")
+    p.add_argument("--timeout", type=float, help="fail if the run takes longer (s)")
+    p.add_argument("--json", action="store_true", help="print the run summary as JSON")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("demo", help="simulate a short cave mission and run every service on it")
+    p.add_argument("--minutes", type=float, default=2.0, help="mission length (min)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", default="runs/demo", help="output folder")
+    p.add_argument("--embedded", action="store_true")
+    p.add_argument("--timeout", type=float, help="fail if the run takes longer (s)")
+    p.add_argument("--json", action="store_true")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("service", help="run one service connected to a hub/router")
+    p.add_argument("name", help="player, recorder, encoder, htm, robot_state, posecells, expmap")
+    p.add_argument("--connect", help="Zenoh endpoint of the hub/router, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--mode", default="client", choices=["client", "peer"], help="Zenoh session mode")
+    p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/*.json5)")
+    p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
+    p.add_argument("--stats", help="write the service's final counters here (JSON) instead of stdout")
+    p.add_argument("--input", help="player: recording to publish")
+    p.add_argument("--rate", type=float, help="player: replay speed")
+    p.add_argument("--keys", help="player: comma-separated keys to publish")
+    p.add_argument("--wait-for", help="player: comma-separated services to wait for")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", help="recorder: output MCAP")
+    p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")
+    p.add_argument("--metadata", help="recorder: JSON file with the run's metadata record")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_service)
+
+    p = sub.add_parser("hub", help="run a hub (Zenoh router) for services on several hosts")
+    p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint to listen on")
+    p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/zenoh/*.json5)")
+    p.add_argument("--log-level", default="INFO")
+    p.set_defaults(func=cmd_hub)
+
+    p = sub.add_parser("info", help="summarise a recording")
+    p.add_argument("recording")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--log-level", default="WARNING")
+    p.set_defaults(func=cmd_info)
+
+    for name in DELEGATED:
+        sub.add_parser(name, help=f"see 'poseidon {name} --help'", add_help=False)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in DELEGATED:
+        _setup_logging("INFO")
+        return int(_delegate(argv[0])(argv[1:]) or 0)
+    args = build_parser().parse_args(argv)
+    _setup_logging(args.log_level)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

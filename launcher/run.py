@@ -1,0 +1,266 @@
+"""``poseidon run``: replay a recording through every service and record the run.
+
+Distributed (default): the launcher opens the hub (a Zenoh router on a free loopback
+port) and starts the recorder, each algorithm service and the player as separate
+processes (``poseidon service NAME --connect tcp/127.0.0.1:PORT``).  Embedded
+(``--embedded``): the same pieces as threads on one Zenoh session in this process.
+
+The player waits until the recorder and every service are alive; the run ends when every
+process has finished (the recorder has seen end-of-stream on every expected key).  If any
+service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
+names the service.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+import zenoh
+
+from common.bus import Bus, open_hub
+from common.config import PoseidonConfig
+from common.mcap_io import code_revision, file_sha256, recording_keys, recording_summary
+from common.runtime import NodeRunner
+from launcher.services import available_services, node_class
+from services.player.player import SOURCE_KEYS, Player
+from services.recorder.recorder import Recorder
+
+__all__ = ["RunFailed", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
+
+log = logging.getLogger(__name__)
+
+
+class RunFailed(RuntimeError):
+    """A service failed; ``service`` names it."""
+
+    def __init__(self, service: str, detail: str):
+        super().__init__(f"service {service!r} failed: {detail}")
+        self.service = service
+
+
+def node_io(name: str, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Input and output keys of a service under ``config``."""
+    cls = node_class(name, config)
+    io_keys = getattr(cls, "io_keys", None)
+    if io_keys is not None:
+        ins, outs = io_keys(config)
+        return tuple(ins), tuple(outs)
+    return tuple(cls.inputs), tuple(cls.outputs)
+
+
+@dataclass
+class RunPlan:
+    services: list[str]
+    player_keys: list[str]
+    expect: list[str]
+    io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]]
+
+
+def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None) -> RunPlan:
+    """Decide which services run, what the player publishes and what the recorder awaits."""
+    names = list(services) if services is not None else list(config.services or available_services(config))
+    io = {n: node_io(n, config) for n in names}
+    produced = {k: n for n, (_i, outs) in io.items() for k in outs}
+    rec_keys = list(recording_keys(input_path))
+    player_keys = sorted(k for k in rec_keys if k not in produced)
+    if config.player.keys:
+        player_keys = sorted(k for k in player_keys if k in config.player.keys)
+    for n, (ins, _o) in io.items():
+        for k in ins:
+            if k not in produced and k not in player_keys and k not in SOURCE_KEYS:
+                raise ValueError(f"service {n!r} needs key {k!r}, which neither the recording nor any started "
+                                 f"service produces (services: {names})")
+    expect = sorted(set(player_keys) | set(produced))
+    return RunPlan(names, player_keys, expect, io)
+
+
+@dataclass
+class RunResult:
+    output: str
+    mode: str
+    wall_s: float
+    services: dict[str, dict[str, Any]] = field(default_factory=dict)
+    recording: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
+                "services": self.services, "recording": self.recording}
+
+
+def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:
+    return {"tool": "poseidon run", "mode": mode, "services": services, "code_revision": code_revision(),
+            "input": str(input_path), "input_sha256": file_sha256(input_path),
+            "config": config.model_dump(mode="json")}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _summarise(out: Path) -> dict[str, Any]:
+    summary = recording_summary(out)
+    return {"counts": summary["counts"], "duration_s": round(summary["duration_s"], 3)}
+
+
+def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
+                    services: list[str] | None = None, timeout_s: float | None = None,
+                    progress: bool = True) -> RunResult:
+    """Each service in its own process, connected over loopback Zenoh through a hub."""
+    input_path, out = Path(input_path), Path(out)
+    plan = plan_run(config, input_path, services)
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    t0 = time.monotonic()
+    hub = open_hub(endpoint)
+    procs: dict[str, subprocess.Popen] = {}
+    with tempfile.TemporaryDirectory(prefix="poseidon-run-") as tmp:
+        cfg_file = Path(tmp) / "config.yaml"
+        cfg_file.write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
+        meta_file = Path(tmp) / "metadata.json"
+        meta_file.write_text(json.dumps(run_metadata(config, input_path, "distributed", plan.services)))
+        base = [sys.executable, "-m", "launcher.cli", "service"]
+        common = ["--connect", endpoint, "--config", str(cfg_file)]
+
+        def stats_file(name: str) -> str:
+            return str(Path(tmp) / f"{name}.stats.json")
+
+        cmds = {"recorder": base + ["recorder", *common, "--out", str(out), "--expect", ",".join(plan.expect),
+                                    "--metadata", str(meta_file), "--stats", stats_file("recorder")]}
+        for name in plan.services:
+            cmds[name] = base + [name, *common, "--stats", stats_file(name)]
+        cmds["player"] = base + ["player", *common, "--input", str(input_path), "--keys", ",".join(plan.player_keys),
+                                 "--wait-for", ",".join(["recorder", *plan.services]),
+                                 "--stats", stats_file("player")] + ([] if progress else ["--no-progress"])
+        env = dict(os.environ)
+        env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
+        try:
+            for name, cmd in cmds.items():
+                procs[name] = subprocess.Popen(cmd, env=env)
+            failed = _monitor(procs, timeout_s)
+        finally:
+            _stop_all(procs)
+            hub.close()
+        if failed:
+            name, detail = failed
+            raise RunFailed(name, detail)
+        result = RunResult(str(out), "distributed", time.monotonic() - t0)
+        for name in cmds:
+            p = Path(stats_file(name))
+            if p.exists():
+                result.services[name] = json.loads(p.read_text())
+    result.recording = _summarise(out)
+    return result
+
+
+def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None) -> tuple[str, str] | None:
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while True:
+        running = 0
+        for name, p in procs.items():
+            rc = p.poll()
+            if rc is None:
+                running += 1
+            elif rc != 0:
+                return name, f"exited with code {rc}"
+        if running == 0:
+            return None
+        if deadline is not None and time.monotonic() > deadline:
+            still = [n for n, p in procs.items() if p.poll() is None]
+            return still[0], f"did not finish within {timeout_s:.0f} s (still running: {', '.join(still)})"
+        time.sleep(0.1)
+
+
+def _stop_all(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None:
+    # the recorder last, so that it keeps what the others flushed
+    order = [n for n in procs if n != "recorder"] + (["recorder"] if "recorder" in procs else [])
+    for name in order:
+        p = procs[name]
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for name in order:
+        p = procs[name]
+        try:
+            p.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            log.error("%s did not stop within %.0f s; killing it", name, grace_s)
+            p.kill()
+            p.wait()
+
+
+def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path,
+                 services: list[str] | None = None, timeout_s: float | None = None,
+                 progress: bool = True) -> RunResult:
+    """Every service as a thread on one Zenoh session in this process."""
+    input_path, out = Path(input_path), Path(out)
+    plan = plan_run(config, input_path, services)
+    t0 = time.monotonic()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    bus = Bus(config.bus.namespace, session=session)
+    errors: dict[str, BaseException] = {}
+    results: dict[str, dict[str, Any]] = {}
+    recorder = Recorder(bus, out, expect=plan.expect, compression=config.recorder.compression,
+                        chunk_size=config.recorder.chunk_size,
+                        metadata=run_metadata(config, input_path, "embedded", plan.services))
+    runners = {n: NodeRunner(node_class(n, config)(config), bus, config.bus.queue_size, config.bus.heartbeat_interval_ms)
+               for n in plan.services}
+
+    def target(name: str, fn: Any) -> None:
+        try:
+            results[name] = fn().as_dict()
+        except BaseException as exc:  # reported below with the service's name
+            log.exception("service %s failed", name)
+            errors[name] = exc
+
+    threads = [threading.Thread(target=target, args=("recorder", recorder.run), name="recorder", daemon=True)]
+    threads += [threading.Thread(target=target, args=(n, r.run), name=n, daemon=True) for n, r in runners.items()]
+    for t in threads:
+        t.start()
+    player = Player(bus, input_path, rate=config.player.rate, keys=plan.player_keys,
+                    wait_for=["recorder", *plan.services], heartbeat_ms=config.bus.heartbeat_interval_ms,
+                    startup_timeout_s=config.bus.startup_timeout_s, progress=progress)
+    target("player", player.run)
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    try:
+        for t in threads:
+            while t.is_alive():
+                t.join(timeout=0.2)
+                if errors:
+                    break
+                if deadline is not None and time.monotonic() > deadline:
+                    errors.setdefault(t.name, TimeoutError(f"did not finish within {timeout_s:.0f} s"))
+                    break
+            if errors:
+                break
+    finally:
+        if errors:
+            for r in runners.values():
+                r.stop_event.set()
+            player.stop_event.set()
+            recorder.stop_event.set()
+            for t in threads:
+                t.join(timeout=10)
+        bus.close()
+        session.close()
+    if errors:
+        name, exc = next(iter(errors.items()))
+        raise RunFailed(name, f"{type(exc).__name__}: {exc}")
+    result = RunResult(str(out), "embedded", time.monotonic() - t0, services=results)
+    result.recording = _summarise(out)
+    return result

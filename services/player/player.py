@@ -1,0 +1,118 @@
+"""Player: publishes every stream of an MCAP recording in event-time order.
+
+- Pacing: ``rate`` 1 = real time, N = N x real time, 0 = as fast as subscribers take it
+  (publishers block under back-pressure, so nothing is dropped at any rate).
+- Before the first message it waits until every expected service is alive (Zenoh drops
+  what is published before a subscriber exists).
+- Payloads are sent byte for byte as recorded (no re-encoding).
+- Event-time watermarks go out on every key every ``heartbeat_ms`` of event time, and
+  end-of-stream on every key at the end.  Source keys the recording does not have get
+  end-of-stream at once, so services waiting on them (e.g. an absent IMU) are not blocked.
+- In its own process (``drain_timeout_s`` > 0) it stays until its consumers have left
+  (:meth:`common.bus.Bus.drain`): closing earlier would discard frames still queued.
+"""
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+from tqdm import tqdm
+
+from common.bus import Bus
+from common.mcap_io import read_messages, recording_keys
+
+__all__ = ["Player", "PlayerStats", "SOURCE_KEYS"]
+
+log = logging.getLogger(__name__)
+
+#: keys whose only publisher is the player (sensor inputs and ground truth)
+SOURCE_KEYS = (
+    "camera/image_raw", "sonar_micron", "sonar_seaking", "sonar_micron_ros", "sonar_seaking_ros",
+    "dvl_linkquest", "imu_adis", "imu_adis_ros", "depth_sensor", "odometry", "truth/pose", "truth/revisits",
+)
+
+
+@dataclass
+class PlayerStats:
+    published: dict[str, int] = field(default_factory=dict)
+    wall_s: float = 0.0
+    event_s: float = 0.0
+
+    def as_dict(self) -> dict:
+        return {"service": "player", "published": self.published, "wall_s": round(self.wall_s, 3),
+                "event_s": round(self.event_s, 3),
+                "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
+
+
+class Player:
+    """Replay ``path`` on ``bus``."""
+
+    def __init__(self, bus: Bus, path: str | Path, rate: float = 0.0, keys: Iterable[str] | None = None,
+                 wait_for: Iterable[str] = (), heartbeat_ms: int = 100, startup_timeout_s: float = 60.0,
+                 progress: bool = True, announce_absent: Iterable[str] = SOURCE_KEYS,
+                 drain_timeout_s: float = 0.0):
+        if rate < 0:
+            raise ValueError(f"player rate must be >= 0, got {rate}")
+        self.bus = bus
+        self.path = Path(path)
+        self.rate = rate
+        available = recording_keys(self.path)
+        self.keys = sorted(available if keys is None else [k for k in keys if k in available])
+        self.absent = sorted(set(announce_absent) - set(self.keys))
+        self.wait_for = list(wait_for)
+        self.heartbeat_ns = heartbeat_ms * 1_000_000
+        self.startup_timeout_s = startup_timeout_s
+        self.progress = progress
+        self.drain_timeout_s = drain_timeout_s
+        self.stop_event = threading.Event()
+        self.stats = PlayerStats()
+
+    def run(self) -> PlayerStats:
+        pubs = {k: self.bus.publisher(k) for k in self.keys + self.absent}
+        if self.wait_for:
+            log.info("player: waiting for %s", ", ".join(self.wait_for))
+            self.bus.wait_alive(self.wait_for, self.startup_timeout_s)
+        for k in self.absent:
+            pubs[k].send_eos()
+        total = None
+        t_wall0 = time.monotonic()
+        t_event0 = None
+        last_hb = -1
+        last_stamp = 0
+        bar = tqdm(total=total, desc="player", unit="msg", file=sys.stderr, disable=not self.progress,
+                   mininterval=1.0)
+        try:
+            for rec in read_messages(self.path, keys=self.keys):
+                if self.stop_event.is_set():
+                    log.warning("player: stopped early")
+                    break
+                if t_event0 is None:
+                    t_event0 = rec.stamp
+                if self.rate > 0:
+                    due = t_wall0 + (rec.stamp - t_event0) / 1e9 / self.rate
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                if rec.stamp - last_hb >= self.heartbeat_ns:
+                    for pub in pubs.values():
+                        pub.send_watermark(rec.stamp)
+                    last_hb = rec.stamp
+                name = rec.type_name.encode()
+                pubs[rec.key].send_raw(b"D" + bytes([len(name)]) + name + rec.payload)
+                self.stats.published[rec.key] = self.stats.published.get(rec.key, 0) + 1
+                last_stamp = rec.stamp
+                bar.update(1)
+        finally:
+            bar.close()
+            for k in self.keys:
+                pubs[k].send_eos()
+        if self.drain_timeout_s > 0:
+            self.bus.drain(pubs.values(), self.drain_timeout_s)
+        self.stats.wall_s = time.monotonic() - t_wall0
+        self.stats.event_s = (last_stamp - t_event0) / 1e9 if t_event0 is not None else 0.0
+        return self.stats

@@ -1,0 +1,35 @@
+"""Service nodes used only by the bus tests (loaded through config.service_classes)."""
+from __future__ import annotations
+
+import time
+
+from common.messages import Depth
+from common.node import ServiceNode
+
+
+class SlowEcho(ServiceNode):
+    """Echoes depth with a deliberate 2 ms delay per message: a slow consumer."""
+
+    name = "slow_echo"
+    inputs = ("depth_sensor", "camera/image_raw")
+    outputs = ("echo/depth",)
+
+    def process(self, key, msg):
+        time.sleep(0.002)
+        if key == "depth_sensor":
+            self.publish("echo/depth", Depth(header=self.header("echo/depth", msg.header.stamp), depth=msg.depth))
+        else:
+            self.count("images")
+
+
+class Boom(ServiceNode):
+    """Fails on its 50th depth message."""
+
+    name = "boom"
+    inputs = ("depth_sensor",)
+    outputs = ("boom/depth",)
+
+    def process(self, key, msg):
+        if msg.header.seq == 50:
+            raise RuntimeError("deliberate failure at seq 50")
+        self.publish("boom/depth", Depth(header=self.header("boom/depth", msg.header.stamp), depth=msg.depth))

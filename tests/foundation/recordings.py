@@ -1,0 +1,61 @@
+"""Small generated recordings for the foundation tests."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from common.messages import Depth, Header, Image, Imu, LinkquestDvl, Odometry, RangeImageBeam
+from common.mcap_io import RecordingWriter
+
+KEYS6 = ["camera/image_raw", "depth_sensor", "imu_adis_ros", "sonar_micron", "odometry", "dvl_linkquest"]
+
+
+def dvl(header: Header, vx: float = 0.1) -> LinkquestDvl:
+    return LinkquestDvl(header=header, datagood=[1, 1, 1, 1], altitudebeam=[2.0] * 4, bottomvelocitybeam=[0.0] * 4,
+                        watervelocitybeam=[0.0] * 4, watervelocitycredit=[0.0] * 4, velocityinst=[vx, 0.0, 0.0],
+                        velocityinstflag=1, velocityearth=[0.0] * 3, velocityearthflag=1,
+                        watervelocityinst=[0.0] * 3, watervelocityinstflag=0, watervelocityearth=[0.0] * 3,
+                        watervelocityearthflag=0, roll=0.0, pitch=0.0, heading=0.0, altitude=2.0,
+                        temperature=15.0, pressure=1.0, salinity=0.0, soundspeed=1500.0)
+
+
+def six_stream_recording(path: Path, n_messages: int, image_every: int = 25, seed: int = 0) -> dict[str, int]:
+    """A recording of six streams (384x288 RGB images among them); returns counts per key."""
+    rng = np.random.default_rng(seed)
+    seqs: dict[str, int] = {}
+
+    def hdr(key: str, stamp: int) -> Header:
+        s = seqs.get(key, 0)
+        seqs[key] = s + 1
+        return Header(seq=s, stamp=stamp, frame_id=key)
+
+    count = i = 0
+    t0 = 1_372_687_208_000_000_000
+    with RecordingWriter(path) as w:
+        while count < n_messages:
+            stamp = t0 + i * 10_000_000
+            if i % image_every == 0:
+                w.write("camera/image_raw", Image(header=hdr("camera/image_raw", stamp), height=288, width=384,
+                                                  data=rng.integers(0, 255, (288, 384, 3), dtype=np.uint8)))
+                count += 1
+            w.write("depth_sensor", Depth(header=hdr("depth_sensor", stamp), depth=float(i) * 0.01))
+            count += 1
+            if i % 3 == 0:
+                w.write("imu_adis_ros", Imu(header=hdr("imu_adis_ros", stamp + 1), roll=0.0, pitch=0.0, yaw=0.1,
+                                            qx=0.0, qy=0.0, qz=0.0, qw=1.0))
+                count += 1
+            if i % 5 == 0:
+                w.write("sonar_micron", RangeImageBeam(header=hdr("sonar_micron", stamp + 2), angle_grad=float(i % 400),
+                                                       angle_rad=0.1, nbins=50, max_range=20,
+                                                       beam_data=rng.integers(0, 100, 50).astype(np.int32)))
+                count += 1
+            if i % 7 == 0:
+                w.write("odometry", Odometry(header=hdr("odometry", stamp + 3), position=[float(i), 0.0, 0.0],
+                                             orientation=[0.0, 0.0, 0.0, 1.0]))
+                count += 1
+            if i % 11 == 0:
+                w.write("dvl_linkquest", dvl(hdr("dvl_linkquest", stamp + 4)))
+                count += 1
+            i += 1
+    return seqs

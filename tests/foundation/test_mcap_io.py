@@ -1,0 +1,58 @@
+import numpy as np
+import pytest
+
+from common.mcap_io import (RecordingError, RecordingWriter, read_messages, read_metadata, recording_keys,
+                            recording_summary)
+from common.messages import Depth, Header, Image
+from tests.foundation.recordings import six_stream_recording
+
+
+def test_write_read_in_event_time_order_with_metadata(tmp_path):
+    path = tmp_path / "r.mcap"
+    with RecordingWriter(path) as w:
+        w.write("depth_sensor", Depth(header=Header(seq=0, stamp=30), depth=3.0))
+        w.write("depth_sensor", Depth(header=Header(seq=1, stamp=10), depth=1.0))
+        w.write("camera/image_raw", Image(header=Header(seq=0, stamp=20), height=2, width=2,
+                                          data=np.ones((2, 2, 3), np.uint8)))
+        w.add_metadata("poseidon", {"code_revision": "abc", "config": {"x": 1}})
+    msgs = list(read_messages(path))
+    assert [m.stamp for m in msgs] == [10, 20, 30]
+    assert msgs[0].message() == Depth(header=Header(seq=1, stamp=10), depth=1.0)
+    assert recording_keys(path) == {"depth_sensor": "poseidon_msgs/Depth", "camera/image_raw": "poseidon_msgs/Image"}
+    assert read_metadata(path)["poseidon"] == {"code_revision": "abc", "config": '{"x": 1}'}
+    assert recording_summary(path)["counts"] == {"depth_sensor": 2, "camera/image_raw": 1}
+
+
+def test_truncated_file_names_file_and_offset_and_keeps_what_is_intact(tmp_path):
+    path = tmp_path / "full.mcap"
+    six_stream_recording(path, 600, image_every=5)
+    original = list(read_messages(path))
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    with pytest.raises(RecordingError) as err:
+        list(read_messages(cut, strict=True))
+    assert str(cut) in str(err.value) and "byte" in str(err.value)
+    recovered = list(read_messages(cut))
+    assert 0 < len(recovered) < len(original)
+    by_key = {}
+    for r in original:
+        by_key.setdefault(r.key, []).append(r.payload)
+    for r in recovered:  # every recovered message is an original one, byte for byte
+        assert r.payload in by_key[r.key]
+
+
+def test_garbage_and_missing_files(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap at all" * 10)
+    with pytest.raises(RecordingError, match=r"junk.mcap: unreadable from about byte 0"):
+        list(read_messages(junk, strict=True))
+    with pytest.raises(RecordingError, match="no such recording"):
+        list(read_messages(tmp_path / "nope.mcap"))
+
+
+def test_channel_type_is_fixed_per_key(tmp_path):
+    with RecordingWriter(tmp_path / "x.mcap") as w:
+        w.write("k", Depth(header=Header(seq=0, stamp=1), depth=1.0))
+        with pytest.raises(ValueError, match="carries poseidon_msgs/Depth"):
+            w.write("k", Image(header=Header(seq=0, stamp=2), height=1, width=1, data=np.zeros((1, 1), np.uint8)))
