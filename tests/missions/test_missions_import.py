@@ -96,6 +96,16 @@ def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
                      T["sensor_msgs/msg/Image"](header=h(5, "camera"), height=4, width=6, encoding="rgb8",
                                                 is_bigendian=0, step=18, data=img.reshape(-1)),
                      {"height": 4, "width": 6, "encoding": "rgb8", "data": img}))
+        import io
+
+        from PIL import Image as PILImage
+
+        png = io.BytesIO()
+        PILImage.fromarray(img).save(png, format="PNG")
+        rows.append(("/camera/image_compressed", "sensor_msgs/msg/CompressedImage", st + 7,
+                     T["sensor_msgs/msg/CompressedImage"](header=h(7, "camera"), format="png",
+                                                          data=np.frombuffer(png.getvalue(), np.uint8)),
+                     {"height": 4, "width": 6, "encoding": "rgb8", "data": img}))
         scan = dict(angle_min=0.125 * k, angle_max=0.125 * k, angle_increment=0.03125, time_increment=0.0, scan_time=0.0625,  # float32-exact
                     range_min=0.0, range_max=20.0, ranges=np.array([1.0, 2.0], np.float32),
                     intensities=np.array([10.0, 20.0], np.float32))
@@ -104,7 +114,7 @@ def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
     return rows
 
 
-def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0) -> list:
+def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0, mcap: bool = False) -> list:
     store = make_typestore(ros2=ros2)
     if extra_unknown:
         from rosbags.typesys import get_types_from_msg
@@ -114,7 +124,9 @@ def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0) -> list:
     if ros2:
         from rosbags.rosbag2 import Writer
 
-        writer = Writer(path, version=9)
+        from rosbags.rosbag2 import StoragePlugin
+
+        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3)
     else:
         from rosbags.rosbag1 import Writer
 
@@ -144,7 +156,7 @@ def _check_field_by_field(out: Path, rows: list, ros2: bool) -> None:
         by_key.setdefault(topic.lstrip("/"), []).append((msg, exp))
     assert set(rec) == set(by_key)
     types = {"dvl_linkquest": LinkquestDvl, "depth_sensor": Depth, "imu_adis": Imu, "sonar_micron": RangeImageBeam,
-             "camera/image_raw": Image, "sonar_micron_ros": LaserScan}
+             "camera/image_raw": Image, "sonar_micron_ros": LaserScan, "camera/image_compressed": Image}
     for key, items in by_key.items():
         got = rec[key]
         assert len(got) == len(items)
@@ -178,6 +190,14 @@ def test_ros2_bag_with_cala_viuda_types_field_by_field(tmp_path):
         _check_field_by_field(tmp_path / "out.mcap", rows, ros2=True)
 
 
+def test_ros2_mcap_bag(tmp_path):
+    rows = _write_bag(tmp_path / "cv3", ros2=True, mcap=True)
+    src = next((tmp_path / "cv3").glob("*.mcap"))
+    summary = import_sources([src], tmp_path / "out.mcap", progress=False)
+    assert summary["inputs"][0]["format"] == "ros2"
+    _check_field_by_field(tmp_path / "out.mcap", rows, ros2=True)
+
+
 def test_merge_bag_and_csv_chronologically(tmp_path):
     _write_bag(tmp_path / "cv.bag", ros2=False)
     csv = tmp_path / "depth.csv"
@@ -205,7 +225,7 @@ def test_topic_map_renames_and_drops(tmp_path):
     tm.write_text("/imu_adis: imu_adis_ros\n/sonar_micron_ros: null\n")
     summary = import_sources([tmp_path / "cv.bag"], tmp_path / "out.mcap", load_topic_map(tm), progress=False)
     assert "imu_adis_ros" in summary["written"] and "imu_adis" not in summary["written"]
-    assert summary["dropped_topics"] == {"/sonar_micron_ros": 3}
+    assert summary["dropped_topics"] == {"/sonar_micron_ros": 3}  # 3 messages per topic in the test bag
     bad = tmp_path / "bad.yaml"
     bad.write_text("/imu_adis: /with/slash\n")
     with pytest.raises(InputFormatError, match=r"bad\.yaml.*/imu_adis"):
