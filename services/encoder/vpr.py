@@ -4,7 +4,7 @@ Usage::
 
     poseidon vpr --ref DIR --query DIR [--gt FILE] [--tolerance N] [--weights PATH]
                  [--backbone shufflenetv2|alexnet_conv3] [--limit N] [--config FILE]
-                 [--set key=value ...] [--no-htm] [--json]
+                 [--set key=value ...] [--no-htm] [--htm-query-learning] [--json]
 
 Both folders are image sequences (``.png`` / ``.jpg`` / ``.jpeg``, sorted by file name,
 read with PIL as RGB); ``--limit N`` keeps the first N of each.  Ground truth: with
@@ -18,12 +18,13 @@ argmax, correct iff it is in the query's ground truth):
 
 * ``cnn_cosine`` -- cosine of the raw embeddings y (Eq. 4.1), no hashing.
 * ``lsbh_overlap`` -- |A_q intersect A_r| / 2k of the camera LSBH SDRs (Eqs. 4.2, 4.6).
-* ``htm_lvc`` -- the full pipeline: camera SDR -> SP -> TM -> descriptor D_t -> LVC id
-  (Eqs. 4.4-4.10, :mod:`services.htm`), run over the reference sequence and then, with the
-  same state, over the query sequence.  A query predicts the reference frames that received
-  its LVC id (among them the one whose descriptor overlaps D_q most, Eq. 4.7); its score is
-  the LVC's rate R.  A query given an id no reference frame has (e.g. a new LVC, Eq. 4.10)
-  predicts nothing (it only lowers recall).
+* ``htm_lvc`` -- the full pipeline: camera SDR (the fused SDR: these image sets have no
+  sonar) -> SP -> TM -> descriptor D_t -> LVC id (Eqs. 4.4-4.10, :mod:`services.htm`).  The
+  reference sequence builds the LVC map (learning as ``htm.learning``); after a reset of the
+  temporal context the query sequence only queries that map (no new LVCs; HTM learning off
+  unless ``--htm-query-learning``).  A query whose LVC match is accepted (Eq. 4.9) predicts
+  the reference frame with that LVC id whose descriptor overlaps D_q most (Eq. 4.7), with
+  the match's R as score; a rejected query predicts nothing (it only lowers recall).
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
 
@@ -39,7 +40,7 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
                   "lsbh_overlap": {...}, "htm_lvc": {...}, "htm_descriptor": {...}},
      "n_ref": .., "n_query": .., "n_query_with_gt": .., "weights": "seeded" | "<path>",
      "backbone": "shufflenetv2", "embedding_dim": .., "sdr_bits": .., "sdr_length": ..,
-     "n_lvc": .., "ground_truth": "file name +-N" | "<gt file>", "seconds": {"embed": .., "htm": ..}}
+     "n_lvc": .., "htm_query_matched": .., "ground_truth": "file name +-N" | "<gt file>", "seconds": {"embed": .., "htm": ..}}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).
 """
@@ -213,23 +214,30 @@ def ground_truth_from_file(path: str | Path, n_query: int, n_ref: int) -> list[l
 # --------------------------------------------------------------------------- HTM matcher
 
 
-def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.ndarray], length: int):
-    """LVC ids, rates and descriptors D_t of the reference then the query sequence (one HTM state).
+def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.ndarray], length: int,
+            query_learning: bool = False):
+    """LVC ids, rates and descriptors D_t of the reference then the query sequence.
 
-    Uses :class:`services.htm.pipeline.NeocortexHtm` with ``htm.input_size`` = L; learning as
-    configured (``htm.learning``, on by default: the online system never stops learning).
+    :class:`services.htm.pipeline.NeocortexHtm` (``htm.input_size`` = L) runs over the
+    reference sequence storing LVC prototypes (learning as ``htm.learning``); its temporal
+    context is then reset (the jump to the first query frame is no real transition) and the
+    query sequence only *queries* the reference map (``store=False``: id -1 when Eq. 4.9
+    rejects), with learning off unless ``query_learning``.
     """
     from services.htm.pipeline import NeocortexHtm
 
     cfg = htm_cfg.model_copy(update={"input_size": length})
     htm = NeocortexHtm(cfg)
-    out = []
-    seq = list(ref_sdrs) + list(query_sdrs)
-    for bits in tqdm(seq, desc="htm", file=sys.stderr, leave=False):
+    ref_out, q_out = [], []
+    for bits in tqdm(ref_sdrs, desc="htm ref", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32))
-        out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, dtype=np.int64).copy()))
-    n = len(ref_sdrs)
-    return out[:n], out[n:], htm
+        ref_out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, dtype=np.int64).copy()))
+    htm.reset_sequence()
+    learn = cfg.learning and query_learning
+    for bits in tqdm(query_sdrs, desc="htm query", file=sys.stderr, leave=False):
+        r = htm.step(np.asarray(bits, dtype=np.uint32), learn=learn, store=False)
+        q_out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, dtype=np.int64).copy()))
+    return ref_out, q_out, htm
 
 
 def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
@@ -262,6 +270,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--config", default=None, help="PoseidonSLAM YAML configuration")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
+    ap.add_argument("--htm-query-learning", action="store_true",
+                    help="keep HTM learning on during the query pass (default: off, fixed reference)")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
 
@@ -317,10 +327,11 @@ def main(argv: list[str] | None = None) -> int:
     t_htm = 0.0
     if not args.no_htm:
         t1 = time.perf_counter()
-        ref_out, q_out, htm = run_htm(cfg.htm, s_ref, s_q, length)
+        ref_out, q_out, htm = run_htm(cfg.htm, s_ref, s_q, length, args.htm_query_learning)
         t_htm = time.perf_counter() - t1
         sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
-        result["n_lvc"] = len({i for i, _, _ in ref_out + q_out})
+        result["n_lvc"] = len(htm.lvc)
+        result["htm_query_matched"] = sum(1 for i, _, _ in q_out if i >= 0)
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result = {
         "matchers": metrics,
