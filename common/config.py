@@ -149,6 +149,8 @@ class RobotStateConfig(_Section):
     dvl_heading_sigma_deg: float = Field(2.0, gt=0, description="DVL compass heading noise (deg)")
     dvl_heading_offset_sigma_deg: float = Field(5.0, gt=0, description="prior std of the DVL compass offset (deg)")
     imu_yaw_drift_sigma_deg_s: float = Field(0.05, ge=0, description="random walk of the IMU yaw error, deg/sqrt(s)")
+    gyro_bias_sigma_deg_s: float = Field(0.1, ge=0, description="prior std of each gyro bias (deg/s)")
+    gyro_bias_rw_deg_s: float = Field(0.001, ge=0, description="random walk of the gyro biases, deg/s/sqrt(s)")
 
 
 class PoseCellsConfig(_Section):

@@ -10,21 +10,23 @@ Why an EKF on Euler angles (and not an error-state filter): the attitude is *mea
 directly (the ADIS16480 AHRS or the DVL's own compass), the filter never has to integrate
 accelerometers, and roll/pitch stay far from the Euler singularity for an AUV; a plain
 EKF is then exact enough, simple to audit, and its prediction reproduces Eqs. 3.10-3.11
-exactly when the inputs are noise-free (tested to 1e-9).  No gyro or DVL velocity bias
-states: gyro biases are unobservable against an AHRS attitude that already removed them,
-and a DVL velocity bias is unobservable without an absolute position fix.
+exactly when the inputs are noise-free (tested to 1e-9).  Gyro biases are states (the
+attitude measurements make them observable; unmodelled, a 0.03 deg/s bias lagged the yaw
+by ~0.6 deg on the simulated missions); a DVL velocity bias is not (unobservable without
+an absolute position fix).
 
-State ``x`` (11; conventions in :mod:`services.robot_state.frames`): position NED ``p``
+State ``x`` (14; conventions in :mod:`services.robot_state.frames`): position NED ``p``
 (m), body-frame (FRD) velocity ``v`` (m/s), attitude ``e = (roll, pitch, yaw)`` (rad),
 ``b_imu`` (error of the IMU's reported yaw, a random walk ``imu_yaw_drift_sigma_deg_s``,
 prior 0: the IMU defines the initial heading) and ``b_dvl`` (the DVL compass mounting
-offset, constant, prior std ``dvl_heading_offset_sigma_deg``).
+offset, constant, prior std ``dvl_heading_offset_sigma_deg``), gyro biases ``b_g``
+(rad/s, prior std ``gyro_bias_sigma_deg_s``, random walk ``gyro_bias_rw_deg_s``).
 Velocity is kept in the body frame because a vehicle that turns during a DVL dropout keeps
 moving forward, not along its old world direction.
 
 - **Prediction** (at every input's stamp, in event-time order; sub-steps <= 0.5 s while
   the gyro drives the attitude):
-  ``p += R(e) v dt`` (Eqs. 3.10-3.11), ``e += E(e) w dt`` with the latest gyro rates ``w``
+  ``p += R(e) v dt`` (Eqs. 3.10-3.11), ``e += E(e) (w - b_g) dt`` with the latest gyro rates ``w``
   (zero-order hold) while the IMU is fresh (``imu_timeout_s``), ``v`` constant with a
   random-walk ``process_accel_sigma``.  Covariance ``P = F P F' + Q`` with the analytic
   Jacobian, so heading uncertainty grows cross-track position uncertainty.
@@ -93,7 +95,8 @@ V_IDX = [3, 4, 5]
 E_IDX = [6, 7, 8]
 B_IMU = 9  # IMU yaw error (its reported yaw = yaw + b_imu)
 B_DVL = 10  # DVL compass offset (its reported heading = yaw + b_dvl)
-N_STATE = 11
+BG_IDX = [11, 12, 13]  # gyro biases (rad/s): measured rate = true rate + b_g
+N_STATE = 14
 
 
 @dataclass
@@ -173,7 +176,8 @@ class DeadReckoningFilter:
         self.r_dvl = np.asarray(cfg.dvl_translation_m, dtype=float)
         self.x = np.zeros(N_STATE)
         self.P = np.diag([0.0, 0.0, 1e4, 1e2, 1e2, 1e2, 1e2, 1e2, 1e2, 0.0,
-                          math.radians(cfg.dvl_heading_offset_sigma_deg) ** 2])
+                          math.radians(cfg.dvl_heading_offset_sigma_deg) ** 2]
+                         + [math.radians(cfg.gyro_bias_sigma_deg_s) ** 2] * 3)
         self.t: int | None = None  # state time (ns)
         self.gyro = np.zeros(3)
         self.have_velocity = False
@@ -272,7 +276,7 @@ class DeadReckoningFilter:
         e = self.x[6:9]
         v = self.x[3:6]
         gyro_on = self.imu_fresh(t0)
-        w = self.gyro if gyro_on else np.zeros(3)
+        w = self.gyro - self.x[11:14] if gyro_on else np.zeros(3)
         if self.dvl_fresh(t0) or not self.have_velocity:
             a, g = 1.0, dt
             qv = cfg.process_accel_sigma ** 2 * dt
@@ -296,6 +300,7 @@ class DeadReckoningFilter:
         F[3:6, 3:6] *= a
         if gyro_on:
             F[6:9, 6:9] += _euler_rate_jacobian(e[0], e[1], w) * dt
+            F[6:9, 11:14] = -_euler_rate_matrix(e[0], e[1]) * dt
         Q = np.zeros(N_STATE)
         Q[3:6] = qv
         if gyro_on:
@@ -306,6 +311,7 @@ class DeadReckoningFilter:
             Q[2] = cfg.dropout_speed_sigma ** 2 * dt * 1.0  # z held: random walk, 1 s correlation
         if cfg.dvl_heading_fusion:
             Q[B_IMU] = math.radians(cfg.imu_yaw_drift_sigma_deg_s) ** 2 * dt
+        Q[11:14] = math.radians(cfg.gyro_bias_rw_deg_s) ** 2 * dt
         self.x[0:3] += dp
         self.x[3:6] = v * a
         if gyro_on:
@@ -351,7 +357,7 @@ class DeadReckoningFilter:
         y = e - self.x[6:9]
         y[2] -= self.x[bias]
         y = np.array([wrap_angle(a) for a in y])
-        self._update(E_IDX + [B_IMU, B_DVL], y, r, H)
+        self._update(E_IDX + [B_IMU, B_DVL] + BG_IDX, y, r, H)
         self.x[8] = wrap_angle(self.x[8])
 
     def _fuse_dvl_heading(self, heading: float) -> None:
@@ -360,7 +366,7 @@ class DeadReckoningFilter:
         H[0, 8] = H[0, B_DVL] = 1.0
         y = np.array([wrap_angle(heading - self.x[8] - self.x[B_DVL])])
         r = np.array([[math.radians(self.cfg.dvl_heading_sigma_deg) ** 2]])
-        self._update([8, B_IMU, B_DVL], y, r, H)
+        self._update([8, B_IMU, B_DVL] + BG_IDX, y, r, H)
         self.x[8] = wrap_angle(self.x[8])
 
     def update_imu(self, msg: Imu) -> bool:
@@ -453,7 +459,7 @@ class DeadReckoningFilter:
             self.count("dvl_too_fast")
             return False
         v_b = cfg.dvl_velocity_sign * (v_inst if self.dvl_identity else self.r_bd @ v_inst)
-        w = self.gyro if self.imu_fresh(t) else np.zeros(3)
+        w = self.gyro - self.x[11:14] if self.imu_fresh(t) else np.zeros(3)
         v_b = v_b - np.cross(w, self.r_dvl)
         r = np.eye(3) * cfg.dvl_velocity_sigma ** 2
         if not self.have_velocity or not self.dvl_fresh(t):
@@ -498,7 +504,7 @@ class DeadReckoningFilter:
 
     def snapshot(self) -> FilterSnapshot:
         t = self.t if self.t is not None else 0
-        w = self.gyro if self.imu_fresh(t) else np.zeros(3)
+        w = self.gyro - self.x[11:14] if self.imu_fresh(t) else np.zeros(3)
         return FilterSnapshot(stamp=t, position=self.x[0:3].copy(), velocity_body=self.x[3:6].copy(),
                               euler=self.x[6:9].copy(), angular_velocity=w.copy(), covariance=self.P.copy(),
                               flags=self.flags(t))

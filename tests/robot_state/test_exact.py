@@ -155,3 +155,15 @@ def test_dvl_compass_bounds_imu_yaw_drift(fusion):
         assert abs(math.degrees(node.filter.x[10]) - 2.0) < 1.5  # the learned compass offset
     else:
         assert abs(yaw_end - 10.0) < 0.5  # follows the IMU (slightly behind: the gyro says 0)
+
+
+def test_gyro_bias_is_estimated():
+    """A 0.05 deg/s gyro bias against a correct IMU attitude: the bias state absorbs it and the
+    yaw does not lag (without the state it would lag by bias x the filter's time constant)."""
+    bias = math.radians(0.05)
+    msgs = mission(300, lambda t: (0.3, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, bias),
+                   lambda t: 5.0, dvl_hz=2.0, depth_hz=2.0)
+    node = RobotStateNode(load_config(overrides=NED + ["robot_state.dvl_heading_fusion=false"]))
+    out = run_offline(node, msgs)
+    assert abs(node.filter.x[13] - bias) < 0.05 * bias
+    assert abs(math.degrees(_yaws(out, OutputFrame("xyz", 1.0))[-1])) < 0.01
