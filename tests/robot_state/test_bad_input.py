@@ -216,3 +216,27 @@ def test_enu_covariance_is_the_ned_one_remapped():
     assert np.allclose(b[:3, :3], a[np.ix_(perm, perm)] * np.outer([1, 1, -1], [1, 1, -1]), rtol=1e-12, atol=1e-15)
     assert np.allclose(np.diag(b)[3:], np.diag(a)[3:], rtol=1e-9)
     assert b[0, 0] != b[1, 1]  # heading 60 deg: along-/cross-track uncertainty differ per axis
+
+
+def test_output_watermark_is_a_promise():
+    """Live use: after output_watermark(W) returned w, no later output is stamped below w."""
+    from common.ordering import EventTimeMerger
+    from synth import odom
+
+    msgs = _straight(10.0) + [("odometry", odom(T0 + k * NS // 4, k, [0.0, 0.0, 0.0])) for k in range(40)]
+    node = RobotStateNode(load_config())
+    merger = EventTimeMerger(list(node.inputs))
+    promised = -1
+    for key, m in sorted(msgs, key=lambda km: km[1].header.stamp):
+        merger.push(key, m.header.stamp, m.header.seq, m)
+        for k, _stamp, item in merger.pop_ready():
+            node.process(k, item)
+            for _key, out in node.take_outbox():
+                assert out.header.stamp >= promised
+            promised = max(promised, node.output_watermark(merger.watermark))
+    for key in node.inputs:
+        merger.end(key)
+    for k, _stamp, item in merger.pop_ready():
+        node.process(k, item)
+    node.finish()
+    assert all(out.header.stamp >= promised for _k, out in node.take_outbox())
