@@ -101,14 +101,6 @@ def rpy_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, 
     return roll, pitch, yaw
 
 
-def _stamp(msg: Any, record_ns: int) -> int:
-    h = getattr(msg, "header", None)
-    if h is None:
-        return record_ns
-    ns = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
-    return ns if ns > 0 else record_ns
-
-
 class ConversionError(ValueError):
     """A message of a mapped type whose content cannot be represented (e.g. image encoding)."""
 

@@ -35,23 +35,25 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 import numpy as np
 from tqdm import tqdm
 
-from common.codec import pack_obj
-from common.mcap_io import RecordingWriter, code_revision
+from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
-from missions.sim.trajectory import (LOOPS_PER_AREA, Trajectory, _smooth_noise, footprint_centres, make_trajectory,
+from missions.sim.trajectory import (Trajectory, _smooth_noise, footprint_centres, make_trajectory,
                                      revisits, rot_wb)
 from missions.sim.world import World, build_world
 
-__all__ = ["SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "render_camera", "quat_from_rpy"]
+__all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "render_camera", "quat_from_rpy"]
 
 #: mission start stamp (ns): 2013-07-01 14:00:00 UTC, the day of the real Cala Viuda mission
 T0_NS = 1_372_687_200_000_000_000
+
+#: bumped whenever the recording produced for a given seed and parameters changes
+GENERATOR_VERSION = "poseidon-sim/1"
 
 #: write order of messages with equal stamps
 KEY_ORDER = ["truth/pose", "truth/revisits", "imu_adis", "imu_adis_ros", "depth_sensor", "dvl_linkquest",
@@ -77,7 +79,7 @@ class CameraModel:
     lamp_sigma_deg: float = 20.0
     attenuation_per_m: tuple[float, float, float] = (0.55, 0.10, 0.14)
     backscatter: tuple[float, float, float] = (0.004, 0.030, 0.034)
-    blur_k: float = 0.35
+    blur_k: float = 0.25
     noise_sigma_dn: float = 4.0
     snow_per_frame: float = 45.0
 
@@ -325,7 +327,9 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     writer = RecordingWriter(out_path)
     out = _Out(writer)
     meta = {
-        "tool": "poseidon sim", "seed": p.seed, "minutes": p.minutes, "code_revision": code_revision(),
+        # no wall clock and no git revision (a dirty tree would change the bytes): the generator
+        # version is bumped whenever the output for a given seed changes
+        "tool": "poseidon sim", "generator_version": GENERATOR_VERSION, "seed": p.seed, "minutes": p.minutes,
         "params": asdict(p), "t0_ns": T0_NS, "duration_s": duration,
         "frames": "world NED (x north, y east, z down); body x forward, y right, z down; quaternion xyzw body->world",
         "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m, "

@@ -96,8 +96,8 @@ def _albedo(x: float, y: float, seed: int, fine: bool) -> tuple[float, float, fl
         grain = 0.5
         peb = 0.5
     pebble = min(max((peb - 0.78) * 8.0, 0.0), 1.0) * rich
-    sand = (0.60 + 0.16 * (medium - 0.5) + (0.02 + 0.07 * rich) * rfield * (ripple - 0.5)
-            + 0.12 * (grain - 0.5) - 0.25 * pebble)
+    sand = (0.60 + (0.14 + 0.14 * rich) * (medium - 0.5) + (0.03 + 0.09 * rich) * rfield * (ripple - 0.5)
+            + 0.16 * (grain - 0.5) - 0.30 * pebble)
     # rock: darker, blotchy, with cracks (ridged noise)
     n = _fbm(x, y, 4.0, 3, seed + 7)
     crack = 1.0 - abs(2.0 * _fbm(x, y, 2.5, 4 if fine else 2, seed + 8) - 1.0)
