@@ -149,3 +149,23 @@ def test_extra_perturbations_change_image_deterministically():
     mono = img[..., 0]
     m, _ = perturb_image(mono, np.random.default_rng(7), p)
     assert m.shape == mono.shape
+
+
+def test_default_segments_from_sim_route():
+    """A sim mission long enough for the whole route (35 min, trajectory only): the default
+    source ranges are the approach, the first complete loop of each area and the transitions."""
+    from missions.sim.mission import segments_of
+    from missions.sim.trajectory import make_trajectory
+    from missions.sim.world import build_world
+
+    traj = make_trajectory(build_world(3), 35 * 60.0, 3)
+    segs = segments_of(traj, 35 * 60.0)
+    ranges, how = default_segments({"poseidon": {"segments": json.dumps(segs)}}, 35 * 60.0)
+    assert how == "sim route segments"
+    names = []
+    for a, b in ranges:
+        seg = next(s for s in segs if s["start_s"] == a and s["end_s"] == b)
+        names.append((seg["name"], seg["loop"]))
+    assert names == [("transition_2_1", 0), ("area1_ellipse", 0), ("transition_1_2", 0), ("area2_cave2", 0),
+                     ("transition_2_1", 0)]
+    assert all(b > a for a, b in ranges) and ranges[4][0] > ranges[3][1]  # exit after the three area-2 loops
