@@ -289,3 +289,13 @@ def test_csv_missing_column_via_import(tmp_path):
     p.write_text("\n".join(cut) + "\n")
     with pytest.raises(InputFormatError, match=r"dvl\.csv: missing column 'field\.velocityinst1'"):
         import_sources([p], tmp_path / "out.mcap", progress=False)
+
+
+def test_girona_csvs_and_frames_list_via_import(tmp_path):
+    g = DATA / "girona_caves"
+    if not g.is_dir():
+        pytest.skip(f"Girona logs not present at {g}")
+    summary = import_sources([g / "dvl_linkquest.csv", g / "depth_sensor.csv"], tmp_path / "out.mcap", progress=False)
+    assert summary["written"] == {"depth_sensor": 19553, "dvl_linkquest": 5564}
+    stamps = [r.stamp for r in read_messages(tmp_path / "out.mcap")]
+    assert stamps == sorted(stamps) and len(stamps) == 19553 + 5564
