@@ -86,8 +86,7 @@ class EncoderNode(ServiceNode):
             self.raster.add_beam(msg)
             angles = [msg.angle_rad]
         elif isinstance(msg, LaserScan):
-            self.raster.add_scan(msg)
-            angles = [msg.angle_min + i * msg.angle_increment for i in range(np.asarray(msg.ranges).size)]
+            angles = self.raster.add_scan(msg)
         else:
             raise TypeError(f"encoder: {self.sonar_key} carries {type(msg).__name__}, "
                             "expected RangeImageBeam or LaserScan")

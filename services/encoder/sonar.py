@@ -135,12 +135,36 @@ class SonarRaster:
                     prof[r] = 1.0
         self._write(msg.angle_rad, prof, msg.header.stamp)
 
-    def add_scan(self, msg: LaserScan) -> None:
-        """Write a LaserScan (one or many rays): a return at ``ranges[i]`` along bearing i."""
+    def add_scan(self, msg: LaserScan) -> list[float]:
+        """Write a LaserScan; returns the bearings (rad) written.
+
+        Two forms: a *beam profile* (``angle_min == angle_max``, one bearing: ``ranges[i]`` are
+        the range bins and ``intensities[i]`` their echoes -- the ``sonar_*_ros`` topics of the
+        Girona dataset and the simulator), or a standard scan (one return per bearing
+        ``angle_min + i * angle_increment``).
+        """
         ranges = np.asarray(msg.ranges, dtype=np.float64).reshape(-1)
         inten = np.asarray(msg.intensities, dtype=np.float64).reshape(-1)
         if inten.size not in (0, ranges.size):
             raise ValueError(f"LaserScan seq {msg.header.seq}: {ranges.size} ranges but {inten.size} intensities")
+        single_bearing = msg.angle_max == msg.angle_min or msg.angle_increment == 0.0
+        if single_bearing:
+            prof = np.zeros(self.height, dtype=np.float32)
+            valid = np.isfinite(ranges) & (ranges >= msg.range_min) & (ranges <= msg.range_max)
+            if self.use_intensities and inten.size:
+                vals = np.clip(np.where(valid, inten, 0.0) / self.intensity_scale, 0.0, 1.0)
+                prof = self._profile_from_bins(vals, np.where(valid, ranges, -1.0))
+            elif inten.size and valid.any() and np.max(np.where(valid, inten, 0.0)) > 0:
+                r = self.row(float(ranges[int(np.argmax(np.where(valid, inten, -np.inf)))]))
+                if r >= 0:
+                    prof[r] = 1.0
+            elif not inten.size and valid.any():
+                r = self.row(float(ranges[valid][0]))
+                if r >= 0:
+                    prof[r] = 1.0
+            self._write(msg.angle_min, prof, msg.header.stamp)
+            return [float(msg.angle_min)]
+        angles = []
         for i, r in enumerate(ranges):
             angle = msg.angle_min + i * msg.angle_increment
             prof = np.zeros(self.height, dtype=np.float32)
@@ -152,6 +176,8 @@ class SonarRaster:
                 else:
                     prof[row] = 1.0
             self._write(angle, prof, msg.header.stamp)
+            angles.append(float(angle))
+        return angles
 
     def _write(self, angle: float, profile: np.ndarray, stamp: int) -> None:
         cols = self._columns_for(angle)

@@ -94,3 +94,28 @@ def test_laserscan_form_and_errors():
     bad.nbins = 10
     with pytest.raises(ValueError, match="nbins=10 but beam_data has 300"):
         ras.add_beam(bad)
+
+
+def test_laserscan_beam_profile_matches_range_image_beam():
+    # the *_ros form of one MSIS beam: a single bearing, ranges = bin centres, intensities = echoes
+    b = beam(2.0, 11.0, nbins=200, max_range=20, value=150)
+    centres = ((np.arange(200) + 0.5) * 20 / 200).astype(np.float32)
+    scan = LaserScan(header=Header(seq=0, stamp=0), angle_min=2.0, angle_max=2.0, angle_increment=math.radians(1.8),
+                     range_min=0.0, range_max=20.0, ranges=centres, intensities=b.beam_data.astype(np.float32))
+    a, c = SonarRaster(128, 96, rmax=30.0), SonarRaster(128, 96, rmax=30.0)
+    a.add_beam(b)
+    assert c.add_scan(scan) == [2.0]
+    assert np.array_equal(a.image(), c.image()) and a.image().any()
+
+
+def test_laserscan_multi_bearing_scan():
+    ras = SonarRaster(360, 60, rmax=30.0, use_intensities=False)
+    scan = LaserScan(header=Header(seq=0, stamp=0), angle_min=0.0, angle_max=math.radians(20),
+                     angle_increment=math.radians(10), range_min=0.5, range_max=40.0,
+                     ranges=np.array([5.0, np.inf, 25.0]), intensities=np.zeros(0))
+    assert ras.add_scan(scan) == pytest.approx([0.0, math.radians(10), math.radians(20)])
+    img = ras.image()
+    assert img[ras.row(5.0), ras.column(0.0)] == 1.0 and img[ras.row(25.0), ras.column(math.radians(20))] == 1.0
+    # each ray fills the columns back to the previous bearing (10 deg <= max_fill): the inf return
+    # clears columns 1-10, the 25 m return lights columns 11-20
+    assert img.sum() == 11.0 and img[ras.row(25.0), 15] == 1.0 and not img[:, 1:11].any()
