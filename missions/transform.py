@@ -273,7 +273,9 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
             rel.setdefault(i, set()).add(j)
             rel.setdefault(j, set()).add(i)
 
-    writer = RecordingWriter(out)
+    part = out.with_name(out.name + ".part")  # renamed on success, removed on failure
+    writer = RecordingWriter(part)
+    ok = False
     seq: dict[str, int] = {}
     last_stamp: dict[str, int] = {}
     cursor = first
@@ -330,9 +332,14 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
             "perturbation_stats": pstats, "source_metadata": meta.get("poseidon", {}),
         })
         writer.add_metadata("transform_segments", {"segments": table})
+        ok = True
     finally:
         bar.close()
         writer.close()
+        if ok:
+            part.replace(out)
+        else:
+            part.unlink(missing_ok=True)
     return {"out": str(out), "segments": table, "segments_from": how, "counts": dict(sorted(writer.counts.items())),
             "frames": len(out_frames), "perturbed_frames": len(perturb_log), "perturbation_stats": pstats,
             "duration_s": (cursor - GAP_NS - first) / 1e9}

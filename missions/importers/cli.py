@@ -130,7 +130,7 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats) -> 
             header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
             try:
                 msg = conv(ros, header)
-            except (ConversionError, ValidationError) as exc:
+            except (ConversionError, ValidationError, TypeError, ValueError) as exc:
                 reason = f"{bm.topic} ({bm.msgtype}): {str(exc).splitlines()[0]}"
                 stats.bump(stats.skipped, reason)
                 continue
@@ -189,9 +189,12 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
             streams.append(_bag_stream(ros1, tm, stats))
         if ros2:
             streams.append(_bag_stream(ros2, tm, stats))
-    writer = RecordingWriter(out)
+    out = Path(out)
+    part = out.with_name(out.name + ".part")  # renamed on success, removed on failure
+    writer = RecordingWriter(part)
     first = last = None
     bar = tqdm(desc="import", unit="msg", disable=not progress)
+    ok = False
     try:
         for _, _, key, msg in heapq.merge(*streams, key=lambda x: (x[0], x[1])):
             writer.write(key, msg)
@@ -201,9 +204,14 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
             bar.update(1)
         writer.add_metadata("poseidon", {"tool": "poseidon import", "sources": [str(s) for s in sources],
                                          "topic_map": tm})
+        ok = True
     finally:
         bar.close()
         writer.close()
+        if ok:
+            part.replace(out)
+        else:
+            part.unlink(missing_ok=True)
     return {
         "out": str(out), "inputs": stats.inputs, "read": dict(sorted(stats.read.items())),
         "written": dict(sorted(writer.counts.items())), "unmapped_types": dict(sorted(stats.unmapped_types.items())),

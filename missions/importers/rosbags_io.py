@@ -22,8 +22,10 @@ counted by type and topic, never an error.  Values are copied without frame conv
 header stamp is zero; seq = the ROS1 header seq, or a per-key counter (ROS2 headers have
 no seq).
 
-The Cala Viuda custom types are registered from their ``.msg`` definitions (below), so
-ROS2 bags that do not embed definitions read too; ROS1 bags embed their own.
+The Cala Viuda custom types are registered from their ``.msg`` definitions (below, as in the
+ROS2 port of ``cirs_girona_cala_viuda``), so ROS2 bags that do not embed definitions read
+too; ROS1 bags embed their own, and the original 2013 bags spell the DVL fields in
+camelCase (``dataGood``, ``velocityInst``): fields are matched case-insensitively.
 """
 from __future__ import annotations
 
@@ -166,27 +168,61 @@ def _odometry(m: Any, h: Header) -> Odometry:
                     twist_covariance=[float(v) for v in m.twist.covariance])
 
 
+_LOWER: dict[type, dict[str, str]] = {}
+
+
+def _get(m: Any, name: str) -> Any:
+    """Field ``name`` of a deserialised message, case-insensitively: the original ROS1 bags
+    of the caves dataset use camelCase (``dataGood``, ``velocityInst``, ``soundSpeed``), the
+    ROS2 port of cirs_girona_cala_viuda lower case (``datagood``)."""
+    try:
+        return getattr(m, name)
+    except AttributeError:
+        pass
+    cls = type(m)
+    lower = _LOWER.get(cls)
+    if lower is None:
+        names = getattr(cls, "__dataclass_fields__", None) or [a for a in dir(m) if not a.startswith("_")]
+        lower = _LOWER[cls] = {n.lower(): n for n in names}
+    real = lower.get(name.lower())
+    if real is None:
+        raise ConversionError(f"field {name!r} not in the message definition (fields: {sorted(lower.values())})")
+    return getattr(m, real)
+
+
 def _cv_depth(m: Any, h: Header) -> Depth:
-    return Depth(header=h, depth=m.depth)
+    return Depth(header=h, depth=_get(m, "depth"))
+
+
+def _copy_fields(model: type[Message], m: Any) -> dict[str, Any]:
+    """Every field of ``model`` from ``m``; a field the source definition lacks keeps our
+    default when it has one (the caves CSV/bags have no ``errCode``/``rawData``), else raises."""
+    kw: dict[str, Any] = {}
+    for name, info in model.model_fields.items():
+        if name == "header":
+            continue
+        try:
+            v = _get(m, name)
+        except ConversionError:
+            if info.is_required():
+                raise
+            continue
+        kw[name] = v.tolist() if isinstance(v, np.ndarray) else v
+    return kw
 
 
 def _cv_imu(m: Any, h: Header) -> Imu:
-    return Imu(header=h, **{f: float(getattr(m, f)) for f in Imu.model_fields if f != "header"})
+    return Imu(header=h, **_copy_fields(Imu, m))
 
 
 def _cv_beam(m: Any, h: Header) -> RangeImageBeam:
-    return RangeImageBeam(header=h, angle_grad=m.angle_grad, angle_rad=m.angle_rad, nbins=m.nbins,
-                          max_range=m.max_range, beam_data=np.asarray(m.beam_data, np.int32))
+    return RangeImageBeam(header=h, angle_grad=_get(m, "angle_grad"), angle_rad=_get(m, "angle_rad"),
+                          nbins=_get(m, "nbins"), max_range=_get(m, "max_range"),
+                          beam_data=np.asarray(_get(m, "beam_data"), np.int32))
 
 
 def _cv_dvl(m: Any, h: Header) -> LinkquestDvl:
-    kw: dict[str, Any] = {}
-    for name in LinkquestDvl.model_fields:
-        if name == "header":
-            continue
-        v = getattr(m, name)
-        kw[name] = v.tolist() if isinstance(v, np.ndarray) else v
-    return LinkquestDvl(header=h, **kw)
+    return LinkquestDvl(header=h, **_copy_fields(LinkquestDvl, m))
 
 
 #: normalised ROS type -> converter(ros message, header) -> our message

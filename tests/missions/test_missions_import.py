@@ -242,6 +242,7 @@ def test_truncated_bag_clear_error(tmp_path, capsys):
         import_sources([cut], tmp_path / "out.mcap", progress=False)
     assert main([str(cut), "--out", str(tmp_path / "o2.mcap"), "--no-progress"]) == 2
     assert "cut.bag" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.mcap*"))  # no partial recording left behind
 
 
 def test_frames_folder(tmp_path):
@@ -299,3 +300,64 @@ def test_girona_csvs_and_frames_list_via_import(tmp_path):
     assert summary["written"] == {"depth_sensor": 19553, "dvl_linkquest": 5564}
     stamps = [r.stamp for r in read_messages(tmp_path / "out.mcap")]
     assert stamps == sorted(stamps) and len(stamps) == 19553 + 5564
+
+
+_CAMEL_DVL = """std_msgs/Header header
+int32[4] dataGood
+float64[4] altitudeBeam
+float64[4] bottomVelocityBeam
+float64[4] waterVelocityBeam
+float64[4] waterVelocityCredit
+float64[3] velocityInst
+int32 velocityInstFlag
+float64[3] velocityEarth
+int32 velocityEarthFlag
+float64[3] waterVelocityInst
+int32 waterVelocityInstFlag
+float64[3] waterVelocityEarth
+int32 waterVelocityEarthFlag
+float64 roll
+float64 pitch
+float64 heading
+float64 altitude
+float64 temperature
+float64 pressure
+float64 salinity
+float64 soundSpeed
+"""
+
+
+def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
+    """The 2013 bags spell the DVL fields in camelCase (as the rostopic CSV columns show) and
+    have no errCode/rawData; a definition lacking a required field is skipped with a reason."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    st = get_typestore(Stores.ROS1_NOETIC)
+    st.register(get_types_from_msg(_CAMEL_DVL, "cirs_girona_cala_viuda/msg/LinkquestDvl"))
+    st.register(get_types_from_msg("std_msgs/Header header\nfloat64 pressure\n", "cirs_girona_cala_viuda/msg/Depth"))
+    T = st.types
+    vals = dict(dataGood=np.array([0, 1, 1, 1], np.int32), altitudeBeam=np.array([0.0, 2.0, 2.0, 2.1]),
+                bottomVelocityBeam=np.array([0.0, -0.0489, 0.0848, 0.0369]), waterVelocityBeam=np.zeros(4),
+                waterVelocityCredit=np.zeros(4), velocityInst=np.array([-0.2424, -0.1145, -0.0065]),
+                velocityInstFlag=1, velocityEarth=np.zeros(3), velocityEarthFlag=1, waterVelocityInst=np.zeros(3),
+                waterVelocityInstFlag=0, waterVelocityEarth=np.zeros(3), waterVelocityEarthFlag=0, roll=0.0,
+                pitch=0.0, heading=0.0, altitude=2.0, temperature=15.0, pressure=2853823.582, salinity=0.0,
+                soundSpeed=1500.0)
+    hdr = T["std_msgs/msg/Header"](seq=1245, stamp=T["builtin_interfaces/msg/Time"](sec=1372687208, nanosec=633787539),
+                                   frame_id="dvl")
+    with Writer(tmp_path / "orig.bag") as w:
+        c = w.add_connection("/dvl_linkquest", "cirs_girona_cala_viuda/msg/LinkquestDvl", typestore=st)
+        d = w.add_connection("/depth_sensor", "cirs_girona_cala_viuda/msg/Depth", typestore=st)
+        w.write(c, 1372687208632644971, st.serialize_ros1(T["cirs_girona_cala_viuda/msg/LinkquestDvl"](
+            header=hdr, **vals), "cirs_girona_cala_viuda/msg/LinkquestDvl"))
+        w.write(d, 1372687208632644972, st.serialize_ros1(T["cirs_girona_cala_viuda/msg/Depth"](
+            header=hdr, pressure=1.0), "cirs_girona_cala_viuda/msg/Depth"))
+    summary = import_sources([tmp_path / "orig.bag"], tmp_path / "out.mcap", progress=False)
+    assert summary["written"] == {"dvl_linkquest": 1}
+    (reason, n), = summary["skipped"].items()
+    assert n == 1 and "/depth_sensor" in reason and "'depth'" in reason
+    m = _recorded(tmp_path / "out.mcap")["dvl_linkquest"][0]
+    assert (m.header.seq, m.header.stamp) == (1245, 1372687208633787539)
+    assert m.datagood == [0, 1, 1, 1] and m.velocityinst == [-0.2424, -0.1145, -0.0065] and m.soundspeed == 1500.0
+    assert m.errcode == "" and m.rawdata == ""
