@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+import numba as nb
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -74,20 +75,23 @@ class Perturbation:
     scale: float = 0.0
 
 
-def _bilinear(img: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
-    h, w = img.shape[:2]
-    sx = np.clip(sx, 0, w - 1.0001)
-    sy = np.clip(sy, 0, h - 1.0001)
-    x0 = sx.astype(np.int32)
-    y0 = sy.astype(np.int32)
-    fx = (sx - x0)[..., None] if img.ndim == 3 else sx - x0
-    fy = (sy - y0)[..., None] if img.ndim == 3 else sy - y0
-    f = img.astype(np.float32)
-    a = f[y0, x0]
-    b = f[y0, x0 + 1]
-    c = f[y0 + 1, x0]
-    d = f[y0 + 1, x0 + 1]
-    return (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy
+@nb.njit(cache=True, nogil=True)
+def _warp(img: np.ndarray, out: np.ndarray, m00: float, m01: float, m02: float, m10: float, m11: float,
+          m12: float) -> None:
+    """out[y, x, c] = img sampled bilinearly at (sx, sy) = M @ (x, y, 1), edges clamped."""
+    h, w, ch = img.shape
+    for y in range(h):
+        for x in range(w):
+            sx = min(max(m00 * x + m01 * y + m02, 0.0), w - 1.0001)
+            sy = min(max(m10 * x + m11 * y + m12, 0.0), h - 1.0001)
+            x0 = int(sx)
+            y0 = int(sy)
+            fx = sx - x0
+            fy = sy - y0
+            for c in range(ch):
+                top = img[y0, x0, c] * (1 - fx) + img[y0, x0 + 1, c] * fx
+                bot = img[y0 + 1, x0, c] * (1 - fx) + img[y0 + 1, x0 + 1, c] * fx
+                out[y, x, c] = top * (1 - fy) + bot * fy
 
 
 def _gauss_blur(f: np.ndarray, sigma: float) -> np.ndarray:
@@ -114,13 +118,15 @@ def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) ->
     th = math.radians(rot)
     c, s = math.cos(th), math.sin(th)
     cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    # output pixel q = R * zoom * (src - centre) + centre + (shift, 0)  ->  src = inverse
-    qx = (xx - cx - shift) / zoom
-    qy = (yy - cy) / zoom
-    sx = c * qx + s * qy + cx
-    sy = -s * qx + c * qy + cy
-    f = _bilinear(img, sx, sy)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32) if (p.illumination > 0 or p.occlusion > 0) else (None, None)
+    # output pixel q = R * zoom * (src - centre) + centre + (shift, 0)  ->  src = inverse:
+    # sx = (c (x - cx - shift) + s (y - cy)) / zoom + cx,  sy = (-s (x - cx - shift) + c (y - cy)) / zoom + cy
+    src = img if img.ndim == 3 else img[:, :, None]
+    f = np.empty(src.shape, np.float32)
+    _warp(np.ascontiguousarray(src), f, c / zoom, s / zoom, cx - (c * (cx + shift) + s * cy) / zoom,
+          -s / zoom, c / zoom, cy - (-s * (cx + shift) + c * cy) / zoom)
+    if img.ndim == 2:
+        f = f[:, :, 0]
     drawn = {"shift_px": shift, "rotation_deg": rot}
     if p.scale > 0:
         drawn["scale"] = zoom
