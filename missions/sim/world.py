@@ -229,8 +229,8 @@ def _relief(free: np.ndarray, floor: np.ndarray, ceil: np.ndarray, dist: np.ndar
             q = dist[i, j] / w
             free[i, j] = q < 1.0
             qq = min(q, 1.0)
-            floor[i, j] = base_depth[k] + 0.35 * (1.0 - qq * qq) + 0.5 * (_fbm(x, y, 0.25, 3, seed + 32) - 0.5)
-            ceil[i, j] = floor[i, j] - height[k] * np.sqrt(max(1.0 - qq * qq, 0.0)) - 0.05
+            floor[i, j] = base_depth[i, j] + 0.35 * (1.0 - qq * qq) + 0.5 * (_fbm(x, y, 0.25, 3, seed + 32) - 0.5)
+            ceil[i, j] = floor[i, j] - height[i, j] * np.sqrt(max(1.0 - qq * qq, 0.0)) - 0.05
 
 
 @nb.njit(cache=True)
@@ -371,16 +371,16 @@ def build_world(seed: int) -> World:
     pts = np.concatenate(route[:3])
     # per centre-line point: half-width, floor base depth, height (m)
     n = pts.shape[0]
-    s = np.arange(n) * 0.1
-    w = 2.0 + 0.5 * np.sin(s / 7.0 + rng.uniform(0, 6)) + 0.25 * np.sin(s / 2.3 + rng.uniform(0, 6))
-    # chamber in area 2 (its north side) and a wide spot in area 1
-    n1, n2 = len(route[0]), len(route[1])
-    k2 = n1 + n2 + np.arange(len(route[2]))
-    ch = np.exp(-((np.arange(len(route[2])) - 0.25 * len(route[2])) / 60.0) ** 2)
-    w[k2] += 3.0 * ch
-    w[: n1] += 1.2 * np.exp(-((np.arange(n1) - 0.6 * n1) / 40.0) ** 2)
-    base = 14.0 + 1.5 * np.sin(s / 40.0) + 0.4 * np.sin(s / 11.0 + 1.0)
-    height = 3.0 + 1.5 * np.sin(s / 13.0 + 2.0) ** 2 + 2.0 * np.r_[np.zeros(n1 + n2), ch]
+    # half-width, floor base depth and height are smooth functions of *position* (not of the
+    # arc length), so they are continuous where route pieces meet (junctions, loop closures)
+    px, py = pts[:, 0], pts[:, 1]
+    ph = rng.uniform(0, 2 * np.pi, 4)
+    w = 2.0 + 0.5 * np.sin(px / 5.1 + py / 7.3 + ph[0]) + 0.25 * np.sin(px / 2.3 - py / 1.9 + ph[1])
+    # a chamber in area 2 (its north side) and a wide spot in area 1
+    c2 = route[2][int(0.25 * len(route[2]))]
+    c1 = route[0][int(0.6 * len(route[0]))]
+    ch = np.exp(-(np.hypot(px - c2[0], py - c2[1]) / 6.0) ** 2)
+    w += 3.0 * ch + 1.2 * np.exp(-(np.hypot(px - c1[0], py - c1[1]) / 4.0) ** 2)
     margin = 7.0
     gx0 = float(np.floor(pts[:, 0].min() - margin))
     gy0 = float(np.floor(pts[:, 1].min() - margin))
@@ -393,7 +393,14 @@ def build_world(seed: int) -> World:
     free = np.zeros((ny, nx), np.bool_)
     floor = np.zeros((ny, nx), np.float32)
     ceil = np.zeros((ny, nx), np.float32)
-    _relief(free, floor, ceil, dist, seg, w, base, height, gx0, gy0, GRID_RES, seed)
+    # floor base depth and tunnel height: smooth functions of the cell position
+    gx = (gx0 + np.arange(ny) * GRID_RES)[:, None]
+    gy = (gy0 + np.arange(nx) * GRID_RES)[None, :]
+    base = 14.3 + 1.2 * np.sin(gx / 23.0 + ph[2]) * np.cos(gy / 31.0) + 0.4 * np.sin(gy / 11.0 + ph[3])
+    chamber = np.exp(-(np.hypot(gx - c2[0], gy - c2[1]) / 6.0) ** 2)
+    height = 3.0 + 1.5 * np.sin(gx / 9.0 + gy / 13.0 + 2.0) ** 2 + 2.0 * chamber
+    _relief(free, floor, ceil, dist, seg, w, np.ascontiguousarray(base), np.ascontiguousarray(height), gx0, gy0,
+            GRID_RES, seed)
 
     # texture tiles wherever the floor can be seen (free cells + a 1.5 m margin)
     tile_m = TILE * TEX_RES
