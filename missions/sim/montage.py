@@ -1,6 +1,6 @@
 """A picture of a simulated mission for the docs: camera frames, sonar rasters, the map.
 
-Generates a short mission (default 3 minutes, seed 0) into a temporary recording, then
+Generates a mission (default 25 minutes, seed 0: area 1, the transition and area 2) into a temporary recording, then
 composes: eight camera frames (evenly spaced, plus the frames nearest the traffic cone
 of area 1), one full 360 deg turn of the Micron MSIS (polar -> Cartesian, 20 m), the
 SeaKing profiler beams of the same period as a range x time raster, and a top view of the
@@ -43,7 +43,7 @@ def _sonar_colour(v: np.ndarray) -> np.ndarray:
     return (np.stack([t * 255, t ** 0.6 * 220, t ** 2 * 120], axis=-1)).astype(np.uint8)
 
 
-def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 3.0) -> Path:
+def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 25.0) -> Path:
     """Write the montage PNG; returns its path."""
     out_png = Path(out_png)
     with tempfile.TemporaryDirectory() as d:
@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="montage of a simulated mission")
     ap.add_argument("--out", default="docs/images/sim_montage.png")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--minutes", type=float, default=3.0)
+    ap.add_argument("--minutes", type=float, default=25.0)
     args = ap.parse_args(argv)
     print(make_montage(args.out, args.seed, args.minutes))
     return 0
