@@ -9,15 +9,23 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
   after the hub.
 - Keys are ``<namespace>/<key>`` (namespace per vehicle, default ``poseidon``); liveliness
   tokens are ``<namespace>/@alive/<service>``.
-- Publishers are reliable with ``CongestionControl.BLOCK``: a slow subscriber slows the
-  publisher instead of losing messages.  Subscribers push into a bounded queue whose
-  ``put`` blocks, which propagates that back-pressure to the sender.
+- Publishers are reliable with ``CongestionControl.BLOCK``: Zenoh never drops a frame.
+- Flow control is end to end, in event time, not inside Zenoh: every consumer reports how
+  far it has got on ``<namespace>/@progress/<service>`` and a replaying player keeps at most
+  ``bus.flow_window_ms`` of event time in flight ahead of the slowest one.  Subscriber
+  callbacks therefore never block.  (Blocking a callback, the obvious way to push back,
+  stalls the Zenoh runtime that routes the consumer's own outputs: with a hub between
+  services that deadlocks as soon as a service both consumes and publishes.)
+- ``@`` chunks (``@alive``, ``@progress``) are verbatim in Zenoh: ``**`` does not match
+  them, so the recorder never records control traffic.
 """
 from __future__ import annotations
 
 import json
 import logging
 import queue
+import struct
+import threading
 import time
 from typing import Callable, Iterable
 
@@ -26,11 +34,13 @@ import zenoh
 from common.codec import ENCODED_EOS, encode_frame, encode_watermark
 from common.messages import Message
 
-__all__ = ["zenoh_config", "Bus", "BusPublisher", "open_hub", "ALIVE"]
+__all__ = ["zenoh_config", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher", "open_hub", "ALIVE",
+           "PROGRESS"]
 
 log = logging.getLogger(__name__)
 
 ALIVE = "@alive"
+PROGRESS = "@progress"
 
 
 def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iterable[str] = (),
@@ -90,6 +100,42 @@ class BusPublisher:
         self._pub.undeclare()
 
 
+class ProgressReporter:
+    """Tells the player how far (event time, ns) a consumer has taken its inputs."""
+
+    def __init__(self, session: zenoh.Session, full_key: str, min_interval_s: float = 0.02):
+        self._pub = session.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                              reliability=zenoh.Reliability.RELIABLE)
+        self._last = -2
+        self._last_wall = 0.0
+        self._min_interval_s = min_interval_s
+
+    def report(self, stamp: int, force: bool = False) -> None:
+        now = time.monotonic()
+        if stamp > self._last and (force or now - self._last_wall >= self._min_interval_s):
+            self._pub.put(struct.pack("<q", stamp))
+            self._last, self._last_wall = stamp, now
+
+
+class ProgressWatcher:
+    """The latest progress of every consumer (thread-safe, filled by a Zenoh callback)."""
+
+    def __init__(self) -> None:
+        self._progress: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def update(self, service: str, stamp: int) -> None:
+        with self._lock:
+            if stamp > self._progress.get(service, -2):
+                self._progress[service] = stamp
+
+    def slowest(self, services: Iterable[str], default: int) -> int:
+        """Minimum progress over ``services``; one that has not reported counts as ``default``."""
+        with self._lock:
+            values = [self._progress.get(s, default) for s in services]
+        return min(values) if values else default
+
+
 class Bus:
     """One Zenoh session of a process, scoped to a vehicle namespace.
 
@@ -115,19 +161,31 @@ class Bus:
     def publisher(self, key: str) -> BusPublisher:
         return BusPublisher(self.session, self.full_key(key))
 
-    def subscribe(self, key: str, sink: "queue.Queue[tuple[str, bytes]]") -> None:
+    def subscribe(self, key: str, sink: "queue.SimpleQueue[tuple[str, bytes]]") -> None:
         """Deliver ``(relative key, frame bytes)`` of ``key`` (wildcards allowed) into ``sink``.
 
-        ``sink.put`` blocks when the queue is full: back-pressure, not loss.
+        The callback never blocks (see the module notes on flow control).
         """
         def on_sample(sample: zenoh.Sample) -> None:
-            sink.put((self.relative_key(str(sample.key_expr)), sample.payload.to_bytes()))
+            sink.put_nowait((self.relative_key(str(sample.key_expr)), sample.payload.to_bytes()))
         self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
 
     def subscribe_callback(self, key: str, callback: Callable[[str, bytes], None]) -> None:
         def on_sample(sample: zenoh.Sample) -> None:
             callback(self.relative_key(str(sample.key_expr)), sample.payload.to_bytes())
         self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
+
+    def progress_publisher(self, service: str) -> "ProgressReporter":
+        return ProgressReporter(self.session, self.full_key(f"{PROGRESS}/{service}"))
+
+    def watch_progress(self) -> "ProgressWatcher":
+        watcher = ProgressWatcher()
+        prefix = self.full_key(PROGRESS) + "/"
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            watcher.update(str(sample.key_expr)[len(prefix):], struct.unpack("<q", sample.payload.to_bytes())[0])
+        self._keepalive.append(self.session.declare_subscriber(self.full_key(f"{PROGRESS}/*"), on_sample))
+        return watcher
 
     def declare_alive(self, service: str) -> None:
         """Announce that ``service`` has declared its subscribers and is ready."""

@@ -31,7 +31,7 @@ class SyncConfig(_Section):
 class BusConfig(_Section):
     namespace: str = Field("poseidon", pattern=r"^[A-Za-z0-9_\-/]+$", description="per-vehicle key prefix")
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    queue_size: int = Field(256, ge=1, description="bounded subscriber queue (messages)")
+    flow_window_ms: int = Field(3000, ge=100, description="replay keeps at most this much event time in flight (ms)")
     heartbeat_interval_ms: int = Field(100, ge=1, description="event-time heartbeat of silent streams (ms)")
     startup_timeout_s: float = Field(60.0, gt=0, description="wait for subscribers/services to come alive")
     drain_timeout_s: float = Field(3600.0, gt=0, description="a finished publisher waits this long for consumers to finish")

@@ -1,8 +1,9 @@
 """Runs a :class:`~common.node.ServiceNode` on the bus.
 
 The runner subscribes to the node's inputs, merges them by event time
-(:class:`~common.ordering.EventTimeMerger`), calls the node, publishes its outputs, and
-forwards event-time watermarks (rate-limited to ``bus.heartbeat_interval_ms`` of event
+(:class:`~common.ordering.EventTimeMerger`), calls the node, publishes its outputs, reports
+its progress (event time consumed, for the player's flow control), and forwards event-time
+watermarks (rate-limited to ``bus.heartbeat_interval_ms`` of event
 time) and end-of-stream so downstream services can merge deterministically too.
 A message that fails validation is logged with its key and seq, counted and skipped.
 """
@@ -50,11 +51,11 @@ def _header_seq(payload: bytes | memoryview) -> str:
 class NodeRunner:
     """Drive ``node`` from ``bus`` until every input has ended."""
 
-    def __init__(self, node: ServiceNode, bus: Bus, queue_size: int = 256, heartbeat_ms: int = 100,
-                 drain_timeout_s: float = 0.0):
+    def __init__(self, node: ServiceNode, bus: Bus, heartbeat_ms: int = 100, drain_timeout_s: float = 0.0):
         self.node = node
         self.bus = bus
-        self.queue: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=queue_size)
+        self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.progress = bus.progress_publisher(node.name)
         self.heartbeat_ns = heartbeat_ms * 1_000_000
         self.stats = RunnerStats(node.name)
         self.stop_event = threading.Event()
@@ -116,6 +117,8 @@ class NodeRunner:
                 self._publish_outbox()
             self.stats.busy_s += time.perf_counter() - t0
             self._forward_watermark(merger)
+            if merger.watermark >= 0:
+                self.progress.report(merger.watermark, force=self.queue.empty())
         if merger.finished:
             node.finish()
             self._publish_outbox()

@@ -189,7 +189,8 @@ def cmd_service(args: argparse.Namespace) -> int:
                                  wait_for=[w for w in (args.wait_for or "").split(",") if w],
                                  heartbeat_ms=config.bus.heartbeat_interval_ms,
                                  startup_timeout_s=config.bus.startup_timeout_s, progress=not args.no_progress,
-                                 drain_timeout_s=config.bus.drain_timeout_s)
+                                 drain_timeout_s=config.bus.drain_timeout_s,
+                                 flow_window_ms=config.bus.flow_window_ms)
         elif args.name == "recorder":
             from services.recorder.recorder import Recorder
             if not args.out:
@@ -203,8 +204,8 @@ def cmd_service(args: argparse.Namespace) -> int:
         else:
             from common.runtime import NodeRunner
             from launcher.services import build_node
-            worker = NodeRunner(build_node(args.name, config), bus, config.bus.queue_size,
-                                config.bus.heartbeat_interval_ms, drain_timeout_s=config.bus.drain_timeout_s)
+            worker = NodeRunner(build_node(args.name, config), bus, config.bus.heartbeat_interval_ms,
+                                drain_timeout_s=config.bus.drain_timeout_s)
         stoppable.append(worker)
         stats = worker.run().as_dict()
     finally:

@@ -218,7 +218,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     recorder = Recorder(bus, out, expect=plan.expect, compression=config.recorder.compression,
                         chunk_size=config.recorder.chunk_size,
                         metadata=run_metadata(config, input_path, "embedded", plan.services))
-    runners = {n: NodeRunner(node_class(n, config)(config), bus, config.bus.queue_size, config.bus.heartbeat_interval_ms)
+    runners = {n: NodeRunner(node_class(n, config)(config), bus, config.bus.heartbeat_interval_ms)
                for n in plan.services}
 
     def target(name: str, fn: Any) -> None:
@@ -228,26 +228,22 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
             log.exception("service %s failed", name)
             errors[name] = exc
 
-    threads = [threading.Thread(target=target, args=("recorder", recorder.run), name="recorder", daemon=True)]
-    threads += [threading.Thread(target=target, args=(n, r.run), name=n, daemon=True) for n, r in runners.items()]
-    for t in threads:
-        t.start()
     player = Player(bus, input_path, rate=config.player.rate, keys=plan.player_keys,
                     wait_for=["recorder", *plan.services], heartbeat_ms=config.bus.heartbeat_interval_ms,
-                    startup_timeout_s=config.bus.startup_timeout_s, progress=progress)
-    target("player", player.run)
+                    startup_timeout_s=config.bus.startup_timeout_s, progress=progress,
+                    flow_window_ms=config.bus.flow_window_ms)
+    workers = {"recorder": recorder.run, **{n: r.run for n, r in runners.items()}, "player": player.run}
+    threads = [threading.Thread(target=target, args=(n, fn), name=n, daemon=True) for n, fn in workers.items()]
+    for t in threads:
+        t.start()
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     try:
-        for t in threads:
-            while t.is_alive():
-                t.join(timeout=0.2)
-                if errors:
-                    break
-                if deadline is not None and time.monotonic() > deadline:
-                    errors.setdefault(t.name, TimeoutError(f"did not finish within {timeout_s:.0f} s"))
-                    break
-            if errors:
+        while any(t.is_alive() for t in threads) and not errors:
+            if deadline is not None and time.monotonic() > deadline:
+                still = [t.name for t in threads if t.is_alive()]
+                errors[still[0]] = TimeoutError(f"did not finish within {timeout_s:.0f} s (still running: {still})")
                 break
+            time.sleep(0.05)
     finally:
         if errors:
             for r in runners.values():

@@ -1,7 +1,9 @@
 """Player: publishes every stream of an MCAP recording in event-time order.
 
-- Pacing: ``rate`` 1 = real time, N = N x real time, 0 = as fast as subscribers take it
-  (publishers block under back-pressure, so nothing is dropped at any rate).
+- Pacing: ``rate`` 1 = real time, N = N x real time, 0 = as fast as the consumers take
+  it: with ``wait_for`` services, at most ``flow_window_ms`` of event time is in flight
+  ahead of the slowest one (they report progress on ``@progress``), so nothing is dropped
+  and memory stays bounded at any rate.
 - Before the first message it waits until every expected service is alive (Zenoh drops
   what is published before a subscriber exists).
 - Payloads are sent byte for byte as recorded (no re-encoding).
@@ -19,7 +21,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 from tqdm import tqdm
 
@@ -55,7 +57,7 @@ class Player:
     def __init__(self, bus: Bus, path: str | Path, rate: float = 0.0, keys: Iterable[str] | None = None,
                  wait_for: Iterable[str] = (), heartbeat_ms: int = 100, startup_timeout_s: float = 60.0,
                  progress: bool = True, announce_absent: Iterable[str] = SOURCE_KEYS,
-                 drain_timeout_s: float = 0.0):
+                 drain_timeout_s: float = 0.0, flow_window_ms: int = 3000):
         if rate < 0:
             raise ValueError(f"player rate must be >= 0, got {rate}")
         self.bus = bus
@@ -69,11 +71,25 @@ class Player:
         self.startup_timeout_s = startup_timeout_s
         self.progress = progress
         self.drain_timeout_s = drain_timeout_s
+        self.flow_window_ns = flow_window_ms * 1_000_000
         self.stop_event = threading.Event()
         self.stats = PlayerStats()
 
+    def _wait_for_consumers(self, watcher: Any, stamp: int, first: int, pubs: dict[str, Any]) -> None:
+        """Flow control: hold ``stamp`` until the slowest consumer is within the window."""
+        promised = False
+        while not self.stop_event.is_set():
+            if stamp <= watcher.slowest(self.wait_for, default=first) + self.flow_window_ns:
+                return
+            if not promised:  # consumers may be waiting for time to pass (a gap in the recording)
+                for pub in pubs.values():
+                    pub.send_watermark(stamp)
+                promised = True
+            time.sleep(0.001)
+
     def run(self) -> PlayerStats:
         pubs = {k: self.bus.publisher(k) for k in self.keys + self.absent}
+        watcher = self.bus.watch_progress() if self.wait_for else None
         if self.wait_for:
             log.info("player: waiting for %s", ", ".join(self.wait_for))
             self.bus.wait_alive(self.wait_for, self.startup_timeout_s)
@@ -98,6 +114,8 @@ class Player:
                     delay = due - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
+                if watcher is not None:
+                    self._wait_for_consumers(watcher, rec.stamp, t_event0, pubs)
                 if rec.stamp - last_hb >= self.heartbeat_ns:
                     for pub in pubs.values():
                         pub.send_watermark(rec.stamp)

@@ -45,13 +45,15 @@ class RecorderStats:
 class Recorder:
     def __init__(self, bus: Bus, out: str | Path, expect: Iterable[str] | None = None,
                  metadata: dict[str, Any] | None = None, compression: str = "zstd", chunk_size: int = 1 << 20,
-                 queue_size: int = 1024, flush_interval_s: float = 0.5, name: str = "recorder"):
+                 flush_interval_s: float = 0.5, name: str = "recorder"):
         self.bus = bus
         self.out = Path(out)
         self.expect = set(expect) if expect is not None else None
         self.metadata = metadata or {}
         self.name = name
-        self.queue: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=queue_size)
+        self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.progress = bus.progress_publisher(name)
+        self._seen = -1
         self.writer = RecordingWriter(self.out, compression=compression, chunk_size=chunk_size)
         self.flush_interval_s = flush_interval_s
         self.stop_event = threading.Event()
@@ -75,6 +77,8 @@ class Recorder:
                 except queue.Empty:
                     continue
                 self._handle(key, data)
+                if self._seen >= 0:
+                    self.progress.report(self._seen, force=self.queue.empty())
                 if time.monotonic() - last_flush > self.flush_interval_s:
                     self.writer.flush()
                     last_flush = time.monotonic()
@@ -92,7 +96,8 @@ class Recorder:
         if frame.kind == "eos":
             self.stats.ended.append(key)
             return
-        if frame.kind != "data":
+        if frame.kind == "watermark":
+            self._seen = max(self._seen, frame.stamp)
             return
         try:
             header = decode_dict(frame.payload)["header"]
@@ -103,3 +108,4 @@ class Recorder:
             log.error("recorder: message on %s without a readable header skipped: %s", key, exc)
             return
         self.stats.recorded[key] = self.stats.recorded.get(key, 0) + 1
+        self._seen = max(self._seen, stamp)
