@@ -20,7 +20,8 @@ def config(tmp_path_factory) -> PoseidonConfig:
     tmp = tmp_path_factory.mktemp("enc")
     return PoseidonConfig.model_validate({"encoder": {
         "lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 2,
-        "sonar_polar_width": 64, "sonar_polar_height": 64}})
+        "sonar_polar_width": 64, "sonar_polar_height": 64,
+        "torch_threads": 1}})  # one thread: robust when the CI shares the cores
 
 
 @pytest.fixture(scope="module")

@@ -71,7 +71,8 @@ def test_main_synthetic_json(tmp_path, capsys):
     _write_seq(tmp_path / "ref", list(range(6)), names)
     _write_seq(tmp_path / "query", list(range(6)), names)  # identical images: cosine finds each one
     rc = main(["--ref", str(tmp_path / "ref"), "--query", str(tmp_path / "query"), "--json",
-               "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy"])
+               "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+               "--set", "encoder.torch_threads=1"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
@@ -98,7 +99,8 @@ def test_main_on_nordland_frames(tmp_path, capsys):
         pytest.skip(f"Nordland data not found under {DATA / 'nordland_trimmed'}")
     rc = main(["--ref", str(summer), "--query", str(winter), "--limit", "12", "--tolerance", "1", "--json",
                "--backbone", "alexnet_conv3",
-               "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy"])
+               "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+               "--set", "encoder.torch_threads=1"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_query"] == 12 and out["n_query_with_gt"] == 12 and out["backbone"] == "alexnet_conv3"
