@@ -47,7 +47,7 @@ from missions.sim.trajectory import (Trajectory, _smooth_noise, footprint_centre
                                      revisits, rot_wb)
 from missions.sim.world import World, build_world
 
-__all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "render_camera", "quat_from_rpy"]
+__all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "quat_from_rpy"]
 
 #: mission start stamp (ns): 2013-07-01 14:00:00 UTC, the day of the real Cala Viuda mission
 T0_NS = 1_372_687_200_000_000_000
@@ -203,13 +203,6 @@ class _CameraRenderer:
         out = np.empty((cam.height, cam.width, 3), np.uint8)
         render.finish_image(self.lin, out, cam.noise_sigma_dn, noise_seed, self.gamma_lut)
         return out
-
-
-def render_camera(world: World, params: SimParams, pos: np.ndarray, rpy: np.ndarray, altitude: float,
-                  turbidity: float = 1.0, seed: int = 0) -> np.ndarray:
-    """One camera image (H, W, 3) uint8 at a pose (for the montage and tests)."""
-    return _CameraRenderer(world, params.camera).render(np.asarray(pos, float), np.asarray(rpy, float), altitude,
-                                                        turbidity, np.random.default_rng(seed), seed)
 
 
 def _stamps(duration_s: float, rate_hz: float, rng: np.random.Generator, jitter_s: float, offset_s: float) -> np.ndarray:

@@ -6,9 +6,10 @@ Geometry is defined by a *route*: the tunnel centre lines of two loop areas, "El
 (area 1, an elliptical ring tunnel) and "Cave 2" (area 2, a rounded-rectangle ring with a
 chamber), joined by a long transition tunnel.  A 2D grid (``grid_res`` = 5 cm) holds for
 every cell whether it is free water (inside a tunnel, irregular walls), the floor depth
-and the ceiling depth (arched).  The floor albedo is a sparse set of 2.56 m texture tiles
-at 1 cm/texel (only tiles near free space exist) plus a 4 cm/texel level used for
-turbidity blur; procedural multi-scale texture (sand grain, ripples, rock patches with
+and the ceiling depth (arched); depth, height and width are smooth functions of position.
+The floor albedo is a sparse set of 2.56 m texture tiles at 1 cm/texel (only tiles near
+free space exist, generated lazily where the camera looks: :meth:`World.ensure_tiles`)
+plus a 4 cm/texel level used for turbidity blur; procedural multi-scale texture (sand grain, ripples, rock patches with
 cracks) is modulated by a "richness" field so long stretches are near-uniform sand, and
 distinctive features (rocks, traffic cones, a diver guideline) are painted in.
 Everything is a deterministic function of the seed.
@@ -189,7 +190,7 @@ def _paint_disc(tiles: np.ndarray, index: np.ndarray, only: np.ndarray, x0: floa
 
 
 @nb.njit(cache=True)
-def _paint_walls(free: np.ndarray, dist: np.ndarray, seg: np.ndarray, cx: np.ndarray, cy: np.ndarray,
+def _paint_walls(dist: np.ndarray, seg: np.ndarray, cx: np.ndarray, cy: np.ndarray,
                  width: np.ndarray, gx0: float, gy0: float, res: float) -> None:
     """Rasterise the tunnels: for every centre-line point, a disc of its half-width; keep the
     nearest centre-line index per cell."""
@@ -388,7 +389,7 @@ def build_world(seed: int) -> World:
     nx = int(np.ceil((pts[:, 1].max() + margin - gy0) / GRID_RES))
     dist = np.full((ny, nx), np.inf)
     seg = np.full((ny, nx), -1, np.int64)
-    _paint_walls(np.zeros((1, 1), np.bool_), dist, seg, pts[:, 0].copy(), pts[:, 1].copy(), w * 1.2 + 0.5, gx0, gy0,
+    _paint_walls(dist, seg, pts[:, 0].copy(), pts[:, 1].copy(), w * 1.2 + 0.5, gx0, gy0,
                  GRID_RES)
     free = np.zeros((ny, nx), np.bool_)
     floor = np.zeros((ny, nx), np.float32)

@@ -77,6 +77,15 @@ def test_streams_rates_and_formats(fast_mission):
     assert 10 < depth.mean() < 20
     imu = recs["imu_adis"][0]
     assert abs(imu.az + 9.81) < 0.5  # specific force, z down
+    from missions.importers.rosbags_io import rpy_from_quaternion
+
+    for m in recs["imu_adis"][::50]:  # the quaternion is the reported attitude (ZYX)
+        np.testing.assert_allclose(rpy_from_quaternion(m.qx, m.qy, m.qz, m.qw), (m.roll, m.pitch, m.yaw), atol=1e-9)
+    truth = recs["truth/pose"]
+    yaw_t = np.array([rpy_from_quaternion(*m.orientation)[2] for m in truth])
+    yaw_i = np.interp([m.header.stamp for m in recs["imu_adis"]], [m.header.stamp for m in truth], np.unwrap(yaw_t))
+    err = (np.array([m.yaw for m in recs["imu_adis"]]) - yaw_i + np.pi) % (2 * np.pi) - np.pi
+    assert np.abs(err).max() < np.deg2rad(3.0)  # noise + drift over 30 s stay small
     meta = read_metadata(path)["poseidon"]
     assert json.loads(meta["seed"]) == SEED and json.loads(meta["minutes"]) == FAST["minutes"]
     params = json.loads(meta["params"])
