@@ -151,3 +151,46 @@ def test_failing_service_embedded_raises_with_its_name(tmp_path):
     with pytest.raises(RunFailed) as err:
         run_embedded(cfg, src, tmp_path / "fail.mcap", services=["boom"], progress=False, timeout_s=60)
     assert err.value.service == "boom"
+
+
+def test_invalid_messages_are_skipped_counted_and_logged(caplog):
+    """A message failing validation is logged with its key and seq, counted, and skipped."""
+    import threading
+
+    import zenoh
+
+    from common.codec import encode, encode_frame
+    from common.messages import Depth, Header
+    from common.runtime import NodeRunner
+    from tests.foundation.nodes import SlowEcho
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    bus = Bus(session=session)
+    runner = NodeRunner(SlowEcho(PoseidonConfig()), bus)
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", runner.run()))
+    t.start()
+    bus.wait_alive(["slow_echo"], 10)
+    depth, camera = bus.publisher("depth_sensor"), bus.publisher("camera/image_raw")
+    good = Depth(header=Header(seq=0, stamp=10), depth=1.0)
+    bad = encode(Depth(header=Header(seq=1, stamp=20), depth=2.0)).replace(b"depth\xcb", b"width\xcb")
+    name = Depth.type_name.encode()
+    camera.send_eos()
+    depth.send(good)
+    depth.send_raw(b"D" + bytes([len(name)]) + name + bad)
+    depth.send_raw(b"Q not a frame")
+    depth.send(Depth(header=Header(seq=3, stamp=40), depth=4.0))
+    depth.send_eos()
+    t.join(timeout=20)
+    bus.close()
+    session.close()
+    stats = result["stats"]
+    assert stats.invalid == {"depth_sensor": 2}
+    assert stats.published == {"echo/depth": 2}
+    messages = " ".join(r.getMessage() for r in caplog.records)
+    assert "invalid message on depth_sensor seq 1" in messages
+    assert "bad frame on depth_sensor" in messages
