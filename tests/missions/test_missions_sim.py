@@ -12,16 +12,8 @@ from missions.sim.mission import SimParams, generate
 from missions.sim.trajectory import footprint_centres, make_trajectory, revisits
 from missions.sim.world import build_world
 
-SEED = 3
-# 0.5 min at 4.5 m/s: the approach and more than one loop of area 1, so places are revisited
+SEED = 3  # the seed of the conftest's fast_mission (0.5 min at 4.5 m/s)
 FAST = dict(minutes=0.5, seed=SEED, speed_m_s=4.5)
-
-
-@pytest.fixture(scope="module")
-def fast_mission(tmp_path_factory):
-    path = tmp_path_factory.mktemp("sim") / "a.mcap"
-    summary = generate(path, SimParams(**FAST), progress=False)
-    return path, summary
 
 
 def _by_key(path):
@@ -32,7 +24,8 @@ def _by_key(path):
 
 
 def test_same_seed_same_bytes(fast_mission, tmp_path):
-    path, _ = fast_mission
+    path, summary = fast_mission
+    assert (summary["seed"], summary["minutes"]) == (SEED, FAST["minutes"])
     # the second run rebuilds the world from scratch (not the per-process cache)
     generate(tmp_path / "b.mcap", SimParams(**FAST), progress=False, world=build_world.__wrapped__(SEED))
     assert file_sha256(path) == file_sha256(tmp_path / "b.mcap")

@@ -169,3 +169,28 @@ def test_default_segments_from_sim_route():
     assert names == [("transition_2_1", 0), ("area1_ellipse", 0), ("transition_1_2", 0), ("area2_cave2", 0),
                      ("transition_2_1", 0)]
     assert all(b > a for a, b in ranges) and ranges[4][0] > ranges[3][1]  # exit after the three area-2 loops
+
+
+def test_source_revisits_carried_to_every_copy(tmp_path, fast_mission):
+    """A source whose own truth/revisits has loop closures (the conftest's fast mission: the
+    approach and more than a loop of area 1): each source pair appears between the copies."""
+    src = fast_mission[0]
+    srec = _by_key(src)
+    src_pairs = {(m.frame_index, int(j)) for m in srec["truth/revisits"] for j in np.asarray(m.same_place)}
+    assert src_pairs
+    out = tmp_path / "out.mcap"
+    transform(src, out, parse_segments("0:1,1:29,29:29.4,29.4:29.7,29.7:30"), progress=False)
+    rec = _by_key(out)
+    t0 = min(x.header.stamp for v in srec.values() for x in v)
+    stamps = np.array([m.header.stamp for m in srec["camera/image_raw"]])
+    n_entry = int((stamps < t0 + 1e9).sum())
+    n_loop = int(((stamps >= t0 + 1e9) & (stamps < t0 + 29e9)).sum())
+    out_same = {m.frame_index: set(int(j) for j in np.asarray(m.same_place)) for m in rec["truth/revisits"]}
+    carried = 0
+    for i, j in src_pairs:
+        if i >= n_entry and j >= n_entry and i < n_entry + n_loop:
+            for copy in range(3):  # the pair inside each copy of the loop
+                oi, oj = n_entry + copy * n_loop + (i - n_entry), n_entry + copy * n_loop + (j - n_entry)
+                assert oj in out_same[oi], (i, j, copy)
+                carried += 1
+    assert carried > 0
