@@ -206,8 +206,8 @@ class _CameraRenderer:
 
 
 def _stamps(duration_s: float, rate_hz: float, rng: np.random.Generator, jitter_s: float, offset_s: float) -> np.ndarray:
-    n = int(math.floor((duration_s - offset_s) * rate_hz))
-    t = offset_s + np.arange(max(n, 0)) / rate_hz
+    n = max(int(math.floor((duration_s - offset_s) * rate_hz)), 0)
+    t = offset_s + np.arange(n) / rate_hz
     if jitter_s > 0 and n:
         t = t + rng.uniform(-jitter_s, jitter_s, n)
     return t

@@ -138,6 +138,8 @@ def test_cli_json_summary(tmp_path, capsys):
     assert {"duration_s", "distance_m", "loops", "segments", "wall_s", "realtime_factor"} <= set(s)
     with pytest.raises(SystemExit):
         sim_cli.main(["--minutes", "-1", "--out", str(tmp_path / "d.mcap")])
+    # a mission shorter than some sensor periods: those streams are simply empty
+    assert sim_cli.main(["--minutes", "0.001", "--out", str(tmp_path / "e.mcap"), "--no-progress"]) == 0
 
 
 def test_lazy_tiles_independent_of_generation_order():
