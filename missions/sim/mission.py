@@ -53,7 +53,7 @@ __all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS",
 T0_NS = 1_372_687_200_000_000_000
 
 #: bumped whenever the recording produced for a given seed and parameters changes
-GENERATOR_VERSION = "poseidon-sim/2"
+GENERATOR_VERSION = "poseidon-sim/3"
 
 #: write order of messages with equal stamps
 KEY_ORDER = ["truth/pose", "truth/revisits", "imu_adis", "imu_adis_ros", "depth_sensor", "dvl_linkquest",
@@ -124,6 +124,7 @@ class SimParams:
     truth_rate_hz: float = 10.0
     revisit_radius_m: float = 1.5
     revisit_max_vehicle_m: float = 2.0
+    revisit_max_heading_deg: float | None = None  # None: heading ignored (downward camera)
     revisit_min_gap_m: float = 10.0
     chunk_s: float = 30.0
 
@@ -313,7 +314,8 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     cs = traj.at(st.cam)
     centres = footprint_centres(world, cs["pos"], cs["rpy"], np.asarray(p.camera.lever))
     same = revisits(centres, cs["pos"], cs["dist"], cs["rpy"][:, 2], p.revisit_radius_m, p.revisit_max_vehicle_m,
-                    p.revisit_min_gap_m)
+                    p.revisit_min_gap_m,
+                    None if p.revisit_max_heading_deg is None else math.radians(p.revisit_max_heading_deg))
     segs = segments_of(traj, duration)
 
     cam_r = _CameraRenderer(world, p.camera)
@@ -327,7 +329,9 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
         "frames": "world NED (x north, y east, z down); body x forward, y right, z down; quaternion xyzw body->world",
         "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m, "
                                f"vehicle positions within {p.revisit_max_vehicle_m} m, and >= {p.revisit_min_gap_m} m "
-                               f"travelled between the frames; heading ignored"),
+                               f"travelled between the frames; heading "
+                               + ("ignored" if p.revisit_max_heading_deg is None
+                                  else f"within {p.revisit_max_heading_deg} deg")),
         "route": world.route_names, "segments": segs, "features": world.features,
         "dvl_heading_offset_deg": dvl_heading_off, "gyro_bias_rad_s": gyro_bias.tolist(),
     }

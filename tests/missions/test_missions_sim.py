@@ -119,6 +119,14 @@ def test_revisit_definition_long_mission():
     same = revisits(c, st["pos"], st["dist"], st["rpy"][:, 2], 1.5, 2.0, 10.0)
     n_pairs = sum(len(s) for s in same)
     assert n_pairs > 1000
+    bounded = revisits(c, st["pos"], st["dist"], st["rpy"][:, 2], 1.5, 2.0, 10.0, max_heading_diff=np.radians(30))
+    n_bounded = 0
+    for i, js in enumerate(bounded):
+        assert set(js) <= set(same[i])
+        dyaw = (st["rpy"][js, 2] - st["rpy"][i, 2] + np.pi) % (2 * np.pi) - np.pi
+        assert (np.abs(dyaw) <= np.radians(30) + 1e-9).all()
+        n_bounded += len(js)
+    assert 0 < n_bounded < n_pairs  # the transition flown back the other way is excluded
     # exactness against brute force on a subsample
     rng = np.random.default_rng(0)
     for i in rng.choice(len(times), 300, replace=False):
