@@ -5,7 +5,7 @@ Type mapping (``sensor_msgs`` / ``nav_msgs`` / ``cirs_girona_cala_viuda``):
 ===================================== ==================================================
 ROS type                              our message
 ===================================== ==================================================
-sensor_msgs/Image                     Image (rgb8, bgr8, mono8, rgba8, bgra8, mono16)
+sensor_msgs/Image                     Image (rgb8, bgr8, mono8, rgba8, bgra8, mono16; 8UC1/3/4, 16UC1)
 sensor_msgs/CompressedImage           Image rgb8 / mono8 (JPEG or PNG decoded by Pillow)
 sensor_msgs/Imu                       Imu (roll, pitch, yaw from the quaternion, ZYX)
 sensor_msgs/LaserScan                 LaserScan
@@ -108,10 +108,13 @@ class ConversionError(ValueError):
 
 
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1, "rgba8": 4, "bgra8": 4, "mono16": 1}
+# OpenCV-style encodings as cv_bridge reads them
+_ALIASES = {"8uc1": "mono8", "8uc3": "bgr8", "8uc4": "bgra8", "16uc1": "mono16"}
 
 
 def _image(m: Any, h: Header) -> Image:
     enc = str(m.encoding).lower()
+    enc = _ALIASES.get(enc, enc)
     if enc not in _CHANNELS:
         raise ConversionError(f"image encoding {m.encoding!r} not supported (supported: {sorted(_CHANNELS)})")
     ch = _CHANNELS[enc]

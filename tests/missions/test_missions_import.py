@@ -361,3 +361,27 @@ def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
     assert (m.header.seq, m.header.stamp) == (1245, 1372687208633787539)
     assert m.datagood == [0, 1, 1, 1] and m.velocityinst == [-0.2424, -0.1145, -0.0065] and m.soundspeed == 1500.0
     assert m.errcode == "" and m.rawdata == ""
+
+
+def test_image_encodings():
+    from types import SimpleNamespace
+
+    from common.messages import Header
+    from missions.importers.rosbags_io import CONVERTERS, ConversionError
+
+    conv = CONVERTERS["sensor_msgs/Image"]
+    h = Header(seq=0, stamp=1)
+    # padded rows (step > width * channels) are cropped
+    raw = np.arange(2 * 10, dtype=np.uint8)
+    m = conv(SimpleNamespace(encoding="8UC3", height=2, width=3, step=10, is_bigendian=0, data=raw), h)
+    assert m.encoding == "bgr8"
+    np.testing.assert_array_equal(np.asarray(m.data), np.stack([raw[:9], raw[10:19]]).reshape(2, 3, 3))
+    m = conv(SimpleNamespace(encoding="mono16", height=1, width=2, step=4, is_bigendian=1,
+                             data=np.array([1, 2, 3, 4], np.uint8)), h)
+    np.testing.assert_array_equal(np.asarray(m.data), [[258, 772]])
+    with pytest.raises(ConversionError, match="yuv422"):
+        conv(SimpleNamespace(encoding="yuv422", height=1, width=2, step=4, is_bigendian=0,
+                             data=np.zeros(4, np.uint8)), h)
+    with pytest.raises(ConversionError, match="expected step"):
+        conv(SimpleNamespace(encoding="rgb8", height=2, width=2, step=6, is_bigendian=0,
+                             data=np.zeros(7, np.uint8)), h)
