@@ -54,7 +54,7 @@ from common.mcap_io import RecordingError, RecordingWriter, read_messages, read_
 __all__ = ["main", "transform", "perturb_image", "Perturbation", "parse_segments", "default_segments"]
 
 GAP_NS = 1_000_000  # 1 ms between output segments
-IMAGE_KEYS = ("camera/image_raw",)
+DEFAULT_IMAGE_KEY = "camera/image_raw"
 SEGMENT_NAMES = ["entry", "area1_loop1", "area1_loop2", "area1_loop3", "transition",
                  "area2_loop1", "area2_loop2", "area2_loop3", "exit"]
 # output segment -> (source range index, copy number within the area: 0 unaltered, 1-2 perturbed)
@@ -229,6 +229,17 @@ def _span(path: Path) -> tuple[int, int, bool]:
     return first, last, False
 
 
+def _keys(path: Path) -> set[str]:
+    with open(path, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error):
+            summary = None  # unindexed: read sequentially below
+    if summary is not None:
+        return {c.topic for c in summary.channels.values()}
+    return {r.key for r in read_messages(path)}
+
+
 def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tuple[str, str, int, bytes]]:
     """(key, type name, stamp, payload) of the messages with t0 <= stamp < t1, in time order."""
     if indexed:
@@ -244,14 +255,17 @@ def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tup
 
 def transform(src: str | Path, out: str | Path, segments: list[tuple[float, float]] | None = None,
               seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
-              progress: bool = True) -> dict[str, Any]:
-    """Write the transformed recording; returns a summary (per-key counts, segment table)."""
+              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY) -> dict[str, Any]:
+    """Write the transformed recording; returns a summary (per-key counts, segment table).
+    ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``."""
     src, out = Path(src), Path(out)
     if src.resolve() == out.resolve():
         raise ValueError(f"{out}: output would overwrite the input")
     pert = pert or Perturbation()
     if not src.is_file():
         raise RecordingError(f"{src}: no such recording")
+    if revisit_tolerance < 0:
+        raise ValueError(f"revisit tolerance must be >= 0 frames, got {revisit_tolerance}")
     first, last, indexed = _span(src)
     duration_s = (last - first) / 1e9
     meta = read_metadata(src)
@@ -266,12 +280,15 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     # source camera frame index (0-based, recording order) -> its stamp, and the input's own revisits
     src_frames: list[int] = []
     src_truth: dict[int, list[int]] = {}
-    for r in read_messages(src, keys=list(IMAGE_KEYS) + ["truth/revisits"]):
-        if r.key in IMAGE_KEYS:
+    for r in read_messages(src, keys=[image_key, "truth/revisits"]):
+        if r.key == image_key:
             src_frames.append(r.stamp)
         else:
             d = decode_dict(r.payload)
             src_truth[int(d["frame_index"])] = [int(x) for x in np.asarray(d["same_place"])]
+    if not src_frames:
+        raise ValueError(f"{src}: no messages on the camera key {image_key!r} (keys: {sorted(_keys(src))}); "
+                         f"pass --image-key")
     frame_of_stamp = {s: i for i, s in enumerate(src_frames)}
     rel: dict[int, set[int]] = {}
     for i, js in src_truth.items():
@@ -309,7 +326,7 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
                 s = seq.get(key, 0)
                 seq[key] = s + 1
                 d["header"] = dict(d["header"], seq=s, stamp=new)
-                if key in IMAGE_KEYS:
+                if key == image_key:
                     if copy > 0:
                         img, drawn = perturb_image(np.asarray(d["data"]), rng, pert)
                         d["data"] = img
@@ -388,6 +405,7 @@ def main(argv: list[str] | None = None) -> int:
                     help='five source ranges "entry,loop1,transition,loop2,exit" as start_s:end_s (default: see doc)')
     ap.add_argument("--seed", type=int, default=0, help="perturbation seed (default 0)")
     ap.add_argument("--revisit-tolerance", type=int, default=2, help="frames either side counted as the same place")
+    ap.add_argument("--image-key", default=DEFAULT_IMAGE_KEY, help="camera key to perturb (default camera/image_raw)")
     ap.add_argument("--illumination", type=float, nargs="?", const=0.25, default=0.0, help="gain change +- G (0.25)")
     ap.add_argument("--particles", type=float, nargs="?", const=40.0, default=0.0, help="snow blobs per image (40)")
     ap.add_argument("--blur", type=float, nargs="?", const=1.5, default=0.0, help="max Gaussian blur sigma px (1.5)")
@@ -407,7 +425,7 @@ def main(argv: list[str] | None = None) -> int:
                         occlusion=args.occlusion, scale=args.scale)
     try:
         summary = transform(args.input, args.out, segs, args.seed, pert, args.revisit_tolerance,
-                            progress=not args.no_progress)
+                            progress=not args.no_progress, image_key=args.image_key)
     except (RecordingError, ValueError) as exc:
         print(f"poseidon transform: error: {exc}", file=sys.stderr)
         return 2

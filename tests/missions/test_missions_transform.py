@@ -135,6 +135,10 @@ def test_default_segments_and_cli_errors(tmp_path, transformed, capsys):
     assert "exit range 400.0:500.0 s starts after the recording ends" in capsys.readouterr().err
     assert main([str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "y.mcap"), "--no-progress"]) == 2
     assert "missing.mcap" in capsys.readouterr().err
+    assert main([str(src), "--out", str(tmp_path / "z.mcap"), "--image-key", "cam2", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "no messages on the camera key 'cam2'" in err and "camera/image_raw" in err
+    assert not list(tmp_path.glob("*.part"))
 
 
 def test_extra_perturbations_change_image_deterministically():
