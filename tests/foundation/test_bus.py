@@ -194,3 +194,33 @@ def test_invalid_messages_are_skipped_counted_and_logged(caplog):
     messages = " ".join(r.getMessage() for r in caplog.records)
     assert "invalid message on depth_sensor seq 1" in messages
     assert "bad frame on depth_sensor" in messages
+
+
+@pytest.mark.parametrize("rate", [1.0, 4.0])
+def test_player_paces_at_real_time_or_faster(tmp_path, rate):
+    """1.5 s of recording: real time takes >= 1.5 s of wall time, 4x takes >= 0.375 s."""
+    import zenoh
+
+    from common.messages import Depth, Header
+    from common.mcap_io import RecordingWriter
+
+    src = tmp_path / "span.mcap"
+    with RecordingWriter(src) as w:
+        for i in range(16):
+            w.write("depth_sensor", Depth(header=Header(seq=i, stamp=10**18 + i * 100_000_000), depth=float(i)))
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    bus = Bus(session=session)
+    try:
+        t0 = time.monotonic()
+        stats = Player(bus, src, rate=rate, progress=False).run()
+        wall = time.monotonic() - t0
+    finally:
+        bus.close()
+        session.close()
+    assert stats.published == {"depth_sensor": 16}
+    assert stats.event_s == pytest.approx(1.5)
+    assert wall >= 1.5 / rate * 0.95
