@@ -31,7 +31,7 @@ import zenoh
 
 from common.bus import Bus, open_hub
 from common.config import PoseidonConfig
-from common.mcap_io import code_revision, file_sha256, recording_keys, recording_summary
+from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
 from common.runtime import NodeRunner
 from launcher.services import available_services, node_class
 from services.player.player import SOURCE_KEYS, Player
@@ -74,6 +74,8 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     io = {n: node_io(n, config) for n in names}
     produced = {k: n for n, (_i, outs) in io.items() for k in outs}
     rec_keys = list(recording_keys(input_path))
+    if not rec_keys:
+        raise RecordingError(f"{input_path}: no readable messages (not an MCAP recording, or damaged from its start)")
     player_keys = sorted(k for k in rec_keys if k not in produced)
     if config.player.keys:
         player_keys = sorted(k for k in player_keys if k in config.player.keys)

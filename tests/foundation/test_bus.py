@@ -224,3 +224,17 @@ def test_player_paces_at_real_time_or_faster(tmp_path, rate):
     assert stats.published == {"depth_sensor": 16}
     assert stats.event_s == pytest.approx(1.5)
     assert wall >= 1.5 / rate * 0.95
+
+
+def test_run_rejects_unreadable_input_and_bad_config(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 40)
+    proc = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(junk), "--out",
+                           str(tmp_path / "o.mcap")], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "junk.mcap" in proc.stderr and "byte" in proc.stderr
+    src = tmp_path / "small.mcap"
+    six_stream_recording(src, 50)
+    proc = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(src), "--out",
+                           str(tmp_path / "o.mcap"), "--set", "htm.sp_numActiveColumns=lots"],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "htm.sp_numActiveColumns" in proc.stderr
