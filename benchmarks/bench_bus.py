@@ -30,7 +30,7 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.bus import Bus, open_hub, zenoh_config  # noqa: E402
+from common.bus import Bus, open_hub, open_local_session, zenoh_config  # noqa: E402
 from common.codec import decode_frame  # noqa: E402
 from common.messages import Header, Image, Sdr  # noqa: E402
 
@@ -122,11 +122,7 @@ def wait_token(session, name: str) -> None:
 
 def run_case(mode: str, kind: str, size_name: str, n: int, pace_s: float, endpoint: str) -> dict:
     if mode == "in-process":
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("listen/endpoints", "[]")
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        session = zenoh.open(conf)
+        session = open_local_session()
         sink = Sink(kind, n)
         sub = session.declare_subscriber(f"bench/{kind}/{size_name}", lambda s: sink(s.payload.to_bytes()))
         publish(session, kind, size_name, n, pace_s)

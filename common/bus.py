@@ -34,7 +34,7 @@ import zenoh
 from common.codec import ENCODED_EOS, encode_frame, encode_watermark
 from common.messages import Message
 
-__all__ = ["zenoh_config", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher", "open_hub", "ALIVE",
+__all__ = ["zenoh_config", "open_local_session", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher", "open_hub", "ALIVE",
            "PROGRESS"]
 
 log = logging.getLogger(__name__)
@@ -60,6 +60,15 @@ def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iter
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
     return conf
+
+
+def open_local_session() -> zenoh.Session:
+    """A session for one process only (embedded runs, tests): no endpoints, no scouting."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
 
 
 def open_hub(listen: str, config_file: str | None = None) -> zenoh.Session:

@@ -27,9 +27,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-import zenoh
 
-from common.bus import Bus, open_hub
+from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
 from common.runtime import NodeRunner
@@ -209,11 +208,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     input_path, out = Path(input_path), Path(out)
     plan = plan_run(config, input_path, services)
     t0 = time.monotonic()
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
+    session = open_local_session()
     bus = Bus(config.bus.namespace, session=session)
     errors: dict[str, BaseException] = {}
     results: dict[str, dict[str, Any]] = {}

@@ -9,7 +9,7 @@ import time
 import pytest
 from mcap.reader import make_reader
 
-from common.bus import Bus, open_hub
+from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
 from common.mcap_io import read_messages
 from launcher.run import RunFailed, run_distributed, run_embedded
@@ -157,18 +157,12 @@ def test_invalid_messages_are_skipped_counted_and_logged(caplog):
     """A message failing validation is logged with its key and seq, counted, and skipped."""
     import threading
 
-    import zenoh
-
     from common.codec import encode, encode_frame
     from common.messages import Depth, Header
     from common.runtime import NodeRunner
     from tests.foundation.nodes import SlowEcho
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
+    session = open_local_session()
     bus = Bus(session=session)
     runner = NodeRunner(SlowEcho(PoseidonConfig()), bus)
     result = {}
@@ -199,8 +193,6 @@ def test_invalid_messages_are_skipped_counted_and_logged(caplog):
 @pytest.mark.parametrize("rate", [1.0, 4.0])
 def test_player_paces_at_real_time_or_faster(tmp_path, rate):
     """1.5 s of recording: real time takes >= 1.5 s of wall time, 4x takes >= 0.375 s."""
-    import zenoh
-
     from common.messages import Depth, Header
     from common.mcap_io import RecordingWriter
 
@@ -208,11 +200,7 @@ def test_player_paces_at_real_time_or_faster(tmp_path, rate):
     with RecordingWriter(src) as w:
         for i in range(16):
             w.write("depth_sensor", Depth(header=Header(seq=i, stamp=10**18 + i * 100_000_000), depth=float(i)))
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
+    session = open_local_session()
     bus = Bus(session=session)
     try:
         t0 = time.monotonic()
