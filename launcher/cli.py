@@ -16,8 +16,10 @@ Subcommands:
 - ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``: see their own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
-{name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"}}``
-(``demo`` adds ``"mission"``: the simulated input file).
+{name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
+"evaluation": {"front_end": {...}, "dead_reckoning": {...}}}`` (``demo`` adds
+``"mission"``: the simulated input file; the evaluation keys are documented in
+:mod:`launcher.summary`, present when the run has LVC ids / ground truth).
 """
 from __future__ import annotations
 
@@ -61,7 +63,9 @@ def _add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-level", default="INFO")
 
 
-def _print_run(result: dict[str, Any], as_json: bool) -> None:
+def _print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
+    from launcher.summary import format_summary, summarize_run
+    result["evaluation"] = summarize_run(result["output"], config)
     if as_json:
         print(json.dumps(result, indent=2))
         return
@@ -82,6 +86,8 @@ def _print_run(result: dict[str, Any], as_json: bool) -> None:
         if st.get("real_time_factor"):
             extra.append(f"{st['real_time_factor']:.1f}x real time")
         print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
+    for line in format_summary(result["evaluation"]):
+        print(line)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -102,7 +108,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except RunFailed as exc:
         print(f"poseidon run: {exc}; what was recorded so far is in {args.out}", file=sys.stderr)
         return 3
-    _print_run(result.as_dict(), args.json)
+    _print_run(result.as_dict(), args.json, config)
     return 0
 
 
@@ -132,7 +138,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         return 3
     d = result.as_dict()
     d["mission"] = str(mission)
-    _print_run(d, args.json)
+    _print_run(d, args.json, config)
     return 0
 
 
