@@ -267,7 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("demo", help="simulate a short cave mission and run every service on it")
-    p.add_argument("--minutes", type=float, default=2.0, help="mission length (min)")
+    p.add_argument("--minutes", type=float, default=6.0,
+                   help="mission length (min); the first revisit of a place comes after about 4 min")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="runs/demo", help="output folder")
     p.add_argument("--embedded", action="store_true")
