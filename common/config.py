@@ -58,12 +58,24 @@ class EncoderConfig(_Section):
     sp_columns: int = Field(2048, ge=16, description="SDR length L")
     pool_grid: int = Field(4, ge=1, description="embedding pooled to a grid x grid map before LSBH")
     batch_max: int = Field(8, ge=1)
-    torch_threads: int = Field(2, ge=1)
+    torch_threads: int = Field(1, ge=1, description="torch intra-op threads (1: measured fastest when other "
+                               "services share the cores)")
     sonar_polar_width: int = Field(224, ge=8)
     sonar_polar_height: int = Field(224, ge=8)
     sonar_rmax: float = Field(30.0, gt=0, description="m")
     sonar_use_intensities: bool = True
     sonar_topic: Literal["sonar_micron", "sonar_seaking", "sonar_micron_ros", "sonar_seaking_ros"] = "sonar_micron"
+    # --- added for the embedding standardisation (issue 4); see services/encoder/standardize.py
+    embedding_norm: Literal["none", "running", "fixed"] = Field(
+        "running", description="per-dimension standardisation of y before LSBH; none: Eq. 4.2 exactly")
+    embedding_norm_warmup: int = Field(50, ge=1, description="frames per modality estimating the running "
+                                       "statistics before they are frozen")
+    embedding_norm_rate: float = Field(0.0, ge=0, lt=1, description="EMA rate per frame after the warm-up "
+                                       "(0: frozen)")
+    embedding_norm_scale: bool = Field(True, description="divide by the standard deviation (false: centre only)")
+    embedding_norm_path: str = Field("", description="persisted statistics per modality, e.g. "
+                                     "state/embnorm_{backbone}_{modality}.npz next to htm.state_path "
+                                     "(empty: in memory, every run warms up on its own data)")
 
 
 class HtmConfig(_Section):

@@ -1,8 +1,10 @@
 """The multimodal encoder of the neocortical front-end (Eqs. 4.1-4.3), without transport.
 
 Per modality m: y = f_m(o) (Eq. 4.1, :mod:`services.encoder.backbones`: the stage3 /
-conv3 block pooled to ``pool_grid`` x ``pool_grid`` and flattened), s^(m) = LSBH(P_m^T y)
-(Eq. 4.2, :mod:`services.encoder.lsbh`), fused by OR (Eq. 4.3, :mod:`services.encoder.fusion`).
+conv3 block pooled to ``pool_grid`` x ``pool_grid`` and flattened), z = standardised y
+(``encoder.embedding_norm``, :mod:`services.encoder.standardize`; ``none``: z = y),
+s^(m) = LSBH(P_m^T z) (Eq. 4.2, :mod:`services.encoder.lsbh`), fused by OR (Eq. 4.3,
+:mod:`services.encoder.fusion`).
 Camera and sonar share one backbone (the sonar raster is replicated to 3 channels) and have
 separate projections P_camera, P_sonar.
 
@@ -26,6 +28,7 @@ from common.messages import Image
 from .backbones import LoadedBackbone, load_backbone
 from .fusion import fuse as fuse_sdrs
 from .lsbh import LsbhEncoder, load_or_create_projection, projection_path
+from .standardize import EmbeddingStandardizer, norm_path
 
 __all__ = ["MultimodalEncoder", "image_to_rgb", "INPUT_SIZE", "IMAGENET_MEAN", "IMAGENET_STD"]
 
@@ -78,6 +81,7 @@ class MultimodalEncoder:
         self._mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1)
         self._std = torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1)
         self._lsbh: dict[str, LsbhEncoder] = {}
+        self._norm: dict[str, EmbeddingStandardizer] = {}
 
     @property
     def weights(self) -> str:
@@ -144,14 +148,38 @@ class MultimodalEncoder:
             enc = self._lsbh[modality] = LsbhEncoder(p, self.cfg.sp_columns, self.cfg.lsbh_s)
         return enc
 
-    def sdr(self, modality: str, embedding: np.ndarray) -> np.ndarray:
-        """Sorted uint32 active bits (2k of L) of one embedding of ``modality`` (Eq. 4.2)."""
-        return self.lsbh(modality).encode(embedding)
+    def standardizer(self, modality: str) -> EmbeddingStandardizer:
+        """The embedding standardiser of ``modality`` (statistics at ``embedding_norm_path``)."""
+        st = self._norm.get(modality)
+        if st is None:
+            c = self.cfg
+            path = norm_path(c.embedding_norm_path, c.cnn_backbone, modality) if c.embedding_norm_path else None
+            st = self._norm[modality] = EmbeddingStandardizer(self.dim, c.embedding_norm, c.embedding_norm_warmup,
+                                                             c.embedding_norm_rate, c.embedding_norm_scale, path)
+        return st
 
-    def sdr_batch(self, modality: str, embeddings: Sequence[np.ndarray]) -> list[np.ndarray]:
-        if len(embeddings) == 0:
-            return []
-        return self.lsbh(modality).encode_batch(np.stack(embeddings))
+    def set_standardizer(self, modality: str, st: EmbeddingStandardizer) -> None:
+        """Use ``st`` for ``modality`` (e.g. statistics fitted on a reference set)."""
+        if st.dim != self.dim:
+            raise ValueError(f"standardiser has {st.dim} dimensions, the encoder {self.dim}")
+        self._norm[modality] = st
+
+    def standardize(self, modality: str, embedding: np.ndarray, update: bool = True) -> np.ndarray:
+        """z of one embedding of ``modality``; ``running`` statistics take the frame in unless ``update`` False."""
+        return self.standardizer(modality).transform(embedding, update)
+
+    def sdr(self, modality: str, embedding: np.ndarray, update: bool = True) -> np.ndarray:
+        """Sorted uint32 active bits (2k of L) of one embedding of ``modality`` (Eq. 4.2 on z)."""
+        return self.lsbh(modality).encode(self.standardize(modality, embedding, update))
+
+    def sdr_batch(self, modality: str, embeddings: Sequence[np.ndarray], update: bool = True) -> list[np.ndarray]:
+        """:meth:`sdr` of each embedding, in order (the running statistics advance frame by frame)."""
+        return [self.sdr(modality, y, update) for y in embeddings]
+
+    def close(self) -> None:
+        """Persist the standardisation statistics that changed."""
+        for st in self._norm.values():
+            st.close()
 
     # ------------------------------------------------------------------ Eq. 4.3
     def fuse(self, sdrs: Mapping[str, np.ndarray | None], mode: str | None = None) -> np.ndarray:

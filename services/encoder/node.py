@@ -21,6 +21,8 @@ When an output is produced (the "clock"):
 Beams accumulate in :class:`~services.encoder.sonar.SonarRaster` between outputs; a gap of
 more than ``sync.sync_stale_sec`` between consecutive beams resets the ring (counted as
 ``sonar_ring_reset``), so an image never mixes sweeps from before and after a dropout.
+Embeddings are standardised per modality before LSBH (``encoder.embedding_norm``, in
+event order; the statistics are saved at the end, see :mod:`services.encoder.standardize`).
 Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
 one batch of two); the sonar embedding is reused while no new beam arrived.
 """
@@ -128,6 +130,12 @@ class EncoderNode(ServiceNode):
             (y,) = self.encoder.embed([self.raster.image3()])
             self._sonar_cache = (self.raster.beams, self.encoder.sdr("sonar", y))
         return self._sonar_cache[1]
+
+    def finish(self) -> None:
+        self.encoder.close()
+
+    def close(self) -> None:
+        self.encoder.close()
 
     # ------------------------------------------------------------------ output
     def _emit(self, stamp: int, frame_id: str, sdrs: dict[str, np.ndarray]) -> None:

@@ -255,13 +255,209 @@ def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
     return lvc, desc
 
 
+# --------------------------------------------------------------------------- standardisation
+
+
+def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
+    """The camera standardiser of an image-set run, or None for ``embedding_norm`` none.
+
+    ``running``: in memory (nothing read from or written to ``embedding_norm_path``),
+    estimated on the reference sequence in order exactly as the encoder node does (each frame
+    standardised with the frames before it until the warm-up ends); the queries are then
+    standardised with the statistics as they stand, without updating them (like the HTM
+    query pass).  ``fixed``: fitted on the whole reference set.
+    """
+    from .standardize import EmbeddingStandardizer
+
+    mode = enc_cfg.embedding_norm
+    if mode == "none":
+        return None
+    st = EmbeddingStandardizer(dim, "running" if mode == "running" else "none", enc_cfg.embedding_norm_warmup,
+                               enc_cfg.embedding_norm_rate, enc_cfg.embedding_norm_scale, None)
+    if mode == "fixed":
+        st.mode = "fixed"
+        st.fit(np.stack(y_ref))
+    return st
+
+
+def overlap_stats(sim: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray | None = None) -> dict:
+    """Mean SDR overlap |A_q & A_r| / |A_q| of same-place (ground truth) and different-place pairs.
+
+    Independent LSBH SDRs overlap by s = 0.25 on average; ``eligible`` restricts the pairs.
+    """
+    same = np.zeros(sim.shape, bool)
+    for i, g in enumerate(gt):
+        same[i, list(g)] = True
+    elig = np.ones(sim.shape, bool) if eligible is None else eligible
+    a, b = sim[same & elig], sim[~same & elig]
+    return {"same_place": round(float(a.mean()), 4) if a.size else None,
+            "different_place": round(float(b.mean()), 4) if b.size else None}
+
+
+# --------------------------------------------------------------------------- MCAP mission
+
+
+def _travelled(stamps: np.ndarray, pose_stamps: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Distance travelled (m) along the true trajectory at each of ``stamps``."""
+    seg = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))]
+    return np.interp(stamps.astype(np.float64), pose_stamps.astype(np.float64), seg)
+
+
+def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray) -> dict:
+    """LVC-id recall and precision on a mission (see the module doc, ``--mission``)."""
+    ids = np.asarray(ids)
+    revisit = [i for i, g in enumerate(gt) if len(g)]
+    hits = sum(1 for i in revisit if ids[i] in set(ids[list(gt[i])].tolist()))
+    claimed = [i for i in range(ids.size) if ids[i] >= 0 and np.any(ids[eligible[i]] == ids[i])]
+    right = sum(1 for i in claimed if len(gt[i]) and ids[i] in set(ids[list(gt[i])].tolist()))
+    return {"lvc_recall": hits / len(revisit) if revisit else 0.0,
+            "lvc_precision": right / len(claimed) if claimed else 0.0,
+            "n_revisit_frames": len(revisit), "n_claimed_revisits": len(claimed), "n_correct_claims": right}
+
+
+def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool) -> dict:
+    """The front-end (EncoderNode, then NeocortexHtm storing LVCs online) over one MCAP mission.
+
+    Returns the figures of the ``--mission`` JSON (see the module doc).
+    """
+    from common.codec import DecodeError
+    from common.mcap_io import RecordingError, read_messages, read_metadata, recording_keys
+
+    from .encoder import MultimodalEncoder
+    from .node import EncoderNode
+
+    path = Path(path)
+    try:
+        keys = recording_keys(path)
+    except RecordingError as exc:
+        raise VprInputError(str(exc)) from None
+    for k in ("camera/image_raw", "truth/revisits", "truth/pose"):
+        if k not in keys:
+            raise VprInputError(f"{path}: no {k!r} channel (needed by --mission; a `poseidon sim` recording has it)")
+    if min_gap_m is None:
+        meta = read_metadata(path).get("poseidon", {})
+        try:
+            min_gap_m = float(json.loads(meta["params"])["revisit_min_gap_m"])
+        except (KeyError, ValueError, TypeError) as exc:
+            raise VprInputError(f"{path}: no params.revisit_min_gap_m in the 'poseidon' metadata ({exc}); "
+                                f"pass --min-gap-m") from None
+    sonar_key = enc_cfg.sonar_topic
+
+    class _Recorder(MultimodalEncoder):
+        def __init__(self, c):
+            super().__init__(c)
+            self.camera: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+        def sdr(self, modality, embedding, update=True):
+            z = self.standardize(modality, embedding, update)
+            bits = self.lsbh(modality).encode(z)
+            if modality == "camera":
+                self.camera.append((np.asarray(embedding, np.float32), z.astype(np.float32), bits))
+            return bits
+
+    run_cfg = cfg.model_copy(update={"encoder": enc_cfg})
+    encoder = _Recorder(enc_cfg)
+    node = EncoderNode(run_cfg, encoder)
+    frames: list[tuple[int, np.ndarray]] = []  # (stamp, fused bits) per camera frame
+    truth: dict[int, np.ndarray] = {}
+    pose_t, pose_p = [], []
+    cam_stamps: list[int] = []
+    wanted = ["camera/image_raw", sonar_key, "truth/revisits", "truth/pose"]
+    t0 = time.perf_counter()
+    bar = tqdm(desc="mission frames", unit="frame", file=sys.stderr, leave=False)
+    try:
+        for rec in read_messages(path, keys=wanted):
+            msg = rec.message()
+            if rec.key == "truth/revisits":
+                truth[int(msg.frame_index)] = np.asarray(msg.same_place, np.int64)
+            elif rec.key == "truth/pose":
+                pose_t.append(msg.header.stamp)
+                pose_p.append(msg.position)
+            else:
+                if rec.key == "camera/image_raw":
+                    cam_stamps.append(msg.header.stamp)
+                    bar.update(1)
+                node.process(rec.key, msg)
+                for _, out in node.take_outbox():
+                    if any(m.modality == "camera" for m in out.modalities):
+                        frames.append((out.header.stamp, np.asarray(out.fused.active, np.uint32)))
+    except (RecordingError, DecodeError) as exc:
+        raise VprInputError(f"{path}: {exc}") from None
+    finally:
+        bar.close()
+    node.finish()
+    t_embed = time.perf_counter() - t0
+    n = len(cam_stamps)
+    if len(frames) != n or len(encoder.camera) != n:
+        raise VprInputError(f"{path}: {n} camera frames but {len(frames)} camera-clocked SDRs")
+    gt = [[int(j) for j in truth.get(i, []) if 0 <= j < i] for i in range(n)]
+    dist = _travelled(np.asarray(cam_stamps), np.asarray(pose_t), np.asarray(pose_p, np.float64))
+    idx = np.arange(n)
+    eligible = (idx[None, :] < idx[:, None]) & (dist[:, None] - dist[None, :] >= min_gap_m)
+
+    def masked(sim: np.ndarray) -> np.ndarray:
+        return np.where(eligible, sim, -np.inf)
+
+    y = np.stack([c[0] for c in encoder.camera])
+    z = np.stack([c[1] for c in encoder.camera])
+    cam_bits = [c[2] for c in encoder.camera]
+    fused = [f[1] for f in frames]
+    lsbh_cam = overlap_similarity(cam_bits, cam_bits)
+    sims = {"cnn_cosine": masked(cosine_similarity(y, y)),
+            "lsbh_overlap": masked(lsbh_cam),
+            "lsbh_fused_overlap": masked(overlap_similarity(fused, fused))}
+    if enc_cfg.embedding_norm != "none":
+        sims["cnn_cosine_standardized"] = masked(cosine_similarity(z, z))
+    result: dict = {"n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": min_gap_m,
+                    "sdr_overlap": overlap_stats(lsbh_cam, gt, eligible),
+                    "fused_bits_mean": round(float(np.mean([f.size for f in fused])), 1),
+                    "encoder_counters": dict(node.counters)}
+    t_htm = 0.0
+    if use_htm:
+        from services.htm.pipeline import NeocortexHtm
+
+        t1 = time.perf_counter()
+        htm = NeocortexHtm(cfg.htm.model_copy(update={"input_size": enc_cfg.sp_columns}))
+        out = []
+        cols_used: set[int] = set()
+        for bits in tqdm(fused, desc="htm", file=sys.stderr, leave=False):
+            r = htm.step(np.asarray(bits, np.uint32))
+            cols_used.update(htm.last_columns.tolist())
+            out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, np.int64).copy(),
+                        float(r.anomaly)))
+        t_htm = time.perf_counter() - t1
+        ids = np.array([o[0] for o in out])
+        desc = overlap_similarity([o[2] for o in out], [o[2] for o in out]).astype(np.float64)
+        lvc = np.full(desc.shape, -np.inf)
+        for i in range(n):
+            same = np.flatnonzero(eligible[i] & (ids == ids[i]))
+            if same.size:
+                lvc[i, same[np.argmax(desc[i, same])]] = out[i][1]
+        sims["htm_lvc"] = lvc
+        sims["htm_descriptor"] = masked(desc)
+        result.update(lvc_revisit_scores(ids, gt, eligible))
+        result["n_lvc"] = len(htm.lvc)
+        result["tm_anomaly_mean"] = round(float(np.mean([o[3] for o in out])), 4)
+        result["sp_columns_used"] = len(cols_used)
+    result["matchers"] = {name: vpr_metrics(s, gt) for name, s in sims.items()}
+    result["seconds"] = {"embed": round(t_embed, 2), "htm": round(t_htm, 2)}
+    result["weights"] = encoder.weights
+    result["embedding_dim"] = encoder.dim
+    return result
+
+
 # --------------------------------------------------------------------------- CLI
 
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="poseidon vpr", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--ref", required=True, help="reference image folder")
-    ap.add_argument("--query", required=True, help="query image folder")
+    ap.add_argument("--ref", default=None, help="reference image folder")
+    ap.add_argument("--query", default=None, help="query image folder")
+    ap.add_argument("--mission", default=None, metavar="FILE.mcap",
+                    help="a recording with camera/image_raw, truth/revisits and truth/pose (instead of --ref/--query)")
+    ap.add_argument("--min-gap-m", type=float, default=None,
+                    help="--mission: earlier frames count as candidates only this far back along the track, m "
+                         "(default: the recording's revisit_min_gap_m)")
     ap.add_argument("--gt", default="", help="VPR-Bench ground truth .npy (default: same file name)")
     ap.add_argument("--tolerance", type=int, default=0, help="same-name ground truth: +-N frames also match")
     ap.add_argument("--weights", default=None, help="torchvision state dict (default: encoder.weights_path)")
@@ -272,8 +468,18 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
     ap.add_argument("--htm-query-learning", action="store_true",
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
+    ap.add_argument("--save-norm", default=None, metavar="FILE.npz",
+                    help="write the camera embedding statistics of the run (embedding_norm running/fixed) here, "
+                         "e.g. for encoder.embedding_norm fixed")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
+
+
+def _print_table(title: str, metrics: dict) -> None:
+    print(title)
+    print(f"{'matcher':24s} {'AUC':>7s} {'R@P100':>7s} {'bestF1':>7s}")
+    for name, m in metrics.items():
+        print(f"{name:24s} {m['auc']:7.3f} {m['recall_at_p100']:7.3f} {m['best_f1']:7.3f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -284,18 +490,50 @@ def main(argv: list[str] | None = None) -> int:
     from .backbones import WeightsError
     from .encoder import MultimodalEncoder
     from .lsbh import LsbhError
+    from .standardize import StandardizerError
 
     if not logging.getLogger().handlers:
         logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(levelname)s %(message)s")
+    if args.mission is None and (args.ref is None or args.query is None):
+        print("poseidon vpr: give --ref DIR and --query DIR, or --mission FILE.mcap", file=sys.stderr)
+        return 2
+    if args.mission is not None and (args.ref is not None or args.query is not None):
+        print("poseidon vpr: --mission excludes --ref/--query", file=sys.stderr)
+        return 2
+    errors = (ConfigError, VprInputError, WeightsError, LsbhError, StandardizerError)
     try:
         cfg = load_config(args.config, args.overrides)
         enc_cfg = cfg.encoder
-        upd = {}
+        upd: dict = {}
         if args.weights is not None:
             upd["weights_path"] = args.weights
         if args.backbone is not None:
             upd["cnn_backbone"] = args.backbone
+        if enc_cfg.embedding_norm != "fixed":
+            upd["embedding_norm_path"] = ""  # running statistics start fresh, in memory, every run
         enc_cfg = enc_cfg.model_copy(update=upd)
+    except errors as exc:
+        print(f"poseidon vpr: {exc}", file=sys.stderr)
+        return 2
+    if args.mission is not None:
+        try:
+            result = run_mission(args.mission, cfg, enc_cfg, args.min_gap_m, not args.no_htm)
+        except errors as exc:
+            print(f"poseidon vpr: {exc}", file=sys.stderr)
+            return 2
+        result = {"mission": str(args.mission), "backbone": enc_cfg.cnn_backbone,
+                  "embedding_norm": enc_cfg.embedding_norm, **result}
+        if args.json:
+            print(json.dumps(result, indent=2))
+        else:
+            _print_table(f"VPR on mission {args.mission}: {result['n_frames']} frames, {result['n_revisit_frames']} "
+                         f"revisits, backbone {enc_cfg.cnn_backbone} ({result['weights']} weights), "
+                         f"embedding_norm {enc_cfg.embedding_norm}", result["matchers"])
+            if "lvc_recall" in result:
+                print(f"LVC ids: {result['n_lvc']}, recall {result['lvc_recall']:.3f}, "
+                      f"precision {result['lvc_precision']:.3f}")
+        return 0
+    try:
         ref_names, ref_imgs = load_sequence(args.ref, args.limit)
         q_names, q_imgs = load_sequence(args.query, args.limit)
         if args.gt:
@@ -312,10 +550,17 @@ def main(argv: list[str] | None = None) -> int:
             b = enc_cfg.batch_max
             for i in tqdm(range(0, len(imgs), b), desc=f"embed {name}", file=sys.stderr, leave=False):
                 out.extend(encoder.encode_camera(imgs[i:i + b]))
-        s_ref = encoder.sdr_batch("camera", y_ref)
-        s_q = encoder.sdr_batch("camera", y_q)
+        st = image_set_standardizer(enc_cfg, encoder.dim, y_ref)
+        if st is not None:
+            encoder.set_standardizer("camera", st)
+        z_ref = [encoder.standardize("camera", y) for y in y_ref]
+        z_q = [encoder.standardize("camera", y, update=False) for y in y_q]
+        s_ref = [encoder.lsbh("camera").encode(z) for z in z_ref]
+        s_q = [encoder.lsbh("camera").encode(z) for z in z_q]
+        if args.save_norm and st is not None:
+            st.save(Path(args.save_norm))
         t_embed = time.perf_counter() - t0
-    except (ConfigError, VprInputError, WeightsError, LsbhError) as exc:
+    except errors as exc:
         print(f"poseidon vpr: {exc}", file=sys.stderr)
         return 2
     length = enc_cfg.sp_columns
@@ -323,6 +568,8 @@ def main(argv: list[str] | None = None) -> int:
         "cnn_cosine": cosine_similarity(np.stack(y_q), np.stack(y_ref)),
         "lsbh_overlap": overlap_similarity(s_q, s_ref),
     }
+    if st is not None:
+        sims["cnn_cosine_standardized"] = cosine_similarity(np.stack(z_q), np.stack(z_ref))
     result: dict = {}
     t_htm = 0.0
     if not args.no_htm:
@@ -337,18 +584,18 @@ def main(argv: list[str] | None = None) -> int:
         "matchers": metrics,
         "n_ref": len(ref_names), "n_query": len(q_names), "n_query_with_gt": sum(1 for g in gt if g),
         "weights": encoder.weights, "backbone": enc_cfg.cnn_backbone, "embedding_dim": encoder.dim,
+        "embedding_norm": enc_cfg.embedding_norm,
         "sdr_bits": 2 * encoder.lsbh("camera").k, "sdr_length": length, "ground_truth": gt_desc,
+        "sdr_overlap": overlap_stats(sims["lsbh_overlap"], gt),
         **result,
         "seconds": {"embed": round(t_embed, 2), "htm": round(t_htm, 2)},
     }
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        print(f"VPR {args.query} vs {args.ref}: {result['n_query']} queries, {result['n_ref']} references, "
-              f"backbone {result['backbone']} ({result['weights']} weights), ground truth {gt_desc}")
-        print(f"{'matcher':16s} {'AUC':>7s} {'R@P100':>7s} {'bestF1':>7s}")
-        for name, m in metrics.items():
-            print(f"{name:16s} {m['auc']:7.3f} {m['recall_at_p100']:7.3f} {m['best_f1']:7.3f}")
+        _print_table(f"VPR {args.query} vs {args.ref}: {result['n_query']} queries, {result['n_ref']} references, "
+                     f"backbone {result['backbone']} ({result['weights']} weights), ground truth {gt_desc}, "
+                     f"embedding_norm {enc_cfg.embedding_norm}", metrics)
     return 0
 
 

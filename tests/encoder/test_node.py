@@ -20,7 +20,7 @@ def config(tmp_path_factory) -> PoseidonConfig:
     tmp = tmp_path_factory.mktemp("enc")
     return PoseidonConfig.model_validate({"encoder": {
         "lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 2,
-        "sonar_polar_width": 64, "sonar_polar_height": 64,
+        "sonar_polar_width": 64, "sonar_polar_height": 64, "embedding_norm_path": "",
         "torch_threads": 1}})  # one thread: robust when the CI shares the cores
 
 
@@ -66,7 +66,8 @@ def stream(cam_gaps=(), sonar_gaps=(), duration=12.0):
 
 def run(config, encoder, mode="union", **kw):
     cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"fusion_mode": mode})})
-    node = EncoderNode(cfg, encoder=encoder)
+    # a fresh encoder per run (the running embedding statistics are state), sharing the backbone
+    node = EncoderNode(cfg, encoder=MultimodalEncoder(cfg.encoder, backbone=encoder.backbone))
     out = run_offline(node, stream(**kw))
     assert all(k == "neocortex/sdr" and isinstance(m, NeocortexSdr) for k, m in out)
     return node, [m for _, m in out]

@@ -26,7 +26,8 @@ def test_sim_mission_every_frame_encoded_and_ros_form_identical(recording, tmp_p
     encoder = None
     for topic in ("sonar_micron", "sonar_micron_ros"):
         cfg = PoseidonConfig.model_validate({"encoder": {**base, "sonar_topic": topic}})
-        encoder = encoder or MultimodalEncoder(cfg.encoder)
+        # a fresh encoder per run (the running embedding statistics are state), sharing the backbone
+        encoder = MultimodalEncoder(cfg.encoder, backbone=encoder.backbone if encoder else None)
         msgs = [(m.key, m.message()) for m in read_messages(recording, keys=["camera/image_raw", topic])]
         frames = [m for k, m in msgs if k == "camera/image_raw"]
         out = [m for _, m in run_offline(EncoderNode(cfg, encoder=encoder), msgs)]

@@ -70,13 +70,23 @@ def test_main_synthetic_json(tmp_path, capsys):
     names = [f"{i:03d}.png" for i in range(6)]
     _write_seq(tmp_path / "ref", list(range(6)), names)
     _write_seq(tmp_path / "query", list(range(6)), names)  # identical images: cosine finds each one
-    rc = main(["--ref", str(tmp_path / "ref"), "--query", str(tmp_path / "query"), "--json",
-               "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
-               "--set", "encoder.torch_threads=1"])
+    common = ["--ref", str(tmp_path / "ref"), "--query", str(tmp_path / "query"), "--json",
+              "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+              "--set", "encoder.torch_threads=1"]
+    # fixed: statistics fitted on the reference set, written with --save-norm
+    assert main(common + ["--set", "encoder.embedding_norm=fixed", "--no-htm",
+                          "--save-norm", str(tmp_path / "norm.npz")]) == 0
+    fixed = json.loads(capsys.readouterr().out)
+    assert fixed["embedding_norm"] == "fixed" and (tmp_path / "norm.npz").exists()
+    assert fixed["matchers"]["lsbh_overlap"]["auc"] == pytest.approx(1.0)
+    assert fixed["matchers"]["cnn_cosine_standardized"]["auc"] == pytest.approx(1.0)
+    assert fixed["sdr_overlap"]["same_place"] == 1.0 and fixed["sdr_overlap"]["different_place"] < 0.5
+    rc = main(common + ["--set", "encoder.embedding_norm=none"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
     assert set(out["matchers"]) == {"cnn_cosine", "lsbh_overlap", "htm_lvc", "htm_descriptor"}
+    assert out["embedding_norm"] == "none"
     assert out["matchers"]["cnn_cosine"]["auc"] == pytest.approx(1.0)
     assert out["matchers"]["lsbh_overlap"]["auc"] == pytest.approx(1.0)
     for m in out["matchers"].values():
@@ -106,3 +116,48 @@ def test_main_on_nordland_frames(tmp_path, capsys):
     assert out["n_query"] == 12 and out["n_query_with_gt"] == 12 and out["backbone"] == "alexnet_conv3"
     assert out["embedding_dim"] == 384 * 16 and out["ground_truth"] == "file name +-1"
     assert all(m["n_predicted"] <= 12 for m in out["matchers"].values())
+
+
+def test_lvc_revisit_scores_definition():
+    from services.encoder.vpr import lvc_revisit_scores
+    # frames 0..5; frame 4 revisits frame 0, frame 5 revisits frame 1; candidates: >= 3 frames back
+    gt = [[], [], [], [], [0], [1]]
+    idx = np.arange(6)
+    eligible = idx[None, :] <= idx[:, None] - 3
+    ids = np.array([0, 1, 2, 1, 0, 2])
+    s = lvc_revisit_scores(ids, gt, eligible)
+    # frame 4 finds frame 0's id (correct); frame 5 has id 2 = frame 2's (a claimed, wrong revisit);
+    # frame 3's id 1 equals frame 1's, but frame 1 is only 2 frames back: no claim
+    assert s["lvc_recall"] == pytest.approx(0.5) and s["n_revisit_frames"] == 2
+    assert s["n_claimed_revisits"] == 2 and s["n_correct_claims"] == 1 and s["lvc_precision"] == pytest.approx(0.5)
+
+
+@pytest.fixture(scope="module")
+def short_mission(tmp_path_factory):
+    from dataclasses import replace
+    sim = pytest.importorskip("missions.sim.mission")
+    p = sim.SimParams(minutes=2.0, seed=3, speed_m_s=1.0)  # approach + more than one loop of area 1
+    p = replace(p, camera=replace(p.camera, rate_hz=1.0), micron_rate_hz=10.0, seaking_rate_hz=5.0)
+    path = tmp_path_factory.mktemp("mission") / "m.mcap"
+    sim.generate(path, p, progress=False)
+    return path
+
+
+def test_main_mission_json(short_mission, tmp_path, capsys):
+    args = ["--mission", str(short_mission), "--json", "--set", "encoder.pool_grid=1",
+            "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+            "--set", "encoder.embedding_norm_warmup=20"]
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
+    assert set(out["matchers"]) == {"cnn_cosine", "cnn_cosine_standardized", "lsbh_overlap", "lsbh_fused_overlap",
+                                    "htm_lvc", "htm_descriptor"}
+    for m in out["matchers"].values():
+        assert m["n_predicted"] <= out["n_frames"] and 0 <= m["auc"] <= 1
+    assert 0 <= out["lvc_recall"] <= 1 and 0 <= out["lvc_precision"] <= 1 and out["n_lvc"] >= 1
+    assert out["encoder_counters"]["outputs"] == 119 and out["fused_bits_mean"] > 2 * 256
+    assert main(args) == 0  # deterministic
+    assert json.loads(capsys.readouterr().out)["matchers"] == out["matchers"]
+    assert main(["--mission", str(tmp_path / "none.mcap"), "--no-htm"]) == 2
+    assert "no such recording" in capsys.readouterr().err
+    assert main(["--mission", str(short_mission), "--ref", str(tmp_path)]) == 2

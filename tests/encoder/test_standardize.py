@@ -1,0 +1,130 @@
+"""Embedding standardisation before LSBH: cross-place overlap, determinism, freezing, persistence."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.config import EncoderConfig
+from services.encoder.lsbh import LsbhEncoder, make_projection
+from services.encoder.standardize import EmbeddingStandardizer, StandardizerError, norm_path
+
+D, L = 256, 512
+
+
+def places(n_places: int = 40, frames: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Post-ReLU-like embeddings: a large common component + a place pattern + frame noise."""
+    rng = np.random.default_rng(seed)
+    common = 5.0 + rng.random(D) * 3.0
+    pattern = rng.standard_normal((n_places, D))
+    y = [common + pattern[p] + 0.3 * rng.standard_normal(D) for p in range(n_places) for _ in range(frames)]
+    return np.maximum(np.array(y), 0.0), np.repeat(np.arange(n_places), frames)
+
+
+def overlap(a: np.ndarray, b: np.ndarray) -> float:
+    return np.intersect1d(a, b).size / a.size
+
+
+def mean_overlaps(sdrs: list[np.ndarray], place: np.ndarray) -> tuple[float, float]:
+    same, diff = [], []
+    for i in range(len(sdrs)):
+        for j in range(i + 1, len(sdrs)):
+            (same if place[i] == place[j] else diff).append(overlap(sdrs[i], sdrs[j]))
+    return float(np.mean(same)), float(np.mean(diff))
+
+
+@pytest.fixture(scope="module")
+def lsbh() -> LsbhEncoder:
+    return LsbhEncoder(make_projection(D, L // 2, 42, "camera"), L, 0.25)
+
+
+def test_standardisation_lowers_cross_place_overlap(lsbh):
+    y, place = places()
+    raw = [lsbh.encode(v) for v in y]
+    st = EmbeddingStandardizer(D, "running", warmup=30, scale=False)
+    std = [lsbh.encode(st.transform(v)) for v in y]
+    same_raw, diff_raw = mean_overlaps(raw, place)
+    # after the warm-up, only frames standardised with the frozen statistics
+    same_std, diff_std = mean_overlaps(std[30:], place[30:])
+    assert diff_raw > 0.6  # the common component dominates P^T y: different places share most bits
+    assert 0.2 < diff_std < 0.32  # independent SDRs share s = 25 %
+    assert same_std > diff_std + 0.3  # the same place still overlaps strongly
+    # fitted statistics (fixed mode), with scaling, do the same
+    fx = EmbeddingStandardizer(D, "none", scale=True)
+    fx.fit(y)
+    _, diff_fix = mean_overlaps([lsbh.encode(fx._apply(v)) for v in y], place)
+    assert 0.2 < diff_fix < 0.32
+
+
+def test_running_warmup_freezes_and_is_deterministic():
+    y, _ = places(10, 2, seed=1)
+    a = EmbeddingStandardizer(D, "running", warmup=5)
+    b = EmbeddingStandardizer(D, "running", warmup=5)
+    za = a.transform_batch(y)
+    zb = b.transform_batch(y)
+    assert np.array_equal(za, zb)
+    assert np.array_equal(za[0], y[0])  # the first frame has no statistics yet
+    np.testing.assert_allclose(za[1], y[1] - y[0])  # centred by the frames before it; sigma 1 until two frames
+    assert a.frozen and a.count == 5
+    np.testing.assert_allclose(a.mean, y[:5].mean(axis=0))
+    np.testing.assert_allclose(a.sigma, np.maximum(y[:5].std(axis=0), 1e-3 * y[:5].std(axis=0).mean()))
+    mean = a.mean.copy()
+    a.transform(y[7])
+    assert np.array_equal(a.mean, mean)  # frozen: later frames do not move the statistics
+    # the same later frame gives the same z every time (a revisit keeps its SDR)
+    assert np.array_equal(a.transform(y[12]), a.transform(y[12]))
+    # with a rate the mean follows slowly
+    c = EmbeddingStandardizer(D, "running", warmup=5, rate=0.1)
+    c.transform_batch(y[:5])
+    m5 = c.mean.copy()
+    c.transform(y[6])
+    np.testing.assert_allclose(c.mean, m5 + 0.1 * (y[6] - m5))
+    # none is the identity (Eq. 4.2 exactly)
+    assert np.array_equal(EmbeddingStandardizer(D, "none").transform(y[3]), y[3])
+
+
+def test_statistics_persist_and_reload(tmp_path):
+    y, _ = places(10, 2, seed=2)
+    path = norm_path(str(tmp_path / "n_{backbone}_{modality}.npz"), "shufflenetv2", "camera")
+    assert path.name == "n_shufflenetv2_camera.npz"
+    a = EmbeddingStandardizer(D, "running", warmup=6, path=path)
+    a.transform_batch(y[:5])
+    assert not path.exists()
+    a.transform(y[5])  # the warm-up completes: saved
+    assert path.exists()
+    b = EmbeddingStandardizer(D, "running", warmup=6, path=path)
+    assert b.frozen and b.count == 6
+    assert np.array_equal(a.transform_batch(y[6:]), b.transform_batch(y[6:]))
+    # fixed mode loads the same file
+    f = EmbeddingStandardizer(D, "fixed", path=path)
+    assert np.array_equal(f.transform(y[9]), a.transform(y[9]))
+    with pytest.raises(StandardizerError, match="for 256 dimensions, the encoder has 100"):
+        EmbeddingStandardizer(100, "running", path=path)
+    with pytest.raises(StandardizerError, match="fixed needs fitted statistics"):
+        EmbeddingStandardizer(D, "fixed", path=tmp_path / "absent.npz")
+    with pytest.raises(StandardizerError, match="embedding_norm_warmup"):
+        EmbeddingStandardizer(D, "running", warmup=0)
+    with pytest.raises(StandardizerError, match="expects 256"):
+        a.transform(np.zeros(3))
+
+
+def test_encoder_node_saves_statistics_on_finish(tmp_path):
+    from common.config import PoseidonConfig
+    from common.messages import Header, Image
+    from common.node import run_offline
+    from services.encoder.encoder import MultimodalEncoder
+    from services.encoder.node import EncoderNode
+
+    enc = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 1,
+           "torch_threads": 1, "embedding_norm_warmup": 100,
+           "embedding_norm_path": str(tmp_path / "n_{backbone}_{modality}.npz")}
+    cfg = PoseidonConfig.model_validate({"encoder": enc})
+    rng = np.random.default_rng(0)
+    msgs = [("camera/image_raw", Image(header=Header(seq=i, stamp=i * 200_000_000, frame_id="cam"), height=16,
+                                       width=16, encoding="rgb8",
+                                       data=rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)))
+            for i in range(4)]
+    out = run_offline(EncoderNode(cfg, MultimodalEncoder(cfg.encoder)), msgs)
+    assert len(out) == 4
+    st = EmbeddingStandardizer(232, "running", warmup=100, path=tmp_path / "n_shufflenetv2_camera.npz")
+    assert st.count == 4 and not st.frozen  # mid warm-up state saved at the end, continued next time
+    assert EncoderConfig().embedding_norm == "running" and EncoderConfig().torch_threads == 1
