@@ -87,7 +87,8 @@ class HtmConfig(_Section):
     sp_synPermActiveInc: float = Field(0.006, ge=0)
     sp_synPermInactiveDec: float = Field(0.008, ge=0)
     sp_synPermConnected: float = Field(0.1, gt=0, lt=1)
-    sp_boostStrength: float = Field(0.0, ge=0)
+    sp_boostStrength: float = Field(2.0, ge=0, description="not given by the dissertation; 2 spreads the dense "
+                                    "union over the columns (0 disables boosting)")
     sp_dutyCyclePeriod: int = Field(1000, ge=1)
     tm_cellsPerColumn: int = Field(40, ge=1)
     tm_activationThreshold: int = Field(5, ge=1)
@@ -122,8 +123,10 @@ class HtmConfig(_Section):
     # --- added for the HTM service (issue 4); see services/htm/
     input_size: int = Field(2048, ge=16, description="length L of the fused SDR (= encoder.sp_columns)")
     sp_minPctOverlapDutyCycle: float = Field(0.001, ge=0, le=1, description="BAMI weak-column bump threshold")
-    sv_tm_bits: Literal["cells", "columns"] = Field("cells", description="bit space of the tm descriptor: "
+    sv_tm_bits: Literal["cells", "columns"] = Field("columns", description="bit space of the tm descriptor: "
                                                      "winner cell indices, or their columns")
+    sp_learn_steps: int = Field(100, ge=0, description="SP learns during the first N learning steps, then its "
+                                "synapses and boost factors are frozen (0: always learns)")
 
 
 class RobotStateConfig(_Section):

@@ -7,9 +7,13 @@
 ``reset_sequence()`` forgets the temporal context between two sequences.
 ``sv_descriptor_source`` picks what D_t is built from: ``tm`` TM winner cells (default),
 ``sp`` SP active columns, ``sdr`` the fused SDR itself (SP/TM are then not run). In ``tm``
-mode ``sv_tm_bits`` chooses the bit space: ``cells`` (winner cell indices, default, the
-dissertation's reading) or ``columns`` (the winners' columns: the same pooling over the
-window, but a place seen in another temporal context keeps its bits).
+mode ``sv_tm_bits`` chooses the bit space: ``cells`` (winner cell indices, the dissertation's
+reading) or ``columns`` (the winners' columns, default: the same pooling over the window,
+but a place seen in another temporal context keeps its bits).
+``sp_learn_steps`` N > 0 lets the SP learn (permanences, duty cycles, boost factors) during
+its first N learning steps only and then freezes it, so a place maps to the same columns for
+the rest of the mission (a continually learning SP moves the columns of places seen once and
+the stored prototypes stop matching); the TM keeps learning.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -105,7 +109,11 @@ class NeocortexHtm:
         learn = self.cfg.learning if learn is None else bool(learn)
         if self.mode == "sdr":
             return a, 0.0
-        cols = self.sp.compute(a, learn) if self.sp is not None else a.astype(np.int32)
+        if self.sp is not None:
+            sp_learn = learn and (self.cfg.sp_learn_steps == 0 or self.sp.iteration_learn < self.cfg.sp_learn_steps)
+            cols = self.sp.compute(a, sp_learn)
+        else:
+            cols = a.astype(np.int32)
         self.last_columns = cols
         if self.mode == "sp":
             return cols.astype(np.int64), 0.0

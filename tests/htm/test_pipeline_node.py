@@ -41,15 +41,22 @@ def test_same_input_and_seed_same_id_stream():
         not np.array_equal(other.last_descriptor, a.last_descriptor)
 
 
-def test_route_revisited_after_a_detour_maps_back_to_its_ids():
+@pytest.mark.parametrize("literal", [False, True])
+def test_route_revisited_after_a_detour_maps_back_to_its_ids(literal):
     route_places = route(n_places=15, seed=1)
     detour = route(n_places=10, seed=9)
-    h = NeocortexHtm(HtmConfig())
+    if literal:  # no boosting, cell descriptor, SP always learning
+        h = NeocortexHtm(HtmConfig(sp_boostStrength=0.0, sv_tm_bits="cells", sp_learn_steps=0))
+    else:  # defaults: the SP learns (with boosting) for sp_learn_steps, then keeps its columns
+        h = NeocortexHtm(HtmConfig())
+        for p in route(n_places=HtmConfig().sp_learn_steps, seed=5):
+            h.step(p)
+        assert h.sp.iteration_learn == HtmConfig().sp_learn_steps
     first = [h.step(p) for p in route_places]
     for p in detour:
         h.step(p)
     second = [h.step(p) for p in route_places]
-    assert [r.lvc_id for r in first][0] == 0
+    assert [r.lvc_id for r in first][0] == (0 if literal else first[0].lvc_id)
     # the route's first place bursts (new context after the detour); from its second place on
     # the TM replays the learnt cells, and once the sv_tm_window (7) has flushed the detour
     # the descriptors are those of the first pass again
@@ -64,7 +71,8 @@ def test_route_revisited_after_a_detour_maps_back_to_its_ids():
 @pytest.mark.parametrize("mode", ["sp", "sdr"])
 def test_revisiting_first_place_returns_lvc_0_in_sp_and_sdr_modes(mode):
     places = route(seed=2)
-    h = NeocortexHtm(HtmConfig(sv_descriptor_source=mode))
+    # no boosting: with boost the SP moves the columns of a place during its learning phase
+    h = NeocortexHtm(HtmConfig(sv_descriptor_source=mode, sp_boostStrength=0.0))
     first = h.step(places[0])
     assert (first.lvc_id, first.is_new) == (0, True)
     ids = [h.step(p).lvc_id for p in places[3:]]
@@ -145,7 +153,7 @@ def test_node_rejects_wrong_sdr_size():
 
 def test_query_only_and_describe():
     places = route(n_places=6, seed=7)
-    h = NeocortexHtm(HtmConfig(sv_descriptor_source="sp", interval_mode=False))
+    h = NeocortexHtm(HtmConfig(sv_descriptor_source="sp", interval_mode=False, sp_boostStrength=0.0))
     ids = [h.step(p).lvc_id for p in places]
     assert ids == list(range(6))
     n = len(h.lvc)
@@ -157,3 +165,28 @@ def test_query_only_and_describe():
     assert np.array_equal(d, h.lvc.prototype(4))
     h.reset_sequence()
     assert h.step(places[5], store=False).lvc_id == 5
+
+
+def test_sp_frozen_after_sp_learn_steps_keeps_columns():
+    places = route(n_places=30, seed=11)
+    h = NeocortexHtm(HtmConfig(sp_learn_steps=20, sv_descriptor_source="sp"))
+    for p in places[:20]:
+        h.step(p)
+    assert h.sp.iteration_learn == 20
+    h.step(places[20])
+    cols = h.last_columns.copy()
+    perm = h.sp.perm.copy()
+    for p in places[21:]:
+        h.step(p)
+    assert h.sp.iteration_learn == 20 and np.array_equal(h.sp.perm, perm)  # frozen
+    h.step(places[20])
+    assert np.array_equal(h.last_columns, cols)
+    # an always-learning SP with boosting moves the columns of the same input
+    g = NeocortexHtm(HtmConfig(sp_learn_steps=0, sv_descriptor_source="sp"))
+    for p in places[:21]:
+        g.step(p)
+    before = g.last_columns.copy()
+    for p in places[21:]:
+        g.step(p)
+    g.step(places[20])
+    assert not np.array_equal(g.last_columns, before)
