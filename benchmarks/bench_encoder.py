@@ -2,7 +2,7 @@
 
 For each backbone (ShuffleNetV2 x1.0 stage3, AlexNet conv3) and batch size (1, 8):
 
-* ``encoder``   -- :meth:`MultimodalEncoder.embed` + LSBH: resize 640x480 -> 224x224,
+* ``encoder``   -- :meth:`MultimodalEncoder.embed` + standardisation + LSBH: resize 640x480 -> 224x224,
   normalisation, channels_last forward, pooling, projection, top/bottom-k;
 * baselines measured in the same run: the same encoder in contiguous (NCHW) memory format,
   and the raw backbone forward alone (a ready 224x224 channels_last tensor, no pre- or
@@ -51,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.ERROR)
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=15)
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=EncoderConfig().torch_threads,
+                    help="torch threads (default: encoder.torch_threads)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(8)]

@@ -48,7 +48,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
-    cfg = HtmConfig() if args.boost is None else HtmConfig(sp_boostStrength=args.boost)
+    # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
+    cfg = HtmConfig(sp_learn_steps=0) if args.boost is None else HtmConfig(sp_boostStrength=args.boost,
+                                                                           sp_learn_steps=0)
     warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
     for f in stream[:5]:
         warm.step(f)

@@ -4,7 +4,9 @@ Usage::
 
     poseidon vpr --ref DIR --query DIR [--gt FILE] [--tolerance N] [--weights PATH]
                  [--backbone shufflenetv2|alexnet_conv3] [--limit N] [--config FILE]
-                 [--set key=value ...] [--no-htm] [--htm-query-learning] [--json]
+                 [--set key=value ...] [--no-htm] [--htm-query-learning] [--save-norm FILE] [--json]
+    poseidon vpr --mission FILE.mcap [--min-gap-m M] [--weights PATH] [--backbone ...]
+                 [--config FILE] [--set key=value ...] [--no-htm] [--json]
 
 Both folders are image sequences (``.png`` / ``.jpg`` / ``.jpeg``, sorted by file name,
 read with PIL as RGB); ``--limit N`` keeps the first N of each.  Ground truth: with
@@ -12,6 +14,26 @@ read with PIL as RGB); ``--limit N`` keeps the first N of each.  Ground truth: w
 list of matching reference indices]``, indices into the sorted full folders); without it,
 the reference frame with the query's file name is the match, and ``--tolerance N`` also
 accepts the N neighbours on either side of it (Nordland: same name = same place).
+
+Embedding standardisation (``encoder.embedding_norm``, :mod:`services.encoder.standardize`)
+on image sets: ``running`` is estimated in memory on the reference sequence in order (as
+the node would), the queries use the statistics as they stand; ``fixed`` is fitted on the
+reference set (``--save-norm FILE`` writes the camera statistics, e.g. for a deployment
+with ``embedding_norm: fixed``); ``none`` hashes the raw y (Eq. 4.2 exactly).
+
+``--mission FILE.mcap``: one recording (``poseidon sim --minutes M --seed S --out F.mcap``,
+or ``poseidon transform``) with ``camera/image_raw``, ``truth/revisits`` and ``truth/pose``.
+The camera and the ``encoder.sonar_topic`` stream go through :class:`EncoderNode` in event
+order (fused SDR = camera OR sonar, running statistics from the mission itself, in memory),
+then :class:`NeocortexHtm` steps over the fused SDRs once, *storing* LVCs as online.  Each
+frame i is compared with the earlier frames j that are at least ``--min-gap-m`` (default:
+the recording's ``revisit_min_gap_m``, 10 m) back along the true track (nearer frames
+trivially look alike and are never revisits); its ground truth is ``truth/revisits``.
+Frames without a revisit that predict one count as false positives.  Extra matcher
+``lsbh_fused_overlap`` (fused camera+sonar SDR overlap).  LVC-id figures: ``lvc_recall`` =
+fraction of revisit frames whose LVC id equals the id of one of their true earlier frames;
+a frame *claims* a revisit when its id was given to a candidate earlier frame (>= the
+gap back), ``lvc_precision`` = fraction of claims whose id is that of a true earlier frame.
 
 Matchers (each gives an n_query x n_ref similarity; the best reference of a query is its
 argmax, correct iff it is in the query's ground truth):
@@ -34,13 +56,27 @@ precision = correct / predicted, recall = correct / queries having a ground-trut
 times precision, i.e. average precision); ``recall_at_p100`` = the largest recall with
 precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR/(P+R).
 
-``--json`` prints one object::
+``--json`` prints one object (image sets)::
 
     {"matchers": {"cnn_cosine": {"auc": .., "recall_at_p100": .., "best_f1": .., "n_predicted": ..},
-                  "lsbh_overlap": {...}, "htm_lvc": {...}, "htm_descriptor": {...}},
+                  "lsbh_overlap": {...}, "cnn_cosine_standardized": {...} (embedding_norm not none),
+                  "htm_lvc": {...}, "htm_descriptor": {...}},
      "n_ref": .., "n_query": .., "n_query_with_gt": .., "weights": "seeded" | "<path>",
-     "backbone": "shufflenetv2", "embedding_dim": .., "sdr_bits": .., "sdr_length": ..,
-     "n_lvc": .., "htm_query_matched": .., "ground_truth": "file name +-N" | "<gt file>", "seconds": {"embed": .., "htm": ..}}
+     "backbone": "shufflenetv2", "embedding_dim": .., "embedding_norm": "none|running|fixed",
+     "sdr_bits": .., "sdr_length": .., "ground_truth": "file name +-N" | "<gt file>",
+     "sdr_overlap": {"same_place": .., "different_place": ..},   # mean |A_q & A_r| / 2k (random: s = 0.25)
+     "n_lvc": .., "htm_query_matched": .., "seconds": {"embed": .., "htm": ..}}
+
+and with ``--mission``::
+
+    {"mission": "<file>", "backbone": .., "embedding_norm": .., "n_frames": .., "n_revisit_frames": ..,
+     "min_gap_m": .., "sdr_overlap": {"same_place": .., "different_place": ..} (camera SDRs, candidate pairs),
+     "fused_bits_mean": .., "encoder_counters": {..},
+     "lvc_recall": .., "lvc_precision": .., "n_claimed_revisits": .., "n_correct_claims": ..,
+     "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
+     "matchers": {"cnn_cosine", "cnn_cosine_standardized", "lsbh_overlap", "lsbh_fused_overlap",
+                  "htm_lvc", "htm_descriptor": {...}},
+     "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).
 """

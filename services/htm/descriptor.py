@@ -2,11 +2,11 @@
 
 Bit spaces (``n_bits``):
 
-- ``tm`` (default): TM *cell* indices, ``column * cellsPerColumn + cell`` (81 920 bits at the
-  dissertation's 2048 x 40). Cells, not columns, so the descriptor keeps the sequence
-  context the TM encodes in which cell of a column wins (Fig. 4.3). With
-  ``sv_tm_bits: columns`` the winners' columns are used instead (2048 bits): the same
-  pooling, without the context (a place reached from another direction keeps its bits).
+- ``tm`` (default): with ``sv_tm_bits: cells`` TM *cell* indices, ``column * cellsPerColumn
+  + cell`` (81 920 bits at the dissertation's 2048 x 40), so the descriptor keeps the
+  sequence context the TM encodes in which cell of a column wins (Fig. 4.3); with
+  ``sv_tm_bits: columns`` (default: measured better on revisits, whose context differs lap to
+  lap) the winners' columns (2048 bits): the same pooling, without the context.
 - ``sp``: SP active column indices (``sp_columns`` bits).
 - ``sdr``: the raw fused SDR indices (``input_size`` = L bits).
 
