@@ -72,7 +72,8 @@ class EncoderConfig(_Section):
                                        "statistics before they are frozen")
     embedding_norm_rate: float = Field(0.0, ge=0, lt=1, description="EMA rate per frame after the warm-up "
                                        "(0: frozen)")
-    embedding_norm_scale: bool = Field(True, description="divide by the standard deviation (false: centre only)")
+    embedding_norm_scale: bool = Field(False, description="also divide by the standard deviation (default: "
+                                       "centre only; scaling amplified noise in sparse sonar rasters)")
     embedding_norm_path: str = Field("", description="persisted statistics per modality, e.g. "
                                      "state/embnorm_{backbone}_{modality}.npz next to htm.state_path "
                                      "(empty: in memory, every run warms up on its own data)")

@@ -23,7 +23,10 @@ Modes:
   vpr`` fits them on its reference set, ``--save-norm`` writes them) and loaded from
   ``embedding_norm_path``; never updated.
 
-``embedding_norm_scale`` false only centres (z = y - mu).  sigma is floored at
+``embedding_norm_scale`` false (default) only centres, z = y - mu: measured better than
+full standardisation on the corridor set and the simulated missions (dividing by sigma
+amplified near-constant dimensions, notably of the sparse sonar rasters; fused-SDR PR AUC on
+a 5-minute sim mission 0.17 centred vs 0.02 scaled).  With scaling sigma is floored at
 ``1e-3 x mean(sigma)`` so constant (dead) dimensions do not amplify rounding noise.
 The state (count, mu, M2 = sum of squared deviations, frozen flag) is stored per modality
 in ``embedding_norm_path`` when set (``{backbone}`` and ``{modality}`` substituted, e.g.
@@ -69,7 +72,7 @@ class EmbeddingStandardizer:
     """Per-dimension z = (y - mu) / sigma of one modality's embeddings (see module doc)."""
 
     def __init__(self, dim: int, mode: str = "running", warmup: int = 50, rate: float = 0.0,
-                 scale: bool = True, path: Path | None = None):
+                 scale: bool = False, path: Path | None = None):
         if mode not in NORM_MODES:
             raise StandardizerError(f"encoder.embedding_norm must be one of {NORM_MODES}, got {mode!r}")
         if warmup < 1:

@@ -78,6 +78,11 @@ def test_running_warmup_freezes_and_is_deterministic():
     m5 = c.mean.copy()
     c.transform(y[6])
     np.testing.assert_allclose(c.mean, m5 + 0.1 * (y[6] - m5))
+    # default centres only; scale=True also divides by sigma
+    np.testing.assert_allclose(a.transform(y[8]), y[8] - a.mean)
+    s = EmbeddingStandardizer(D, "running", warmup=5, scale=True)
+    s.transform_batch(y[:5])
+    np.testing.assert_allclose(s.transform(y[8]), (y[8] - a.mean) / a.sigma)
     # none is the identity (Eq. 4.2 exactly)
     assert np.array_equal(EmbeddingStandardizer(D, "none").transform(y[3]), y[3])
 
