@@ -150,6 +150,15 @@ class EmbeddingStandardizer:
         """:meth:`transform` for each row of (N, d), in row order."""
         return np.stack([self.transform(r, update) for r in np.atleast_2d(y)])
 
+    @classmethod
+    def fitted(cls, y: np.ndarray, scale: bool = False, path: Path | None = None) -> "EmbeddingStandardizer":
+        """A ``fixed`` standardiser with mu, sigma fitted on the rows of ``y`` (a reference sequence)."""
+        y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+        st = cls(y.shape[1], "none", scale=scale, path=None)
+        st.fit(y)
+        st.mode, st.path = "fixed", path
+        return st
+
     def fit(self, y: np.ndarray) -> None:
         """Set mu, sigma from the rows of ``y`` (a reference sequence) and freeze them."""
         y = np.atleast_2d(np.asarray(y, dtype=np.float64))

@@ -308,12 +308,10 @@ def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
     mode = enc_cfg.embedding_norm
     if mode == "none":
         return None
-    st = EmbeddingStandardizer(dim, "running" if mode == "running" else "none", enc_cfg.embedding_norm_warmup,
-                               enc_cfg.embedding_norm_rate, enc_cfg.embedding_norm_scale, None)
     if mode == "fixed":
-        st.mode = "fixed"
-        st.fit(np.stack(y_ref))
-    return st
+        return EmbeddingStandardizer.fitted(np.stack(y_ref), enc_cfg.embedding_norm_scale)
+    return EmbeddingStandardizer(dim, "running", enc_cfg.embedding_norm_warmup, enc_cfg.embedding_norm_rate,
+                                 enc_cfg.embedding_norm_scale, None)
 
 
 def overlap_stats(sim: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray | None = None) -> dict:
@@ -380,11 +378,11 @@ def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm
     sonar_key = enc_cfg.sonar_topic
 
     class _Recorder(MultimodalEncoder):
-        def __init__(self, c):
+        def __init__(self, c) -> None:
             super().__init__(c)
             self.camera: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
-        def sdr(self, modality, embedding, update=True):
+        def sdr(self, modality: str, embedding: np.ndarray, update: bool = True) -> np.ndarray:
             z = self.standardize(modality, embedding, update)
             bits = self.lsbh(modality).encode(z)
             if modality == "camera":

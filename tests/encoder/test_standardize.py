@@ -49,9 +49,12 @@ def test_standardisation_lowers_cross_place_overlap(lsbh):
     assert 0.2 < diff_std < 0.32  # independent SDRs share s = 25 %
     assert same_std > diff_std + 0.3  # the same place still overlaps strongly
     # fitted statistics (fixed mode), with scaling, do the same
-    fx = EmbeddingStandardizer(D, "none", scale=True)
-    fx.fit(y)
-    _, diff_fix = mean_overlaps([lsbh.encode(fx._apply(v)) for v in y], place)
+    fx = EmbeddingStandardizer.fitted(y, scale=True)
+    z = fx.transform_batch(y)
+    np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=1e-9)
+    np.testing.assert_allclose(z.std(axis=0), 1.0, rtol=1e-6)
+    assert fx.mode == "fixed" and fx.count == len(y)
+    _, diff_fix = mean_overlaps([lsbh.encode(v) for v in z], place)
     assert 0.2 < diff_fix < 0.32
 
 
