@@ -371,7 +371,10 @@ def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm
     if min_gap_m is None:
         meta = read_metadata(path).get("poseidon", {})
         try:
-            min_gap_m = float(json.loads(meta["params"])["revisit_min_gap_m"])
+            if "params" not in meta and "source_metadata" in meta:  # poseidon transform: the source's record
+                meta = json.loads(meta["source_metadata"])
+            params = meta["params"]
+            min_gap_m = float((json.loads(params) if isinstance(params, str) else params)["revisit_min_gap_m"])
         except (KeyError, ValueError, TypeError) as exc:
             raise VprInputError(f"{path}: no params.revisit_min_gap_m in the 'poseidon' metadata ({exc}); "
                                 f"pass --min-gap-m") from None

@@ -161,3 +161,16 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
     assert main(["--mission", str(tmp_path / "none.mcap"), "--no-htm"]) == 2
     assert "no such recording" in capsys.readouterr().err
     assert main(["--mission", str(short_mission), "--ref", str(tmp_path)]) == 2
+
+
+def test_main_mission_transformed_recording(short_mission, tmp_path, capsys):
+    """A `poseidon transform` output: the revisit gap comes from the source's metadata record."""
+    from missions.transform import transform
+    out = tmp_path / "t.mcap"
+    transform(short_mission, out, [(0.0, 10.0), (10.0, 30.0), (30.0, 35.0), (35.0, 50.0), (50.0, 55.0)], seed=1)
+    assert main(["--mission", str(out), "--json", "--no-htm", "--set", "encoder.pool_grid=1",
+                 "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["min_gap_m"] == 10.0 and res["n_revisit_frames"] > 20 and "htm_lvc" not in res["matchers"]
+    # copies of a loop are the same place: the raw LSBH overlap finds many of them
+    assert res["matchers"]["lsbh_overlap"]["best_f1"] > 0.45  # measured 0.60
