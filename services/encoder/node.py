@@ -28,6 +28,7 @@ one batch of two); the sonar embedding is reused while no new beam arrived.
 """
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -40,6 +41,8 @@ from .encoder import MultimodalEncoder, image_to_rgb
 from .sonar import SonarRaster
 
 __all__ = ["EncoderNode"]
+
+log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
 OUT = "neocortex/sdr"
@@ -62,6 +65,11 @@ class EncoderNode(ServiceNode):
         self.raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax,
                                   cfg.sonar_use_intensities)
         self.mode = cfg.fusion_mode
+        if config.htm.state_path and cfg.embedding_norm == "running" and not cfg.embedding_norm_path:
+            log.warning("encoder: htm.state_path keeps the LVC map across runs but encoder.embedding_norm_path is "
+                        "empty: the running embedding statistics restart every run, so the SDRs of known places "
+                        "change; set encoder.embedding_norm_path (e.g. state/embnorm_{backbone}_{modality}.npz)")
+            self.count("embedding_norm_not_persisted")
         self.stale_ns = int(round(config.sync.sync_stale_sec * 1e9))
         self.length = cfg.sp_columns
         self._last_camera: int | None = None

@@ -162,3 +162,11 @@ def test_image_to_rgb_encodings():
     assert mono.shape == (2, 3, 3) and mono.dtype == np.float32 and np.all(mono == 1.0)
     with pytest.raises(ValueError, match="Image seq 0: data shape"):
         image_to_rgb(Image(header=h, height=3, width=3, encoding="rgb8", data=rgb))
+
+
+def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config, encoder, caplog):
+    cfg = config.model_copy(update={"htm": config.htm.model_copy(update={"state_path": "state/htm.npz"})})
+    with caplog.at_level("WARNING", logger="services.encoder.node"):
+        node = EncoderNode(cfg, encoder=encoder)
+    assert node.counters["embedding_norm_not_persisted"] == 1 and "embedding_norm_path" in caplog.text
+    assert "embedding_norm_not_persisted" not in EncoderNode(config, encoder=encoder).counters
