@@ -66,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
         t1 = time.perf_counter()
         winners = h.tm.compute(cols, True)
         t2 = time.perf_counter()
-        d = h.descriptor.update(winners.astype(np.int64))
+        src = np.unique(winners.astype(np.int64) // h.tm.cpc) if h.tm_columns else winners.astype(np.int64)
+        d = h.descriptor.update(src)
         h.lvc.match(d)
         t3 = time.perf_counter()
         t_sp[i], t_tm[i], t_rest[i] = t1 - t0, t2 - t1, t3 - t2
