@@ -18,6 +18,7 @@ posting lengths of the query's bits, not #LVCs x L.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from numba import njit
@@ -183,13 +184,17 @@ class LvcMatcher:
             return False
         return True
 
-    def match(self, d: np.ndarray) -> LvcResult:
-        """Match D_t (sorted unique bit indices) or create a new LVC (Eqs. 4.6-4.10)."""
+    def match(self, d: np.ndarray, veto: Callable[[int], bool] | None = None) -> LvcResult:
+        """Match D_t (sorted unique bit indices) or create a new LVC (Eqs. 4.6-4.10).
+
+        ``veto(l*)`` returning True rejects a candidate that passed Eq. 4.9 (used for the
+        per-modality validation of ``sv_require_multimodal``).
+        """
         d = self._check(d)
         best, best_i = self.best(d)
         n = d.size
         best_rate = best_i / n if n else 0.0
-        if best >= 0 and self.accepts(best_i, n, int(self._proto_len[best])):
+        if best >= 0 and self.accepts(best_i, n, int(self._proto_len[best])) and not (veto and veto(best)):
             return LvcResult(best, best_rate, False, best_i, best, best_rate, best_i, n)
         new_id = self.add(d)
         return LvcResult(new_id, 1.0 if n else 0.0, True, 0, best, best_rate, best_i, n)

@@ -1,9 +1,11 @@
 """HTM service node: ``neocortex/sdr`` -> ``local_view_cells`` (Section 4.2.2).
 
-Every NeocortexSdr frame yields exactly one LocalViewCells message with the frame's stamp
+Every valid NeocortexSdr frame yields exactly one LocalViewCells message with the frame's stamp
 and frame_id (never suppressed; gating happens downstream in the VPR Guard). With
 ``htm.state_path`` set, the SP/TM/LVC state is loaded at start when the file exists and
-saved when the inputs end and when the node closes.
+saved when the inputs end and when the node closes.  A frame whose fused SDR has the wrong
+size is logged with its key and seq, counted (``sdr_wrong_size``) and skipped.  With
+``htm.sv_require_multimodal`` the per-modality SDRs of the frame validate each match.
 """
 from __future__ import annotations
 
@@ -43,12 +45,18 @@ class HtmNode(ServiceNode):
     def process(self, key: str, msg: NeocortexSdr) -> None:
         fused = msg.fused
         if fused.size != self.cfg.input_size:
-            raise ValueError(f"htm: {key} seq {msg.header.seq}: fused.size {fused.size} differs from "
-                             f"htm.input_size {self.cfg.input_size}")
-        res = self.htm.step(fused.active)
+            log.error("htm: %s seq %d skipped: fused.size %d differs from htm.input_size %d", key,
+                      msg.header.seq, fused.size, self.cfg.input_size)
+            self.count("sdr_wrong_size")
+            return
+        modalities = {s.modality: s.active for s in msg.modalities} if self.htm.multimodal is not None else None
+        before = self.htm.multimodal.rejections if self.htm.multimodal is not None else 0
+        res = self.htm.step(fused.active, modalities=modalities)
         self._dirty = True
         if res.is_new:
             self.count("lvc_created")
+        if self.htm.multimodal is not None and self.htm.multimodal.rejections > before:
+            self.count("multimodal_rejections")
         self.publish("local_view_cells", LocalViewCells(
             header=self.header("local_view_cells", msg.header.stamp, msg.header.frame_id),
             most_active_cell=res.lvc_id,

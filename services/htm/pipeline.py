@@ -14,6 +14,12 @@ but a place seen in another temporal context keeps its bits).
 its first N learning steps only and then freezes it, so a place maps to the same columns for
 the rest of the mission (a continually learning SP moves the columns of places seen once and
 the stored prototypes stop matching); the TM keeps learning.
+``sv_require_multimodal`` (Table 4.1) adds a per-modality check to an accepted match: the
+camera (sonar) SDR of the frame must overlap the camera (sonar) SDR of the frame that
+created the matched LVC by R = |A & B| / |A| >= ``sv_min_img_score`` (``sv_min_sonar_score``),
+for every modality present in both; otherwise Eq. 4.10 creates a new id.  A modality
+missing on either side is not checked.  Pass the per-modality SDRs to ``step`` as
+``modalities={"camera": ..., "sonar": ...}``.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -33,13 +39,61 @@ from services.htm.lvc import LvcMatcher, LvcResult, overlap_scores
 from services.htm.spatial_pooler import SpatialPooler
 from services.htm.temporal_memory import TemporalMemory
 
-__all__ = ["NeocortexHtm", "LvcResult", "descriptor_similarity"]
+__all__ = ["NeocortexHtm", "LvcResult", "ModalityPrototypes", "descriptor_similarity"]
 
 STATE_VERSION = 1
 # configuration fields that change the shape or meaning of the saved state
 _STRUCTURAL = ("input_size", "sp_enable", "sp_columns", "sp_potentialRadius", "sp_potentialPct",
                "tm_cellsPerColumn", "tm_maxSynapsesPerSegment", "sv_descriptor_source",
                "sv_tm_window", "sv_tm_bits", "theta_rho", "seed")
+
+
+class ModalityPrototypes:
+    """Per-modality SDRs of the frame that created each LVC (for ``sv_require_multimodal``)."""
+
+    def __init__(self, thresholds: dict[str, float]):
+        self.thresholds = thresholds
+        self.protos: list[dict[str, np.ndarray]] = []
+        self.rejections = 0
+
+    def store(self, lvc_id: int, modalities: dict[str, np.ndarray] | None) -> None:
+        while len(self.protos) <= lvc_id:
+            self.protos.append({})
+        self.protos[lvc_id] = {m: np.asarray(v, np.int64).copy() for m, v in (modalities or {}).items()
+                               if m in self.thresholds}
+
+    def disagree(self, lvc_id: int, modalities: dict[str, np.ndarray] | None) -> bool:
+        """True when a modality present in the frame and the prototype overlaps too little."""
+        stored = self.protos[lvc_id] if lvc_id < len(self.protos) else {}
+        for m, threshold in self.thresholds.items():
+            cur = None if modalities is None else modalities.get(m)
+            if cur is None or len(cur) == 0 or m not in stored or len(stored[m]) == 0:
+                continue
+            if overlap_scores(cur, stored[m])["R"] < threshold:
+                self.rejections += 1
+                return True
+        return False
+
+    def state(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        for m in self.thresholds:
+            arrays = [p.get(m, np.zeros(0, np.int64)) for p in self.protos]
+            present = np.array([m in p for p in self.protos], bool)
+            out[f"{m}.bits"] = np.concatenate(arrays) if arrays else np.zeros(0, np.int64)
+            out[f"{m}.start"] = np.concatenate([[0], np.cumsum([a.size for a in arrays])]).astype(np.int64)
+            out[f"{m}.present"] = present
+        return out
+
+    def set_state(self, st: dict[str, np.ndarray]) -> None:
+        self.protos = []
+        for m in self.thresholds:
+            if f"{m}.bits" not in st:
+                continue
+            bits, start, present = st[f"{m}.bits"], st[f"{m}.start"], st[f"{m}.present"]
+            while len(self.protos) < present.size:
+                self.protos.append({})
+            for k in np.flatnonzero(present):
+                self.protos[k][m] = bits[start[k]:start[k + 1]].copy()
 
 
 def descriptor_similarity(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
@@ -79,6 +133,8 @@ class NeocortexHtm:
         tau_r = cfg.sv_tm_match_threshold if self.mode == "tm" else cfg.sv_match_threshold
         self.lvc = LvcMatcher(n_bits, cfg.sv_min_intersection, tau_r, cfg.sv_enable_f1_gate,
                               cfg.min_f1, cfg.sv_use_iou_tiebreak)
+        self.multimodal = ModalityPrototypes({"camera": cfg.sv_min_img_score, "sonar": cfg.sv_min_sonar_score}) \
+            if cfg.sv_require_multimodal else None
         self.steps = 0
         self.last_columns = np.zeros(0, np.int32)
         self.last_descriptor = np.zeros(0, np.int64)
@@ -130,22 +186,28 @@ class NeocortexHtm:
         self.last_descriptor = d
         return d
 
-    def step(self, active: np.ndarray, learn: bool | None = None, store: bool = True) -> LvcResult:
+    def step(self, active: np.ndarray, learn: bool | None = None, store: bool = True,
+             modalities: dict[str, np.ndarray] | None = None) -> LvcResult:
         """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10).
 
         ``store`` False only queries (for evaluation against a fixed reference map): the
-        result's id is the accepted l* or -1, and no prototype is created.
+        result's id is the accepted l* or -1, and no prototype is created.  ``modalities``
+        (per-modality SDR indices) are used only with ``sv_require_multimodal``.
         """
         d = self.describe(active, learn)
         anomaly = self.last_anomaly if self.mode == "tm" else 0.0
         self.steps += 1
+        mm = self.multimodal
+        veto = None if mm is None else (lambda lvc_id: mm.disagree(lvc_id, modalities))
         if store:
-            res = self.lvc.match(d)
+            res = self.lvc.match(d, veto)
+            if mm is not None and res.is_new:
+                mm.store(res.lvc_id, modalities)
             return replace(res, anomaly=anomaly)
         best, i = self.lvc.best(d)
         n = d.size
         rate = i / n if n else 0.0
-        ok = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best))
+        ok = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best))
         return LvcResult(best if ok else -1, rate if ok else 0.0, False, i if ok else 0, best, rate, i, n,
                          anomaly)
 
@@ -160,7 +222,8 @@ class NeocortexHtm:
         """Write the whole state to ``path`` (npz; written atomically)."""
         path = Path(path)
         arrays: dict[str, np.ndarray] = {}
-        for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc)):
+        for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
+                             ("mm", self.multimodal)):
             if part is not None:
                 for k, v in part.state().items():
                     arrays[f"{prefix}.{k}"] = v
@@ -194,7 +257,8 @@ class NeocortexHtm:
         for k, v in meta["config"].items():
             if getattr(self.cfg, k) != v:
                 raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {getattr(self.cfg, k)!r}")
-        for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc)):
+        for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
+                             ("mm", self.multimodal)):
             if part is not None:
                 pre = prefix + "."
                 part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})

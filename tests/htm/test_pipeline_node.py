@@ -143,12 +143,17 @@ def test_node_publishes_every_frame_with_its_header_and_persists(tmp_path):
     assert strip == [(m.most_active_cell, m.is_new, m.intersection, m.active_cells[0].rate) for _, m in out]
 
 
-def test_node_rejects_wrong_sdr_size():
-    h = Header(seq=0, stamp=1, frame_id="")
+def test_node_skips_counts_and_logs_wrong_sdr_size(caplog):
+    h = Header(seq=7, stamp=1, frame_id="")
     bad = Sdr(header=h, modality="fused", size=1024, active=np.arange(10, dtype=np.uint32))
     msg = NeocortexSdr(header=h, modalities=[bad], fused=bad, fusion_mode="union")
-    with pytest.raises(ValueError, match="htm.input_size"):
-        run_offline(HtmNode(PoseidonConfig()), [("neocortex/sdr", msg)])
+    good = _messages([np.arange(0, 1000, 2, dtype=np.uint32)])[0][1]
+    good = good.model_copy(update={"header": Header(seq=8, stamp=2, frame_id="")})
+    node = HtmNode(PoseidonConfig())
+    out = run_offline(node, [("neocortex/sdr", msg), ("neocortex/sdr", good)])
+    assert len(out) == 1 and out[0][1].header.stamp == 2
+    assert node.counters["sdr_wrong_size"] == 1
+    assert "neocortex/sdr seq 7 skipped" in caplog.text and "htm.input_size" in caplog.text
 
 
 def test_query_only_and_describe():
