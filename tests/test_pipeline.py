@@ -1,23 +1,15 @@
 """The whole pipeline on a short simulated cave mission: every service, both modes."""
 import pytest
-from mcap.reader import make_reader
 
 from common.config import load_config
 from launcher.run import run_distributed, run_embedded
 from launcher.services import available_services
 from missions.sim.cli import main as sim_main
+from tests.foundation.recordings import payloads_by_key
 
 pytestmark = pytest.mark.timeout(600)
 
 OUTPUT_KEYS = ("neocortex/sdr", "local_view_cells", "Odometry", "ground_truth")
-
-
-def _payloads(path):
-    out = {}
-    with open(path, "rb") as f:
-        for _schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
-            out.setdefault(channel.topic, []).append(bytes(msg.data))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +31,6 @@ def test_every_service_runs_and_modes_agree_byte_for_byte(mission, tmp_path):
     assert counts["neocortex/sdr"] == frames and counts["local_view_cells"] == frames
     assert counts["Odometry"] > 0 and counts["ground_truth"] == counts["odometry"]
     assert b.recording["counts"] == counts
-    pa, pb = _payloads(tmp_path / "dist.mcap"), _payloads(tmp_path / "emb.mcap")
+    pa, pb = payloads_by_key(tmp_path / "dist.mcap"), payloads_by_key(tmp_path / "emb.mcap")
     for key in OUTPUT_KEYS:
         assert pa[key] == pb[key], f"{key} differs between distributed and embedded runs"

@@ -11,6 +11,17 @@ from common.mcap_io import RecordingWriter
 KEYS6 = ["camera/image_raw", "depth_sensor", "imu_adis_ros", "sonar_micron", "odometry", "dvl_linkquest"]
 
 
+def payloads_by_key(path: Path) -> dict[str, list[bytes]]:
+    """Every payload of a recording, per key, in file (arrival) order."""
+    from mcap.reader import make_reader
+
+    out: dict[str, list[bytes]] = {}
+    with open(path, "rb") as f:
+        for _schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append(bytes(msg.data))
+    return out
+
+
 def dvl(header: Header, vx: float = 0.1) -> LinkquestDvl:
     return LinkquestDvl(header=header, datagood=[1, 1, 1, 1], altitudebeam=[2.0] * 4, bottomvelocitybeam=[0.0] * 4,
                         watervelocitybeam=[0.0] * 4, watervelocitycredit=[0.0] * 4, velocityinst=[vx, 0.0, 0.0],

@@ -7,7 +7,6 @@ import sys
 import time
 
 import pytest
-from mcap.reader import make_reader
 
 from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
@@ -15,17 +14,9 @@ from common.mcap_io import read_messages
 from launcher.run import RunFailed, run_distributed, run_embedded
 from services.player.player import Player
 from tests.conftest import REPO
-from tests.foundation.recordings import KEYS6, six_stream_recording
+from tests.foundation.recordings import KEYS6, payloads_by_key, six_stream_recording
 
 pytestmark = pytest.mark.timeout(300)
-
-
-def _by_key_file_order(path):
-    out = {}
-    with open(path, "rb") as f:
-        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
-            out.setdefault(channel.topic, []).append(bytes(msg.data))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +41,7 @@ def test_round_trip_every_message_byte_for_byte(big_recording, tmp_path, mode):
     runner = run_distributed if mode == "distributed" else run_embedded
     result = runner(PoseidonConfig(), src, out, services=[], progress=False, timeout_s=240)
     assert result.recording["counts"] == counts
-    sent, got = _by_key_file_order(src), _by_key_file_order(out)
+    sent, got = payloads_by_key(src), payloads_by_key(out)
     assert set(got) == set(KEYS6)
     for key in KEYS6:
         assert got[key] == sent[key], f"{key}: payloads or order differ"
@@ -98,7 +89,7 @@ def test_services_may_start_before_the_hub(tmp_path):
         if rec.poll() is None:
             rec.kill()
     assert json.loads((tmp_path / "rec.json").read_text())["recorded"] == counts
-    assert _by_key_file_order(out) == _by_key_file_order(src)
+    assert payloads_by_key(out) == payloads_by_key(src)
 
 
 def test_recorder_killed_with_sigkill_keeps_flushed_chunks(tmp_path):
