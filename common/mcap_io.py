@@ -37,7 +37,7 @@ from common.messages import Message, message_type
 
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
-    "recording_summary", "recording_keys", "file_sha256", "code_revision",
+    "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "code_revision",
 ]
 
 log = logging.getLogger(__name__)
@@ -246,6 +246,20 @@ def recording_keys(path: str | Path) -> dict[str, str]:
             return {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()}
     messages, _ = _sequential(p, None, strict=False)
     return {r.key: r.type_name for r in messages}
+
+
+def recording_message_count(path: str | Path, keys: list[str] | None = None) -> int | None:
+    """Number of messages (of ``keys``) from the summary statistics, or None without a summary."""
+    p = Path(path)
+    if not _has_summary(p):
+        return None
+    with _open(p) as f:
+        summary = make_reader(f).get_summary()
+    if summary is None or summary.statistics is None:
+        return None
+    wanted = None if keys is None else set(keys)
+    return sum(n for cid, n in summary.statistics.channel_message_counts.items()
+               if wanted is None or summary.channels[cid].topic in wanted)
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:

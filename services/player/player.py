@@ -26,7 +26,7 @@ from typing import Any, Iterable
 from tqdm import tqdm
 
 from common.bus import Bus
-from common.mcap_io import read_messages, recording_keys
+from common.mcap_io import read_messages, recording_keys, recording_message_count
 
 __all__ = ["Player", "PlayerStats", "SOURCE_KEYS"]
 
@@ -95,7 +95,7 @@ class Player:
             self.bus.wait_alive(self.wait_for, self.startup_timeout_s)
         for k in self.absent:
             pubs[k].send_eos()
-        total = None
+        total = recording_message_count(self.path, self.keys)
         t_wall0 = time.monotonic()
         t_event0 = None
         last_hb = -1

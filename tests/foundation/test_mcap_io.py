@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from common.mcap_io import (RecordingError, RecordingWriter, read_messages, read_metadata, recording_keys,
-                            recording_summary)
+                            recording_message_count, recording_summary)
 from common.messages import Depth, Header, Image
 from tests.foundation.recordings import six_stream_recording
 
@@ -21,6 +21,7 @@ def test_write_read_in_event_time_order_with_metadata(tmp_path):
     assert recording_keys(path) == {"depth_sensor": "poseidon_msgs/Depth", "camera/image_raw": "poseidon_msgs/Image"}
     assert read_metadata(path)["poseidon"] == {"code_revision": "abc", "config": '{"x": 1}'}
     assert recording_summary(path)["counts"] == {"depth_sensor": 2, "camera/image_raw": 1}
+    assert recording_message_count(path) == 3 and recording_message_count(path, ["depth_sensor"]) == 2
 
 
 def test_truncated_file_names_file_and_offset_and_keeps_what_is_intact(tmp_path):
