@@ -16,6 +16,11 @@ clamped.  Optional extra perturbations of loops 2-3 (the dissertation's future w
 up to S px), ``--occlusion F`` (a dark blob covering up to a fraction F of the image),
 ``--scale S`` (zoom by 1 +- S).
 
+``--areas 1`` keeps one area (the demo's short mission): three source ranges (entry, area-1
+loop, exit) chained into five output segments ``entry | loop1 loop2* loop3* | exit``; by
+default from a sim recording: the approach, the first complete area-1 loop, and the next
+``exit`` seconds (30) after it, so a ~5.5-minute ``poseidon sim`` is enough.
+
 ``--segments "a:b,c:d,e:f,g:h,i:j"`` gives the five ranges (entry, area-1 loop, transition,
 area-2 loop, exit; seconds; half-open).  Default: from a ``poseidon sim`` recording's
 metadata (entry = the approach, loop = the first complete loop of each area, transition =
@@ -59,6 +64,11 @@ SEGMENT_NAMES = ["entry", "area1_loop1", "area1_loop2", "area1_loop3", "transiti
                  "area2_loop1", "area2_loop2", "area2_loop3", "exit"]
 # output segment -> (source range index, copy number within the area: 0 unaltered, 1-2 perturbed)
 PLAN = [(0, 0), (1, 0), (1, 1), (1, 2), (2, 0), (3, 0), (3, 1), (3, 2), (4, 0)]
+# --areas 1: entry | area-1 loop x3 | exit
+PLAN_ONE_AREA = [(0, 0), (1, 0), (1, 1), (1, 2), (2, 0)]
+SEGMENT_NAMES_ONE_AREA = ["entry", "area1_loop1", "area1_loop2", "area1_loop3", "exit"]
+RANGE_NAMES = {2: ("entry", "area-1 loop", "transition", "area-2 loop", "exit"), 1: ("entry", "area-1 loop", "exit")}
+ONE_AREA_EXIT_S = 30.0
 
 
 @dataclass
@@ -174,14 +184,15 @@ def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) ->
     return out, drawn
 
 
-def parse_segments(text: str) -> list[tuple[float, float]]:
-    """``"a:b,c:d,e:f,g:h,i:j"`` -> five (start_s, end_s) ranges."""
+def parse_segments(text: str, areas: int = 2) -> list[tuple[float, float]]:
+    """``"a:b,c:d,e:f,g:h,i:j"`` -> five (start_s, end_s) ranges (three with ``areas`` 1)."""
+    names = RANGE_NAMES[areas]
     parts = [t.strip() for t in text.split(",") if t.strip()]
-    if len(parts) != 5:
-        raise ValueError(f"--segments needs 5 ranges (entry, area-1 loop, transition, area-2 loop, exit), "
+    if len(parts) != len(names):
+        raise ValueError(f"--segments needs {len(names)} ranges ({', '.join(names)}), "
                          f"got {len(parts)}: {text!r}")
     out = []
-    for name, part in zip(("entry", "area-1 loop", "transition", "area-2 loop", "exit"), parts):
+    for name, part in zip(names, parts):
         try:
             a, b = (float(x) for x in part.split(":"))
         except ValueError:
@@ -192,7 +203,8 @@ def parse_segments(text: str) -> list[tuple[float, float]]:
     return out
 
 
-def default_segments(meta: dict[str, dict[str, str]], duration_s: float) -> tuple[list[tuple[float, float]], str]:
+def default_segments(meta: dict[str, dict[str, str]], duration_s: float,
+                     areas: int = 2) -> tuple[list[tuple[float, float]], str]:
     """Source ranges from a sim recording's route segments, else duration fractions."""
     segs = json.loads(meta.get("poseidon", {}).get("segments", "null") or "null")
     if segs:
@@ -201,6 +213,13 @@ def default_segments(meta: dict[str, dict[str, str]], duration_s: float) -> tupl
 
         entry = first(lambda s: s["name"] == "transition_2_1")
         a = first(lambda s: s["name"] == "area1_ellipse", entry["end_s"] - 1e-6 if entry else -1.0)
+        if areas == 1:
+            if entry and a and a["end_s"] + 1.0 <= duration_s:
+                exit_end = min(a["end_s"] + ONE_AREA_EXIT_S, duration_s)
+                return ([(entry["start_s"], entry["end_s"]), (a["start_s"], a["end_s"]), (a["end_s"], exit_end)],
+                        "sim route segments (one area)")
+            raise ValueError("--areas 1 needs a sim recording with the approach, one complete area-1 loop and at "
+                             "least 1 s after it (about 5 minutes of 'poseidon sim'), or explicit --segments")
         tr = first(lambda s: s["name"] == "transition_1_2", a["end_s"] - 1e-6) if a else None
         b = first(lambda s: s["name"] == "area2_cave2", tr["end_s"] - 1e-6) if tr else None
         ex = first(lambda s: s["name"] == "transition_2_1", b["end_s"] - 1e-6) if b else None
@@ -255,9 +274,13 @@ def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tup
 
 def transform(src: str | Path, out: str | Path, segments: list[tuple[float, float]] | None = None,
               seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
-              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY) -> dict[str, Any]:
+              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY, areas: int = 2) -> dict[str, Any]:
     """Write the transformed recording; returns a summary (per-key counts, segment table).
-    ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``."""
+    ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``;
+    ``areas`` 2 is the dissertation's nine-segment protocol, 1 keeps area 1 only."""
+    if areas not in RANGE_NAMES:
+        raise ValueError(f"areas must be 1 or 2, got {areas}")
+    plan, seg_names = (PLAN, SEGMENT_NAMES) if areas == 2 else (PLAN_ONE_AREA, SEGMENT_NAMES_ONE_AREA)
     src, out = Path(src), Path(out)
     if src.resolve() == out.resolve():
         raise ValueError(f"{out}: output would overwrite the input")
@@ -271,8 +294,10 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     meta = read_metadata(src)
     how = "given"
     if segments is None:
-        segments, how = default_segments(meta, duration_s)
-    for (a, b), name in zip(segments, ("entry", "area-1 loop", "transition", "area-2 loop", "exit")):
+        segments, how = default_segments(meta, duration_s, areas)
+    if len(segments) != len(RANGE_NAMES[areas]):
+        raise ValueError(f"{len(RANGE_NAMES[areas])} source ranges needed with areas={areas}, got {len(segments)}")
+    for (a, b), name in zip(segments, RANGE_NAMES[areas]):
         if a >= duration_s + 1e-9:
             raise ValueError(f"{src}: {name} range {a}:{b} s starts after the recording ends ({duration_s:.3f} s)")
     rng = np.random.default_rng([seed, 909])
@@ -308,7 +333,7 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     total = 0
     bar = tqdm(desc="transform", unit="msg", disable=not progress)
     try:
-        for k, (si, copy) in enumerate(PLAN):
+        for k, (si, copy) in enumerate(plan):
             a_s, b_s = segments[si]
             t0 = first + int(round(a_s * 1e9))
             t1 = min(first + int(round(b_s * 1e9)), last + 1)
@@ -338,11 +363,11 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
                 bar.update(1)
             total += n_seg
             end = max(seg_last, seg_start + (t1 - t0))
-            table.append({"name": SEGMENT_NAMES[k], "source_start_s": a_s, "source_end_s": (t1 - first) / 1e9,
+            table.append({"name": seg_names[k], "source_start_s": a_s, "source_end_s": (t1 - first) / 1e9,
                           "copy": copy, "perturbed": copy > 0, "start_s": (seg_start - first) / 1e9,
                           "end_s": (end - first) / 1e9, "messages": n_seg})
             cursor = end + GAP_NS
-        _write_revisits(writer, out_frames, rel, revisit_tolerance, seq)
+        _write_revisits(writer, out_frames, rel, revisit_tolerance, seq, areas)
         pstats = {}
         if perturb_log:
             sh = np.array([abs(p["shift_px"]) for p in perturb_log])
@@ -350,7 +375,7 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
             pstats = {"images": len(perturb_log), "shift_px_mean": float(sh.mean()), "shift_px_std": float(sh.std()),
                       "rotation_deg_mean": float(ro.mean()), "rotation_deg_std": float(ro.std())}
         writer.add_metadata("poseidon", {
-            "tool": "poseidon transform", "source": str(src), "seed": seed, "segments_from": how,
+            "tool": "poseidon transform", "source": str(src), "seed": seed, "segments_from": how, "areas": areas,
             "source_segments_s": segments, "perturbation": pert.__dict__, "revisit_tolerance_frames": revisit_tolerance,
             "perturbation_stats": pstats, "source_metadata": meta.get("poseidon", {}),
         })
@@ -369,12 +394,13 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
 
 
 def _write_revisits(writer: RecordingWriter, frames: list[tuple[int, int, int, int]], rel: dict[int, set[int]],
-                    tol: int, seq: dict[str, int]) -> None:
+                    tol: int, seq: dict[str, int], areas: int = 2) -> None:
     """truth/revisits for every output frame (see module docstring)."""
     by_src: dict[int, list[int]] = {}
     for i, (_, s, _, _) in enumerate(frames):
         by_src.setdefault(s, []).append(i)
-    area_of = {1: 1, 2: 1, 3: 1, 5: 2, 6: 2, 7: 2}
+    # output segment index -> area, for the segments that are loop copies
+    area_of = {1: 1, 2: 1, 3: 1, 5: 2, 6: 2, 7: 2} if areas == 2 else {1: 1, 2: 1, 3: 1}
     for i, (stamp, s, seg, copy) in enumerate(frames):
         same: set[int] = set()
         if s >= 0:
@@ -402,7 +428,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("input", help="input MCAP recording")
     ap.add_argument("--out", required=True, help="output MCAP recording")
     ap.add_argument("--segments", default=None,
-                    help='five source ranges "entry,loop1,transition,loop2,exit" as start_s:end_s (default: see doc)')
+                    help='five source ranges "entry,loop1,transition,loop2,exit" as start_s:end_s (three with '
+                         '--areas 1: "entry,loop1,exit"; default: see doc)')
+    ap.add_argument("--areas", type=int, choices=(1, 2), default=2,
+                    help="2: the nine-segment protocol (default); 1: entry, three loops of area 1, exit")
     ap.add_argument("--seed", type=int, default=0, help="perturbation seed (default 0)")
     ap.add_argument("--revisit-tolerance", type=int, default=2, help="frames either side counted as the same place")
     ap.add_argument("--image-key", default=DEFAULT_IMAGE_KEY, help="camera key to perturb (default camera/image_raw)")
@@ -415,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     try:
-        segs = parse_segments(args.segments) if args.segments else None
+        segs = parse_segments(args.segments, args.areas) if args.segments else None
     except ValueError as exc:
         ap.error(str(exc))
     for name in ("illumination", "particles", "blur", "occlusion", "scale"):
@@ -425,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
                         occlusion=args.occlusion, scale=args.scale)
     try:
         summary = transform(args.input, args.out, segs, args.seed, pert, args.revisit_tolerance,
-                            progress=not args.no_progress, image_key=args.image_key)
+                            progress=not args.no_progress, image_key=args.image_key, areas=args.areas)
     except (RecordingError, ValueError) as exc:
         print(f"poseidon transform: error: {exc}", file=sys.stderr)
         return 2

@@ -198,3 +198,30 @@ def test_source_revisits_carried_to_every_copy(tmp_path, fast_mission):
                 assert oj in out_same[oi], (i, j, copy)
                 carried += 1
     assert carried > 0
+
+
+def test_one_area_five_segments_and_revisits(transformed, tmp_path):
+    """--areas 1 (the demo's mission): entry | three copies of the area-1 loop | exit; frames of
+    the perturbed copies revisit the same frames of the earlier copies."""
+    src = transformed[0]
+    out = tmp_path / "one.mcap"
+    summary = transform(src, out, parse_segments("0:2,2:6,6:9", areas=1), seed=5, progress=False, areas=1)
+    segs = summary["segments"]
+    assert [s["name"] for s in segs] == ["entry", "area1_loop1", "area1_loop2", "area1_loop3", "exit"]
+    assert [s["perturbed"] for s in segs] == [False, False, True, True, False]
+    assert abs(summary["duration_s"] - (2 + 3 * 4 + 3)) < 0.05
+    rec = _by_key(out)
+    frames = [m.header.stamp for m in rec["camera/image_raw"]]
+    t0 = min(m.header.stamp for v in rec.values() for m in v)
+    seg_of = [next(k for k, s in enumerate(segs) if s["start_s"] - 1e-6 <= (f - t0) / 1e9 <= s["end_s"] + 1e-6)
+              for f in frames]
+    truth = {m.frame_index: set(m.same_place.tolist()) for m in rec["truth/revisits"]}
+    loop1 = [i for i, k in enumerate(seg_of) if k == 1]
+    loop3 = [i for i, k in enumerate(seg_of) if k == 3]
+    assert loop1 and len(loop3) == len(loop1)
+    # the n-th frame of loop 3 revisits the n-th frame of loop 1 (same source frame)
+    assert all(loop1[n] in truth[loop3[n]] for n in range(len(loop1)))
+    assert all(not truth[i] for i in loop1)  # loop 1 itself is no revisit of anything earlier here
+    with pytest.raises(ValueError, match="3 ranges"):
+        parse_segments(SEGS, areas=1)
+    assert main([str(src), "--out", str(tmp_path / "bad.mcap"), "--areas", "1", "--no-progress"]) == 2
