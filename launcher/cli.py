@@ -43,6 +43,9 @@ DELEGATED = {
     "import": "missions.importers.cli:main",
     "vpr": "services.encoder.vpr:main",
     "deadreckon": "services.robot_state.deadreckon:main",
+    "eval": "eval.run_eval:main",
+    "audit": "eval.audit:main",
+    "compare": "eval.compare:main",
 }
 
 
