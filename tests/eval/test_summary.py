@@ -1,11 +1,11 @@
-"""launcher.summary judges LVC ids and dead reckoning against ground truth."""
+"""eval.summary judges LVC ids and dead reckoning against ground truth."""
 import numpy as np
 import pytest
 
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import Header, LocalViewCells, Odometry, RevisitTruth
-from launcher.summary import format_summary, summarize_run
+from eval.summary import format_summary, summarize_run
 
 
 def _pose(i, x):
