@@ -36,3 +36,24 @@ def test_revisit_recall_and_false_associations(tmp_path):
     assert dr["truth_distance_m"] == pytest.approx(40.0)
     assert dr["max_error_m"] == pytest.approx(0.5)
     assert "revisits recognised 100.0% of 1 frames" in format_summary(s)[0]
+
+
+def test_back_end_block_on_a_run_with_a_map(tmp_path):
+    from tests.eval import handmade as hm
+    s = summarize_run(hm.write_run(tmp_path / "hm.mcap"))
+    assert set(s) == {"front_end", "dead_reckoning", "back_end"}
+    be = s["back_end"]
+    assert (be["events"], be["nodes"], be["edges"]) == (20, 20, 22)
+    assert be["loop_closures"] == {"accepted": 3, "true": 2, "false": 1, "recall": 0.25, "pass_recall": 1.0}
+    assert be["ate_rmse_m"]["map"] == pytest.approx(hm.E) and be["ate_rmse_m"]["dead_reckoning"] == pytest.approx(hm.D)
+    assert be["audit"]["f1"] == pytest.approx(0.9) and be["audit"]["missing_images"] == 1
+    lines = format_summary(s)
+    assert any(line.startswith("back-end: 20 events (0.250/s)") for line in lines)
+    assert any("audit: event-evidence F1 0.900" in line for line in lines)
+
+
+def test_no_back_end_block_without_events(tmp_path):
+    path = tmp_path / "fe.mcap"
+    with RecordingWriter(path) as w:
+        w.write("truth/pose", _pose(0, 0.0))
+    assert "back_end" not in summarize_run(path, PoseidonConfig())
