@@ -32,7 +32,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 __all__ = ["NS", "Trajectory", "enu_to_ned", "ned_to_enu", "yaw_enu_to_ned", "published_to_ned",
-           "align_rigid", "ate", "rpe", "anchored_errors", "drift_pct"]
+           "align_rigid", "align_trajectory", "ate", "rpe", "anchored_errors", "drift_pct"]
 
 NS = 1_000_000_000
 
@@ -177,6 +177,15 @@ def align_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarra
     d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
     r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
     return r, mb - r @ ma
+
+
+def align_trajectory(est: Trajectory, ref: Trajectory, stamps: Sequence[int] | np.ndarray | None = None) -> Trajectory:
+    """``est`` moved by the rigid alignment (:func:`align_rigid`) of its time-aligned pairs
+    with ``ref`` (at ``stamps``, default the reference stamps both cover): what :func:`ate`
+    measures, e.g. for plotting an estimate over the ground truth."""
+    _, e, g = _pairs(est, ref, None if stamps is None else np.asarray(stamps, dtype=np.int64))
+    r, t = align_rigid(e, g)
+    return est.transformed(r, t)
 
 
 def _pairs(est: Trajectory, ref: Trajectory, stamps: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -141,3 +141,42 @@ def test_cli_bad_input(tmp_path, capsys):
     missing = tmp_path / "nope.mcap"
     assert main([str(missing)]) == 2
     assert str(missing) in capsys.readouterr().err
+
+
+def test_run_without_ground_truth(tmp_path):
+    from common.mcap_io import RecordingWriter
+    from common.messages import ExperienceLink, ExperienceMap, ExperienceNode, Header, Odometry
+    path = tmp_path / "nogt.mcap"
+    with RecordingWriter(path) as w:
+        for k in range(3):
+            w.write("Odometry", Odometry(header=Header(seq=k, stamp=k * hm.NS), position=[0.0, float(k), 0.0],
+                                         orientation=hm.Q))
+        nodes = [ExperienceNode(id=k, lvc_id=k, position=[0.0, float(k), 0.0], yaw=0.0, stamp=k * hm.NS)
+                 for k in range(3)]
+        links = [ExperienceLink(source=0, target=1, delta=[0, 1, 0], duration_s=1, weight=1),
+                 ExperienceLink(source=1, target=2, delta=[0, 1, 0], duration_s=1, weight=1),
+                 ExperienceLink(source=0, target=2, delta=[0, 0, 0], duration_s=0, weight=1, loop_closure=True)]
+        w.write("map", ExperienceMap(header=Header(seq=0, stamp=2 * hm.NS), nodes=nodes, links=links))
+    r = evaluate_run(path)
+    assert r["ground_truth"] is False
+    lc = r["loop_closures"]
+    assert (lc["accepted"], lc["true"], lc["false"], lc["unlabelled"]) == (1, 0, 0, 1)
+    assert lc["table"][0]["label"] is None and lc["table"][0]["d_gt_m"] is None
+    assert r["ate_rmse_m"] == {"map": None, "dead_reckoning": None}
+    # map and odometry agree exactly: ratios 1; no GT column
+    assert r["proxies"]["ratios"]["span_norm_map_odom"] == pytest.approx(1.0)
+    assert r["proxies"]["ratios"]["span_norm_map_gt"] is None
+    assert r["events_per_s"] == 0.0 and r["front_end"] is None and r["dead_reckoning"] is None
+
+
+def test_loop_link_to_a_missing_node_is_an_error(tmp_path, capsys):
+    from common.mcap_io import RecordingWriter
+    from common.messages import ExperienceLink, ExperienceMap, ExperienceNode, Header
+    path = tmp_path / "broken.mcap"
+    with RecordingWriter(path) as w:
+        w.write("map", ExperienceMap(header=Header(seq=0, stamp=1), nodes=[
+            ExperienceNode(id=0, lvc_id=0, position=[0, 0, 0], yaw=0, stamp=1)],
+            links=[ExperienceLink(source=0, target=7, delta=[0, 0, 0], duration_s=0, weight=1, loop_closure=True)]))
+    assert main([str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "broken.mcap" in err and "0->7" in err

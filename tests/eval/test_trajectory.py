@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from eval.trajectory import (NS, Trajectory, align_rigid, anchored_errors, ate, drift_pct, enu_to_ned, ned_to_enu,
+from eval.trajectory import (NS, Trajectory, align_rigid, align_trajectory, anchored_errors, ate, drift_pct, enu_to_ned, ned_to_enu,
                              published_to_ned, rpe, yaw_enu_to_ned)
 
 
@@ -112,3 +112,14 @@ def test_anchored_errors_and_drift():
     assert r["max_error_m"] == pytest.approx(1.0)
     assert r["ate_rmse_m"] == pytest.approx(math.sqrt(np.mean((0.1 * np.arange(11)) ** 2)))
     assert drift_pct(1.0, 0.0) is None
+
+
+def test_align_trajectory_moves_the_estimate_onto_the_reference():
+    stamps = np.arange(5) * NS
+    truth = Trajectory(stamps, [[k, k * k, 0.5 * k] for k in range(5)], [0.0] * 5)
+    r = _rot_z(0.5)
+    est = Trajectory(stamps, truth.p @ r.T + [3, 4, 5], [0.5] * 5)
+    moved = align_trajectory(est, truth)
+    assert np.allclose(moved.p, truth.p)
+    assert np.allclose(moved.yaw, 0.0)  # the yaw turns with the rotation about z
+    assert moved.t.tolist() == est.t.tolist()
