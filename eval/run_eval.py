@@ -155,16 +155,8 @@ def loop_closure_table(run: RunData, far_m: float = 5.0) -> dict[str, Any]:
     ids = sorted(nodes)
     g = _truth_at(run, [nodes[i].stamp for i in ids])
     known = np.all(np.isfinite(g), axis=1)
-    id_arr = np.asarray(ids, dtype=np.int64)
-    opp: list[int] = []
-    for k in range(len(ids)):
-        if not known[k]:
-            continue
-        older = known & (id_arr <= id_arr[k] - age)
-        if age == 0:
-            older[k] = False  # an experience is no revisit of itself
-        if older.any() and float(np.min(np.linalg.norm(g[older] - g[k], axis=1))) <= far_m:
-            opp.append(ids[k])
+    opp = [ids[k] for k in np.flatnonzero(_revisit_opportunities(np.asarray(ids, dtype=np.int64), g, known,
+                                                                   age, far_m))]
     tp_current = {r["current_exp"] for r in rows if r["label"] == "TP"}
     passes: list[list[int]] = []
     pos_of = {i: n for n, i in enumerate(ids)}
@@ -179,6 +171,29 @@ def loop_closure_table(run: RunData, far_m: float = 5.0) -> dict[str, Any]:
     out["passes"] = len(passes)
     out["passes_closed"] = sum(any(i in tp_current for i in ps) for ps in passes)
     out["pass_recall"] = _r(out["passes_closed"] / len(passes)) if passes else None
+    return out
+
+
+def _revisit_opportunities(ids: np.ndarray, g: np.ndarray, known: np.ndarray, age: int, far_m: float) -> np.ndarray:
+    """Mask of nodes k having a node j with ids[j] <= ids[k] - age (j != k) within ``far_m``
+    in truth.  Grid of ``far_m`` cells: only the 27 neighbouring cells are searched."""
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    key = np.floor(np.where(known[:, None], g, 0.0) / far_m).astype(np.int64)
+    for k in np.flatnonzero(known):
+        cells.setdefault((int(key[k, 0]), int(key[k, 1]), int(key[k, 2])), []).append(int(k))
+    arrays = {c: np.asarray(v, dtype=np.int64) for c, v in cells.items()}
+    out = np.zeros(len(ids), dtype=bool)
+    offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    for k in np.flatnonzero(known):
+        kx, ky, kz = (int(v) for v in key[k])
+        for dx, dy, dz in offsets:
+            js = arrays.get((kx + dx, ky + dy, kz + dz))
+            if js is None:
+                continue
+            js = js[(ids[js] <= ids[k] - age) & (js != k)]
+            if len(js) and float(np.min(np.linalg.norm(g[js] - g[k], axis=1))) <= far_m:
+                out[k] = True
+                break
     return out
 
 

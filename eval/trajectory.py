@@ -108,14 +108,20 @@ class Trajectory:
         """Positions (n, 3) interpolated linearly at ``stamps`` (clamped outside the span)."""
         if not len(self.t):
             raise ValueError("Trajectory is empty")
-        ts, s = self._seconds(np.asarray(stamps, dtype=np.int64))
+        st = np.asarray(stamps, dtype=np.int64)
+        if st.shape == self.t.shape and np.array_equal(st, self.t):
+            return self.p.copy()  # at its own samples (exact even with repeated stamps)
+        ts, s = self._seconds(st)
         return np.column_stack([np.interp(s, ts, self.p[:, k]) for k in range(3)])
 
     def yaws_at(self, stamps: Sequence[int] | np.ndarray) -> np.ndarray:
         """Yaws (rad, unwrapped) interpolated linearly at ``stamps``."""
         if not len(self.t):
             raise ValueError("Trajectory is empty")
-        ts, s = self._seconds(np.asarray(stamps, dtype=np.int64))
+        st = np.asarray(stamps, dtype=np.int64)
+        if st.shape == self.t.shape and np.array_equal(st, self.t):
+            return self.yaw.copy()
+        ts, s = self._seconds(st)
         return np.interp(s, ts, self.yaw)
 
     def at(self, stamp: int) -> tuple[np.ndarray, float]:

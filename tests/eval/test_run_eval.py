@@ -180,3 +180,19 @@ def test_loop_link_to_a_missing_node_is_an_error(tmp_path, capsys):
     assert main([str(path)]) == 2
     err = capsys.readouterr().err
     assert "broken.mcap" in err and "0->7" in err
+
+
+def test_revisit_opportunities_grid_equals_brute_force():
+    from eval.run_eval import _revisit_opportunities
+    rng = np.random.default_rng(3)
+    g = rng.uniform(-20, 20, size=(300, 3))
+    known = rng.random(300) > 0.1
+    ids = np.arange(300)
+    for age in (0, 7, 50):
+        brute = np.zeros(300, bool)
+        for k in range(300):
+            if known[k]:
+                js = [j for j in range(300) if known[j] and j != k and ids[j] <= ids[k] - age]
+                brute[k] = bool(js) and min(np.linalg.norm(g[js] - g[k], axis=1)) <= 5.0
+        assert np.array_equal(_revisit_opportunities(ids, g, known, age, 5.0), brute)
+        assert brute.any()
