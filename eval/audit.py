@@ -1,4 +1,4 @@
-"""``poseidon audit RUN.mcap [--json] [--slop S]``: is every experience traced to its frame?
+"""``poseidon audit RUN.mcap [--json] [--slop S] [--config FILE] [--set K=V]``: is every experience traced to its frame?
 
 Event-evidence association (Section 5.4.4, "Audit of Event-Evidence Correspondence"):
 ``experience_event`` and ``experience_image`` are joined by header ``(seq, stamp)`` (the
@@ -37,7 +37,7 @@ import numpy as np
 
 from common.config import ConfigError, PoseidonConfig
 from common.mcap_io import RecordingError
-from eval.rundata import RunData, load_run
+from eval.rundata import RunData, add_config_args, config_from_args, load_run
 
 __all__ = ["audit_run", "association", "sequence_gaps", "format_audit", "main"]
 
@@ -131,9 +131,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print the result as JSON (keys: see the module docstring)")
     ap.add_argument("--slop", type=float, default=None,
                     help="largest evidence lag of an association (s; default expmap.image_sync_slop of the run)")
+    add_config_args(ap)
     args = ap.parse_args(argv)
     try:
-        a = audit_run(args.recording, slop_s=args.slop)
+        a = audit_run(args.recording, slop_s=args.slop, config=config_from_args(args))
     except (RecordingError, ConfigError, ValueError) as exc:
         print(f"poseidon audit: {exc}", file=sys.stderr)
         return 2

@@ -1,4 +1,6 @@
-"""``poseidon compare RUN_A.mcap RUN_B.mcap [--json] [--labels A,B]``: Table 5.4 for two runs.
+"""``poseidon compare RUN_A.mcap RUN_B.mcap [--json] [--labels A,B] [--config FILE] [--set K=V]``.
+
+Table 5.4 for two runs (``--config``/``--set`` replace both runs' recorded configuration).
 
 Each run is read once (:func:`eval.rundata.load_run`) and judged by
 :func:`eval.run_eval.evaluate_run` and :func:`eval.audit.audit_run`; this module only
@@ -31,10 +33,10 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from common.config import ConfigError
+from common.config import ConfigError, PoseidonConfig
 from common.mcap_io import RecordingError
 from eval.audit import audit_run
-from eval.rundata import load_run
+from eval.rundata import add_config_args, config_from_args, load_run
 from eval.run_eval import evaluate_run
 
 __all__ = ["compare_runs", "compare_results", "format_compare", "main", "TABLE_5_4", "ADDITIONS"]
@@ -106,11 +108,11 @@ def compare_results(ev_a: dict[str, Any], au_a: dict[str, Any], ev_b: dict[str, 
 
 
 def compare_runs(a: str | Path, b: str | Path, labels: tuple[str, str] = ("A", "B"),
-                 far_m: float = 5.0) -> dict[str, Any]:
+                 far_m: float = 5.0, config: PoseidonConfig | None = None) -> dict[str, Any]:
     """Table 5.4, Tables 5.2-5.3 and our additions for two run recordings (module docstring)."""
     results = []
     for p in (a, b):
-        run = load_run(p)
+        run = load_run(p, config)
         results.append((evaluate_run(run, far_m=far_m), audit_run(run)))
     return compare_results(results[0][0], results[0][1], results[1][0], results[1][1], labels)
 
@@ -160,13 +162,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--labels", default="A,B", help="column names, e.g. 'Guard ON,Guard OFF'")
     ap.add_argument("--far-m", type=float, default=5.0, help="d_gt threshold of a true loop closure (m)")
     ap.add_argument("--json", action="store_true", help="print the result as JSON (keys: see the module docstring)")
+    add_config_args(ap)
     args = ap.parse_args(argv)
     labels = [s.strip() for s in args.labels.split(",")]
     if len(labels) != 2 or not all(labels):
         print(f"poseidon compare: --labels needs two comma-separated names, got {args.labels!r}", file=sys.stderr)
         return 2
     try:
-        c = compare_runs(args.run_a, args.run_b, (labels[0], labels[1]), far_m=args.far_m)
+        c = compare_runs(args.run_a, args.run_b, (labels[0], labels[1]), far_m=args.far_m,
+                         config=config_from_args(args))
     except (RecordingError, ConfigError, ValueError) as exc:
         print(f"poseidon compare: {exc}", file=sys.stderr)
         return 2

@@ -1,7 +1,8 @@
-"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10]``: a run judged against ground truth.
+"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10] [--config FILE] [--set K=V]``.
 
-:func:`evaluate_run` reads a run recording once (:func:`eval.rundata.load_run`; the
-configuration recorded in the run's metadata, defaults otherwise) and returns the dict
+A run judged against ground truth.  :func:`evaluate_run` reads a run recording once
+(:func:`eval.rundata.load_run`; the configuration recorded in the run's metadata, defaults
+when it has none; ``--config`` / ``--set`` replace it) and returns the dict
 below.  Values that cannot be computed (no map, no ground truth, zero denominators) are
 ``null``.  Positions are NED metres (``truth/pose`` is NED; ``Odometry`` and map node
 positions are converted from the published frame, :mod:`eval.trajectory`).  "Ground
@@ -78,7 +79,7 @@ import numpy as np
 from common.config import ConfigError, PoseidonConfig
 from common.mcap_io import RecordingError
 from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
-from eval.rundata import RunData, load_run
+from eval.rundata import RunData, add_config_args, config_from_args, load_run
 from eval.trajectory import Trajectory, anchored_errors, ate, drift_pct, rpe
 
 __all__ = ["evaluate_run", "format_eval", "main", "map_trajectory", "loop_closure_table", "front_end_metrics",
@@ -376,9 +377,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--far-m", type=float, default=5.0, help="d_gt threshold of a true loop closure (m)")
     ap.add_argument("--min-gap-m", type=float, default=10.0,
                     help="distance travelled before an LVC id re-use counts as a claimed revisit (m)")
+    add_config_args(ap)
     args = ap.parse_args(argv)
     try:
-        r = evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m)
+        r = evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m, config=config_from_args(args))
     except (RecordingError, ConfigError, ValueError) as exc:
         print(f"poseidon eval: {exc}", file=sys.stderr)
         return 2

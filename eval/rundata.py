@@ -9,25 +9,21 @@ one is given; ``config_source`` says which was used.
 """
 from __future__ import annotations
 
+import argparse
 import json
-import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
 import numpy as np
 from pydantic import ValidationError
 
 from common.codec import DecodeError, decode
-from common.config import PoseidonConfig
+from common.config import PoseidonConfig, load_config
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, LocalViewCells, Message, Odometry,
                              RevisitTruth, message_type)
 from eval.trajectory import Trajectory, published_to_ned
 
-__all__ = ["RunData", "EvidenceRecord", "load_run", "config_of_recording"]
-
-log = logging.getLogger(__name__)
+__all__ = ["RunData", "EvidenceRecord", "load_run", "config_of_recording", "add_config_args", "config_from_args"]
 
 #: keys decoded into messages (every other key is only counted and its header seq kept)
 DECODED = ("truth/pose", "truth/revisits", "local_view_cells", "Odometry", "experience_event")
@@ -153,6 +149,17 @@ def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
     return run
 
 
-def describe(run: RunData) -> dict[str, Any]:
-    """Short provenance block (file, config source, duration)."""
-    return {"recording": str(run.path), "config_source": run.config_source, "duration_s": round(run.duration_s, 3)}
+
+def add_config_args(ap: argparse.ArgumentParser) -> None:
+    """``--config FILE`` / ``--set K=V`` of the evaluation commands."""
+    ap.add_argument("--config", type=Path, default=None,
+                    help="configuration YAML to judge with instead of the one recorded in the run")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="K=V",
+                    help="override one field (implies --config defaults when no file is given)")
+
+
+def config_from_args(args: argparse.Namespace) -> PoseidonConfig | None:
+    """The configuration named by ``--config``/``--set``, or None (use the recorded one)."""
+    if args.config is None and not args.overrides:
+        return None
+    return load_config(args.config, args.overrides)

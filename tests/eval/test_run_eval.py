@@ -196,3 +196,15 @@ def test_revisit_opportunities_grid_equals_brute_force():
                 brute[k] = bool(js) and min(np.linalg.norm(g[js] - g[k], axis=1)) <= 5.0
         assert np.array_equal(_revisit_opportunities(ids, g, known, age, 5.0), brute)
         assert brute.any()
+
+
+def test_cli_config_override(run_path, capsys):
+    # the recorded configuration says min_experience_age 5; --set replaces the whole configuration
+    assert main([str(run_path), "--json", "--set", "expmap.min_experience_age=12"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["config_source"] == "given" and r["loop_closures"]["min_experience_age"] == 12
+    # back-leg node k (x = 78 - 4k) has node 19 - k at 0 m and node 18 - k at 4.02 m; one of them is
+    # >= 12 events older for k >= 15 (node 15: node 3, 4.02 m away)
+    assert r["loop_closures"]["opportunities"] == 5
+    assert main([str(run_path), "--set", "expmap.nonsense=1"]) == 2
+    assert "nonsense" in capsys.readouterr().err
