@@ -36,7 +36,7 @@ from typing import Any, Callable
 from common.config import ConfigError, PoseidonConfig
 from common.mcap_io import RecordingError
 from eval.audit import audit_run
-from eval.rundata import add_config_args, config_from_args, load_run
+from eval.rundata import RunData, add_config_args, config_from_args, load_run
 from eval.run_eval import evaluate_run
 
 __all__ = ["compare_runs", "compare_results", "format_compare", "main", "TABLE_5_4", "ADDITIONS"]
@@ -107,12 +107,13 @@ def compare_results(ev_a: dict[str, Any], au_a: dict[str, Any], ev_b: dict[str, 
             "far_m": ev_a["far_m"]}
 
 
-def compare_runs(a: str | Path, b: str | Path, labels: tuple[str, str] = ("A", "B"),
+def compare_runs(a: str | Path | RunData, b: str | Path | RunData, labels: tuple[str, str] = ("A", "B"),
                  far_m: float = 5.0, config: PoseidonConfig | None = None) -> dict[str, Any]:
-    """Table 5.4, Tables 5.2-5.3 and our additions for two run recordings (module docstring)."""
+    """Table 5.4, Tables 5.2-5.3 and our additions for two run recordings (paths, or runs
+    already loaded with :func:`eval.rundata.load_run`; module docstring)."""
     results = []
     for p in (a, b):
-        run = load_run(p, config)
+        run = p if isinstance(p, RunData) else load_run(p, config)
         results.append((evaluate_run(run, far_m=far_m), audit_run(run)))
     return compare_results(results[0][0], results[0][1], results[1][0], results[1][1], labels)
 

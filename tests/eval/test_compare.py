@@ -33,6 +33,9 @@ def test_compare_tables(runs):
     assert ad["loop_closure_recall"]["a"] == pytest.approx(0.25) and ad["loop_closure_recall"]["b"] is None
     assert [r["label"] for r in c["loop_closures"]["a"]] == ["TP", "FP", "TP"]
     assert c["runs"]["a"] == {"recording": str(runs[0]), "label": "ON"}
+    # the same from runs loaded once (as the report does)
+    from eval.rundata import load_run
+    assert compare_runs(load_run(runs[0]), load_run(runs[1]), labels=("ON", "OFF")) == c
 
 
 def test_compare_cli_text_and_json(runs, capsys):
