@@ -4,7 +4,7 @@ For each seed a mission of ``--minutes`` is generated with the simulator's own n
 (:mod:`missions.sim.mission`: IMU yaw drift and random walk, gyro bias and noise, DVL noise,
 bias, scale, beam dropouts and flagged bursts, DVL compass offset and noise, depth bias and
 noise) and cached in ``--cache-dir``.  ``robot_state`` runs offline over it
-(:func:`services.robot_state.deadreckon.run_deadreckon`) next to the plain-integration
+(:func:`eval.deadreckon.run_deadreckon`) next to the plain-integration
 baseline of the same run, and both are scored against ``truth/pose``: final position error
 in % of the distance travelled (drift) and ATE RMSE.  Speed: input messages per second of
 the node (``run_offline``) and of the plain integrator over the same messages (the
@@ -25,7 +25,7 @@ import numpy as np
 from common.config import load_config
 from common.mcap_io import read_messages
 from common.node import run_offline
-from services.robot_state.deadreckon import PlainIntegrator, run_deadreckon
+from eval.deadreckon import PlainIntegrator, run_deadreckon
 from services.robot_state.node import RobotStateNode
 
 

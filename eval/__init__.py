@@ -2,4 +2,13 @@
 
 Services never import this package (they import only ``common``); the ``poseidon``
 command, benchmarks and tests do.
+
+- :mod:`eval.trajectory` -- the one ``Trajectory`` (NED), frames, rigid alignment, ATE, RPE, drift;
+- :mod:`eval.rundata` -- one pass over a run recording (``load_run``);
+- :mod:`eval.frontend` -- LVC revisit recall/precision, false associations, VPR window ok_ratio;
+- :mod:`eval.run_eval` -- ``poseidon eval``: ``evaluate_run`` (loop closures, recall, ATE, proxies);
+- :mod:`eval.audit` -- ``poseidon audit``: ``audit_run`` (event-evidence association, sequence gaps);
+- :mod:`eval.compare` -- ``poseidon compare``: ``compare_runs`` (Tables 5.2-5.4 and our additions);
+- :mod:`eval.summary` -- the evaluation block of ``poseidon run`` / ``demo``;
+- :mod:`eval.deadreckon` -- ``poseidon deadreckon``: robot_state offline against plain integration.
 """

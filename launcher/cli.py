@@ -13,13 +13,14 @@ Subcommands:
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
-- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``: see their own ``--help``.
+- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``: see their
+  own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
-"evaluation": {"front_end": {...}, "dead_reckoning": {...}}}`` (``demo`` adds
+"evaluation": {"front_end": {...}, "dead_reckoning": {...}, "back_end": {...}}}`` (``demo`` adds
 ``"mission"``: the simulated input file; the evaluation keys are documented in
-:mod:`launcher.summary`, present when the run has LVC ids / ground truth).
+:mod:`eval.summary`, present when the run has LVC ids / ground truth / a map).
 """
 from __future__ import annotations
 
@@ -42,7 +43,10 @@ DELEGATED = {
     "transform": "missions.transform:main",
     "import": "missions.importers.cli:main",
     "vpr": "services.encoder.vpr:main",
-    "deadreckon": "services.robot_state.deadreckon:main",
+    "deadreckon": "eval.deadreckon:main",
+    "eval": "eval.run_eval:main",
+    "audit": "eval.audit:main",
+    "compare": "eval.compare:main",
 }
 
 
@@ -64,7 +68,7 @@ def _add_config_args(p: argparse.ArgumentParser) -> None:
 
 
 def _print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
-    from launcher.summary import format_summary, summarize_run
+    from eval.summary import format_summary, summarize_run
     result["evaluation"] = summarize_run(result["output"], config)
     if as_json:
         print(json.dumps(result, indent=2))

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from common.config import load_config
-from services.robot_state.deadreckon import read_cone_passes, run_deadreckon
+from eval.deadreckon import read_cone_passes, run_deadreckon
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "girona_caves"
 PRESET = Path(__file__).resolve().parents[2] / "services" / "robot_state" / "presets" / "girona_linkquest.yaml"

@@ -55,45 +55,13 @@ from common.config import ConfigError, PoseidonConfig, RobotStateConfig, load_co
 from common.mcap_io import RecordingError, read_messages
 from common.messages import Depth, LinkquestDvl, Message, Odometry
 from common.node import run_offline
+from eval.trajectory import NS, Trajectory, anchored_errors
 from services.robot_state.frames import (OutputFrame, euler_to_matrix, matrix_to_euler, quaternion_to_matrix,
                                          rot_z)
 from services.robot_state.node import RobotStateNode
 
 __all__ = ["main", "PlainIntegrator", "Trajectory", "read_cone_passes", "cone_scores", "truth_scores",
            "run_deadreckon"]
-
-NS = 1_000_000_000
-
-
-class Trajectory:
-    """Samples (stamp ns, NED position, yaw rad) with linear interpolation."""
-
-    def __init__(self, stamps: list[int], positions: list[np.ndarray], yaws: list[float]):
-        self.t = np.asarray(stamps, dtype=np.int64)
-        self.p = np.asarray(positions, dtype=float).reshape(-1, 3)
-        self.yaw = np.unwrap(np.asarray(yaws, dtype=float)) if len(yaws) else np.zeros(0)
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    def covers(self, stamp: int) -> bool:
-        return len(self.t) > 0 and self.t[0] <= stamp <= self.t[-1]
-
-    def at(self, stamp: int) -> tuple[np.ndarray, float]:
-        ts = (self.t - self.t[0]) / NS
-        s = (stamp - self.t[0]) / NS
-        p = np.array([np.interp(s, ts, self.p[:, k]) for k in range(3)])
-        return p, float(np.interp(s, ts, self.yaw))
-
-    def distance(self, step_s: float = 1.0) -> float:
-        """3D path length (m) of the trajectory resampled every ``step_s`` (so that sensor noise
-        at 10 Hz, e.g. depth jitter, does not inflate it)."""
-        if len(self.p) < 2:
-            return 0.0
-        ts = (self.t - self.t[0]) / NS
-        grid = np.append(np.arange(0.0, ts[-1], step_s), ts[-1])
-        q = np.column_stack([np.interp(grid, ts, self.p[:, k]) for k in range(3)])
-        return float(np.linalg.norm(np.diff(q, axis=0), axis=1).sum())
 
 
 class PlainIntegrator:
@@ -206,16 +174,9 @@ def cone_scores(traj: Trajectory, passes: list[dict[str, Any]]) -> tuple[dict[st
 
 
 def truth_scores(traj: Trajectory, truth: Trajectory) -> dict[str, float]:
-    """ATE and drift of an estimate against the true trajectory (both NED)."""
-    mask = (truth.t >= traj.t[0]) & (truth.t <= traj.t[-1])
-    tt, tp = truth.t[mask], truth.p[mask]
-    est = np.array([traj.at(int(s))[0] for s in tt])
-    est += tp[0] - est[0]
-    err = np.linalg.norm(est - tp, axis=1)
-    dist = float(np.linalg.norm(np.diff(tp, axis=0), axis=1).sum())
-    return {"ate_rmse_m": float(np.sqrt(np.mean(err ** 2))), "final_error_m": float(err[-1]),
-            "final_drift_pct": float(100.0 * err[-1] / dist) if dist > 0 else float("nan"),
-            "max_error_m": float(err.max()), "truth_distance_m": dist}
+    """ATE and drift of an estimate against the true trajectory (both NED), start-anchored
+    (:func:`eval.trajectory.anchored_errors`)."""
+    return anchored_errors(traj, truth)
 
 
 def run_deadreckon(messages: list[tuple[str, Message]], config: PoseidonConfig,

@@ -1,0 +1,395 @@
+"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10] [--config FILE] [--set K=V]``.
+
+A run judged against ground truth.  :func:`evaluate_run` reads a run recording once
+(:func:`eval.rundata.load_run`; the configuration recorded in the run's metadata, defaults
+when it has none; ``--config`` / ``--set`` replace it) and returns the dict
+below.  Values that cannot be computed (no map, no ground truth, zero denominators) are
+``null``.  Positions are NED metres (``truth/pose`` is NED; ``Odometry`` and map node
+positions are converted from the published frame, :mod:`eval.trajectory`).  "Ground
+truth of an experience" = ``truth/pose`` interpolated at the node's stamp.
+
+``--json`` keys:
+
+- ``recording``, ``config_source`` (``recording`` | ``given`` | ``defaults``),
+  ``duration_s`` (first to last message of any key), ``ground_truth`` (bool: the run
+  carries ``truth/pose``), ``far_m`` (the 5 m threshold of Tables 5.2-5.3);
+- ``events`` (``experience_event`` messages), ``events_per_s`` (events / ``duration_s``,
+  Table 5.4's event density), ``map_messages``;
+- ``nodes``, ``edges`` (of the last ``map`` message), ``mean_degree`` (2 edges / nodes);
+- ``loop_closures``: every link of the final map with ``loop_closure`` true.  Its newer
+  end (larger node id) is the *current* experience, the other the *matched* one;
+  d_gt = |g_current - g_matched| (m), label ``TP`` iff d_gt <= ``far_m``, else ``FP``
+  (``null`` when a node's stamp is outside the ground truth).  Keys: ``accepted``,
+  ``true``, ``false``, ``unlabelled``, ``precision`` (true / labelled), ``table`` (rows
+  ``{"event_seq", "current_exp", "matched_exp", "d_gt_m", "current_gt", "matched_gt",
+  "label"}``, Tables 5.2-5.3; ``event_seq`` = header seq of the ``experience_event`` with
+  the current node's stamp, null if none), and recall:
+  a **revisit opportunity** is an experience k (nodes in id order, truth known) for which
+  some experience j with id(k) - id(j) >= ``expmap.min_experience_age`` has
+  |g_k - g_j| <= ``far_m``.  ``opportunities`` counts them, ``recalled`` those that are
+  the current experience of a TP closure, ``recall`` = recalled / opportunities;
+  ``passes`` = maximal runs of opportunities with consecutive node ids (one revisit of a
+  place), ``passes_closed`` = passes containing the current experience of a TP closure,
+  ``pass_recall`` = passes_closed / passes; ``min_experience_age`` echoes the rule used;
+- ``ate_rmse_m``: ``{"map", "dead_reckoning"}`` time-aligned ATE RMSE after rigid
+  alignment (:func:`eval.trajectory.ate`) at the final map's node stamps (map = node
+  positions; dead reckoning = ``Odometry`` interpolated at the same stamps); without a
+  map, dead reckoning at the ``truth/pose`` stamps; ``ate`` holds the full figures
+  ``{"stamps": "map_nodes" | "truth_pose", "map": {rmse_m, mean_m, max_m, final_m, n},
+  "dead_reckoning": {...}}``;
+- ``rpe``: ``{"delta_s", "map": {rmse_m, mean_m, n, delta_s}, "dead_reckoning": {...}}``
+  (:func:`eval.trajectory.rpe` at the same stamps, delta 10 s);
+- ``drift_pct``: ``{"map", "dead_reckoning"}`` final error / true distance travelled
+  between the first and last stamp (%), the estimate translated to start at the true
+  start, no rotation (:func:`eval.trajectory.anchored_errors`); ``truth_distance_m``;
+- ``proxies`` (Table 5.4's stability proxies; MAP = final node positions in id order,
+  ODOM = ``Odometry`` and GT = ``truth/pose`` interpolated at the node stamps, only
+  stamps all three cover): ``samples``; ``span_norm_m`` = norm of the axis-aligned
+  bounding-box diagonal (max - min per NED axis); ``volume_m3`` = product of the
+  bounding-box extents; ``end_displacement_m`` = |last - first position|; each
+  ``{"map", "odom", "gt"}``; ``ratios`` = ``{"span_norm_map_odom", "volume_map_odom",
+  "end_displacement_map_odom", "span_norm_map_gt", "volume_map_gt",
+  "end_displacement_map_gt"}`` (MAP value / reference value, null for a zero reference);
+- ``vpr_ok_ratio``: :func:`eval.frontend.vpr_window_ok_ratio` on ``local_view_cells``
+  with the run's ``vpr_guard.vpr_window`` / ``vpr_min_rep``;
+- ``front_end``: ``frames``, ``lvc_ids``, ``new_id_fraction``, ``frame_matching``
+  (``stamp`` | ``order``: how LVC messages were matched to camera-frame indices) and with
+  ``truth/revisits``: ``revisit_frames``, ``revisit_recall``, ``claimed_revisits``,
+  ``revisit_precision`` (claims need ``--min-gap-m`` travelled, default 10 m, the sim's
+  ``revisit_min_gap_m``) (:func:`eval.frontend.lvc_revisit_metrics`), and with
+  ``truth/pose``: ``matched_frames``, ``false_association_rate``
+  (:func:`eval.frontend.lvc_false_associations`);
+- ``dead_reckoning``: the whole ``Odometry`` stream against ``truth/pose``
+  (:func:`eval.trajectory.anchored_errors`): ``ate_rmse_m``, ``final_error_m``,
+  ``final_drift_pct``, ``max_error_m``, ``truth_distance_m``.
+
+Exit status: 0, or 2 when the recording or its configuration cannot be read.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.config import ConfigError, PoseidonConfig
+from common.mcap_io import RecordingError
+from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
+from eval.rundata import RunData, add_config_args, config_from_args, load_run
+from eval.trajectory import Trajectory, anchored_errors, ate, drift_pct, rpe
+
+__all__ = ["evaluate_run", "format_eval", "main", "map_trajectory", "loop_closure_table", "front_end_metrics",
+           "stability_proxies", "RPE_DELTA_S"]
+
+RPE_DELTA_S = 10.0
+
+
+def _r(v: float | int | None, nd: int = 6) -> float | int | None:
+    """Rounded for JSON; ints stay ints, NaN/inf become None."""
+    if v is None or isinstance(v, (bool, int, np.integer)):
+        return None if v is None else int(v)
+    return round(float(v), nd) if math.isfinite(v) else None
+
+
+def map_trajectory(run: RunData) -> tuple[Trajectory | None, list[int]]:
+    """Final map nodes as a NED trajectory (id order) and their ids (same order)."""
+    m = run.final_map
+    if m is None or not m.nodes:
+        return None, []
+    nodes = sorted(m.nodes, key=lambda n: n.id)
+    pos = run.to_ned(np.array([n.position for n in nodes], dtype=float))
+    traj = Trajectory([n.stamp for n in nodes], pos, [0.0] * len(nodes))
+    return traj, [n.id for n in nodes]
+
+
+def _truth_at(run: RunData, stamps: list[int]) -> np.ndarray:
+    """Truth positions at ``stamps`` (NaN rows outside the truth's span)."""
+    out = np.full((len(stamps), 3), np.nan)
+    if not run.has_truth or not stamps:
+        return out
+    s = np.asarray(stamps, dtype=np.int64)
+    ok = run.truth.covered(s)  # type: ignore[union-attr]
+    if ok.any():
+        out[ok] = run.truth.positions_at(s[ok])  # type: ignore[union-attr]
+    return out
+
+
+def loop_closure_table(run: RunData, far_m: float = 5.0) -> dict[str, Any]:
+    """The ``loop_closures`` block (module docstring)."""
+    age = run.config.expmap.min_experience_age
+    out: dict[str, Any] = {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0, "precision": None,
+                           "recall": None, "opportunities": 0, "recalled": 0, "passes": 0, "passes_closed": 0,
+                           "pass_recall": None, "min_experience_age": age, "table": []}
+    m = run.final_map
+    if m is None:
+        return out
+    nodes = {n.id: n for n in m.nodes}
+    seq_of_stamp = {e.header.stamp: e.header.seq for e in run.events}
+    rows = []
+    for link in m.links:
+        if not link.loop_closure:
+            continue
+        cur, mat = max(link.source, link.target), min(link.source, link.target)
+        if cur not in nodes or mat not in nodes:
+            raise ValueError(f"{run.path}: map loop-closure link {link.source}->{link.target} names a missing node")
+        g = _truth_at(run, [nodes[cur].stamp, nodes[mat].stamp])
+        known = bool(np.all(np.isfinite(g)))
+        d = float(np.linalg.norm(g[0] - g[1])) if known else None
+        rows.append({"event_seq": seq_of_stamp.get(nodes[cur].stamp), "current_exp": cur, "matched_exp": mat,
+                     "d_gt_m": _r(d), "current_gt": [_r(v) for v in g[0]] if known else None,
+                     "matched_gt": [_r(v) for v in g[1]] if known else None,
+                     "label": None if d is None else ("TP" if d <= far_m else "FP")})
+    rows.sort(key=lambda r: (r["current_exp"], r["matched_exp"]))
+    out["table"] = rows
+    out["accepted"] = len(rows)
+    out["true"] = sum(r["label"] == "TP" for r in rows)
+    out["false"] = sum(r["label"] == "FP" for r in rows)
+    out["unlabelled"] = sum(r["label"] is None for r in rows)
+    labelled = out["true"] + out["false"]
+    out["precision"] = _r(out["true"] / labelled) if labelled else None
+    if not run.has_truth:
+        return out
+    ids = sorted(nodes)
+    g = _truth_at(run, [nodes[i].stamp for i in ids])
+    known = np.all(np.isfinite(g), axis=1)
+    opp = [ids[k] for k in np.flatnonzero(_revisit_opportunities(np.asarray(ids, dtype=np.int64), g, known,
+                                                                   age, far_m))]
+    tp_current = {r["current_exp"] for r in rows if r["label"] == "TP"}
+    passes: list[list[int]] = []
+    pos_of = {i: n for n, i in enumerate(ids)}
+    for i in opp:
+        if passes and pos_of[i] == pos_of[passes[-1][-1]] + 1:
+            passes[-1].append(i)
+        else:
+            passes.append([i])
+    out["opportunities"] = len(opp)
+    out["recalled"] = sum(i in tp_current for i in opp)
+    out["recall"] = _r(out["recalled"] / len(opp)) if opp else None
+    out["passes"] = len(passes)
+    out["passes_closed"] = sum(any(i in tp_current for i in ps) for ps in passes)
+    out["pass_recall"] = _r(out["passes_closed"] / len(passes)) if passes else None
+    return out
+
+
+def _revisit_opportunities(ids: np.ndarray, g: np.ndarray, known: np.ndarray, age: int, far_m: float) -> np.ndarray:
+    """Mask of nodes k having a node j with ids[j] <= ids[k] - age (j != k) within ``far_m``
+    in truth.  Grid of ``far_m`` cells: only the 27 neighbouring cells are searched."""
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    key = np.floor(np.where(known[:, None], g, 0.0) / far_m).astype(np.int64)
+    for k in np.flatnonzero(known):
+        cells.setdefault((int(key[k, 0]), int(key[k, 1]), int(key[k, 2])), []).append(int(k))
+    arrays = {c: np.asarray(v, dtype=np.int64) for c, v in cells.items()}
+    out = np.zeros(len(ids), dtype=bool)
+    offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    for k in np.flatnonzero(known):
+        kx, ky, kz = (int(v) for v in key[k])
+        for dx, dy, dz in offsets:
+            js = arrays.get((kx + dx, ky + dy, kz + dz))
+            if js is None:
+                continue
+            js = js[(ids[js] <= ids[k] - age) & (js != k)]
+            if len(js) and float(np.min(np.linalg.norm(g[js] - g[k], axis=1))) <= far_m:
+                out[k] = True
+                break
+    return out
+
+
+def _box(p: np.ndarray) -> tuple[float, float, float]:
+    ext = p.max(axis=0) - p.min(axis=0)
+    return float(np.linalg.norm(ext)), float(np.prod(ext)), float(np.linalg.norm(p[-1] - p[0]))
+
+
+def stability_proxies(mp: np.ndarray, odom: np.ndarray | None, gt: np.ndarray | None) -> dict[str, Any]:
+    """Span norm, bounding-box volume and end displacement of MAP, ODOM, GT point sequences
+    (each (n, 3), NED, same order) and the MAP/ODOM, MAP/GT ratios (module docstring)."""
+    vals = {"map": _box(mp)}
+    if odom is not None:
+        vals["odom"] = _box(odom)
+    if gt is not None:
+        vals["gt"] = _box(gt)
+    names = ("span_norm", "volume", "end_displacement")
+    out: dict[str, Any] = {"samples": int(len(mp))}
+    for k, (name, unit) in enumerate(zip(names, ("m", "m3", "m"))):
+        out[f"{name}_{unit}"] = {src: _r(v[k]) for src, v in vals.items()}
+    ratios: dict[str, float | None] = {}
+    for ref in ("odom", "gt"):
+        for k, name in enumerate(names):
+            r = vals.get(ref)
+            ratios[f"{name}_map_{ref}"] = _r(vals["map"][k] / r[k]) if r is not None and r[k] > 0 else None
+    out["ratios"] = ratios
+    return out
+
+
+def front_end_metrics(run: RunData, far_m: float = 5.0, min_gap_m: float = 10.0) -> dict[str, Any] | None:
+    """The ``front_end`` block (module docstring); None without ``local_view_cells``."""
+    lvcs = run.lvcs
+    if not lvcs:
+        return None
+    ids = [m.most_active_cell for m in lvcs]
+    out: dict[str, Any] = {"frames": len(lvcs), "lvc_ids": len(set(ids)),
+                           "new_id_fraction": _r(sum(m.is_new for m in lvcs) / len(lvcs), 4)}
+    stamps = [m.header.stamp for m in lvcs]
+    by_stamp = {r.header.stamp: r.frame_index for r in run.revisits.values()}
+    frames, how = frame_indices(stamps, by_stamp)
+    out["frame_matching"] = how
+    if run.revisits:
+        # ground truth row of each LVC message, re-indexed to LVC message positions
+        pos_of_frame = {f: i for i, f in enumerate(frames)}
+        rows = []
+        for f in frames:
+            r = run.revisits.get(f)
+            same = [] if r is None else [pos_of_frame[j] for j in r.same_place.tolist() if j in pos_of_frame]
+            rows.append(same)
+        travelled = run.truth.travelled_at(stamps) if run.has_truth else None  # type: ignore[union-attr]
+        s = lvc_revisit_metrics(ids, rows, travelled, min_gap_m if travelled is not None else 0.0)
+        out.update({"revisit_frames": s["revisit_frames"], "revisit_recall": _r(s["recall"], 4),
+                    "claimed_revisits": s["claimed"], "revisit_precision": _r(s["precision"], 4),
+                    "min_gap_m": min_gap_m if travelled is not None else None})
+    if run.has_truth:
+        fa = lvc_false_associations(ids, [m.is_new for m in lvcs], _truth_at(run, stamps), far_m)
+        out.update({"matched_frames": fa["matched_frames"],
+                    "false_association_rate": _r(fa["false_association_rate"], 4)})
+    return out
+
+
+def _ate_block(run: RunData, mp: Trajectory | None) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], Any]:
+    ate_d: dict[str, Any] = {"stamps": None, "map": None, "dead_reckoning": None}
+    rpe_d: dict[str, Any] = {"delta_s": RPE_DELTA_S, "map": None, "dead_reckoning": None}
+    drift: dict[str, Any] = {"map": None, "dead_reckoning": None}
+    dist = None
+    if not run.has_truth:
+        return ate_d, rpe_d, drift, dist
+    truth = run.truth
+    assert truth is not None
+    if mp is not None:
+        s = mp.t[truth.covered(mp.t)]
+        if run.odometry is not None:
+            s = s[run.odometry.covered(s)]
+        ate_d["stamps"] = "map_nodes"
+    elif run.odometry is not None:
+        s = truth.t[run.odometry.covered(truth.t)]
+        ate_d["stamps"] = "truth_pose"
+    else:
+        return ate_d, rpe_d, drift, dist
+    if not len(s):
+        return ate_d, rpe_d, drift, dist
+    ref = truth.resampled(s)
+    dist = float(truth.travelled_at([s[-1]])[0] - truth.travelled_at([s[0]])[0])
+    for name, est in (("map", mp), ("dead_reckoning", run.odometry)):
+        if est is None:
+            continue
+        e = est.resampled(s)
+        ate_d[name] = {k: _r(v) for k, v in ate(e, ref, s).items()}
+        rpe_d[name] = {k: _r(v) for k, v in rpe(e, ref, RPE_DELTA_S, s).items()}
+        p = e.p + (ref.p[0] - e.p[0])
+        drift[name] = _r(drift_pct(float(np.linalg.norm(p[-1] - ref.p[-1])), dist))
+    return ate_d, rpe_d, drift, dist
+
+
+def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: PoseidonConfig | None = None,
+                 min_gap_m: float = 10.0) -> dict[str, Any]:
+    """Judge a run recording (``path`` or an already loaded :class:`RunData`); keys in the module docstring."""
+    run = path if isinstance(path, RunData) else load_run(path, config)
+    mp, _ = map_trajectory(run)
+    m = run.final_map
+    nodes = len(m.nodes) if m is not None else 0
+    edges = len(m.links) if m is not None else 0
+    out: dict[str, Any] = {
+        "recording": str(run.path), "config_source": run.config_source, "duration_s": _r(run.duration_s, 3),
+        "ground_truth": run.has_truth, "far_m": far_m,
+        "events": len(run.events),
+        "events_per_s": _r(len(run.events) / run.duration_s) if run.duration_s > 0 else None,
+        "map_messages": run.map_messages, "nodes": nodes, "edges": edges,
+        "mean_degree": _r(2.0 * edges / nodes) if nodes else None,
+        "loop_closures": loop_closure_table(run, far_m),
+    }
+    ate_d, rpe_d, drift, dist = _ate_block(run, mp)
+    out["ate_rmse_m"] = {k: (ate_d[k] or {}).get("rmse_m") for k in ("map", "dead_reckoning")}
+    out["ate"] = ate_d
+    out["rpe"] = rpe_d
+    out["drift_pct"] = drift
+    out["truth_distance_m"] = _r(dist)
+    out["proxies"] = None
+    if mp is not None:
+        s = mp.t.copy()
+        keep = np.ones(len(s), dtype=bool)
+        if run.odometry is not None:
+            keep &= run.odometry.covered(s)
+        if run.has_truth:
+            keep &= run.truth.covered(s)  # type: ignore[union-attr]
+        if keep.sum() >= 2:
+            s = s[keep]
+            out["proxies"] = stability_proxies(
+                mp.p[keep], run.odometry.positions_at(s) if run.odometry is not None else None,
+                run.truth.positions_at(s) if run.has_truth else None)  # type: ignore[union-attr]
+    vg = run.config.vpr_guard
+    out["vpr_ok_ratio"] = _r(vpr_window_ok_ratio([x.most_active_cell for x in run.lvcs], vg.vpr_window,
+                                                 vg.vpr_min_rep)) if run.lvcs else None
+    out["front_end"] = front_end_metrics(run, far_m, min_gap_m)
+    out["dead_reckoning"] = None
+    if run.has_truth and run.odometry is not None and len(run.odometry) > 1:
+        out["dead_reckoning"] = {k: _r(v, 4) for k, v in anchored_errors(run.odometry, run.truth).items()}  # type: ignore[arg-type]
+    return out
+
+
+def _f(v: Any, fmt: str = ".3f") -> str:
+    return "n/a" if v is None else format(v, fmt)
+
+
+def format_eval(r: dict[str, Any]) -> list[str]:
+    """Human-readable lines of an :func:`evaluate_run` result."""
+    lc = r["loop_closures"]
+    lines = [f"recording          {r['recording']} ({r['duration_s']:.1f} s, config from {r['config_source']})",
+             f"events             {r['events']} ({_f(r['events_per_s'])} events/s)",
+             f"map                {r['nodes']} nodes, {r['edges']} edges, mean degree {_f(r['mean_degree'])}",
+             f"loop closures      {lc['accepted']} accepted: {lc['true']} true, {lc['false']} false "
+             f"(d_gt <= {r['far_m']:g} m), {lc['unlabelled']} without ground truth",
+             f"loop-closure recall {_f(lc['recall'])} of {lc['opportunities']} revisit opportunities "
+             f"(age >= {lc['min_experience_age']} events); {lc['passes_closed']}/{lc['passes']} revisit passes closed"]
+    for row in lc["table"]:
+        lines.append(f"  event {row['event_seq']}: exp {row['current_exp']} -> {row['matched_exp']}  "
+                     f"d_gt {_f(row['d_gt_m'])} m  {row['label'] or '?'}")
+    a = r["ate_rmse_m"]
+    lines.append(f"ATE RMSE (rigid)   map {_f(a['map'])} m vs dead reckoning {_f(a['dead_reckoning'])} m "
+                 f"(at {r['ate']['stamps'] or 'no'} stamps)")
+    d = r["drift_pct"]
+    lines.append(f"drift              map {_f(d['map'], '.2f')} % vs dead reckoning {_f(d['dead_reckoning'], '.2f')} % "
+                 f"of {_f(r['truth_distance_m'], '.1f')} m")
+    p = r["proxies"]
+    if p:
+        q = p["ratios"]
+        lines.append(f"proxies MAP/ODOM   span {_f(q['span_norm_map_odom'])}, volume {_f(q['volume_map_odom'])}, "
+                     f"end displacement {_f(q['end_displacement_map_odom'])}")
+        lines.append(f"proxies MAP/GT     span {_f(q['span_norm_map_gt'])}, volume {_f(q['volume_map_gt'])}, "
+                     f"end displacement {_f(q['end_displacement_map_gt'])}")
+    lines.append(f"VPR window ok_ratio {_f(r['vpr_ok_ratio'])}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="poseidon eval", description="judge a run recording against its ground truth")
+    ap.add_argument("recording", type=Path, help="run recording (MCAP) with truth/pose, map, experience_event, ...")
+    ap.add_argument("--json", action="store_true", help="print the result as JSON (keys: see the module docstring)")
+    ap.add_argument("--far-m", type=float, default=5.0, help="d_gt threshold of a true loop closure (m)")
+    ap.add_argument("--min-gap-m", type=float, default=10.0,
+                    help="distance travelled before an LVC id re-use counts as a claimed revisit (m)")
+    add_config_args(ap)
+    args = ap.parse_args(argv)
+    try:
+        r = evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m, config=config_from_args(args))
+    except (RecordingError, ConfigError, ValueError) as exc:
+        print(f"poseidon eval: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        print("\n".join(format_eval(r)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
