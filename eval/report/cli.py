@@ -1,0 +1,142 @@
+"""``poseidon report RUN.mcap [RUN2.mcap ...] --out DIR [--json]``: the run(s) as one HTML page.
+
+Writes ``DIR/index.html``: self-contained (plotly.js inlined, images as data URIs; opens
+offline), with the figures of Section 5.4 (3D overlay, XY/XZ/YZ projections, final
+topology, similarity and ground-truth matrices, view cells over time, precision-recall,
+deviation over time and on XY, evidence images), the tables (run summary; per run the
+evaluation of :func:`eval.run_eval.evaluate_run` and the audit of
+:func:`eval.audit.audit_run`; for two or more runs :func:`eval.compare.compare_runs` of
+the first with each other, Table 5.4 and Tables 5.2-5.3), and each run's configuration
+and code revision.  A table whose function cannot be imported or fails is listed on the
+page as unavailable with the reason (and logged); ``--strict`` makes that an error.
+
+Options: ``--label L`` (once per run, default ``<file stem> (VPR Guard ON|OFF)``),
+``--max-points`` (per trajectory, default 3000), ``--max-frames`` (similarity matrix,
+default 500), ``--min-gap-m`` (pairs closer in true travel are left out of
+precision-recall, default 10 m, the simulator's revisit rule).
+
+Exit codes: 0 written, 2 bad input (unreadable recording, wrong options), 3 ``--strict``
+and a table unavailable.
+
+``--json`` prints ``{"out": path of index.html, "bytes": page size, "figures": {figure id:
+"shown" | "not shown: reason"}, "tables": [table names], "unavailable": {table name:
+reason}, "precision_recall": {run label: {"source", "pairs", "positives",
+"average_precision", "best_f1", "lvc_precision", "lvc_recall", "lvc_f1"}}, "runs":
+[{"path", "label", "duration_s", "counts": {key: n}}]}``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from common.mcap_io import RecordingError
+
+__all__ = ["main", "evaluation_tables"]
+
+log = logging.getLogger("poseidon.report")
+
+
+def _import(module: str, name: str) -> tuple[Callable[..., dict] | None, str]:
+    """The function, or None and why it cannot be imported."""
+    import importlib
+    try:
+        return getattr(importlib.import_module(module), name), ""
+    except (ImportError, AttributeError) as exc:
+        reason = f"{module}.{name} is not available in this build ({type(exc).__name__}: {exc})"
+        log.warning("report: %s", reason)
+        return None, reason
+
+
+def _guarded(tables: dict[str, dict], unavailable: dict[str, str], name: str,
+             func: Callable[..., dict] | None, reason: str, *args: Any) -> None:
+    if func is None:
+        unavailable[name] = reason
+        return
+    try:
+        result = func(*args)
+    except Exception as exc:  # noqa: BLE001 - reported on the page and in the log, fatal with --strict
+        log.exception("report: %s failed", name)
+        unavailable[name] = f"{func.__module__}.{func.__name__} failed: {type(exc).__name__}: {exc}"
+        return
+    if not isinstance(result, dict):
+        unavailable[name] = f"{func.__module__}.{func.__name__} returned {type(result).__name__}, not a dict"
+        log.warning("report: %s", unavailable[name])
+        return
+    tables[name] = result
+
+
+def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, dict], dict[str, str]]:
+    """The tables of the eval package for the runs: (name -> dict, name -> why unavailable)."""
+    tables: dict[str, dict] = {}
+    unavailable: dict[str, str] = {}
+    evaluate_run, why_eval = _import("eval.run_eval", "evaluate_run")
+    audit_run, why_audit = _import("eval.audit", "audit_run")
+    compare_runs, why_compare = _import("eval.compare", "compare_runs")
+    for p, label in zip(paths, labels):
+        _guarded(tables, unavailable, f"Evaluation (trajectory error, loop closures): {label}", evaluate_run,
+                 why_eval, p)
+        _guarded(tables, unavailable, f"Audit (event-evidence association): {label}", audit_run, why_audit, p)
+    for p, label in zip(paths[1:], labels[1:]):
+        _guarded(tables, unavailable, f"Comparison (Table 5.4, Tables 5.2-5.3): {labels[0]} vs {label}",
+                 compare_runs, why_compare, paths[0], p)
+    return tables, unavailable
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="poseidon report", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("runs", nargs="+", help="run recordings (MCAP); two runs = VPR Guard ON vs OFF")
+    ap.add_argument("--out", required=True, help="output folder (index.html is written there)")
+    ap.add_argument("--label", action="append", default=[], help="name of a run (once per run, in order)")
+    ap.add_argument("--json", action="store_true", help="print what was written as JSON")
+    ap.add_argument("--strict", action="store_true", help="fail (exit 3) when a table is unavailable")
+    ap.add_argument("--max-points", type=int, default=3000, help="points per trajectory drawn")
+    ap.add_argument("--max-frames", type=int, default=500, help="frames of the similarity matrix")
+    ap.add_argument("--min-gap-m", type=float, default=10.0,
+                    help="pairs of frames closer than this in true travel are left out of precision-recall (m)")
+    args = ap.parse_args(argv)
+    if args.label and len(args.label) != len(args.runs):
+        print(f"poseidon report: {len(args.label)} --label for {len(args.runs)} runs", file=sys.stderr)
+        return 2
+    if args.max_points < 2 or args.max_frames < 2:
+        print("poseidon report: --max-points and --max-frames must be at least 2", file=sys.stderr)
+        return 2
+    from common.codec import DecodeError
+    from eval.report.data import load_run
+    from eval.report.page import render_report
+    paths = [Path(p) for p in args.runs]
+    try:
+        runs = [load_run(p, label=(args.label[i] if args.label else None)) for i, p in enumerate(paths)]
+    except (RecordingError, DecodeError, KeyError) as exc:
+        print(f"poseidon report: {exc}", file=sys.stderr)
+        return 2
+    labels = [r.label for r in runs]
+    if len(set(labels)) != len(labels):  # labels name the series and table columns: make them unique
+        for i, r in enumerate(runs):
+            r.label = f"{i + 1}: {r.label}"
+    tables, unavailable = evaluation_tables(paths, [r.label for r in runs])
+    result = render_report(runs, tables, args.out, unavailable=unavailable, max_points=args.max_points,
+                           max_frames=args.max_frames, min_gap_m=args.min_gap_m)
+    result["runs"] = [{"path": str(r.path), "label": r.label, "duration_s": round(r.duration_s, 3),
+                       "counts": r.counts} for r in runs]
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(f"report written: {result['out']} ({result['bytes'] / 1e6:.1f} MB); open it in a browser")
+        missing = {k: v for k, v in result["figures"].items() if v != "shown"}
+        for fid, why in missing.items():
+            print(f"  {fid}: {why}")
+        for name, why in unavailable.items():
+            print(f"  table unavailable: {name}: {why}")
+    if args.strict and unavailable:
+        print(f"poseidon report: {len(unavailable)} table(s) unavailable (--strict)", file=sys.stderr)
+        return 3
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
