@@ -52,18 +52,19 @@ def _import(module: str, name: str) -> tuple[Callable[..., dict] | None, str]:
 
 
 def _guarded(tables: dict[str, dict], unavailable: dict[str, str], name: str,
-             func: Callable[..., dict] | None, reason: str, *args: Any) -> None:
+             func: Callable[..., dict] | None, where: str, *args: Any) -> None:
+    """Table ``name`` = ``func(*args)``; when the function is missing or fails, the reason."""
     if func is None:
-        unavailable[name] = reason
+        unavailable[name] = where
         return
     try:
         result = func(*args)
     except Exception as exc:  # noqa: BLE001 - reported on the page and in the log, fatal with --strict
         log.exception("report: %s failed", name)
-        unavailable[name] = f"{func.__module__}.{func.__name__} failed: {type(exc).__name__}: {exc}"
+        unavailable[name] = f"{where} failed: {type(exc).__name__}: {exc}"
         return
     if not isinstance(result, dict):
-        unavailable[name] = f"{func.__module__}.{func.__name__} returned {type(result).__name__}, not a dict"
+        unavailable[name] = f"{where} returned {type(result).__name__}, not a dict"
         log.warning("report: %s", unavailable[name])
         return
     tables[name] = result
@@ -73,9 +74,11 @@ def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, d
     """The tables of the eval package for the runs: (name -> dict, name -> why unavailable)."""
     tables: dict[str, dict] = {}
     unavailable: dict[str, str] = {}
-    evaluate_run, why_eval = _import("eval.run_eval", "evaluate_run")
-    audit_run, why_audit = _import("eval.audit", "audit_run")
-    compare_runs, why_compare = _import("eval.compare", "compare_runs")
+    found = {name: _import(module, name) for module, name in
+             (("eval.run_eval", "evaluate_run"), ("eval.audit", "audit_run"), ("eval.compare", "compare_runs"))}
+    evaluate_run, why_eval = found["evaluate_run"][0], found["evaluate_run"][1] or "eval.run_eval.evaluate_run"
+    audit_run, why_audit = found["audit_run"][0], found["audit_run"][1] or "eval.audit.audit_run"
+    compare_runs, why_compare = found["compare_runs"][0], found["compare_runs"][1] or "eval.compare.compare_runs"
     for p, label in zip(paths, labels):
         _guarded(tables, unavailable, f"Evaluation (trajectory error, loop closures): {label}", evaluate_run,
                  why_eval, p)

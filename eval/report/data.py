@@ -247,6 +247,8 @@ def load_run(path: str | Path, label: str | None = None, max_images: int = 12) -
             sdr_t.append(st)
             sdr_a.append(np.asarray(m.fused.active, dtype=np.int64))
             sdr_size = max(sdr_size, m.fused.size)
+    if not counts:
+        raise RecordingError(f"{p}: no readable message (not an MCAP recording, or an empty one)")
     i64 = lambda v: np.asarray(v, dtype=np.int64)  # noqa: E731
     xyz = lambda v: np.asarray(v, dtype=np.float64).reshape(-1, 3)  # noqa: E731
     truth = Track(i64(truth_t), xyz(truth_p), "truth/pose")
