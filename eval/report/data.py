@@ -144,11 +144,13 @@ def _output_frame(metadata: dict[str, Any]) -> Any:
     return OutputFrame(rs.get("axis_remap", default.axis_remap), float(rs.get("axis_sign_z", default.axis_sign_z)))
 
 
-def run_label(metadata: dict[str, Any], path: Path) -> str:
-    """``<file stem> (VPR Guard ON|OFF)`` when the configuration says, else the file stem."""
+def run_label(metadata: dict[str, Any], path: Path, has_events: bool = True) -> str:
+    """``<file stem> (VPR Guard ON|OFF)`` when the run has events and its configuration says, else the stem."""
     cfg = metadata.get("config")
     guard = cfg.get("vpr_guard", {}).get("require_vpr_for_event") if isinstance(cfg, dict) else None
-    return f"{path.stem} (VPR Guard {'ON' if guard else 'OFF'})" if guard is not None else path.stem
+    if guard is None or not has_events:
+        return path.stem
+    return f"{path.stem} (VPR Guard {'ON' if guard else 'OFF'})"
 
 
 def _image_uri(msg: ExperienceImage, max_width: int = 256) -> tuple[str, str]:
@@ -279,7 +281,7 @@ def load_run(path: str | Path, label: str | None = None, max_images: int = 12) -
     for k in frames:
         revisit_stamps[k], revisit_same[k] = rev[k]
     data = RunData(
-        path=p, label=label or run_label(metadata, p), metadata=metadata, counts=counts,
+        path=p, label=label or run_label(metadata, p, bool(ev_t)), metadata=metadata, counts=counts,
         start_ns=int(first or 0), end_ns=int(last or 0), truth=truth, dead_reckoning=dr,
         event_stamps=i64(ev_t), event_lvc=i64(ev_l), event_gate=ev_g,
         node_ids=node_ids, node_lvc=node_lvc, node_stamps=node_stamps, node_ned=node_ned,

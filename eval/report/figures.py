@@ -144,9 +144,12 @@ def fig_overlay_3d(runs: list[RunData], max_points: int) -> FigureSpec:
                          + [np.stack(_enu(r.node_ned), axis=1) for r in runs if len(r.node_ids)])
     extent = np.maximum(np.nanmax(pts, axis=0) - np.nanmin(pts, axis=0), 1e-3)
     ratio = extent / extent[:2].max()
-    _layout(fig, 620, scene=dict(aspectmode="manual", aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]),
+    if ratio[2] < 0.25:
+        spec.notes.append(f"vertical scale exaggerated {0.25 / ratio[2]:.1f}x: the depth range ({extent[2]:.2f} m) is "
+                          f"small next to the horizontal extent ({extent[:2].max():.1f} m)")
+    _layout(fig, 580, scene=dict(aspectmode="manual", aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]),
                                                                        z=float(max(ratio[2], 0.25))),
-                                 camera=dict(eye=dict(x=-0.75, y=-1.05, z=0.55)),
+                                 camera=dict(eye=dict(x=-0.5, y=-0.72, z=0.4)),
                                  xaxis_title="east (m)", yaxis_title="north (m)", zaxis_title="up (m)"))
     spec.figure = fig
     return spec

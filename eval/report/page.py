@@ -172,10 +172,6 @@ def _run_summary(runs: list[RunData], pr: dict[str, Any]) -> dict[str, dict[str,
             "PR average precision (sampled frames)": p.get("average_precision"),
             "PR best F1 (sampled frames)": p.get("best_f1"),
         }
-    keys = sorted({k for r in runs for k in r.counts})
-    for k in keys:
-        for r in runs:
-            out[r.label][f"messages on {k}"] = r.counts.get(k, 0)
     # transpose: rows = quantity, columns = run
     quantities = list(next(iter(out.values())).keys()) if out else []
     return {q: {label: out[label][q] for label in out} for q in quantities}
@@ -253,7 +249,9 @@ def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | P
     specs, pr_summary = build_figures(runs, max_points=max_points, max_frames=max_frames, min_gap_m=min_gap_m)
     by_id = {s.id: s for s in specs}
     scripts: list[str] = []
-    all_tables = {"Run summary (read from the recordings)": _run_summary(runs, pr_summary), **tables}
+    keys = sorted({k for r in runs for k in r.counts})
+    all_tables = {"Run summary (read from the recordings)": _run_summary(runs, pr_summary),
+                  "Messages per key": {k: {r.label: r.counts.get(k, 0) for r in runs} for k in keys}, **tables}
     runs_list = "".join(
         f"<li><b>{html.escape(r.label)}</b>: <code>{html.escape(str(r.path))}</code>, {r.duration_s:.1f} s of "
         f"mission, code revision <code>{html.escape(str(r.metadata.get('code_revision', 'unknown')))}</code></li>"
