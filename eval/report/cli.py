@@ -92,7 +92,7 @@ def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, d
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="poseidon report", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", help="run recordings (MCAP); two runs = VPR Guard ON vs OFF")
+    ap.add_argument("runs", nargs="+", help="run recordings (MCAP); for the ON/OFF comparison give ON first, then OFF")
     ap.add_argument("--out", required=True, help="output folder (index.html is written there)")
     ap.add_argument("--label", action="append", default=[], help="name of a run (once per run, in order)")
     ap.add_argument("--json", action="store_true", help="print what was written as JSON")
