@@ -96,7 +96,7 @@ def _layout(fig: go.Figure, height: int, **kw: Any) -> go.Figure:
         kw["legend"] = dict(orientation="h", yanchor="top", xanchor="left", x=0,
                             y=-75.0 / max(height - 60 - bottom, 100))
     fig.update_layout(height=height, margin=dict(l=60, r=20, t=60, b=bottom), font=FONT, template="plotly_white",
-                      **kw)
+                      showlegend=True, **kw)
     return fig
 
 
@@ -526,36 +526,66 @@ def fig_similarity(runs: list[RunData], sims: list[tuple[int, Similarity | None]
         for col in (1, 2):
             fig.update_xaxes(title_text="time (s)", row=row, col=col)
             fig.update_yaxes(title_text="time (s)", autorange="reversed", row=row, col=col)
-    fig.update_layout(coloraxis=dict(colorscale="Viridis", cmin=0, cmax=100,
+    # colour range from the off-diagonal values (1st to 99.9th percentile): a dense SDR's chance overlap is far
+    # above 0 %, and a 0-100 scale would wash the structure out
+    off = np.concatenate([sim.percent[~np.eye(len(sim.stamps), dtype=bool)] for _, sim in shown])
+    lo, hi = (float(np.percentile(off, 1)), float(np.percentile(off, 99.9))) if len(off) else (0.0, 100.0)
+    if hi <= lo:
+        lo, hi = 0.0, 100.0
+    spec.notes.append(f"colour scale {lo:.0f}-{hi:.0f} % (1st-99.9th percentile of the off-diagonal similarity)")
+    fig.update_layout(coloraxis=dict(colorscale="Viridis", cmin=lo, cmax=hi,
                                      colorbar=dict(title="%", len=1.0 / len(shown), y=1.0, yanchor="top")))
     spec.figure = _layout(fig, 520 * len(shown))
     return spec
 
 
-def fig_viewcells(runs: list[RunData], max_points: int) -> FigureSpec:
+def _revisit_frames(r: RunData, min_gap_m: float) -> np.ndarray:
+    """Frames matched to an existing cell created at least ``min_gap_m`` of travel earlier (truth, else
+    dead reckoning; without either, 60 s earlier)."""
+    created: dict[int, int] = {}
+    for k, (cell, new) in enumerate(zip(r.lvc_id.tolist(), r.lvc_new.tolist())):
+        if new or cell not in created:
+            created.setdefault(cell, k)
+    first = np.array([created[c] for c in r.lvc_id.tolist()], dtype=np.int64)
+    track = r.truth if len(r.truth) >= 2 else r.dead_reckoning
+    if len(track) >= 2:
+        along = np.interp((r.lvc_stamps - track.stamps[0]).astype(np.float64),
+                          (track.stamps - track.stamps[0]).astype(np.float64), track.travelled())
+        gap, limit = along - along[first], min_gap_m
+    else:
+        gap, limit = (r.lvc_stamps - r.lvc_stamps[first]) / 1e9, 60.0
+    return ~r.lvc_new & (gap >= limit)
+
+
+def fig_viewcells(runs: list[RunData], max_points: int, min_gap_m: float = 10.0) -> FigureSpec:
     spec = FigureSpec(
         "fig-viewcells", "View cells over time: creation and recognition (cf. Figs 5.11-5.12)",
         "One panel per run. Each frame's local view cell (LVC) id against time: blue crosses are frames that "
-        "created a new cell (a place not seen before), red circles are frames matched to an existing cell (a "
-        "place recognised, a loop-closure candidate), black diamonds are loop closures the experience map "
-        "accepted. A staircase of blue crosses is exploration; red circles at low ids late in the run are "
-        "revisits of early places.")
+        "created a new cell (a place not seen before); grey dots matched a cell created moments before (the same "
+        "pass over a place); red circles matched a cell created at least the minimum travel earlier (a place "
+        "recognised again, a loop-closure candidate); black diamonds are loop closures the experience map "
+        "accepted. A rising staircase is exploration; red circles at low ids late in the run are revisits of "
+        "early places (compare with the ground-truth matrix above).")
     with_lvc = [(i, r) for i, r in enumerate(runs) if len(r.lvc_stamps)]
     for r in runs:
         if not len(r.lvc_stamps):
             spec.notes.append(f"{r.label}: no local_view_cells")
     if not with_lvc:
         return spec
-    titles = [f"{r.label}: {len(np.unique(r.lvc_id))} view cells created, {int((~r.lvc_new).sum())} frames "
-              f"recognised, {int(r.link_loop.sum())} map loop closures" for _, r in with_lvc]
+    titles = [f"{r.label}: {len(np.unique(r.lvc_id))} view cells, {int(_revisit_frames(r, min_gap_m).sum())} frames "
+              f"recognised after >= {min_gap_m:g} m, {int(r.link_loop.sum())} map loop closures" for _, r in with_lvc]
     fig = make_subplots(rows=len(with_lvc), cols=1, subplot_titles=titles, shared_xaxes=False,
                         vertical_spacing=0.12 if len(with_lvc) > 1 else 0.1)
     for row, (i, r) in enumerate(with_lvc, start=1):
         t = r.seconds(r.lvc_stamps).astype(np.float32)
-        for mask, name, marker in ((r.lvc_new, "new view cell", dict(symbol="x-thin", size=6, color="#1f77b4",
-                                                                         line=dict(width=1.5, color="#1f77b4"))),
-                                   (~r.lvc_new, "recognised (existing cell)",
-                                    dict(symbol="circle-open", size=7, color="#d62728"))):
+        revisit = _revisit_frames(r, min_gap_m)
+        same_pass = ~r.lvc_new & ~revisit
+        for mask, name, marker in ((same_pass, "matched a cell of the same pass",
+                                    dict(symbol="circle", size=3, color="#bbbbbb")),
+                                   (r.lvc_new, "new view cell", dict(symbol="x-thin", size=6, color="#1f77b4",
+                                                                     line=dict(width=1.5, color="#1f77b4"))),
+                                   (revisit, f"recognised a cell from >= {min_gap_m:g} m of travel earlier",
+                                    dict(symbol="circle-open", size=8, color="#d62728", line=dict(width=1.5)))):
             idx = np.flatnonzero(mask)
             idx = idx[_decimate(len(idx), max_points)]
             fig.add_trace(go.Scatter(x=t[idx], y=r.lvc_id[idx], mode="markers", name=name, legendgroup=name,
@@ -672,6 +702,6 @@ def build_figures(runs: list[RunData], max_points: int = 3000, max_frames: int =
     pr_spec, pr_summary = fig_pr(runs, sims)
     specs = [fig_overlay_3d(runs, max_points), fig_projections(runs, max_points), fig_topology(runs, max_points),
              fig_deviation_time(runs, max_points), fig_deviation_xy(runs, max_points), fig_similarity(runs, sims),
-             fig_viewcells(runs, max_points), pr_spec, fig_evidence(runs)]
+             fig_viewcells(runs, max_points, min_gap_m), pr_spec, fig_evidence(runs)]
     assert [s.id for s in specs] == FIGURE_IDS
     return specs, pr_summary

@@ -275,3 +275,18 @@ def test_lvc_operating_point_counts_the_aliased_place(page: tuple[Path, dict]) -
     assert 0.5 < pr["lvc_precision"] < 1.0
     assert 0.0 < pr["average_precision"] <= 1.0
     assert PLACES == 40
+
+
+def test_view_cells_separate_revisits_from_the_same_pass(runs: tuple[Path, Path]) -> None:
+    from eval.report.figures import _revisit_frames
+    r = load_run(runs[0])
+    revisit = _revisit_frames(r, 10.0)
+    lap = 160
+    # every second-lap frame matches a cell created a lap (80 m) earlier; no first-lap frame does
+    assert revisit[lap:].all() and not revisit[:lap].any()
+    assert int(r.lvc_new.sum()) == PLACES
+    specs, _ = build_figures([r])
+    vc = next(s for s in specs if s.id == "fig-viewcells").figure
+    counts = {tr.name: len(tr.x) for tr in vc.data}
+    assert counts == {"matched a cell of the same pass": lap - PLACES, "new view cell": PLACES,
+                      "recognised a cell from >= 10 m of travel earlier": lap, "map loop closure": 4}
