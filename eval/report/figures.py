@@ -144,12 +144,18 @@ def fig_overlay_3d(runs: list[RunData], max_points: int) -> FigureSpec:
                          + [np.stack(_enu(r.node_ned), axis=1) for r in runs if len(r.node_ids)])
     extent = np.maximum(np.nanmax(pts, axis=0) - np.nanmin(pts, axis=0), 1e-3)
     ratio = extent / extent[:2].max()
-    if ratio[2] < 0.25:
+    if extent[2] < 0.01:
+        spec.notes.append("constant depth: the vertical axis only gives the depth")
+    elif ratio[2] < 0.25:
         spec.notes.append(f"vertical scale exaggerated {0.25 / ratio[2]:.1f}x: the depth range ({extent[2]:.2f} m) is "
                           f"small next to the horizontal extent ({extent[:2].max():.1f} m)")
-    _layout(fig, 580, scene=dict(aspectmode="manual", aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]),
-                                                                       z=float(max(ratio[2], 0.25))),
-                                 camera=dict(eye=dict(x=-0.5, y=-0.72, z=0.4)),
+    box = np.array([ratio[0], ratio[1], max(ratio[2], 0.25)])
+    # view from the south-west, above; far enough that the whole box fits whatever its proportions
+    eye = np.array([-0.6, -0.85, 0.45]) / np.linalg.norm([-0.6, -0.85, 0.45]) * 0.95 * np.linalg.norm(box)
+    _layout(fig, 580, scene=dict(aspectmode="manual", aspectratio=dict(x=float(box[0]), y=float(box[1]),
+                                                                       z=float(box[2])),
+                                 camera=dict(eye=dict(x=float(eye[0]), y=float(eye[1]), z=float(eye[2])),
+                                             center=dict(x=0.0, y=0.0, z=-0.12)),
                                  xaxis_title="east (m)", yaxis_title="north (m)", zaxis_title="up (m)"))
     spec.figure = fig
     return spec
