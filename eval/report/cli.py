@@ -40,38 +40,66 @@ __all__ = ["main", "evaluation_tables"]
 log = logging.getLogger("poseidon.report")
 
 
-def _import(module: str, name: str) -> tuple[Callable[..., dict] | None, str]:
+def _import(module: str, name: str, optional: bool = False) -> tuple[Callable[..., Any] | None, str]:
     """The function, or None and why it cannot be imported."""
     import importlib
     try:
         return getattr(importlib.import_module(module), name), ""
     except (ImportError, AttributeError) as exc:
         reason = f"{module}.{name} is not available in this build ({type(exc).__name__}: {exc})"
-        log.warning("report: %s", reason)
+        log.log(logging.INFO if optional else logging.WARNING, "report: %s", reason)
         return None, reason
 
 
 def _guarded(tables: dict[str, dict], unavailable: dict[str, str], name: str,
-             func: Callable[..., dict] | None, where: str, *args: Any) -> None:
+             func: Callable[..., dict] | None, where: str, *args: Any) -> dict | None:
     """Table ``name`` = ``func(*args)``; when the function is missing or fails, the reason."""
     if func is None:
         unavailable[name] = where
-        return
+        return None
     try:
         result = func(*args)
     except Exception as exc:  # noqa: BLE001 - reported on the page and in the log, fatal with --strict
         log.exception("report: %s failed", name)
         unavailable[name] = f"{where} failed: {type(exc).__name__}: {exc}"
-        return
+        return None
     if not isinstance(result, dict):
         unavailable[name] = f"{where} returned {type(result).__name__}, not a dict"
         log.warning("report: %s", unavailable[name])
-        return
+        return None
     tables[name] = result
+    return result
 
 
-def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, dict], dict[str, str]]:
-    """The tables of the eval package for the runs: (name -> dict, name -> why unavailable)."""
+def present_comparison(c: dict[str, Any], label_a: str, label_b: str) -> dict[str, Any]:
+    """:func:`eval.compare.compare_runs`'s result with the runs' labels as columns: ``table_5_4`` and
+    ``additions`` (``{metric: {"label", "a", "b"}}``) become row tables, ``loop_closures``
+    (``{"a": rows, "b": rows}``) one table per run.  Anything else is kept as it is."""
+    out: dict[str, Any] = {}
+    titles = {"table_5_4": "Table 5.4: VPR Guard ON vs OFF", "additions": "Our additions: trajectory error, "
+              "loop-closure recall"}
+    for key, value in c.items():
+        if key in titles and isinstance(value, dict) and all(
+                isinstance(v, dict) and {"a", "b"} <= v.keys() for v in value.values()):
+            out[titles[key]] = [{"metric": v.get("label", k), label_a: v["a"], label_b: v["b"]}
+                                for k, v in value.items()]
+        elif key == "loop_closures" and isinstance(value, dict) and set(value) == {"a", "b"}:
+            for side, label in (("a", label_a), ("b", label_b)):
+                rows = value[side]
+                out[f"Loop closures (Tables 5.2-5.3): {label}"] = rows if rows else "no loop closure"
+        elif key == "runs" and isinstance(value, dict) and set(value) == {"a", "b"}:
+            continue  # the page names the runs already
+        else:
+            out[key] = value
+    return out
+
+
+COMPARISON = "Comparison (Table 5.4, Tables 5.2-5.3)"
+
+
+def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, dict], dict[str, str], list[str]]:
+    """The tables of the eval package for the runs: (name -> dict, name -> why unavailable, names of the
+    per-run detail tables, shown folded when there is a comparison)."""
     tables: dict[str, dict] = {}
     unavailable: dict[str, str] = {}
     found = {name: _import(module, name) for module, name in
@@ -79,14 +107,27 @@ def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, d
     evaluate_run, why_eval = found["evaluate_run"][0], found["evaluate_run"][1] or "eval.run_eval.evaluate_run"
     audit_run, why_audit = found["audit_run"][0], found["audit_run"][1] or "eval.audit.audit_run"
     compare_runs, why_compare = found["compare_runs"][0], found["compare_runs"][1] or "eval.compare.compare_runs"
-    for p, label in zip(paths, labels):
-        _guarded(tables, unavailable, f"Evaluation (trajectory error, loop closures): {label}", evaluate_run,
-                 why_eval, p)
-        _guarded(tables, unavailable, f"Audit (event-evidence association): {label}", audit_run, why_audit, p)
-    for p, label in zip(paths[1:], labels[1:]):
-        _guarded(tables, unavailable, f"Comparison (Table 5.4, Tables 5.2-5.3): {labels[0]} vs {label}",
-                 compare_runs, why_compare, paths[0], p)
-    return tables, unavailable
+    # the eval functions take a path or a run loaded once by eval.rundata.load_run (read each file once)
+    loader, _ = _import("eval.rundata", "load_run", optional=True)
+    inputs: list[Any] = list(paths)
+    if loader is not None and any(f is not None for f in (evaluate_run, audit_run, compare_runs)):
+        for i, p in enumerate(paths):
+            try:
+                inputs[i] = loader(p)
+            except Exception:  # noqa: BLE001 - each table then reports its own failure on the path
+                log.exception("report: eval.rundata.load_run(%s) failed; the eval functions get the path", p)
+    for inp, label in zip(inputs[1:], labels[1:]):
+        name = f"{COMPARISON}: {labels[0]} vs {label}"
+        result = _guarded(tables, unavailable, name, compare_runs, why_compare, inputs[0], inp)
+        if result is not None:
+            tables[name] = present_comparison(result, labels[0], label)
+    details: list[str] = []
+    for inp, label in zip(inputs, labels):
+        for name, func, why in ((f"Evaluation (trajectory error, loop closures): {label}", evaluate_run, why_eval),
+                                (f"Audit (event-evidence association): {label}", audit_run, why_audit)):
+            _guarded(tables, unavailable, name, func, why, inp)
+            details.append(name)
+    return tables, unavailable, (details if len(paths) > 1 else [])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -121,8 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     if len(set(labels)) != len(labels):  # labels name the series and table columns: make them unique
         for i, r in enumerate(runs):
             r.label = f"{i + 1}: {r.label}"
-    tables, unavailable = evaluation_tables(paths, [r.label for r in runs])
-    result = render_report(runs, tables, args.out, unavailable=unavailable, max_points=args.max_points,
+    tables, unavailable, details = evaluation_tables(paths, [r.label for r in runs])
+    result = render_report(runs, tables, args.out, unavailable=unavailable, folded=details,
+                           max_points=args.max_points,
                            max_frames=args.max_frames, min_gap_m=args.min_gap_m)
     result["runs"] = [{"path": str(r.path), "label": r.label, "duration_s": round(r.duration_s, 3),
                        "counts": r.counts} for r in runs]

@@ -37,6 +37,8 @@ nav ol { columns: 2; } nav a { color: #1f5f9f; }
 table { border-collapse: collapse; margin: 8px 0 16px; font-size: 14px; }
 th, td { border: 1px solid #d7dee7; padding: 3px 8px; text-align: left; vertical-align: top; }
 th { background: #eef2f6; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.subs { display: flex; flex-wrap: wrap; gap: 4px 28px; align-items: flex-start; }
+.sub h4, .sub h5, .sub h6 { margin: 8px 0 2px; }
 .unavailable { background: #fff4e5; border: 1px solid #f0c27b; padding: 8px 12px; margin: 8px 0; }
 .gallery { display: flex; flex-wrap: wrap; gap: 10px; } .thumb { margin: 0; font-size: 12px; }
 .thumb img { width: 192px; display: block; border: 1px solid #ccc; }
@@ -138,9 +140,10 @@ def _render_value(d: Any, depth: int) -> str:
             rows = "".join(f"<tr><th>{html.escape(str(k))}</th>{_cell(v)}</tr>" for k, v in scalars.items())
             out.append(f"<table><tbody>{rows}</tbody></table>")
         level = min(depth + 4, 6)
-        for k, v in d.items():
-            if not _scalar(v):
-                out.append(f"<h{level}>{html.escape(str(k))}</h{level}>{_render_value(v, depth + 1)}")
+        subs = [f'<div class="sub"><h{level}>{html.escape(str(k))}</h{level}>{_render_value(v, depth + 1)}</div>'
+                for k, v in d.items() if not _scalar(v)]
+        if subs:
+            out.append(f'<div class="subs">{"".join(subs)}</div>')
         return "".join(out) if out else '<p class="note">(empty)</p>'
     if isinstance(d, list):
         if not d:
@@ -149,9 +152,14 @@ def _render_value(d: Any, depth: int) -> str:
     return f"<p>{_fmt(d)[0]}</p>"
 
 
-def render_table(name: str, data: dict[str, Any]) -> str:
-    """A named table (nested dicts become sub-tables; lists of dicts become row tables)."""
-    return f'<div class="table" id="{table_id(name)}"><h3>{html.escape(name)}</h3>{_render_value(data, 0)}</div>'
+def render_table(name: str, data: dict[str, Any], folded: bool = False) -> str:
+    """A named table (nested dicts become sub-tables; lists of dicts become row tables); ``folded``
+    puts it in a closed ``<details>`` (the detail tables under a comparison)."""
+    body = _render_value(data, 0)
+    if folded:
+        return (f'<div class="table" id="{table_id(name)}"><details><summary>{html.escape(name)} '
+                f'(click to unfold)</summary>{body}</details></div>')
+    return f'<div class="table" id="{table_id(name)}"><h3>{html.escape(name)}</h3>{body}</div>'
 
 
 def _run_summary(runs: list[RunData], pr: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -237,10 +245,14 @@ SECTIONS = [
 
 
 def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | Path, *,
-                  unavailable: dict[str, str] | None = None, max_points: int = 3000, max_frames: int = 500,
+                  unavailable: dict[str, str] | None = None, folded: list[str] | tuple[str, ...] = (), max_points: int = 3000, max_frames: int = 500,
                   min_gap_m: float = 10.0, title: str = "PoseidonSLAM run report") -> dict[str, Any]:
     """Write ``out_dir/index.html``; return ``{"out", "bytes", "figures", "tables", "unavailable",
-    "precision_recall"}`` (figure id -> ``shown`` or the reason it is not)."""
+    "precision_recall"}`` (figure id -> ``shown`` or the reason it is not).
+
+    ``tables``: name -> dict, rendered in order after the run summary (nested dicts become
+    sub-tables, lists of dicts row tables); ``unavailable``: name -> why a table is missing;
+    ``folded``: names of tables shown in a closed ``<details>``."""
     if not runs:
         raise ValueError("render_report: no runs given")
     unavailable = dict(unavailable or {})
@@ -268,7 +280,7 @@ def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | P
             "z up.</p>",
             f'<nav><ol>{"".join(toc)}</ol></nav>', '<h2 id="sec-tables">Tables</h2>']
     for name, data in all_tables.items():
-        body.append(render_table(name, data))
+        body.append(render_table(name, data, folded=name in folded))
     for name, reason in unavailable.items():
         body.append(f'<div class="unavailable" id="{table_id(name)}"><h3>{html.escape(name)}</h3>'
                     f'<p>Unavailable: {html.escape(reason)}</p></div>')

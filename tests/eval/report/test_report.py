@@ -15,7 +15,7 @@ from eval.report.cli import main as report_main
 from eval.report.figures import build_figures, frame_similarity, precision_recall
 from tests.eval.report.handmade import PLACES, T0, dead_reckoning_ned, square_ned, write_handmade_run
 
-EVAL_MODULES = ("eval.run_eval", "eval.audit", "eval.compare")
+EVAL_MODULES = ("eval.run_eval", "eval.audit", "eval.compare", "eval.rundata")
 
 
 @pytest.fixture(scope="module")
@@ -108,33 +108,53 @@ def test_eval_tables_rendered_from_the_eval_functions(runs: tuple[Path, Path], t
             setattr(m, k, f)
         return m
 
-    def evaluate_run(p: Path) -> dict:
-        calls.append(("evaluate", Path(p).name))
-        return {"trajectory_error": {"ate_rmse_m": 0.8125, "drift_pct": 1.5},
-                "loop_closures": [{"node": 40, "matched": 0, "d_gt_m": 0.42, "tp": True}]}
+    def load(p: Path) -> tuple[str, str]:
+        calls.append(("load", Path(p).name))
+        return ("loaded", Path(p).name)
 
-    def audit_run(p: Path) -> dict:
-        calls.append(("audit", Path(p).name))
+    def evaluate_run(run: tuple[str, str]) -> dict:
+        calls.append(("evaluate", run[1]))
+        return {"ate": {"map": {"rmse_m": 0.8125, "n": 80}, "dead_reckoning": {"rmse_m": 2.5, "n": 80}},
+                "loop_closures": {"table": [{"event_seq": 40, "d_gt_m": 0.42, "label": "TP"}]}}
+
+    def audit_run(run: tuple[str, str]) -> dict:
+        calls.append(("audit", run[1]))
         return {"f1": 1.0, "missing_images": 0}
 
-    def compare_runs(a: Path, b: Path) -> dict:
-        calls.append(("compare", Path(a).name, Path(b).name))
-        return {"event_density": {"ON": 0.5, "OFF": 1.0}, "nodes": {"ON": 80, "OFF": 160}}
+    def compare_runs(a: tuple[str, str], b: tuple[str, str]) -> dict:
+        calls.append(("compare", a[1], b[1]))
+        return {"runs": {"a": {"label": "A"}, "b": {"label": "B"}},
+                "table_5_4": {"event_density_per_s": {"label": "event density (1/s)", "a": 0.5, "b": 1.0},
+                              "nodes": {"label": "nodes", "a": 80, "b": 160}},
+                "loop_closures": {"a": [{"event_seq": 40, "d_gt_m": 0.42, "label": "TP"}],
+                                  "b": [{"event_seq": 45, "d_gt_m": 10.3, "label": "FP"}]},
+                "far_m": 5.0}
 
+    monkeypatch.setitem(sys.modules, "eval.rundata", module("eval.rundata", load_run=load))
     monkeypatch.setitem(sys.modules, "eval.run_eval", module("eval.run_eval", evaluate_run=evaluate_run))
     monkeypatch.setitem(sys.modules, "eval.audit", module("eval.audit", audit_run=audit_run))
     monkeypatch.setitem(sys.modules, "eval.compare", module("eval.compare", compare_runs=compare_runs))
     rc = report_main([str(runs[0]), str(runs[1]), "--out", str(tmp_path), "--strict"])
     assert rc == 0
-    assert calls == [("evaluate", "guard_on.mcap"), ("audit", "guard_on.mcap"), ("evaluate", "guard_off.mcap"),
-                     ("audit", "guard_off.mcap"), ("compare", "guard_on.mcap", "guard_off.mcap")]
+    # each recording loaded once; the comparison first, then each run's evaluation and audit
+    assert calls == [("load", "guard_on.mcap"), ("load", "guard_off.mcap"),
+                     ("compare", "guard_on.mcap", "guard_off.mcap"),
+                     ("evaluate", "guard_on.mcap"), ("audit", "guard_on.mcap"),
+                     ("evaluate", "guard_off.mcap"), ("audit", "guard_off.mcap")]
     html = (tmp_path / "index.html").read_text(encoding="utf-8")
     assert 'class="unavailable"' not in html
-    assert "0.8125" in html and "ate_rmse_m" in html and "d_gt_m" in html
-    cmp_id = table_id("Comparison (Table 5.4, Tables 5.2-5.3): guard_on (VPR Guard ON) vs guard_off (VPR Guard OFF)")
-    block = re.search(rf'id="{cmp_id}">(.*?)</div>', html, flags=re.S).group(1)
-    # metric x run matrix: one header row, one row per metric
-    assert "<th>ON</th><th>OFF</th>" in block and block.count("<tr>") == 3
+    on, off = "guard_on (VPR Guard ON)", "guard_off (VPR Guard OFF)"
+    cmp_id = table_id(f"Comparison (Table 5.4, Tables 5.2-5.3): {on} vs {off}")
+    block = re.search(rf'id="{cmp_id}">(.*?)</div></div></div>', html, flags=re.S).group(1)
+    # Table 5.4 with the runs as columns, then one loop-closure table per run
+    assert f"<th>metric</th><th>{on}</th><th>{off}</th>" in block
+    assert '<td>event density (1/s)</td><td class="num">0.5</td><td class="num">1</td>' in block
+    assert f"Loop closures (Tables 5.2-5.3): {off}" in block and "10.3" in block and "FP" in block
+    # per-run details folded under the comparison, still there with their ids
+    for name in (f"Evaluation (trajectory error, loop closures): {on}", f"Audit (event-evidence association): {off}"):
+        m = re.search(rf'id="{table_id(name)}"><details><summary>', html)
+        assert m, name
+    assert "0.8125" in html and "rmse_m" in html
 
 
 def test_failing_eval_function_is_reported_and_strict_fails(runs: tuple[Path, Path], tmp_path: Path,
