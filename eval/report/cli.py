@@ -87,6 +87,8 @@ def present_comparison(c: dict[str, Any], label_a: str, label_b: str) -> dict[st
             for side, label in (("a", label_a), ("b", label_b)):
                 rows = value[side]
                 out[f"Loop closures (Tables 5.2-5.3): {label}"] = rows if rows else "no loop closure"
+        elif key == "far_m" and isinstance(value, (int, float)):
+            out["loop closure true when d_gt <= (m)"] = value
         elif key == "runs" and isinstance(value, dict) and set(value) == {"a", "b"}:
             continue  # the page names the runs already
         else:

@@ -262,8 +262,8 @@ def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | P
     by_id = {s.id: s for s in specs}
     scripts: list[str] = []
     keys = sorted({k for r in runs for k in r.counts})
-    all_tables = {"Run summary (read from the recordings)": _run_summary(runs, pr_summary),
-                  "Messages per key": {k: {r.label: r.counts.get(k, 0) for r in runs} for k in keys}, **tables}
+    all_tables = {"Run summary (read from the recordings)": _run_summary(runs, pr_summary), **tables,
+                  "Messages per key": {k: {r.label: r.counts.get(k, 0) for r in runs} for k in keys}}
     runs_list = "".join(
         f"<li><b>{html.escape(r.label)}</b>: <code>{html.escape(str(r.path))}</code>, {r.duration_s:.1f} s of "
         f"mission, code revision <code>{html.escape(str(r.metadata.get('code_revision', 'unknown')))}</code></li>"

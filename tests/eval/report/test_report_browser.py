@@ -31,7 +31,7 @@ def test_report_renders_in_headless_chromium(tmp_path: Path, monkeypatch: pytest
     on, off = tmp_path / "on.mcap", tmp_path / "off.mcap"
     write_handmade_run(on, guard_on=True)
     write_handmade_run(off, guard_on=False, event_every_m=1.0, false_closure=True)
-    for name in ("eval.run_eval", "eval.audit", "eval.compare"):  # figures only: the tables have their own tests
+    for name in ("eval.run_eval", "eval.audit", "eval.compare", "eval.rundata"):  # figures only: tables tested apart
         monkeypatch.setitem(sys.modules, name, None)
     buf = io.StringIO()
     with redirect_stdout(buf):
