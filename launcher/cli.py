@@ -13,7 +13,7 @@ Subcommands:
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
-- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``: see their
+- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``: see their
   own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
@@ -47,6 +47,7 @@ DELEGATED = {
     "eval": "eval.run_eval:main",
     "audit": "eval.audit:main",
     "compare": "eval.compare:main",
+    "report": "eval.report.cli:main",
 }
 
 

@@ -1,0 +1,312 @@
+"""``poseidon report`` on small hand-made runs whose content is known (tests/eval/report/handmade.py)."""
+from __future__ import annotations
+
+import json
+import re
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.report import FIGURE_IDS, load_run, render_report, table_id
+from eval.report.cli import main as report_main
+from eval.report.figures import build_figures, frame_similarity, precision_recall
+from tests.eval.report.handmade import PLACES, T0, dead_reckoning_ned, square_ned, write_handmade_run
+
+EVAL_MODULES = ("eval.run_eval", "eval.audit", "eval.compare", "eval.rundata")
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    d = tmp_path_factory.mktemp("report-runs")
+    on, off = d / "guard_on.mcap", d / "guard_off.mcap"
+    write_handmade_run(on, guard_on=True)
+    write_handmade_run(off, guard_on=False, event_every_m=1.0, false_closure=True)
+    return on, off
+
+
+def _without_eval_tables(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The eval table functions absent (as on a branch without them): importing them fails."""
+    for name in EVAL_MODULES:
+        monkeypatch.setitem(sys.modules, name, None)
+
+
+@pytest.fixture(scope="module")
+def page(runs: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("report-page")
+    with pytest.MonkeyPatch.context() as mp:
+        for name in EVAL_MODULES:
+            mp.setitem(sys.modules, name, None)
+        import io
+        from contextlib import redirect_stdout
+        buf = io.StringIO()
+        with redirect_stdout(buf):
+            rc = report_main([str(runs[0]), str(runs[1]), "--out", str(out), "--json"])
+    assert rc == 0
+    return out / "index.html", json.loads(buf.getvalue())
+
+
+# --------------------------------------------------------------------------- the page
+
+
+def test_page_is_written_and_self_contained(page: tuple[Path, dict]) -> None:
+    from plotly.offline import get_plotlyjs
+    path, result = page
+    full = path.read_text(encoding="utf-8")
+    assert result["out"] == str(path) and result["bytes"] == path.stat().st_size
+    assert full.count(get_plotlyjs()) == 1  # plotly.js inlined exactly once, as shipped
+    html = full.replace(get_plotlyjs(), "")  # (its own code mentions URLs; the browser test checks requests)
+    # nothing is fetched: no script/img/link/iframe pointing anywhere but data: URIs
+    refs = re.findall(r"<(?:script|img|link|iframe|source|video|audio)\b[^>]*\b(?:src|href)\s*=\s*[\"']?([^\"' >]+)",
+                      html, flags=re.I)
+    assert refs and all(r.startswith("data:") for r in refs), [r for r in refs if not r.startswith("data:")][:5]
+    assert not re.search(r"<script[^>]+src=", html, flags=re.I)
+    assert not re.search(r"(?:src|href)\s*=\s*[\"']?https?://", html, flags=re.I)
+    assert path.stat().st_size < 8_000_000  # plotly.js (~4.8 MB) plus a few hundred KB of data
+
+
+def test_every_figure_has_its_id_a_caption_and_its_data(page: tuple[Path, dict]) -> None:
+    path, result = page
+    html = path.read_text(encoding="utf-8")
+    assert result["figures"] == {fid: "shown" for fid in FIGURE_IDS}
+    for fid in FIGURE_IDS:
+        m = re.search(rf'<section class="figure" id="{fid}">(.*?)</section>', html, flags=re.S)
+        assert m, fid
+        assert '<p class="caption">' in m.group(1), fid
+    for fid in FIGURE_IDS[:-1]:  # every one but the image gallery is a plotly figure
+        assert f'poseidonPlot("{fid}-plot", ' in html
+    assert html.count('<img id="evidence-') == 24  # 12 evenly spaced evidence images per run
+    assert 'data-figures-expected="8"' in html
+
+
+def test_tables_and_configuration_are_on_the_page(page: tuple[Path, dict]) -> None:
+    path, result = page
+    html = path.read_text(encoding="utf-8")
+    assert f'id="{table_id("Run summary (read from the recordings)")}"' in html
+    # eval tables unavailable here: named on the page with the reason
+    assert len(result["unavailable"]) == 5
+    for name, reason in result["unavailable"].items():
+        assert f'id="{table_id(name)}"' in html and "not available in this build" in reason
+    assert "Unavailable: eval.compare.compare_runs is not available" in html
+    # configuration: the one field that differs, and the code revision of each run
+    assert 'id="table-config-differences"' in html
+    diff = re.search(r'id="table-config-differences">(.*?)</div>', html, flags=re.S).group(1)
+    assert "vpr_guard.require_vpr_for_event" in diff and diff.count("<tr>") == 2  # header + one field
+    assert html.count("0123456789abcdef-test") >= 2
+    assert "guard_on (VPR Guard ON)" in html and "guard_off (VPR Guard OFF)" in html
+
+
+def test_eval_tables_rendered_from_the_eval_functions(runs: tuple[Path, Path], tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[tuple] = []
+
+    def module(name: str, **funcs: object) -> types.ModuleType:
+        m = types.ModuleType(name)
+        for k, f in funcs.items():
+            setattr(m, k, f)
+        return m
+
+    def load(p: Path) -> tuple[str, str]:
+        calls.append(("load", Path(p).name))
+        return ("loaded", Path(p).name)
+
+    def evaluate_run(run: tuple[str, str]) -> dict:
+        calls.append(("evaluate", run[1]))
+        return {"ate": {"map": {"rmse_m": 0.8125, "n": 80}, "dead_reckoning": {"rmse_m": 2.5, "n": 80}},
+                "loop_closures": {"table": [{"event_seq": 40, "d_gt_m": 0.42, "label": "TP"}]}}
+
+    def audit_run(run: tuple[str, str]) -> dict:
+        calls.append(("audit", run[1]))
+        return {"f1": 1.0, "missing_images": 0}
+
+    def compare_runs(a: tuple[str, str], b: tuple[str, str]) -> dict:
+        calls.append(("compare", a[1], b[1]))
+        return {"runs": {"a": {"label": "A"}, "b": {"label": "B"}},
+                "table_5_4": {"event_density_per_s": {"label": "event density (1/s)", "a": 0.5, "b": 1.0},
+                              "nodes": {"label": "nodes", "a": 80, "b": 160}},
+                "loop_closures": {"a": [{"event_seq": 40, "d_gt_m": 0.42, "label": "TP"}],
+                                  "b": [{"event_seq": 45, "d_gt_m": 10.3, "label": "FP"}]},
+                "far_m": 5.0}
+
+    monkeypatch.setitem(sys.modules, "eval.rundata", module("eval.rundata", load_run=load))
+    monkeypatch.setitem(sys.modules, "eval.run_eval", module("eval.run_eval", evaluate_run=evaluate_run))
+    monkeypatch.setitem(sys.modules, "eval.audit", module("eval.audit", audit_run=audit_run))
+    monkeypatch.setitem(sys.modules, "eval.compare", module("eval.compare", compare_runs=compare_runs))
+    rc = report_main([str(runs[0]), str(runs[1]), "--out", str(tmp_path), "--strict"])
+    assert rc == 0
+    # each recording loaded once; the comparison first, then each run's evaluation and audit
+    assert calls == [("load", "guard_on.mcap"), ("load", "guard_off.mcap"),
+                     ("compare", "guard_on.mcap", "guard_off.mcap"),
+                     ("evaluate", "guard_on.mcap"), ("audit", "guard_on.mcap"),
+                     ("evaluate", "guard_off.mcap"), ("audit", "guard_off.mcap")]
+    html = (tmp_path / "index.html").read_text(encoding="utf-8")
+    assert 'class="unavailable"' not in html
+    on, off = "guard_on (VPR Guard ON)", "guard_off (VPR Guard OFF)"
+    cmp_id = table_id(f"Comparison (Table 5.4, Tables 5.2-5.3): {on} vs {off}")
+    block = re.search(rf'id="{cmp_id}">(.*?)</div></div></div>', html, flags=re.S).group(1)
+    # Table 5.4 with the runs as columns, then one loop-closure table per run
+    assert f"<th>metric</th><th>{on}</th><th>{off}</th>" in block
+    assert '<td>event density (1/s)</td><td class="num">0.5</td><td class="num">1</td>' in block
+    assert f"Loop closures (Tables 5.2-5.3): {off}" in block and "10.3" in block and "FP" in block
+    # per-run details folded under the comparison, still there with their ids
+    for name in (f"Evaluation (trajectory error, loop closures): {on}", f"Audit (event-evidence association): {off}"):
+        m = re.search(rf'id="{table_id(name)}"><details><summary>', html)
+        assert m, name
+    assert "0.8125" in html and "rmse_m" in html
+
+
+def test_failing_eval_function_is_reported_and_strict_fails(runs: tuple[Path, Path], tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch,
+                                                            caplog: pytest.LogCaptureFixture) -> None:
+    _without_eval_tables(monkeypatch)
+    broken = types.ModuleType("eval.audit")
+
+    def audit_run(p: Path) -> dict:
+        raise ValueError("experience_image missing on purpose")
+    broken.audit_run = audit_run  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "eval.audit", broken)
+    rc = report_main([str(runs[0]), "--out", str(tmp_path), "--strict"])
+    assert rc == 3
+    html = (tmp_path / "index.html").read_text(encoding="utf-8")  # the page is still written
+    assert "eval.audit.audit_run failed: ValueError: experience_image missing on purpose" in html
+    assert "eval.run_eval.evaluate_run is not available" in html
+    assert any("failed" in r.getMessage() and r.levelname == "ERROR" for r in caplog.records)
+    assert any("not available in this build" in r.getMessage() and r.levelname == "WARNING" for r in caplog.records)
+
+
+def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    missing = tmp_path / "nope.mcap"
+    assert report_main([str(missing), "--out", str(tmp_path / "o")]) == 2
+    assert str(missing) in capsys.readouterr().err
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"not an mcap file at all" * 10)
+    assert report_main([str(garbage), "--out", str(tmp_path / "o")]) == 2
+    assert str(garbage) in capsys.readouterr().err
+
+
+def test_run_with_only_truth_still_renders_and_says_what_is_missing(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    from common.mcap_io import RecordingWriter
+    from common.messages import Header, Odometry
+    _without_eval_tables(monkeypatch)
+    rec = tmp_path / "truth_only.mcap"
+    with RecordingWriter(rec) as w:
+        for i, p in enumerate(square_ned(np.arange(0.0, 80.0, 1.0))):
+            w.write("truth/pose", Odometry(header=Header(seq=i, stamp=T0 + i * 10**9), position=p.tolist(),
+                                           orientation=[0.0, 0.0, 0.0, 1.0]))
+    result = render_report([load_run(rec)], {}, tmp_path / "out")
+    figs = result["figures"]
+    assert figs["fig-overlay-3d"] == "shown" and figs["fig-projections"] == "shown"
+    assert "no map message" in figs["fig-topology"]
+    assert "no neocortex/sdr or local_view_cells" in figs["fig-similarity"]
+    assert "no local_view_cells" in figs["fig-viewcells"]
+    assert "no experience_image" in figs["fig-evidence"]
+    html = (tmp_path / "out" / "index.html").read_text(encoding="utf-8")
+    assert all(f'id="{fid}"' in html for fid in FIGURE_IDS)
+    assert "has no <code>poseidon</code> metadata record" in html
+
+
+# --------------------------------------------------------------------------- what the figures are drawn from
+
+
+def test_positions_are_taken_to_ned_and_anchored(runs: tuple[Path, Path]) -> None:
+    r = load_run(runs[0])
+    t = (r.truth.stamps - T0) / 1e9
+    np.testing.assert_allclose(r.truth.ned, square_ned(t), atol=1e-9)
+    # Odometry was published ENU (robot_state's default frame); back in NED it is the known drift
+    t_dr = (r.dead_reckoning.stamps - T0) / 1e9
+    expected = dead_reckoning_ned(t_dr, square_ned(t_dr))
+    np.testing.assert_allclose(r.dead_reckoning.ned, expected, atol=1e-6)
+    assert r.dead_reckoning.source == "Odometry"
+    # final map: 80 nodes, 30 % of the way from truth to dead reckoning (anchoring moves it < 1 cm here)
+    assert len(r.node_ids) == 80 and len(r.links) == 79 + 4 and int(r.link_loop.sum()) == 4
+    t_n = (r.node_stamps - T0) / 1e9
+    truth_n = square_ned(t_n)
+    expected_map = truth_n + 0.3 * (dead_reckoning_ned(t_n, truth_n) - truth_n)
+    # anchoring: the first node moved onto dead reckoning at its stamp (from 30 % to 100 % of the drift)
+    shift = 0.7 * (dead_reckoning_ned(t_n[:1], truth_n[:1]) - truth_n[:1])
+    np.testing.assert_allclose(r.node_ned, expected_map + shift, atol=1e-6)
+    assert r.label == "guard_on (VPR Guard ON)"
+    assert r.metadata["code_revision"] == "0123456789abcdef-test"
+
+
+def test_deviation_figure_shows_map_better_than_dead_reckoning(runs: tuple[Path, Path]) -> None:
+    rs = [load_run(p) for p in runs]
+    specs, _ = build_figures(rs)
+    dev = next(s for s in specs if s.id == "fig-deviation-time").figure
+    names = [tr.name for tr in dev.data]
+    # dead reckoning once (same Odometry in both runs), then the map of each run
+    assert len(names) == 3 and names[0].startswith("dead reckoning") and names[1].startswith("map: guard_on")
+    dr_max = float(np.max(dev.data[0].y))
+    map_max = float(np.max(dev.data[1].y))
+    # the heading error reaches 0.32 rad after 160 s: several metres; the map keeps 30 % of it
+    assert 5.0 < dr_max < 8.0
+    assert map_max == pytest.approx(0.3 * dr_max, rel=0.05)
+
+
+def test_topology_highlights_loop_closures_with_their_true_distance(runs: tuple[Path, Path]) -> None:
+    rs = [load_run(p) for p in runs]
+    specs, _ = build_figures(rs)
+    topo = next(s for s in specs if s.id == "fig-topology").figure
+    loops = [tr for tr in topo.data if tr.name == "loop-closure link"]
+    assert [int(np.isfinite(np.asarray(tr.x, dtype=float)).sum()) // 2 for tr in loops] == [4, 5]
+    hover = [tr for tr in topo.data if tr.name == "loop closure (hover)"]
+    d_on = [float(re.search(r"d_gt = ([0-9.]+) m", t).group(1)) for t in hover[0].text]
+    d_off = [float(re.search(r"d_gt = ([0-9.]+) m", t).group(1)) for t in hover[1].text]
+    assert max(d_on) < 0.01  # every ON closure joins the same place
+    assert sum(d > 5.0 for d in d_off) == 1  # the OFF run's one false closure (places 10 m apart)
+
+
+def test_similarity_and_revisit_truth(runs: tuple[Path, Path]) -> None:
+    r = load_run(runs[0])
+    sim = frame_similarity(r, max_frames=500)
+    assert sim is not None and sim.source == "SDR overlap" and len(sim.stamps) == 320
+    assert (np.diag(sim.percent) == 100).all()
+    assert np.array_equal(sim.truth, sim.truth.T)
+    lap = 160  # camera frames per lap (2 Hz, 80 s)
+    # a second-lap frame and the first-lap frame of the same spot: same place, similar SDRs
+    k = lap + 41
+    assert sim.truth[k, k - lap] and sim.percent[k, k - lap] >= 50
+    # frames of different places: not the same place, overlap near chance (8 random bits of 40)
+    assert not sim.truth[k, 10] and sim.percent[k, 10] < 30
+    # subsampling keeps at most max_frames, evenly spaced
+    small = frame_similarity(r, max_frames=100)
+    assert small is not None and len(small.stamps) == 100 and small.frame_total == 320
+
+
+def test_precision_recall_known_answer() -> None:
+    pr = precision_recall(np.array([0.9, 0.8, 0.7, 0.6]), np.array([True, False, True, False]))
+    np.testing.assert_allclose(pr["precision"], [1.0, 0.5, 2 / 3, 0.5])
+    np.testing.assert_allclose(pr["recall"], [0.5, 0.5, 1.0, 1.0])
+    assert pr["average_precision"] == pytest.approx(0.5 * 1.0 + 0.5 * 2 / 3)
+    assert pr["best_f1"] == pytest.approx(0.8) and pr["best_threshold"] == pytest.approx(0.7)
+    # ties share one threshold
+    tie = precision_recall(np.array([1.0, 1.0, 0.0]), np.array([True, False, True]))
+    np.testing.assert_allclose(tie["precision"], [0.5, 2 / 3])
+
+
+def test_lvc_operating_point_counts_the_aliased_place(page: tuple[Path, dict]) -> None:
+    _path, result = page
+    pr = result["precision_recall"]["guard_on (VPR Guard ON)"]
+    assert pr["source"] == "SDR overlap" and pr["positives"] > 0
+    # place 30 of lap 2 took place 5's LVC id: pairs called the same place that are not
+    assert 0.5 < pr["lvc_precision"] < 1.0
+    assert 0.0 < pr["average_precision"] <= 1.0
+    assert PLACES == 40
+
+
+def test_view_cells_separate_revisits_from_the_same_pass(runs: tuple[Path, Path]) -> None:
+    from eval.report.figures import _revisit_frames
+    r = load_run(runs[0])
+    revisit = _revisit_frames(r, 10.0)
+    lap = 160
+    # every second-lap frame matches a cell created a lap (80 m) earlier; no first-lap frame does
+    assert revisit[lap:].all() and not revisit[:lap].any()
+    assert int(r.lvc_new.sum()) == PLACES
+    specs, _ = build_figures([r])
+    vc = next(s for s in specs if s.id == "fig-viewcells").figure
+    counts = {tr.name: len(tr.x) for tr in vc.data}
+    assert counts == {"matched a cell of the same pass": lap - PLACES, "new view cell": PLACES,
+                      "recognised a cell from >= 10 m of travel earlier": lap, "map loop closure": 4}
