@@ -1,0 +1,369 @@
+"""4D pose-cell continuous attractor over (x, y, z, yaw) (dissertation Section 4.2.4).
+
+:class:`PoseCellNetwork` holds the activity ``P`` on a ``(nx, ny, nz, n_yaw)`` lattice
+(Table 4.1: ``(15, 15, 15, 8)``, translational spacing 0.1 m, yaw spacing 2 pi / n_yaw), with
+wrap-around on every axis.  One :meth:`PoseCellNetwork.step` is, in this order:
+
+1. path integration of the motion accumulated since the previous step (Eq. 4.15);
+2. LVC injection ``P += delta * sum_l beta_l V_l`` (Eq. 4.19, right);
+3. separable Gaussian excitation, wrapped on every axis (Eq. 4.16; sigmas in cells);
+4. global inhibition ``phi``, ``max(0, .)`` and normalisation to a total of 1 (Eq. 4.17);
+5. Hebbian learning ``beta_l <- max(beta_l, lambda V_l P)`` for the active LVCs (Eq. 4.19, left).
+
+Path integration (our formulation).  The motion is given in the vehicle's heading frame:
+``forward``/``left`` (horizontal, metres), ``up`` (metres) and the yaw change ``dyaw`` (radians,
+counter-clockwise).  Yaw layer ``q`` stands for the heading ``theta_q = 2 pi q / n_yaw`` in the
+world frame of the published ``Odometry`` (ENU: counter-clockwise from east).  The whole
+packet moves by ``R(theta_bar) (forward, left)`` horizontally and ``up`` vertically, where
+``theta_bar`` is the packet's own heading (circular mean of its yaw marginal); then the yaw
+axis shifts by ``dyaw / (2 pi / n_yaw)`` cells.  The node places the packet at the odometry
+yaw, so without injection ``theta_bar`` equals the odometry yaw and the packet moves by the
+odometry's world increment ``dp``; once an injection has turned the packet, translation
+follows the packet's heading belief, as in RatSLAM.  We do not move each yaw layer along its
+own ``theta_q`` (OpenRatSLAM's scheme): with 8 yaw bins of 45 deg the packet covers 3-5
+layers, the layers fan out and the attractor then re-centres on the peak layer.  Measured
+(40 steps of constant forward motion, advance of the centroid / odometry distance, steps of
+0.1 / 0.25 / 0.5 / 1 / 1.5 cells): per-layer headings 0.67 / 0.70 / 0.76 / 0.84 / 0.85;
+per-layer headings with the length divided by the yaw marginal's mean resultant length
+0.98 / 1.03 / 1.10 / 1.13 / 1.14; one shift along ``theta_bar`` 0.92 / 0.96 / 1.00 / 1.00 / 1.00.
+Sub-cell shifts use linear interpolation on each axis, which moves the activity's first
+moment exactly (two shifts of 0.5 cell = one of 1 cell for the centroid) and blurs the
+packet by a variance of ``f (1 - f)`` cell^2 that the excitation/inhibition re-sharpens; that
+blur and the attractor's pinning make steps far below a cell lag (the 0.92 above), so the node
+integrates once per camera frame, not once per odometry message.
+
+LVC -> pose-cell association (sparse).  Per LVC id, ``beta`` is stored only on the cells whose
+activity is at least ``beta_min_fraction`` of the packet's peak when the LVC is active, at
+most ``beta_max_cells`` of them (the strongest), as a sorted array of flat cell indices and
+float32 values: a few hundred bytes per LVC instead of a dense 27k-cell vector.
+
+Centroid: per axis, the marginal's mean of the wrapped offsets from the marginal's peak
+(offsets in ``(-n/2, n/2]``), so a packet straddling the wrap boundary is located correctly
+and linear-interpolation shifts move it exactly.  Reported as metres (``[0, n * spacing)``)
+and radians (``[-pi, pi)``).
+
+Hot loops (excitation, shifts) are numba kernels that skip zero cells: after inhibition the
+packet covers a few hundred of the 27k cells.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from common.config import PoseCellsConfig
+
+__all__ = ["PoseCellNetwork", "gaussian_kernel", "wrapped_centroid_cells"]
+
+_STATE_VERSION = 1
+
+
+def gaussian_kernel(sigma_cells: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets and weights (sum 1) of a Gaussian of ``sigma_cells`` on a wrapped axis of ``n``.
+
+    Radius ``ceil(3 sigma)``, capped at ``(n - 1) // 2`` so no cell is reached twice by the wrap.
+    """
+    radius = min(int(math.ceil(3.0 * sigma_cells)), (n - 1) // 2)
+    offsets = np.arange(-radius, radius + 1, dtype=np.int64)
+    weights = np.exp(-offsets.astype(np.float64) ** 2 / (2.0 * sigma_cells ** 2))
+    return offsets, weights / weights.sum()
+
+
+# --------------------------------------------------------------------------- numba kernels
+
+
+@numba.njit(cache=True)
+def _excite_axis(src, dst, stride, n, offsets, weights):
+    """dst = src convolved along one wrapped axis (flat C-order arrays seen as
+    (outer, n, stride)); zero cells are skipped."""
+    dst[:] = 0.0
+    m = offsets.shape[0]
+    outer = src.shape[0] // (n * stride)
+    for o in range(outer):
+        base = o * n * stride
+        for c in range(n):
+            row = base + c * stride
+            for k in range(stride):
+                v = src[row + k]
+                if v == 0.0:
+                    continue
+                for t in range(m):
+                    cc = c + offsets[t]
+                    if cc < 0:
+                        cc += n
+                    elif cc >= n:
+                        cc -= n
+                    dst[base + cc * stride + k] += v * weights[t]
+
+
+@numba.njit(cache=True)
+def _inhibit_normalise(p, phi):
+    """Eq. 4.17: p <- N(max(0, p - phi)); returns the total before normalisation."""
+    total = 0.0
+    for i in range(p.shape[0]):
+        v = p[i] - phi
+        if v > 0.0:
+            p[i] = v
+            total += v
+        else:
+            p[i] = 0.0
+    if total > 0.0:
+        inv = 1.0 / total
+        for i in range(p.shape[0]):
+            p[i] *= inv
+    return total
+
+
+@numba.njit(cache=True)
+def _attractor_update(p, tmp, strides, dims, off0, w0, off1, w1, off2, w2, off3, w3, phi):
+    """Eqs. 4.16-4.17 in place on the flat activity ``p`` (``tmp`` is scratch of the same size)."""
+    _excite_axis(p, tmp, strides[0], dims[0], off0, w0)
+    _excite_axis(tmp, p, strides[1], dims[1], off1, w1)
+    _excite_axis(p, tmp, strides[2], dims[2], off2, w2)
+    _excite_axis(tmp, p, strides[3], dims[3], off3, w3)
+    return _inhibit_normalise(p, phi)
+
+
+@numba.njit(cache=True)
+def _shift_axis(src, dst, stride, n, shift):
+    """dst = src shifted by ``shift`` cells along one wrapped axis (flat C-order arrays seen as
+    (outer, n, stride)), linear interpolation for the fractional part; zero cells skipped."""
+    dst[:] = 0.0
+    whole = int(math.floor(shift))
+    f = shift - whole
+    outer = src.shape[0] // (n * stride)
+    for o in range(outer):
+        base = o * n * stride
+        for c in range(n):
+            row = base + c * stride
+            c0 = (c + whole) % n
+            c1 = c0 + 1
+            if c1 >= n:
+                c1 -= n
+            out0 = base + c0 * stride
+            out1 = base + c1 * stride
+            for k in range(stride):
+                v = src[row + k]
+                if v == 0.0:
+                    continue
+                dst[out0 + k] += v * (1.0 - f)
+                if f > 0.0:
+                    dst[out1 + k] += v * f
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def wrapped_centroid_cells(marginal: np.ndarray) -> float:
+    """Centroid (in cells, ``[0, n)``) of a wrapped 1D marginal: mean of the offsets from the
+    peak wrapped to ``(-n/2, n/2]``, plus the peak."""
+    n = marginal.shape[0]
+    total = float(marginal.sum())
+    if not total > 0.0:
+        raise ValueError("centroid of an empty marginal (no activity)")
+    peak = int(np.argmax(marginal))
+    offsets = (np.arange(n) - peak) % n
+    offsets = np.where(offsets > n / 2.0, offsets - n, offsets).astype(np.float64)
+    return float((peak + float(marginal @ offsets) / total) % n)
+
+
+@dataclass
+class _Beta:
+    cells: np.ndarray  # int32 sorted flat indices
+    values: np.ndarray  # float32
+
+
+class PoseCellNetwork:
+    """The 4D pose-cell attractor with sparse Hebbian LVC associations (Eqs. 4.15-4.19)."""
+
+    def __init__(self, config: PoseCellsConfig | None = None):
+        self.cfg = config or PoseCellsConfig()
+        self.dims = tuple(int(v) for v in self.cfg.number_of_neurons)
+        if min(self.dims) < 2:
+            raise ValueError(f"posecells.number_of_neurons must be >= 2 on every axis, got {list(self.dims)}")
+        self.spacing = np.asarray(self.cfg.distance_between_neurons, dtype=np.float64)
+        self.yaw_step = 2.0 * math.pi / self.dims[3]
+        self.size = int(np.prod(self.dims))
+        self._strides = np.array([self.dims[1] * self.dims[2] * self.dims[3], self.dims[2] * self.dims[3],
+                                  self.dims[3], 1], dtype=np.int64)
+        self._dims = np.array(self.dims, dtype=np.int64)
+        sig = (self.cfg.excitation_sigma_cells,) * 3 + (self.cfg.excitation_sigma_yaw_cells,)
+        self._kernels = [gaussian_kernel(s, n) for s, n in zip(sig, self.dims)]
+        self._layer_headings = np.arange(self.dims[3]) * self.yaw_step
+        self.activity = np.zeros(self.size, dtype=np.float64)
+        self._tmp = np.zeros(self.size, dtype=np.float64)
+        self.beta: dict[int, _Beta] = {}
+        self.steps = 0
+        self.reset((self.dims[0] // 2, self.dims[1] // 2, self.dims[2] // 2, 0.0))
+
+    # ---- state ------------------------------------------------------------------------------
+    @property
+    def P(self) -> np.ndarray:
+        """Activity as a ``(nx, ny, nz, n_yaw)`` view."""
+        return self.activity.reshape(self.dims)
+
+    def reset(self, cell: tuple[float, float, float, float]) -> None:
+        """A lone unit packet at a (possibly fractional) cell position (x, y, z, yaw cells)."""
+        self.activity[:] = 0.0
+        base = [int(math.floor(c)) % n for c, n in zip(cell, self.dims)]
+        self.activity[int(np.dot(base, self._strides))] = 1.0
+        frac = [float(c) - math.floor(c) for c in cell]
+        if any(frac):
+            self._shift(np.array(frac[:3]), frac[3])
+
+    def reset_at_pose(self, x: float, y: float, z: float, yaw: float) -> None:
+        """A lone packet at a pose (metres, radians; positions wrap modulo the lattice)."""
+        self.reset((x / self.spacing[0], y / self.spacing[1], z / self.spacing[2], yaw / self.yaw_step))
+
+    # ---- dynamics -----------------------------------------------------------------------------
+    def update(self) -> None:
+        """Excitation, global inhibition, rectification and normalisation (Eqs. 4.16-4.17)."""
+        (o0, w0), (o1, w1), (o2, w2), (o3, w3) = self._kernels
+        total = _attractor_update(self.activity, self._tmp, self._strides, self._dims, o0, w0, o1, w1, o2, w2,
+                                  o3, w3, float(self.cfg.global_inhibition))
+        if not total > 0.0:
+            raise RuntimeError("pose cells: global inhibition removed all activity "
+                               f"(posecells.global_inhibition={self.cfg.global_inhibition} is too large)")
+
+    def heading_concentration(self) -> tuple[float, float]:
+        """(rho, mean heading rad) of the yaw marginal: ``rho e^{i mean} = sum_q w_q e^{i theta_q}``."""
+        w = self.P.sum(axis=(0, 1, 2))
+        z = complex(np.dot(w, np.cos(self._layer_headings)), np.dot(w, np.sin(self._layer_headings)))
+        total = float(w.sum())
+        return abs(z) / total, math.atan2(z.imag, z.real)
+
+    def path_integrate(self, forward: float, left: float, up: float, dyaw: float) -> None:
+        """Move the packet by a motion in the heading frame (m, m, m, rad), Eq. 4.15:
+        ``R(theta_bar) (forward, left)`` horizontally, ``up`` vertically, then ``dyaw`` along
+        the yaw axis (module docstring)."""
+        if forward or left:
+            _, heading = self.heading_concentration()
+            c, s = math.cos(heading), math.sin(heading)
+            dx, dy = c * forward - s * left, s * forward + c * left
+        else:
+            dx = dy = 0.0
+        self._shift(np.array([dx / self.spacing[0], dy / self.spacing[1], up / self.spacing[2]]), dyaw / self.yaw_step)
+
+    def _shift(self, cells: np.ndarray, yaw_cells: float) -> None:
+        """Shift the activity by (x, y, z) cells and ``yaw_cells`` (linear interpolation, wrapped)."""
+        src, dst = self.activity, self._tmp
+        for axis, shift in enumerate((cells[0], cells[1], cells[2], yaw_cells)):
+            if shift == 0.0:
+                continue
+            _shift_axis(src, dst, self._strides[axis], self._dims[axis], float(shift))
+            src, dst = dst, src
+        if src is not self.activity:
+            self.activity[:] = src
+
+    # ---- LVC association (Eq. 4.19) ---------------------------------------------------------------
+    def inject(self, lvc_ids: list[int] | tuple[int, ...]) -> int:
+        """``P += delta * sum_l beta_l`` over the active LVCs that have an association;
+        returns how many injected."""
+        gain = float(self.cfg.lvc_injection_gain)
+        n = 0
+        for lvc in lvc_ids:
+            b = self.beta.get(int(lvc))
+            if b is None:
+                continue
+            self.activity[b.cells] += gain * b.values
+            n += 1
+        return n
+
+    def learn(self, lvc_ids: list[int] | tuple[int, ...]) -> None:
+        """``beta_l <- max(beta_l, lambda P)`` on the cells near the packet, kept sparse."""
+        lam = float(self.cfg.lvc_learning_rate)
+        peak = float(self.activity.max())
+        if lam == 0.0 or not peak > 0.0:
+            return
+        cells = np.flatnonzero(self.activity >= self.cfg.beta_min_fraction * peak).astype(np.int32)
+        values = (lam * self.activity[cells]).astype(np.float32)
+        for lvc in lvc_ids:
+            lvc = int(lvc)
+            old = self.beta.get(lvc)
+            if old is None:
+                c, v = cells, values
+            else:
+                c = np.concatenate([old.cells, cells])
+                v = np.concatenate([old.values, values])
+                order = np.argsort(c, kind="stable")
+                c, v = c[order], v[order]
+                starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
+                c, v = c[starts], np.maximum.reduceat(v, starts)
+            cap = int(self.cfg.beta_max_cells)
+            if c.size > cap:
+                keep = np.sort(np.argsort(-v, kind="stable")[:cap])
+                c, v = c[keep], v[keep]
+            self.beta[lvc] = _Beta(np.ascontiguousarray(c, dtype=np.int32), np.ascontiguousarray(v, dtype=np.float32))
+
+    def step(self, forward: float = 0.0, left: float = 0.0, up: float = 0.0, dyaw: float = 0.0,
+             active_lvcs: list[int] | tuple[int, ...] = ()) -> None:
+        """One frame: path integration, injection, attractor update, learning (module docstring)."""
+        if forward or left or up or dyaw:
+            self.path_integrate(forward, left, up, dyaw)
+        self.inject(active_lvcs)
+        self.update()
+        self.learn(active_lvcs)
+        self.steps += 1
+
+    # ---- read-out --------------------------------------------------------------------------------
+    def centroid_cells(self) -> np.ndarray:
+        """Wrap-safe centroid (x, y, z, yaw) in cells."""
+        p = self.P
+        margs = (p.sum(axis=(1, 2, 3)), p.sum(axis=(0, 2, 3)), p.sum(axis=(0, 1, 3)), p.sum(axis=(0, 1, 2)))
+        return np.array([wrapped_centroid_cells(m) for m in margs])
+
+    def centroid(self) -> list[float]:
+        """Centroid as ``[x, y, z]`` metres in ``[0, n * spacing)`` and yaw radians in ``[-pi, pi)``."""
+        c = self.centroid_cells()
+        yaw = (c[3] * self.yaw_step + math.pi) % (2.0 * math.pi) - math.pi
+        return [float(c[0] * self.spacing[0]), float(c[1] * self.spacing[1]), float(c[2] * self.spacing[2]),
+                float(yaw)]
+
+    def beta_cells(self) -> int:
+        """Total stored associations (cells over every LVC)."""
+        return sum(b.cells.size for b in self.beta.values())
+
+    # ---- persistence -----------------------------------------------------------------------------
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """Everything needed to continue, as numpy arrays (for ``np.savez``)."""
+        ids = np.array(sorted(self.beta), dtype=np.int64)
+        counts = np.array([self.beta[i].cells.size for i in ids], dtype=np.int64)
+        cells = np.concatenate([self.beta[i].cells for i in ids]) if ids.size else np.zeros(0, np.int32)
+        values = np.concatenate([self.beta[i].values for i in ids]) if ids.size else np.zeros(0, np.float32)
+        return {"pc_version": np.array(_STATE_VERSION), "pc_dims": np.array(self.dims, dtype=np.int64),
+                "pc_activity": self.activity.copy(), "pc_steps": np.array(self.steps, dtype=np.int64),
+                "pc_beta_ids": ids, "pc_beta_counts": counts, "pc_beta_cells": cells, "pc_beta_values": values}
+
+    def load_arrays(self, arrays: dict[str, np.ndarray] | np.lib.npyio.NpzFile, source: str = "state") -> None:
+        """Restore what :meth:`state_arrays` wrote; ``source`` names the file in errors."""
+        missing = [k for k in ("pc_version", "pc_dims", "pc_activity", "pc_steps", "pc_beta_ids", "pc_beta_counts",
+                               "pc_beta_cells", "pc_beta_values") if k not in arrays]
+        if missing:
+            raise ValueError(f"{source}: not a pose-cell state (missing {missing})")
+        if int(arrays["pc_version"]) != _STATE_VERSION:
+            raise ValueError(f"{source}: pose-cell state version {int(arrays['pc_version'])}, expected {_STATE_VERSION}")
+        dims = tuple(int(v) for v in arrays["pc_dims"])
+        if dims != self.dims:
+            raise ValueError(f"{source}: pose-cell lattice {list(dims)} differs from posecells.number_of_neurons "
+                             f"{list(self.dims)}")
+        self.activity[:] = np.asarray(arrays["pc_activity"], dtype=np.float64)
+        self.steps = int(arrays["pc_steps"])
+        self.beta = {}
+        ends = np.cumsum(arrays["pc_beta_counts"])
+        starts = ends - arrays["pc_beta_counts"]
+        cells, values = arrays["pc_beta_cells"], arrays["pc_beta_values"]
+        for lvc, s, e in zip(arrays["pc_beta_ids"], starts, ends):
+            self.beta[int(lvc)] = _Beta(np.array(cells[s:e], dtype=np.int32), np.array(values[s:e], dtype=np.float32))
+
+    def save(self, path: str | Path) -> None:
+        np.savez(Path(path), **self.state_arrays())
+
+    @classmethod
+    def load(cls, path: str | Path, config: PoseCellsConfig | None = None) -> "PoseCellNetwork":
+        net = cls(config)
+        with np.load(Path(path)) as f:
+            net.load_arrays(f, source=str(path))
+        return net
