@@ -22,15 +22,21 @@ odometry's world increment ``dp``; once an injection has turned the packet, tran
 follows the packet's heading belief, as in RatSLAM.  We do not move each yaw layer along its
 own ``theta_q`` (OpenRatSLAM's scheme): with 8 yaw bins of 45 deg the packet covers 3-5
 layers, the layers fan out and the attractor then re-centres on the peak layer.  Measured
-(40 steps of constant forward motion, advance of the centroid / odometry distance, steps of
+with linearly interpolated shifts (40 steps of constant forward motion, advance of the centroid / odometry distance, steps of
 0.1 / 0.25 / 0.5 / 1 / 1.5 cells): per-layer headings 0.67 / 0.70 / 0.76 / 0.84 / 0.85;
 per-layer headings with the length divided by the yaw marginal's mean resultant length
 0.98 / 1.03 / 1.10 / 1.13 / 1.14; one shift along ``theta_bar`` 0.92 / 0.96 / 1.00 / 1.00 / 1.00.
-Sub-cell shifts use linear interpolation on each axis, which moves the activity's first
-moment exactly (two shifts of 0.5 cell = one of 1 cell for the centroid) and blurs the
-packet by a variance of ``f (1 - f)`` cell^2 that the excitation/inhibition re-sharpens; that
-blur and the attractor's pinning make steps far below a cell lag (the 0.92 above), so the node
-integrates once per camera frame, not once per odometry message.
+Sub-cell motion: the activity only ever moves by whole cells (exact rolls); the fraction is
+kept as a continuous offset ``offset`` (cells, per axis, in ``[-0.5, 0.5)``) that is carried to
+the next move and added to the read-out.  So two moves of 0.5 cell equal one of 1 cell
+exactly, activity included, and any motion, however slow, is integrated without loss.  We
+first shifted by linear interpolation of the fraction (OpenRatSLAM's scheme): the
+interpolation blurs the packet and the thresholded attractor then pulls it back toward a
+lattice-aligned shape, so slow motion was lost (measured on a 4 Hz frame stream: 8% of 0.1-cell
+steps, 11% of a 2 cm/s descent, 13% of a 0.05 rad/s turn; over 270 s the packet's yaw fell
+1.7 rad behind the odometry).  Excitation commutes with whole-cell rolls, so the offset is
+exact for the attractor; an LVC injection acts on whole cells (its sub-cell part, at most
+half a cell, is not restored).
 
 LVC -> pose-cell association (sparse).  Per LVC id, ``beta`` is stored only on the cells whose
 activity is at least ``beta_min_fraction`` of the packet's peak when the LVC is active, at
@@ -38,11 +44,11 @@ most ``beta_max_cells`` of them (the strongest), as a sorted array of flat cell 
 float32 values: a few hundred bytes per LVC instead of a dense 27k-cell vector.
 
 Centroid: per axis, the marginal's mean of the wrapped offsets from the marginal's peak
-(offsets in ``(-n/2, n/2]``), so a packet straddling the wrap boundary is located correctly
-and linear-interpolation shifts move it exactly.  Reported as metres (``[0, n * spacing)``)
-and radians (``[-pi, pi)``).
+(offsets in ``[-n/2, n/2]``, the antipodal cell of an even axis split between both ends), so
+a packet straddling the wrap boundary is located correctly; plus the sub-cell offset.
+Reported as metres (``[0, n * spacing)``) and radians (``[-pi, pi)``).
 
-Hot loops (excitation, shifts) are numba kernels that skip zero cells: after inhibition the
+Hot loops (excitation, rolls) are numba kernels that skip zero cells: after inhibition the
 packet covers a few hundred of the 27k cells.
 """
 from __future__ import annotations
@@ -128,45 +134,39 @@ def _attractor_update(p, tmp, strides, dims, off0, w0, off1, w1, off2, w2, off3,
 
 
 @numba.njit(cache=True)
-def _shift_axis(src, dst, stride, n, shift):
-    """dst = src shifted by ``shift`` cells along one wrapped axis (flat C-order arrays seen as
-    (outer, n, stride)), linear interpolation for the fractional part; zero cells skipped."""
+def _roll_axis(src, dst, stride, n, k):
+    """dst = src rolled by ``k`` whole cells along one wrapped axis (flat C-order arrays seen
+    as (outer, n, stride)); zero cells skipped."""
     dst[:] = 0.0
-    whole = int(math.floor(shift))
-    f = shift - whole
     outer = src.shape[0] // (n * stride)
     for o in range(outer):
         base = o * n * stride
         for c in range(n):
             row = base + c * stride
-            c0 = (c + whole) % n
-            c1 = c0 + 1
-            if c1 >= n:
-                c1 -= n
-            out0 = base + c0 * stride
-            out1 = base + c1 * stride
-            for k in range(stride):
-                v = src[row + k]
-                if v == 0.0:
-                    continue
-                dst[out0 + k] += v * (1.0 - f)
-                if f > 0.0:
-                    dst[out1 + k] += v * f
+            out = base + ((c + k) % n) * stride
+            for j in range(stride):
+                v = src[row + j]
+                if v != 0.0:
+                    dst[out + j] = v
 
 
 # --------------------------------------------------------------------------- helpers
 
 
 def wrapped_centroid_cells(marginal: np.ndarray) -> float:
-    """Centroid (in cells, ``[0, n)``) of a wrapped 1D marginal: mean of the offsets from the
-    peak wrapped to ``(-n/2, n/2]``, plus the peak."""
+    """Centroid (in cells, ``[0, n)``) of a wrapped 1D marginal: the peak plus the mean of the
+    offsets from the peak wrapped to ``[-n/2, n/2]``; on an even axis the antipodal cell counts
+    half at ``-n/2`` and half at ``+n/2`` (so a packet that reaches all the way round stays
+    symmetric)."""
     n = marginal.shape[0]
     total = float(marginal.sum())
     if not total > 0.0:
         raise ValueError("centroid of an empty marginal (no activity)")
     peak = int(np.argmax(marginal))
-    offsets = (np.arange(n) - peak) % n
-    offsets = np.where(offsets > n / 2.0, offsets - n, offsets).astype(np.float64)
+    offsets = ((np.arange(n) - peak) % n).astype(np.float64)
+    offsets = np.where(offsets > n / 2.0, offsets - n, offsets)
+    if n % 2 == 0:
+        offsets[(peak + n // 2) % n] = 0.0  # (+n/2 - n/2) / 2
     return float((peak + float(marginal @ offsets) / total) % n)
 
 
@@ -196,6 +196,7 @@ class PoseCellNetwork:
         self.activity = np.zeros(self.size, dtype=np.float64)
         self._tmp = np.zeros(self.size, dtype=np.float64)
         self.beta: dict[int, _Beta] = {}
+        self.offset = np.zeros(4)  # sub-cell position (cells) carried between moves
         self.steps = 0
         self.reset((self.dims[0] // 2, self.dims[1] // 2, self.dims[2] // 2, 0.0))
 
@@ -208,11 +209,9 @@ class PoseCellNetwork:
     def reset(self, cell: tuple[float, float, float, float]) -> None:
         """A lone unit packet at a (possibly fractional) cell position (x, y, z, yaw cells)."""
         self.activity[:] = 0.0
-        base = [int(math.floor(c)) % n for c, n in zip(cell, self.dims)]
-        self.activity[int(np.dot(base, self._strides))] = 1.0
-        frac = [float(c) - math.floor(c) for c in cell]
-        if any(frac):
-            self._shift(np.array(frac[:3]), frac[3])
+        whole = [int(math.floor(float(c) + 0.5)) for c in cell]
+        self.offset = np.array([float(c) - w for c, w in zip(cell, whole)])
+        self.activity[int(np.dot([w % n for w, n in zip(whole, self.dims)], self._strides))] = 1.0
 
     def reset_at_pose(self, x: float, y: float, z: float, yaw: float) -> None:
         """A lone packet at a pose (metres, radians; positions wrap modulo the lattice)."""
@@ -229,11 +228,12 @@ class PoseCellNetwork:
                                f"(posecells.global_inhibition={self.cfg.global_inhibition} is too large)")
 
     def heading_concentration(self) -> tuple[float, float]:
-        """(rho, mean heading rad) of the yaw marginal: ``rho e^{i mean} = sum_q w_q e^{i theta_q}``."""
+        """(rho, theta_bar): mean resultant length and circular mean (rad, sub-cell offset
+        included) of the yaw marginal, ``rho e^{i theta} = sum_q w_q e^{i theta_q}``."""
         w = self.P.sum(axis=(0, 1, 2))
         z = complex(np.dot(w, np.cos(self._layer_headings)), np.dot(w, np.sin(self._layer_headings)))
         total = float(w.sum())
-        return abs(z) / total, math.atan2(z.imag, z.real)
+        return abs(z) / total, math.atan2(z.imag, z.real) + float(self.offset[3]) * self.yaw_step
 
     def path_integrate(self, forward: float, left: float, up: float, dyaw: float) -> None:
         """Move the packet by a motion in the heading frame (m, m, m, rad), Eq. 4.15:
@@ -248,12 +248,17 @@ class PoseCellNetwork:
         self._shift(np.array([dx / self.spacing[0], dy / self.spacing[1], up / self.spacing[2]]), dyaw / self.yaw_step)
 
     def _shift(self, cells: np.ndarray, yaw_cells: float) -> None:
-        """Shift the activity by (x, y, z) cells and ``yaw_cells`` (linear interpolation, wrapped)."""
+        """Add (x, y, z, yaw) cells of motion: whole cells roll the activity, the rest stays in
+        :attr:`offset` (module docstring)."""
+        self.offset += np.array([cells[0], cells[1], cells[2], yaw_cells], dtype=np.float64)
+        whole = np.floor(self.offset + 0.5)
+        self.offset -= whole
         src, dst = self.activity, self._tmp
-        for axis, shift in enumerate((cells[0], cells[1], cells[2], yaw_cells)):
-            if shift == 0.0:
+        for axis in range(4):
+            k = int(whole[axis]) % self.dims[axis]
+            if k == 0:
                 continue
-            _shift_axis(src, dst, self._strides[axis], self._dims[axis], float(shift))
+            _roll_axis(src, dst, self._strides[axis], self._dims[axis], k)
             src, dst = dst, src
         if src is not self.activity:
             self.activity[:] = src
@@ -310,10 +315,11 @@ class PoseCellNetwork:
 
     # ---- read-out --------------------------------------------------------------------------------
     def centroid_cells(self) -> np.ndarray:
-        """Wrap-safe centroid (x, y, z, yaw) in cells."""
+        """Wrap-safe centroid (x, y, z, yaw) in cells ``[0, n)``, sub-cell offset included."""
         p = self.P
         margs = (p.sum(axis=(1, 2, 3)), p.sum(axis=(0, 2, 3)), p.sum(axis=(0, 1, 3)), p.sum(axis=(0, 1, 2)))
-        return np.array([wrapped_centroid_cells(m) for m in margs])
+        c = np.array([wrapped_centroid_cells(m) for m in margs]) + self.offset
+        return c % np.array(self.dims, dtype=np.float64)
 
     def centroid(self) -> list[float]:
         """Centroid as ``[x, y, z]`` metres in ``[0, n * spacing)`` and yaw radians in ``[-pi, pi)``."""
@@ -334,12 +340,12 @@ class PoseCellNetwork:
         cells = np.concatenate([self.beta[i].cells for i in ids]) if ids.size else np.zeros(0, np.int32)
         values = np.concatenate([self.beta[i].values for i in ids]) if ids.size else np.zeros(0, np.float32)
         return {"pc_version": np.array(_STATE_VERSION), "pc_dims": np.array(self.dims, dtype=np.int64),
-                "pc_activity": self.activity.copy(), "pc_steps": np.array(self.steps, dtype=np.int64),
+                "pc_activity": self.activity.copy(), "pc_offset": self.offset.copy(), "pc_steps": np.array(self.steps, dtype=np.int64),
                 "pc_beta_ids": ids, "pc_beta_counts": counts, "pc_beta_cells": cells, "pc_beta_values": values}
 
     def load_arrays(self, arrays: dict[str, np.ndarray] | np.lib.npyio.NpzFile, source: str = "state") -> None:
         """Restore what :meth:`state_arrays` wrote; ``source`` names the file in errors."""
-        missing = [k for k in ("pc_version", "pc_dims", "pc_activity", "pc_steps", "pc_beta_ids", "pc_beta_counts",
+        missing = [k for k in ("pc_version", "pc_dims", "pc_activity", "pc_offset", "pc_steps", "pc_beta_ids", "pc_beta_counts",
                                "pc_beta_cells", "pc_beta_values") if k not in arrays]
         if missing:
             raise ValueError(f"{source}: not a pose-cell state (missing {missing})")
@@ -350,6 +356,7 @@ class PoseCellNetwork:
             raise ValueError(f"{source}: pose-cell lattice {list(dims)} differs from posecells.number_of_neurons "
                              f"{list(self.dims)}")
         self.activity[:] = np.asarray(arrays["pc_activity"], dtype=np.float64)
+        self.offset = np.asarray(arrays["pc_offset"], dtype=np.float64).copy()
         self.steps = int(arrays["pc_steps"])
         self.beta = {}
         ends = np.cumsum(arrays["pc_beta_counts"])

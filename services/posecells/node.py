@@ -7,10 +7,12 @@ frame's stamp").
 - ``Odometry`` (ENU after ``axis_remap``, see ``services/robot_state/frames.py``): the first
   message places a lone packet at the odometry pose (positions modulo the lattice, yaw = the
   odometry yaw), so without injection the pose-cell centroid follows the odometry modulo
-  1.5 m.  Every later message adds its increment (Eq. 4.15) ``dp = p_t - p_{t-1}``, turned
-  into the heading frame with the odometry yaw at the increment's midpoint
-  (``forward, left = R(-psi_mid) (dx, dy)``, ``up = dz``, ``dyaw`` wrapped), to a pending
-  motion.  An increment longer than ``posecells.max_odometry_step`` metres is a
+  1.5 m.  Every later message adds its increment (Eq. 4.15) ``dp = p_t - p_{t-1}`` to a
+  pending motion, expressed in the frame of the odometry yaw ``psi_ref`` at the previous
+  pose-cell step (``forward, left = R(-psi_ref) (dx, dy)``, ``up = dz``, ``dyaw`` wrapped):
+  the network rotates it back by the packet's heading, which equals ``psi_ref`` while the
+  packet agrees with the odometry, so the packet moves by exactly the summed ``dp`` even
+  when the vehicle turns between two frames.  An increment longer than ``posecells.max_odometry_step`` metres is a
   discontinuity (a restarted odometry, a later mission): it only moves the reference and is
   counted (``odometry_discontinuities``).
 - ``local_view_cells`` (one per camera frame) is one time step: the pending motion is path-
@@ -77,6 +79,7 @@ class PoseCellsNode(ServiceNode):
         self.gate = EventGate(config.vpr_guard)
         self._odom: tuple[list[float], float] | None = None  # latest (position, yaw)
         self._pending = np.zeros(4)  # forward, left, up (m), dyaw (rad) since the last frame
+        self._ref_yaw = 0.0  # odometry yaw at the last pose-cell step (frame of the pending motion)
         self._placed = False  # the packet has been placed at an odometry pose
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         self._dirty = False
@@ -107,6 +110,7 @@ class PoseCellsNode(ServiceNode):
             if not self._placed:
                 self.net.reset_at_pose(pos[0], pos[1], pos[2], yaw)
                 self._placed = True
+            self._ref_yaw = yaw
         else:
             prev, prev_yaw = self._odom
             d = [pos[i] - prev[i] for i in range(3)]
@@ -116,10 +120,8 @@ class PoseCellsNode(ServiceNode):
                             self.cfg.max_odometry_step)
                 self.count("odometry_discontinuities")
             else:
-                dyaw = _wrap(yaw - prev_yaw)
-                mid = prev_yaw + 0.5 * dyaw
-                c, s = math.cos(mid), math.sin(mid)
-                self._pending += (c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2], dyaw)
+                c, s = math.cos(self._ref_yaw), math.sin(self._ref_yaw)
+                self._pending += (c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2], _wrap(yaw - prev_yaw))
         self._odom = (pos, yaw)
         self._dirty = True
 
@@ -142,6 +144,7 @@ class PoseCellsNode(ServiceNode):
             return
         forward, left, up, dyaw = (float(v) for v in self._pending)
         self._pending[:] = 0.0
+        self._ref_yaw = self._odom[1]
         self.net.step(forward, left, up, dyaw, self.active_lvcs(msg))
         position, yaw = self._odom
         decision = self.gate.decide(lvc_id, position)
@@ -164,7 +167,7 @@ class PoseCellsNode(ServiceNode):
     def _node_state(self) -> dict:
         return {"version": _NODE_STATE_VERSION, "gate": self.gate.state(),
                 "odom": None if self._odom is None else [self._odom[0], self._odom[1]],
-                "pending": [float(v) for v in self._pending], "placed": self._placed}
+                "pending": [float(v) for v in self._pending], "ref_yaw": self._ref_yaw, "placed": self._placed}
 
     def save(self, path: Path) -> None:
         """Write the network and the node's state to ``path`` (``.npz``)."""
@@ -184,6 +187,7 @@ class PoseCellsNode(ServiceNode):
         self.gate.load_state(state["gate"])
         self._odom = None if state["odom"] is None else ([float(v) for v in state["odom"][0]], float(state["odom"][1]))
         self._pending = np.array(state["pending"], dtype=np.float64)
+        self._ref_yaw = float(state["ref_yaw"])
         self._placed = bool(state["placed"])
 
     def _save(self) -> None:
