@@ -82,34 +82,53 @@ def gaussian_kernel(sigma_cells: float, n: int) -> tuple[np.ndarray, np.ndarray]
 
 
 @numba.njit(cache=True)
-def _excite_axis(src, dst, stride, n, offsets, weights):
-    """dst = src convolved along one wrapped axis (flat C-order arrays seen as
-    (outer, n, stride)); zero cells are skipped."""
-    dst[:] = 0.0
+def _excite_list(src, dst, idx_src, n_src, idx_dst, flag, stride, n, offsets, weights):
+    """Scatter the listed non-zero cells of ``src`` into ``dst`` along one wrapped axis (flat
+    C-order arrays); lists the touched cells of ``dst`` in ``idx_dst`` and returns their number.
+    ``dst`` and ``flag`` must be zero on entry; ``src`` is left zero on exit."""
     m = offsets.shape[0]
-    outer = src.shape[0] // (n * stride)
-    for o in range(outer):
-        base = o * n * stride
-        for c in range(n):
-            row = base + c * stride
-            for k in range(stride):
-                v = src[row + k]
-                if v == 0.0:
-                    continue
-                for t in range(m):
-                    cc = c + offsets[t]
-                    if cc < 0:
-                        cc += n
-                    elif cc >= n:
-                        cc -= n
-                    dst[base + cc * stride + k] += v * weights[t]
+    n_dst = 0
+    for t in range(n_src):
+        i = idx_src[t]
+        v = src[i]
+        src[i] = 0.0
+        c = (i // stride) % n
+        base = i - c * stride
+        for u in range(m):
+            cc = c + offsets[u]
+            if cc < 0:
+                cc += n
+            elif cc >= n:
+                cc -= n
+            j = base + cc * stride
+            if flag[j] == 0:
+                flag[j] = 1
+                idx_dst[n_dst] = j
+                n_dst += 1
+            dst[j] += v * weights[u]
+    for t in range(n_dst):
+        flag[idx_dst[t]] = 0
+    return n_dst
 
 
 @numba.njit(cache=True)
-def _inhibit_normalise(p, phi):
-    """Eq. 4.17: p <- N(max(0, p - phi)); returns the total before normalisation."""
-    total = 0.0
+def _attractor_update(p, tmp, idx_a, idx_b, flag, strides, dims, off0, w0, off1, w1, off2, w2, off3, w3, phi):
+    """Eqs. 4.16-4.17 in place on the flat activity ``p``: separable wrapped excitation over
+    the non-zero cells only, then ``N(max(0, E - phi))``.  ``tmp`` and ``flag`` are zero
+    scratch (left zero).  Returns the total before normalisation."""
+    n_a = 0
     for i in range(p.shape[0]):
+        if p[i] != 0.0:
+            idx_a[n_a] = i
+            n_a += 1
+    # yaw first: the packet already spans most of the yaw axis, so the support grows least
+    n_b = _excite_list(p, tmp, idx_a, n_a, idx_b, flag, strides[3], dims[3], off3, w3)
+    n_a = _excite_list(tmp, p, idx_b, n_b, idx_a, flag, strides[0], dims[0], off0, w0)
+    n_b = _excite_list(p, tmp, idx_a, n_a, idx_b, flag, strides[1], dims[1], off1, w1)
+    n_a = _excite_list(tmp, p, idx_b, n_b, idx_a, flag, strides[2], dims[2], off2, w2)
+    total = 0.0
+    for t in range(n_a):
+        i = idx_a[t]
         v = p[i] - phi
         if v > 0.0:
             p[i] = v
@@ -118,19 +137,28 @@ def _inhibit_normalise(p, phi):
             p[i] = 0.0
     if total > 0.0:
         inv = 1.0 / total
-        for i in range(p.shape[0]):
-            p[i] *= inv
+        for t in range(n_a):
+            p[idx_a[t]] *= inv
     return total
 
 
 @numba.njit(cache=True)
-def _attractor_update(p, tmp, strides, dims, off0, w0, off1, w1, off2, w2, off3, w3, phi):
-    """Eqs. 4.16-4.17 in place on the flat activity ``p`` (``tmp`` is scratch of the same size)."""
-    _excite_axis(p, tmp, strides[0], dims[0], off0, w0)
-    _excite_axis(tmp, p, strides[1], dims[1], off1, w1)
-    _excite_axis(p, tmp, strides[2], dims[2], off2, w2)
-    _excite_axis(tmp, p, strides[3], dims[3], off3, w3)
-    return _inhibit_normalise(p, phi)
+def _marginals(p, d0, d1, d2, d3):
+    """The four axis marginals of the flat (d0, d1, d2, d3) activity, concatenated."""
+    out = np.zeros(d0 + d1 + d2 + d3)
+    i = 0
+    for a in range(d0):
+        for b in range(d1):
+            for c in range(d2):
+                for q in range(d3):
+                    v = p[i]
+                    i += 1
+                    if v != 0.0:
+                        out[a] += v
+                        out[d0 + b] += v
+                        out[d0 + d1 + c] += v
+                        out[d0 + d1 + d2 + q] += v
+    return out
 
 
 @numba.njit(cache=True)
@@ -194,7 +222,11 @@ class PoseCellNetwork:
         self._kernels = [gaussian_kernel(s, n) for s, n in zip(sig, self.dims)]
         self._layer_headings = np.arange(self.dims[3]) * self.yaw_step
         self.activity = np.zeros(self.size, dtype=np.float64)
-        self._tmp = np.zeros(self.size, dtype=np.float64)
+        self._tmp = np.zeros(self.size, dtype=np.float64)  # zero between updates (see _attractor_update)
+        self._roll_tmp = np.zeros(self.size, dtype=np.float64)
+        self._idx_a = np.zeros(self.size, dtype=np.int64)
+        self._idx_b = np.zeros(self.size, dtype=np.int64)
+        self._flag = np.zeros(self.size, dtype=np.uint8)
         self.beta: dict[int, _Beta] = {}
         self.offset = np.zeros(4)  # sub-cell position (cells) carried between moves
         self.steps = 0
@@ -221,8 +253,8 @@ class PoseCellNetwork:
     def update(self) -> None:
         """Excitation, global inhibition, rectification and normalisation (Eqs. 4.16-4.17)."""
         (o0, w0), (o1, w1), (o2, w2), (o3, w3) = self._kernels
-        total = _attractor_update(self.activity, self._tmp, self._strides, self._dims, o0, w0, o1, w1, o2, w2,
-                                  o3, w3, float(self.cfg.global_inhibition))
+        total = _attractor_update(self.activity, self._tmp, self._idx_a, self._idx_b, self._flag, self._strides,
+                                  self._dims, o0, w0, o1, w1, o2, w2, o3, w3, float(self.cfg.global_inhibition))
         if not total > 0.0:
             raise RuntimeError("pose cells: global inhibition removed all activity "
                                f"(posecells.global_inhibition={self.cfg.global_inhibition} is too large)")
@@ -230,7 +262,7 @@ class PoseCellNetwork:
     def heading_concentration(self) -> tuple[float, float]:
         """(rho, theta_bar): mean resultant length and circular mean (rad, sub-cell offset
         included) of the yaw marginal, ``rho e^{i theta} = sum_q w_q e^{i theta_q}``."""
-        w = self.P.sum(axis=(0, 1, 2))
+        w = self.marginals()[3]
         z = complex(np.dot(w, np.cos(self._layer_headings)), np.dot(w, np.sin(self._layer_headings)))
         total = float(w.sum())
         return abs(z) / total, math.atan2(z.imag, z.real) + float(self.offset[3]) * self.yaw_step
@@ -253,7 +285,7 @@ class PoseCellNetwork:
         self.offset += np.array([cells[0], cells[1], cells[2], yaw_cells], dtype=np.float64)
         whole = np.floor(self.offset + 0.5)
         self.offset -= whole
-        src, dst = self.activity, self._tmp
+        src, dst = self.activity, self._roll_tmp
         for axis in range(4):
             k = int(whole[axis]) % self.dims[axis]
             if k == 0:
@@ -314,11 +346,15 @@ class PoseCellNetwork:
         self.steps += 1
 
     # ---- read-out --------------------------------------------------------------------------------
+    def marginals(self) -> list[np.ndarray]:
+        """Activity summed over all axes but one, for x, y, z and yaw."""
+        flat = _marginals(self.activity, *self.dims)
+        ends = np.cumsum(self.dims)
+        return [flat[e - n:e] for e, n in zip(ends, self.dims)]
+
     def centroid_cells(self) -> np.ndarray:
         """Wrap-safe centroid (x, y, z, yaw) in cells ``[0, n)``, sub-cell offset included."""
-        p = self.P
-        margs = (p.sum(axis=(1, 2, 3)), p.sum(axis=(0, 2, 3)), p.sum(axis=(0, 1, 3)), p.sum(axis=(0, 1, 2)))
-        c = np.array([wrapped_centroid_cells(m) for m in margs]) + self.offset
+        c = np.array([wrapped_centroid_cells(m) for m in self.marginals()]) + self.offset
         return c % np.array(self.dims, dtype=np.float64)
 
     def centroid(self) -> list[float]:

@@ -241,3 +241,25 @@ def test_loading_a_state_of_another_lattice_names_the_file(tmp_path):
     settled().save(tmp_path / "pc.npz")
     with pytest.raises(ValueError, match="pc.npz.*number_of_neurons"):
         PoseCellNetwork.load(tmp_path / "pc.npz", PoseCellsConfig(number_of_neurons=[11, 11, 11, 8]))
+
+
+def dense_reference_update(p: np.ndarray, cfg: PoseCellsConfig) -> np.ndarray:
+    """Eqs. 4.16-4.17 the obvious way: np.roll per kernel tap, every cell."""
+    sig = (cfg.excitation_sigma_cells,) * 3 + (cfg.excitation_sigma_yaw_cells,)
+    for axis, (s, n) in enumerate(zip(sig, DIMS)):
+        offsets, weights = gaussian_kernel(s, n)
+        p = sum(w * np.roll(p, int(o), axis=axis) for o, w in zip(offsets, weights))
+    p = np.maximum(p - cfg.global_inhibition, 0.0)
+    return p / p.sum()
+
+
+def test_sparse_update_equals_the_dense_reference_after_moves_and_injections():
+    net = settled(updates=10)
+    for k in range(12):
+        net.path_integrate(0.13, -0.07, 0.05 * (k % 2), 0.4)
+        net.inject([1, 2])
+        before = net.P.copy()
+        net.update()
+        assert np.allclose(net.P, dense_reference_update(before, net.cfg), rtol=0, atol=1e-15)
+        net.learn([1 + k % 3])
+    assert net._tmp.any() == False  # noqa: E712 - the scratch the update relies on stays zero
