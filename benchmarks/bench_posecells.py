@@ -89,6 +89,9 @@ def main() -> int:
 
     for _ in range(5):
         net.step(active_lvcs=[1, 2])
+    for _ in range(cfg.lvc_maturity_steps + 1):  # LVCs 1 and 2 absent: their associations mature
+        net.step()
+    net.activity[:] = state
 
     def ours_step():
         net.activity[:] = state

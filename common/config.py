@@ -186,6 +186,8 @@ class PoseCellsConfig(_Section):
     beta_min_fraction: float = Field(0.25, gt=0, le=1, description="Eq. 4.19 beta is stored on the cells with "
                                      "activity >= this fraction of the packet peak (sparse association)")
     beta_max_cells: int = Field(64, ge=1, description="at most this many associated cells per LVC (the strongest)")
+    lvc_maturity_steps: int = Field(10, ge=0, description="an LVC's association is injected only after the LVC has "
+                                    "been absent this many frames (DolphinSLAM's L_mat; 0: literal Eq. 4.19)")
     max_odometry_step: float = Field(2.0, gt=0, description="an Odometry increment longer than this (m) is a "
                                      "discontinuity (restarted odometry, later mission), not motion")
     state_path: str = Field("", description="load pose cells, associations and gates from this .npz at start "
