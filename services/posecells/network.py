@@ -16,7 +16,7 @@ Path integration (our formulation).  The motion is given in the vehicle's headin
 counter-clockwise).  Yaw layer ``q`` stands for the heading ``theta_q = 2 pi q / n_yaw`` in the
 world frame of the published ``Odometry`` (ENU: counter-clockwise from east).  The whole
 packet moves by ``R(theta_bar) (forward, left)`` horizontally and ``up`` vertically, where
-``theta_bar`` is the packet's own heading (circular mean of its yaw marginal); then the yaw
+``theta_bar`` is the packet's own heading (its yaw centroid, below); then the yaw
 axis shifts by ``dyaw / (2 pi / n_yaw)`` cells.  The node places the packet at the odometry
 yaw, so without injection ``theta_bar`` equals the odometry yaw and the packet moves by the
 odometry's world increment ``dp``; once an injection has turned the packet, translation
@@ -284,7 +284,7 @@ class PoseCellNetwork:
         ``R(theta_bar) (forward, left)`` horizontally, ``up`` vertically, then ``dyaw`` along
         the yaw axis (module docstring)."""
         if forward or left:
-            _, heading = self.heading_concentration()
+            heading = (wrapped_centroid_cells(self.marginals()[3]) + float(self.offset[3])) * self.yaw_step
             c, s = math.cos(heading), math.sin(heading)
             dx, dy = c * forward - s * left, s * forward + c * left
         else:

@@ -12,9 +12,10 @@ frame's stamp").
   pose-cell step (``forward, left = R(-psi_ref) (dx, dy)``, ``up = dz``, ``dyaw`` wrapped):
   the network rotates it back by the packet's heading, which equals ``psi_ref`` while the
   packet agrees with the odometry, so the packet moves by exactly the summed ``dp`` even
-  when the vehicle turns between two frames.  An increment longer than ``posecells.max_odometry_step`` metres is a
-  discontinuity (a restarted odometry, a later mission): it only moves the reference and is
-  counted (``odometry_discontinuities``).
+  when the vehicle turns between two frames.  An increment longer than
+  ``posecells.max_odometry_step`` metres is a discontinuity (a restarted odometry, a later
+  mission): it only moves the reference and is counted (``odometry_discontinuities``); a
+  non-finite pose is logged, counted (``odometry_non_finite``) and skipped.
 - ``local_view_cells`` (one per camera frame) is one time step: the pending motion is path-
   integrated, the active LVCs (the most active one plus up to ``top_k - 1`` others with
   rate >= ``min_exc`` when ``multiple_local_view_active``) inject and learn (Eq. 4.19), the
@@ -27,7 +28,7 @@ frame's stamp").
   (``lvc_before_odometry``).
 
 Counters: ``events``, ``events_vpr`` / ``events_leak`` / ``events_off``, ``rejected_motion``,
-``rejected_vpr``, ``lvc_before_odometry``, ``odometry_discontinuities``.
+``rejected_vpr``, ``lvc_before_odometry``, ``odometry_discontinuities``, ``odometry_non_finite``.
 
 With ``posecells.state_path`` set, the activity, the sparse associations, the gates and the
 odometry reference are loaded at start when the file exists and saved (``.npz``) when the
