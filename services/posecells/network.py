@@ -272,8 +272,8 @@ class PoseCellNetwork:
                                f"(posecells.global_inhibition={self.cfg.global_inhibition} is too large)")
 
     def heading_concentration(self) -> tuple[float, float]:
-        """(rho, theta_bar): mean resultant length and circular mean (rad, sub-cell offset
-        included) of the yaw marginal, ``rho e^{i theta} = sum_q w_q e^{i theta_q}``."""
+        """Diagnostic (rho, mean): mean resultant length and circular mean (rad, sub-cell offset
+        included) of the yaw marginal, ``rho e^{i mean} = sum_q w_q e^{i theta_q}``."""
         w = self.marginals()[3]
         z = complex(np.dot(w, np.cos(self._layer_headings)), np.dot(w, np.sin(self._layer_headings)))
         total = float(w.sum())
