@@ -172,14 +172,26 @@ class RobotStateConfig(_Section):
 class PoseCellsConfig(_Section):
     number_of_neurons: list[int] = Field(default_factory=lambda: [15, 15, 15, 8], min_length=4, max_length=4)
     distance_between_neurons: list[float] = Field(default_factory=lambda: [0.1, 0.1, 0.1], min_length=3, max_length=3)
-    top_k: int = Field(4, ge=1)
-    min_exc: float = Field(0.03, ge=0)
+    top_k: int = Field(4, ge=1, description="at most this many LVCs of a local_view_cells message are active "
+                       "(V_l = 1 in Eq. 4.19), by rate; the most active one always")
+    min_exc: float = Field(0.03, ge=0, description="an LVC other than the most active needs rate >= this to be active")
     excitation_sigma_cells: float = Field(1.0, gt=0)
     excitation_sigma_yaw_cells: float = Field(1.0, gt=0)
-    global_inhibition: float = Field(0.00002, ge=0)
+    global_inhibition: float = Field(0.0005, ge=0, description="phi of Eq. 4.17 (activity sums to 1 over the "
+                                     "lattice; RatSLAM's 0.00002 left the yaw axis uniform, see services/posecells)")
     lvc_learning_rate: float = Field(1.0, ge=0, description="lambda of Eq. 4.19")
     lvc_injection_gain: float = Field(0.1, ge=0, description="delta of Eq. 4.19")
     multiple_local_view_active: bool = True
+    # --- added for the pose-cell service (issue 9); see services/posecells/
+    beta_min_fraction: float = Field(0.25, gt=0, le=1, description="Eq. 4.19 beta is stored on the cells with "
+                                     "activity >= this fraction of the packet peak (sparse association)")
+    beta_max_cells: int = Field(64, ge=1, description="at most this many associated cells per LVC (the strongest)")
+    lvc_maturity_steps: int = Field(10, ge=0, description="an LVC's association is injected only after the LVC has "
+                                    "been absent this many frames (DolphinSLAM's L_mat; 0: literal Eq. 4.19)")
+    max_odometry_step: float = Field(2.0, gt=0, description="an Odometry increment longer than this (m) is a "
+                                     "discontinuity (restarted odometry, later mission), not motion")
+    state_path: str = Field("", description="load pose cells, associations and gates from this .npz at start "
+                            "and save at end (empty: off)")
 
 
 class VprGuardConfig(_Section):
