@@ -13,7 +13,7 @@ Subcommands:
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
-- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``: see their own ``--help``.
+- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``path``: see their own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
@@ -43,6 +43,7 @@ DELEGATED = {
     "import": "missions.importers.cli:main",
     "vpr": "services.encoder.vpr:main",
     "deadreckon": "services.robot_state.deadreckon:main",
+    "path": "services.expmap.path:main",
 }
 
 

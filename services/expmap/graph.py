@@ -70,7 +70,7 @@ from numba import njit
 
 from common.config import ExpMapConfig
 
-__all__ = ["ExperienceMap", "EventResult", "quickest_path", "pc_distance_cells"]
+__all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells"]
 
 FORMAT_VERSION = 1
 
@@ -605,24 +605,28 @@ class ExperienceMap:
 
 
 def quickest_path(em: ExperienceMap, source: int, target: int) -> tuple[list[int], float, float]:
-    """Dijkstra over edge durations (both directions; a loop edge takes 0 s).
+    """Quickest path over the map's edges (see :func:`quickest_path_links`)."""
+    return quickest_path_links(em.positions, [(s, t, d) for s, t, _dl, d, _w, _l in em.edges()], source, target)
 
-    Returns (node ids from source to target, total duration s, length m along the map
-    positions).  Raises ValueError for an unknown node or when no route exists.
+
+def quickest_path_links(positions: np.ndarray, links, source: int, target: int) -> tuple[list[int], float, float]:
+    """Dijkstra over edge durations, each edge usable both ways (a loop edge takes 0 s).
+
+    ``links``: (source, target, duration s).  Returns (node ids from source to target, total
+    duration s, length m along the map positions).  Raises ValueError for an unknown node or
+    when no route exists.
     """
-    n = em.n_nodes
+    n = len(positions)
     for name, v in (("from", source), ("to", target)):
         if not 0 <= v < n:
             raise ValueError(f"--{name} {v}: the map has nodes 0..{n - 1}")
-    st = em.stamps.astype(np.int64)
-    dur = np.zeros(n)
-    dur[1:] = (st[1:] - st[:-1]) * 1e-9
-    loop_adj: dict[int, list[int]] = {}
-    for m, k, _w, _s in em.loops:
-        loop_adj.setdefault(m, []).append(k)
-        loop_adj.setdefault(k, []).append(m)
-    dist = np.full(n, np.inf)
-    prev = np.full(n, -1, np.int64)
+    adj: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+    for s, t, d in links:
+        d = max(float(d), 0.0)
+        adj[int(s)].append((int(t), d))
+        adj[int(t)].append((int(s), d))
+    dist = [math.inf] * n
+    prev = [-1] * n
     dist[source] = 0.0
     heap = [(0.0, source)]
     while heap:
@@ -631,25 +635,18 @@ def quickest_path(em: ExperienceMap, source: int, target: int) -> tuple[list[int
             break
         if d > dist[u]:
             continue
-        nbrs = []
-        if u > 0:
-            nbrs.append((u - 1, max(float(dur[u]), 0.0)))
-        if u + 1 < n:
-            nbrs.append((u + 1, max(float(dur[u + 1]), 0.0)))
-        for v in loop_adj.get(u, ()):
-            nbrs.append((v, 0.0))
-        for v, w in nbrs:
+        for v, w in adj[u]:
             nd = d + w
             if nd < dist[v]:
                 dist[v] = nd
                 prev[v] = u
                 heapq.heappush(heap, (nd, v))
-    if not np.isfinite(dist[target]):
+    if not math.isfinite(dist[target]):
         raise ValueError(f"no route from node {source} to node {target}")
     path = [target]
     while path[-1] != source:
-        path.append(int(prev[path[-1]]))
+        path.append(prev[path[-1]])
     path.reverse()
-    p = em.positions[path]
+    p = np.asarray(positions, float)[path]
     length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))) if len(path) > 1 else 0.0
     return path, float(dist[target]), length
