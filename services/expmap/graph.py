@@ -49,8 +49,10 @@ down uniformly, keeping its shape, and counted as clamped); each iteration moves
 pending node by the same fraction of its remaining correction such that no node moves more
 than ``max_correction_step`` (so the map is always a blend of the old map and the target);
 ``relax_iterations_per_event`` iterations run per accepted event, and
-:meth:`ExperienceMap.settle` finishes a pending correction.  Nodes created while a
-correction is pending inherit their predecessor's remaining correction.
+:meth:`ExperienceMap.settle` finishes a pending correction.  Because every node moves by
+the same fraction, the pending state is ``position = pos + phi * rem`` and an event's
+iterations only advance phi (O(1)); positions are materialised when read.  Nodes created
+while a correction is pending inherit their predecessor's correction.
 
 Save/load (:meth:`save`, :meth:`load`, npz) keeps everything needed to continue: nodes,
 odometry increments, loop edges, the confirmation chain, the pending correction and the
@@ -175,28 +177,6 @@ def _interpolate(term: np.ndarray, term_pos: np.ndarray, cum: np.ndarray, cumres
     return out
 
 
-@njit(cache=True)
-def _relax_move(pos: np.ndarray, rem: np.ndarray, active: np.ndarray, max_move: float) -> tuple:
-    """One relaxation iteration: move every active node by the same fraction f of its
-    remaining correction, so that no node moves more than ``max_move``.  Returns
-    (f, largest move in m); f = 1 means the correction is complete."""
-    m2 = 0.0
-    for j in range(active.size):
-        i = active[j]
-        s = rem[i, 0] ** 2 + rem[i, 1] ** 2 + rem[i, 2] ** 2
-        if s > m2:
-            m2 = s
-    m = math.sqrt(m2)
-    f = 1.0 if m <= max_move else max_move / m
-    for j in range(active.size):
-        i = active[j]
-        for k in range(3):
-            step = f * rem[i, k]
-            pos[i, k] += step
-            rem[i, k] = 0.0 if f >= 1.0 else rem[i, k] - step
-    return f, f * m
-
-
 def pc_distance_cells(a: np.ndarray, b: np.ndarray, shape: tuple[int, int, int, int],
                       spacing: tuple[float, float, float]) -> float:
     """Wrap-aware distance (lattice cells) between two pose-cell centroids [x, y, z m, yaw rad]."""
@@ -275,11 +255,12 @@ class ExperienceMap:
         g.add("lvc", (), np.int64)
         g.add("pc", (4,), np.float64)
         g.add("stamp", (), np.int64)
-        g.add("rem", (3,), np.float64)       # pending correction (m)
+        g.add("rem", (3,), np.float64)       # correction being applied (m): position = pos + phi * rem
         self._g = g
         self.loops: list[tuple[int, int, float, int]] = []   # (m, n, weight, stamp)
         self._lvc_index: dict[int, list[int]] = {}
-        self._active = np.zeros(0, np.int64)
+        self._phi = 0.0                      # fraction of the pending correction applied
+        self._peak = 0.0                     # largest node displacement of the pending correction (m)
         self.last_odom: np.ndarray | None = None
         self.last_match = -1
         self.confirmations = 0
@@ -297,7 +278,14 @@ class ExperienceMap:
 
     @property
     def positions(self) -> np.ndarray:
+        """Map positions (m), N x 3 (a copy while a correction is being applied)."""
+        if self._peak > 0.0:
+            return self._a("pos") + self._phi * self._a("rem")
         return self._a("pos")
+
+    def _position(self, i) -> np.ndarray:
+        A = self._g.arrays
+        return A["pos"][i] + self._phi * A["rem"][i] if self._peak > 0.0 else A["pos"][i]
 
     @property
     def stamps(self) -> np.ndarray:
@@ -322,7 +310,7 @@ class ExperienceMap:
     @property
     def pending(self) -> bool:
         """A correction is still being applied."""
-        return self._active.size > 0
+        return self._peak > 0.0
 
     def edges(self) -> list[tuple[int, int, np.ndarray, float, float, bool]]:
         """Every edge as (source, target, delta m, duration s, weight, loop_closure)."""
@@ -359,9 +347,7 @@ class ExperienceMap:
             A["cum"][n] = A["cum"][n - 1] + delta
             A["weight"][n] = 1.0
             A["cumres"][n] = A["cumres"][n - 1] + 1.0
-            A["rem"][n] = A["rem"][n - 1]
-            if self._active.size and np.any(A["rem"][n] != 0.0):
-                self._active = np.append(self._active, n)
+            A["rem"][n] = A["rem"][n - 1]    # a new node follows its predecessor's correction
         A["yaw"][n] = float(odom_yaw)
         A["lvc"][n] = int(lvc_id)
         A["pc"][n] = pc
@@ -465,21 +451,31 @@ class ExperienceMap:
         self.confirmations = 0
         res.loop_closed = True
         target = self.optimum()
-        disp = target - self.positions
+        self._apply_pending()
+        disp = target - self._a("pos")
         norms = np.sqrt(np.sum(disp * disp, axis=1))
         peak = float(norms.max()) if norms.size else 0.0
         if peak > cfg.max_correction_norm:
             disp *= cfg.max_correction_norm / peak
             res.correction_clamped = True
         res.correction_norm = min(peak, cfg.max_correction_norm)
-        rem = self._g.arrays["rem"]
-        rem[: self.n_nodes] = disp
-        self._active = np.flatnonzero(np.any(disp != 0.0, axis=1)).astype(np.int64)
+        self._g.arrays["rem"][: self.n_nodes] = disp
+        self._phi = 0.0
+        self._peak = float(np.sqrt(np.max(np.sum(disp * disp, axis=1)))) if disp.size else 0.0
+        if self._peak <= 0.0:
+            self._g.arrays["rem"][: self.n_nodes] = 0.0
+
+    def _apply_pending(self) -> None:
+        """Make the blend of a pending correction the base positions (O(nodes))."""
+        if self._peak > 0.0:
+            A, n = self._g.arrays, self.n_nodes
+            A["pos"][:n] += self._phi * A["rem"][:n]
+            A["rem"][:n] = 0.0
+            self._phi, self._peak = 0.0, 0.0
 
     def optimum(self) -> np.ndarray:
         """Node positions minimising Eq. 4.20 with node 0 fixed (exact, by series reduction)."""
         n = self.n_nodes
-        pos = self.positions
         if n == 0:
             return np.zeros((0, 3))
         cum, cumres = self._a("cum"), self._a("cumres")
@@ -491,7 +487,7 @@ class ExperienceMap:
         unk[0] = J - 1
         n_free = J - 1
         if n_free == 0:
-            return _interpolate(term, pos[term].copy(), cum, cumres, n)
+            return _interpolate(term, self._position(0)[None, :].copy(), cum, cumres, n)
         where = {int(t): i for i, t in enumerate(term)}
         ea, eb, eg, ed = [], [], [], []
         for i in range(J - 1):
@@ -503,7 +499,7 @@ class ExperienceMap:
             eg.append(w); ed.append(np.zeros(3))
         ea_a, eb_a = np.array(ea, np.int64), np.array(eb, np.int64)
         eg_a, ed_a = np.array(eg, np.float64), np.array(ed, np.float64).reshape(-1, 3)
-        fixed = pos[0]
+        fixed = self._position(0).copy()
         rhs = np.zeros((n_free, 3))
         # normal equations of sum g ||x_b - x_a - D||^2
         for e in range(ea_a.size):
@@ -516,31 +512,41 @@ class ExperienceMap:
                 rhs[a] -= gg * D
                 if b >= n_free:
                     rhs[a] += gg * fixed
-        x0 = pos[term[1:]].copy()
+        x0 = np.array([self._position(int(t)) for t in term[1:]]).reshape(-1, 3)
         x, iters = _reduced_cg(n_free, ea_a, eb_a, eg_a, rhs, x0, 1e-12, 20 * J + 200)
         self.cg_iterations += int(iters)
         term_pos = np.vstack([fixed[None, :], x])
         return _interpolate(term, term_pos, cum, cumres, n)
 
     def _relax(self, res: EventResult, iterations: int) -> None:
-        for _ in range(iterations):
-            if not self._active.size:
-                return
-            f, moved = _relax_move(self._g.arrays["pos"], self._g.arrays["rem"], self._active,
-                                   self.cfg.max_correction_step)
-            res.step_max = max(res.step_max, moved)
-            res.iterations += 1
-            if f >= 1.0:
-                self._active = np.zeros(0, np.int64)
-                res.settled = True
-            else:
-                res.step_capped = True
+        """Run up to ``iterations`` relaxation iterations of the pending correction.
+
+        Each iteration moves every node by the same fraction of its correction, the node with
+        the largest correction by ``max_correction_step`` (or what is left of it), so the map
+        stays a blend ``pos + phi * rem`` of the old map and the target: the iterations of one
+        event add up to one update of phi, O(1) until the map is read.
+        """
+        if self._peak <= 0.0:
+            return
+        step = self.cfg.max_correction_step
+        left = (1.0 - self._phi) * self._peak
+        if left <= iterations * step:
+            res.iterations += max(1, math.ceil(left / step - 1e-9))
+            res.step_max = max(res.step_max, min(left, step))
+            self._phi = 1.0
+            self._apply_pending()
+            res.settled = True
+        else:
+            res.iterations += iterations
+            res.step_max = max(res.step_max, step)
+            res.step_capped = True
+            self._phi += iterations * step / self._peak
 
     def settle(self) -> int:
         """Finish a pending correction (every iteration still capped); returns iterations run."""
         res = EventResult(node=self.n_nodes - 1)
-        while self._active.size:
-            self._relax(res, 1)
+        if self._peak > 0.0:
+            self._relax(res, math.ceil((1.0 - self._phi) * self._peak / self.cfg.max_correction_step) + 1)
         return res.iterations
 
     # ---- persistence ----------------------------------------------------------------
@@ -551,6 +557,7 @@ class ExperienceMap:
             "lattice_spacing": list(self.lattice_spacing), "last_match": self.last_match,
             "confirmations": self.confirmations, "last_correction_stamp": self.last_correction_stamp,
             "corrections": self.corrections, "cg_iterations": self.cg_iterations,
+            "phi": self._phi, "peak": self._peak,
         }
         arrays = {k: self._a(k) for k in self._g.arrays}
         loops = np.array([(m, n, s) for m, n, _w, s in self.loops], np.int64).reshape(-1, 3)
@@ -560,7 +567,7 @@ class ExperienceMap:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w,
-                 active=self._active, last_odom=last_odom, **arrays)
+                 last_odom=last_odom, **arrays)
         tmp.replace(path)
 
     @classmethod
@@ -588,7 +595,7 @@ class ExperienceMap:
             em._g.arrays[k][:n] = z[k]
         em._g.n = n
         em.loops = [(int(m), int(k), float(w), int(s)) for (m, k, s), w in zip(z["loops"], z["loop_weight"])]
-        em._active = z["active"].astype(np.int64)
+        em._phi, em._peak = float(meta["phi"]), float(meta["peak"])
         lo = z["last_odom"]
         em.last_odom = None if np.any(np.isnan(lo)) else lo.astype(np.float64)
         em.last_match = int(meta["last_match"])
