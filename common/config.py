@@ -216,7 +216,7 @@ class ExpMapConfig(_Section):
     loop_edge_weight: float = Field(1.0, gt=0, description="w of a loop-closure edge in Eq. 4.20 (odometry edges: 1)")
     relax_iterations_per_event: int = Field(10, ge=1, description="relaxation iterations per accepted event, each "
                                             "moving a node by at most max_correction_step")
-    map_publish_every: int = Field(100, ge=0, description="publish map every N events (0: only after loop "
+    map_publish_every: int = Field(100, ge=0, description="publish map every max(N, nodes/10) events (0: only after loop "
                                    "closures, settled relaxations and at the end)")
     dead_reckoning_period_sec: float = Field(0.0, ge=0, description="dead_reckoning decimation in event time "
                                              "(0: one PoseStamped per Odometry)")

@@ -22,8 +22,9 @@ subscribed.
   message, or at most one per ``dead_reckoning_period_sec`` of event time; header stamp =
   the odometry stamp.
 - ``map``: the whole graph (nodes, odometry and loop links), published after every loop
-  closure, when a correction has settled, every ``map_publish_every`` events and always at
-  the end (not on every event: the recording would grow quadratically with the map).  At
+  closure, when a correction has settled, every ``map_publish_every`` events (or every
+  nodes/10 events once the map is larger, so the periodic maps add up to ~10x the final
+  map, not a quadratic recording) and always at the end.  At
   the end a pending correction is completed first (each iteration still capped), so the
   final map is the clamped least-squares map.
 - ``map_path``: the map is loaded at start when the file exists and saved at the end (after
@@ -143,6 +144,8 @@ class ExpMapNode(ServiceNode):
             self.count("relaxation_steps_capped")
         self._since_map += 1
         every = self.cfg.map_publish_every
+        if every:
+            every = max(every, self.graph.n_nodes // 10)
         if res.loop_closed or res.settled or (every and self._since_map >= every):
             self._publish_map(ev.header.stamp)
         if self.cfg.publish_experience_image:

@@ -69,7 +69,7 @@ def test_optimum_equals_dense_weighted_least_squares():
     for i in range(80):
         em.add_event(i * SEC, i, [0, 0, 0, 0], list(rng.normal(0, 3, 3) + [i, 0, 0]), 0.0)
     for m, n, w in [(0, 20, 1.0), (5, 60, 2.0), (30, 79, 0.5), (20, 45, 1.0), (45, 46, 3.0), (10, 60, 1.0)]:
-        em.loops.append((m, n, w, 0))
+        em.add_loop_edge(m, n, w, 0)
     opt = em.optimum()
     # dense normal equations of Eq. 4.20, node 0 fixed
     N = em.n_nodes
@@ -232,3 +232,29 @@ def test_quickest_path_takes_the_loop_shortcut():
     assert path == [61, 60, 59] and duration == pytest.approx(2.0)
     with pytest.raises(ValueError, match="--to 99"):
         quickest_path(em, 0, 99)
+
+
+def test_route_length_equals_breadth_first_search():
+    rng = np.random.default_rng(5)
+    em = ExperienceMap(ExpMapConfig())
+    for i in range(300):
+        em.add_event(i * SEC, i, [0, 0, 0, 0], [float(i), 0, 0], 0.0)
+    for _ in range(12):
+        m, n = sorted(rng.choice(300, 2, replace=False))
+        em.add_loop_edge(int(m), int(n), 1.0, 0)
+    adj = {i: set() for i in range(300)}
+    for s, t, *_ in em.edges():
+        adj[s].add(t); adj[t].add(s)
+    for _ in range(40):
+        a, b = (int(v) for v in rng.choice(300, 2, replace=False))
+        dist, frontier = {a: 0}, [a]
+        while frontier:
+            nxt = []
+            for u in frontier:
+                for v in adj[u]:
+                    if v not in dist:
+                        dist[v] = dist[u] + 1
+                        nxt.append(v)
+            frontier = nxt
+        assert em.route_length(a, b) == dist[b]
+        assert em.route_length(a, b, limit=5) >= min(dist[b], 5)
