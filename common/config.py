@@ -219,6 +219,21 @@ class ExpMapConfig(_Section):
     publish_experience_image: bool = True
     image_buffer_size: int = Field(400, ge=1)
     image_sync_slop: float = Field(0.75, ge=0)
+    # --- added for the experience map service (issue 9); see services/expmap/
+    pc_proximity_sigma_cells: float = Field(3.5, gt=0, description="pose-cell proximity exp(-d^2/2s^2) of the "
+                                            "wrap-aware centroid distance d in lattice cells (3.5: with Table 4.1 "
+                                            "weights a same-LVC node matches within 1 cell)")
+    loop_confirmation_gap: int = Field(10, ge=0, description="consecutive events confirm a loop when their matched "
+                                       "nodes are at most this many experiences apart on the old route")
+    loop_edge_weight: float = Field(1.0, gt=0, description="w of a loop-closure edge in Eq. 4.20 (odometry edges: 1)")
+    relax_iterations_per_event: int = Field(10, ge=1, description="relaxation iterations per accepted event, each "
+                                            "moving a node by at most max_correction_step")
+    map_publish_every: int = Field(100, ge=0, description="publish map every max(N, nodes/10) events (0: only after loop "
+                                   "closures, settled relaxations and at the end)")
+    dead_reckoning_period_sec: float = Field(0.0, ge=0, description="dead_reckoning decimation in event time "
+                                             "(0: one PoseStamped per Odometry)")
+    map_path: str = Field("", description="load the experience map from here at start and save it at the end "
+                          "(npz; empty: off)")
 
 
 class PoseidonConfig(_Section):

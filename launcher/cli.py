@@ -13,7 +13,7 @@ Subcommands:
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
-- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``: see their
+- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``, ``path``: see their
   own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
@@ -48,6 +48,7 @@ DELEGATED = {
     "audit": "eval.audit:main",
     "compare": "eval.compare:main",
     "report": "eval.report.cli:main",
+    "path": "services.expmap.path:main",
 }
 
 

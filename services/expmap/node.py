@@ -1,0 +1,230 @@
+"""Experience map service node: ``experience_event`` -> ``map``, ``experience_image``,
+``dead_reckoning`` (Section 4.2.4, Eqs. 4.20-4.21; audit contract of Fig. 4.1).
+
+Inputs, in priority order for equal stamps: the camera (``expmap.image_topic``; first, so
+the frame that produced an event is already buffered when the event is handled),
+``experience_event``, ``Odometry``.  Without ``publish_experience_image`` the camera is not
+subscribed.
+
+- Every valid event updates :class:`services.expmap.graph.ExperienceMap` (one node, maybe a
+  loop closure, ``relax_iterations_per_event`` relaxation iterations).  An event the graph
+  refuses (non-finite values) is logged with its seq, counted (``events_invalid``) and skipped.
+- ``experience_image``: the camera frame whose stamp is closest to the event's stamp, within
+  ``min(sync.sync_stale_sec, expmap.image_sync_slop)`` (ties: the earlier frame), published
+  with the event's header (seq, stamp, frame_id) and ``source_stamp`` = the frame's stamp.
+  Inputs arrive in event-time order, so the candidates are the last frame at or before the
+  event and the first frame after it: the decision waits until a frame later than the event
+  arrives (or the inputs end) and no longer; meanwhile :meth:`output_watermark` holds the
+  outputs' promise at the oldest undecided event.  At most ``image_buffer_size`` events wait;
+  beyond that the oldest is decided with the frames seen so far (``image_wait_overflow``).
+  No frame within the window: counted (``events_without_image``), nothing published.
+- ``dead_reckoning``: one PoseStamped (position, yaw from the quaternion) per ``Odometry``
+  message, or at most one per ``dead_reckoning_period_sec`` of event time; header stamp =
+  the odometry stamp.
+- ``map``: the whole graph (nodes, odometry and loop links), published after every loop
+  closure, when a correction has settled, every ``map_publish_every`` events (or every
+  nodes/10 events once the map is larger, so the periodic maps add up to ~10x the final
+  map, not a quadratic recording) and always at the end.  At
+  the end a pending correction is completed first (each iteration still capped), so the
+  final map is the clamped least-squares map.
+- ``map_path``: the map is loaded at start when the file exists and saved at the end (after
+  settling), to continue in a later mission with the same odometry frame.
+
+Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_interval``,
+``loop_rejected_route``, ``corrections_clamped`` (a closure scaled to max_correction_norm),
+``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
+max_correction_step), ``experience_images``, ``events_without_image``,
+``image_wait_overflow``, ``maps_published``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+from common.config import PoseidonConfig
+from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceNode, Header, Image,
+                             Odometry, PoseStamped)
+from common.messages import ExperienceMap as ExperienceMapMsg
+from common.node import ServiceNode
+from services.expmap.graph import ExperienceMap
+
+__all__ = ["ExpMapNode", "map_message"]
+
+log = logging.getLogger(__name__)
+
+
+def _yaw_of(q: list[float]) -> float:
+    x, y, z, w = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def map_message(em: ExperienceMap, header: Header) -> ExperienceMapMsg:
+    """The ``map`` message of the graph (nodes with map positions, odometry and loop links)."""
+    pos, yaw, lvc, st = em.positions, em.yaws, em.lvc_ids, em.stamps
+    nodes = [ExperienceNode.model_construct(id=i, lvc_id=int(lvc[i]), position=[float(v) for v in pos[i]],
+                                            yaw=float(yaw[i]), stamp=int(st[i])) for i in range(em.n_nodes)]
+    links = [ExperienceLink.model_construct(source=s, target=t, delta=[float(v) for v in d], duration_s=float(du),
+                                            weight=float(w), loop_closure=lc)
+             for s, t, d, du, w, lc in em.edges()]
+    return ExperienceMapMsg(header=header, nodes=nodes, links=links, current=em.n_nodes - 1,
+                            corrections=em.corrections)
+
+
+class ExpMapNode(ServiceNode):
+    """Thin wrapper of :class:`ExperienceMap` with the event-image audit."""
+
+    name = "expmap"
+    inputs = ("camera/image_raw", "experience_event", "Odometry")
+    outputs = ("map", "dead_reckoning", "experience_image")
+
+    @classmethod
+    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """Input keys under ``config`` (the camera key is configurable, and optional)."""
+        cfg = config.expmap
+        ins = ((cfg.image_topic,) if cfg.publish_experience_image else ()) + ("experience_event", "Odometry")
+        return ins, cls.outputs
+
+    def __init__(self, config: PoseidonConfig):
+        super().__init__(config)
+        self.cfg = cfg = config.expmap
+        self.inputs, _ = self.io_keys(config)
+        self.image_key = cfg.image_topic
+        self.slop_ns = int(round(min(config.sync.sync_stale_sec, cfg.image_sync_slop) * 1e9))
+        shape, spacing = config.posecells.number_of_neurons, config.posecells.distance_between_neurons
+        self.map_path = Path(cfg.map_path) if cfg.map_path else None
+        if self.map_path is not None and self.map_path.exists():
+            self.graph = ExperienceMap.load(self.map_path, cfg, shape, spacing)
+            log.info("expmap: loaded %d experiences (%d loop closures) from %s", self.graph.n_nodes,
+                     len(self.graph.loops), self.map_path)
+        else:
+            self.graph = ExperienceMap(cfg, shape, spacing)
+        self._last_frame: Image | None = None
+        self._waiting: deque[tuple[Header, Image | None]] = deque()
+        self._last_stamp = 0
+        self._promised = 0
+        self._last_dr_stamp: int | None = None
+        self._since_map = 0
+        self._dirty = False
+
+    # ---- inputs ---------------------------------------------------------------------
+    def process(self, key: str, msg: Any) -> None:
+        self._last_stamp = max(self._last_stamp, msg.header.stamp)
+        if key == "experience_event":
+            self._on_event(msg)
+        elif key == "Odometry":
+            self._on_odometry(msg)
+        elif key == self.image_key:
+            self._on_image(msg)
+        else:
+            raise KeyError(f"expmap: unexpected input key {key!r} (inputs {self.inputs})")
+
+    def _on_event(self, ev: ExperienceEvent) -> None:
+        try:
+            res = self.graph.add_event(ev.header.stamp, ev.lvc_id, ev.pc_centroid, ev.odom_position, ev.odom_yaw)
+        except ValueError as exc:
+            log.error("expmap: experience_event seq %d skipped: %s", ev.header.seq, exc)
+            self.count("events_invalid")
+            return
+        self._dirty = True
+        self.count("events")
+        if res.loop_closed:
+            self.count("loop_closures")
+            log.info("expmap: loop closure %d -> %d (score %.3f, correction %.2f m%s)", res.match, res.node,
+                     res.score, res.correction_norm, ", clamped" if res.correction_clamped else "")
+        if res.rejected:
+            self.count(f"loop_rejected_{res.rejected}")
+        if res.correction_clamped:
+            self.count("corrections_clamped")
+        if res.iterations:
+            self.count("relaxation_iterations", res.iterations)
+        if res.step_capped:
+            self.count("relaxation_steps_capped")
+        self._since_map += 1
+        every = self.cfg.map_publish_every
+        if every:
+            every = max(every, self.graph.n_nodes // 10)
+        if res.loop_closed or res.settled or (every and self._since_map >= every):
+            self._publish_map(ev.header.stamp)
+        if self.cfg.publish_experience_image:
+            self._associate(ev.header)
+
+    def _on_odometry(self, od: Odometry) -> None:
+        period = int(round(self.cfg.dead_reckoning_period_sec * 1e9))
+        t = od.header.stamp
+        if self._last_dr_stamp is not None and period > 0 and t - self._last_dr_stamp < period:
+            return
+        self._last_dr_stamp = t
+        self.publish("dead_reckoning", PoseStamped(
+            header=self.header("dead_reckoning", t, od.header.frame_id),
+            position=list(od.position), yaw=_yaw_of(od.orientation)))
+
+    def _on_image(self, img: Image) -> None:
+        while self._waiting and self._waiting[0][0].stamp <= img.header.stamp:
+            hdr, before = self._waiting.popleft()
+            self._decide(hdr, before, img)
+        self._last_frame = img
+
+    # ---- event-image association --------------------------------------------------------
+    def _associate(self, hdr: Header) -> None:
+        last = self._last_frame
+        if last is not None and last.header.stamp == hdr.stamp:
+            self._decide(hdr, last, None)      # nothing can be closer
+            return
+        self._waiting.append((hdr, last))
+        if len(self._waiting) > self.cfg.image_buffer_size:
+            self.count("image_wait_overflow")
+            h, before = self._waiting.popleft()
+            self._decide(h, before, None)
+
+    def _decide(self, hdr: Header, before: Image | None, after: Image | None) -> None:
+        best: Image | None = None
+        best_d = self.slop_ns + 1
+        for frame in (before, after):        # earlier first: ties go to the earlier frame
+            if frame is None:
+                continue
+            d = abs(frame.header.stamp - hdr.stamp)
+            if d < best_d:
+                best, best_d = frame, d
+        if best is None:
+            self.count("events_without_image")
+            return
+        self.count("experience_images")
+        self.publish("experience_image", ExperienceImage(
+            header=hdr.model_copy(), height=best.height, width=best.width, encoding=best.encoding, data=best.data,
+            source_stamp=best.header.stamp))
+
+    def output_watermark(self, input_watermark: int) -> int:
+        """Hold the promise at the oldest event still waiting for its image."""
+        out = input_watermark
+        if self._waiting:
+            out = min(out, self._waiting[0][0].stamp)
+        self._promised = max(self._promised, out)
+        return out
+
+    # ---- outputs ------------------------------------------------------------------------
+    def _publish_map(self, stamp: int) -> None:
+        self._since_map = 0
+        self.count("maps_published")
+        self.publish("map", map_message(self.graph, self.header("map", stamp)))
+
+    def finish(self) -> None:
+        while self._waiting:
+            hdr, before = self._waiting.popleft()
+            self._decide(hdr, before, None)
+        if self.graph.pending:
+            self.count("relaxation_iterations", self.graph.settle())
+        if self.graph.n_nodes:
+            self._publish_map(max(self._last_stamp, self._promised))
+        self._save()
+
+    def _save(self) -> None:
+        if self.map_path is not None and self._dirty:
+            self.graph.save(self.map_path)
+            self._dirty = False
+            log.info("expmap: saved %d experiences to %s", self.graph.n_nodes, self.map_path)
+
+    def close(self) -> None:
+        self._save()

@@ -1,0 +1,189 @@
+"""Experience map node through common.node.run_offline with hand-made messages."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from common.codec import decode, encode
+from common.config import PoseidonConfig
+from common.mcap_io import RecordingWriter
+from common.messages import ExperienceEvent, ExperienceImage, ExperienceMap, Header, Image, Odometry, PoseStamped
+from common.node import run_offline
+from services.expmap.graph import ExperienceMap as Graph
+from services.expmap.node import ExpMapNode
+from services.expmap.path import main as path_main
+from tests.expmap.helpers import SEC, loop_laps
+
+MS = 1_000_000
+
+
+def frame(seq: int, stamp: int) -> Image:
+    data = np.full((4, 6, 3), seq % 256, np.uint8)
+    return Image(header=Header(seq=seq, stamp=stamp, frame_id="camera"), height=4, width=6, data=data)
+
+
+def event(seq: int, stamp: int, lvc: int = 0, odom=(0.0, 0.0, 0.0), pc=(0.0, 0.0, 0.0, 0.0)) -> ExperienceEvent:
+    return ExperienceEvent(header=Header(seq=seq, stamp=stamp, frame_id="map"), lvc_id=lvc, pc_centroid=list(pc),
+                           odom_position=list(odom), odom_yaw=0.3, gate="vpr", vpr_count=3)
+
+
+def odometry(seq: int, stamp: int, pos, yaw: float) -> Odometry:
+    return Odometry(header=Header(seq=seq, stamp=stamp, frame_id="world"), position=list(pos),
+                    orientation=[0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
+
+
+def outputs(out, key):
+    return [m for k, m in out if k == key]
+
+
+def test_every_experience_image_carries_its_event_header():
+    # camera at 5 Hz from 0 to 2 s, then nothing until 4 s, then 4.0 and 4.2 s
+    frames = [frame(i, i * 200 * MS) for i in range(11)] + [frame(11, 4000 * MS), frame(12, 4200 * MS)]
+    events = [event(0, 400 * MS),          # exactly on a frame
+              event(1, 530 * MS),          # 0.53: frame 0.6 is closer than 0.4 (decided when 0.6 arrives)
+              event(2, 700 * MS),          # tie 0.6 / 0.8: the earlier frame
+              event(3, 3000 * MS),         # nearest frames 2.0 and 4.0 s: beyond 0.75 s -> no image
+              event(4, 3300 * MS),         # 4.0 is 0.7 s later: within the window
+              event(5, 4500 * MS)]         # after the last frame: decided at the end of the inputs
+    node = ExpMapNode(PoseidonConfig())
+    out = run_offline(node, [("camera/image_raw", f) for f in frames] + [("experience_event", e) for e in events])
+    imgs = outputs(out, "experience_image")
+    by_seq = {m.header.seq: m for m in imgs}
+    assert sorted(by_seq) == [0, 1, 2, 4, 5]
+    for e in events:
+        if e.header.seq in by_seq:
+            assert by_seq[e.header.seq].header == e.header
+    src = {s: m.source_stamp for s, m in by_seq.items()}
+    assert src == {0: 400 * MS, 1: 600 * MS, 2: 600 * MS, 4: 4000 * MS, 5: 4200 * MS}
+    assert int(by_seq[1].data[0, 0, 0]) == 3                          # the pixels of frame 3 (0.6 s)
+    assert node.counters["events_without_image"] == 1 and node.counters["experience_images"] == 5
+    assert [m.header.seq for m in imgs] == sorted(m.header.seq for m in imgs)  # event order
+    for m in imgs:                                                    # survives the wire
+        back = decode(encode(m), ExperienceImage)
+        assert back.header == m.header and np.array_equal(back.data, m.data)
+
+
+def test_watermark_is_held_until_the_image_is_decided():
+    node = ExpMapNode(PoseidonConfig())
+    node.process("camera/image_raw", frame(0, 0))
+    node.process("experience_event", event(0, 100 * MS))
+    assert node.take_outbox() == []
+    assert node.output_watermark(150 * MS) == 100 * MS
+    node.process("camera/image_raw", frame(1, 200 * MS))
+    (key, img), = node.take_outbox()
+    assert key == "experience_image" and img.source_stamp == 0
+    assert node.output_watermark(200 * MS) == 200 * MS
+
+
+def test_event_without_camera_when_images_are_off():
+    cfg = PoseidonConfig()
+    cfg.expmap.publish_experience_image = False
+    node = ExpMapNode(cfg)
+    assert "camera/image_raw" not in node.inputs
+    out = run_offline(node, [("camera/image_raw", frame(0, 0)), ("experience_event", event(0, 0))])
+    assert outputs(out, "experience_image") == [] and node.counters["events"] == 1
+
+
+def stream(events, with_odometry=True):
+    msgs = []
+    for i, (t, lvc, pc, odom) in enumerate(events):
+        stamp = int(round(t * SEC))
+        msgs.append(("experience_event", event(i, stamp, lvc, odom, pc)))
+        if with_odometry:
+            msgs.append(("Odometry", odometry(i, stamp, odom, 0.1 * i)))
+    return msgs
+
+
+def test_map_cadence_and_final_map_equal_the_core():
+    events, _ = loop_laps(3)
+    cfg = PoseidonConfig()
+    cfg.expmap.map_publish_every = 200
+    node = ExpMapNode(cfg)
+    out = run_offline(node, stream(events))
+    core = Graph(cfg.expmap)
+    for t, lvc, pc, odom in events:
+        core.add_event(int(round(t * SEC)), lvc, pc, odom, 0.3)
+    core.settle()
+    maps = outputs(out, "map")
+    closures = node.counters["loop_closures"]
+    assert closures == len(core.loops) >= 2
+    # after each closure, each settled correction, every 200 events, and the end
+    assert closures + 4 <= len(maps) <= 2 * closures + 4 + 1
+    final = maps[-1]
+    assert len(final.nodes) == core.n_nodes and final.corrections == closures
+    np.testing.assert_array_equal(np.array([n.position for n in final.nodes]), core.positions)
+    loops = [(ln.source, ln.target) for ln in final.links if ln.loop_closure]
+    assert loops == [(m, n) for m, n, _w, _s in core.loops]
+    assert [n.stamp for n in final.nodes] == [int(round(e[0] * SEC)) for e in events]
+    back = decode(encode(final), ExperienceMap)
+    assert back.nodes[5].position == final.nodes[5].position and len(back.links) == len(final.links)
+    assert [m.header.seq for m in maps] == list(range(len(maps)))
+    assert all(b.header.stamp >= a.header.stamp for a, b in zip(maps, maps[1:]))
+    dr = outputs(out, "dead_reckoning")
+    assert len(dr) == len(events) and isinstance(dr[0], PoseStamped)
+    assert dr[7].yaw == pytest.approx(0.7) and dr[7].position == list(events[7][3])
+
+
+def test_dead_reckoning_decimation():
+    cfg = PoseidonConfig()
+    cfg.expmap.dead_reckoning_period_sec = 0.5
+    msgs = [("Odometry", odometry(i, i * 100 * MS, (i, 0, 0), 0.0)) for i in range(20)]
+    out = run_offline(ExpMapNode(cfg), msgs)
+    assert [m.header.stamp for _k, m in out] == [0, 500 * MS, 1000 * MS, 1500 * MS]
+
+
+def test_invalid_event_is_counted_and_skipped():
+    node = ExpMapNode(PoseidonConfig())
+    run_offline(node, [("experience_event", event(0, 0)),
+                       ("experience_event", event(1, SEC, odom=(float("nan"), 0.0, 0.0))),
+                       ("experience_event", event(2, 2 * SEC, odom=(1.0, 0.0, 0.0)))])
+    assert node.counters["events"] == 2 and node.counters["events_invalid"] == 1
+    assert node.graph.n_nodes == 2
+
+
+def test_two_sessions_with_map_path_equal_one_run(tmp_path):
+    events, _ = loop_laps(3)
+    cfg = PoseidonConfig()
+    one = ExpMapNode(cfg)
+    final_one = outputs(run_offline(one, stream(events, with_odometry=False)), "map")[-1]
+    # split where no correction is pending (the end of a session settles it)
+    probe = Graph(cfg.expmap)
+    split = None
+    for i, (t, lvc, pc, odom) in enumerate(events):
+        probe.add_event(int(round(t * SEC)), lvc, pc, odom, 0.3)
+        if i > 450 and probe.corrections >= 1 and not probe.pending:
+            split = i + 1
+            break
+    assert split is not None
+    cfg.expmap.map_path = str(tmp_path / "cave.npz")
+    run_offline(ExpMapNode(cfg), stream(events[:split], with_odometry=False))
+    second = ExpMapNode(cfg)
+    assert second.graph.n_nodes == split
+    msgs = [(k, m) for k, m in stream(events, with_odometry=False)][split:]
+    final_two = outputs(run_offline(second, msgs), "map")[-1]
+    assert final_two.model_dump(exclude={"header"}) == final_one.model_dump(exclude={"header"})
+
+
+def test_poseidon_path_on_a_map_file_and_a_recording(tmp_path, capsys):
+    events, _ = loop_laps(2)
+    cfg = PoseidonConfig()
+    cfg.expmap.map_path = str(tmp_path / "m.npz")
+    out = run_offline(ExpMapNode(cfg), stream(events, with_odometry=False))
+    assert path_main([cfg.expmap.map_path, "--from", "5", "--to", "310", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    # back to node 1, the loop edge 1 <-> 301 (0 s), then forward: 4 + 9 edges of 0.5 s
+    assert res["nodes"] == [5, 4, 3, 2, 1] + list(range(301, 311))
+    assert res["duration_s"] == pytest.approx(6.5) and res["length_m"] > 0
+    assert res["hops"] == len(res["nodes"]) - 1
+    rec = tmp_path / "run.mcap"
+    with RecordingWriter(rec) as w:
+        for k, m in out:
+            w.write(k, m)
+    assert path_main([str(rec), "--from", "5", "--to", "310", "--json"]) == 0
+    res2 = json.loads(capsys.readouterr().out)
+    assert res2["nodes"] == res["nodes"] and res2["duration_s"] == pytest.approx(res["duration_s"])
+    assert path_main([str(rec), "--from", "0", "--to", "100000"]) == 2
+    assert "--to 100000" in capsys.readouterr().err
