@@ -43,6 +43,7 @@ DELEGATED = {
     "import": "missions.importers.cli:main",
     "vpr": "services.encoder.vpr:main",
     "deadreckon": "services.robot_state.deadreckon:main",
+    "export": "missions.export.cli:main",
 }
 
 
