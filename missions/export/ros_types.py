@@ -69,7 +69,9 @@ def make_export_typestore(ros2: bool) -> Any:
 
     store = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
     types: dict[str, Any] = {}
-    for name, text in {**CALA_VIUDA_MSGS, **POSEIDON_MSGS}.items():
+    extra = {} if "tf2_msgs/msg/TFMessage" in store.types else {  # absent from rosbags' Noetic store
+        "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms\n"}
+    for name, text in {**CALA_VIUDA_MSGS, **POSEIDON_MSGS, **extra}.items():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store
