@@ -22,16 +22,19 @@ serialised bytes, ROS type and message definition as a :class:`common.messages.R
 on the key ``raw/<key>`` (``/vendor/status`` -> ``raw/vendor/status``), which the player
 replays and ``poseidon export`` writes back byte for byte.  ``--raw TOPIC`` (repeatable,
 ``'*'`` = all) carries a topic raw even when a model exists.  Only records the bag reader
-cannot read at all (a corrupt chunk) are *rejected*: the import keeps what came before,
-reports the reason and where, and exits with 1.
+cannot read at all (a corrupt chunk) are *rejected*, with the reason and where: in a ROS 1
+bag the chunk's byte offset, and reading goes on after that chunk; in a ROS 2 bag the rest of
+the bag after the last readable message.  The import keeps everything else and exits with 1.
 
 ``--json`` summary keys: ``out``; ``inputs`` (path, format, per-topic type and count in
 the source); ``read`` (messages read per topic / CSV key / frames key); ``written``
 (messages written per key); ``topics`` (bag topic -> ``type``, ``key``, ``in_source``
 (the bag's own count), ``read``, ``mapped``, ``raw``, ``dropped``, ``raw_key``,
-``raw_reasons`` (reason -> count), ``as``: ``mapped`` / ``raw`` / ``mapped+raw`` /
-``dropped``); ``dropped_topics`` (topic -> count, dropped by the topic map); ``rejected``
-(list of ``{paths, reason, after_messages, offset: {message_index, bag_time_ns}}``);
+``rejected``, ``raw_reasons`` (reason -> count), ``as``: the non-zero ones of ``mapped``,
+``raw``, ``dropped``, ``rejected`` joined by ``+``); ``dropped_topics`` (topic -> count,
+dropped by the topic map); ``rejected`` (list of ``{paths, reason, after_messages, offset:
+{byte (ROS 1: the unreadable chunk), message_index, bag_time_ns (last good message)},
+messages: {topic: count} or "the rest of the bag"}``);
 ``start_ns``, ``end_ns``, ``duration_s``.
 """
 from __future__ import annotations
@@ -107,7 +110,7 @@ class _Stats:
         t = self.topics.get(topic)
         if t is None:
             t = self.topics[topic] = {"type": msgtype, "key": key, "in_source": 0, "read": 0, "mapped": 0, "raw": 0,
-                                      "dropped": 0, "raw_key": None, "raw_reasons": {}}
+                                      "dropped": 0, "rejected": 0, "raw_key": None, "raw_reasons": {}}
         return t
 
 
@@ -146,70 +149,122 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
     force_all = raw_topics is not None and "*" in raw_topics
     n = 0
     last_ns: int | None = None
+    start: int | None = None
     try:
-        for bm in iter_bag(reader):
-            n += 1
-            last_ns = bm.record_ns
-            stats.bump(stats.read, bm.topic)
-            key = _key_of(bm.topic, tm)
-            ts = stats.topic(bm.topic, bm.msgtype, key)
-            ts["read"] += 1
-            if key is None:
-                stats.bump(stats.dropped, bm.topic)
-                ts["dropped"] += 1
-                continue
-            conv = CONVERTERS.get(bm.msgtype)
-            if force_all or (raw_topics is not None and bm.topic in raw_topics):
-                conv, why = None, "carried raw on request (--raw)"
-            else:
-                why = f"no model for {bm.msgtype}"
-            ros = None
+        while True:
             try:
-                ros = reader.deserialize(bm.raw, bm.connection.msgtype)
-            except Exception as exc:  # noqa: BLE001 - rosbags raises many types on a payload that does not fit its definition
-                conv, why = None, f"payload does not decode against its definition: {type(exc).__name__}: {exc}"
-            if conv is not None:
-                h = getattr(ros, "header", None)
-                stamp = bm.record_ns
-                if h is not None:
-                    hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
-                    stamp = hs if hs > 0 else bm.record_ns
-                elif bm.msgtype in ("tf2_msgs/TFMessage", "tf/tfMessage") and ros.transforms:
-                    t0 = ros.transforms[0].header.stamp
-                    stamp = int(t0.sec) * 1_000_000_000 + int(t0.nanosec) or bm.record_ns
-                if h is not None and hasattr(h, "seq"):
-                    seq = int(h.seq)
-                else:
-                    seq = seqs.get(key, 0)
-                    seqs[key] = seq + 1
-                header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
-                try:
-                    msg = conv(ros, header)
-                except (ConversionError, ValidationError, TypeError, ValueError) as exc:
-                    why = f"no lossless conversion to our model: {str(exc).splitlines()[0]}"
-                else:
-                    ts["mapped"] += 1
-                    yield bm.record_ns, 0, key, msg
-                    continue
-            # carried raw: the serialised bytes and the definition, unchanged
-            raw_key = RAW_KEY_PREFIX + key
-            d = definitions.get(bm.connection.id)
-            if d is None:
-                d = definitions[bm.connection.id] = connection_definition(reader, bm.connection)
-            seq = seqs.get(raw_key, 0)
-            seqs[raw_key] = seq + 1
-            ts["raw"] += 1
-            ts["raw_key"] = raw_key
-            ts["raw_reasons"][why] = ts["raw_reasons"].get(why, 0) + 1
-            yield bm.record_ns, 0, raw_key, _raw_message(bm, ros, d, reader.is2, seq)
-    except (AnyReaderError, Rosbag1Error, Rosbag2Error, struct.error, EOFError) as exc:
-        reason = f"{type(exc).__name__}: {exc} (truncated or corrupt bag?)"
-        stats.rejected.append({"paths": info["paths"], "reason": reason, "after_messages": n,
-                               "offset": {"message_index": n, "bag_time_ns": last_ns}})
-        log.error("import: %s: unreadable after %d messages (bag time %s ns): %s; the rest of the bag is rejected",
-                  ", ".join(info["paths"]), n, last_ns, reason)
+                for bm in iter_bag(reader, start):
+                    n += 1
+                    last_ns = bm.record_ns
+                    yield from _one_bag_message(bm, reader, tm, stats, raw_topics, force_all, seqs, definitions)
+                break
+            except (AnyReaderError, Rosbag1Error, Rosbag2Error, struct.error, EOFError) as exc:
+                reason = f"{type(exc).__name__}: {exc} (truncated or corrupt bag?)"
+                bad = None if reader.is2 else _bad_ros1_chunk(reader, last_ns)
+                if bad is None:  # ROS 2, or no index to step over the damage: the rest is rejected
+                    stats.rejected.append({"paths": info["paths"], "reason": reason, "after_messages": n,
+                                           "offset": {"message_index": n, "bag_time_ns": last_ns},
+                                           "messages": "the rest of the bag"})
+                    log.error("import: %s: unreadable after %d messages (bag time %s ns): %s; the rest is rejected",
+                              ", ".join(info["paths"]), n, last_ns, reason)
+                    break
+                path, pos, end_ns, lost = bad
+                stats.rejected.append({"paths": [path], "reason": reason, "after_messages": n,
+                                       "offset": {"byte": pos, "message_index": n, "bag_time_ns": last_ns},
+                                       "messages": lost})
+                for topic, k in lost.items():
+                    stats.topic(topic, "", _key_of(topic, tm))["rejected"] += k
+                log.error("import: %s: chunk at byte %d unreadable (%s); its messages up to bag time %d ns are "
+                          "rejected (%s), reading on after it", path, pos, reason, end_ns, lost)
+                start = end_ns + 1
     finally:
         reader.close()
+
+
+def _bad_ros1_chunk(reader: Any, last_ns: int | None) -> tuple[str, int, int, dict[str, int]] | None:
+    """The ROS 1 chunk holding the first message after ``last_ns`` (the one that failed):
+    (bag path, byte offset of the chunk, its end time, messages per topic skipped by resuming
+    after it -- every indexed message in (last_ns, end time], of any chunk)."""
+    after = -1 if last_ns is None else last_ns
+    best = None
+    for r in getattr(reader, "readers", []):
+        for cid, entries in getattr(r, "indexes", {}).items():
+            for e in entries:
+                if e.time > after and (best is None or e.time < best[1].time):
+                    best = (r, e)
+                    break
+    if best is None:
+        return None
+    r, e = best
+    info = next((c for c in r.chunk_infos if c.pos == e.chunk_pos), None)
+    if info is None:
+        return None
+    lost: dict[str, int] = {}
+    for rr in reader.readers:
+        topic_of = {c.id: c.topic for c in rr.connections}
+        for cid, entries in rr.indexes.items():
+            k = sum(1 for x in entries if after < x.time <= info.end_time)
+            if k:
+                lost[topic_of[cid]] = lost.get(topic_of[cid], 0) + k
+    return str(r.path), int(e.chunk_pos), int(info.end_time), lost
+
+
+def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _Stats, raw_topics: set[str] | None,
+                     force_all: bool, seqs: dict[str, int],
+                     definitions: dict[int, tuple[str, str, str]]) -> Iterator[tuple[int, int, str, Message]]:
+    """The one recording entry of a bag message: mapped, carried raw, or none (dropped)."""
+    stats.bump(stats.read, bm.topic)
+    key = _key_of(bm.topic, tm)
+    ts = stats.topic(bm.topic, bm.msgtype, key)
+    ts["read"] += 1
+    if key is None:
+        stats.bump(stats.dropped, bm.topic)
+        ts["dropped"] += 1
+        return
+    conv = CONVERTERS.get(bm.msgtype)
+    if force_all or (raw_topics is not None and bm.topic in raw_topics):
+        conv, why = None, "carried raw on request (--raw)"
+    else:
+        why = f"no model for {bm.msgtype}"
+    ros = None
+    try:
+        ros = reader.deserialize(bm.raw, bm.connection.msgtype)
+    except Exception as exc:  # noqa: BLE001 - rosbags raises many types on a payload that does not fit its definition
+        conv, why = None, f"payload does not decode against its definition: {type(exc).__name__}: {exc}"
+    if conv is not None:
+        h = getattr(ros, "header", None)
+        stamp = bm.record_ns
+        if h is not None:
+            hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+            stamp = hs if hs > 0 else bm.record_ns
+        elif bm.msgtype in ("tf2_msgs/TFMessage", "tf/tfMessage") and ros.transforms:
+            t0 = ros.transforms[0].header.stamp
+            stamp = int(t0.sec) * 1_000_000_000 + int(t0.nanosec) or bm.record_ns
+        if h is not None and hasattr(h, "seq"):
+            seq = int(h.seq)
+        else:
+            seq = seqs.get(key, 0)
+            seqs[key] = seq + 1
+        header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
+        try:
+            msg = conv(ros, header)
+        except (ConversionError, ValidationError, TypeError, ValueError) as exc:
+            why = f"no lossless conversion to our model: {str(exc).splitlines()[0]}"
+        else:
+            ts["mapped"] += 1
+            yield bm.record_ns, 0, key, msg
+            return
+    # carried raw: the serialised bytes and the definition, unchanged
+    raw_key = RAW_KEY_PREFIX + key
+    d = definitions.get(bm.connection.id)
+    if d is None:
+        d = definitions[bm.connection.id] = connection_definition(reader, bm.connection)
+    seq = seqs.get(raw_key, 0)
+    seqs[raw_key] = seq + 1
+    ts["raw"] += 1
+    ts["raw_key"] = raw_key
+    ts["raw_reasons"][why] = ts["raw_reasons"].get(why, 0) + 1
+    yield bm.record_ns, 0, raw_key, _raw_message(bm, ros, d, reader.is2, seq)
 
 
 def _list_stream(items: list[tuple[str, Message]], order: int) -> Iterator[tuple[int, int, str, Message]]:
@@ -287,7 +342,7 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
     topics = {}
     for topic, t in sorted(stats.topics.items()):
         t = dict(t)
-        t["as"] = "+".join(k for k in ("mapped", "raw", "dropped") if t[k]) or "none"
+        t["as"] = "+".join(k for k in ("mapped", "raw", "dropped", "rejected") if t[k]) or "none"
         topics[topic] = t
     return {
         "out": str(out), "inputs": stats.inputs, "read": dict(sorted(stats.read.items())),

@@ -376,9 +376,9 @@ def open_bags(paths: list[Path]) -> tuple[Any, dict[str, Any]]:
     return reader, {"kind": kind, "paths": [str(p) for p in real]}
 
 
-def iter_bag(reader: Any) -> Iterator[BagMessage]:
-    """Every message of an opened reader in bag-time order."""
-    for conn, t, raw in reader.messages():
+def iter_bag(reader: Any, start: int | None = None) -> Iterator[BagMessage]:
+    """Every message of an opened reader in bag-time order (from bag time ``start``, ns)."""
+    for conn, t, raw in reader.messages(start=start):
         yield BagMessage(conn.topic, normalise_type(conn.msgtype), int(t), raw, conn)
 
 

@@ -354,3 +354,42 @@ def test_export_cli(small_run, tmp_path, capsys):
     assert "nope.mcap" in capsys.readouterr().err and not (tmp_path / "g.mcap").exists()
     with pytest.raises(ExportError, match="exists"):
         export_foxglove(run, tmp_path / "f.mcap")
+
+
+def test_corrupt_chunk_rejected_with_offset_and_the_rest_imported(tmp_path, capsys):
+    """Only records the reader cannot read are rejected: with the reason and the chunk's byte offset."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from missions.importers.cli import main as import_main
+
+    st = get_typestore(Stores.ROS1_NOETIC)
+    T = st.types
+    bag = tmp_path / "c.bag"
+    w = Writer(bag)
+    w.chunk_threshold = 1000  # several chunks of about 13 messages
+    with w:
+        c = w.add_connection("/pressure", "sensor_msgs/msg/FluidPressure", typestore=st)
+        for i in range(60):
+            h = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](sec=1_700_000_000 + i, nanosec=0),
+                                         frame_id="p")
+            w.write(c, (1_700_000_000 + i) * 10**9, st.serialize_ros1(
+                T["sensor_msgs/msg/FluidPressure"](header=h, fluid_pressure=1e5 + i, variance=0.0),
+                "sensor_msgs/msg/FluidPressure"))
+    with Reader(bag) as r:
+        infos = sorted(r.chunk_infos, key=lambda ci: ci.pos)
+        bad = infos[2]
+        in_bad = sum(bad.connection_counts.values())
+        datapos = r.chunks[bad.pos].datapos
+    data = bytearray(bag.read_bytes())
+    data[datapos:datapos + 4] = b"\xff\xff\xff\x7f"  # the first record header of the chunk claims 2 GB
+    bag.write_bytes(bytes(data))
+    rc = import_main([str(bag), "--out", str(tmp_path / "out.mcap"), "--json", "--no-progress"])
+    assert rc == 1
+    s = json.loads(capsys.readouterr().out)
+    rej, = s["rejected"]
+    assert rej["offset"]["byte"] == bad.pos and rej["messages"] == {"/pressure": in_bad} and "ReaderError" in rej["reason"]
+    t = s["topics"]["/pressure"]
+    assert (t["mapped"], t["rejected"], t["in_source"]) == (60 - in_bad, in_bad, 60) and 0 < in_bad < 30
+    got = [m.message().fluid_pressure for m in read_messages(tmp_path / "out.mcap")]
+    assert len(got) == 60 - in_bad and got[-1] == 1e5 + 59  # chunks after the damaged one are imported
