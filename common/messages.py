@@ -8,10 +8,14 @@ Sensor inputs follow the fields of the real Cala Viuda dataset (package
 ``cirs_girona_cala_viuda``: Depth, Imu, LinkquestDvl, RangeImageBeam) and the standard
 ``sensor_msgs`` / ``nav_msgs`` types it also records (Image, LaserScan, Odometry).
 SLAM outputs follow the dissertation, Section 4.2 (SDRs, LocalViewCells, ExperienceEvent,
-ExperienceMap, ExperienceImage).
+ExperienceMap, ExperienceImage).  Other sensor types a vehicle records (NavSatFix,
+FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
+TFMessage, DiagnosticArray) have lossless models for ``poseidon import``; any other ROS
+message travels as :class:`RawMessage` (its serialised bytes and definition) on a
+``raw/...`` key.
 
 :data:`KEYS` maps every key of the architecture (relative to the vehicle namespace, e.g.
-``poseidon/``) to its message type.  Conventions: positions in metres, angles in radians,
+``poseidon/``) to its message type (every ``raw/...`` key carries RawMessage).  Conventions: positions in metres, angles in radians,
 velocities in m/s, world frame NED unless a field says otherwise.
 """
 from __future__ import annotations
