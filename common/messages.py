@@ -15,8 +15,9 @@ message travels as :class:`RawMessage` (its serialised bytes and definition) on 
 ``raw/...`` key.
 
 :data:`KEYS` maps every key of the architecture (relative to the vehicle namespace, e.g.
-``poseidon/``) to its message type (every ``raw/...`` key carries RawMessage).  Conventions: positions in metres, angles in radians,
-velocities in m/s, world frame NED unless a field says otherwise.
+``poseidon/``) to its message type (every ``raw/...`` key carries RawMessage).
+Conventions: positions in metres, angles in radians, velocities in m/s, world frame NED
+unless a field says otherwise.
 """
 from __future__ import annotations
 
