@@ -189,10 +189,9 @@ def _bad_ros1_chunk(reader: Any, last_ns: int | None) -> tuple[str, int, int, di
     best = None
     for r in getattr(reader, "readers", []):
         for cid, entries in getattr(r, "indexes", {}).items():
-            for e in entries:
-                if e.time > after and (best is None or e.time < best[1].time):
-                    best = (r, e)
-                    break
+            e = next((x for x in entries if x.time > after), None)  # entries are sorted by time
+            if e is not None and (best is None or e.time < best[1].time):
+                best = (r, e)
     if best is None:
         return None
     r, e = best
