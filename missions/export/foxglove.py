@@ -25,8 +25,9 @@ ExperienceEvent               ``/<key>``                       ``foxglove.Log``
 NavSatFix                     ``/<key>``                       ``foxglove.LocationFix``
 any other type of ours        ``/<key>``                       its ROS 2 type (``ros2msg``, CDR), as
                                                                ``poseidon export --ros2`` writes it
-RawMessage (``raw/...``)      original ROS topic               original type, bytes unchanged
-                                                               (``ros1msg``/ROS 1 or ``ros2msg``/CDR)
+RawMessage (``raw/...``)      original ROS topic (``/<key>``   original type, bytes unchanged
+                              when the topic also has mapped   (``ros1msg``/ROS 1 or ``ros2msg``/CDR)
+                              messages under another schema)
 ============================= ================================ ====================================
 
 Protobuf schemas are the official ones (package ``foxglove-schemas-protobuf``), stored as
@@ -171,13 +172,16 @@ class FoxgloveExporter:
         cid = self.out.channel(topic, msgtype, "ros2msg", text.encode(), "cdr")
         self.out.write(cid, topic, stamp, bytes(self.store.serialize_cdr(ros, msgtype)))
 
-    def _raw_write(self, m: RawMessage, stamp: int) -> None:
+    def _raw_write(self, key: str, m: RawMessage, stamp: int) -> None:
         if m.serialization == "ros1":
             enc, menc = "ros1msg", "ros1"
         else:
             enc, menc = ("ros2idl" if m.definition_format == "idl" else "ros2msg"), "cdr"
-        cid = self.out.channel(m.topic, m.ros_type, enc, m.definition.encode(), menc)
-        self.out.write(cid, m.topic, stamp, m.data)
+        topic = m.topic
+        if self.out.channel_schema.get(topic, m.ros_type) != m.ros_type:
+            topic = "/" + key  # the original topic already carries the mapped messages of that topic
+        cid = self.out.channel(topic, m.ros_type, enc, m.definition.encode(), menc)
+        self.out.write(cid, topic, stamp, m.data)
 
     # ------------------------------------------------------------------ conversions
     def _pose(self, position: list[float], q: list[float]) -> Any:
@@ -282,7 +286,7 @@ class FoxgloveExporter:
         """Write one message of key ``key`` (see the module table)."""
         topic = "/" + key
         if isinstance(msg, RawMessage):
-            self._raw_write(msg, stamp)
+            self._raw_write(key, msg, stamp)
         elif isinstance(msg, Image):  # ExperienceImage too
             self._pb_write(topic, self._image(msg), stamp)
         elif isinstance(msg, RangeImageBeam):

@@ -50,8 +50,11 @@ def _bag_counts_decoded(path: Path) -> dict[str, int]:
 # --------------------------------------------------------------------------- real bags
 
 
+_REAL_BAGS = sorted(p.name for p in BAGS.glob("*.bag")) if BAGS.is_dir() else ["absent"]
+
+
 @needs_bags
-@pytest.mark.parametrize("name", ["robot_localization_test1.bag", "robot_localization_test2.bag"])
+@pytest.mark.parametrize("name", _REAL_BAGS)
 def test_real_bag_every_message_and_raw_reexport_byte_identical(tmp_path, name):
     bag = BAGS / name
     own = {t: len(p) for t, p in _bag_payloads(bag).items()}
@@ -393,3 +396,35 @@ def test_corrupt_chunk_rejected_with_offset_and_the_rest_imported(tmp_path, caps
     assert (t["mapped"], t["rejected"], t["in_source"]) == (60 - in_bad, in_bad, 60) and 0 < in_bad < 30
     got = [m.message().fluid_pressure for m in read_messages(tmp_path / "out.mcap")]
     assert len(got) == 60 - in_bad and got[-1] == 1e5 + 59  # chunks after the damaged one are imported
+
+
+def test_topic_partly_mapped_partly_raw(tmp_path):
+    """An image topic whose frames are mostly rgb8 but one is yuv422 (no model): the odd frame is
+    carried raw on raw/<key>; every export keeps all of them."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    st = get_typestore(Stores.ROS1_NOETIC)
+    T = st.types
+    bag = tmp_path / "cam.bag"
+    with Writer(bag) as w:
+        c = w.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=st)
+        for i in range(4):
+            h = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](sec=1_700_000_000 + i, nanosec=0),
+                                         frame_id="camera")
+            enc = "yuv422" if i == 2 else "rgb8"
+            m = T["sensor_msgs/msg/Image"](header=h, height=2, width=2, encoding=enc, is_bigendian=0,
+                                           step=4 if i == 2 else 6, data=np.arange(8 if i == 2 else 12, dtype=np.uint8))
+            w.write(c, (1_700_000_000 + i) * 10**9, st.serialize_ros1(m, "sensor_msgs/msg/Image"))
+    s = import_sources([bag], tmp_path / "run.mcap", progress=False)
+    t = s["topics"]["/camera/image_raw"]
+    assert (t["mapped"], t["raw"], t["as"], t["raw_key"]) == (3, 1, "mapped+raw", "raw/camera/image_raw")
+    assert "yuv422" in next(iter(t["raw_reasons"]))
+    fox = export_foxglove(tmp_path / "run.mcap", tmp_path / "f.mcap")["topics"]
+    assert fox == {"/camera/image_raw": {"schema": "foxglove.RawImage", "count": 3},
+                   "/raw/camera/image_raw": {"schema": "sensor_msgs/msg/Image", "count": 1}}
+    assert len(_decode_all(tmp_path / "f.mcap")["/raw/camera/image_raw"]) == 1
+    export_rosbag(tmp_path / "run.mcap", tmp_path / "b2", ros2=True)
+    assert _bag_counts_decoded(tmp_path / "b2") == {"/camera/image_raw": 4}
+    export_rosbag(tmp_path / "run.mcap", tmp_path / "b1.bag", ros2=False)
+    assert _bag_payloads(tmp_path / "b1.bag")["/camera/image_raw"][2] == _bag_payloads(bag)["/camera/image_raw"][2]
