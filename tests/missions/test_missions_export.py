@@ -428,3 +428,33 @@ def test_topic_partly_mapped_partly_raw(tmp_path):
     assert _bag_counts_decoded(tmp_path / "b2") == {"/camera/image_raw": 4}
     export_rosbag(tmp_path / "run.mcap", tmp_path / "b1.bag", ros2=False)
     assert _bag_payloads(tmp_path / "b1.bag")["/camera/image_raw"][2] == _bag_payloads(bag)["/camera/image_raw"][2]
+
+
+def test_import_cli_raw_option(tmp_path, capsys):
+    """--raw TOPIC carries a topic with a model raw (exact bytes), the others stay mapped."""
+    from missions.importers.cli import main as import_main
+
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    st = get_typestore(Stores.ROS1_NOETIC)
+    T = st.types
+    with Writer(tmp_path / "p.bag") as w:
+        c = w.add_connection("/pressure", "sensor_msgs/msg/FluidPressure", typestore=st)
+        d = w.add_connection("/temp", "sensor_msgs/msg/Temperature", typestore=st)
+        for i in range(3):
+            h = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](sec=1_700_000_000 + i, nanosec=0),
+                                         frame_id="p")
+            w.write(c, T0 + i, st.serialize_ros1(T["sensor_msgs/msg/FluidPressure"](header=h, fluid_pressure=1e5,
+                                                                                   variance=1.0),
+                                                 "sensor_msgs/msg/FluidPressure"))
+            w.write(d, T0 + i, st.serialize_ros1(T["sensor_msgs/msg/Temperature"](header=h, temperature=12.5 + i,
+                                                                                 variance=0.0),
+                                                 "sensor_msgs/msg/Temperature"))
+    assert import_main([str(tmp_path / "p.bag"), "--out", str(tmp_path / "o.mcap"), "--raw", "/pressure", "--json",
+                        "--no-progress"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["written"] == {"raw/pressure": 3, "temp": 3}
+    assert s["topics"]["/pressure"]["raw_reasons"] == {"carried raw on request (--raw)": 3}
+    temps = [r.message().temperature for r in read_messages(tmp_path / "o.mcap", keys=["temp"])]
+    assert temps == [12.5, 13.5, 14.5]
