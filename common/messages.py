@@ -8,11 +8,16 @@ Sensor inputs follow the fields of the real Cala Viuda dataset (package
 ``cirs_girona_cala_viuda``: Depth, Imu, LinkquestDvl, RangeImageBeam) and the standard
 ``sensor_msgs`` / ``nav_msgs`` types it also records (Image, LaserScan, Odometry).
 SLAM outputs follow the dissertation, Section 4.2 (SDRs, LocalViewCells, ExperienceEvent,
-ExperienceMap, ExperienceImage).
+ExperienceMap, ExperienceImage).  Other sensor types a vehicle records (NavSatFix,
+FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
+TFMessage, DiagnosticArray) have lossless models for ``poseidon import``; any other ROS
+message travels as :class:`RawMessage` (its serialised bytes and definition) on a
+``raw/...`` key.
 
 :data:`KEYS` maps every key of the architecture (relative to the vehicle namespace, e.g.
-``poseidon/``) to its message type.  Conventions: positions in metres, angles in radians,
-velocities in m/s, world frame NED unless a field says otherwise.
+``poseidon/``) to its message type (every ``raw/...`` key carries RawMessage).
+Conventions: positions in metres, angles in radians, velocities in m/s, world frame NED
+unless a field says otherwise.
 """
 from __future__ import annotations
 
@@ -25,7 +30,9 @@ __all__ = [
     "NDArray", "Header", "Message", "Image", "RangeImageBeam", "LaserScan", "LinkquestDvl",
     "Imu", "Depth", "Odometry", "Sdr", "NeocortexSdr", "LocalViewCell", "LocalViewCells",
     "ExperienceEvent", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
-    "PoseStamped", "RevisitTruth", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
+    "PoseStamped", "RevisitTruth", "NavSatFix", "FluidPressure", "Temperature", "MagneticField",
+    "PoseWithCovarianceStamped", "TwistStamped", "TransformStamped", "TFMessage", "KeyValue", "DiagnosticStatus",
+    "DiagnosticArray", "RawMessage", "RAW_KEY_PREFIX", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
 ]
 
 
@@ -284,6 +291,125 @@ class ExperienceImage(Image):
     source_stamp: int = Field(description="stamp of the camera frame used as evidence (ns)")
 
 
+# --------------------------------------------------------------------------- other ROS sensor types
+# Lossless models of the common sensor_msgs / geometry_msgs / tf2_msgs / diagnostic_msgs types a
+# vehicle records besides the SLAM inputs (``poseidon import`` maps them; ``poseidon export``
+# writes them back as the same ROS types).  Field names and units as in ROS.
+
+
+class NavSatFix(Message):
+    """sensor_msgs/NavSatFix: a GNSS fix (surface fixes of an AUV), WGS 84."""
+
+    status: int = Field(description="NavSatStatus.status: -1 no fix, 0 fix, 1 SBAS, 2 GBAS")
+    service: int = Field(0, description="NavSatStatus.service bit mask (1 GPS, 2 GLONASS, 4 COMPASS, 8 GALILEO)")
+    latitude: float = Field(description="degrees, + north")
+    longitude: float = Field(description="degrees, + east")
+    altitude: float = Field(description="metres above the WGS 84 ellipsoid")
+    position_covariance: list[float] = Field(default_factory=lambda: [0.0] * 9, min_length=9, max_length=9,
+                                             description="m^2, row-major 3x3 in ENU")
+    position_covariance_type: int = Field(0, description="0 unknown, 1 approximated, 2 diagonal known, 3 known")
+
+
+class FluidPressure(Message):
+    """sensor_msgs/FluidPressure: pressure in pascals and its variance (Pa^2)."""
+
+    fluid_pressure: float
+    variance: float = 0.0
+
+
+class Temperature(Message):
+    """sensor_msgs/Temperature: degrees Celsius and variance."""
+
+    temperature: float
+    variance: float = 0.0
+
+
+class MagneticField(Message):
+    """sensor_msgs/MagneticField: field vector in tesla, row-major 3x3 covariance."""
+
+    magnetic_field: list[float] = Field(min_length=3, max_length=3)
+    magnetic_field_covariance: list[float] = Field(default_factory=lambda: [0.0] * 9, min_length=9, max_length=9)
+
+
+class PoseWithCovarianceStamped(Message):
+    """geometry_msgs/PoseWithCovarianceStamped: position (m), quaternion xyzw, 6x6 covariance."""
+
+    position: list[float] = Field(min_length=3, max_length=3)
+    orientation: list[float] = Field(min_length=4, max_length=4, description="quaternion x y z w")
+    covariance: list[float] = Field(default_factory=lambda: [0.0] * 36, min_length=36, max_length=36)
+
+
+class TwistStamped(Message):
+    """geometry_msgs/TwistStamped: linear (m/s) and angular (rad/s) velocity."""
+
+    linear: list[float] = Field(min_length=3, max_length=3)
+    angular: list[float] = Field(min_length=3, max_length=3)
+
+
+class TransformStamped(BaseModel):
+    """geometry_msgs/TransformStamped: ``header.frame_id`` -> ``child_frame_id``."""
+
+    model_config = ConfigDict(extra="forbid")
+    header: Header
+    child_frame_id: str
+    translation: list[float] = Field(min_length=3, max_length=3, description="metres")
+    rotation: list[float] = Field(min_length=4, max_length=4, description="quaternion x y z w")
+
+
+class TFMessage(Message):
+    """tf2_msgs/TFMessage (and ROS1 tf/tfMessage).  ROS has no header on it: ours carries the
+    stamp of the first transform (or the bag's record time) and an empty frame_id."""
+
+    transforms: list[TransformStamped]
+
+
+class KeyValue(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    key: str
+    value: str
+
+
+class DiagnosticStatus(BaseModel):
+    """diagnostic_msgs/DiagnosticStatus: level 0 OK, 1 WARN, 2 ERROR, 3 STALE."""
+
+    model_config = ConfigDict(extra="forbid")
+    level: int
+    name: str
+    message: str = ""
+    hardware_id: str = ""
+    values: list[KeyValue] = Field(default_factory=list)
+
+
+class DiagnosticArray(Message):
+    """diagnostic_msgs/DiagnosticArray."""
+
+    status: list[DiagnosticStatus]
+
+
+#: keys of raw-carried messages: ``raw/<key the topic would have>`` (``/vendor/status`` -> ``raw/vendor/status``)
+RAW_KEY_PREFIX = "raw/"
+
+
+class RawMessage(Message):
+    """A ROS message whose type has no model here, carried through unchanged (``poseidon import``
+    records it on ``raw/<key>``; the player replays it; ``poseidon export`` writes the bytes back).
+
+    ``data`` is the message exactly as serialised in the source bag; ``definition`` is the
+    message definition text as the bag stored it (ROS1: the full ``.msg`` text with its
+    dependencies after ``MSG:`` separators; ROS2: ``.msg`` or ``.idl`` text, or the definition
+    rosbags generated when the bag had none).  ``header`` stamp is the ROS header stamp when the
+    message has one, else the bag's record time.
+    """
+
+    topic: str = Field(description="the original ROS topic, e.g. /vendor/status")
+    ros_type: str = Field(description="ROS type in rosbags form, e.g. vendor_msgs/msg/Status")
+    serialization: Literal["ros1", "cdr"]
+    definition: str
+    definition_format: Literal["msg", "idl"] = "msg"
+    digest: str = Field("", description="ROS1 md5sum or ROS2 RIHS01 type hash of the definition, if known")
+    data: bytes
+
+
 # --------------------------------------------------------------------------- ground truth
 
 
@@ -322,7 +448,9 @@ KEYS: dict[str, type[Message]] = {
 MESSAGE_TYPES: dict[str, type[Message]] = {
     t.type_name: t
     for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
-              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, RevisitTruth)
+              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, RevisitTruth,
+              NavSatFix, FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
+              TFMessage, DiagnosticArray, RawMessage)
 }
 
 
@@ -335,7 +463,10 @@ def message_type(type_name: str) -> type[Message]:
 
 
 def key_type(key: str) -> type[Message]:
-    """The message class of a namespace-relative key (e.g. ``camera/image_raw``)."""
+    """The message class of a namespace-relative key (e.g. ``camera/image_raw``); every
+    ``raw/...`` key carries :class:`RawMessage`."""
+    if key.startswith(RAW_KEY_PREFIX):
+        return RawMessage
     try:
         return KEYS[key]
     except KeyError:

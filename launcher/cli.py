@@ -49,6 +49,7 @@ DELEGATED = {
     "compare": "eval.compare:main",
     "report": "eval.report.cli:main",
     "path": "services.expmap.path:main",
+    "export": "missions.export.cli:main",
 }
 
 

@@ -12,21 +12,37 @@ sensor bag of the caves dataset become one recording):
 
 Topics map to keys by :data:`~missions.importers.rosbags_io.DEFAULT_TOPIC_MAP`, other
 topics to the topic without its leading slash.  ``--topic-map`` is a YAML mapping
-``topic: key`` (overrides; ``topic: null`` drops a topic).  A message type without a
-converter is counted (by type and topic), never an error; a mapped message whose content
-cannot be converted (e.g. an unsupported image encoding) is counted under ``skipped``.
+``topic: key`` (overrides; ``topic: null`` drops a topic).
+
+Nothing is lost: a message whose type has a model (table in
+:mod:`missions.importers.rosbags_io`) is converted; any other message -- a type without a
+model, a payload that does not decode against its own definition, or content with no
+lossless conversion (e.g. an image encoding we do not model) -- is *carried raw*: its
+serialised bytes, ROS type and message definition as a :class:`common.messages.RawMessage`
+on the key ``raw/<key>`` (``/vendor/status`` -> ``raw/vendor/status``), which the player
+replays and ``poseidon export`` writes back byte for byte.  ``--raw TOPIC`` (repeatable,
+``'*'`` = all) carries a topic raw even when a model exists.  Only records the bag reader
+cannot read at all (a corrupt chunk) are *rejected*, with the reason and where: in a ROS 1
+bag the chunk's byte offset, and reading goes on after that chunk; in a ROS 2 bag the rest of
+the bag after the last readable message.  The import keeps everything else and exits with 1.
 
 ``--json`` summary keys: ``out``; ``inputs`` (path, format, per-topic type and count in
 the source); ``read`` (messages read per topic / CSV key / frames key); ``written``
-(messages written per key); ``unmapped_types`` (type -> count); ``unmapped_topics``
-(topic -> {type, count}); ``dropped_topics`` (topic -> count, dropped by the topic map);
-``skipped`` (reason -> count); ``start_ns``, ``end_ns``, ``duration_s``.
+(messages written per key); ``topics`` (bag topic -> ``type``, ``key``, ``in_source``
+(the bag's own count), ``read``, ``mapped``, ``raw``, ``dropped``, ``raw_key``,
+``rejected``, ``raw_reasons`` (reason -> count), ``as``: the non-zero ones of ``mapped``,
+``raw``, ``dropped``, ``rejected`` joined by ``+``); ``dropped_topics`` (topic -> count,
+dropped by the topic map); ``rejected`` (list of ``{paths, reason, after_messages, offset:
+{byte (ROS 1: the unreadable chunk), message_index, bag_time_ns (last good message)},
+messages: {topic: count} or "the rest of the bag"}``);
+``start_ns``, ``end_ns``, ``duration_s``.
 """
 from __future__ import annotations
 
 import argparse
 import heapq
 import json
+import logging
 import struct
 import sys
 from pathlib import Path
@@ -37,13 +53,16 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from common.mcap_io import RecordingWriter
-from common.messages import Header, Message
+from common.messages import RAW_KEY_PREFIX, Header, Message, RawMessage
 from missions.importers import frames as frames_mod
 from missions.importers.errors import InputFormatError
 from missions.importers.rostopic_csv import read_rostopic_csv
-from missions.importers.rosbags_io import CONVERTERS, DEFAULT_TOPIC_MAP, ConversionError, iter_bag, open_bags
+from missions.importers.rosbags_io import (CONVERTERS, DEFAULT_TOPIC_MAP, ConversionError, connection_definition,
+                                           iter_bag, normalise_type, open_bags)
 
 __all__ = ["main", "import_sources", "load_topic_map"]
+
+log = logging.getLogger(__name__)
 
 
 def load_topic_map(path: str | Path | None) -> dict[str, str | None]:
@@ -80,16 +99,40 @@ class _Stats:
     def __init__(self) -> None:
         self.inputs: list[dict[str, Any]] = []
         self.read: dict[str, int] = {}
-        self.unmapped_types: dict[str, int] = {}
-        self.unmapped_topics: dict[str, dict[str, Any]] = {}
         self.dropped: dict[str, int] = {}
-        self.skipped: dict[str, int] = {}
+        self.topics: dict[str, dict[str, Any]] = {}
+        self.rejected: list[dict[str, Any]] = []
 
     def bump(self, d: dict[str, int], k: str) -> None:
         d[k] = d.get(k, 0) + 1
 
+    def topic(self, topic: str, msgtype: str, key: str | None) -> dict[str, Any]:
+        t = self.topics.get(topic)
+        if t is None:
+            t = self.topics[topic] = {"type": msgtype, "key": key, "in_source": 0, "read": 0, "mapped": 0, "raw": 0,
+                                      "dropped": 0, "rejected": 0, "raw_key": None, "raw_reasons": {}}
+        return t
 
-def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats) -> Iterator[tuple[int, int, str, Message]]:
+
+def _raw_message(bm: Any, ros: Any, definition: tuple[str, str, str], is2: bool, seq: int) -> RawMessage:
+    """The bag message as it is (bytes + definition); header from the ROS header when decodable."""
+    h = getattr(ros, "header", None) if ros is not None else None
+    stamp, frame = bm.record_ns, ""
+    if h is not None and hasattr(h, "stamp"):
+        hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+        stamp = hs if hs > 0 else bm.record_ns
+        frame = str(getattr(h, "frame_id", ""))
+        seq = int(getattr(h, "seq", seq))
+    text, fmt, digest = definition
+    return RawMessage(header=Header(seq=seq, stamp=stamp, frame_id=frame), topic=bm.topic,
+                      ros_type=bm.connection.msgtype, serialization="cdr" if is2 else "ros1", definition=text,
+                      definition_format=fmt, digest=digest, data=bytes(bm.raw))
+
+
+def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
+                raw_topics: set[str] | None) -> Iterator[tuple[int, int, str, Message]]:
+    """Every message of the bags: converted to our model when a converter exists (and the topic
+    is not in ``raw_topics``; ``{"*"}`` = all), else carried raw on ``raw/<key>``."""
     from rosbags.highlevel import AnyReaderError
     from rosbags.rosbag1 import ReaderError as Rosbag1Error
     from rosbags.rosbag2 import ReaderError as Rosbag2Error
@@ -99,47 +142,128 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats) -> 
     for c in reader.connections:
         t = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0})
         t["count"] += c.msgcount
+        stats.topic(c.topic, normalise_type(c.msgtype), _key_of(c.topic, tm))["in_source"] += c.msgcount
     stats.inputs.append({"paths": info["paths"], "format": info["kind"], "topics": topics})
     seqs: dict[str, int] = {}
+    definitions: dict[int, tuple[str, str, str]] = {}
+    force_all = raw_topics is not None and "*" in raw_topics
     n = 0
+    last_ns: int | None = None
+    start: int | None = None
     try:
-        for bm in iter_bag(reader):
-            n += 1
-            stats.bump(stats.read, bm.topic)
-            key = _key_of(bm.topic, tm)
-            if key is None:
-                stats.bump(stats.dropped, bm.topic)
-                continue
-            conv = CONVERTERS.get(bm.msgtype)
-            if conv is None:
-                stats.bump(stats.unmapped_types, bm.msgtype)
-                u = stats.unmapped_topics.setdefault(bm.topic, {"type": bm.msgtype, "count": 0})
-                u["count"] += 1
-                continue
-            ros = reader.deserialize(bm.raw, bm.connection.msgtype)
-            h = getattr(ros, "header", None)
-            stamp = bm.record_ns
-            if h is not None:
-                hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
-                stamp = hs if hs > 0 else bm.record_ns
-            if h is not None and hasattr(h, "seq"):
-                seq = int(h.seq)
-            else:
-                seq = seqs.get(key, 0)
-                seqs[key] = seq + 1
-            header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
+        while True:
             try:
-                msg = conv(ros, header)
-            except (ConversionError, ValidationError, TypeError, ValueError) as exc:
-                reason = f"{bm.topic} ({bm.msgtype}): {str(exc).splitlines()[0]}"
-                stats.bump(stats.skipped, reason)
-                continue
-            yield bm.record_ns, 0, key, msg
-    except (AnyReaderError, Rosbag1Error, Rosbag2Error, struct.error, EOFError) as exc:
-        raise InputFormatError(f"{', '.join(info['paths'])}: unreadable after {n} messages: {exc} "
-                               f"(truncated or corrupt bag?)") from None
+                for bm in iter_bag(reader, start):
+                    n += 1
+                    last_ns = bm.record_ns
+                    yield from _one_bag_message(bm, reader, tm, stats, raw_topics, force_all, seqs, definitions)
+                break
+            except (AnyReaderError, Rosbag1Error, Rosbag2Error, struct.error, EOFError) as exc:
+                reason = f"{type(exc).__name__}: {exc} (truncated or corrupt bag?)"
+                bad = None if reader.is2 else _bad_ros1_chunk(reader, last_ns)
+                if bad is None:  # ROS 2, or no index to step over the damage: the rest is rejected
+                    stats.rejected.append({"paths": info["paths"], "reason": reason, "after_messages": n,
+                                           "offset": {"message_index": n, "bag_time_ns": last_ns},
+                                           "messages": "the rest of the bag"})
+                    log.error("import: %s: unreadable after %d messages (bag time %s ns): %s; the rest is rejected",
+                              ", ".join(info["paths"]), n, last_ns, reason)
+                    break
+                path, pos, end_ns, lost = bad
+                stats.rejected.append({"paths": [path], "reason": reason, "after_messages": n,
+                                       "offset": {"byte": pos, "message_index": n, "bag_time_ns": last_ns},
+                                       "messages": lost})
+                for topic, k in lost.items():
+                    stats.topic(topic, "", _key_of(topic, tm))["rejected"] += k
+                log.error("import: %s: chunk at byte %d unreadable (%s); its messages up to bag time %d ns are "
+                          "rejected (%s), reading on after it", path, pos, reason, end_ns, lost)
+                start = end_ns + 1
     finally:
         reader.close()
+
+
+def _bad_ros1_chunk(reader: Any, last_ns: int | None) -> tuple[str, int, int, dict[str, int]] | None:
+    """The ROS 1 chunk holding the first message after ``last_ns`` (the one that failed):
+    (bag path, byte offset of the chunk, its end time, messages per topic skipped by resuming
+    after it -- every indexed message in (last_ns, end time], of any chunk)."""
+    after = -1 if last_ns is None else last_ns
+    best = None
+    for r in getattr(reader, "readers", []):
+        for cid, entries in getattr(r, "indexes", {}).items():
+            e = next((x for x in entries if x.time > after), None)  # entries are sorted by time
+            if e is not None and (best is None or e.time < best[1].time):
+                best = (r, e)
+    if best is None:
+        return None
+    r, e = best
+    info = next((c for c in r.chunk_infos if c.pos == e.chunk_pos), None)
+    if info is None:
+        return None
+    lost: dict[str, int] = {}
+    for rr in reader.readers:
+        topic_of = {c.id: c.topic for c in rr.connections}
+        for cid, entries in rr.indexes.items():
+            k = sum(1 for x in entries if after < x.time <= info.end_time)
+            if k:
+                lost[topic_of[cid]] = lost.get(topic_of[cid], 0) + k
+    return str(r.path), int(e.chunk_pos), int(info.end_time), lost
+
+
+def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _Stats, raw_topics: set[str] | None,
+                     force_all: bool, seqs: dict[str, int],
+                     definitions: dict[int, tuple[str, str, str]]) -> Iterator[tuple[int, int, str, Message]]:
+    """The one recording entry of a bag message: mapped, carried raw, or none (dropped)."""
+    stats.bump(stats.read, bm.topic)
+    key = _key_of(bm.topic, tm)
+    ts = stats.topic(bm.topic, bm.msgtype, key)
+    ts["read"] += 1
+    if key is None:
+        stats.bump(stats.dropped, bm.topic)
+        ts["dropped"] += 1
+        return
+    conv = CONVERTERS.get(bm.msgtype)
+    if force_all or (raw_topics is not None and bm.topic in raw_topics):
+        conv, why = None, "carried raw on request (--raw)"
+    else:
+        why = f"no model for {bm.msgtype}"
+    ros = None
+    try:
+        ros = reader.deserialize(bm.raw, bm.connection.msgtype)
+    except Exception as exc:  # noqa: BLE001 - rosbags raises many types on a payload that does not fit its definition
+        conv, why = None, f"payload does not decode against its definition: {type(exc).__name__}: {exc}"
+    if conv is not None:
+        h = getattr(ros, "header", None)
+        stamp = bm.record_ns
+        if h is not None:
+            hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+            stamp = hs if hs > 0 else bm.record_ns
+        elif bm.msgtype in ("tf2_msgs/TFMessage", "tf/tfMessage") and ros.transforms:
+            t0 = ros.transforms[0].header.stamp
+            stamp = int(t0.sec) * 1_000_000_000 + int(t0.nanosec) or bm.record_ns
+        if h is not None and hasattr(h, "seq"):
+            seq = int(h.seq)
+        else:
+            seq = seqs.get(key, 0)
+            seqs[key] = seq + 1
+        header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
+        try:
+            msg = conv(ros, header)
+        except (ConversionError, ValidationError, TypeError, ValueError) as exc:
+            why = f"no lossless conversion to our model: {str(exc).splitlines()[0]}"
+        else:
+            ts["mapped"] += 1
+            yield bm.record_ns, 0, key, msg
+            return
+    # carried raw: the serialised bytes and the definition, unchanged
+    raw_key = RAW_KEY_PREFIX + key
+    d = definitions.get(bm.connection.id)
+    if d is None:
+        d = definitions[bm.connection.id] = connection_definition(reader, bm.connection)
+    seq = seqs.get(raw_key, 0)
+    seqs[raw_key] = seq + 1
+    ts["raw"] += 1
+    ts["raw_key"] = raw_key
+    ts["raw_reasons"][why] = ts["raw_reasons"].get(why, 0) + 1
+    yield bm.record_ns, 0, raw_key, _raw_message(bm, ros, d, reader.is2, seq)
 
 
 def _list_stream(items: list[tuple[str, Message]], order: int) -> Iterator[tuple[int, int, str, Message]]:
@@ -153,8 +277,10 @@ def _frames_stream(plan: list, order: int) -> Iterator[tuple[int, int, str, Mess
 
 
 def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[str, str | None] | None = None,
-                   frames_timestamps: str | Path | None = None, progress: bool = True) -> dict[str, Any]:
-    """Import every source into one recording at ``out``; returns the summary (see module doc)."""
+                   frames_timestamps: str | Path | None = None, progress: bool = True,
+                   raw_topics: set[str] | None = None) -> dict[str, Any]:
+    """Import every source into one recording at ``out``; returns the summary (see module doc).
+    ``raw_topics``: bag topics carried raw even when a model exists (``{"*"}``: every topic)."""
     tm = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
     stats = _Stats()
     bags: list[Path] = []
@@ -186,9 +312,9 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
         ros1 = [b for b in bags if b.suffix.lower() == ".bag"]
         ros2 = [b for b in bags if b.suffix.lower() != ".bag"]
         if ros1:
-            streams.append(_bag_stream(ros1, tm, stats))
+            streams.append(_bag_stream(ros1, tm, stats, raw_topics))
         if ros2:
-            streams.append(_bag_stream(ros2, tm, stats))
+            streams.append(_bag_stream(ros2, tm, stats, raw_topics))
     out = Path(out)
     part = out.with_name(out.name + ".part")  # renamed on success, removed on failure
     writer = RecordingWriter(part)
@@ -212,11 +338,15 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
             part.replace(out)
         else:
             part.unlink(missing_ok=True)
+    topics = {}
+    for topic, t in sorted(stats.topics.items()):
+        t = dict(t)
+        t["as"] = "+".join(k for k in ("mapped", "raw", "dropped", "rejected") if t[k]) or "none"
+        topics[topic] = t
     return {
         "out": str(out), "inputs": stats.inputs, "read": dict(sorted(stats.read.items())),
-        "written": dict(sorted(writer.counts.items())), "unmapped_types": dict(sorted(stats.unmapped_types.items())),
-        "unmapped_topics": dict(sorted(stats.unmapped_topics.items())), "dropped_topics": stats.dropped,
-        "skipped": stats.skipped, "start_ns": first, "end_ns": last,
+        "written": dict(sorted(writer.counts.items())), "topics": topics, "dropped_topics": stats.dropped,
+        "rejected": stats.rejected, "start_ns": first, "end_ns": last,
         "duration_s": (last - first) / 1e9 if first is not None else 0.0,
     }
 
@@ -227,12 +357,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="output MCAP recording")
     ap.add_argument("--topic-map", default=None, help="YAML mapping 'topic: key' (null drops a topic)")
     ap.add_argument("--frames-timestamps", default=None, help="timestamps file of a frames folder")
+    ap.add_argument("--raw", action="append", default=None, metavar="TOPIC",
+                    help="carry this bag topic raw (bytes + definition) even when a model exists; '*' = every topic "
+                         "(repeatable)")
     ap.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     try:
         summary = import_sources(args.sources, args.out, load_topic_map(args.topic_map), args.frames_timestamps,
-                                 progress=not args.no_progress)
+                                 progress=not args.no_progress, raw_topics=set(args.raw) if args.raw else None)
     except InputFormatError as exc:
         print(f"poseidon import: error: {exc}", file=sys.stderr)
         return 2
@@ -240,9 +373,11 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(summary, sys.stdout, indent=1)
         sys.stdout.write("\n")
     else:
+        raw = {t: v["raw"] for t, v in summary["topics"].items() if v["raw"]}
         print(f"wrote {args.out}: {sum(summary['written'].values())} messages {summary['written']}; "
-              f"unmapped types {summary['unmapped_types']}; skipped {summary['skipped']}", file=sys.stderr)
-    return 0
+              f"carried raw (no model or no lossless conversion) {raw}; rejected {summary['rejected']}",
+              file=sys.stderr)
+    return 1 if summary["rejected"] else 0
 
 
 if __name__ == "__main__":

@@ -10,14 +10,23 @@ sensor_msgs/CompressedImage           Image rgb8 / mono8 (JPEG or PNG decoded by
 sensor_msgs/Imu                       Imu (roll, pitch, yaw from the quaternion, ZYX)
 sensor_msgs/LaserScan                 LaserScan
 nav_msgs/Odometry                     Odometry (pose, twist, covariances)
+sensor_msgs/NavSatFix                 NavSatFix
+sensor_msgs/FluidPressure             FluidPressure
+sensor_msgs/Temperature               Temperature
+sensor_msgs/MagneticField             MagneticField
+geometry_msgs/PoseWithCovarianceStamped PoseWithCovarianceStamped
+geometry_msgs/TwistStamped            TwistStamped
+tf2_msgs/TFMessage, tf/tfMessage      TFMessage
+diagnostic_msgs/DiagnosticArray       DiagnosticArray
 cirs_girona_cala_viuda/Depth          Depth
 cirs_girona_cala_viuda/Imu            Imu
 cirs_girona_cala_viuda/LinkquestDvl   LinkquestDvl
 cirs_girona_cala_viuda/RangeImageBeam RangeImageBeam
 ===================================== ==================================================
 
-Any other type (``sensor_msgs/NavSatFix``, ``tf2_msgs/TFMessage``, ...) is *unmapped*:
-counted by type and topic, never an error.  Values are copied without frame conversion
+Any other type (vendor types, ``sensor_msgs/PointCloud2``, ...) is carried through unchanged
+as :class:`~common.messages.RawMessage` (serialised bytes + definition) by the importer.
+Values are copied without frame conversion
 (``frame_id`` is kept).  Stamp = header stamp (ns), or the bag's record time when the
 header stamp is zero; seq = the ROS1 header seq, or a per-key counter (ROS2 headers have
 no seq).
@@ -36,11 +45,14 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Message, Odometry, RangeImageBeam
+from common.messages import (DiagnosticArray, DiagnosticStatus, Depth, FluidPressure, Header, Image, Imu, KeyValue,
+                             LaserScan, LinkquestDvl, MagneticField, Message, NavSatFix, Odometry,
+                             PoseWithCovarianceStamped, RangeImageBeam, Temperature, TFMessage, TransformStamped,
+                             TwistStamped)
 from missions.importers.errors import InputFormatError
 
 __all__ = ["CALA_VIUDA_MSGS", "make_typestore", "CONVERTERS", "normalise_type", "open_bags", "BagMessage",
-           "rpy_from_quaternion", "DEFAULT_TOPIC_MAP"]
+           "rpy_from_quaternion", "DEFAULT_TOPIC_MAP", "ros_header", "connection_definition"]
 
 #: .msg definitions of the package cirs_girona_cala_viuda (Cala Viuda caves dataset)
 CALA_VIUDA_MSGS: dict[str, str] = {
@@ -228,6 +240,66 @@ def _cv_dvl(m: Any, h: Header) -> LinkquestDvl:
     return LinkquestDvl(header=h, **_copy_fields(LinkquestDvl, m))
 
 
+def _vec3(v: Any) -> list[float]:
+    return [float(v.x), float(v.y), float(v.z)]
+
+
+def _quat(q: Any) -> list[float]:
+    return [float(q.x), float(q.y), float(q.z), float(q.w)]
+
+
+def _floats(a: Any) -> list[float]:
+    return [float(v) for v in a]
+
+
+def _navsatfix(m: Any, h: Header) -> NavSatFix:
+    return NavSatFix(header=h, status=int(m.status.status), service=int(m.status.service), latitude=m.latitude,
+                     longitude=m.longitude, altitude=m.altitude, position_covariance=_floats(m.position_covariance),
+                     position_covariance_type=int(m.position_covariance_type))
+
+
+def _pressure(m: Any, h: Header) -> FluidPressure:
+    return FluidPressure(header=h, fluid_pressure=m.fluid_pressure, variance=m.variance)
+
+
+def _temperature(m: Any, h: Header) -> Temperature:
+    return Temperature(header=h, temperature=m.temperature, variance=m.variance)
+
+
+def _magnetic(m: Any, h: Header) -> MagneticField:
+    return MagneticField(header=h, magnetic_field=_vec3(m.magnetic_field),
+                         magnetic_field_covariance=_floats(m.magnetic_field_covariance))
+
+
+def _pose_cov(m: Any, h: Header) -> PoseWithCovarianceStamped:
+    return PoseWithCovarianceStamped(header=h, position=_vec3(m.pose.pose.position),
+                                     orientation=_quat(m.pose.pose.orientation), covariance=_floats(m.pose.covariance))
+
+
+def _twist(m: Any, h: Header) -> TwistStamped:
+    return TwistStamped(header=h, linear=_vec3(m.twist.linear), angular=_vec3(m.twist.angular))
+
+
+def ros_header(rh: Any, seq: int = 0) -> Header:
+    """Our header from a ROS header (ROS1 seq when it has one)."""
+    return Header(seq=int(getattr(rh, "seq", seq)), stamp=int(rh.stamp.sec) * 1_000_000_000 + int(rh.stamp.nanosec),
+                  frame_id=str(rh.frame_id))
+
+
+def _tf(m: Any, h: Header) -> TFMessage:
+    return TFMessage(header=h, transforms=[
+        TransformStamped(header=ros_header(t.header), child_frame_id=t.child_frame_id,
+                         translation=_vec3(t.transform.translation), rotation=_quat(t.transform.rotation))
+        for t in m.transforms])
+
+
+def _diagnostics(m: Any, h: Header) -> DiagnosticArray:
+    return DiagnosticArray(header=h, status=[
+        DiagnosticStatus(level=int(s.level), name=s.name, message=s.message, hardware_id=s.hardware_id,
+                         values=[KeyValue(key=kv.key, value=kv.value) for kv in s.values])
+        for s in m.status])
+
+
 #: normalised ROS type -> converter(ros message, header) -> our message
 CONVERTERS: dict[str, Callable[[Any, Header], Message]] = {
     "sensor_msgs/Image": _image,
@@ -235,6 +307,15 @@ CONVERTERS: dict[str, Callable[[Any, Header], Message]] = {
     "sensor_msgs/Imu": _imu,
     "sensor_msgs/LaserScan": _laser,
     "nav_msgs/Odometry": _odometry,
+    "sensor_msgs/NavSatFix": _navsatfix,
+    "sensor_msgs/FluidPressure": _pressure,
+    "sensor_msgs/Temperature": _temperature,
+    "sensor_msgs/MagneticField": _magnetic,
+    "geometry_msgs/PoseWithCovarianceStamped": _pose_cov,
+    "geometry_msgs/TwistStamped": _twist,
+    "tf2_msgs/TFMessage": _tf,
+    "tf/tfMessage": _tf,
+    "diagnostic_msgs/DiagnosticArray": _diagnostics,
     "cirs_girona_cala_viuda/Depth": _cv_depth,
     "cirs_girona_cala_viuda/Imu": _cv_imu,
     "cirs_girona_cala_viuda/LinkquestDvl": _cv_dvl,
@@ -295,7 +376,19 @@ def open_bags(paths: list[Path]) -> tuple[Any, dict[str, Any]]:
     return reader, {"kind": kind, "paths": [str(p) for p in real]}
 
 
-def iter_bag(reader: Any) -> Iterator[BagMessage]:
-    """Every message of an opened reader in bag-time order."""
-    for conn, t, raw in reader.messages():
+def iter_bag(reader: Any, start: int | None = None) -> Iterator[BagMessage]:
+    """Every message of an opened reader in bag-time order (from bag time ``start``, ns)."""
+    for conn, t, raw in reader.messages(start=start):
         yield BagMessage(conn.topic, normalise_type(conn.msgtype), int(t), raw, conn)
+
+
+def connection_definition(reader: Any, conn: Any) -> tuple[str, str, str]:
+    """(definition text, format ``msg``/``idl``, digest) of a bag connection, as the bag stored
+    it; a ROS2 bag without definitions gets the one rosbags generates from its typestore."""
+    md = conn.msgdef
+    text = getattr(md, "data", md) or ""
+    fmt = getattr(getattr(md, "format", None), "name", "MSG").lower()
+    if not text:
+        text, _ = reader.typestore.generate_msgdef(conn.msgtype, ros_version=2 if reader.is2 else 1)
+        fmt = "msg"
+    return str(text), ("idl" if fmt == "idl" else "msg"), str(conn.digest or "")

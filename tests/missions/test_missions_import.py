@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from common.mcap_io import read_messages
-from common.messages import Depth, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam
+from common.messages import Depth, Image, Imu, LaserScan, LinkquestDvl, NavSatFix, Odometry, RangeImageBeam, RawMessage
 from missions.importers.cli import import_sources, load_topic_map, main
 from missions.importers.errors import InputFormatError
 from missions.importers.rosbags_io import make_typestore, rpy_from_quaternion
@@ -40,16 +40,17 @@ def test_real_ros1_bags_every_message(tmp_path, name):
     own = _bag_counts(bag)
     summary = import_sources([bag], tmp_path / "out.mcap", progress=False)
     rec = _recorded(tmp_path / "out.mcap")
-    for topic, (msgtype, count) in own.items():
+    for topic, (msgtype, count) in own.items():  # every message of every topic, mapped to a model
         assert summary["read"][topic] == count
-        if msgtype.endswith("NavSatFix"):
-            assert summary["unmapped_types"]["sensor_msgs/NavSatFix"] == count
-            assert summary["unmapped_topics"][topic]["count"] == count
-        else:
-            assert len(rec[topic.lstrip("/")]) == count, topic
+        t = summary["topics"][topic]
+        assert (t["in_source"], t["mapped"], t["raw"], t["as"]) == (count, count, 0, "mapped"), topic
+        assert len(rec[topic.lstrip("/")]) == count, topic
+    assert summary["rejected"] == []
     if name.endswith("test1.bag"):  # the README's counts
         assert summary["read"] == {"/fix": 989, "/husky_velocity_controller/odom": 3952, "/imu/data": 11865}
-        assert summary["written"] == {"husky_velocity_controller/odom": 3952, "imu/data": 11865}
+        assert summary["written"] == {"fix": 989, "husky_velocity_controller/odom": 3952, "imu/data": 11865}
+        fix = rec["fix"][0]
+        assert isinstance(fix, NavSatFix) and -90 <= fix.latitude <= 90 and fix.header.frame_id
     imu = rec["imu/data"][0]
     assert isinstance(imu, Imu)
     r, p, y = rpy_from_quaternion(imu.qx, imu.qy, imu.qz, imu.qw)
@@ -177,7 +178,7 @@ def _check_field_by_field(out: Path, rows: list, ros2: bool) -> None:
 def test_ros1_bag_with_cala_viuda_types_field_by_field(tmp_path):
     rows = _write_bag(tmp_path / "cv.bag", ros2=False)
     summary = import_sources([tmp_path / "cv.bag"], tmp_path / "out.mcap", progress=False)
-    assert summary["unmapped_types"] == {} and summary["skipped"] == {}
+    assert {t["as"] for t in summary["topics"].values()} == {"mapped"} and summary["rejected"] == []
     _check_field_by_field(tmp_path / "out.mcap", rows, ros2=False)
 
 
@@ -209,14 +210,19 @@ def test_merge_bag_and_csv_chronologically(tmp_path):
     assert stamps == sorted(stamps) and 1372687208050000000 in stamps
 
 
-def test_unknown_type_is_reported_and_rest_imported(tmp_path, capsys):
+def test_unknown_type_is_carried_raw_and_rest_imported(tmp_path, capsys):
     rows = _write_bag(tmp_path / "u.bag", ros2=False, extra_unknown=7)
     rc = main([str(tmp_path / "u.bag"), "--out", str(tmp_path / "out.mcap"), "--json", "--no-progress"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["unmapped_types"] == {"foo_msgs/Bar": 7}
-    assert summary["unmapped_topics"] == {"/bar": {"type": "foo_msgs/Bar", "count": 7}}
-    assert sum(summary["written"].values()) == len(rows)
+    bar = summary["topics"]["/bar"]
+    assert (bar["type"], bar["raw"], bar["mapped"], bar["as"], bar["raw_key"]) == ("foo_msgs/Bar", 7, 0, "raw", "raw/bar")
+    assert bar["raw_reasons"] == {"no model for foo_msgs/Bar": 7}
+    assert summary["written"]["raw/bar"] == 7
+    assert sum(summary["written"].values()) == len(rows) + 7
+    raw = _recorded(tmp_path / "out.mcap")["raw/bar"]
+    assert all(isinstance(m, RawMessage) and m.ros_type == "foo_msgs/msg/Bar" and m.serialization == "ros1"
+               and "float64 value" in m.definition for m in raw)
 
 
 def test_topic_map_renames_and_drops(tmp_path):
@@ -329,7 +335,7 @@ float64 soundSpeed
 
 def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
     """The 2013 bags spell the DVL fields in camelCase (as the rostopic CSV columns show) and
-    have no errCode/rawData; a definition lacking a required field is skipped with a reason."""
+    have no errCode/rawData; a definition lacking a required field is carried raw with a reason."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -354,9 +360,9 @@ def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
         w.write(d, 1372687208632644972, st.serialize_ros1(T["cirs_girona_cala_viuda/msg/Depth"](
             header=hdr, pressure=1.0), "cirs_girona_cala_viuda/msg/Depth"))
     summary = import_sources([tmp_path / "orig.bag"], tmp_path / "out.mcap", progress=False)
-    assert summary["written"] == {"dvl_linkquest": 1}
-    (reason, n), = summary["skipped"].items()
-    assert n == 1 and "/depth_sensor" in reason and "'depth'" in reason
+    assert summary["written"] == {"dvl_linkquest": 1, "raw/depth_sensor": 1}  # kept, unchanged, with the reason
+    (reason, n), = summary["topics"]["/depth_sensor"]["raw_reasons"].items()
+    assert n == 1 and "no lossless conversion" in reason and "'depth'" in reason
     m = _recorded(tmp_path / "out.mcap")["dvl_linkquest"][0]
     assert (m.header.seq, m.header.stamp) == (1245, 1372687208633787539)
     assert m.datagood == [0, 1, 1, 1] and m.velocityinst == [-0.2424, -0.1145, -0.0065] and m.soundspeed == 1500.0

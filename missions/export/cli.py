@@ -1,0 +1,71 @@
+"""``poseidon export RUN.mcap [--foxglove OUT.mcap] [--ros2 OUT_DIR] [--ros1 OUT.bag] [--overwrite] [--json]``.
+
+A recording (``poseidon run``/``import``/``sim`` output) for the tools people already use:
+
+- ``--foxglove OUT.mcap``: Foxglove's well-known schemas (camera frames as images, sonar
+  beams as point clouds, trajectories as poses and paths, the experience graph as a scene,
+  LVC ids and events as logs; everything else as ROS 2 CDR): :mod:`missions.export.foxglove`;
+- ``--ros2 OUT_DIR``: a ROS 2 bag folder (sqlite3, CDR) with standard message types where
+  they exist and ``poseidon_msgs`` types (definitions in ``missions/export/msg``) for the
+  SLAM outputs: :mod:`missions.export.rosbag`, :mod:`missions.export.ros_types`;
+- ``--ros1 OUT.bag``: the same as a ROS 1 bag.
+
+Raw-carried messages (keys ``raw/...``, see ``poseidon import``) go back to their original
+topic and type; into a bag of the kind they came from, byte for byte.
+
+Exit codes: 0 done, 2 bad input (missing/corrupt recording, output exists).
+``--json`` prints ``{"input", "exports": [{"out", "format", "topics": {topic: {"type" or
+"schema", "count", ...}}, "raw_converted" (bags only: raw messages re-serialised between
+ROS 1 and CDR, per topic)}]}``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from common.codec import DecodeError
+from common.mcap_io import RecordingError
+from missions.export.rosbag import ExportError
+
+__all__ = ["main"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="poseidon export", description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", help="an MCAP recording of PoseidonSLAM")
+    ap.add_argument("--foxglove", metavar="OUT.mcap", help="Foxglove-ready MCAP with the well-known schemas")
+    ap.add_argument("--ros2", metavar="OUT_DIR", help="ROS 2 bag folder (sqlite3, CDR)")
+    ap.add_argument("--ros1", metavar="OUT.bag", help="ROS 1 bag")
+    ap.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    ap.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
+    args = ap.parse_args(argv)
+    if not (args.foxglove or args.ros2 or args.ros1):
+        ap.error("nothing to do: give --foxglove, --ros2 and/or --ros1")
+    from missions.export.foxglove import export_foxglove
+    from missions.export.rosbag import export_rosbag
+
+    exports: list[dict[str, Any]] = []
+    try:
+        if args.foxglove:
+            exports.append(export_foxglove(args.run, args.foxglove, overwrite=args.overwrite))
+        if args.ros2:
+            exports.append(export_rosbag(args.run, args.ros2, ros2=True, overwrite=args.overwrite))
+        if args.ros1:
+            exports.append(export_rosbag(args.run, args.ros1, ros2=False, overwrite=args.overwrite))
+    except (ExportError, RecordingError, DecodeError, KeyError) as exc:
+        print(f"poseidon export: error: {args.run}: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        json.dump({"input": args.run, "exports": exports}, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        for e in exports:
+            n = sum(t["count"] for t in e["topics"].values())
+            print(f"wrote {e['out']} ({e['format']}): {n} messages on {len(e['topics'])} topics", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
