@@ -41,7 +41,7 @@ DELEGATED = {
     "sim": "missions.sim.cli:main",
     "transform": "missions.transform:main",
     "import": "missions.importers.cli:main",
-    "vpr": "services.encoder.vpr:main",
+    "vpr": "eval.vpr:main",
     "deadreckon": "services.robot_state.deadreckon:main",
 }
 

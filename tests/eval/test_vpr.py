@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from services.encoder.vpr import (ground_truth_by_name, ground_truth_from_file, main, overlap_similarity, pr_curve,
+from eval.vpr import (ground_truth_by_name, ground_truth_from_file, main, overlap_similarity, pr_curve,
                                   vpr_metrics)
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -119,7 +119,7 @@ def test_main_on_nordland_frames(tmp_path, capsys):
 
 
 def test_lvc_revisit_scores_definition():
-    from services.encoder.vpr import lvc_revisit_scores
+    from eval.vpr import lvc_revisit_scores
     # frames 0..5; frame 4 revisits frame 0, frame 5 revisits frame 1; candidates: >= 3 frames back
     gt = [[], [], [], [], [0], [1]]
     idx = np.arange(6)

@@ -303,7 +303,7 @@ def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
     standardised with the statistics as they stand, without updating them (like the HTM
     query pass).  ``fixed``: fitted on the whole reference set.
     """
-    from .standardize import EmbeddingStandardizer
+    from services.encoder.standardize import EmbeddingStandardizer
 
     mode = enc_cfg.embedding_norm
     if mode == "none":
@@ -357,8 +357,8 @@ def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm
     from common.codec import DecodeError
     from common.mcap_io import RecordingError, read_messages, read_metadata, recording_keys
 
-    from .encoder import MultimodalEncoder
-    from .node import EncoderNode
+    from services.encoder.encoder import MultimodalEncoder
+    from services.encoder.node import EncoderNode
 
     path = Path(path)
     try:
@@ -524,10 +524,10 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from common.config import ConfigError, load_config
 
-    from .backbones import WeightsError
-    from .encoder import MultimodalEncoder
-    from .lsbh import LsbhError
-    from .standardize import StandardizerError
+    from services.encoder.backbones import WeightsError
+    from services.encoder.encoder import MultimodalEncoder
+    from services.encoder.lsbh import LsbhError
+    from services.encoder.standardize import StandardizerError
 
     if not logging.getLogger().handlers:
         logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(levelname)s %(message)s")
