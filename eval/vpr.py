@@ -498,7 +498,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--gt", default="", help="VPR-Bench ground truth .npy (default: same file name)")
     ap.add_argument("--tolerance", type=int, default=0, help="same-name ground truth: +-N frames also match")
     ap.add_argument("--weights", default=None, help="torchvision state dict (default: encoder.weights_path)")
-    ap.add_argument("--backbone", choices=["shufflenetv2", "alexnet_conv3"], default=None)
+    ap.add_argument("--backbone", choices=["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"], default=None)
     ap.add_argument("--limit", type=int, default=0, help="first N frames of each folder (0: all)")
     ap.add_argument("--config", default=None, help="PoseidonSLAM YAML configuration")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")

@@ -81,7 +81,7 @@ def test_main_synthetic_json(tmp_path, capsys):
     assert fixed["matchers"]["lsbh_overlap"]["auc"] == pytest.approx(1.0)
     assert fixed["matchers"]["cnn_cosine_standardized"]["auc"] == pytest.approx(1.0)
     assert fixed["sdr_overlap"]["same_place"] == 1.0 and fixed["sdr_overlap"]["different_place"] < 0.5
-    rc = main(common + ["--set", "encoder.embedding_norm=none"])
+    rc = main(common + ["--set", "encoder.embedding_norm=none", "--set", "encoder.untrained=true"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
@@ -108,7 +108,7 @@ def test_main_on_nordland_frames(tmp_path, capsys):
     if not (summer.is_dir() and winter.is_dir()):
         pytest.skip(f"Nordland data not found under {DATA / 'nordland_trimmed'}")
     rc = main(["--ref", str(summer), "--query", str(winter), "--limit", "12", "--tolerance", "1", "--json",
-               "--backbone", "alexnet_conv3",
+               "--backbone", "alexnet_conv3", "--set", "encoder.untrained=true",
                "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
                "--set", "encoder.torch_threads=1"])
     assert rc == 0

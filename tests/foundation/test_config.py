@@ -9,7 +9,7 @@ def test_defaults_are_table_4_1():
     c = load_config()
     assert c.sync.sync_stale_sec == 0.75
     assert (c.encoder.fusion_mode, c.encoder.cnn_backbone, c.encoder.encoder_mode, c.encoder.lsbh_s) == \
-        ("union", "shufflenetv2", "lsbh", 0.25)
+        ("union", "efficientnet_lite0", "lsbh", 0.25)  # backbone: ours (issue 8), Table 4.1 has shufflenetv2
     h = c.htm
     assert (h.sp_columns, h.sp_numActiveColumns, h.sp_potentialRadius) == (2048, 20, 600)
     assert (h.sp_synPermActiveInc, h.sp_synPermInactiveDec) == (0.006, 0.008)
