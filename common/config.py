@@ -118,20 +118,24 @@ class HtmConfig(_Section):
     tm_maxSynapsesPerSegment: int = Field(255, ge=1)
     learning: bool = True
     seed: int = 42
-    sv_descriptor_source: Literal["tm", "sp", "sdr"] = "tm"
+    sv_descriptor_source: Literal["tm", "sp", "sdr"] = Field(
+        "sdr", description="Table 4.1: tm. sdr (ours, issue 8): with pretrained embeddings the SP keeps too little "
+        "of the place (20 of 2048 columns), the fused SDR itself is the descriptor; tm: the dissertation's chain")
     sv_tm_window: int = Field(7, ge=1)
     sv_tm_topk: int = Field(15, ge=1)
     sv_tm_match_threshold: float = Field(0.30, ge=0, le=1)
-    interval_mode: bool = True
+    interval_mode: bool = Field(False, description="Table 4.1: true; false (ours, issue 8): the union of "
+                                "consecutive SDRs blurred places on the sim mission")
     theta_alpha: float = Field(0.65, ge=0, le=1)
     theta_rho: int = Field(3, ge=1)
-    sv_match_threshold: float = Field(0.38, ge=0, le=1)
+    sv_match_threshold: float = Field(0.71, ge=0, le=1, description="Table 4.1: 0.38; 0.71 (ours, issue 8): "
+                                      "the sdr descriptor of another place overlaps by ~0.5-0.6")
     sv_min_intersection: int = Field(12, ge=0)
     sv_require_multimodal: bool = False
     sv_min_img_score: float = Field(0.45, ge=0, le=1)
     sv_min_sonar_score: float = Field(0.35, ge=0, le=1)
     sv_enable_f1_gate: bool = True
-    min_f1: float = Field(0.55, ge=0, le=1)
+    min_f1: float = Field(0.71, ge=0, le=1, description="Table 4.1: 0.55; 0.71 with the sdr descriptor (issue 8)")
     sv_use_iou_tiebreak: bool = True
     max_bits: int = Field(0, ge=0, description="cap on descriptor bits after interval union (0: sv_tm_topk)")
     state_path: str = Field("", description="load SP/TM/LVC state from here at start and save at end (empty: off)")
