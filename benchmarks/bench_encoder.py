@@ -1,27 +1,34 @@
-"""Encoder speed: milliseconds per frame of the CNN embedding + LSBH (Eqs. 4.1-4.2).
+"""Encoder speed: CPU milliseconds per *camera frame*, sonar included (Eqs. 4.1-4.2).
 
-For each backbone (ShuffleNetV2 x1.0 stage3, AlexNet conv3) and batch size (1, 8):
+Each variant encodes a sim-sized camera frame (384x288 RGB uint8) and, as often as the
+variant's sonar rule says, the 224x224 polar sonar raster, through
+:meth:`MultimodalEncoder.embed` (resize, normalisation, channels_last forward, pooling) plus
+standardisation and LSBH -- what :class:`EncoderNode` does per frame.  Variants:
 
-* ``encoder``   -- :meth:`MultimodalEncoder.embed` + standardisation + LSBH: resize 640x480 -> 224x224,
-  normalisation, channels_last forward, pooling, projection, top/bottom-k;
-* baselines measured in the same run: the same encoder in contiguous (NCHW) memory format,
-  and the raw backbone forward alone (a ready 224x224 channels_last tensor, no pre- or
-  post-processing).
+* ``shufflenetv2@224 sonar/frame`` -- the baseline: the Table 4.1 network at 224 px with the
+  sonar raster re-encoded with every camera frame (the encoder before issue 8);
+* ``efficientnet_lite0@S sonar/frame`` -- EfficientNet-Lite0 to block 10 at S px, sonar every frame;
+* ``efficientnet_lite0@S sonar/5`` -- the same with the sonar re-encoded every 5th camera frame
+  (the default ``encoder.sonar_encode_sweep_deg`` 45 deg at the Micron's 42 deg/s and a 5 Hz camera);
+* ``... batch 8`` -- eight camera frames per forward pass (what a replay backlog allows).
 
-Printed ratios: encoder / contiguous (< 1: channels_last helps) and encoder / raw forward
-(the overhead of pre-processing and LSBH).  Seeded weights (speed does not depend on them).
+All timings are medians of interleaved rounds on ``--threads`` torch threads (default
+``encoder.torch_threads`` = 1), so the ratio column (variant / baseline, same run) stays
+meaningful on a loaded machine; the absolute ms are indicative only.  Weights do not change
+the speed: ShuffleNetV2 runs untrained (no weights file needed), EfficientNet-Lite0 on its
+packaged weights.
 
     .venv/bin/python benchmarks/bench_encoder.py [--repeats N] [--threads T]
 """
 from __future__ import annotations
 
 import argparse
-import copy
 import logging
 import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -29,11 +36,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.config import EncoderConfig  # noqa: E402
-from services.encoder.backbones import load_backbone  # noqa: E402
 from services.encoder.encoder import MultimodalEncoder  # noqa: E402
 
 
-def _interleaved(fns: dict[str, object], repeats: int) -> dict[str, float]:
+def _interleaved(fns: dict[str, Callable[[], None]], repeats: int) -> dict[str, float]:
     """Median seconds of each callable, timed in alternating rounds (fair under shared CPUs)."""
     for fn in fns.values():
         fn()  # warm-up
@@ -47,46 +53,56 @@ def _interleaved(fns: dict[str, object], repeats: int) -> dict[str, float]:
     return {k: statistics.median(v) for k, v in times.items()}
 
 
+def _variant(enc: MultimodalEncoder, frames: list[np.ndarray], sonar: np.ndarray, sonar_every: int,
+             batch: int) -> tuple[Callable[[], None], int]:
+    """A callable encoding ``len(frames)`` camera frames (sonar every ``sonar_every``-th) and that count."""
+
+    def run() -> None:
+        for i in range(0, len(frames), batch):
+            chunk = frames[i:i + batch]
+            with_sonar = [k for k in range(i, i + len(chunk)) if k % sonar_every == 0]
+            ys = enc.embed(chunk + [sonar] * len(with_sonar))
+            for y in ys[:len(chunk)]:
+                enc.sdr("camera", y)
+            for y in ys[len(chunk):]:
+                enc.sdr("sonar", y)
+
+    return run, len(frames)
+
+
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.ERROR)
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--threads", type=int, default=EncoderConfig().torch_threads,
                     help="torch threads (default: encoder.torch_threads)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
-    frames = [rng.integers(0, 256, (480, 640, 3), dtype=np.uint8) for _ in range(8)]
-    print(f"encoder benchmark: torch {torch.__version__}, {args.threads} threads, median of {args.repeats} "
-          f"interleaved rounds, input 640x480 RGB uint8, L=2048, s=0.25, seeded weights")
-    print(f"{'backbone':14s} {'batch':>5s} {'encoder':>12s} {'contiguous':>12s} {'raw fwd':>12s} "
-          f"{'enc/contig':>10s} {'enc/raw':>8s}")
-    for name in ("shufflenetv2", "alexnet_conv3"):
-        for batch in (1, 8):
-            cfg = EncoderConfig(cnn_backbone=name, lsbh_matrix_path="", torch_threads=args.threads,
-                                batch_max=batch)
-            bb_cl = load_backbone(name, seed=cfg.lsbh_seed)
-            bb_nc = copy.deepcopy(bb_cl)
-            enc_cl = MultimodalEncoder(cfg, backbone=bb_cl, channels_last=True)
-            enc_nc = MultimodalEncoder(cfg, backbone=bb_nc, channels_last=False)
-            enc_nc._lsbh["camera"] = enc_cl.lsbh("camera")
-            imgs = frames[:batch]
-            x = enc_cl.preprocess(imgs)
-
-            def encoder(enc: MultimodalEncoder = enc_cl) -> None:
-                enc.sdr_batch("camera", enc.embed(imgs))
-
-            def contiguous(enc: MultimodalEncoder = enc_nc) -> None:
-                enc.sdr_batch("camera", enc.embed(imgs))
-
-            def raw() -> None:
-                with torch.inference_mode():
-                    bb_cl.features(x)
-
-            t = _interleaved({"encoder": encoder, "contiguous": contiguous, "raw": raw}, args.repeats)
-            ms = 1000.0 / batch
-            print(f"{name:14s} {batch:5d} {t['encoder'] * ms:9.2f} ms {t['contiguous'] * ms:9.2f} ms "
-                  f"{t['raw'] * ms:9.2f} ms {t['encoder'] / t['contiguous']:10.2f} "
-                  f"{t['encoder'] / t['raw']:8.2f}   (per frame)")
+    frames = [rng.integers(0, 256, (288, 384, 3), dtype=np.uint8) for _ in range(40)]
+    sonar = np.repeat(rng.random((224, 224, 1), dtype=np.float32), 3, axis=2)
+    base = dict(lsbh_matrix_path="", torch_threads=args.threads, embedding_norm="running")
+    variants: dict[str, tuple[Callable[[], None], int]] = {}
+    specs = [("shufflenetv2@224 sonar/frame", "shufflenetv2", 224, 1, 1),
+             ("efficientnet_lite0@224 sonar/frame", "efficientnet_lite0", 224, 1, 1),
+             ("efficientnet_lite0@160 sonar/frame", "efficientnet_lite0", 160, 1, 1),
+             ("efficientnet_lite0@160 sonar/5", "efficientnet_lite0", 160, 5, 1),
+             ("efficientnet_lite0@128 sonar/5", "efficientnet_lite0", 128, 5, 1),
+             ("efficientnet_lite0@160 sonar/5 batch 8", "efficientnet_lite0", 160, 5, 8)]
+    encoders: dict[tuple[str, int], MultimodalEncoder] = {}
+    for label, name, size, every, batch in specs:
+        key = (name, size)
+        if key not in encoders:
+            encoders[key] = MultimodalEncoder(EncoderConfig(cnn_backbone=name, input_size=size, batch_max=8,
+                                                            untrained=name != "efficientnet_lite0", **base))
+        variants[label] = _variant(encoders[key], frames[:10] if batch == 1 else frames, sonar, every, batch)
+    print(f"encoder benchmark: torch {torch.__version__}, {args.threads} thread(s), median of {args.repeats} "
+          f"interleaved rounds; camera 384x288 RGB uint8, sonar raster 224x224; LSBH L=2048, s=0.25")
+    t = _interleaved({k: fn for k, (fn, _) in variants.items()}, args.repeats)
+    per = {k: t[k] / variants[k][1] * 1000.0 for k in variants}
+    ref = per[specs[0][0]]
+    print(f"{'variant':40s} {'ms/camera frame':>16s} {'vs baseline':>12s}")
+    for k, ms in per.items():
+        print(f"{k:40s} {ms:13.2f} ms {ms / ref:11.2f}x")
     return 0
 
 

@@ -49,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
     # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
-    cfg = HtmConfig(sp_learn_steps=0) if args.boost is None else HtmConfig(sp_boostStrength=args.boost,
+    tm = dict(sv_descriptor_source="tm")  # the SP+TM chain is what this benchmark times
+    cfg = HtmConfig(sp_learn_steps=0, **tm) if args.boost is None else HtmConfig(sp_boostStrength=args.boost, **tm,
                                                                            sp_learn_steps=0)
     warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
     for f in stream[:5]:

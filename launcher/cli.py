@@ -42,7 +42,7 @@ DELEGATED = {
     "sim": "missions.sim.cli:main",
     "transform": "missions.transform:main",
     "import": "missions.importers.cli:main",
-    "vpr": "services.encoder.vpr:main",
+    "vpr": "eval.vpr:main",
     "deadreckon": "eval.deadreckon:main",
     "eval": "eval.run_eval:main",
     "audit": "eval.audit:main",

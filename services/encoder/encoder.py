@@ -1,14 +1,15 @@
 """The multimodal encoder of the neocortical front-end (Eqs. 4.1-4.3), without transport.
 
-Per modality m: y = f_m(o) (Eq. 4.1, :mod:`services.encoder.backbones`: the stage3 /
-conv3 block pooled to ``pool_grid`` x ``pool_grid`` and flattened), z = standardised y
+Per modality m: y = f_m(o) (Eq. 4.1, :mod:`services.encoder.backbones`: the tap block of
+EfficientNet-Lite0 (default block 10) or ShuffleNetV2 stage3 / AlexNet conv3, pooled to
+``pool_grid`` x ``pool_grid`` and flattened), z = standardised y
 (``encoder.embedding_norm``, :mod:`services.encoder.standardize`; ``none``: z = y),
 s^(m) = LSBH(P_m^T z) (Eq. 4.2, :mod:`services.encoder.lsbh`), fused by OR (Eq. 4.3,
 :mod:`services.encoder.fusion`).
 Camera and sonar share one backbone (the sonar raster is replicated to 3 channels) and have
 separate projections P_camera, P_sonar.
 
-Pre-processing: RGB in [0, 1], resized to 224 x 224 with bilinear
+Pre-processing: RGB in [0, 1], resized to ``input_size`` x ``input_size`` with bilinear
 :func:`torch.nn.functional.interpolate` (antialiased when shrinking), ImageNet mean/std
 normalisation.  Inference: CPU, ``torch.set_num_threads(encoder.torch_threads)``,
 channels_last, :func:`torch.inference_mode`, batches of up to ``encoder.batch_max`` frames.
@@ -34,7 +35,7 @@ __all__ = ["MultimodalEncoder", "image_to_rgb", "INPUT_SIZE", "IMAGENET_MEAN", "
 
 log = logging.getLogger(__name__)
 
-INPUT_SIZE = 224
+INPUT_SIZE = 224  # the dissertation's input; encoder.input_size sets the one used
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -73,7 +74,8 @@ class MultimodalEncoder:
         self.cfg = cfg
         torch.set_num_threads(cfg.torch_threads)
         self.backbone = backbone if backbone is not None else load_backbone(
-            cfg.cnn_backbone, cfg.weights_path, seed=cfg.lsbh_seed)
+            cfg.cnn_backbone, cfg.weights_path, seed=cfg.lsbh_seed, untrained=cfg.untrained, tap_block=cfg.tap_block)
+        self.input_size = int(cfg.input_size)
         self.channels_last = channels_last
         self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
         self.model = self.backbone.model.eval().to(memory_format=self.memory_format)
@@ -101,17 +103,18 @@ class MultimodalEncoder:
         if not is_u8:
             t = t.float()
         h, w = t.shape[2:]
-        if (h, w) != (INPUT_SIZE, INPUT_SIZE):
+        n = self.input_size
+        if (h, w) != (n, n):
             # uint8 frames are resized as uint8 (torch's fast path, ~30x faster than float)
-            shrink = h > INPUT_SIZE or w > INPUT_SIZE
-            t = F.interpolate(t, size=(INPUT_SIZE, INPUT_SIZE), mode="bilinear", align_corners=False,
+            shrink = h > n or w > n
+            t = F.interpolate(t, size=(n, n), mode="bilinear", align_corners=False,
                               antialias=shrink)
         if is_u8:
             t = t.float() / 255.0
         return t
 
     def preprocess(self, images: Sequence[np.ndarray]) -> torch.Tensor:
-        """(N, 3, 224, 224) normalised batch in the encoder's memory format."""
+        """(N, 3, input_size, input_size) normalised batch in the encoder's memory format."""
         batch = torch.cat([self._to_tensor(im) for im in images], dim=0)
         batch = (batch - self._mean) / self._std
         return batch.contiguous(memory_format=self.memory_format)

@@ -24,7 +24,13 @@ more than ``sync.sync_stale_sec`` between consecutive beams resets the ring (cou
 Embeddings are standardised per modality before LSBH (``encoder.embedding_norm``, in
 event order; the statistics are saved at the end, see :mod:`services.encoder.standardize`).
 Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
-one batch of two); the sonar embedding is reused while no new beam arrived.
+one batch of two).  Sonar encoding rule: the raster is re-encoded when the beams have swept
+at least ``encoder.sonar_encode_sweep_deg`` (45 deg: a fifth of a Micron turn, ~1 s at
+42 deg/s, i.e. about every 5th camera frame at 5 Hz) since its last encoding, or when there
+is no sonar SDR yet (start, after a ring reset); otherwise the last sonar SDR is reused
+(counted as ``sonar_sdr_reused``).  A raster changes little within a few degrees of sweep
+while the CNN costs as much as a camera frame, so this keeps the sonar cost per camera
+frame at about a fifth of a CNN pass (``benchmarks/bench_encoder.py``).
 """
 from __future__ import annotations
 
@@ -74,7 +80,9 @@ class EncoderNode(ServiceNode):
         self.length = cfg.sp_columns
         self._last_camera: int | None = None
         self._sweep_rad = 0.0
-        self._sonar_cache: tuple[int, np.ndarray] | None = None  # (raster.beams, sdr)
+        self._sonar_cache: np.ndarray | None = None  # the last sonar SDR
+        self._since_sonar_rad = 0.0  # bearing swept since the sonar raster was last encoded
+        self._reencode_rad = math.radians(cfg.sonar_encode_sweep_deg)
 
     # ------------------------------------------------------------------ inputs
     def process(self, key: str, msg) -> None:
@@ -90,6 +98,7 @@ class EncoderNode(ServiceNode):
         if self.raster.last_stamp is not None and stamp - self.raster.last_stamp > self.stale_ns:
             self.raster.reset()
             self._sweep_rad = 0.0
+            self._sonar_cache = None
             self.count("sonar_ring_reset")
         prev = self.raster.last_angle
         if isinstance(msg, RangeImageBeam):
@@ -102,7 +111,9 @@ class EncoderNode(ServiceNode):
                             "expected RangeImageBeam or LaserScan")
         for a in angles:
             if prev is not None:
-                self._sweep_rad += abs((a - prev + math.pi) % TWO_PI - math.pi)
+                step = abs((a - prev + math.pi) % TWO_PI - math.pi)
+                self._sweep_rad += step
+                self._since_sonar_rad += step
             prev = a
         self.count("sonar_beams", len(angles))
         camera_silent = self._last_camera is None or stamp - self._last_camera > self.stale_ns
@@ -121,23 +132,34 @@ class EncoderNode(ServiceNode):
         sonar_fresh = (self.mode != "camera" and self.raster.has_data and self.raster.last_stamp is not None
                        and stamp - self.raster.last_stamp <= self.stale_ns)
         sdrs: dict[str, np.ndarray] = {}
-        if sonar_fresh and (self._sonar_cache is None or self._sonar_cache[0] != self.raster.beams):
+        if sonar_fresh and self._sonar_due():
             y_cam, y_son = self.encoder.embed([rgb, self.raster.image3()])
-            self._sonar_cache = (self.raster.beams, self.encoder.sdr("sonar", y_son))
+            self._set_sonar(y_son)
         else:
             (y_cam,) = self.encoder.embed([rgb])
+            if sonar_fresh:
+                self.count("sonar_sdr_reused")
         sdrs["camera"] = self.encoder.sdr("camera", y_cam)
         if sonar_fresh:
-            sdrs["sonar"] = self._sonar_cache[1]  # type: ignore[index]
+            sdrs["sonar"] = self._sonar_cache  # type: ignore[assignment]
         else:
             self.count("frames_without_sonar")
         self._emit(stamp, msg.header.frame_id, sdrs)
 
+    def _sonar_due(self) -> bool:
+        """The encoding rule of the module doc: no sonar SDR yet, or swept far enough since the last."""
+        return self._sonar_cache is None or self._since_sonar_rad >= self._reencode_rad
+
+    def _set_sonar(self, y: np.ndarray) -> None:
+        self._sonar_cache = self.encoder.sdr("sonar", y)
+        self._since_sonar_rad = 0.0
+        self.count("sonar_encodings")
+
     def _sonar_sdr(self) -> np.ndarray:
-        if self._sonar_cache is None or self._sonar_cache[0] != self.raster.beams:
+        if self._sonar_due():
             (y,) = self.encoder.embed([self.raster.image3()])
-            self._sonar_cache = (self.raster.beams, self.encoder.sdr("sonar", y))
-        return self._sonar_cache[1]
+            self._set_sonar(y)
+        return self._sonar_cache  # type: ignore[return-value]
 
     def finish(self) -> None:
         self.encoder.close()

@@ -103,15 +103,28 @@ def test_seeded_init_is_deterministic_and_warns(tmp_path, monkeypatch, caplog):
     before = torch.rand(1)
     torch.manual_seed(123)
     with caplog.at_level(logging.WARNING):
-        a = load_backbone("shufflenetv2", seed=42)
+        a = load_backbone("shufflenetv2", seed=42, untrained=True)
     assert "UNTRAINED" in caplog.text
     assert torch.equal(torch.rand(1), before)  # global RNG untouched
-    b = load_backbone("shufflenetv2", seed=42)
-    c = load_backbone("shufflenetv2", seed=7)
+    b = load_backbone("shufflenetv2", seed=42, untrained=True)
+    c = load_backbone("shufflenetv2", seed=7, untrained=True)
     assert a.weights == "seeded" and not a.trained
     sa, sb, sc = a.model.state_dict(), b.model.state_dict(), c.model.state_dict()
     assert all(torch.equal(sa[k], sb[k]) for k in sa)
     assert not torch.equal(sa["conv1.0.weight"], sc["conv1.0.weight"])
+
+
+def test_missing_weights_is_an_error_saying_how_to_fix(tmp_path, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_hub"))
+    with pytest.raises(WeightsError, match=r"no weights for backbone shufflenetv2.*weights_path.*untrained: true"):
+        load_backbone("shufflenetv2")
+    with pytest.raises(WeightsError, match="choose one"):
+        load_backbone("shufflenetv2", str(tmp_path / "x.pth"), untrained=True)
+    # a wrong file for the packaged backbone names the keys and the fix
+    alex = tmp_path / "alex.pth"
+    torch.save(AlexNetConv3().state_dict(), alex)
+    with pytest.raises(WeightsError, match=r"(?s)missing keys.*_blocks.*fix: install the weights package"):
+        load_backbone("efficientnet_lite0", str(alex))
 
 
 def test_hub_cache_is_used(tmp_path, monkeypatch):
@@ -131,7 +144,8 @@ def test_hub_cache_is_used(tmp_path, monkeypatch):
 def test_encoder_embedding_dims_and_batching(tmp_path, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
     cfg = EncoderConfig(lsbh_matrix_path=str(tmp_path / "p_{backbone}_{modality}.npy"), batch_max=3, pool_grid=2,
-                        torch_threads=1, embedding_norm_path=str(tmp_path / "n_{backbone}_{modality}.npz"))
+                        torch_threads=1, embedding_norm_path=str(tmp_path / "n_{backbone}_{modality}.npz"),
+                        cnn_backbone="shufflenetv2", untrained=True)
     enc = MultimodalEncoder(cfg)
     rng = np.random.default_rng(0)
     imgs = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(5)]

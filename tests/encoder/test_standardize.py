@@ -133,6 +133,6 @@ def test_encoder_node_saves_statistics_on_finish(tmp_path):
             for i in range(4)]
     out = run_offline(EncoderNode(cfg, MultimodalEncoder(cfg.encoder)), msgs)
     assert len(out) == 4
-    st = EmbeddingStandardizer(232, "running", warmup=100, path=tmp_path / "n_shufflenetv2_camera.npz")
+    st = EmbeddingStandardizer(112, "running", warmup=100, path=tmp_path / "n_efficientnet_lite0_camera.npz")
     assert st.count == 4 and not st.frozen  # mid warm-up state saved at the end, continued next time
     assert EncoderConfig().embedding_norm == "running" and EncoderConfig().torch_threads == 1

@@ -6,7 +6,10 @@ from common.write_defaults import render
 
 
 def test_defaults_are_table_4_1():
-    c = load_config()
+    # the fields whose default is ours (README "Defaults that are ours") come from the dissertation preset
+    from services.htm.presets import DISSERTATION_PRESET
+    c = load_config(DISSERTATION_PRESET)
+    assert (c.encoder.cnn_backbone, c.encoder.input_size, c.encoder.embedding_norm) == ("shufflenetv2", 224, "none")
     assert c.sync.sync_stale_sec == 0.75
     assert (c.encoder.fusion_mode, c.encoder.cnn_backbone, c.encoder.encoder_mode, c.encoder.lsbh_s) == \
         ("union", "shufflenetv2", "lsbh", 0.25)
@@ -20,6 +23,10 @@ def test_defaults_are_table_4_1():
     assert (h.sv_min_intersection, h.sv_require_multimodal, h.sv_min_img_score, h.sv_min_sonar_score) == \
         (12, False, 0.45, 0.35)
     assert (h.sv_enable_f1_gate, h.min_f1, h.sv_use_iou_tiebreak, h.max_bits) == (True, 0.55, True, 0)
+    assert (h.sv_tm_bits, h.sp_learn_steps) == ("cells", 0)
+    d = load_config()  # our defaults (issue 8)
+    assert (d.encoder.cnn_backbone, d.htm.sv_descriptor_source, d.htm.sv_match_threshold) == \
+        ("efficientnet_lite0", "sdr", 0.71)
     assert (c.encoder.sonar_polar_width, c.encoder.sonar_polar_height, c.encoder.sonar_rmax,
             c.encoder.sonar_use_intensities) == (224, 224, 30.0, True)
     p = c.posecells

@@ -10,6 +10,14 @@ from services.htm.pipeline import NeocortexHtm, descriptor_similarity
 L = 2048
 
 
+# the SP -> TM -> descriptor chain with Table 4.1's LVC gates (the default descriptor is the fused SDR, issue 8)
+_CHAIN = dict(sv_descriptor_source="tm", interval_mode=True, sv_match_threshold=0.38, min_f1=0.55)
+
+
+def TmConfig(**kw) -> HtmConfig:  # noqa: N802 - reads like the config class it builds
+    return HtmConfig(**{**_CHAIN, **kw})
+
+
 def route(n_places=12, seed=0):
     rng = np.random.default_rng(seed)
     return [np.sort(rng.choice(L, 512, replace=False)).astype(np.uint32) for _ in range(n_places)]
@@ -29,14 +37,14 @@ def stream(laps=3, seed=0):
 
 def test_same_input_and_seed_same_id_stream():
     frames = stream()
-    a, b = NeocortexHtm(HtmConfig()), NeocortexHtm(HtmConfig())
+    a, b = NeocortexHtm(TmConfig()), NeocortexHtm(TmConfig())
     ra = [a.step(f) for f in frames]
     rb = [b.step(f) for f in frames]
     assert ra == rb
     assert ra[0].lvc_id == 0 and ra[0].is_new
     ids = [r.lvc_id for r in ra]
     assert max(ids) == len(a.lvc) - 1
-    other = NeocortexHtm(HtmConfig(seed=43))
+    other = NeocortexHtm(TmConfig(seed=43))
     assert [other.step(f).lvc_id for f in frames] != ids or \
         not np.array_equal(other.last_descriptor, a.last_descriptor)
 
@@ -46,9 +54,9 @@ def test_route_revisited_after_a_detour_maps_back_to_its_ids(literal):
     route_places = route(n_places=15, seed=1)
     detour = route(n_places=10, seed=9)
     if literal:  # no boosting, cell descriptor, SP always learning
-        h = NeocortexHtm(HtmConfig(sp_boostStrength=0.0, sv_tm_bits="cells", sp_learn_steps=0))
+        h = NeocortexHtm(TmConfig(sp_boostStrength=0.0, sv_tm_bits="cells", sp_learn_steps=0))
     else:  # defaults: the SP learns (with boosting) for sp_learn_steps, then keeps its columns
-        h = NeocortexHtm(HtmConfig())
+        h = NeocortexHtm(TmConfig())
         for p in route(n_places=HtmConfig().sp_learn_steps, seed=5):
             h.step(p)
         assert h.sp.iteration_learn == HtmConfig().sp_learn_steps
@@ -72,7 +80,7 @@ def test_route_revisited_after_a_detour_maps_back_to_its_ids(literal):
 def test_revisiting_first_place_returns_lvc_0_in_sp_and_sdr_modes(mode):
     places = route(seed=2)
     # no boosting: with boost the SP moves the columns of a place during its learning phase
-    h = NeocortexHtm(HtmConfig(sv_descriptor_source=mode, sp_boostStrength=0.0))
+    h = NeocortexHtm(TmConfig(sv_descriptor_source=mode, sp_boostStrength=0.0))
     first = h.step(places[0])
     assert (first.lvc_id, first.is_new) == (0, True)
     ids = [h.step(p).lvc_id for p in places[3:]]
@@ -83,20 +91,20 @@ def test_revisiting_first_place_returns_lvc_0_in_sp_and_sdr_modes(mode):
 
 def test_save_load_continues_identically(tmp_path):
     frames = stream(laps=2, seed=3)
-    a = NeocortexHtm(HtmConfig())
+    a = NeocortexHtm(TmConfig())
     for f in frames[:30]:
         a.step(f)
     path = tmp_path / "htm_state.npz"
     a.save(path)
-    b = NeocortexHtm.load(path, HtmConfig())
+    b = NeocortexHtm.load(path, TmConfig())
     assert [a.step(f) for f in frames[30:]] == [b.step(f) for f in frames[30:]]
     assert np.array_equal(a.last_descriptor, b.last_descriptor)
     with pytest.raises(ValueError, match="tm_cellsPerColumn"):
-        NeocortexHtm.load(path, HtmConfig(tm_cellsPerColumn=32))
+        NeocortexHtm.load(path, TmConfig(tm_cellsPerColumn=32))
 
 
 def test_input_validation_and_similarity_helper():
-    h = NeocortexHtm(HtmConfig())
+    h = NeocortexHtm(TmConfig())
     with pytest.raises(ValueError, match="sorted unique"):
         h.step(np.array([5, 3], np.uint32))
     with pytest.raises(ValueError, match=r"\[0, 2048\)"):
@@ -125,7 +133,7 @@ def test_node_publishes_every_frame_with_its_header_and_persists(tmp_path):
             fused = np.union1d(cam[k], son[k]) if not (lap == 1 and 4 <= k < 9) else cam[k]  # sonar drops out
             frames.append(noisy(rng, fused.astype(np.uint32), 0.02))
     msgs = _messages(frames)
-    cfg = PoseidonConfig()
+    cfg = PoseidonConfig(htm=TmConfig())
     out = run_offline(HtmNode(cfg), msgs)
     assert [k for k, _ in out] == ["local_view_cells"] * len(frames)
     for i, ((_, m), (_, src)) in enumerate(zip(out, msgs)):
@@ -135,7 +143,7 @@ def test_node_publishes_every_frame_with_its_header_and_persists(tmp_path):
 
     # state_path: two runs over halves equal one run over everything
     state = tmp_path / "htm.npz"
-    cfg_state = PoseidonConfig(htm=HtmConfig(state_path=str(state)))
+    cfg_state = PoseidonConfig(htm=TmConfig(state_path=str(state)))
     first = run_offline(HtmNode(cfg_state), msgs[:10])
     assert state.exists()
     second = run_offline(HtmNode(cfg_state), msgs[10:])
@@ -158,7 +166,7 @@ def test_node_skips_counts_and_logs_wrong_sdr_size(caplog):
 
 def test_query_only_and_describe():
     places = route(n_places=6, seed=7)
-    h = NeocortexHtm(HtmConfig(sv_descriptor_source="sp", interval_mode=False, sp_boostStrength=0.0))
+    h = NeocortexHtm(TmConfig(sv_descriptor_source="sp", interval_mode=False, sp_boostStrength=0.0))
     ids = [h.step(p).lvc_id for p in places]
     assert ids == list(range(6))
     n = len(h.lvc)
@@ -174,7 +182,7 @@ def test_query_only_and_describe():
 
 def test_sp_frozen_after_sp_learn_steps_keeps_columns():
     places = route(n_places=30, seed=11)
-    h = NeocortexHtm(HtmConfig(sp_learn_steps=20, sv_descriptor_source="sp"))
+    h = NeocortexHtm(TmConfig(sp_learn_steps=20, sv_descriptor_source="sp"))
     for p in places[:20]:
         h.step(p)
     assert h.sp.iteration_learn == 20
@@ -187,7 +195,7 @@ def test_sp_frozen_after_sp_learn_steps_keeps_columns():
     h.step(places[20])
     assert np.array_equal(h.last_columns, cols)
     # an always-learning SP with boosting moves the columns of the same input
-    g = NeocortexHtm(HtmConfig(sp_learn_steps=0, sv_descriptor_source="sp"))
+    g = NeocortexHtm(TmConfig(sp_learn_steps=0, sv_descriptor_source="sp"))
     for p in places[:21]:
         g.step(p)
     before = g.last_columns.copy()

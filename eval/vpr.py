@@ -87,11 +87,14 @@ import json
 import logging
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 from tqdm import tqdm
+
+from eval.baselines import SEQ_LENGTH, patch_normalise, sad_similarity, sequence_similarity
 
 __all__ = ["main", "pr_curve", "vpr_metrics", "best_matches", "load_sequence", "ground_truth_by_name",
            "ground_truth_from_file", "overlap_similarity", "cosine_similarity"]
@@ -303,7 +306,7 @@ def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
     standardised with the statistics as they stand, without updating them (like the HTM
     query pass).  ``fixed``: fitted on the whole reference set.
     """
-    from .standardize import EmbeddingStandardizer
+    from services.encoder.standardize import EmbeddingStandardizer
 
     mode = enc_cfg.embedding_norm
     if mode == "none":
@@ -349,16 +352,39 @@ def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: n
             "n_revisit_frames": len(revisit), "n_claimed_revisits": len(claimed), "n_correct_claims": right}
 
 
+@dataclass
+class MissionStreams:
+    """What the encoder made of one mission, per camera frame (input of :func:`score_mission`)."""
+
+    y: np.ndarray                 # camera embeddings (n, d)
+    z: np.ndarray                 # standardised camera embeddings (n, d)
+    thumbs: np.ndarray            # patch-normalised 32x16 grey thumbnails (n, 512)
+    sdrs: dict[str, list[np.ndarray]]  # "camera", "sonar" (empty when absent), "fused" active bits per frame
+    gt: list[list[int]]
+    eligible: np.ndarray          # (n, n) bool: j is a candidate earlier frame of i
+    min_gap_m: float
+    counters: dict
+    weights: str
+    dim: int
+    fusion_mode: str
+    seconds_embed: float
+
+
 def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool) -> dict:
     """The front-end (EncoderNode, then NeocortexHtm storing LVCs online) over one MCAP mission.
 
     Returns the figures of the ``--mission`` JSON (see the module doc).
     """
+    return score_mission(encode_mission(path, cfg, enc_cfg, min_gap_m), cfg, enc_cfg, use_htm)
+
+
+def encode_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None) -> MissionStreams:
+    """Camera and sonar of one MCAP mission through :class:`EncoderNode`, in event order."""
     from common.codec import DecodeError
     from common.mcap_io import RecordingError, read_messages, read_metadata, recording_keys
 
-    from .encoder import MultimodalEncoder
-    from .node import EncoderNode
+    from services.encoder.encoder import MultimodalEncoder, image_to_rgb
+    from services.encoder.node import EncoderNode
 
     path = Path(path)
     try:
@@ -396,6 +422,8 @@ def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm
     encoder = _Recorder(enc_cfg)
     node = EncoderNode(run_cfg, encoder)
     frames: list[tuple[int, np.ndarray]] = []  # (stamp, fused bits) per camera frame
+    mod_bits: dict[str, list[np.ndarray]] = {"camera": [], "sonar": []}
+    thumbs: list[np.ndarray] = []
     truth: dict[int, np.ndarray] = {}
     pose_t, pose_p = [], []
     cam_stamps: list[int] = []
@@ -413,11 +441,15 @@ def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm
             else:
                 if rec.key == "camera/image_raw":
                     cam_stamps.append(msg.header.stamp)
+                    thumbs.append(patch_normalise(image_to_rgb(msg)))
                     bar.update(1)
                 node.process(rec.key, msg)
                 for _, out in node.take_outbox():
-                    if any(m.modality == "camera" for m in out.modalities):
+                    present = {m.modality: np.asarray(m.active, np.uint32) for m in out.modalities}
+                    if "camera" in present:
                         frames.append((out.header.stamp, np.asarray(out.fused.active, np.uint32)))
+                        for m in mod_bits:
+                            mod_bits[m].append(present.get(m, np.zeros(0, np.uint32)))
     except (RecordingError, DecodeError) as exc:
         raise VprInputError(f"{path}: {exc}") from None
     finally:
@@ -432,54 +464,93 @@ def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm
     idx = np.arange(n)
     eligible = (idx[None, :] < idx[:, None]) & (dist[:, None] - dist[None, :] >= min_gap_m)
 
+    return MissionStreams(
+        y=np.stack([c[0] for c in encoder.camera]), z=np.stack([c[1] for c in encoder.camera]),
+        thumbs=np.stack(thumbs), sdrs={**mod_bits, "fused": [f[1] for f in frames]}, gt=gt, eligible=eligible,
+        min_gap_m=float(min_gap_m), counters=dict(node.counters), weights=encoder.weights, dim=encoder.dim,
+        fusion_mode=enc_cfg.fusion_mode, seconds_embed=t_embed)
+
+
+def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[Sequence[int]],
+                eligible: np.ndarray) -> dict:
+    """One NeocortexHtm storing LVCs online over one SDR stream: LVC scores and similarity matrices."""
+    from services.htm.pipeline import NeocortexHtm
+
+    htm = NeocortexHtm(htm_cfg.model_copy(update={"input_size": length}))
+    out = []
+    cols_used: set[int] = set()
+    for b in tqdm(bits, desc="htm", file=sys.stderr, leave=False):
+        r = htm.step(np.asarray(b, np.uint32))
+        cols_used.update(htm.last_columns.tolist())
+        out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, np.int64).copy(), float(r.anomaly)))
+    n = len(out)
+    ids = np.array([o[0] for o in out])
+    desc = overlap_similarity([o[2] for o in out], [o[2] for o in out]).astype(np.float64)
+    lvc = np.full(desc.shape, -np.inf)
+    for i in range(n):
+        same = np.flatnonzero(eligible[i] & (ids == ids[i]))
+        if same.size:
+            lvc[i, same[np.argmax(desc[i, same])]] = out[i][1]
+    res = lvc_revisit_scores(ids, gt, eligible)
+    res.update({"n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
+                "tm_anomaly_mean": round(float(np.mean([o[3] for o in out])), 4) if out else 0.0,
+                "sp_columns_used": len(cols_used)})
+    return {"scores": res, "htm_lvc": lvc, "htm_descriptor": np.where(eligible, desc, -np.inf), "ids": ids}
+
+
+def run_length_stats(ids: np.ndarray) -> dict:
+    """Lengths of the runs of identical consecutive LVC ids: median, mean, and the share of frames
+    in runs of >= 3 (what the VPR Guard needs: the same id >= 3 times within 26 frames)."""
+    ids = np.asarray(ids)
+    if ids.size == 0:
+        return {"median": 0.0, "mean": 0.0, "frames_in_runs_ge3": 0.0}
+    cuts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1], True])
+    runs = np.diff(cuts)
+    return {"median": float(np.median(runs)), "mean": round(float(runs.mean()), 2),
+            "frames_in_runs_ge3": round(float(runs[runs >= 3].sum() / ids.size), 4)}
+
+
+def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool) -> dict:
+    """The ``--mission`` figures (see the module doc) from the encoded streams."""
+    gt, eligible, n = st.gt, st.eligible, len(st.gt)
+
     def masked(sim: np.ndarray) -> np.ndarray:
         return np.where(eligible, sim, -np.inf)
 
-    y = np.stack([c[0] for c in encoder.camera])
-    z = np.stack([c[1] for c in encoder.camera])
-    cam_bits = [c[2] for c in encoder.camera]
-    fused = [f[1] for f in frames]
+    cam_bits, fused = st.sdrs["camera"], st.sdrs["fused"]
     lsbh_cam = overlap_similarity(cam_bits, cam_bits)
-    sims = {"cnn_cosine": masked(cosine_similarity(y, y)),
+    cos = cosine_similarity(st.y, st.y)
+    sims = {"cnn_cosine": masked(cos),
+            "seq_cosine": sequence_similarity(masked(cos), SEQ_LENGTH),
+            "patchnorm_sad": masked(sad_similarity(st.thumbs, st.thumbs)),
             "lsbh_overlap": masked(lsbh_cam),
             "lsbh_fused_overlap": masked(overlap_similarity(fused, fused))}
     if enc_cfg.embedding_norm != "none":
-        sims["cnn_cosine_standardized"] = masked(cosine_similarity(z, z))
-    result: dict = {"n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": min_gap_m,
+        sims["cnn_cosine_standardized"] = masked(cosine_similarity(st.z, st.z))
+    result: dict = {"n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": st.min_gap_m,
                     "sdr_overlap": overlap_stats(lsbh_cam, gt, eligible),
                     "fused_bits_mean": round(float(np.mean([f.size for f in fused])), 1),
-                    "encoder_counters": dict(node.counters)}
+                    "encoder_counters": st.counters}
     t_htm = 0.0
     if use_htm:
-        from services.htm.pipeline import NeocortexHtm
-
         t1 = time.perf_counter()
-        htm = NeocortexHtm(cfg.htm.model_copy(update={"input_size": enc_cfg.sp_columns}))
-        out = []
-        cols_used: set[int] = set()
-        for bits in tqdm(fused, desc="htm", file=sys.stderr, leave=False):
-            r = htm.step(np.asarray(bits, np.uint32))
-            cols_used.update(htm.last_columns.tolist())
-            out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, np.int64).copy(),
-                        float(r.anomaly)))
+        streams = {f"fused_{st.fusion_mode}": fused}
+        for m in ("camera", "sonar"):
+            if st.fusion_mode != m:
+                streams[m] = st.sdrs[m]
+        per: dict[str, dict] = {}
+        for name, bits in streams.items():
+            h = mission_htm(cfg.htm, enc_cfg.sp_columns, bits, gt, eligible)
+            per[name] = {**h["scores"], "htm_lvc": vpr_metrics(h["htm_lvc"], gt)}
+            if name.startswith("fused"):
+                sims["htm_lvc"], sims["htm_descriptor"] = h["htm_lvc"], h["htm_descriptor"]
+                result.update(h["scores"])
+        result["modalities"] = per
         t_htm = time.perf_counter() - t1
-        ids = np.array([o[0] for o in out])
-        desc = overlap_similarity([o[2] for o in out], [o[2] for o in out]).astype(np.float64)
-        lvc = np.full(desc.shape, -np.inf)
-        for i in range(n):
-            same = np.flatnonzero(eligible[i] & (ids == ids[i]))
-            if same.size:
-                lvc[i, same[np.argmax(desc[i, same])]] = out[i][1]
-        sims["htm_lvc"] = lvc
-        sims["htm_descriptor"] = masked(desc)
-        result.update(lvc_revisit_scores(ids, gt, eligible))
-        result["n_lvc"] = len(htm.lvc)
-        result["tm_anomaly_mean"] = round(float(np.mean([o[3] for o in out])), 4)
-        result["sp_columns_used"] = len(cols_used)
     result["matchers"] = {name: vpr_metrics(s, gt) for name, s in sims.items()}
-    result["seconds"] = {"embed": round(t_embed, 2), "htm": round(t_htm, 2)}
-    result["weights"] = encoder.weights
-    result["embedding_dim"] = encoder.dim
+    result["seconds"] = {"embed": round(st.seconds_embed, 2), "htm": round(t_htm, 2)}
+    result["weights"] = st.weights
+    result["embedding_dim"] = st.dim
     return result
 
 
@@ -498,7 +569,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--gt", default="", help="VPR-Bench ground truth .npy (default: same file name)")
     ap.add_argument("--tolerance", type=int, default=0, help="same-name ground truth: +-N frames also match")
     ap.add_argument("--weights", default=None, help="torchvision state dict (default: encoder.weights_path)")
-    ap.add_argument("--backbone", choices=["shufflenetv2", "alexnet_conv3"], default=None)
+    ap.add_argument("--backbone", choices=["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"], default=None)
     ap.add_argument("--limit", type=int, default=0, help="first N frames of each folder (0: all)")
     ap.add_argument("--config", default=None, help="PoseidonSLAM YAML configuration")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -524,10 +595,10 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from common.config import ConfigError, load_config
 
-    from .backbones import WeightsError
-    from .encoder import MultimodalEncoder
-    from .lsbh import LsbhError
-    from .standardize import StandardizerError
+    from services.encoder.backbones import WeightsError
+    from services.encoder.encoder import MultimodalEncoder
+    from services.encoder.lsbh import LsbhError
+    from services.encoder.standardize import StandardizerError
 
     if not logging.getLogger().handlers:
         logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(levelname)s %(message)s")
@@ -601,8 +672,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"poseidon vpr: {exc}", file=sys.stderr)
         return 2
     length = enc_cfg.sp_columns
+    cos = cosine_similarity(np.stack(y_q), np.stack(y_ref))
     sims = {
-        "cnn_cosine": cosine_similarity(np.stack(y_q), np.stack(y_ref)),
+        "cnn_cosine": cos,
+        "seq_cosine": sequence_similarity(cos, SEQ_LENGTH),
+        "patchnorm_sad": sad_similarity(np.stack([patch_normalise(im) for im in q_imgs]),
+                                        np.stack([patch_normalise(im) for im in ref_imgs])),
         "lsbh_overlap": overlap_similarity(s_q, s_ref),
     }
     if st is not None:

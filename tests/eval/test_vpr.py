@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from services.encoder.vpr import (ground_truth_by_name, ground_truth_from_file, main, overlap_similarity, pr_curve,
+from eval.vpr import (ground_truth_by_name, ground_truth_from_file, main, overlap_similarity, pr_curve,
                                   vpr_metrics)
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -81,11 +81,13 @@ def test_main_synthetic_json(tmp_path, capsys):
     assert fixed["matchers"]["lsbh_overlap"]["auc"] == pytest.approx(1.0)
     assert fixed["matchers"]["cnn_cosine_standardized"]["auc"] == pytest.approx(1.0)
     assert fixed["sdr_overlap"]["same_place"] == 1.0 and fixed["sdr_overlap"]["different_place"] < 0.5
-    rc = main(common + ["--set", "encoder.embedding_norm=none"])
+    rc = main(common + ["--set", "encoder.embedding_norm=none", "--set", "encoder.untrained=true"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
-    assert set(out["matchers"]) == {"cnn_cosine", "lsbh_overlap", "htm_lvc", "htm_descriptor"}
+    assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "lsbh_overlap", "htm_lvc",
+                                    "htm_descriptor"}
+    assert out["matchers"]["patchnorm_sad"]["auc"] == pytest.approx(1.0)  # identical images
     assert out["embedding_norm"] == "none"
     assert out["matchers"]["cnn_cosine"]["auc"] == pytest.approx(1.0)
     assert out["matchers"]["lsbh_overlap"]["auc"] == pytest.approx(1.0)
@@ -108,7 +110,7 @@ def test_main_on_nordland_frames(tmp_path, capsys):
     if not (summer.is_dir() and winter.is_dir()):
         pytest.skip(f"Nordland data not found under {DATA / 'nordland_trimmed'}")
     rc = main(["--ref", str(summer), "--query", str(winter), "--limit", "12", "--tolerance", "1", "--json",
-               "--backbone", "alexnet_conv3",
+               "--backbone", "alexnet_conv3", "--set", "encoder.untrained=true",
                "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
                "--set", "encoder.torch_threads=1"])
     assert rc == 0
@@ -119,7 +121,7 @@ def test_main_on_nordland_frames(tmp_path, capsys):
 
 
 def test_lvc_revisit_scores_definition():
-    from services.encoder.vpr import lvc_revisit_scores
+    from eval.vpr import lvc_revisit_scores
     # frames 0..5; frame 4 revisits frame 0, frame 5 revisits frame 1; candidates: >= 3 frames back
     gt = [[], [], [], [], [0], [1]]
     idx = np.arange(6)
@@ -150,14 +152,23 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
-    assert set(out["matchers"]) == {"cnn_cosine", "cnn_cosine_standardized", "lsbh_overlap", "lsbh_fused_overlap",
-                                    "htm_lvc", "htm_descriptor"}
+    assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized",
+                                    "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor"}
+    # the modality table: the fused code and each single modality through its own HTM, same run
+    assert set(out["modalities"]) == {"fused_union", "camera", "sonar"}
+    for m in out["modalities"].values():
+        assert 0 <= m["lvc_recall"] <= 1 and m["n_lvc"] >= 1 and m["lvc_run_length"]["median"] >= 1
+        assert 0 <= m["htm_lvc"]["auc"] <= 1
+    assert out["lvc_recall"] == out["modalities"]["fused_union"]["lvc_recall"]
     for m in out["matchers"].values():
         assert m["n_predicted"] <= out["n_frames"] and 0 <= m["auc"] <= 1
     assert 0 <= out["lvc_recall"] <= 1 and 0 <= out["lvc_precision"] <= 1 and out["n_lvc"] >= 1
     assert out["encoder_counters"]["outputs"] == 119 and out["fused_bits_mean"] > 2 * 256
     assert main(args) == 0  # deterministic
     assert json.loads(capsys.readouterr().out)["matchers"] == out["matchers"]
+    assert main(args + ["--set", "encoder.fusion_mode=and", "--no-htm"]) == 0
+    anded = json.loads(capsys.readouterr().out)
+    assert anded["fused_bits_mean"] < out["fused_bits_mean"]  # AND keeps fewer bits than OR
     assert main(["--mission", str(tmp_path / "none.mcap"), "--no-htm"]) == 2
     assert "no such recording" in capsys.readouterr().err
     assert main(["--mission", str(short_mission), "--ref", str(tmp_path)]) == 2
