@@ -9,7 +9,9 @@ Subcommands:
 - ``demo [--minutes M] [--seed S] [--out DIR] [--embedded] [--json]``: the main job on a
   fresh machine: simulate a short cave mission and run it through every service.
 - ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
-  algorithm service) anywhere, connected to a hub or router.
+  algorithm service) anywhere, connected to a hub or router.  Exit 0 when its inputs
+  ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
+  another service died (see :mod:`common.bus`).
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
@@ -35,6 +37,9 @@ from typing import Any, Callable
 __all__ = ["main"]
 
 log = logging.getLogger("poseidon")
+
+#: exit code of ``poseidon service`` stopped by an abort of the run (another service failed)
+EXIT_ABORTED = 4
 
 #: subcommands implemented by other parts of the tree: name -> "module:function(argv) -> int"
 DELEGATED = {
@@ -214,12 +219,18 @@ def cmd_service(args: argparse.Namespace) -> int:
                                 drain_timeout_s=config.bus.drain_timeout_s)
         stoppable.append(worker)
         stats = worker.run().as_dict()
+    except Exception:  # the service's own failure: logged with its traceback, exit 1
+        log.exception("service %s failed", args.name)
+        return 1
     finally:
         bus.close()
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats))
     else:
         print(json.dumps(stats))
+    if stats.get("aborted"):
+        print(f"poseidon service {args.name}: run aborted: {stats['aborted']}", file=sys.stderr)
+        return EXIT_ABORTED
     return 0
 
 

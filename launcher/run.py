@@ -166,16 +166,31 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     return result
 
 
-def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None) -> tuple[str, str] | None:
+#: exit code of a service stopped by the run's abort (``launcher.cli.EXIT_ABORTED``)
+_ABORTED = 4
+
+
+def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
+             blame_grace_s: float = 3.0) -> tuple[str, str] | None:
+    """Wait for every process; the first failure (not a mere abort) is named."""
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    aborted_at: float | None = None
     while True:
         running = 0
+        aborted = []
         for name, p in procs.items():
             rc = p.poll()
             if rc is None:
                 running += 1
+            elif rc == _ABORTED:
+                aborted.append(name)
             elif rc != 0:
-                return name, f"exited with code {rc}"
+                return name, f"exited with code {rc}" + (" (killed by signal %d)" % -rc if rc < 0 else "")
+        if aborted:
+            # stopped because another one failed: give the failing one time to show its exit code
+            aborted_at = aborted_at or time.monotonic()
+            if running == 0 or time.monotonic() - aborted_at > blame_grace_s:
+                return aborted[0], "stopped by an abort of the run (see its log for the service that died)"
         if running == 0:
             return None
         if deadline is not None and time.monotonic() > deadline:

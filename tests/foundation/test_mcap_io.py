@@ -56,4 +56,5 @@ def test_channel_type_is_fixed_per_key(tmp_path):
     with RecordingWriter(tmp_path / "x.mcap") as w:
         w.write("k", Depth(header=Header(seq=0, stamp=1), depth=1.0))
         with pytest.raises(ValueError, match="carries poseidon_msgs/Depth"):
-            w.write("k", Image(header=Header(seq=0, stamp=2), height=1, width=1, data=np.zeros((1, 1), np.uint8)))
+            w.write("k", Image(header=Header(seq=0, stamp=2), height=1, width=1, encoding="mono8",
+                               data=np.zeros((1, 1), np.uint8)))
