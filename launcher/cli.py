@@ -111,7 +111,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
-        print(f"poseidon run: {exc}; what was recorded so far is in {args.out}", file=sys.stderr)
+        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+              file=sys.stderr)
         return 3
     _print_run(result.as_dict(), args.json, config)
     return 0
@@ -139,7 +140,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"poseidon demo: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
-        print(f"poseidon demo: {exc}", file=sys.stderr)
+        print(f"poseidon demo: {exc}; what was recorded so far is in {exc.partial}", file=sys.stderr)
         return 3
     d = result.as_dict()
     d["mission"] = str(mission)
