@@ -81,6 +81,11 @@ class NodeRunner:
         self.stats = RunnerStats(node.name)
         self.stop_event = threading.Event()
         self.drain_timeout_s = drain_timeout_s
+        declared = type(node).io_keys(node.config)
+        if (tuple(node.inputs), tuple(node.outputs)) != (tuple(declared[0]), tuple(declared[1])):
+            log.warning("%s: the instance's keys %s -> %s differ from %s.io_keys(config) %s -> %s, which the "
+                        "launcher wires: declare them once, in io_keys", node.name, node.inputs, node.outputs,
+                        type(node).__name__, *declared)
         self._publishers = {k: bus.publisher(k) for k in node.outputs}
         for key in node.inputs:
             bus.subscribe(key, self.queue)

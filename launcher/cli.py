@@ -14,7 +14,13 @@ Subcommands:
   another service died (see :mod:`common.bus`).
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
-- ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
+- ``info REC.mcap [--json] [--recover FIXED.mcap]``: keys, message counts, time span and
+  metadata of a recording; exit 1 when it is damaged or unfinished (a killed recorder),
+  2 when it is not a readable MCAP recording.  ``--recover`` rewrites every intact message
+  into a complete file any standard MCAP reader opens.  ``--json`` keys: ``counts``,
+  ``types``, ``start_ns``, ``end_ns``, ``duration_s``, ``metadata`` (record name -> field
+  names), ``complete`` (bool), ``damage`` (where it stops being readable, "" if complete),
+  ``recovered`` (``{"path", "messages"}`` with ``--recover``).
 - ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``: see their own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
@@ -149,15 +155,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from common.mcap_io import RecordingError, read_metadata, recording_keys, recording_summary
+    """Exit 0: a complete recording (or recovered with --recover); 1: damaged (what is readable
+    is listed, with how to recover it); 2: not a readable MCAP recording."""
+    from common.mcap_io import (RecordingError, read_metadata, recording_keys, recording_status, recording_summary,
+                                recover_recording)
     try:
+        status = recording_status(args.recording)
         summary = recording_summary(args.recording)
         summary["types"] = recording_keys(args.recording)
         meta = read_metadata(args.recording)
+        recovered = None
+        if args.recover:
+            recovered = recover_recording(args.recording, args.recover)
     except RecordingError as exc:
         print(f"poseidon info: {exc}", file=sys.stderr)
         return 2
     summary["metadata"] = {name: sorted(rec) for name, rec in meta.items()}
+    summary["complete"] = status["complete"]
+    summary["damage"] = status["error"]
+    if recovered is not None:
+        summary["recovered"] = {"path": args.recover, "messages": recovered}
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -166,6 +183,14 @@ def cmd_info(args: argparse.Namespace) -> int:
             print(f"  {k:<24} {n:>8}  {summary['types'].get(k, '')}")
         for name, fields in summary["metadata"].items():
             print(f"  metadata {name}: {', '.join(fields)}")
+    if recovered is not None:
+        print(f"poseidon info: {recovered} messages written to {args.recover} (a complete recording)", file=sys.stderr)
+        return 0
+    if not status["complete"]:
+        print(f"poseidon info: damaged or unfinished recording: {status['error']}; the messages listed are intact; "
+              f"'poseidon info {args.recording} --recover FIXED.mcap' writes them to a complete file",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -313,9 +338,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=cmd_hub)
 
-    p = sub.add_parser("info", help="summarise a recording")
+    p = sub.add_parser("info", help="summarise a recording (exit 1 if damaged, 2 if unreadable)")
     p.add_argument("recording")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--recover", metavar="FIXED.mcap",
+                   help="write every intact message of a damaged recording (e.g. a killed recorder's) to a complete file")
     p.add_argument("--log-level", default="WARNING")
     p.set_defaults(func=cmd_info)
 

@@ -10,6 +10,9 @@ process has finished (the recorder has seen end-of-stream on every expected key)
 service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
 names the service.
 
+Children die with the launcher, even when it is killed with SIGKILL: each is started with
+``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (Linux), so no service is left running as an orphan.
+
 Safe outputs: ``--out`` may not be the input (same resolved path or same file).  The run
 records into ``<out stem>.partial.mcap`` in the same folder, after the configuration and
 the input have been checked, and moves it onto ``--out`` only when the run succeeded; an
@@ -18,6 +21,7 @@ under its ``.partial.mcap`` name (:attr:`RunFailed.partial`): nothing recorded i
 """
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import os
@@ -95,12 +99,8 @@ def _publish_output(partial: Path, out: Path) -> None:
 
 def node_io(name: str, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """Input and output keys of a service under ``config``."""
-    cls = node_class(name, config)
-    io_keys = getattr(cls, "io_keys", None)
-    if io_keys is not None:
-        ins, outs = io_keys(config)
-        return tuple(ins), tuple(outs)
-    return tuple(cls.inputs), tuple(cls.outputs)
+    ins, outs = node_class(name, config).io_keys(config)
+    return tuple(ins), tuple(outs)
 
 
 @dataclass
@@ -150,6 +150,22 @@ def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, serv
             "config": config.model_dump(mode="json")}
 
 
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_launcher(launcher_pid: int) -> Any:
+    """``preexec_fn`` of every child: the kernel sends it SIGTERM when the launcher dies, even
+    by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a service never outlives its run as an
+    orphan; SIGTERM lets the recorder close its file with a summary."""
+    def setup() -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+        if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+    return setup
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -193,7 +209,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         try:
             for name, cmd in cmds.items():
-                procs[name] = subprocess.Popen(cmd, env=env)
+                procs[name] = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_launcher(os.getpid()))
             failed = _monitor(procs, timeout_s)
         finally:
             _stop_all(procs)
