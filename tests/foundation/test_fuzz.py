@@ -228,10 +228,14 @@ def weird_valid(draw, cls):
         return base
 
 def _service_config(tmp_path_factory) -> PoseidonConfig:
+    from common.config import EncoderConfig
     tmp = tmp_path_factory.mktemp("fuzzsvc")
+    enc = {"lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256,
+           "pool_grid": 2, "sonar_polar_width": 32, "sonar_polar_height": 32, "torch_threads": 1}
+    if "untrained" in EncoderConfig.model_fields:  # a seeded network: fuzzing needs no weights file
+        enc["untrained"] = True
     return PoseidonConfig.model_validate({
-        "encoder": {"lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256,
-                    "pool_grid": 2, "sonar_polar_width": 32, "sonar_polar_height": 32, "torch_threads": 1},
+        "encoder": enc,
         "htm": {"input_size": 64, "sp_columns": 128, "sp_numActiveColumns": 8, "sp_potentialRadius": 32}})
 
 
