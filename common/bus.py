@@ -16,8 +16,13 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
   callbacks therefore never block.  (Blocking a callback, the obvious way to push back,
   stalls the Zenoh runtime that routes the consumer's own outputs: with a hub between
   services that deadlocks as soon as a service both consumes and publishes.)
-- ``@`` chunks (``@alive``, ``@progress``) are verbatim in Zenoh: ``**`` does not match
-  them, so the recorder never records control traffic.
+- ``@`` chunks (``@alive``, ``@progress``, ``@abort``) are verbatim in Zenoh: ``**`` does
+  not match them, so the recorder never records control traffic.
+- Failing fast without a launcher: a consumer that finishes normally reports progress
+  ``END_OF_TIME`` before it leaves.  A service whose liveliness token disappears without
+  that report has died; the player then publishes ``<namespace>/@abort`` (UTF-8 text
+  naming the service) and every runner and recorder stops on it, so no process waits
+  forever for a stream that will never end (:meth:`Bus.on_abort`, :meth:`Bus.watch_alive`).
 """
 from __future__ import annotations
 
@@ -34,13 +39,14 @@ import zenoh
 from common.codec import ENCODED_EOS, encode_frame, encode_watermark
 from common.messages import Message
 
-__all__ = ["zenoh_config", "open_local_session", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher", "open_hub", "ALIVE",
-           "PROGRESS"]
+__all__ = ["zenoh_config", "open_local_session", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher",
+           "AliveWatcher", "open_hub", "ALIVE", "PROGRESS", "ABORT"]
 
 log = logging.getLogger(__name__)
 
 ALIVE = "@alive"
 PROGRESS = "@progress"
+ABORT = "@abort"
 
 
 def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iterable[str] = (),
@@ -138,11 +144,37 @@ class ProgressWatcher:
             if stamp > self._progress.get(service, -2):
                 self._progress[service] = stamp
 
+    def get(self, service: str, default: int = -2) -> int:
+        with self._lock:
+            return self._progress.get(service, default)
+
     def slowest(self, services: Iterable[str], default: int) -> int:
         """Minimum progress over ``services``; one that has not reported counts as ``default``."""
         with self._lock:
             values = [self._progress.get(s, default) for s in services]
         return min(values) if values else default
+
+
+class AliveWatcher:
+    """Which services are alive now, and which have left since they were first seen."""
+
+    def __init__(self) -> None:
+        self._alive: set[str] = set()
+        self._left: list[str] = []
+        self._lock = threading.Lock()
+
+    def update(self, service: str, alive: bool) -> None:
+        with self._lock:
+            if alive:
+                self._alive.add(service)
+            elif service in self._alive:
+                self._alive.discard(service)
+                self._left.append(service)
+
+    def left(self) -> list[str]:
+        """Services that were alive and are no longer, in the order they left."""
+        with self._lock:
+            return list(self._left)
 
 
 class Bus:
@@ -192,9 +224,36 @@ class Bus:
         prefix = self.full_key(PROGRESS) + "/"
 
         def on_sample(sample: zenoh.Sample) -> None:
-            watcher.update(str(sample.key_expr)[len(prefix):], struct.unpack("<q", sample.payload.to_bytes())[0])
+            data = sample.payload.to_bytes()
+            if len(data) != 8:
+                log.error("progress report of %d bytes on %s ignored", len(data), sample.key_expr)
+                return
+            watcher.update(str(sample.key_expr)[len(prefix):], struct.unpack("<q", data)[0])
         self._keepalive.append(self.session.declare_subscriber(self.full_key(f"{PROGRESS}/*"), on_sample))
         return watcher
+
+    def watch_alive(self) -> AliveWatcher:
+        """Follow the liveliness tokens of this namespace (history included)."""
+        watcher = AliveWatcher()
+        prefix = self.full_key(ALIVE) + "/"
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            if key.startswith(prefix):
+                watcher.update(key[len(prefix):], sample.kind == zenoh.SampleKind.PUT)
+        self._keepalive.append(self.session.liveliness().declare_subscriber(
+            self.full_key(f"{ALIVE}/*"), on_sample, history=True))
+        return watcher
+
+    def abort(self, reason: str) -> None:
+        """Tell every process of the namespace to stop: the run cannot complete (``reason`` says why)."""
+        self.session.put(self.full_key(ABORT), reason.encode("utf-8", "replace"))
+
+    def on_abort(self, callback: Callable[[str], None]) -> None:
+        """Call ``callback(reason)`` when any process publishes an abort."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(sample.payload.to_bytes().decode("utf-8", "replace")[:500])
+        self._keepalive.append(self.session.declare_subscriber(self.full_key(ABORT), on_sample))
 
     def declare_alive(self, service: str) -> None:
         """Announce that ``service`` has declared its subscribers and is ready."""
@@ -224,13 +283,14 @@ class Bus:
                 raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {sorted(missing)}")
             time.sleep(poll_s)
 
-    def drain(self, publishers: Iterable[BusPublisher], timeout_s: float, poll_s: float = 0.05) -> bool:
+    def drain(self, publishers: Iterable[BusPublisher], timeout_s: float, poll_s: float = 0.05,
+              stop: threading.Event | None = None, warn: bool = True) -> bool:
         """Wait until no subscriber matches any of ``publishers`` (all consumers have finished).
 
         Closing a Zenoh session discards frames still queued for sending, so a process
         that published end-of-stream waits here before it exits: consumers leave only after
         end-of-stream, which arrives after every data frame of the key.  Returns False (and
-        logs which keys) if consumers are still there after ``timeout_s``.
+        logs which keys) if consumers are still there after ``timeout_s`` or once ``stop`` is set.
         """
         pubs = list(publishers)
         deadline = time.monotonic() + timeout_s
@@ -238,8 +298,9 @@ class Bus:
             busy = [p.key for p in pubs if p.has_subscribers()]
             if not busy:
                 return True
-            if time.monotonic() > deadline:
-                log.warning("consumers of %s still present after %.0f s; closing anyway", busy, timeout_s)
+            if time.monotonic() > deadline or (stop is not None and stop.is_set()):
+                if warn:
+                    log.warning("consumers of %s still present after %.0f s; closing anyway", busy, timeout_s)
                 return False
             time.sleep(poll_s)
 

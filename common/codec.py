@@ -7,6 +7,13 @@ wraps the received bytes with ``np.frombuffer`` (no copy; the array is read-only
 Wire frames (:func:`encode_frame`) add a one-byte tag so data, event-time watermarks and
 end-of-stream travel in order on the same key: ``D`` + type name + message, ``W`` +
 int64 stamp, ``E`` (end of stream).
+
+Robustness contract: :func:`decode_frame`, :func:`decode_dict`, :func:`decode` and
+:meth:`Frame.message` raise :class:`DecodeError` (a ``ValueError``) for *any* malformed
+input -- truncated frames, bytes that are not UTF-8, unknown types, msgpack garbage, arrays
+whose bytes do not fill their shape, fields that contradict each other -- and nothing
+else, so a receiver can count and skip a bad frame with one ``except DecodeError``
+(fuzzed by ``tests/foundation/test_fuzz.py``).
 """
 from __future__ import annotations
 
@@ -17,7 +24,7 @@ import msgpack
 import numpy as np
 from pydantic import ValidationError
 
-from common.messages import Message, message_type
+from common.messages import MESSAGE_TYPES, Message
 
 __all__ = [
     "encode", "decode", "decode_dict", "pack_obj", "unpack_obj", "encode_frame", "encode_watermark",
@@ -44,7 +51,10 @@ def _object_hook(obj: dict) -> Any:
     nd = obj.get("__nd__")
     if nd is not None:
         dtype, shape = nd
-        return np.frombuffer(obj["b"], dtype=np.dtype(dtype)).reshape(shape)
+        dt = np.dtype(dtype)
+        if dt.hasobject:
+            raise TypeError(f"array dtype {dt.str} holds Python objects")
+        return np.frombuffer(obj["b"], dtype=dt).reshape(shape)
     return obj
 
 
@@ -85,8 +95,10 @@ def decode(data: bytes | memoryview, cls: type[Message]) -> Message:
         return cls.model_validate(obj)
     except ValidationError as err:
         first = err.errors()[0]
-        loc = ".".join(str(p) for p in first["loc"])
+        loc = ".".join(str(p) for p in first["loc"]) or "<message>"
         raise DecodeError(f"{cls.type_name}: field {loc}: {first['msg']}") from None
+    except Exception as exc:  # noqa: BLE001 - anything a hostile payload provokes in a validator
+        raise DecodeError(f"{cls.type_name}: {type(exc).__name__}: {exc}") from None
 
 
 _TAG_DATA, _TAG_WM, _TAG_EOS = b"D", b"W", b"E"
@@ -116,22 +128,49 @@ class Frame:
         self.stamp = stamp
 
     def message(self) -> Message:
-        return decode(self.payload, message_type(self.type_name))
+        """The validated message of a data frame; DecodeError for anything malformed."""
+        cls = MESSAGE_TYPES.get(self.type_name)
+        if cls is None:
+            raise DecodeError(f"unknown message type {self.type_name!r}")
+        return decode(self.payload, cls)
 
 
 def decode_frame(data: bytes | memoryview) -> Frame:
-    """Parse a wire frame (no message validation: see :meth:`Frame.message`)."""
-    mv = memoryview(data)
+    """Parse a wire frame (no message validation: see :meth:`Frame.message`).
+
+    Raises :class:`DecodeError` for every malformed frame: empty, truncated, a type name
+    that is not ASCII or not a known message type, a watermark that is not 8 bytes or is
+    negative, an end-of-stream with trailing bytes, an unknown tag.
+    """
+    mv = memoryview(data).cast("B") if not isinstance(data, (bytes, bytearray)) else memoryview(data)
     if len(mv) == 0:
         raise DecodeError("empty frame")
     tag = bytes(mv[:1])
     if tag == _TAG_DATA:
+        if len(mv) < 2:
+            raise DecodeError("data frame of 1 byte (no type name)")
         n = mv[1]
-        return Frame("data", bytes(mv[2:2 + n]).decode(), mv[2 + n:])
+        if len(mv) < 2 + n:
+            raise DecodeError(f"data frame of {len(mv)} bytes truncated inside its {n}-byte type name")
+        raw = bytes(mv[2:2 + n])
+        try:
+            type_name = raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise DecodeError(f"type name {raw[:40]!r} is not ASCII") from None
+        if type_name not in MESSAGE_TYPES:
+            raise DecodeError(f"unknown message type {type_name[:60]!r}")
+        if len(mv) == 2 + n:
+            raise DecodeError(f"{type_name} frame without a payload")
+        return Frame("data", type_name, mv[2 + n:])
     if tag == _TAG_WM:
         if len(mv) != 9:
-            raise DecodeError(f"watermark frame of {len(mv)} bytes")
-        return Frame("watermark", stamp=struct.unpack("<q", mv[1:9])[0])
+            raise DecodeError(f"watermark frame of {len(mv)} bytes (expected 9)")
+        stamp = struct.unpack("<q", mv[1:9])[0]
+        if stamp < 0:
+            raise DecodeError(f"negative watermark {stamp}")
+        return Frame("watermark", stamp=stamp)
     if tag == _TAG_EOS:
+        if len(mv) != 1:
+            raise DecodeError(f"end-of-stream frame of {len(mv)} bytes (expected 1)")
         return Frame("eos")
     raise DecodeError(f"unknown frame tag {tag!r}")

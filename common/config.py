@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 __all__ = ["PoseidonConfig", "ConfigError", "load_config", "apply_overrides", "DEFAULT_CONFIG_PATH"]
 
@@ -22,6 +22,12 @@ DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "deploy" / "posei
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+def _check(cond: bool, what: str) -> None:
+    """A cross-field rule of a section: ValueError naming the dotted fields (-> ConfigError)."""
+    if not cond:
+        raise ValueError(what)
 
 
 class SyncConfig(_Section):
@@ -147,6 +153,18 @@ class HtmConfig(_Section):
     sp_learn_steps: int = Field(100, ge=0, description="SP learns during the first N learning steps, then its "
                                 "synapses and boost factors are frozen (0: always learns)")
 
+    @model_validator(mode="after")
+    def _consistent(self) -> "HtmConfig":
+        _check(self.sp_numActiveColumns <= self.sp_columns,
+               f"htm.sp_numActiveColumns ({self.sp_numActiveColumns}) must be <= htm.sp_columns ({self.sp_columns})")
+        _check(self.tm_minThreshold <= self.tm_activationThreshold,
+               f"htm.tm_minThreshold ({self.tm_minThreshold}) must be <= htm.tm_activationThreshold "
+               f"({self.tm_activationThreshold})")
+        _check(self.tm_maxNewSynapseCount <= self.tm_maxSynapsesPerSegment,
+               f"htm.tm_maxNewSynapseCount ({self.tm_maxNewSynapseCount}) must be <= htm.tm_maxSynapsesPerSegment "
+               f"({self.tm_maxSynapsesPerSegment})")
+        return self
+
 
 class RobotStateConfig(_Section):
     use_imu: bool = True
@@ -186,10 +204,22 @@ class RobotStateConfig(_Section):
     gyro_bias_sigma_deg_s: float = Field(0.1, ge=0, description="prior std of each gyro bias (deg/s)")
     gyro_bias_rw_deg_s: float = Field(0.001, ge=0, description="random walk of the gyro biases, deg/s/sqrt(s)")
 
+    @model_validator(mode="after")
+    def _consistent(self) -> "RobotStateConfig":
+        _check(sorted(self.axis_remap) == ["x", "y", "z"],
+               f"robot_state.axis_remap {self.axis_remap!r} must be a permutation of xyz (e.g. yxz)")
+        _check(self.axis_sign_z in (-1.0, 1.0), f"robot_state.axis_sign_z must be 1 or -1, got {self.axis_sign_z}")
+        _check(self.dvl_velocity_sign in (-1.0, 1.0),
+               f"robot_state.dvl_velocity_sign must be 1 or -1, got {self.dvl_velocity_sign}")
+        return self
+
 
 class PoseCellsConfig(_Section):
-    number_of_neurons: list[int] = Field(default_factory=lambda: [15, 15, 15, 8], min_length=4, max_length=4)
-    distance_between_neurons: list[float] = Field(default_factory=lambda: [0.1, 0.1, 0.1], min_length=3, max_length=3)
+    number_of_neurons: list[Annotated[int, Field(ge=1, le=512)]] = Field(
+        default_factory=lambda: [15, 15, 15, 8], min_length=4, max_length=4,
+        description="x y z yaw cells (each 1..512)")
+    distance_between_neurons: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(
+        default_factory=lambda: [0.1, 0.1, 0.1], min_length=3, max_length=3, description="m, each > 0")
     top_k: int = Field(4, ge=1, description="at most this many LVCs of a local_view_cells message are active "
                        "(V_l = 1 in Eq. 4.19), by rate; the most active one always")
     min_exc: float = Field(0.03, ge=0, description="an LVC other than the most active needs rate >= this to be active")
@@ -211,6 +241,16 @@ class PoseCellsConfig(_Section):
     state_path: str = Field("", description="load pose cells, associations and gates from this .npz at start "
                             "and save at end (empty: off)")
 
+    @model_validator(mode="after")
+    def _consistent(self) -> "PoseCellsConfig":
+        cells = 1
+        for n in self.number_of_neurons:
+            cells *= n
+        _check(cells <= 50_000_000, f"posecells.number_of_neurons {self.number_of_neurons} is {cells} cells "
+               "(at most 50 million)")
+        _check(self.top_k <= cells, f"posecells.top_k ({self.top_k}) must be <= the number of cells ({cells})")
+        return self
+
 
 class VprGuardConfig(_Section):
     require_vpr_for_event: bool = True
@@ -220,6 +260,12 @@ class VprGuardConfig(_Section):
     motion_gate_enable: bool = True
     min_event_trans_xy: float = Field(0.12, ge=0)
     min_event_dz: float = Field(0.05, ge=0)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "VprGuardConfig":
+        _check(self.vpr_min_rep <= self.vpr_window,
+               f"vpr_guard.vpr_min_rep ({self.vpr_min_rep}) must be <= vpr_guard.vpr_window ({self.vpr_window})")
+        return self
 
 
 class ExpMapConfig(_Section):
@@ -283,6 +329,8 @@ def _format_errors(err: ValidationError, source: str) -> str:
         loc = ".".join(str(p) for p in e["loc"]) or "<root>"
         if e["type"] == "extra_forbidden":
             lines.append(f"  {loc}: unknown field")
+        elif e["type"] == "value_error" and isinstance(e.get("input"), dict):  # a cross-field rule of a section
+            lines.append(f"  {loc}: {e['msg'].removeprefix('Value error, ')}")
         else:
             lines.append(f"  {loc}: {e['msg']} (got {e.get('input')!r})")
     return "\n".join(lines)

@@ -12,7 +12,13 @@ Layout of a recording (what :class:`RecordingWriter` writes and the recorder pro
 Reading (:func:`read_messages`) yields messages in event-time order.  A file without a
 summary (a recorder killed with SIGKILL) is read sequentially up to its last complete
 chunk and sorted, and :class:`RecordingError` names the file and the byte offset where a
-corrupt or truncated file stops being readable.
+corrupt or truncated file stops being readable.  A file with no readable MCAP record at all
+(empty, random bytes, another format) is always a :class:`RecordingError`.
+
+:func:`recording_status` tells a complete file from a damaged one, and
+:func:`recover_recording` rewrites every intact message and metadata record of a damaged
+file (e.g. a recorder killed with SIGKILL) into a complete MCAP that any standard reader
+opens (``poseidon info FILE --recover FIXED.mcap``).
 """
 from __future__ import annotations
 
@@ -38,6 +44,7 @@ from common.messages import Message, message_type
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
     "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "code_revision",
+    "recording_status", "recover_recording",
 ]
 
 log = logging.getLogger(__name__)
@@ -175,7 +182,7 @@ def _has_summary(path: Path) -> bool:
     with _open(path) as f:
         try:
             return make_reader(f).get_summary() is not None
-        except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error):
+        except (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error):
             return False
 
 
@@ -188,6 +195,7 @@ def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[R
     with _open(path) as raw:
         reader = StreamReader(raw, validate_crcs=True)
         good_offset = 0
+        any_record = False
         try:
             for record in reader.records:
                 if isinstance(record, Schema):
@@ -203,7 +211,12 @@ def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[R
                     metadata.append(record)
                 # bytes consumed by the reader: the end of the last complete top-level record
                 good_offset = reader._stream.count
+                any_record = True
         except (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error) as exc:
+            if not any_record:
+                reason = type(exc).__name__ + (f": {exc}" if str(exc) else "")
+                raise RecordingError(f"{path}: not an MCAP recording ({path.stat().st_size} bytes, unreadable from "
+                                     f"byte 0: {reason})") from None
             msg = (f"{path}: unreadable from about byte {good_offset} of {path.stat().st_size} "
                    f"({type(exc).__name__}: {exc}); {len(out)} messages before that point are intact")
             if strict:
@@ -270,6 +283,41 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
     _, metadata = _sequential(p, set(), strict=False)
     return {m.name: dict(m.metadata) for m in metadata}
+
+
+def recording_status(path: str | Path) -> dict[str, Any]:
+    """``{"complete", "size", "error"}``: complete means a readable summary (every standard
+    reader opens it); otherwise ``error`` says where the file stops being readable.
+    RecordingError if the file is not an MCAP recording at all."""
+    p = Path(path)
+    size = p.stat().st_size if p.exists() else 0
+    if _has_summary(p):
+        return {"complete": True, "size": size, "error": ""}
+    try:
+        _sequential(p, set(), strict=True)
+    except RecordingError as exc:
+        if "not an MCAP recording" in str(exc) or "no such recording" in str(exc):
+            raise
+        return {"complete": False, "size": size, "error": str(exc)}
+    return {"complete": False, "size": size, "error": f"{p}: no summary section"}
+
+
+def recover_recording(src: str | Path, dst: str | Path, compression: str = "zstd") -> int:
+    """Write every intact message and metadata record of ``src`` into a complete MCAP ``dst``.
+
+    Returns the number of messages recovered.  ``dst`` must differ from ``src``.
+    """
+    src, dst = Path(src), Path(dst)
+    if dst.resolve() == src.resolve():
+        raise RecordingError(f"{dst}: recover into another file than the damaged one")
+    messages, metadata = _sequential(src, None, strict=False)
+    messages.sort(key=lambda r: r.stamp)
+    with RecordingWriter(dst, compression=compression) as w:
+        for m in metadata:
+            w.add_metadata(m.name, dict(m.metadata))
+        for r in messages:
+            w.write_encoded(r.key, r.type_name, r.payload, r.stamp, r.seq)
+    return len(messages)
 
 
 def recording_summary(path: str | Path) -> dict[str, Any]:

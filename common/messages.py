@@ -24,7 +24,7 @@ from __future__ import annotations
 from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSerializer, WithJsonSchema
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSerializer, WithJsonSchema, model_validator
 
 __all__ = [
     "NDArray", "Header", "Message", "Image", "RangeImageBeam", "LaserScan", "LinkquestDvl",
@@ -32,18 +32,40 @@ __all__ = [
     "ExperienceEvent", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
     "PoseStamped", "RevisitTruth", "NavSatFix", "FluidPressure", "Temperature", "MagneticField",
     "PoseWithCovarianceStamped", "TwistStamped", "TransformStamped", "TFMessage", "KeyValue", "DiagnosticStatus",
-    "DiagnosticArray", "RawMessage", "RAW_KEY_PREFIX", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
+    "DiagnosticArray", "RawMessage", "RAW_KEY_PREFIX", "IMAGE_CHANNELS", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
 ]
 
 
 def _to_array(value: Any) -> np.ndarray:
+    """Any accepted form -> a numeric numpy array (bool, int, uint or float; never object or text)."""
     if isinstance(value, np.ndarray):
-        return value
-    if isinstance(value, dict) and {"dtype", "shape", "data"} <= value.keys():
-        return np.frombuffer(value["data"], dtype=np.dtype(value["dtype"])).reshape(value["shape"])
-    if isinstance(value, (list, tuple)):
-        return np.asarray(value)
-    raise ValueError(f"expected a numpy array, got {type(value).__name__}")
+        arr = value
+    elif isinstance(value, dict) and {"dtype", "shape", "data"} <= value.keys():
+        try:
+            arr = np.frombuffer(value["data"], dtype=np.dtype(value["dtype"])).reshape(value["shape"])
+        except (TypeError, ValueError) as exc:  # a bad dtype string or a shape the bytes do not fill
+            raise ValueError(f"array {value.get('dtype')!r} {value.get('shape')!r}: {exc}") from None
+    elif isinstance(value, (list, tuple)):
+        try:
+            arr = np.asarray(value)
+        except (TypeError, ValueError) as exc:  # ragged nesting
+            raise ValueError(f"not a rectangular numeric array: {exc}") from None
+    else:
+        raise ValueError(f"expected a numpy array, got {type(value).__name__}")
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"array of dtype {arr.dtype.str} is not numeric (bool, int, uint or float)")
+    return arr
+
+
+def _require(cond: bool, what: str) -> None:
+    """A cross-field check of a model validator: ValueError (-> ValidationError) naming the contradiction."""
+    if not cond:
+        raise ValueError(what)
+
+
+def _index_array(arr: np.ndarray, name: str) -> None:
+    _require(arr.ndim == 1, f"{name} must be one-dimensional, got shape {arr.shape}")
+    _require(arr.dtype.kind in "iu", f"{name} must hold integers, got dtype {arr.dtype.str}")
 
 
 #: A numpy array field.  JSON schema: an object with dtype, shape and the raw bytes.
@@ -90,6 +112,10 @@ class Message(BaseModel):
 # --------------------------------------------------------------------------- sensors
 
 
+#: channels per image encoding
+IMAGE_CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1, "rgba8": 4, "bgra8": 4, "mono16": 1}
+
+
 class Image(Message):
     """sensor_msgs/Image. ``data`` has shape (height, width, channels) or (height, width)."""
 
@@ -97,6 +123,21 @@ class Image(Message):
     width: int = Field(ge=1)
     encoding: Literal["rgb8", "bgr8", "mono8", "rgba8", "bgra8", "mono16"] = "rgb8"
     data: NDArray
+
+    @model_validator(mode="after")
+    def _data_matches_header(self) -> "Image":
+        """``data`` must be (height, width[, channels]) of the dtype and channel count of ``encoding``."""
+        d = self.data
+        _require(d.ndim in (2, 3), f"data must be (height, width[, channels]), got shape {d.shape}")
+        _require(d.shape[:2] == (self.height, self.width),
+                 f"data shape {d.shape} contradicts height {self.height} x width {self.width}")
+        channels = d.shape[2] if d.ndim == 3 else 1
+        _require(channels == IMAGE_CHANNELS[self.encoding],
+                 f"data has {channels} channels, encoding {self.encoding} has {IMAGE_CHANNELS[self.encoding]}")
+        want = np.dtype(np.uint16) if self.encoding == "mono16" else np.dtype(np.uint8)
+        _require(d.dtype.kind == "u" and d.dtype.itemsize == want.itemsize,
+                 f"data dtype {d.dtype.str} contradicts encoding {self.encoding} ({want.name})")
+        return self
 
 
 class RangeImageBeam(Message):
@@ -107,6 +148,14 @@ class RangeImageBeam(Message):
     nbins: int = Field(ge=0)
     max_range: int = Field(ge=0, description="metres")
     beam_data: NDArray = Field(description="int32 echo intensities, nbins long")
+
+    @model_validator(mode="after")
+    def _nbins_matches_data(self) -> "RangeImageBeam":
+        _require(self.beam_data.ndim == 1, f"beam_data must be one-dimensional, got shape {self.beam_data.shape}")
+        _require(len(self.beam_data) == self.nbins,
+                 f"nbins {self.nbins} contradicts beam_data of {len(self.beam_data)} values")
+        _require(self.beam_data.dtype.kind in "iu", f"beam_data must hold integers, got {self.beam_data.dtype.str}")
+        return self
 
 
 class LaserScan(Message):
@@ -121,6 +170,17 @@ class LaserScan(Message):
     range_max: float
     ranges: NDArray
     intensities: NDArray
+
+    @model_validator(mode="after")
+    def _arrays_agree(self) -> "LaserScan":
+        """ranges 1-D; intensities empty or one per range; the angle span not reversed."""
+        _require(self.ranges.ndim == 1, f"ranges must be one-dimensional, got shape {self.ranges.shape}")
+        _require(self.intensities.ndim == 1, f"intensities must be one-dimensional, got shape {self.intensities.shape}")
+        _require(len(self.intensities) in (0, len(self.ranges)),
+                 f"{len(self.intensities)} intensities for {len(self.ranges)} ranges")
+        _require(self.angle_max >= self.angle_min, f"angle_max {self.angle_max} < angle_min {self.angle_min}")
+        _require(self.range_max >= self.range_min, f"range_max {self.range_max} < range_min {self.range_min}")
+        return self
 
 
 class LinkquestDvl(Message):
@@ -222,6 +282,17 @@ class Sdr(Message):
     size: int = Field(ge=1)
     active: NDArray = Field(description="uint32 sorted active indices")
 
+    @model_validator(mode="after")
+    def _active_within_size(self) -> "Sdr":
+        """Active indices: integers, strictly increasing (sorted, no repeats), in [0, size)."""
+        a = self.active
+        _index_array(a, "active")
+        if len(a):
+            _require(int(a.min()) >= 0 and int(a.max()) < self.size,
+                     f"active indices span [{int(a.min())}, {int(a.max())}], outside [0, size {self.size})")
+            _require(bool(np.all(a[1:] > a[:-1])), "active indices are not sorted strictly increasing")
+        return self
+
 
 class NeocortexSdr(Message):
     """Encoder output per frame (Eqs. 4.1-4.3): per-modality SDRs and their fusion."""
@@ -229,6 +300,13 @@ class NeocortexSdr(Message):
     modalities: list[Sdr]
     fused: Sdr
     fusion_mode: str
+
+    @model_validator(mode="after")
+    def _one_bit_space(self) -> "NeocortexSdr":
+        sizes = {m.size for m in self.modalities}
+        _require(sizes <= {self.fused.size}, f"modality SDR sizes {sorted(sizes)} differ from the fused size "
+                 f"{self.fused.size}")
+        return self
 
 
 class LocalViewCell(BaseModel):
@@ -419,6 +497,14 @@ class RevisitTruth(Message):
 
     frame_index: int = Field(ge=0)
     same_place: NDArray = Field(description="int32 indices of earlier frames of the same place")
+
+    @model_validator(mode="after")
+    def _earlier_frames(self) -> "RevisitTruth":
+        _index_array(self.same_place, "same_place")
+        if len(self.same_place):
+            _require(int(self.same_place.min()) >= 0 and int(self.same_place.max()) < self.frame_index,
+                     f"same_place indices must be earlier frames in [0, {self.frame_index})")
+        return self
 
 
 #: key (relative to the vehicle namespace) -> message type

@@ -1,7 +1,9 @@
 """The contract between an algorithm service and the transport.
 
 A service is a subclass of :class:`ServiceNode`: it names its input keys (in priority
-order for equal stamps) and output keys, receives its inputs already merged in event-time
+order for equal stamps) and output keys -- once, in :meth:`ServiceNode.io_keys`, computed
+from the configuration and used both by the node instance and by the launcher's wiring
+(the class attributes ``inputs``/``outputs`` are the default of ``io_keys``) -- receives its inputs already merged in event-time
 order through :meth:`ServiceNode.process`, and emits outputs with :meth:`ServiceNode.publish`.
 It never touches Zenoh: :mod:`common.runtime` feeds it from the bus, and :func:`run_offline`
 feeds it from a list (unit tests, notebooks, ``poseidon deadreckon`` and the like), giving
@@ -28,8 +30,19 @@ class ServiceNode:
     inputs: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[tuple[str, ...]] = ()
 
+    @classmethod
+    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """Input keys (priority order) and output keys of this service under ``config``.
+
+        The one declaration of a service's wiring: the launcher plans the run with it and
+        the instance takes ``self.inputs``/``self.outputs`` from it.  Default: the class
+        attributes; override when the keys depend on the configuration.
+        """
+        return tuple(cls.inputs), tuple(cls.outputs)
+
     def __init__(self, config: PoseidonConfig):
         self.config = config
+        self.inputs, self.outputs = type(self).io_keys(config)
         self._outbox: list[tuple[str, Message]] = []
         self._seq: dict[str, int] = {k: 0 for k in self.outputs}
         self.counters: dict[str, int] = {}

@@ -54,6 +54,10 @@ class EventTimeMerger:
         """End of stream: nothing more will follow."""
         self._watermark[stream] = END_OF_TIME
 
+    def stream_watermark(self, stream: str) -> int:
+        """The watermark of one stream (-1 before it spoke, END_OF_TIME after its end)."""
+        return self._watermark[stream]
+
     @property
     def watermark(self) -> int:
         """The minimum watermark over all streams (-1 before every stream spoke)."""

@@ -9,12 +9,20 @@ Subcommands:
 - ``demo [--minutes M] [--seed S] [--out DIR] [--embedded] [--json]``: the main job on a
   fresh machine: simulate a short cave mission and run it through every service.
 - ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
-  algorithm service) anywhere, connected to a hub or router.
+  algorithm service) anywhere, connected to a hub or router.  Exit 0 when its inputs
+  ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
+  another service died (see :mod:`common.bus`).
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
-- ``info REC.mcap [--json]``: keys, message counts, time span and metadata of a recording.
-- ``sim``, ``transform``, ``import``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``, ``path``: see their
-  own ``--help``.
+- ``info REC.mcap [--json] [--recover FIXED.mcap]``: keys, message counts, time span and
+  metadata of a recording; exit 1 when it is damaged or unfinished (a killed recorder),
+  2 when it is not a readable MCAP recording.  ``--recover`` rewrites every intact message
+  into a complete file any standard MCAP reader opens.  ``--json`` keys: ``counts``,
+  ``types``, ``start_ns``, ``end_ns``, ``duration_s``, ``metadata`` (record name -> field
+  names), ``complete`` (bool), ``damage`` (where it stops being readable, "" if complete),
+  ``recovered`` (``{"path", "messages"}`` with ``--recover``).
+- ``sim``, ``transform``, ``import``, ``export``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``,
+  ``path``: see their own ``--help``.
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
@@ -36,6 +44,9 @@ from typing import Any, Callable
 __all__ = ["main"]
 
 log = logging.getLogger("poseidon")
+
+#: exit code of ``poseidon service`` stopped by an abort of the run (another service failed)
+EXIT_ABORTED = 4
 
 #: subcommands implemented by other parts of the tree: name -> "module:function(argv) -> int"
 DELEGATED = {
@@ -113,7 +124,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
-        print(f"poseidon run: {exc}; what was recorded so far is in {args.out}", file=sys.stderr)
+        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+              file=sys.stderr)
         return 3
     _print_run(result.as_dict(), args.json, config)
     return 0
@@ -141,7 +153,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"poseidon demo: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
-        print(f"poseidon demo: {exc}", file=sys.stderr)
+        print(f"poseidon demo: {exc}; what was recorded so far is in {exc.partial}", file=sys.stderr)
         return 3
     d = result.as_dict()
     d["mission"] = str(mission)
@@ -150,15 +162,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from common.mcap_io import RecordingError, read_metadata, recording_keys, recording_summary
+    """Exit 0: a complete recording (or recovered with --recover); 1: damaged (what is readable
+    is listed, with how to recover it); 2: not a readable MCAP recording."""
+    from common.mcap_io import (RecordingError, read_metadata, recording_keys, recording_status, recording_summary,
+                                recover_recording)
     try:
+        status = recording_status(args.recording)
         summary = recording_summary(args.recording)
         summary["types"] = recording_keys(args.recording)
         meta = read_metadata(args.recording)
+        recovered = None
+        if args.recover:
+            recovered = recover_recording(args.recording, args.recover)
     except RecordingError as exc:
         print(f"poseidon info: {exc}", file=sys.stderr)
         return 2
     summary["metadata"] = {name: sorted(rec) for name, rec in meta.items()}
+    summary["complete"] = status["complete"]
+    summary["damage"] = status["error"]
+    if recovered is not None:
+        summary["recovered"] = {"path": args.recover, "messages": recovered}
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -167,6 +190,14 @@ def cmd_info(args: argparse.Namespace) -> int:
             print(f"  {k:<24} {n:>8}  {summary['types'].get(k, '')}")
         for name, fields in summary["metadata"].items():
             print(f"  metadata {name}: {', '.join(fields)}")
+    if recovered is not None:
+        print(f"poseidon info: {recovered} messages written to {args.recover} (a complete recording)", file=sys.stderr)
+        return 0
+    if not status["complete"]:
+        print(f"poseidon info: damaged or unfinished recording: {status['error']}; the messages listed are intact; "
+              f"'poseidon info {args.recording} --recover FIXED.mcap' writes them to a complete file",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -221,12 +252,18 @@ def cmd_service(args: argparse.Namespace) -> int:
                                 drain_timeout_s=config.bus.drain_timeout_s)
         stoppable.append(worker)
         stats = worker.run().as_dict()
+    except Exception:  # the service's own failure: logged with its traceback, exit 1
+        log.exception("service %s failed", args.name)
+        return 1
     finally:
         bus.close()
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats))
     else:
         print(json.dumps(stats))
+    if stats.get("aborted"):
+        print(f"poseidon service {args.name}: run aborted: {stats['aborted']}", file=sys.stderr)
+        return EXIT_ABORTED
     return 0
 
 
@@ -308,9 +345,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=cmd_hub)
 
-    p = sub.add_parser("info", help="summarise a recording")
+    p = sub.add_parser("info", help="summarise a recording (exit 1 if damaged, 2 if unreadable)")
     p.add_argument("recording")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--recover", metavar="FIXED.mcap",
+                   help="write every intact message of a damaged recording (e.g. a killed recorder's) to a complete file")
     p.add_argument("--log-level", default="WARNING")
     p.set_defaults(func=cmd_info)
 

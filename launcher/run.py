@@ -9,9 +9,19 @@ The player waits until the recorder and every service are alive; the run ends wh
 process has finished (the recorder has seen end-of-stream on every expected key).  If any
 service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
 names the service.
+
+Children die with the launcher, even when it is killed with SIGKILL: each is started with
+``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (Linux), so no service is left running as an orphan.
+
+Safe outputs: ``--out`` may not be the input (same resolved path or same file).  The run
+records into ``<out stem>.partial.mcap`` in the same folder, after the configuration and
+the input have been checked, and moves it onto ``--out`` only when the run succeeded; an
+existing ``--out`` is never touched before that.  On failure the partial recording stays
+under its ``.partial.mcap`` name (:attr:`RunFailed.partial`): nothing recorded is lost.
 """
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import os
@@ -36,27 +46,61 @@ from launcher.services import available_services, node_class
 from services.player.player import SOURCE_KEYS, Player
 from services.recorder.recorder import Recorder
 
-__all__ = ["RunFailed", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
+__all__ = ["RunFailed", "ServiceStartError", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
 
 log = logging.getLogger(__name__)
 
 
 class RunFailed(RuntimeError):
-    """A service failed; ``service`` names it."""
+    """A service failed; ``service`` names it, ``partial`` is the recording kept so far."""
 
-    def __init__(self, service: str, detail: str):
+    def __init__(self, service: str, detail: str, partial: str = ""):
         super().__init__(f"service {service!r} failed: {detail}")
         self.service = service
+        self.partial = partial
+
+
+class ServiceStartError(ValueError):
+    """A service could not be built from the configuration (names the service)."""
+
+
+def build_checked(name: str, config: PoseidonConfig) -> Any:
+    """Build service ``name``'s node; any failure becomes a ServiceStartError naming it."""
+    try:
+        return node_class(name, config)(config)
+    except KeyError:
+        raise
+    except Exception as exc:
+        raise ServiceStartError(f"service {name!r} cannot start with this configuration: "
+                                f"{type(exc).__name__}: {exc}") from exc
+
+
+def output_paths(input_path: str | Path, out: str | Path) -> tuple[Path, Path]:
+    """``(final, partial)`` paths of a run's recording; ValueError if ``out`` is the input."""
+    input_path, out = Path(input_path), Path(out)
+    if out.suffix != ".mcap":
+        raise ValueError(f"--out {out}: the output must be an .mcap file")
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a directory")
+    partial = out.with_name(out.stem + ".partial.mcap")
+    for candidate in (out, partial):
+        same = candidate.resolve() == input_path.resolve()
+        if not same and candidate.exists() and input_path.exists():
+            same = os.path.samefile(candidate, input_path)
+        if same:
+            raise ValueError(f"--out {out} would overwrite the input recording {input_path}; choose another file")
+    return out, partial
+
+
+def _publish_output(partial: Path, out: Path) -> None:
+    """Move the finished recording into place (atomic within the folder)."""
+    os.replace(partial, out)
 
 
 def node_io(name: str, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """Input and output keys of a service under ``config``."""
-    cls = node_class(name, config)
-    io_keys = getattr(cls, "io_keys", None)
-    if io_keys is not None:
-        ins, outs = io_keys(config)
-        return tuple(ins), tuple(outs)
-    return tuple(cls.inputs), tuple(cls.outputs)
+    ins, outs = node_class(name, config).io_keys(config)
+    return tuple(ins), tuple(outs)
 
 
 @dataclass
@@ -106,6 +150,22 @@ def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, serv
             "config": config.model_dump(mode="json")}
 
 
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_launcher(launcher_pid: int) -> Any:
+    """``preexec_fn`` of every child: the kernel sends it SIGTERM when the launcher dies, even
+    by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a service never outlives its run as an
+    orphan; SIGTERM lets the recorder close its file with a summary."""
+    def setup() -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+        if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+    return setup
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -121,7 +181,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
                     services: list[str] | None = None, timeout_s: float | None = None,
                     progress: bool = True) -> RunResult:
     """Each service in its own process, connected over loopback Zenoh through a hub."""
-    input_path, out = Path(input_path), Path(out)
+    input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
     plan = plan_run(config, input_path, services)
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     t0 = time.monotonic()
@@ -138,7 +198,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         def stats_file(name: str) -> str:
             return str(Path(tmp) / f"{name}.stats.json")
 
-        cmds = {"recorder": base + ["recorder", *common, "--out", str(out), "--expect", ",".join(plan.expect),
+        cmds = {"recorder": base + ["recorder", *common, "--out", str(partial), "--expect", ",".join(plan.expect),
                                     "--metadata", str(meta_file), "--stats", stats_file("recorder")]}
         for name in plan.services:
             cmds[name] = base + [name, *common, "--stats", stats_file(name)]
@@ -149,14 +209,15 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         try:
             for name, cmd in cmds.items():
-                procs[name] = subprocess.Popen(cmd, env=env)
+                procs[name] = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_launcher(os.getpid()))
             failed = _monitor(procs, timeout_s)
         finally:
             _stop_all(procs)
             hub.close()
         if failed:
             name, detail = failed
-            raise RunFailed(name, detail)
+            raise RunFailed(name, detail, str(partial))
+        _publish_output(partial, out)
         result = RunResult(str(out), "distributed", time.monotonic() - t0)
         for name in cmds:
             p = Path(stats_file(name))
@@ -166,16 +227,31 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     return result
 
 
-def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None) -> tuple[str, str] | None:
+#: exit code of a service stopped by the run's abort (``launcher.cli.EXIT_ABORTED``)
+_ABORTED = 4
+
+
+def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
+             blame_grace_s: float = 3.0) -> tuple[str, str] | None:
+    """Wait for every process; the first failure (not a mere abort) is named."""
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    aborted_at: float | None = None
     while True:
         running = 0
+        aborted = []
         for name, p in procs.items():
             rc = p.poll()
             if rc is None:
                 running += 1
+            elif rc == _ABORTED:
+                aborted.append(name)
             elif rc != 0:
-                return name, f"exited with code {rc}"
+                return name, f"exited with code {rc}" + (" (killed by signal %d)" % -rc if rc < 0 else "")
+        if aborted:
+            # stopped because another one failed: give the failing one time to show its exit code
+            aborted_at = aborted_at or time.monotonic()
+            if running == 0 or time.monotonic() - aborted_at > blame_grace_s:
+                return aborted[0], "stopped by an abort of the run (see its log for the service that died)"
         if running == 0:
             return None
         if deadline is not None and time.monotonic() > deadline:
@@ -205,55 +281,66 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                  services: list[str] | None = None, timeout_s: float | None = None,
                  progress: bool = True) -> RunResult:
     """Every service as a thread on one Zenoh session in this process."""
-    input_path, out = Path(input_path), Path(out)
+    input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
     plan = plan_run(config, input_path, services)
     t0 = time.monotonic()
+    # every node is built (and its configuration checked) before anything opens the output
+    nodes = {n: build_checked(n, config) for n in plan.services}
     session = open_local_session()
     bus = Bus(config.bus.namespace, session=session)
     errors: dict[str, BaseException] = {}
     results: dict[str, dict[str, Any]] = {}
-    recorder = Recorder(bus, out, expect=plan.expect, compression=config.recorder.compression,
-                        chunk_size=config.recorder.chunk_size,
-                        metadata=run_metadata(config, input_path, "embedded", plan.services))
-    runners = {n: NodeRunner(node_class(n, config)(config), bus, config.bus.heartbeat_interval_ms)
-               for n in plan.services}
-
-    def target(name: str, fn: Any) -> None:
-        try:
-            results[name] = fn().as_dict()
-        except BaseException as exc:  # reported below with the service's name
-            log.exception("service %s failed", name)
-            errors[name] = exc
-
-    player = Player(bus, input_path, rate=config.player.rate, keys=plan.player_keys,
-                    wait_for=["recorder", *plan.services], heartbeat_ms=config.bus.heartbeat_interval_ms,
-                    startup_timeout_s=config.bus.startup_timeout_s, progress=progress,
-                    flow_window_ms=config.bus.flow_window_ms)
-    workers = {"recorder": recorder.run, **{n: r.run for n, r in runners.items()}, "player": player.run}
-    threads = [threading.Thread(target=target, args=(n, fn), name=n, daemon=True) for n, fn in workers.items()]
-    for t in threads:
-        t.start()
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    threads: list[threading.Thread] = []
+    stoppable: list[Any] = []
     try:
+        runners = {n: NodeRunner(node, bus, config.bus.heartbeat_interval_ms) for n, node in nodes.items()}
+        stoppable.extend(runners.values())
+        player = Player(bus, input_path, rate=config.player.rate, keys=plan.player_keys,
+                        wait_for=["recorder", *plan.services], heartbeat_ms=config.bus.heartbeat_interval_ms,
+                        startup_timeout_s=config.bus.startup_timeout_s, progress=progress,
+                        flow_window_ms=config.bus.flow_window_ms)
+        stoppable.append(player)
+        recorder = Recorder(bus, partial, expect=plan.expect, compression=config.recorder.compression,
+                            chunk_size=config.recorder.chunk_size,
+                            metadata=run_metadata(config, input_path, "embedded", plan.services))
+        stoppable.append(recorder)
+
+        def target(name: str, fn: Any) -> None:
+            try:
+                results[name] = fn().as_dict()
+            except BaseException as exc:  # reported below with the service's name
+                log.exception("service %s failed", name)
+                errors[name] = exc
+
+        workers = {"recorder": recorder.run, **{n: r.run for n, r in runners.items()}, "player": player.run}
+        threads = [threading.Thread(target=target, args=(n, fn), name=f"poseidon-{n}", daemon=True)
+                   for n, fn in workers.items()]
+        for t in threads:
+            t.start()
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while any(t.is_alive() for t in threads) and not errors:
             if deadline is not None and time.monotonic() > deadline:
-                still = [t.name for t in threads if t.is_alive()]
+                still = [t.name.removeprefix("poseidon-") for t in threads if t.is_alive()]
                 errors[still[0]] = TimeoutError(f"did not finish within {timeout_s:.0f} s (still running: {still})")
                 break
             time.sleep(0.05)
+        for name, st in results.items():
+            if st.get("aborted") and not errors:
+                errors[name] = RuntimeError(f"aborted: {st['aborted']}")
     finally:
-        if errors:
-            for r in runners.values():
-                r.stop_event.set()
-            player.stop_event.set()
-            recorder.stop_event.set()
-            for t in threads:
-                t.join(timeout=10)
+        for obj in stoppable:
+            obj.stop_event.set()
+        for t in threads:
+            t.join(timeout=10)
+        still = [t.name for t in threads if t.is_alive()]
+        if still:
+            log.error("threads still running after the stop: %s", still)
         bus.close()
         session.close()
     if errors:
         name, exc = next(iter(errors.items()))
-        raise RunFailed(name, f"{type(exc).__name__}: {exc}")
+        raise RunFailed(name, f"{type(exc).__name__}: {exc}", str(partial))
+    _publish_output(partial, out)
     result = RunResult(str(out), "embedded", time.monotonic() - t0, services=results)
     result.recording = _summarise(out)
     return result

@@ -91,6 +91,10 @@ def detect_kind(columns: list[str] | set[str]) -> str | None:
     return None
 
 
+#: largest magnitude accepted for a float field of a sensor log (nan, inf and 1e308 are errors)
+MAX_ABS_VALUE = 1e9
+
+
 def _number(text: str, typ: type, path: Path, line: int, column: str) -> Any:
     try:
         if typ is int:
@@ -101,10 +105,14 @@ def _number(text: str, typ: type, path: Path, line: int, column: str) -> Any:
                 if not v.is_integer():
                     raise
                 return int(v)
-        return float(text)
+        v = float(text)
     except ValueError:
         raise InputFormatError(f"{path}: line {line}, column {column!r}: "
                                f"malformed number {text!r} (expected {typ.__name__})") from None
+    if not abs(v) <= MAX_ABS_VALUE:  # nan, inf, 1e308: no sensor reports these
+        raise InputFormatError(f"{path}: line {line}, column {column!r}: value {text!r} is not a finite "
+                               f"number of magnitude <= {MAX_ABS_VALUE:g}")
+    return v
 
 
 def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[str, Message]]:

@@ -58,14 +58,15 @@ class EncoderNode(ServiceNode):
     """Thin transport wrapper around :class:`MultimodalEncoder` and :class:`SonarRaster`."""
 
     name = "encoder"
-    inputs = ("camera/image_raw", "sonar_micron")
     outputs = (OUT,)
+
+    @classmethod
+    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return ("camera/image_raw", config.encoder.sonar_topic), (OUT,)
 
     def __init__(self, config: PoseidonConfig, encoder: MultimodalEncoder | None = None):
         super().__init__(config)
         cfg = config.encoder
-        # instance attribute: the sonar key comes from the configuration
-        self.inputs = ("camera/image_raw", cfg.sonar_topic)
         self.sonar_key = cfg.sonar_topic
         self.encoder = encoder if encoder is not None else MultimodalEncoder(cfg)
         self.raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax,

@@ -90,7 +90,6 @@ class ExpMapNode(ServiceNode):
     def __init__(self, config: PoseidonConfig):
         super().__init__(config)
         self.cfg = cfg = config.expmap
-        self.inputs, _ = self.io_keys(config)
         self.image_key = cfg.image_topic
         self.slop_ns = int(round(min(config.sync.sync_stale_sec, cfg.image_sync_slop) * 1e9))
         shape, spacing = config.posecells.number_of_neurons, config.posecells.distance_between_neurons

@@ -12,6 +12,10 @@
   end-of-stream at once, so services waiting on them (e.g. an absent IMU) are not blocked.
 - In its own process (``drain_timeout_s`` > 0) it stays until its consumers have left
   (:meth:`common.bus.Bus.drain`): closing earlier would discard frames still queued.
+- Fail fast: a ``wait_for`` service whose liveliness token disappears before it reported
+  progress ``END_OF_TIME`` has died; the player then publishes ``@abort`` naming it (so the
+  other services and the recorder stop instead of waiting forever) and stops.  An abort
+  published by anyone else stops it too.  ``PlayerStats.aborted`` says why.
 """
 from __future__ import annotations
 
@@ -27,6 +31,7 @@ from tqdm import tqdm
 
 from common.bus import Bus
 from common.mcap_io import read_messages, recording_keys, recording_message_count
+from common.ordering import END_OF_TIME
 
 __all__ = ["Player", "PlayerStats", "SOURCE_KEYS"]
 
@@ -44,10 +49,11 @@ class PlayerStats:
     published: dict[str, int] = field(default_factory=dict)
     wall_s: float = 0.0
     event_s: float = 0.0
+    aborted: str = ""
 
     def as_dict(self) -> dict:
         return {"service": "player", "published": self.published, "wall_s": round(self.wall_s, 3),
-                "event_s": round(self.event_s, 3),
+                "event_s": round(self.event_s, 3), "aborted": self.aborted,
                 "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
 
 
@@ -74,6 +80,35 @@ class Player:
         self.flow_window_ns = flow_window_ms * 1_000_000
         self.stop_event = threading.Event()
         self.stats = PlayerStats()
+        self._alive = None
+        self._watcher = None
+        self._left_since: dict[str, float] = {}
+        self._next_check = 0.0
+        bus.on_abort(self._on_abort)
+
+    def _on_abort(self, reason: str) -> None:
+        if not self.stats.aborted:
+            log.error("player: run aborted: %s", reason)
+            self.stats.aborted = reason or "aborted"
+        self.stop_event.set()
+
+    def _check_consumers(self, grace_s: float = 1.0) -> None:
+        """Abort the run if a consumer left the bus without finishing (it died)."""
+        now = time.monotonic()
+        if self._alive is None or now < self._next_check or self.stop_event.is_set():
+            return
+        self._next_check = now + 0.1
+        for name in self._alive.left():
+            if name not in self.wait_for or self._watcher.get(name) == END_OF_TIME:
+                continue
+            first = self._left_since.setdefault(name, now)
+            if now - first >= grace_s:  # its last progress report may still be on the way
+                reason = f"service {name} left the bus before the end of its inputs (it died or was stopped)"
+                log.error("player: %s; aborting the run", reason)
+                self.stats.aborted = reason
+                self.bus.abort(reason)
+                self.stop_event.set()
+                return
 
     def _wait_for_consumers(self, watcher: Any, stamp: int, first: int, pubs: dict[str, Any]) -> None:
         """Flow control: hold ``stamp`` until the slowest consumer is within the window."""
@@ -81,6 +116,7 @@ class Player:
         while not self.stop_event.is_set():
             if stamp <= watcher.slowest(self.wait_for, default=first) + self.flow_window_ns:
                 return
+            self._check_consumers()
             if not promised:  # consumers may be waiting for time to pass (a gap in the recording)
                 for pub in pubs.values():
                     pub.send_watermark(stamp)
@@ -92,7 +128,9 @@ class Player:
         watcher = self.bus.watch_progress() if self.wait_for else None
         if self.wait_for:
             log.info("player: waiting for %s", ", ".join(self.wait_for))
+            self._alive = self.bus.watch_alive()
             self.bus.wait_alive(self.wait_for, self.startup_timeout_s)
+            self._watcher = watcher
         for k in self.absent:
             pubs[k].send_eos()
         total = recording_message_count(self.path, self.keys)
@@ -115,7 +153,10 @@ class Player:
                     if delay > 0:
                         time.sleep(delay)
                 if watcher is not None:
+                    self._check_consumers()
                     self._wait_for_consumers(watcher, rec.stamp, t_event0, pubs)
+                    if self.stop_event.is_set():
+                        break
                 if rec.stamp - last_hb >= self.heartbeat_ns:
                     for pub in pubs.values():
                         pub.send_watermark(rec.stamp)
@@ -127,10 +168,18 @@ class Player:
                 bar.update(1)
         finally:
             bar.close()
-            for k in self.keys:
-                pubs[k].send_eos()
-        if self.drain_timeout_s > 0:
-            self.bus.drain(pubs.values(), self.drain_timeout_s)
+            if not self.stop_event.is_set():
+                for k in self.keys:
+                    pubs[k].send_eos()
+            elif not self.stats.aborted:  # stopped early: the streams are incomplete, no end-of-stream
+                self.stats.aborted = "player stopped before the end of the recording"
+                self.bus.abort(self.stats.aborted)
+        if self.drain_timeout_s > 0 and not self.stop_event.is_set():
+            deadline = time.monotonic() + self.drain_timeout_s
+            while not self.stop_event.is_set() and time.monotonic() < deadline:
+                if self.bus.drain(pubs.values(), 0.2, warn=False):
+                    break
+                self._check_consumers()
         self.stats.wall_s = time.monotonic() - t_wall0
         self.stats.event_s = (last_stamp - t_event0) / 1e9 if t_event0 is not None else 0.0
         return self.stats

@@ -9,7 +9,12 @@ a recorder killed with SIGKILL leaves every complete chunk readable
 
 The recorder stops when end-of-stream has arrived on every key in ``expect`` (the
 launcher passes the player's keys and every service output), or when stopped.
-Data frames it cannot read (no header) are logged with their key, counted and skipped.
+Frames it cannot read (malformed, unknown type, no readable header, a key already
+carrying another type) are logged with their key, counted and skipped: nothing a publisher
+sends can stop the recorder.  An ``@abort`` on the bus (a service died, see
+:mod:`common.bus`) stops it after writing what has arrived; the file is then closed with
+its summary and ``RecorderStats.aborted`` says why.  On a normal end it reports progress
+``END_OF_TIME`` so the player knows it finished.
 """
 from __future__ import annotations
 
@@ -24,6 +29,7 @@ from typing import Any, Iterable
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
 from common.mcap_io import RecordingWriter
+from common.ordering import END_OF_TIME
 
 __all__ = ["Recorder", "RecorderStats"]
 
@@ -36,10 +42,11 @@ class RecorderStats:
     invalid: dict[str, int] = field(default_factory=dict)
     ended: list[str] = field(default_factory=list)
     path: str = ""
+    aborted: str = ""
 
     def as_dict(self) -> dict:
         return {"service": "recorder", "path": self.path, "recorded": self.recorded, "invalid": self.invalid,
-                "ended": sorted(self.ended)}
+                "ended": sorted(self.ended), "aborted": self.aborted}
 
 
 class Recorder:
@@ -59,6 +66,13 @@ class Recorder:
         self.stop_event = threading.Event()
         self.stats = RecorderStats(path=str(self.out))
         bus.subscribe("**", self.queue)
+        bus.on_abort(self._on_abort)
+
+    def _on_abort(self, reason: str) -> None:
+        if not self.stats.aborted:
+            log.error("recorder: run aborted: %s", reason)
+        self.stats.aborted = reason or "aborted"
+        self.stop_event.set()
 
     def _done(self) -> bool:
         return self.expect is not None and self.expect <= set(self.stats.ended)
@@ -84,6 +98,8 @@ class Recorder:
                     last_flush = time.monotonic()
         finally:
             self.writer.close()
+        if self._done():
+            self.progress.report(END_OF_TIME, force=True)  # finished normally (see common.bus)
         return self.stats
 
     def _handle(self, key: str, data: bytes) -> None:
@@ -100,12 +116,16 @@ class Recorder:
             self._seen = max(self._seen, frame.stamp)
             return
         try:
-            header = decode_dict(frame.payload)["header"]
-            stamp, seq = int(header["stamp"]), int(header["seq"])
+            header = decode_dict(frame.payload).get("header")
+            if not isinstance(header, dict):
+                raise DecodeError("no header")
+            stamp, seq = header.get("stamp"), header.get("seq")
+            if not (isinstance(stamp, int) and 0 <= stamp <= END_OF_TIME and isinstance(seq, int) and seq >= 0):
+                raise DecodeError(f"header stamp {stamp!r} / seq {seq!r} are not non-negative int64")
             self.writer.write_encoded(key, frame.type_name, frame.payload, stamp, seq)
-        except (DecodeError, KeyError, TypeError, ValueError) as exc:
+        except (DecodeError, ValueError) as exc:
             self.stats.invalid[key] = self.stats.invalid.get(key, 0) + 1
-            log.error("recorder: message on %s without a readable header skipped: %s", key, exc)
+            log.error("recorder: message on %s skipped: %s", key, exc)
             return
         self.stats.recorded[key] = self.stats.recorded.get(key, 0) + 1
         self._seen = max(self._seen, stamp)

@@ -78,12 +78,17 @@ class RobotStateNode(ServiceNode):
     inputs = ("imu_adis_ros", "dvl_linkquest", "depth_sensor", "odometry")
     outputs = ("Odometry", "ground_truth")
 
+    @classmethod
+    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """Inputs under ``config``: the configured IMU key (none with ``use_imu`` false) first."""
+        cfg = config.robot_state
+        imu = (cfg.imu_topic,) if cfg.use_imu else ()
+        return imu + ("dvl_linkquest", "depth_sensor", "odometry"), cls.outputs
+
     def __init__(self, config: PoseidonConfig):
         super().__init__(config)
         cfg = config.robot_state
         self.cfg = cfg
-        imu = (cfg.imu_topic,) if cfg.use_imu else ()
-        self.inputs = imu + ("dvl_linkquest", "depth_sensor", "odometry")
         self.imu_key = cfg.imu_topic
         self.frame = OutputFrame(cfg.axis_remap, cfg.axis_sign_z)
         self.filter = DeadReckoningFilter(cfg)

@@ -161,7 +161,7 @@ def test_image_to_rgb_encodings():
                               data=np.full((2, 3), 65535, dtype=np.uint16)))
     assert mono.shape == (2, 3, 3) and mono.dtype == np.float32 and np.all(mono == 1.0)
     with pytest.raises(ValueError, match="Image seq 0: data shape"):
-        image_to_rgb(Image(header=h, height=3, width=3, encoding="rgb8", data=rgb))
+        image_to_rgb(Image.model_construct(header=h, height=3, width=3, encoding="rgb8", data=rgb))
 
 
 def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config, encoder, caplog):

@@ -33,3 +33,39 @@ class Boom(ServiceNode):
         if msg.header.seq == 50:
             raise RuntimeError("deliberate failure at seq 50")
         self.publish("boom/depth", Depth(header=self.header("boom/depth", msg.header.stamp), depth=msg.depth))
+
+
+class ImageRows(ServiceNode):
+    """Trusts the Image header: reshapes data to (height, width, 3) and publishes its mean as a depth."""
+
+    name = "image_rows"
+    inputs = ("camera/image_raw",)
+    outputs = ("image_rows/mean",)
+
+    def process(self, key, msg):
+        rows = msg.data.reshape(msg.height, msg.width, 3)
+        self.publish("image_rows/mean", Depth(header=self.header("image_rows/mean", msg.header.stamp),
+                                              depth=float(rows.mean())))
+
+
+class Stall(ServiceNode):
+    """Takes 0.2 s per depth message: a run with it outlives a short --timeout."""
+
+    name = "stall"
+    inputs = ("depth_sensor",)
+    outputs = ()
+
+    def process(self, key, msg):
+        time.sleep(0.2)
+
+
+class CannotStart(ServiceNode):
+    """Its constructor rejects the configuration."""
+
+    name = "cannot_start"
+    inputs = ("depth_sensor",)
+    outputs = ()
+
+    def __init__(self, config):
+        super().__init__(config)
+        raise ValueError("cannot_start: refuses every configuration")

@@ -70,3 +70,33 @@ def six_stream_recording(path: Path, n_messages: int, image_every: int = 25, see
                 count += 1
             i += 1
     return seqs
+
+
+def inconsistent_image(header: Header, height: int = 4000, width: int = 4000) -> Image:
+    """An Image whose header contradicts its data (2x2x3 bytes): built without validation,
+    as a hostile or buggy publisher would send it."""
+    return Image.model_construct(header=header, height=height, width=width, encoding="rgb8",
+                                 data=np.zeros((2, 2, 3), np.uint8))
+
+
+def with_inconsistent_image(src: Path, dst: Path, index: int = 3) -> int:
+    """Copy ``src`` to ``dst`` replacing the ``index``-th camera frame by :func:`inconsistent_image`
+    (same header).  Returns the seq of the replaced frame."""
+    from common.codec import encode
+    from common.mcap_io import read_messages
+
+    seen = 0
+    bad_seq = -1
+    with RecordingWriter(dst) as w:
+        for r in read_messages(src):
+            if r.key == "camera/image_raw":
+                if seen == index:
+                    msg = r.message()
+                    bad = inconsistent_image(msg.header)
+                    w.write_encoded(r.key, r.type_name, encode(bad), r.stamp, r.seq)
+                    bad_seq = msg.header.seq
+                    seen += 1
+                    continue
+                seen += 1
+            w.write_encoded(r.key, r.type_name, r.payload, r.stamp, r.seq)
+    return bad_seq

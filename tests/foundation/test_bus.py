@@ -132,7 +132,9 @@ def test_failing_service_is_named_and_recording_kept(tmp_path):
     assert proc.returncode == 3, proc.stderr
     assert "service 'boom' failed" in proc.stderr
     assert "deliberate failure at seq 50" in proc.stderr
-    assert out.exists() and len(list(read_messages(out))) > 0
+    partial = tmp_path / "fail.partial.mcap"
+    assert not out.exists() and len(list(read_messages(partial))) > 0
+    assert str(partial) in proc.stderr
 
 
 def test_failing_service_embedded_raises_with_its_name(tmp_path):

@@ -76,3 +76,14 @@ def test_undetectable_kind_and_empty(tmp_path):
     e.write_text("")
     with pytest.raises(InputFormatError, match="empty file"):
         read_rostopic_csv(e)
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "-inf", "1e308"])
+def test_non_finite_or_absurd_values_are_rejected_naming_line_and_column(tmp_path, bad):
+    """Issue 11 case 7: nan/inf/1e308 in a rostopic CSV are an error, never imported silently."""
+    p = tmp_path / "depth_sensor.csv"
+    p.write_text("%time,field.header.seq,field.header.stamp,field.header.frame_id,field.depth\n"
+                 "1372687208633787539,0,1372687208633787539,depth,1.5\n"
+                 f"1372687208733787539,1,1372687208733787539,depth,{bad}\n")
+    with pytest.raises(InputFormatError, match=rf"depth_sensor.csv: line 3, column 'field.depth': value '{bad}'"):
+        read_rostopic_csv(p)

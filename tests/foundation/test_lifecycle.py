@@ -1,0 +1,158 @@
+"""Issue 11, cases 6-7: children die with the launcher; a killed recorder's file is recovered
+into one the standard MCAP reader opens; `info` fails on files that are not recordings; one
+declaration of each service's keys."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from common.bus import Bus, open_hub
+from common.config import load_config
+from common.mcap_io import read_messages
+from common.node import ServiceNode
+from launcher.run import node_io, plan_run
+from services.player.player import Player
+from tests.conftest import REPO
+from tests.foundation.recordings import six_stream_recording
+
+pytestmark = pytest.mark.timeout(180)
+CLI = [sys.executable, "-m", "launcher.cli"]
+
+
+def _free_endpoint():
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def _standard_reader_count(path: Path) -> int:
+    with open(path, "rb") as f:
+        return sum(1 for _ in make_reader(f).iter_messages())
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        text = (task / "children").read_text().split()
+        out += [int(c) for c in text]
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state not in ("Z", "X")
+
+
+def test_children_die_with_a_launcher_killed_by_sigkill(tmp_path):
+    src = tmp_path / "in.mcap"
+    six_stream_recording(src, 3000, image_every=10)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text('{"service_classes": {"stall": "tests.foundation.nodes:Stall"}}')
+    out = tmp_path / "run.mcap"
+    launcher = subprocess.Popen(CLI + ["run", "--input", str(src), "--out", str(out), "--config", str(cfg),
+                                       "--services", "stall", "--json"], cwd=REPO, stdout=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        kids: list[int] = []
+        while time.monotonic() < deadline and len(kids) < 3:  # recorder, stall, player
+            time.sleep(0.3)
+            kids = _children(launcher.pid)
+        assert len(kids) == 3, kids
+        time.sleep(3.0)  # the run is under way (stall takes 0.2 s per depth message)
+        launcher.send_signal(signal.SIGKILL)
+        launcher.wait(timeout=10)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_running(k) for k in kids):
+            time.sleep(0.2)
+        assert not [k for k in kids if _running(k)], "orphans left running"
+    finally:
+        for k in kids:
+            if _running(k):
+                os.kill(k, signal.SIGKILL)
+    # the recorder was stopped by SIGTERM: its partial file is a complete MCAP, nothing lost
+    partial = tmp_path / "run.partial.mcap"
+    assert not out.exists()
+    assert _standard_reader_count(partial) > 0
+
+
+def test_recorder_killed_with_sigkill_is_recovered_for_the_standard_reader(tmp_path):
+    src = tmp_path / "imgs.mcap"
+    six_stream_recording(src, 1500, image_every=2)
+    endpoint = _free_endpoint()
+    hub = open_hub(endpoint)
+    killed = tmp_path / "killed.mcap"
+    rec = subprocess.Popen(CLI + ["service", "recorder", "--connect", endpoint, "--out", str(killed),
+                                  "--set", "recorder.chunk_size=262144"], cwd=REPO)
+    bus = Bus(connect=[endpoint])
+    try:
+        Player(bus, src, wait_for=["recorder"], progress=False, startup_timeout_s=30).run()
+        time.sleep(2.0)  # > the recorder's flush interval
+        rec.send_signal(signal.SIGKILL)
+        rec.wait(timeout=10)
+    finally:
+        bus.close()
+        hub.close()
+    with pytest.raises(Exception):  # no summary: the standard reader cannot open it as it is
+        _standard_reader_count(killed)
+    info = subprocess.run(CLI + ["info", str(killed)], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert info.returncode == 1 and "--recover" in info.stderr
+    fixed = tmp_path / "fixed.mcap"
+    info = subprocess.run(CLI + ["info", str(killed), "--recover", str(fixed)], cwd=REPO, capture_output=True,
+                          text=True, timeout=60)
+    assert info.returncode == 0, info.stderr
+    intact = list(read_messages(killed))
+    assert _standard_reader_count(fixed) == len(intact) >= 1500 * 0.9
+    assert [r.payload for r in read_messages(fixed, strict=True)] == [r.payload for r in intact]
+    assert subprocess.run(CLI + ["info", str(fixed)], cwd=REPO, capture_output=True, timeout=60).returncode == 0
+
+
+@pytest.mark.parametrize("content", [b"", b"\x89MCAP0\r\n", bytes(range(256)) * 20])
+def test_info_and_deadreckon_fail_on_files_that_are_not_recordings(tmp_path, content):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(content)
+    for cmd in (["info", str(bad)], ["info", str(bad), "--json"], ["deadreckon", str(bad), "--json"]):
+        proc = subprocess.run(CLI + cmd, cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, (cmd, proc.stdout, proc.stderr)
+        assert "bad.mcap: not an MCAP recording" in proc.stderr
+
+
+class _Configured(ServiceNode):
+    name = "configured"
+    outputs = ("configured/out",)
+
+    @classmethod
+    def io_keys(cls, config):
+        return (config.encoder.sonar_topic, "depth_sensor"), cls.outputs
+
+    def process(self, key, msg):
+        pass
+
+
+def test_one_declaration_of_keys_used_by_node_and_launcher(tmp_path):
+    cfg = load_config(overrides=["encoder.sonar_topic=sonar_seaking"])
+    assert node_io("encoder", cfg) == (("camera/image_raw", "sonar_seaking"), ("neocortex/sdr",))
+    node = _Configured(cfg)
+    assert (node.inputs, node.outputs) == _Configured.io_keys(cfg) == (("sonar_seaking", "depth_sensor"),
+                                                                        ("configured/out",))
+    # the launcher wires the configured key: a recording with sonar_seaking only plans without error
+    from common.mcap_io import RecordingWriter
+    from common.messages import Header, Image, RangeImageBeam
+    import numpy as np
+    rec = tmp_path / "seaking.mcap"
+    with RecordingWriter(rec) as w:
+        w.write("camera/image_raw", Image(header=Header(seq=0, stamp=1), height=1, width=1, encoding="mono8",
+                                          data=np.zeros((1, 1), np.uint8)))
+        w.write("sonar_seaking", RangeImageBeam(header=Header(seq=0, stamp=2), angle_grad=0, angle_rad=0, nbins=2,
+                                                max_range=10, beam_data=np.zeros(2, np.int32)))
+    plan = plan_run(cfg, rec, services=["encoder"])
+    assert plan.io["encoder"][0] == ("camera/image_raw", "sonar_seaking")
+    assert "sonar_seaking" in plan.player_keys

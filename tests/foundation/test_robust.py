@@ -1,0 +1,187 @@
+"""Issue 11, cases 1-2: no input can kill a service; contradictory messages are rejected at
+validation; a service that fails ends the run quickly, even without the launcher."""
+import json
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from common.bus import Bus, open_hub, open_local_session
+from common.codec import DecodeError, decode, decode_frame, encode, encode_frame, encode_watermark
+from common.config import PoseidonConfig
+from common.messages import (Depth, Header, Image, LaserScan, NeocortexSdr, RangeImageBeam, RevisitTruth, Sdr)
+from common.mcap_io import read_messages
+from common.runtime import NodeRunner
+from launcher.run import run_embedded
+from services.recorder.recorder import Recorder
+from tests.conftest import REPO
+from tests.foundation.nodes import SlowEcho
+from tests.foundation.recordings import inconsistent_image, six_stream_recording, with_inconsistent_image
+
+pytestmark = pytest.mark.timeout(120)
+
+H = Header(seq=0, stamp=10)
+#: frames a hostile or broken publisher may put on a key (the issue's b"D", b"D\x04\xff...")
+HOSTILE = [b"D", b"D\x04\xff\xfe\xfd\xfc", b"D\x04\xff", b"D\x20poseidon_msgs/Image", b"D\x13poseidon_msgs/Image",
+           b"D\x13poseidon_msgs/Imagex\xc1", b"D\x0bnot/a/type!\x80", b"W", b"W\x01\x02", b"W" + b"\xff" * 8,
+           b"E\x00", b"", b"\x00", b"Z" * 50]
+
+
+@pytest.mark.parametrize("frame", HOSTILE)
+def test_malformed_frames_raise_only_decode_error(frame):
+    with pytest.raises(DecodeError):
+        f = decode_frame(frame)
+        f.message()
+
+
+def test_contradictory_messages_are_rejected_at_validation():
+    def bad(fn, match):
+        with pytest.raises(ValueError, match=match):
+            fn()
+    bad(lambda: Image(header=H, height=4000, width=4000, data=np.zeros((2, 2, 3), np.uint8)), "contradicts height")
+    bad(lambda: Image(header=H, height=2, width=2, encoding="mono8", data=np.zeros((2, 2, 3), np.uint8)), "channels")
+    bad(lambda: Image(header=H, height=2, width=2, data=np.zeros((2, 2, 3), np.float64)), "dtype")
+    bad(lambda: Image(header=H, height=2, width=2, encoding="mono16", data=np.zeros((2, 2), np.uint8)), "dtype")
+    bad(lambda: RangeImageBeam(header=H, angle_grad=0, angle_rad=0, nbins=50, max_range=20,
+                               beam_data=np.zeros(3, np.int32)), "nbins 50")
+    bad(lambda: LaserScan(header=H, angle_min=0, angle_max=0, angle_increment=0.1, range_min=0, range_max=5,
+                          ranges=np.zeros(10, np.float32), intensities=np.zeros(7, np.float32)), "7 intensities")
+    bad(lambda: Sdr(header=H, modality="camera", size=16, active=np.array([1, 16], np.uint32)), "outside")
+    bad(lambda: Sdr(header=H, modality="camera", size=16, active=np.array([5, 3], np.uint32)), "sorted")
+    bad(lambda: Sdr(header=H, modality="camera", size=16, active=np.array([3, 3], np.uint32)), "sorted")
+    bad(lambda: Sdr(header=H, modality="camera", size=16, active=np.array([0.5], np.float32)), "integers")
+    sdr = Sdr(header=H, modality="camera", size=16, active=np.array([1], np.uint32))
+    bad(lambda: NeocortexSdr(header=H, modalities=[sdr], fused=sdr.model_copy(update={"size": 32}),
+                             fusion_mode="union"), "differ")
+    bad(lambda: RevisitTruth(header=H, frame_index=3, same_place=np.array([5], np.int32)), "earlier")
+    bad(lambda: RangeImageBeam(header=H, angle_grad=0, angle_rad=0, nbins=1, max_range=20,
+                               beam_data=np.array(["x"])), "not numeric")
+    # the wire form of the issue's image: a DecodeError naming the field, never a crash in a service
+    with pytest.raises(DecodeError, match="Image: field"):
+        decode(encode(inconsistent_image(H)), Image)
+    # consistent messages still pass
+    Image(header=H, height=2, width=3, encoding="mono8", data=np.zeros((2, 3), np.uint8))
+    Image(header=H, height=2, width=3, encoding="mono16", data=np.zeros((2, 3, 1), np.uint16))
+    Image(header=H, height=2, width=3, encoding="bgra8", data=np.zeros((2, 3, 4), np.uint8))
+
+
+def _local_runner(node):
+    session = open_local_session()
+    bus = Bus(session=session)
+    runner = NodeRunner(node, bus)
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", runner.run()))
+    t.start()
+    bus.wait_alive([node.name], 10)
+    return session, bus, t, result
+
+
+def test_runner_counts_and_logs_every_hostile_frame_and_keeps_going(caplog):
+    session, bus, t, result = _local_runner(SlowEcho(PoseidonConfig()))
+    depth, camera = bus.publisher("depth_sensor"), bus.publisher("camera/image_raw")
+    depth.send(Depth(header=Header(seq=0, stamp=10), depth=1.0))
+    for frame in HOSTILE:
+        camera.send_raw(frame)
+        depth.send_raw(frame)
+    camera.send_raw(encode_frame(inconsistent_image(Header(seq=7, stamp=11))))
+    depth.send(Depth(header=Header(seq=1, stamp=5), depth=9.0))  # older than its own stream: late
+    depth.send(Depth(header=Header(seq=2, stamp=20), depth=2.0))
+    camera.send_eos()
+    camera.send(Image(header=Header(seq=8, stamp=30), height=1, width=1, encoding="mono8",
+                      data=np.zeros((1, 1), np.uint8)))  # after its end-of-stream
+    time.sleep(0.5)  # two publishers: let the camera frames arrive before the last end-of-stream
+    depth.send_eos()
+    t.join(timeout=30)
+    bus.close()
+    session.close()
+    stats = result["stats"]
+    assert not t.is_alive()
+    assert stats.published == {"echo/depth": 2}
+    assert stats.invalid == {"camera/image_raw": len(HOSTILE) + 2, "depth_sensor": len(HOSTILE) + 1}
+    # one hostile frame is well framed with a payload that is not msgpack: an invalid message
+    assert stats.rejected == {"bad_frame": 2 * (len(HOSTILE) - 1), "invalid_message": 3, "late": 1,
+                              "after_end_of_stream": 1}
+    text = " ".join(r.getMessage() for r in caplog.records)
+    assert "invalid message on camera/image_raw seq 7 skipped: poseidon_msgs/Image: field" in text
+    assert "late message on depth_sensor seq 1" in text
+    assert "camera/image_raw seq 8 after its end-of-stream" in text
+
+
+def test_recorder_survives_hostile_frames(tmp_path):
+    session = open_local_session()
+    bus = Bus(session=session)
+    rec = Recorder(bus, tmp_path / "r.mcap", expect=["depth_sensor"])
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", rec.run()))
+    t.start()
+    bus.wait_alive(["recorder"], 10)
+    pub = bus.publisher("depth_sensor")
+    other = bus.publisher("camera/image_raw")
+    for frame in HOSTILE + [encode_frame(Depth(header=Header(seq=0, stamp=10), depth=1.0))]:
+        pub.send_raw(frame)
+    name = b"poseidon_msgs/Depth"
+    for payload in (b"\x81\xa6header\x81\xa5stamp\xff", b"\x81\xa6header\x82\xa5stamp\xcf" + b"\xff" * 8 + b"\xa3seq\x00",
+                    b"\x80", b"\xc1"):
+        pub.send_raw(b"D" + bytes([len(name)]) + name + payload)
+    other.send(Depth(header=Header(seq=0, stamp=12), depth=1.0))
+    other.send_raw(encode_frame(inconsistent_image(Header(seq=1, stamp=13))))  # another type on the same key
+    pub.send_eos()
+    t.join(timeout=30)
+    bus.close()
+    session.close()
+    stats = result["stats"]
+    assert stats.recorded == {"depth_sensor": 1, "camera/image_raw": 1}
+    assert stats.invalid == {"depth_sensor": len(HOSTILE) + 4, "camera/image_raw": 1}
+    assert len(list(read_messages(tmp_path / "r.mcap", strict=True))) == 2
+
+
+def test_inconsistent_image_is_skipped_and_the_run_completes(tmp_path):
+    src, bad = tmp_path / "six.mcap", tmp_path / "bad.mcap"
+    counts = six_stream_recording(src, 600, image_every=10)
+    bad_seq = with_inconsistent_image(src, bad)
+    cfg = PoseidonConfig(service_classes={"image_rows": "tests.foundation.nodes:ImageRows"})
+    result = run_embedded(cfg, bad, tmp_path / "out.mcap", services=["image_rows"], progress=False, timeout_s=60)
+    st = result.services["image_rows"]
+    assert st["invalid"] == {"camera/image_raw": 1} and st["rejected"] == {"invalid_message": 1}
+    assert result.recording["counts"]["image_rows/mean"] == counts["camera/image_raw"] - 1
+    assert result.recording["counts"]["camera/image_raw"] == counts["camera/image_raw"]  # the audit keeps it
+    assert bad_seq == 3
+
+
+def test_a_dying_service_aborts_a_run_without_launcher(tmp_path):
+    """hub + recorder + a failing service + player as separate `poseidon service` processes:
+    the failure ends every process within seconds (exit 4: aborted) and the recording is whole."""
+    import socket
+    src = tmp_path / "small.mcap"
+    counts = six_stream_recording(src, 1500, image_every=10)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(json.dumps({"service_classes": {"boom": "tests.foundation.nodes:Boom"}}))
+    py = [sys.executable, "-m", "launcher.cli", "service"]
+    common = ["--connect", endpoint, "--config", str(cfg)]
+    out = tmp_path / "rec.mcap"
+    hub = open_hub(endpoint)
+    procs = {}
+    try:
+        procs["recorder"] = subprocess.Popen(py + ["recorder", *common, "--out", str(out), "--expect",
+                                                   ",".join(sorted(counts) + ["boom/depth"])], cwd=REPO)
+        procs["boom"] = subprocess.Popen(py + ["boom", *common], cwd=REPO)
+        procs["player"] = subprocess.Popen(py + ["player", *common, "--input", str(src), "--wait-for",
+                                                 "recorder,boom", "--no-progress"], cwd=REPO)
+        t0 = time.monotonic()
+        rcs = {n: p.wait(timeout=60) for n, p in procs.items()}
+        elapsed = time.monotonic() - t0
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+        hub.close()
+    assert rcs == {"recorder": 4, "boom": 1, "player": 4}, rcs
+    assert elapsed < 45
+    got = list(read_messages(out, strict=True))  # closed with its summary
+    assert 0 < len(got) < sum(counts.values())
