@@ -6,8 +6,9 @@ Subcommands:
   [--services a,b] [--rate R] [--timeout S] [--json]``: replay a recording through every
   built service and record the run (:mod:`launcher.run`).  Exit code 0 on success, 2 on
   bad configuration/input, 3 when a service failed (its name is printed).
-- ``demo [--minutes M] [--seed S] [--out DIR] [--embedded] [--json]``: the main job on a
-  fresh machine: simulate a short cave mission and run it through every service.
+- ``demo [--seed S] [--out DIR] [--baselines] [--embedded] [--timeout S] [--json]``: the main
+  job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
+  every service with the VPR Guard ON and OFF, a summary with the method's checks, an HTML report.
 - ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
   algorithm service) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
@@ -133,32 +134,18 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from common.config import ConfigError
-    from launcher.run import RunFailed, run_distributed, run_embedded
-    out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    mission = out_dir / f"cave_{args.minutes:g}min_seed{args.seed}.mcap"
-    sim = _delegate("sim")
-    argv = ["--minutes", str(args.minutes), "--seed", str(args.seed), "--out", str(mission)]
-    print(f"[1/2] simulating a {args.minutes:g}-minute cave mission -> {mission}", file=sys.stderr)
-    rc = sim(argv)
-    if rc != 0:
-        print(f"poseidon demo: simulation failed (exit {rc})", file=sys.stderr)
-        return rc
-    print("[2/2] running every service on it", file=sys.stderr)
+    from launcher.demo import run_demo
+    from launcher.run import RunFailed
     try:
         config = _load_config(args)
-        runner = run_embedded if args.embedded else run_distributed
-        result = runner(config, mission, out_dir / "run.mcap", timeout_s=args.timeout, progress=not args.json)
+        return run_demo(config, Path(args.out), seed=args.seed, baselines=args.baselines, embedded=args.embedded,
+                        timeout_s=args.timeout, as_json=args.json)
     except ConfigError as exc:
         print(f"poseidon demo: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
         print(f"poseidon demo: {exc}; what was recorded so far is in {exc.partial}", file=sys.stderr)
         return 3
-    d = result.as_dict()
-    d["mission"] = str(mission)
-    _print_run(d, args.json, config)
-    return 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -310,14 +297,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("demo", help="simulate a short cave mission and run every service on it")
-    p.add_argument("--minutes", type=float, default=6.0,
-                   help="mission length (min); the first revisit of a place comes after about 4 min")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--out", default="runs/demo", help="output folder")
-    p.add_argument("--embedded", action="store_true")
-    p.add_argument("--timeout", type=float, help="fail if the run takes longer (s)")
-    p.add_argument("--json", action="store_true")
+    p = sub.add_parser("demo", help="simulate and transform a cave mission, run it with the VPR Guard ON and OFF, "
+                       "write the report")
+    from launcher.demo import add_arguments as demo_arguments
+    demo_arguments(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_demo)
 
