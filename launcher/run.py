@@ -207,6 +207,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
                                  "--stats", stats_file("player")] + ([] if progress else ["--no-progress"])
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
+        env.setdefault("PYTHONFAULTHANDLER", "1")  # a service killed by a fatal signal prints where it was
         try:
             for name, cmd in cmds.items():
                 procs[name] = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_launcher(os.getpid()))

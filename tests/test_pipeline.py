@@ -9,7 +9,8 @@ from tests.foundation.recordings import payloads_by_key
 
 pytestmark = pytest.mark.timeout(600)
 
-OUTPUT_KEYS = ("neocortex/sdr", "local_view_cells", "Odometry", "ground_truth")
+OUTPUT_KEYS = ("neocortex/sdr", "local_view_cells", "Odometry", "ground_truth", "experience_event", "map",
+               "experience_image", "dead_reckoning")
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +22,7 @@ def mission(tmp_path_factory):
 
 def test_every_service_runs_and_modes_agree_byte_for_byte(mission, tmp_path):
     cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"])
-    assert {"encoder", "htm", "robot_state"} <= set(available_services())
+    assert {"encoder", "htm", "robot_state", "posecells", "expmap"} <= set(available_services())
     a = run_distributed(cfg, mission, tmp_path / "dist.mcap", progress=False, timeout_s=400)
     b = run_embedded(cfg, mission, tmp_path / "emb.mcap", progress=False, timeout_s=400)
     counts = a.recording["counts"]
@@ -30,6 +31,9 @@ def test_every_service_runs_and_modes_agree_byte_for_byte(mission, tmp_path):
     # one SDR and one LVC id per camera frame, odometry on its grid, the reference relayed
     assert counts["neocortex/sdr"] == frames and counts["local_view_cells"] == frames
     assert counts["Odometry"] > 0 and counts["ground_truth"] == counts["odometry"]
+    # the back-end made experiences, each with its evidence image, and published the map
+    assert counts["experience_event"] > 0 and counts["experience_image"] == counts["experience_event"]
+    assert counts["map"] > 0 and counts["dead_reckoning"] > 0
     assert b.recording["counts"] == counts
     pa, pb = payloads_by_key(tmp_path / "dist.mcap"), payloads_by_key(tmp_path / "emb.mcap")
     for key in OUTPUT_KEYS:
