@@ -146,6 +146,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     except RunFailed as exc:
         print(f"poseidon demo: {exc}; what was recorded so far is in {exc.partial}", file=sys.stderr)
         return 3
+    except RuntimeError as exc:  # the simulation or the report failed; their own messages precede this
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 3
 
 
 def cmd_info(args: argparse.Namespace) -> int:
