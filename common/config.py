@@ -134,14 +134,14 @@ class HtmConfig(_Section):
                                 "consecutive SDRs blurred places on the sim mission")
     theta_alpha: float = Field(0.65, ge=0, le=1)
     theta_rho: int = Field(3, ge=1)
-    sv_match_threshold: float = Field(0.71, ge=0, le=1, description="Table 4.1: 0.38; 0.71 (ours, issue 8): "
+    sv_match_threshold: float = Field(0.72, ge=0, le=1, description="Table 4.1: 0.38; 0.72 (ours, issue 8): "
                                       "the sdr descriptor of another place overlaps by ~0.5-0.6")
     sv_min_intersection: int = Field(12, ge=0)
     sv_require_multimodal: bool = False
     sv_min_img_score: float = Field(0.45, ge=0, le=1)
     sv_min_sonar_score: float = Field(0.35, ge=0, le=1)
     sv_enable_f1_gate: bool = True
-    min_f1: float = Field(0.71, ge=0, le=1, description="Table 4.1: 0.55; 0.71 with the sdr descriptor (issue 8)")
+    min_f1: float = Field(0.72, ge=0, le=1, description="Table 4.1: 0.55; 0.72 with the sdr descriptor (issue 8)")
     sv_use_iou_tiebreak: bool = True
     max_bits: int = Field(0, ge=0, description="cap on descriptor bits after interval union (0: sv_tm_topk)")
     state_path: str = Field("", description="load SP/TM/LVC state from here at start and save at end (empty: off)")
@@ -152,6 +152,10 @@ class HtmConfig(_Section):
                                                      "winner cell indices, or their columns")
     sp_learn_steps: int = Field(100, ge=0, description="SP learns during the first N learning steps, then its "
                                 "synapses and boost factors are frozen (0: always learns)")
+    # --- added for the place-sequence prior (issue 8); see services/htm/pipeline.py
+    sv_seq_match_threshold: float = Field(0.65, ge=0, le=1, description="R and F1 gate for an LVC predicted by the "
+                                          "place sequence (a learned successor of the previous frame's id); 0: off")
+    sv_seq_hops: int = Field(2, ge=1, description="successor steps a predicted LVC may be ahead of the previous id")
 
     @model_validator(mode="after")
     def _consistent(self) -> "HtmConfig":

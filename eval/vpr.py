@@ -29,7 +29,12 @@ then :class:`NeocortexHtm` steps over the fused SDRs once, *storing* LVCs as onl
 frame i is compared with the earlier frames j that are at least ``--min-gap-m`` (default:
 the recording's ``revisit_min_gap_m``, 10 m) back along the true track (nearer frames
 trivially look alike and are never revisits); its ground truth is ``truth/revisits``.
-Frames without a revisit that predict one count as false positives.  Extra matcher
+Frames without a revisit that predict one count as false positives.  The modality table:
+the fused code (``encoder.fusion_mode``: union = OR, and = AND) and, from the same encoder
+pass, the camera-only and sonar-only SDR streams (a frame without a fresh sonar SDR feeds an
+empty SDR) each run through their own :class:`NeocortexHtm`; ``modalities`` gives per stream
+the LVC figures below plus ``lvc_run_length`` and ``htm_lvc`` (the matcher's metrics); the
+top-level LVC figures and the ``htm_*`` matchers are those of the fused code.  Extra matcher
 ``lsbh_fused_overlap`` (fused camera+sonar SDR overlap).  LVC-id figures: ``lvc_recall`` =
 fraction of revisit frames whose LVC id equals the id of one of their true earlier frames;
 a frame *claims* a revisit when its id was given to a candidate earlier frame (>= the
@@ -39,6 +44,11 @@ Matchers (each gives an n_query x n_ref similarity; the best reference of a quer
 argmax, correct iff it is in the query's ground truth):
 
 * ``cnn_cosine`` -- cosine of the raw embeddings y (Eq. 4.1), no hashing.
+* ``seq_cosine`` -- baseline: SeqSLAM-style sequence matching on the cosines of ``cnn_cosine``
+  (difference matrix normalised per reference, best straight line of 10 frames;
+  :mod:`eval.baselines`).
+* ``patchnorm_sad`` -- baseline: sum of absolute differences of patch-normalised 32x16 grey
+  images (:mod:`eval.baselines`).
 * ``lsbh_overlap`` -- |A_q intersect A_r| / 2k of the camera LSBH SDRs (Eqs. 4.2, 4.6).
 * ``htm_lvc`` -- the full pipeline: camera SDR (the fused SDR: these image sets have no
   sonar) -> SP -> TM -> descriptor D_t -> LVC id (Eqs. 4.4-4.10, :mod:`services.htm`).  The
@@ -59,7 +69,7 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
 ``--json`` prints one object (image sets)::
 
     {"matchers": {"cnn_cosine": {"auc": .., "recall_at_p100": .., "best_f1": .., "n_predicted": ..},
-                  "lsbh_overlap": {...}, "cnn_cosine_standardized": {...} (embedding_norm not none),
+                  "seq_cosine": {...}, "patchnorm_sad": {...}, "lsbh_overlap": {...}, "cnn_cosine_standardized": {...} (embedding_norm not none),
                   "htm_lvc": {...}, "htm_descriptor": {...}},
      "n_ref": .., "n_query": .., "n_query_with_gt": .., "weights": "seeded" | "<path>",
      "backbone": "shufflenetv2", "embedding_dim": .., "embedding_norm": "none|running|fixed",
@@ -74,8 +84,10 @@ and with ``--mission``::
      "fused_bits_mean": .., "encoder_counters": {..},
      "lvc_recall": .., "lvc_precision": .., "n_claimed_revisits": .., "n_correct_claims": ..,
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
-     "matchers": {"cnn_cosine", "cnn_cosine_standardized", "lsbh_overlap", "lsbh_fused_overlap",
-                  "htm_lvc", "htm_descriptor": {...}},
+     "lvc_run_length": {"median": .., "mean": .., "frames_in_runs_ge3": ..},  # runs of identical consecutive ids
+     "modalities": {"fused_<fusion_mode>": {...}, "camera": {...}, "sonar": {...}},  # without --no-htm
+     "matchers": {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized", "lsbh_overlap",
+                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor": {...}},
      "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).

@@ -20,6 +20,13 @@ created the matched LVC by R = |A & B| / |A| >= ``sv_min_img_score`` (``sv_min_s
 for every modality present in both; otherwise Eq. 4.10 creates a new id.  A modality
 missing on either side is not checked.  Pass the per-modality SDRs to ``step`` as
 ``modalities={"camera": ..., "sonar": ...}``.
+Place-sequence prior (``sv_seq_match_threshold`` > 0, ours, issue 8): the ids of consecutive
+frames teach a successor graph (id a then id b != a: b is a successor of a).  When the best
+prototype l* fails Eq. 4.9, the prototypes up to ``sv_seq_hops`` successors ahead of the
+previous frame's id are tried with the gate ``sv_seq_match_threshold`` (on R and F1, with
+I >= I_min): a revisit that has locked onto an earlier stretch keeps following it through
+frames that alone would be too weak, as a sequence memory over places.  Query-only steps
+(``store=False``) use the graph without adding to it.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -136,6 +143,8 @@ class NeocortexHtm:
         self.multimodal = ModalityPrototypes({"camera": cfg.sv_min_img_score, "sonar": cfg.sv_min_sonar_score}) \
             if cfg.sv_require_multimodal else None
         self.steps = 0
+        self.successors: dict[int, set[int]] = {}
+        self.last_id = -1
         self.last_columns = np.zeros(0, np.int32)
         self.last_descriptor = np.zeros(0, np.int64)
         self.last_anomaly = 0.0
@@ -200,22 +209,69 @@ class NeocortexHtm:
         mm = self.multimodal
         veto = None if mm is None else (lambda lvc_id: mm.disagree(lvc_id, modalities))
         if store:
-            res = self.lvc.match(d, veto)
+            res = self.lvc.match(d, veto) if self.cfg.sv_seq_match_threshold <= 0 else self._match_in_sequence(d, veto)
             if mm is not None and res.is_new:
                 mm.store(res.lvc_id, modalities)
+            if self.last_id >= 0 and res.lvc_id != self.last_id:
+                self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
+            self.last_id = res.lvc_id
             return replace(res, anomaly=anomaly)
         best, i = self.lvc.best(d)
         n = d.size
         rate = i / n if n else 0.0
         ok = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best))
+        if not ok and self.cfg.sv_seq_match_threshold > 0:
+            seq = self._predicted_match(d, veto)
+            if seq is not None:
+                self.last_id = seq[0]
+                return LvcResult(seq[0], seq[1], False, seq[2], best, rate, i, n, anomaly)
+        self.last_id = best if ok else -1
         return LvcResult(best if ok else -1, rate if ok else 0.0, False, i if ok else 0, best, rate, i, n,
                          anomaly)
+
+    def predicted_ids(self) -> list[int]:
+        """LVC ids 1 .. ``sv_seq_hops`` successor steps ahead of the previous frame's id (sorted)."""
+        if self.last_id < 0:
+            return []
+        frontier, seen = {self.last_id}, set()
+        for _ in range(self.cfg.sv_seq_hops):
+            frontier = {b for a in frontier for b in self.successors.get(a, ())} - seen - {self.last_id}
+            seen |= frontier
+        return sorted(seen)
+
+    def _predicted_match(self, d: np.ndarray, veto) -> tuple[int, float, int] | None:
+        """(id, R, I) of the best predicted prototype passing the sequence gate, or None."""
+        n = d.size
+        g = self.cfg.sv_seq_match_threshold
+        best = None
+        for lid in self.predicted_ids():
+            proto = self.lvc.prototype(lid)
+            i = int(np.intersect1d(d, proto, assume_unique=True).size)
+            if n == 0 or i < self.cfg.sv_min_intersection or i / n < g or 2.0 * i / (n + proto.size) < g:
+                continue
+            if (best is None or i > best[2]) and not (veto and veto(lid)):
+                best = (lid, i / n, i)
+        return best
+
+    def _match_in_sequence(self, d: np.ndarray, veto) -> LvcResult:
+        """Eqs. 4.8-4.10 with the place-sequence prior (see the module doc)."""
+        best, i = self.lvc.best(d)
+        n = d.size
+        rate = i / n if n else 0.0
+        if best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best)):
+            return LvcResult(best, rate, False, i, best, rate, i, n)
+        seq = self._predicted_match(d, veto)
+        if seq is not None:
+            return LvcResult(seq[0], seq[1], False, seq[2], best, rate, i, n)
+        new_id = self.lvc.add(d)
+        return LvcResult(new_id, 1.0 if n else 0.0, True, 0, best, rate, i, n)
 
     def reset_sequence(self) -> None:
         """Forget the temporal context (TM predictions, pooling window, interval run); keep learning."""
         if self.tm is not None:
             self.tm.reset()
         self.descriptor.reset()
+        self.last_id = -1
 
     # ---- persistence ------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -227,6 +283,9 @@ class NeocortexHtm:
             if part is not None:
                 for k, v in part.state().items():
                     arrays[f"{prefix}.{k}"] = v
+        pairs = sorted((a, b) for a, bs in self.successors.items() for b in bs)
+        arrays["seq.pairs"] = np.array(pairs, np.int64).reshape(-1, 2)
+        arrays["seq.last_id"] = np.array([self.last_id], np.int64)
         meta = {"version": STATE_VERSION, "steps": self.steps,
                 "config": {k: getattr(self.cfg, k) for k in _STRUCTURAL}}
         arrays["meta_json"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
@@ -263,3 +322,7 @@ class NeocortexHtm:
                 pre = prefix + "."
                 part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})
         self.steps = int(meta["steps"])
+        self.successors = {}
+        for a, b in data.get("seq.pairs", np.zeros((0, 2), np.int64)).tolist():
+            self.successors.setdefault(int(a), set()).add(int(b))
+        self.last_id = int(data["seq.last_id"][0]) if "seq.last_id" in data else -1

@@ -170,3 +170,18 @@ def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config, enc
         node = EncoderNode(cfg, encoder=encoder)
     assert node.counters["embedding_norm_not_persisted"] == 1 and "embedding_norm_path" in caplog.text
     assert "embedding_norm_not_persisted" not in EncoderNode(config, encoder=encoder).counters
+
+
+def test_sonar_is_re_encoded_after_enough_sweep(config, encoder):
+    """45 deg rule: at 180 deg/s of sweep and 5 camera frames/s (36 deg per frame) the sonar raster goes
+    through the CNN about every 2nd frame, the SDR in between is the last one; 0 deg: every frame."""
+    node, out = run(config, encoder, duration=4.0)
+    with_sonar = [o for o in out if any(s.modality == "sonar" for s in o.modalities)]
+    enc = node.counters["sonar_encodings"]
+    assert enc + node.counters["sonar_sdr_reused"] == len(with_sonar) == 19
+    assert 8 <= enc <= 11
+    sonar = [next(s.active for s in o.modalities if s.modality == "sonar") for o in with_sonar]
+    assert sum(np.array_equal(a, b) for a, b in zip(sonar, sonar[1:])) >= node.counters["sonar_sdr_reused"]
+    every = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_encode_sweep_deg": 0.0})})
+    node0, out0 = run(every, encoder, duration=4.0)
+    assert node0.counters["sonar_encodings"] == 19 and "sonar_sdr_reused" not in node0.counters

@@ -11,7 +11,8 @@ L = 2048
 
 
 # the SP -> TM -> descriptor chain with Table 4.1's LVC gates (the default descriptor is the fused SDR, issue 8)
-_CHAIN = dict(sv_descriptor_source="tm", interval_mode=True, sv_match_threshold=0.38, min_f1=0.55)
+_CHAIN = dict(sv_descriptor_source="tm", interval_mode=True, sv_match_threshold=0.38, min_f1=0.55,
+              sv_seq_match_threshold=0.0)
 
 
 def TmConfig(**kw) -> HtmConfig:  # noqa: N802 - reads like the config class it builds
