@@ -28,12 +28,14 @@ __all__ = ["lvc_revisit_metrics", "lvc_false_associations", "vpr_window_ok_ratio
 
 def lvc_revisit_metrics(ids: Sequence[int] | np.ndarray, same_place: Sequence[Sequence[int]],
                         travelled_m: Sequence[float] | np.ndarray | None = None,
-                        min_gap_m: float = 0.0) -> dict[str, Any]:
+                        min_gap_m: float = 0.0, eligible_before: np.ndarray | None = None) -> dict[str, Any]:
     """LVC-id recall and precision (module docstring).
 
     ``ids[i]``: LVC id of frame i (negative: none); ``same_place[i]``: indices of earlier
     frames that show the same place (indices outside ``[0, i)`` are ignored);
-    ``travelled_m[i]``: true distance travelled at frame i (non-decreasing).
+    ``travelled_m[i]``: true distance travelled at frame i (non-decreasing);
+    ``eligible_before[i]``: alternatively, frames ``[0, eligible_before[i])`` are far enough
+    back to be claimed (what ``travelled_m``/``min_gap_m`` compute).
 
     Returns ``{"revisit_frames", "recalled", "recall", "claimed", "correct_claims",
     "precision"}``.
@@ -48,7 +50,9 @@ def lvc_revisit_metrics(ids: Sequence[int] | np.ndarray, same_place: Sequence[Se
         truth_ids.append({int(ids[j]) for j in js if ids[j] >= 0})
     revisit = [i for i in range(n) if any(0 <= int(j) < i for j in same_place[i])]
     recalled = sum(1 for i in revisit if ids[i] >= 0 and int(ids[i]) in truth_ids[i])
-    if travelled_m is None:
+    if eligible_before is not None:
+        limit = np.minimum(np.asarray(eligible_before, dtype=np.int64), np.arange(n))
+    elif travelled_m is None:
         limit = np.arange(n)  # frames [0, i) are eligible
     else:
         d = np.asarray(travelled_m, dtype=float)

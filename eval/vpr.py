@@ -353,15 +353,14 @@ def _travelled(stamps: np.ndarray, pose_stamps: np.ndarray, positions: np.ndarra
 
 
 def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray) -> dict:
-    """LVC-id recall and precision on a mission (see the module doc, ``--mission``)."""
-    ids = np.asarray(ids)
-    revisit = [i for i, g in enumerate(gt) if len(g)]
-    hits = sum(1 for i in revisit if ids[i] in set(ids[list(gt[i])].tolist()))
-    claimed = [i for i in range(ids.size) if ids[i] >= 0 and np.any(ids[eligible[i]] == ids[i])]
-    right = sum(1 for i in claimed if len(gt[i]) and ids[i] in set(ids[list(gt[i])].tolist()))
-    return {"lvc_recall": hits / len(revisit) if revisit else 0.0,
-            "lvc_precision": right / len(claimed) if claimed else 0.0,
-            "n_revisit_frames": len(revisit), "n_claimed_revisits": len(claimed), "n_correct_claims": right}
+    """LVC-id recall and precision on a mission (see the module doc, ``--mission``), by the one
+    definition of :func:`eval.frontend.lvc_revisit_metrics`.  ``eligible[i]`` is a prefix of
+    the earlier frames (those at least the revisit gap of travel back)."""
+    from eval.frontend import lvc_revisit_metrics
+    m = lvc_revisit_metrics(ids, gt, eligible_before=np.asarray(eligible, bool).sum(axis=1))
+    return {"lvc_recall": m["recall"] or 0.0, "lvc_precision": m["precision"] or 0.0,
+            "n_revisit_frames": m["revisit_frames"], "n_claimed_revisits": m["claimed"],
+            "n_correct_claims": m["correct_claims"]}
 
 
 @dataclass
