@@ -43,7 +43,7 @@ from tqdm import tqdm
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
-from missions.sim.trajectory import (Trajectory, _smooth_noise, footprint_centres, make_trajectory,
+from missions.sim.trajectory import (VehicleMotion, _smooth_noise, footprint_centres, make_trajectory,
                                      revisits, rot_wb)
 from missions.sim.world import World, build_world
 
@@ -262,7 +262,7 @@ class _Streams:
     truth: np.ndarray
 
 
-def segments_of(traj: Trajectory, duration_s: float) -> list[dict[str, Any]]:
+def segments_of(traj: VehicleMotion, duration_s: float) -> list[dict[str, Any]]:
     """Time ranges of the route pieces flown (area loops and transitions), in flight order."""
     t = traj.t
     m = t <= duration_s
@@ -397,7 +397,7 @@ def _body_vel(s: dict[str, np.ndarray]) -> np.ndarray:
     return np.einsum("nji,nj->ni", r, s["vel_w"])
 
 
-def _truth(out: _Out, traj: Trajectory, times: np.ndarray) -> None:
+def _truth(out: _Out, traj: VehicleMotion, times: np.ndarray) -> None:
     if not len(times):
         return
     s = traj.at(times)
@@ -407,7 +407,7 @@ def _truth(out: _Out, traj: Trajectory, times: np.ndarray) -> None:
         out.add("truth/pose", int(stamp), lambda h, k=k: _odometry_msg(h, s["pos"][k], q[k], vb[k], s["omega_b"][k]))
 
 
-def _imu(out: _Out, p: SimParams, traj: Trajectory, times: np.ndarray, yaw_err: np.ndarray, gyro_bias: np.ndarray,
+def _imu(out: _Out, p: SimParams, traj: VehicleMotion, times: np.ndarray, yaw_err: np.ndarray, gyro_bias: np.ndarray,
          rng: np.random.Generator) -> None:
     n = len(times)
     if not n:
@@ -433,7 +433,7 @@ def _imu(out: _Out, p: SimParams, traj: Trajectory, times: np.ndarray, yaw_err: 
         out.add("imu_adis_ros", int(stamp), lambda h, base=base: Imu(header=h, **base))
 
 
-def _depth(out: _Out, p: SimParams, traj: Trajectory, times: np.ndarray, rng: np.random.Generator) -> None:
+def _depth(out: _Out, p: SimParams, traj: VehicleMotion, times: np.ndarray, rng: np.random.Generator) -> None:
     if not len(times):
         return
     z = traj.at(times)["pos"][:, 2] + p.depth_bias_m + rng.normal(0, p.depth_noise_m, len(times))
@@ -447,7 +447,7 @@ def _dvl_beams(incl_deg: float) -> np.ndarray:
     return np.stack([np.sin(inc) * np.cos(az), np.sin(inc) * np.sin(az), np.full(4, np.cos(inc))], axis=1)
 
 
-def _dvl(out: _Out, p: SimParams, traj: Trajectory, world: World, all_times: np.ndarray, idx: np.ndarray,
+def _dvl(out: _Out, p: SimParams, traj: VehicleMotion, world: World, all_times: np.ndarray, idx: np.ndarray,
          heading_off: float, burst_rng: np.random.Generator, rng: np.random.Generator) -> None:
     """DVL samples ``idx`` of ``all_times``; dropout bursts are a Markov chain over all samples
     (drawn from ``burst_rng`` identically for every chunk, so the chain is continuous)."""
@@ -500,7 +500,7 @@ def _dvl(out: _Out, p: SimParams, traj: Trajectory, world: World, all_times: np.
         out.add("dvl_linkquest", int(stamp), lambda h, kw=msg_kw: LinkquestDvl(header=h, **kw))
 
 
-def _odom(out: _Out, p: SimParams, traj: Trajectory, times: np.ndarray, odom_err: np.ndarray, yaw_err: np.ndarray,
+def _odom(out: _Out, p: SimParams, traj: VehicleMotion, times: np.ndarray, odom_err: np.ndarray, yaw_err: np.ndarray,
           rng: np.random.Generator) -> None:
     n = len(times)
     if not n:
@@ -518,7 +518,7 @@ def _odom(out: _Out, p: SimParams, traj: Trajectory, times: np.ndarray, odom_err
         out.add("odometry", int(stamp), lambda h, k=k: _odometry_msg(h, pos[k], q[k], vb[k], s["omega_b"][k], cov))
 
 
-def _micron(out: _Out, p: SimParams, traj: Trajectory, world: World, all_times: np.ndarray, idx: np.ndarray,
+def _micron(out: _Out, p: SimParams, traj: VehicleMotion, world: World, all_times: np.ndarray, idx: np.ndarray,
             rng: np.random.Generator) -> None:
     if not len(idx):
         return
@@ -533,7 +533,7 @@ def _micron(out: _Out, p: SimParams, traj: Trajectory, world: World, all_times: 
     _beam_msgs(out, "sonar_micron", times, head, beam, p.micron_range_m, p.micron_step_deg, p.micron_rate_hz)
 
 
-def _seaking(out: _Out, p: SimParams, traj: Trajectory, world: World, all_times: np.ndarray, idx: np.ndarray,
+def _seaking(out: _Out, p: SimParams, traj: VehicleMotion, world: World, all_times: np.ndarray, idx: np.ndarray,
              rng: np.random.Generator) -> None:
     if not len(idx):
         return

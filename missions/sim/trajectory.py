@@ -18,7 +18,7 @@ import numpy as np
 
 from missions.sim.world import World
 
-__all__ = ["Trajectory", "make_trajectory", "rot_wb", "footprint_centres", "revisits", "LOOPS_PER_AREA"]
+__all__ = ["VehicleMotion", "make_trajectory", "rot_wb", "footprint_centres", "revisits", "LOOPS_PER_AREA"]
 
 BASE_HZ = 50.0
 LOOPS_PER_AREA = 3
@@ -62,7 +62,7 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
 
 
 @dataclass
-class Trajectory:
+class VehicleMotion:
     """50 Hz ground-truth state; times in seconds from the mission start."""
 
     t: np.ndarray          # (n,)
@@ -92,7 +92,7 @@ class Trajectory:
         return out
 
 
-def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3) -> Trajectory:
+def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3) -> VehicleMotion:
     """The vehicle's path for ``duration_s`` seconds at a mean ``speed`` (m/s)."""
     rng = np.random.default_rng([seed, 202])
     t = np.arange(0.0, duration_s + 1.0 / BASE_HZ + 2.0, 1.0 / BASE_HZ)
@@ -149,7 +149,7 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
     r = -dp * np.sin(roll) + dyw * np.cos(pitch) * np.cos(roll)
     dist = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))]
     altitude = world.floor_at(x, y) - z
-    return Trajectory(t=t, pos=pos, rpy=np.stack([roll, pitch, yaw], axis=1), vel_w=vel, acc_w=acc,
+    return VehicleMotion(t=t, pos=pos, rpy=np.stack([roll, pitch, yaw], axis=1), vel_w=vel, acc_w=acc,
                       omega_b=np.stack([p, q, r], axis=1), dist=dist, altitude=altitude, segment=seg_id[k],
                       loop=loop_id[k], segment_names=list(world.route_names))
 
