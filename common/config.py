@@ -152,8 +152,9 @@ class RobotStateConfig(_Section):
                                      "bottom's velocity relative to the instrument (Girona LinkQuest logs)")
     dvl_min_good_beams: int = Field(3, ge=1, le=4, description="records with fewer datagood beams are rejected")
     dvl_gate_chi2: float = Field(0.0, ge=0, description="innovation gate on DVL velocity (chi2, 3 dof); 0: off")
-    dvl_dropout_decay_s: float = Field(5.0, gt=0, description="after dvl_timeout_s velocity decays with this "
-                                       "time constant (s) towards hovering")
+    dvl_dropout_decay_s: float = Field(30.0, gt=0, description="after dvl_timeout_s velocity decays with this "
+                                       "time constant (s) towards hovering (a cruising vehicle keeps its speed "
+                                       "for tens of seconds; 5 s lost ~1% of the distance in DVL dropout bursts)")
     dropout_speed_sigma: float = Field(0.5, gt=0, description="m/s; std of the unobserved velocity in dropout")
     depth_timeout_s: float = Field(1.0, gt=0, description="beyond this without depth, z is held (s)")
     imu_timeout_s: float = Field(0.5, gt=0, description="beyond this without IMU, attitude falls back to DVL (s)")
@@ -167,6 +168,13 @@ class RobotStateConfig(_Section):
     imu_yaw_drift_sigma_deg_s: float = Field(0.05, ge=0, description="random walk of the IMU yaw error, deg/sqrt(s)")
     gyro_bias_sigma_deg_s: float = Field(0.1, ge=0, description="prior std of each gyro bias (deg/s)")
     gyro_bias_rw_deg_s: float = Field(0.001, ge=0, description="random walk of the gyro biases, deg/s/sqrt(s)")
+    # --- added for dead reckoning across seeds (issue 9); see services/robot_state/filter.py
+    imu_yaw_drift_rate_sigma_deg_min: float = Field(1.0, ge=0, description="prior std of the drift rate of the "
+                                                    "IMU yaw error (deg/min; an AHRS yaw drifts at a slow rate)")
+    imu_yaw_drift_rate_rw_deg_min_s: float = Field(0.001, ge=0, description="random walk of that drift rate, "
+                                                   "deg/min/sqrt(s)")
+    heading_gate_chi2: float = Field(25.0, ge=0, description="chi2 gate (1 dof) on yaw innovations: a compass "
+                                     "heading beyond it is rejected, an IMU yaw beyond it resets the yaw; 0: off")
 
 
 class PoseCellsConfig(_Section):
