@@ -28,7 +28,7 @@ walk ``imu_yaw_drift_rate_rw_deg_min_s``).
 Why a drift *rate* (issue 9): an AHRS yaw drifts steadily (its own gyro bias integrated);
 modelled as a zero-mean random walk only, the early part of the ramp was taken for the
 compass offset, which then held the heading 0.3-0.8 deg off for the rest of the mission
-(sim seeds 101-105: mean yaw error +0.4 to +0.8 deg).  With ``d_imu`` the difference IMU yaw
+(sim seeds 101-105: mean yaw error +0.2 to +0.8 deg).  With ``d_imu`` the difference IMU yaw
 minus compass is a line whose intercept at ``b_imu = 0`` is the compass offset, and the
 whole mission refines it.
 Velocity is kept in the body frame because a vehicle that turns during a DVL dropout keeps
