@@ -192,8 +192,9 @@ class RobotStateConfig(_Section):
                                      "bottom's velocity relative to the instrument (Girona LinkQuest logs)")
     dvl_min_good_beams: int = Field(3, ge=1, le=4, description="records with fewer datagood beams are rejected")
     dvl_gate_chi2: float = Field(0.0, ge=0, description="innovation gate on DVL velocity (chi2, 3 dof); 0: off")
-    dvl_dropout_decay_s: float = Field(5.0, gt=0, description="after dvl_timeout_s velocity decays with this "
-                                       "time constant (s) towards hovering")
+    dvl_dropout_decay_s: float = Field(30.0, gt=0, description="after dvl_timeout_s velocity decays with this "
+                                       "time constant (s) towards hovering (a cruising vehicle keeps its speed "
+                                       "for tens of seconds; 5 s lost ~1% of the distance in DVL dropout bursts)")
     dropout_speed_sigma: float = Field(0.5, gt=0, description="m/s; std of the unobserved velocity in dropout")
     depth_timeout_s: float = Field(1.0, gt=0, description="beyond this without depth, z is held (s)")
     imu_timeout_s: float = Field(0.5, gt=0, description="beyond this without IMU, attitude falls back to DVL (s)")
@@ -207,6 +208,37 @@ class RobotStateConfig(_Section):
     imu_yaw_drift_sigma_deg_s: float = Field(0.05, ge=0, description="random walk of the IMU yaw error, deg/sqrt(s)")
     gyro_bias_sigma_deg_s: float = Field(0.1, ge=0, description="prior std of each gyro bias (deg/s)")
     gyro_bias_rw_deg_s: float = Field(0.001, ge=0, description="random walk of the gyro biases, deg/s/sqrt(s)")
+    # --- added for dead reckoning across seeds (issue 9); see services/robot_state/filter.py
+    imu_yaw_drift_rate_sigma_deg_min: float = Field(1.0, ge=0, description="prior std of the drift rate of the "
+                                                    "IMU yaw error (deg/min; an AHRS yaw drifts at a slow rate)")
+    imu_yaw_drift_rate_rw_deg_min_s: float = Field(0.001, ge=0, description="random walk of that drift rate, "
+                                                   "deg/min/sqrt(s)")
+    heading_gate_chi2: float = Field(25.0, ge=0, description="chi2 gate (1 dof) on yaw innovations: a compass "
+                                     "heading beyond it is rejected, an IMU yaw beyond it resets the yaw; 0: off")
+
+
+class RatSlamLvConfig(_Section):
+    """RatSLAM local-view front-end (Table 3.1; values of the dissertation's ratslam_irataus.yaml,
+    Section 5.4.2, where it gives them; see services/ratslam_lv/matcher.py for the rest)."""
+
+    image_topic: str = Field("camera/image_raw", description="camera key the templates are made from")
+    image_crop_x_min: int = Field(0, ge=0, description="crop, pixels from the left edge")
+    image_crop_x_max: int | None = Field(None, ge=1, description="crop right edge (exclusive); null: image width")
+    image_crop_y_min: int = Field(120, ge=0, description="crop, pixels from the top (dissertation: 120)")
+    image_crop_y_max: int | None = Field(None, ge=1, description="crop bottom edge (exclusive); null: image height")
+    template_x_size: int = Field(60, ge=1, description="template width (pixels)")
+    template_y_size: int = Field(20, ge=1, description="template height (pixels)")
+    vt_shift_match: int = Field(5, ge=0, description="horizontal shift range (template pixels)")
+    vt_shift_match_y: int = Field(2, ge=0, description="vertical shift range (template pixels; ours)")
+    vt_step_match: int = Field(1, ge=1, description="shift increment (template pixels)")
+    vt_match_threshold: float = Field(0.018, gt=0, description="mean absolute difference below which a "
+                                      "template matches (dissertation: 0.018)")
+    vt_normalisation: float = Field(0.4, ge=0, le=1, description="template mean scaled to this; 0: off "
+                                    "(dissertation: 0.4)")
+    vt_patch_normalise: int = Field(3, ge=0, description="patch normalisation radius (template pixels); 0: off "
+                                    "(dissertation: 3)")
+    vt_min_overlap: float = Field(0.5, gt=0, le=1, description="a shift is compared only where at least this "
+                                  "fraction of the template overlaps")
 
     @model_validator(mode="after")
     def _consistent(self) -> "RobotStateConfig":
@@ -314,6 +346,7 @@ class PoseidonConfig(_Section):
     encoder: EncoderConfig = Field(default_factory=EncoderConfig)
     htm: HtmConfig = Field(default_factory=HtmConfig)
     robot_state: RobotStateConfig = Field(default_factory=RobotStateConfig)
+    ratslam_lv: RatSlamLvConfig = Field(default_factory=RatSlamLvConfig)
     posecells: PoseCellsConfig = Field(default_factory=PoseCellsConfig)
     vpr_guard: VprGuardConfig = Field(default_factory=VprGuardConfig)
     expmap: ExpMapConfig = Field(default_factory=ExpMapConfig)

@@ -13,7 +13,8 @@ import importlib.util
 from common.config import PoseidonConfig
 from common.node import ServiceNode
 
-__all__ = ["ALGORITHM_SERVICES", "available_services", "node_class", "build_node", "PIPELINE_ORDER"]
+__all__ = ["ALGORITHM_SERVICES", "OPTIONAL_SERVICES", "available_services", "node_class", "build_node",
+           "PIPELINE_ORDER"]
 
 #: name -> "module:Class", in pipeline order
 ALGORITHM_SERVICES: dict[str, str] = {
@@ -24,6 +25,12 @@ ALGORITHM_SERVICES: dict[str, str] = {
     "expmap": "services.expmap.node:ExpMapNode",
 }
 PIPELINE_ORDER = list(ALGORITHM_SERVICES)
+
+#: built alternatives started only when named (``--services``, ``services: [...]``), because
+#: they publish a key a default service publishes too: name -> "module:Class"
+OPTIONAL_SERVICES: dict[str, str] = {
+    "ratslam_lv": "services.ratslam_lv.node:RatSlamViewNode",  # RatSLAM front-end: local_view_cells like htm
+}
 
 
 def _module_present(module: str) -> bool:
@@ -43,9 +50,11 @@ def available_services(config: PoseidonConfig | None = None) -> list[str]:
 
 def node_class(name: str, config: PoseidonConfig | None = None) -> type[ServiceNode]:
     """The node class of service ``name``; ``config.service_classes`` may swap or add one."""
-    target = (config.service_classes.get(name) if config is not None else None) or ALGORITHM_SERVICES.get(name)
+    target = ((config.service_classes.get(name) if config is not None else None) or ALGORITHM_SERVICES.get(name)
+              or OPTIONAL_SERVICES.get(name))
     if target is None:
-        raise KeyError(f"unknown service {name!r}; services: player, recorder, {', '.join(ALGORITHM_SERVICES)}"
+        raise KeyError(f"unknown service {name!r}; services: player, recorder, "
+                       f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES])}"
                        " (or add one with service_classes in the configuration)")
     if ":" not in target:
         raise KeyError(f"service {name!r}: {target!r} is not of the form 'module:Class'")

@@ -53,7 +53,7 @@ __all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS",
 T0_NS = 1_372_687_200_000_000_000
 
 #: bumped whenever the recording produced for a given seed and parameters changes
-GENERATOR_VERSION = "poseidon-sim/3"
+GENERATOR_VERSION = "poseidon-sim/4"
 
 #: write order of messages with equal stamps
 KEY_ORDER = ["truth/pose", "truth/revisits", "imu_adis", "imu_adis_ros", "depth_sensor", "dvl_linkquest",

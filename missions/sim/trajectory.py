@@ -124,7 +124,15 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
     cx = np.interp(s, d, pts[:, 0])
     cy = np.interp(s, d, pts[:, 1])
     k = np.clip(np.searchsorted(d, s), 0, len(d) - 1)
+    # tunnel direction, smoothed over 1 s: the raw tangent of the 0.1 m polyline is piecewise
+    # constant, and offsetting the path by up to 0.5 m along a normal that jumps at every vertex
+    # made the vehicle step backwards there on the inside of bends -- the velocity direction (the
+    # heading, until generator_version 3) then flipped by 180 deg, np.unwrap chose a side at
+    # random and the 1-s heading average turned the flips into yaw spins of up to ~2000 deg/s
+    # (issue 9)
     tang = np.stack([np.gradient(cx), np.gradient(cy)], axis=1)
+    tang /= np.linalg.norm(tang, axis=1, keepdims=True) + 1e-12
+    tang = _moving_average(tang, int(BASE_HZ))
     tang /= np.linalg.norm(tang, axis=1, keepdims=True) + 1e-12
     nrm = np.stack([-tang[:, 1], tang[:, 0]], axis=1)
     lateral = np.clip(_smooth_noise(rng, t, 15.0, 0.25), -0.5, 0.5)
@@ -137,7 +145,11 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
     pos = np.stack([x, y, z], axis=1)
     dt = 1.0 / BASE_HZ
     vel = np.gradient(pos, dt, axis=0)
-    heading = np.unwrap(np.arctan2(vel[:, 1], vel[:, 0]))
+    # heading along the velocity averaged over 1 s as a vector (not the angle of each sample:
+    # where the path nearly stalls, at a hairpin where route pieces join, single samples point
+    # anywhere and their unwrapped angles spun the same way)
+    vbar = _moving_average(vel[:, :2], int(1.0 * BASE_HZ))
+    heading = np.unwrap(np.arctan2(vbar[:, 1], vbar[:, 0]))
     heading = _moving_average(heading, int(1.0 * BASE_HZ))
     yaw = heading + np.deg2rad(_smooth_noise(rng, t, 8.0, 3.0))
     roll = np.deg2rad(_smooth_noise(rng, t, 4.0, 1.5))
