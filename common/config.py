@@ -216,6 +216,15 @@ class RobotStateConfig(_Section):
     heading_gate_chi2: float = Field(25.0, ge=0, description="chi2 gate (1 dof) on yaw innovations: a compass "
                                      "heading beyond it is rejected, an IMU yaw beyond it resets the yaw; 0: off")
 
+    @model_validator(mode="after")
+    def _consistent(self) -> "RobotStateConfig":
+        _check(sorted(self.axis_remap) == ["x", "y", "z"],
+               f"robot_state.axis_remap {self.axis_remap!r} must be a permutation of xyz (e.g. yxz)")
+        _check(self.axis_sign_z in (-1.0, 1.0), f"robot_state.axis_sign_z must be 1 or -1, got {self.axis_sign_z}")
+        _check(self.dvl_velocity_sign in (-1.0, 1.0),
+               f"robot_state.dvl_velocity_sign must be 1 or -1, got {self.dvl_velocity_sign}")
+        return self
+
 
 class RatSlamLvConfig(_Section):
     """RatSLAM local-view front-end (Table 3.1; values of the dissertation's ratslam_irataus.yaml,
@@ -239,15 +248,6 @@ class RatSlamLvConfig(_Section):
                                     "(dissertation: 3)")
     vt_min_overlap: float = Field(0.5, gt=0, le=1, description="a shift is compared only where at least this "
                                   "fraction of the template overlaps")
-
-    @model_validator(mode="after")
-    def _consistent(self) -> "RobotStateConfig":
-        _check(sorted(self.axis_remap) == ["x", "y", "z"],
-               f"robot_state.axis_remap {self.axis_remap!r} must be a permutation of xyz (e.g. yxz)")
-        _check(self.axis_sign_z in (-1.0, 1.0), f"robot_state.axis_sign_z must be 1 or -1, got {self.axis_sign_z}")
-        _check(self.dvl_velocity_sign in (-1.0, 1.0),
-               f"robot_state.dvl_velocity_sign must be 1 or -1, got {self.dvl_velocity_sign}")
-        return self
 
 
 class PoseCellsConfig(_Section):

@@ -57,6 +57,7 @@ def _say(msg: str) -> None:
 def ensure_mission(out_dir: Path, seed: int) -> tuple[Path, bool]:
     """The transformed demo mission for ``seed`` (made, or reused from ``out_dir/cache``)."""
     from missions.sim.cli import main as sim_main
+    from missions.sim.mission import GENERATOR_VERSION
     from missions.transform import transform
 
     cache = out_dir / "cache"
@@ -64,7 +65,8 @@ def ensure_mission(out_dir: Path, seed: int) -> tuple[Path, bool]:
     sim_path = cache / f"cave_sim_{SIM_MINUTES:g}min_seed{seed}.mcap"
     mission = cache / f"cave_transformed_area1_seed{seed}.mcap"
     stamp_file = cache / "demo_cache.json"
-    recipe = {"version": CACHE_VERSION, "seed": seed, "sim_minutes": SIM_MINUTES, "transform": "areas=1 seed=0"}
+    recipe = {"version": CACHE_VERSION, "generator": GENERATOR_VERSION, "seed": seed, "sim_minutes": SIM_MINUTES,
+              "transform": "areas=1 seed=0"}
     stamps = json.loads(stamp_file.read_text()) if stamp_file.exists() else {}
     if mission.exists() and stamps.get(mission.name) == recipe:
         return mission, True
