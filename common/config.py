@@ -326,6 +326,9 @@ class ExpMapConfig(_Section):
     loop_confirmation_gap: int = Field(10, ge=0, description="consecutive events confirm a loop when their matched "
                                        "nodes are at most this many experiences apart on the old route")
     loop_edge_weight: float = Field(1.0, gt=0, description="w of a loop-closure edge in Eq. 4.20 (odometry edges: 1)")
+    loop_place_radius_m: float = Field(0.0, ge=0, description="a loop closure pulls the two experiences to within "
+                                       "this distance (m) instead of onto each other; 0: zero-displacement loop "
+                                       "edge (services/expmap/graph.py ExperienceMap.loop_delta)")
     relax_iterations_per_event: int = Field(10, ge=1, description="relaxation iterations per accepted event, each "
                                             "moving a node by at most max_correction_step")
     map_publish_every: int = Field(100, ge=0, description="publish map every max(N, nodes/10) events (0: only after loop "

@@ -251,6 +251,7 @@ class ExperienceMap:
         g.add("rem", (3,), np.float64)       # correction being applied (m): position = pos + phi * rem
         self._g = g
         self.loops: list[tuple[int, int, float, int]] = []   # (m, n, weight, stamp)
+        self.loop_deltas: list[np.ndarray] = []   # per loop edge: p_n - p_m it asks for (m); zero by default
         self._lvc_index: dict[int, list[int]] = {}
         self._loop_ends: list[int] = []              # sorted distinct loop-edge endpoints
         self._loop_adj: dict[int, list[int]] = {}    # loop-edge endpoint -> other ends
@@ -315,8 +316,8 @@ class ExperienceMap:
         st, d, w = self.stamps, self.deltas, self.edge_weights
         for k in range(1, self.n_nodes):
             out.append((k - 1, k, d[k].copy(), (int(st[k]) - int(st[k - 1])) * 1e-9, float(w[k]), False))
-        for m, n, wl, _s in self.loops:
-            out.append((m, n, np.zeros(3), 0.0, wl, True))
+        for (m, n, wl, _s), dl in zip(self.loops, self.loop_deltas):
+            out.append((m, n, dl.copy(), 0.0, wl, True))
         return out
 
     # ---- the event ----------------------------------------------------------------
@@ -416,12 +417,14 @@ class ExperienceMap:
         lim = (1 << 62) if limit is None else int(limit)
         return int(_route_dijkstra(int(a), int(b), lim, self.n_nodes, ends, ptr, idx))
 
-    def add_loop_edge(self, m: int, n: int, weight: float, stamp: int) -> None:
-        """Record a loop edge m -> n (zero displacement).  No rules, no relaxation: the
-        loop-closure path calls it, and tools can join known places before :meth:`optimum`."""
+    def add_loop_edge(self, m: int, n: int, weight: float, stamp: int, delta=None) -> None:
+        """Record a loop edge m -> n asking p_n - p_m = ``delta`` (default zero: the same place).
+        No rules, no relaxation: the loop-closure path calls it, and tools can join known
+        places before :meth:`optimum`."""
         if not (0 <= m < self.n_nodes and 0 <= n < self.n_nodes) or m == n:
             raise ValueError(f"loop edge {m} -> {n}: nodes must be distinct ids in 0..{self.n_nodes - 1}")
         self.loops.append((m, n, weight, stamp))
+        self.loop_deltas.append(np.zeros(3) if delta is None else np.asarray(delta, np.float64).reshape(3).copy())
         self._loop_csr = None
         self._route_cache = None
         for x, y in ((m, n), (n, m)):
@@ -449,7 +452,7 @@ class ExperienceMap:
         if bound < cfg.min_correction_route_len:
             res.rejected = "route"
             return
-        self.add_loop_edge(m, n, float(cfg.loop_edge_weight), stamp)
+        self.add_loop_edge(m, n, float(cfg.loop_edge_weight), stamp, self.loop_delta(m, n))
         self.corrections += 1
         self.last_correction_stamp = stamp
         self.confirmations = 0
@@ -468,6 +471,19 @@ class ExperienceMap:
         self._peak = float(np.sqrt(np.max(np.sum(disp * disp, axis=1)))) if disp.size else 0.0
         if self._peak <= 0.0:
             self._g.arrays["rem"][: self.n_nodes] = 0.0
+
+    def loop_delta(self, m: int, n: int) -> np.ndarray:
+        """Displacement p_n - p_m a loop closure of m and n asks for (Eq. 4.20's Delta p of the
+        loop edge).  A recognised place says the vehicle is *near* the stored experience, not
+        on it: with ``loop_place_radius_m`` r > 0 the edge keeps the current separation d when
+        |d| <= r (no correction) and asks for d r / |d| beyond (pulls the two to r apart);
+        r = 0 is the literal "same place", zero displacement."""
+        r = float(self.cfg.loop_place_radius_m)
+        if r <= 0.0:
+            return np.zeros(3)
+        d = self._position(n) - self._position(m)
+        norm = float(np.sqrt(np.sum(d * d)))
+        return d if norm <= r else d * (r / norm)
 
     def _apply_pending(self) -> None:
         """Make the blend of a pending correction the base positions (O(nodes))."""
@@ -497,7 +513,7 @@ class ExperienceMap:
         ea_a = np.concatenate([unk[:-1], unk[np.searchsorted(term, lp[:, 0].astype(np.int64))]])
         eb_a = np.concatenate([unk[1:], unk[np.searchsorted(term, lp[:, 1].astype(np.int64))]])
         eg_a = np.concatenate([1.0 / np.diff(cumres[term]), lp[:, 2]])
-        ed_a = np.concatenate([np.diff(cum[term], axis=0), np.zeros((lp.shape[0], 3))])
+        ed_a = np.concatenate([np.diff(cum[term], axis=0), np.asarray(self.loop_deltas, np.float64).reshape(-1, 3)])
         fixed = self._position(0).copy()
         # normal equations of sum g ||x_b - x_a - D||^2; the fixed node's terms go to the right side
         rhs = np.zeros((J, 3))
@@ -559,11 +575,12 @@ class ExperienceMap:
         arrays = {k: self._a(k) for k in self._g.arrays}
         loops = np.array([(m, n, s) for m, n, _w, s in self.loops], np.int64).reshape(-1, 3)
         loop_w = np.array([w for _m, _n, w, _s in self.loops], np.float64)
+        loop_d = np.asarray(self.loop_deltas, np.float64).reshape(-1, 3)
         last_odom = self.last_odom if self.last_odom is not None else np.full(3, np.nan)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w,
+        np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w, loop_delta=loop_d,
                  last_odom=last_odom, **arrays)
         tmp.replace(path)
 
@@ -591,8 +608,9 @@ class ExperienceMap:
                 raise ValueError(f"{path}: missing array {k!r}")
             em._g.arrays[k][:n] = z[k]
         em._g.n = n
-        for (m, k, s), w in zip(z["loops"], z["loop_weight"]):
-            em.add_loop_edge(int(m), int(k), float(w), int(s))
+        deltas = z["loop_delta"] if "loop_delta" in z else np.zeros((len(z["loops"]), 3))
+        for (m, k, s), w, dl in zip(z["loops"], z["loop_weight"], deltas):
+            em.add_loop_edge(int(m), int(k), float(w), int(s), dl)
         em._phi, em._peak = float(meta["phi"]), float(meta["peak"])
         lo = z["last_odom"]
         em.last_odom = None if np.any(np.isnan(lo)) else lo.astype(np.float64)
