@@ -67,6 +67,8 @@ def test_children_die_with_a_launcher_killed_by_sigkill(tmp_path):
             time.sleep(0.3)
             kids = _children(launcher.pid)
         assert len(kids) == 3, kids
+        while not (tmp_path / "run.partial.mcap").exists() and time.monotonic() < deadline:
+            time.sleep(0.2)  # the recorder is up
         time.sleep(3.0)  # the run is under way (stall takes 0.2 s per depth message)
         launcher.send_signal(signal.SIGKILL)
         launcher.wait(timeout=10)
@@ -179,7 +181,10 @@ def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tm
                 if "service" in argv and argv[argv.index("service") + 1] == "stall":
                     stall = k
         assert stall is not None
-        time.sleep(3.0)
+        partial = tmp_path / "run.partial.mcap"
+        while not partial.exists() and time.monotonic() < deadline:  # the recorder is up
+            time.sleep(0.2)
+        time.sleep(3.0)  # the replay is under way (stall takes 0.2 s per depth message)
         os.kill(stall, signal.SIGKILL)
         _, err = launcher.communicate(timeout=60)
     finally:
