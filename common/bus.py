@@ -32,6 +32,7 @@ import queue
 import struct
 import threading
 import time
+from pathlib import Path
 from typing import Callable, Iterable
 
 import zenoh
@@ -50,11 +51,39 @@ ABORT = "@abort"
 
 
 def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iterable[str] = (),
-                 config_file: str | None = None) -> zenoh.Config:
-    """A Zenoh configuration with explicit endpoints and multicast scouting off."""
+                 config_file: str | None = None, tls_dir: str | None = None, tls_host: str | None = None,
+                 user: str | None = None, password_file: str | None = None) -> zenoh.Config:
+    """A Zenoh configuration with explicit endpoints and multicast scouting off.
+
+    Secured profile (``deploy/zenoh/secured-*.json5``): ``tls_dir``/``tls_host`` point the
+    mutual-TLS settings at ``DIR/ca.pem``, ``DIR/HOST.pem``, ``DIR/HOST.key`` (and a router's
+    user dictionary at ``DIR/users.txt``), as written by ``poseidon certs``; ``user`` and
+    ``password_file`` set the user/password authentication (the password never appears on a
+    command line or in a configuration file).
+    """
     if mode not in ("client", "peer", "router"):
         raise ValueError(f"zenoh mode must be client, peer or router, got {mode!r}")
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    if tls_dir:
+        d = Path(tls_dir)
+        host = tls_host or "host"
+        files = {"root_ca_certificate": d / "ca.pem", "connect_certificate": d / f"{host}.pem",
+                 "connect_private_key": d / f"{host}.key"}
+        if mode != "client":
+            files.update(listen_certificate=d / f"{host}.pem", listen_private_key=d / f"{host}.key")
+        for k, f in files.items():
+            if not f.is_file():
+                raise FileNotFoundError(f"TLS file {f} (for transport.link.tls.{k}) not found; see poseidon certs")
+            conf.insert_json5(f"transport/link/tls/{k}", json.dumps(str(f)))
+        conf.insert_json5("transport/link/tls/enable_mtls", "true")
+        if mode == "router" and (d / "users.txt").is_file():
+            conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(d / "users.txt")))
+    if user:
+        if not password_file:
+            raise ValueError("a zenoh user needs --zenoh-password-file")
+        password = Path(password_file).read_text().strip()
+        conf.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
     conf.insert_json5("mode", json.dumps(mode))
     connect, listen = list(connect), list(listen)
     if connect:
@@ -77,9 +106,10 @@ def open_local_session() -> zenoh.Session:
     return zenoh.open(conf)
 
 
-def open_hub(listen: str, config_file: str | None = None) -> zenoh.Session:
-    """Open the hub: a router session listening on ``listen`` (e.g. ``tcp/127.0.0.1:7447``)."""
-    return zenoh.open(zenoh_config("router", listen=[listen], config_file=config_file))
+def open_hub(listen: str, config_file: str | None = None, **secure: str | None) -> zenoh.Session:
+    """Open the hub: a router session listening on ``listen`` (e.g. ``tcp/127.0.0.1:7447``).
+    ``secure``: ``tls_dir``, ``tls_host``, ``user``, ``password_file`` of :func:`zenoh_config`."""
+    return zenoh.open(zenoh_config("router", listen=[listen], config_file=config_file, **secure))
 
 
 class BusPublisher:
@@ -171,6 +201,10 @@ class AliveWatcher:
                 self._alive.discard(service)
                 self._left.append(service)
 
+    def alive(self) -> set[str]:
+        with self._lock:
+            return set(self._alive)
+
     def left(self) -> list[str]:
         """Services that were alive and are no longer, in the order they left."""
         with self._lock:
@@ -185,12 +219,13 @@ class Bus:
 
     def __init__(self, namespace: str = "poseidon", connect: Iterable[str] = ("tcp/127.0.0.1:7447",),
                  mode: str = "client", listen: Iterable[str] = (), session: zenoh.Session | None = None,
-                 config_file: str | None = None):
+                 config_file: str | None = None, **secure: str | None):
         self.namespace = namespace.strip("/")
         self._own_session = session is None
         self.session = session if session is not None else zenoh.open(
-            zenoh_config(mode, connect=connect, listen=listen, config_file=config_file))
+            zenoh_config(mode, connect=connect, listen=listen, config_file=config_file, **secure))
         self._keepalive: list[object] = []
+        self._alive_watcher: AliveWatcher | None = None
 
     def full_key(self, key: str) -> str:
         return f"{self.namespace}/{key}"
@@ -260,15 +295,15 @@ class Bus:
         self._keepalive.append(self.session.liveliness().declare_token(self.full_key(f"{ALIVE}/{service}")))
 
     def alive(self) -> set[str]:
-        """Names of the services currently alive in this namespace."""
-        names = set()
-        prefix = self.full_key(ALIVE) + "/"
-        for reply in self.session.liveliness().get(self.full_key(f"{ALIVE}/*"), timeout=2.0):
-            if reply.ok is not None:
-                k = str(reply.ok.key_expr)
-                if k.startswith(prefix):
-                    names.add(k[len(prefix):])
-        return names
+        """Names of the services currently alive in this namespace.
+
+        Follows the liveliness tokens with a subscriber (history included) rather than a
+        liveliness query: the secured profile's access control lets subscribers through
+        but answers no liveliness query with replies of other sessions' tokens.
+        """
+        if self._alive_watcher is None:
+            self._alive_watcher = self.watch_alive()
+        return self._alive_watcher.alive()
 
     def wait_alive(self, services: Iterable[str], timeout_s: float, poll_s: float = 0.05) -> None:
         """Block until every service in ``services`` is alive; TimeoutError names the missing ones."""

@@ -9,7 +9,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # torch first, pinned: its CPU build; a plain 'torch' requirement would pull CUDA packages.
 .venv/bin/python -m pip install --quiet "torch==2.13.0"
-.venv/bin/python -m pip install --quiet -e ".[dev]"
+.venv/bin/python -m pip install --quiet -e ".[dev,secure]"
 # Optional: Chromium from the system packages, for the headless-browser test of the HTML
 # report (tests/eval/report). Only as root with apt-get, and only when it is missing. A
 # failure does not fail the setup: the test then skips and says why. POSEIDON_NO_CHROMIUM=1

@@ -62,12 +62,18 @@ DELEGATED = {
     "report": "eval.report.cli:main",
     "path": "services.expmap.path:main",
     "export": "missions.export.cli:main",
+    "certs": "launcher.certs:main",
 }
 
 
 def _setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:  # Zenoh's own errors (TLS handshakes, refused authentication) on stderr; RUST_LOG overrides
+        import zenoh
+        zenoh.init_log_from_env_or("error")
+    except (ImportError, AttributeError):
+        pass
 
 
 def _load_config(args: argparse.Namespace) -> Any:
@@ -201,7 +207,11 @@ def cmd_service(args: argparse.Namespace) -> int:
         return 2
     namespace = args.namespace or config.bus.namespace
     connect = [args.connect] if args.connect else config.bus.connect
-    bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config)
+    try:
+        bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config, **_secure_args(args))
+    except (OSError, ValueError) as exc:
+        print(f"poseidon service {args.name}: cannot join the bus: {exc}", file=sys.stderr)
+        return 2
     stoppable: list[Any] = []
 
     def on_signal(signum: int, _frame: Any) -> None:
@@ -265,13 +275,25 @@ def cmd_hub(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
-    hub = open_hub(args.listen, config_file=args.zenoh_config)
+    hub = open_hub(args.listen, config_file=args.zenoh_config, **_secure_args(args))
     print(f"hub listening on {args.listen}", file=sys.stderr)
     try:
         stop.wait()
     finally:
         hub.close()
     return 0
+
+
+def _add_secure_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--tls-dir", help="secured profile: folder written by 'poseidon certs' (ca.pem, HOST.pem, ...)")
+    p.add_argument("--tls-host", help="secured profile: this computer's name in --tls-dir (HOST.pem/HOST.key)")
+    p.add_argument("--zenoh-user", help="secured profile: user name (the service's name)")
+    p.add_argument("--zenoh-password-file", help="secured profile: file holding the user's password")
+
+
+def _secure_args(args: argparse.Namespace) -> dict[str, str | None]:
+    return {"tls_dir": args.tls_dir, "tls_host": args.tls_host, "user": args.zenoh_user,
+            "password_file": args.zenoh_password_file}
 
 
 def _delegate(name: str) -> Callable[[list[str]], int]:
@@ -322,6 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="recorder: output MCAP")
     p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")
     p.add_argument("--metadata", help="recorder: JSON file with the run's metadata record")
+    _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_service)
 
@@ -329,6 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint to listen on")
     p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/zenoh/*.json5)")
     p.add_argument("--log-level", default="INFO")
+    _add_secure_args(p)
     p.set_defaults(func=cmd_hub)
 
     p = sub.add_parser("info", help="summarise a recording (exit 1 if damaged, 2 if unreadable)")

@@ -67,6 +67,8 @@ def test_children_die_with_a_launcher_killed_by_sigkill(tmp_path):
             time.sleep(0.3)
             kids = _children(launcher.pid)
         assert len(kids) == 3, kids
+        while not (tmp_path / "run.partial.mcap").exists() and time.monotonic() < deadline:
+            time.sleep(0.2)  # the recorder is up
         time.sleep(3.0)  # the run is under way (stall takes 0.2 s per depth message)
         launcher.send_signal(signal.SIGKILL)
         launcher.wait(timeout=10)
@@ -156,3 +158,39 @@ def test_one_declaration_of_keys_used_by_node_and_launcher(tmp_path):
     plan = plan_run(cfg, rec, services=["encoder"])
     assert plan.io["encoder"][0] == ("camera/image_raw", "sonar_seaking")
     assert "sonar_seaking" in plan.player_keys
+
+
+def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tmp_path):
+    """SIGKILL of a service mid-run: exit 3 naming it, every other process stops (abort), and the
+    partial recording is closed with its summary (the standard reader opens it)."""
+    src = tmp_path / "in.mcap"
+    six_stream_recording(src, 3000, image_every=10)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text('{"service_classes": {"stall": "tests.foundation.nodes:Stall"}}')
+    out = tmp_path / "run.mcap"
+    launcher = subprocess.Popen(CLI + ["run", "--input", str(src), "--out", str(out), "--config", str(cfg),
+                                       "--services", "stall", "--json"], cwd=REPO, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+    try:
+        stall = None
+        deadline = time.monotonic() + 60
+        while stall is None and time.monotonic() < deadline:
+            time.sleep(0.3)
+            for k in _children(launcher.pid):
+                argv = Path(f"/proc/{k}/cmdline").read_bytes().decode(errors="replace").split("\0")
+                if "service" in argv and argv[argv.index("service") + 1] == "stall":
+                    stall = k
+        assert stall is not None
+        partial = tmp_path / "run.partial.mcap"
+        while not partial.exists() and time.monotonic() < deadline:  # the recorder is up
+            time.sleep(0.2)
+        time.sleep(3.0)  # the replay is under way (stall takes 0.2 s per depth message)
+        os.kill(stall, signal.SIGKILL)
+        _, err = launcher.communicate(timeout=60)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+    assert launcher.returncode == 3, err
+    assert "service 'stall' failed: exited with code -9 (killed by signal 9)" in err
+    partial = tmp_path / "run.partial.mcap"
+    assert not out.exists() and _standard_reader_count(partial) > 0

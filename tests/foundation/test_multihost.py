@@ -75,3 +75,69 @@ def test_services_on_two_hosts_through_a_router(two_hosts, tmp_path):
                 p.wait(timeout=10)
     assert json.loads((tmp_path / "player.json").read_text())["published"] == counts
     assert json.loads((tmp_path / "rec.json").read_text())["recorded"] == counts
+
+
+def test_secured_profile_on_two_hosts(two_hosts, tmp_path):
+    """deploy/zenoh/secured-*.json5 with `poseidon certs`: mutual TLS, user/password, access
+    control.  With the right certificates and credentials every message flows; a session with
+    the right certificate but no credentials cannot publish Odometry nor receive the camera;
+    the player's credentials cannot put Odometry (only robot_state may); a certificate of
+    another CA cannot join."""
+    pytest.importorskip("cryptography")
+    host_a, host_b = two_hosts
+    py = [sys.executable, "-m", "launcher.cli"]
+    tls, rogue = tmp_path / "tls", tmp_path / "rogue"
+    for out, hosts in ((tls, "10.77.0.1,10.77.0.2"), (rogue, "10.77.0.2")):
+        subprocess.run([*py, "certs", "--out", str(out), "--hosts", hosts], cwd=REPO, check=True, timeout=60)
+    src = tmp_path / "mission.mcap"
+    counts = six_stream_recording(src, 1500, image_every=10)
+    endpoint = "tls/10.77.0.1:7447"
+    out = tmp_path / "recorded_on_b.mcap"
+    router = str(REPO / "deploy" / "zenoh" / "secured-router.json5")
+    service = str(REPO / "deploy" / "zenoh" / "secured-service.json5")
+
+    def secure(host, user):
+        return ["--zenoh-config", service, "--tls-dir", str(tls), "--tls-host", host, "--zenoh-user", user,
+                "--zenoh-password-file", str(tls / f"{user}.password")]
+
+    hub = subprocess.Popen(["ip", "netns", "exec", host_a, *py, "hub", "--listen", endpoint, "--zenoh-config", router,
+                            "--tls-dir", str(tls), "--tls-host", "10.77.0.1"], cwd=REPO)
+    rec = subprocess.Popen(["ip", "netns", "exec", host_b, *py, "service", "recorder", "--connect", endpoint,
+                            *secure("10.77.0.2", "recorder"), "--out", str(out), "--expect", ",".join(sorted(counts)),
+                            "--stats", str(tmp_path / "rec.json")], cwd=REPO)
+    intruder = [sys.executable, "-m", "tests.foundation.intruder", endpoint]
+    intruders = {
+        "no_credentials": subprocess.Popen(["ip", "netns", "exec", host_b, *intruder, str(tls), "10.77.0.2", "12"],
+                                           cwd=REPO, stdout=subprocess.PIPE, text=True),
+        "player_credentials": subprocess.Popen(["ip", "netns", "exec", host_b, *intruder, str(tls), "10.77.0.2",
+                                                "player", str(tls / "player.password"), "12"],
+                                               cwd=REPO, stdout=subprocess.PIPE, text=True),
+        "wrong_certificate": subprocess.Popen(["ip", "netns", "exec", host_b, *intruder, str(rogue), "10.77.0.2",
+                                               "recorder", str(tls / "recorder.password"), "12"],
+                                              cwd=REPO, stdout=subprocess.PIPE, text=True),
+    }
+    try:
+        time.sleep(2.0)
+        player = subprocess.run(["ip", "netns", "exec", host_a, *py, "service", "player", "--connect", endpoint,
+                                 *secure("10.77.0.1", "player"), "--input", str(src), "--wait-for", "recorder",
+                                 "--no-progress", "--stats", str(tmp_path / "player.json")], cwd=REPO, timeout=120)
+        assert player.returncode == 0
+        assert rec.wait(timeout=60) == 0
+        reports = {name: json.loads(p.communicate(timeout=60)[0].strip().splitlines()[-1])
+                   for name, p in intruders.items()}
+    finally:
+        for p in (rec, hub, *intruders.values()):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(timeout=10)
+    assert json.loads((tmp_path / "player.json").read_text())["published"] == counts
+    recorded = json.loads((tmp_path / "rec.json").read_text())
+    assert recorded["recorded"] == counts and recorded["invalid"] == {}  # no forged Odometry got in
+    print("\n[secured] intruders:", reports)
+    # a certificate of another CA, or the right certificate without credentials: no session at all,
+    # so neither Odometry put nor camera received
+    for name in ("wrong_certificate", "no_credentials"):
+        assert reports[name]["joined"] is False and reports[name]["camera_received"] == 0, reports[name]
+    # the player's own credentials joined and tried to put Odometry: the router dropped every one
+    assert reports["player_credentials"]["joined"] is True and reports["player_credentials"]["odometry_put"] > 50
+    assert "Odometry" not in recorded["recorded"]
