@@ -18,6 +18,8 @@ from common.config import PoseidonConfig
 from common.messages import (MESSAGE_TYPES, Depth, ExperienceEvent, ExperienceImage, ExperienceMap, Header, Image,
                              Imu, LaserScan, LocalViewCells, NeocortexSdr, Odometry, PoseStamped, RangeImageBeam,
                              RevisitTruth, Sdr)
+from common.messages import (DiagnosticArray, FluidPressure, MagneticField, NavSatFix, PoseWithCovarianceStamped,
+                             RawMessage, Temperature, TFMessage, TwistStamped)
 from common.ordering import EventTimeMerger
 from common.runtime import NodeRunner
 from launcher.services import available_services
@@ -50,6 +52,18 @@ def examples() -> dict[str, object]:
         ExperienceImage(header=H, height=2, width=2, encoding="mono8", data=np.zeros((2, 2), np.uint8),
                         source_stamp=5),
         RevisitTruth(header=H, frame_index=4, same_place=np.array([0, 2], np.int32)),
+        NavSatFix(header=H, status=0, latitude=41.9, longitude=3.2, altitude=2.0),
+        FluidPressure(header=H, fluid_pressure=101325.0, variance=4.0),
+        Temperature(header=H, temperature=15.5, variance=0.01),
+        MagneticField(header=H, magnetic_field=[2e-5, 1e-6, -4e-5]),
+        PoseWithCovarianceStamped(header=H, position=[1.0, 2.0, -3.0], orientation=[0.0, 0.0, 0.0, 1.0]),
+        TwistStamped(header=H, linear=[0.3, 0.0, 0.0], angular=[0.0, 0.0, 0.01]),
+        TFMessage(header=H, transforms=[{"header": {"seq": 0, "stamp": 1, "frame_id": "base"}, "child_frame_id": "dvl",
+                                         "translation": [0.1, 0.0, 0.2], "rotation": [0.0, 0.0, 0.0, 1.0]}]),
+        DiagnosticArray(header=H, status=[{"level": 0, "name": "dvl", "message": "ok",
+                                           "values": [{"key": "beams", "value": "4"}]}]),
+        RawMessage(header=H, topic="/vendor/status", ros_type="vendor_msgs/msg/Status", serialization="ros1",
+                   definition="uint8 code", data=b"\x01"),
     ]
     out = {type(m).type_name: m for m in msgs}
     missing = set(MESSAGE_TYPES) - set(out)
