@@ -1,0 +1,171 @@
+"""Soak: a long simulated mission through the full distributed pipeline at maximum replay speed.
+
+Issue 11's soak: ``--minutes`` (default 60) of ``poseidon sim`` (cached in ``--cache-dir``)
+replayed as fast as the services take it (player rate 0), every service in its own process
+(``launcher.run.run_distributed``).  Reported:
+
+- messages: for every key the player publishes, recorded / in the input (a drop shows as
+  < 1); for the SLAM outputs, one ``neocortex/sdr`` and one ``local_view_cells`` per camera
+  frame, one ``experience_image`` per ``experience_event``;
+- memory: peak RSS (MiB) of each service process in each sixth of the run's wall time
+  (replay speed is roughly constant, so each sixth is ~10 mission minutes of a 60-minute
+  mission) -- flat memory means the last sixth's peak is close to the second's;
+- speed: real-time factor (mission seconds per wall second) of the full pipeline, next to
+  the baseline measured in the same run: the player and the recorder alone on the same
+  input (the transport's ceiling).
+
+    .venv/bin/python benchmarks/bench_soak.py                   # 60 min (~4 min to simulate, ~10 to run)
+    .venv/bin/python benchmarks/bench_soak.py --minutes 10 --json
+
+``--json``: ``{"minutes", "mission", "pipeline": {"wall_s", "mission_s", "real_time_factor"},
+"transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
+{"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
+"peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second}}``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from common.config import load_config
+from common.mcap_io import recording_summary
+from launcher.run import run_distributed
+
+SIXTHS = 6
+
+
+def _service_pids(root: int) -> dict[str, int]:
+    """name -> pid of the ``launcher.cli service NAME`` children of process ``root``."""
+    out = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            if ppid != root:
+                continue
+            with open(f"/proc/{d}/cmdline", "rb") as f:
+                argv = f.read().decode(errors="replace").split("\0")
+        except (FileNotFoundError, ProcessLookupError, IndexError, ValueError):
+            continue  # the process ended while we looked: nothing to sample
+        if "service" in argv and argv.index("service") + 1 < len(argv):
+            out[argv[argv.index("service") + 1]] = int(d)
+    return out
+
+
+def _rss_mib(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except (FileNotFoundError, ProcessLookupError):
+        return None  # ended between listing and reading
+    return None
+
+
+class RssSampler:
+    """Samples the RSS of every service process every ``period_s`` while a run goes on."""
+
+    def __init__(self, period_s: float = 1.0):
+        self.period_s = period_s
+        self.samples: list[tuple[float, str, float]] = []   # (wall s from start, service, MiB)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._t0 = 0.0
+
+    def _loop(self) -> None:
+        me = os.getpid()
+        while not self._stop.wait(self.period_s):
+            t = time.monotonic() - self._t0
+            for name, pid in _service_pids(me).items():
+                rss = _rss_mib(pid)
+                if rss is not None:
+                    self.samples.append((t, name, rss))
+
+    def __enter__(self) -> "RssSampler":
+        self._t0 = time.monotonic()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def peaks(self, wall_s: float) -> dict[str, list[float]]:
+        out: dict[str, list[float]] = {}
+        for t, name, rss in self.samples:
+            k = min(int(t / max(wall_s, 1e-9) * SIXTHS), SIXTHS - 1)
+            row = out.setdefault(name, [0.0] * SIXTHS)
+            row[k] = max(row[k], round(rss, 1))
+        return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, default=60.0)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--cache-dir", default="/tmp/poseidon-soak")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    cache = Path(args.cache_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    mission = cache / f"soak_{args.minutes:g}min_seed{args.seed}.mcap"
+    if not mission.exists():
+        from missions.sim.cli import main as sim_main
+        print(f"simulating {args.minutes:g} minutes -> {mission}", file=sys.stderr)
+        if sim_main(["--minutes", str(args.minutes), "--seed", str(args.seed), "--out", str(mission)]) != 0:
+            print("simulation failed", file=sys.stderr)
+            return 1
+    inp = recording_summary(mission)
+    cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
+
+    print("transport only: player -> recorder", file=sys.stderr)
+    base = run_distributed(cfg, mission, cache / "soak_transport.mcap", services=[], progress=False)
+    print("full pipeline", file=sys.stderr)
+    with RssSampler() as sampler:
+        res = run_distributed(cfg, mission, cache / "soak_run.mcap", progress=True)
+    counts = res.recording["counts"]
+    played = [k for k in inp["counts"] if k not in ("neocortex/sdr", "local_view_cells")]
+    dropped = {k: inp["counts"][k] - counts.get(k, 0) for k in played}
+    mission_s = float(res.recording["duration_s"])
+    peaks = sampler.peaks(res.wall_s)
+    out = {
+        "minutes": args.minutes, "mission": str(mission),
+        "pipeline": {"wall_s": round(res.wall_s, 1), "mission_s": round(mission_s, 1),
+                     "real_time_factor": round(mission_s / res.wall_s, 2)},
+        "transport_only": {"wall_s": round(base.wall_s, 1), "mission_s": round(mission_s, 1),
+                           "real_time_factor": round(mission_s / base.wall_s, 2)},
+        "rtf_ratio": round(base.wall_s / res.wall_s, 3),
+        "dropped": dropped,
+        "outputs": {"camera_frames": counts.get("camera/image_raw", 0), "sdr": counts.get("neocortex/sdr", 0),
+                    "local_view_cells": counts.get("local_view_cells", 0),
+                    "events": counts.get("experience_event", 0),
+                    "experience_images": counts.get("experience_image", 0)},
+        "peak_rss_mib": peaks,
+        "rss_growth_mib": {n: round(v[-1] - v[1], 1) for n, v in peaks.items()},
+    }
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    p, t = out["pipeline"], out["transport_only"]
+    print(f"{args.minutes:g}-minute mission: full pipeline {p['wall_s']} s wall = {p['real_time_factor']}x real time; "
+          f"player + recorder alone {t['wall_s']} s = {t['real_time_factor']}x (pipeline / transport speed "
+          f"{out['rtf_ratio']})")
+    print(f"messages dropped (input - recorded): {sum(dropped.values())} over {len(dropped)} keys; "
+          f"outputs {out['outputs']}")
+    print("peak RSS per sixth of the run (MiB):")
+    for name, row in sorted(peaks.items()):
+        print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row) + f"   growth 2nd->6th {out['rss_growth_mib'][name]:+.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
