@@ -28,16 +28,14 @@ Exit status: 0, or 2 when the recording cannot be read.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from common.config import ConfigError, PoseidonConfig
-from common.mcap_io import RecordingError
-from eval.rundata import RunData, add_config_args, config_from_args, load_run
+from common.config import PoseidonConfig
+from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 
 __all__ = ["audit_run", "association", "sequence_gaps", "format_audit", "main"]
 
@@ -133,16 +131,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="largest evidence lag of an association (s; default expmap.image_sync_slop of the run)")
     add_config_args(ap)
     args = ap.parse_args(argv)
-    try:
-        a = audit_run(args.recording, slop_s=args.slop, config=config_from_args(args))
-    except (RecordingError, ConfigError, ValueError) as exc:
-        print(f"poseidon audit: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(a, indent=2))
-    else:
-        print("\n".join(format_audit(a)))
-    return 0
+    return report_cli("audit", lambda: audit_run(args.recording, slop_s=args.slop, config=config_from_args(args)), format_audit, args.json)
 
 
 if __name__ == "__main__":

@@ -28,15 +28,13 @@ Exit status: 0, or 2 when a recording cannot be read.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from common.config import ConfigError, PoseidonConfig
-from common.mcap_io import RecordingError
+from common.config import PoseidonConfig
 from eval.audit import audit_run
-from eval.rundata import RunData, add_config_args, config_from_args, load_run
+from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 from eval.run_eval import evaluate_run
 
 __all__ = ["compare_runs", "compare_results", "format_compare", "main", "TABLE_5_4", "ADDITIONS"]
@@ -169,17 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     if len(labels) != 2 or not all(labels):
         print(f"poseidon compare: --labels needs two comma-separated names, got {args.labels!r}", file=sys.stderr)
         return 2
-    try:
-        c = compare_runs(args.run_a, args.run_b, (labels[0], labels[1]), far_m=args.far_m,
-                         config=config_from_args(args))
-    except (RecordingError, ConfigError, ValueError) as exc:
-        print(f"poseidon compare: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(c, indent=2))
-    else:
-        print("\n".join(format_compare(c)))
-    return 0
+    return report_cli("compare", lambda: compare_runs(args.run_a, args.run_b, (labels[0], labels[1]),
+                                                      far_m=args.far_m, config=config_from_args(args)),
+                      format_compare, args.json)
 
 
 if __name__ == "__main__":

@@ -68,7 +68,6 @@ Exit status: 0, or 2 when the recording or its configuration cannot be read.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -76,10 +75,9 @@ from typing import Any
 
 import numpy as np
 
-from common.config import ConfigError, PoseidonConfig
-from common.mcap_io import RecordingError
+from common.config import PoseidonConfig
 from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
-from eval.rundata import RunData, add_config_args, config_from_args, load_run
+from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 from eval.trajectory import Trajectory, anchored_errors, ate, drift_pct, rpe
 
 __all__ = ["evaluate_run", "format_eval", "main", "map_trajectory", "loop_closure_table", "front_end_metrics",
@@ -379,16 +377,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="distance travelled before an LVC id re-use counts as a claimed revisit (m)")
     add_config_args(ap)
     args = ap.parse_args(argv)
-    try:
-        r = evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m, config=config_from_args(args))
-    except (RecordingError, ConfigError, ValueError) as exc:
-        print(f"poseidon eval: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(r, indent=2))
-    else:
-        print("\n".join(format_eval(r)))
-    return 0
+    return report_cli("eval", lambda: evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m, config=config_from_args(args)), format_eval, args.json)
 
 
 if __name__ == "__main__":

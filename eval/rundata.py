@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Callable
 import numpy as np
 from pydantic import ValidationError
 
 from common.codec import DecodeError, decode
-from common.config import PoseidonConfig, load_config
+from common.config import ConfigError, PoseidonConfig, load_config
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, LocalViewCells, Message, Odometry,
                              RevisitTruth, message_type)
@@ -163,3 +165,16 @@ def config_from_args(args: argparse.Namespace) -> PoseidonConfig | None:
     if args.config is None and not args.overrides:
         return None
     return load_config(args.config, args.overrides)
+
+
+def report_cli(command: str, compute: Callable[[], dict[str, Any]], fmt: Callable[[dict[str, Any]], list[str]],
+               as_json: bool) -> int:
+    """The common tail of the evaluation commands: ``compute()``, then the result as JSON or
+    as text lines; a bad recording, configuration or value is exit 2 with ``poseidon COMMAND:``."""
+    try:
+        result = compute()
+    except (RecordingError, ConfigError, ValueError) as exc:
+        print(f"poseidon {command}: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2) if as_json else "\n".join(fmt(result)))
+    return 0
