@@ -329,6 +329,27 @@ class ExpMapConfig(_Section):
     loop_place_radius_m: float = Field(0.0, ge=0, description="a loop closure pulls the two experiences to within "
                                        "this distance (m) instead of onto each other; 0: zero-displacement loop "
                                        "edge (services/expmap/graph.py ExperienceMap.loop_delta)")
+    loop_scan_matching: bool = Field(True, description="measure a loop edge's displacement by registering the sonar "
+                                     "sweeps kept with the two experiences (services/expmap/scans.py); false: the "
+                                     "dissertation's zero-displacement loop edge")
+    scan_topic: str = Field("sonar_micron", description="horizontal imaging sonar (RangeImageBeam) whose sweeps are "
+                            "kept with the experiences")
+    scan_sweep_deg: float = Field(360.0, gt=0, le=720, description="head travel (deg) of the sweep kept per experience")
+    scan_min_range_m: float = Field(1.0, ge=0, description="echoes nearer than this are the transducer ring-down (m)")
+    scan_echo_threshold: float = Field(80.0, ge=0, description="a beam's strongest bin must reach this intensity "
+                                       "to count as a wall echo (beam_data units)")
+    scan_cell_m: float = Field(0.1, gt=0, description="grid cell of the sweep registration (m)")
+    scan_search_radius_m: float = Field(4.0, gt=0, description="registration search around both hypotheses "
+                                        "(same place; current map separation) (m)")
+    scan_max_rotation_deg: float = Field(2.0, ge=0, description="heading disagreement searched between two sweeps (deg)")
+    scan_rotation_step_deg: float = Field(1.0, gt=0, description="rotation step of that search (deg)")
+    scan_min_points: int = Field(50, ge=3, description="fewest wall echoes a sweep needs to be registered")
+    scan_min_inlier_fraction: float = Field(0.5, ge=0, le=1, description="fraction of aligned points within 2 cells "
+                                            "of the stored sweep for a trusted registration")
+    scan_ambiguity_margin_m: float = Field(0.01, ge=0, description="translations whose cost is within this of the "
+                                           "best are near-best (m)")
+    scan_max_ambiguity_m: float = Field(0.3, gt=0, description="a principal axis along which the near-best "
+                                        "translations spread more (std, m) is left to the map")
     relax_iterations_per_event: int = Field(10, ge=1, description="relaxation iterations per accepted event, each "
                                             "moving a node by at most max_correction_step")
     map_publish_every: int = Field(100, ge=0, description="publish map every max(N, nodes/10) events (0: only after loop "

@@ -32,6 +32,7 @@ Loop closure (Table 4.1), decided for the new node n of every event:
   second closure from re-closing a loop that is already closed.  A closure resets the
   confirmation count.
 - the loop edge goes from m to n with zero displacement (an LVC match says "same place";
+  measured by sonar instead when available, see below;
   the pose-cell offset is not used because the lattice wraps every 1.5 m and its centroid
   is itself pulled toward the stored pose) and weight ``loop_edge_weight``, duration 0 s.
 
@@ -54,9 +55,14 @@ the same fraction, the pending state is ``position = pos + phi * rem`` and an ev
 iterations only advance phi (O(1)); positions are materialised when read.  Nodes created
 while a correction is pending inherit their predecessor's correction.
 
+Loop-edge displacement: with ``loop_scan_matching`` each node keeps the sonar sweep around
+its odometry position and a closure's edge asks for the displacement measured by registering
+the two sweeps (:mod:`services.expmap.scans`; a departure from the zero displacement above,
+which stays the fallback when a sweep is missing or the registration is not trusted).
+
 Save/load (:meth:`save`, :meth:`load`, npz) keeps everything needed to continue: nodes,
-odometry increments, loop edges, the confirmation chain, the pending correction and the
-last event's odometry (a continued mission must use the same odometry frame).
+odometry increments, loop edges, sonar sweeps, the confirmation chain, the pending correction
+and the last event's odometry (a continued mission must use the same odometry frame).
 """
 from __future__ import annotations
 
@@ -73,6 +79,7 @@ from numba import njit
 from scipy.sparse.linalg import splu
 
 from common.config import ExpMapConfig
+from services.expmap.scans import Registration, register_sweeps
 
 __all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells"]
 
@@ -265,6 +272,9 @@ class ExperienceMap:
         self.last_correction_stamp = -1
         self.corrections = 0
         self.solves = 0
+        self._scans: list[np.ndarray | None] = []    # per node: sonar sweep around its odometry position
+        self.scan_registrations = {"trusted": 0, "partial": 0, "untrusted": 0, "no_sweep": 0}
+        self.last_registration: Registration | None = None
 
     # ---- read access --------------------------------------------------------------
     @property
@@ -321,8 +331,12 @@ class ExperienceMap:
         return out
 
     # ---- the event ----------------------------------------------------------------
-    def add_event(self, stamp: int, lvc_id: int, pc_centroid, odom_position, odom_yaw: float) -> EventResult:
-        """Create the node of one accepted event, look for a loop, relax (one event's iterations)."""
+    def add_event(self, stamp: int, lvc_id: int, pc_centroid, odom_position, odom_yaw: float,
+                  sweep: np.ndarray | None = None) -> EventResult:
+        """Create the node of one accepted event, look for a loop, relax (one event's iterations).
+
+        ``sweep``: the sonar points (k x 2, m) around the event's odometry position
+        (:meth:`services.expmap.scans.SweepBuffer.sweep`), kept to measure loop displacements."""
         cfg, g = self.cfg, self._g
         odom = np.asarray(odom_position, np.float64)
         pc = np.asarray(pc_centroid, np.float64)
@@ -353,6 +367,7 @@ class ExperienceMap:
         g.n = n + 1
         self.last_odom = odom.copy()
         self._lvc_index.setdefault(int(lvc_id), []).append(n)
+        self._scans.append(None if sweep is None or len(sweep) == 0 else np.asarray(sweep, np.float32).reshape(-1, 2))
 
         res = EventResult(node=n)
         self._loop_search(n, res)
@@ -474,14 +489,45 @@ class ExperienceMap:
 
     def loop_delta(self, m: int, n: int) -> np.ndarray:
         """Displacement p_n - p_m a loop closure of m and n asks for (Eq. 4.20's Delta p of the
-        loop edge).  A recognised place says the vehicle is *near* the stored experience, not
-        on it: with ``loop_place_radius_m`` r > 0 the edge keeps the current separation d when
-        |d| <= r (no correction) and asks for d r / |d| beyond (pulls the two to r apart);
-        r = 0 is the literal "same place", zero displacement."""
-        r = float(self.cfg.loop_place_radius_m)
+        loop edge).
+
+        With ``loop_scan_matching`` and a sonar sweep kept with both experiences, the sweeps are
+        registered (:func:`services.expmap.scans.register_sweeps`): a trusted registration gives
+        the horizontal displacement (along an ambiguous axis, e.g. along a straight tunnel, the
+        map's current separation is kept) and the odometry gives the vertical one (pressure
+        depth is absolute).  Otherwise the dissertation's rule: a recognised place is the same
+        place, zero displacement; with ``loop_place_radius_m`` r > 0 the edge keeps the current
+        separation d when |d| <= r and asks for d r / |d| beyond (pulls the two to r apart).
+        """
+        cfg = self.cfg
+        d = self._position(n) - self._position(m)
+        self.last_registration = None
+        if cfg.loop_scan_matching:
+            a, b = self._scans[m], self._scans[n]
+            if a is None or b is None:
+                self.scan_registrations["no_sweep"] += 1
+            else:
+                reg = register_sweeps(a, b, d[:2], cell_m=cfg.scan_cell_m, search_radius_m=cfg.scan_search_radius_m,
+                                      max_rotation_deg=cfg.scan_max_rotation_deg,
+                                      rotation_step_deg=cfg.scan_rotation_step_deg, min_points=cfg.scan_min_points,
+                                      min_inlier_fraction=cfg.scan_min_inlier_fraction,
+                                      ambiguity_margin_m=cfg.scan_ambiguity_margin_m,
+                                      max_ambiguity_m=cfg.scan_max_ambiguity_m)
+                self.last_registration = reg
+                if reg.trusted:
+                    t = reg.translation.copy()
+                    if reg.ambiguous_axis is not None:
+                        u = reg.ambiguous_axis
+                        t = t + u * float(u @ (d[:2] - t))
+                        self.scan_registrations["partial"] += 1
+                    else:
+                        self.scan_registrations["trusted"] += 1
+                    cum = self._a("cum")
+                    return np.array([t[0], t[1], cum[n, 2] - cum[m, 2]])
+                self.scan_registrations["untrusted"] += 1
+        r = float(cfg.loop_place_radius_m)
         if r <= 0.0:
             return np.zeros(3)
-        d = self._position(n) - self._position(m)
         norm = float(np.sqrt(np.sum(d * d)))
         return d if norm <= r else d * (r / norm)
 
@@ -577,11 +623,14 @@ class ExperienceMap:
         loop_w = np.array([w for _m, _n, w, _s in self.loops], np.float64)
         loop_d = np.asarray(self.loop_deltas, np.float64).reshape(-1, 3)
         last_odom = self.last_odom if self.last_odom is not None else np.full(3, np.nan)
+        sweeps = [np.zeros((0, 2), np.float32) if a is None else a for a in self._scans]
+        sweep_ptr = np.concatenate([[0], np.cumsum([len(a) for a in sweeps])]).astype(np.int64)
+        sweep_pts = np.concatenate(sweeps).astype(np.float32) if sweeps else np.zeros((0, 2), np.float32)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w, loop_delta=loop_d,
-                 last_odom=last_odom, **arrays)
+                 last_odom=last_odom, sweep_ptr=sweep_ptr, sweep_pts=sweep_pts, **arrays)
         tmp.replace(path)
 
     @classmethod
@@ -621,6 +670,13 @@ class ExperienceMap:
         em.solves = int(meta["solves"])
         for i, l in enumerate(em.lvc_ids.tolist()):
             em._lvc_index.setdefault(int(l), []).append(i)
+        if "sweep_ptr" in z:                      # maps saved before sonar sweeps existed have none
+            ptr, pts = z["sweep_ptr"], z["sweep_pts"]
+            if len(ptr) != n + 1:
+                raise ValueError(f"{path}: {len(ptr) - 1} sonar sweeps for {n} experiences")
+            em._scans = [pts[ptr[i]:ptr[i + 1]].copy() if ptr[i + 1] > ptr[i] else None for i in range(n)]
+        else:
+            em._scans = [None] * n
         return em
 
 

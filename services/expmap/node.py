@@ -44,12 +44,15 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-from common.config import PoseidonConfig
+import numpy as np
+
+from common.config import ConfigError, PoseidonConfig
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceNode, Header, Image,
-                             Odometry, PoseStamped)
+                             Odometry, PoseStamped, RangeImageBeam)
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
 from services.expmap.graph import ExperienceMap
+from services.expmap.scans import SweepBuffer, echo_range
 
 __all__ = ["ExpMapNode", "map_message"]
 
@@ -59,6 +62,14 @@ log = logging.getLogger(__name__)
 def _yaw_of(q: list[float]) -> float:
     x, y, z, w = q
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _rotation_of(q: list[float]) -> np.ndarray:
+    """Body->world rotation matrix of a quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def map_message(em: ExperienceMap, header: Header) -> ExperienceMapMsg:
@@ -85,6 +96,8 @@ class ExpMapNode(ServiceNode):
         """Input keys under ``config`` (the camera key is configurable, and optional)."""
         cfg = config.expmap
         ins = ((cfg.image_topic,) if cfg.publish_experience_image else ()) + ("experience_event", "Odometry")
+        if cfg.loop_scan_matching:
+            ins += (cfg.scan_topic,)
         return ins, cls.outputs
 
     def __init__(self, config: PoseidonConfig):
@@ -107,6 +120,12 @@ class ExpMapNode(ServiceNode):
         self._last_dr_stamp: int | None = None
         self._since_map = 0
         self._dirty = False
+        self.scan_key = cfg.scan_topic if cfg.loop_scan_matching else None
+        if self.scan_key is not None and config.robot_state.axis_remap[2] != "z":
+            raise ConfigError(f"expmap.loop_scan_matching needs a vertical published z axis, but "
+                              f"robot_state.axis_remap={config.robot_state.axis_remap!r}; set "
+                              "expmap.loop_scan_matching=false or keep z last")
+        self.sweeps = SweepBuffer(head_sign=config.robot_state.axis_sign_z, sweep_deg=cfg.scan_sweep_deg)
 
     # ---- inputs ---------------------------------------------------------------------
     def process(self, key: str, msg: Any) -> None:
@@ -117,12 +136,16 @@ class ExpMapNode(ServiceNode):
             self._on_odometry(msg)
         elif key == self.image_key:
             self._on_image(msg)
+        elif key == self.scan_key:
+            self._on_beam(msg)
         else:
             raise KeyError(f"expmap: unexpected input key {key!r} (inputs {self.inputs})")
 
     def _on_event(self, ev: ExperienceEvent) -> None:
         try:
-            res = self.graph.add_event(ev.header.stamp, ev.lvc_id, ev.pc_centroid, ev.odom_position, ev.odom_yaw)
+            sweep = self.sweeps.sweep(ev.odom_position[:2]) if self.scan_key is not None else None
+            res = self.graph.add_event(ev.header.stamp, ev.lvc_id, ev.pc_centroid, ev.odom_position, ev.odom_yaw,
+                                       sweep=sweep)
         except ValueError as exc:
             log.error("expmap: experience_event seq %d skipped: %s", ev.header.seq, exc)
             self.count("events_invalid")
@@ -131,8 +154,15 @@ class ExpMapNode(ServiceNode):
         self.count("events")
         if res.loop_closed:
             self.count("loop_closures")
-            log.info("expmap: loop closure %d -> %d (score %.3f, correction %.2f m%s)", res.match, res.node,
-                     res.score, res.correction_norm, ", clamped" if res.correction_clamped else "")
+            reg = self.graph.last_registration
+            how = "zero displacement (no sweep)" if self.scan_key is not None else "zero displacement"
+            if reg is not None:
+                how = (f"sonar registration{' along one axis' if reg.ambiguous_axis is not None else ''}, "
+                       f"inliers {reg.inlier_fraction:.2f}" if reg.trusted else f"zero displacement ({reg.reason})")
+                self.count("loop_scan_registered" if reg.trusted else "loop_scan_untrusted")
+            log.info("expmap: loop closure %d -> %d (score %.3f, correction %.2f m%s; loop edge %s: %s)", res.match,
+                     res.node, res.score, res.correction_norm, ", clamped" if res.correction_clamped else "",
+                     " ".join(f"{v:.2f}" for v in self.graph.loop_deltas[-1]), how)
         if res.rejected:
             self.count(f"loop_rejected_{res.rejected}")
         if res.correction_clamped:
@@ -151,6 +181,8 @@ class ExpMapNode(ServiceNode):
             self._associate(ev.header)
 
     def _on_odometry(self, od: Odometry) -> None:
+        if self.scan_key is not None:
+            self.sweeps.add_pose(od.position, _rotation_of(od.orientation))
         period = int(round(self.cfg.dead_reckoning_period_sec * 1e9))
         t = od.header.stamp
         if self._last_dr_stamp is not None and period > 0 and t - self._last_dr_stamp < period:
@@ -159,6 +191,12 @@ class ExpMapNode(ServiceNode):
         self.publish("dead_reckoning", PoseStamped(
             header=self.header("dead_reckoning", t, od.header.frame_id),
             position=list(od.position), yaw=_yaw_of(od.orientation)))
+
+    def _on_beam(self, beam: RangeImageBeam) -> None:
+        c = self.cfg
+        rng = echo_range(beam.beam_data, float(beam.max_range), c.scan_min_range_m, c.scan_echo_threshold)
+        if not self.sweeps.add_beam(beam.angle_rad, rng):
+            self.count("scan_beams_before_odometry")
 
     def _on_image(self, img: Image) -> None:
         while self._waiting and self._waiting[0][0].stamp <= img.header.stamp:
