@@ -20,7 +20,8 @@ replayed as fast as the services take it (player rate 0), every service in its o
 ``--json``: ``{"minutes", "mission", "pipeline": {"wall_s", "mission_s", "real_time_factor"},
 "transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
 {"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
-"peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second}}``.
+"peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second},
+"cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended)}}``.
 """
 from __future__ import annotations
 
@@ -60,6 +61,16 @@ def _service_pids(root: int) -> dict[str, int]:
     return out
 
 
+def _cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds a process has used so far (``/proc/PID/stat`` fields 14-15)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (FileNotFoundError, ProcessLookupError, IndexError, ValueError):
+        return None  # ended between listing and reading
+
+
 def _rss_mib(pid: int) -> float | None:
     try:
         with open(f"/proc/{pid}/status") as f:
@@ -77,6 +88,7 @@ class RssSampler:
     def __init__(self, period_s: float = 1.0):
         self.period_s = period_s
         self.samples: list[tuple[float, str, float]] = []   # (wall s from start, service, MiB)
+        self.cpu_s: dict[str, float] = {}                   # service -> CPU s used at its last sample
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._t0 = 0.0
@@ -89,6 +101,9 @@ class RssSampler:
                 rss = _rss_mib(pid)
                 if rss is not None:
                     self.samples.append((t, name, rss))
+                cpu = _cpu_s(pid)
+                if cpu is not None:
+                    self.cpu_s[name] = cpu
 
     def __enter__(self) -> "RssSampler":
         self._t0 = time.monotonic()
@@ -151,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
                     "experience_images": counts.get("experience_image", 0)},
         "peak_rss_mib": peaks,
         "rss_growth_mib": {n: round(v[-1] - v[1], 1) for n, v in peaks.items()},
+        "cpu_s": {n: round(v, 1) for n, v in sorted(sampler.cpu_s.items())},
     }
     if args.json:
         print(json.dumps(out, indent=1))
@@ -161,6 +177,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{out['rtf_ratio']})")
     print(f"messages dropped (input - recorded): {sum(dropped.values())} over {len(dropped)} keys; "
           f"outputs {out['outputs']}")
+    total = sum(out["cpu_s"].values())
+    print(f"CPU seconds per service (sum {total:.0f} s over {p['wall_s']} s wall on {os.cpu_count()} cores): " +
+          ", ".join(f"{n} {v:.0f} s ({100 * v / max(total, 1e-9):.0f} %)" for n, v in
+                    sorted(out["cpu_s"].items(), key=lambda kv: -kv[1])))
     print("peak RSS per sixth of the run (MiB):")
     for name, row in sorted(peaks.items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row) + f"   growth 2nd->6th {out['rss_growth_mib'][name]:+.1f}")

@@ -21,7 +21,8 @@ def test_peaks_are_binned_by_sixths_of_the_wall_time():
 
 
 def test_service_children_are_found_and_sampled():
-    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)", "service", "fakesvc"])
+    busy = "import time; t = time.process_time()\nwhile time.process_time() - t < 0.3: pass\ntime.sleep(30)"
+    child = subprocess.Popen([sys.executable, "-c", busy, "service", "fakesvc"])
     try:
         deadline = time.monotonic() + 10
         found = {}
@@ -31,7 +32,12 @@ def test_service_children_are_found_and_sampled():
         assert found.get("fakesvc") == child.pid
         rss = bench_soak._rss_mib(child.pid)
         assert rss is not None and rss > 1.0
+        cpu = 0.0
+        while time.monotonic() < deadline and cpu < 0.3:   # the child burns 0.3 s of CPU, then sleeps
+            cpu = bench_soak._cpu_s(child.pid) or 0.0
+            time.sleep(0.05)
+        assert 0.3 <= cpu < 5.0
     finally:
         child.kill()
         child.wait()
-    assert bench_soak._rss_mib(child.pid) is None
+    assert bench_soak._rss_mib(child.pid) is None and bench_soak._cpu_s(child.pid) is None
