@@ -204,7 +204,7 @@ class EventResult:
     score: float = 0.0
     confirmations: int = 0
     loop_closed: bool = False
-    rejected: str = ""              # "interval" | "route" when a confirmed loop was not closed
+    rejected: str = ""              # "interval" | "route" | "scan" when a confirmed loop was not closed
     correction_clamped: bool = False
     correction_norm: float = 0.0    # largest node displacement planned by this closure (m)
     step_max: float = 0.0           # largest node move in one relaxation iteration of this event (m)
@@ -467,7 +467,11 @@ class ExperienceMap:
         if bound < cfg.min_correction_route_len:
             res.rejected = "route"
             return
-        self.add_loop_edge(m, n, float(cfg.loop_edge_weight), stamp, self.loop_delta(m, n))
+        delta = self.loop_delta(m, n)
+        if delta is None:
+            res.rejected = "scan"
+            return
+        self.add_loop_edge(m, n, float(cfg.loop_edge_weight), stamp, delta)
         self.corrections += 1
         self.last_correction_stamp = stamp
         self.confirmations = 0
@@ -487,9 +491,9 @@ class ExperienceMap:
         if self._peak <= 0.0:
             self._g.arrays["rem"][: self.n_nodes] = 0.0
 
-    def loop_delta(self, m: int, n: int) -> np.ndarray:
+    def loop_delta(self, m: int, n: int) -> np.ndarray | None:
         """Displacement p_n - p_m a loop closure of m and n asks for (Eq. 4.20's Delta p of the
-        loop edge).
+        loop edge), or None when the sonar contradicts the recognition.
 
         With ``loop_scan_matching`` and a sonar sweep kept with both experiences, the sweeps are
         registered (:func:`services.expmap.scans.register_sweeps`): a trusted registration gives
@@ -498,6 +502,11 @@ class ExperienceMap:
         depth is absolute).  Otherwise the dissertation's rule: a recognised place is the same
         place, zero displacement; with ``loop_place_radius_m`` r > 0 the edge keeps the current
         separation d when |d| <= r and asks for d r / |d| beyond (pulls the two to r apart).
+        Geometric verification (``scan_reject_inconsistent``): when both sweeps have enough
+        echoes but fewer than ``scan_min_inlier_fraction`` of them fit after the best
+        alignment, the two experiences do not see the same walls: None (the closure is
+        rejected, counted as ``loop_rejected_scan`` by the node).  Sweeps without walls in
+        range or ambiguous in every direction prove nothing and fall back to the rule below.
         """
         cfg = self.cfg
         d = self._position(n) - self._position(m)
@@ -525,6 +534,8 @@ class ExperienceMap:
                     cum = self._a("cum")
                     return np.array([t[0], t[1], cum[n, 2] - cum[m, 2]])
                 self.scan_registrations["untrusted"] += 1
+                if reg.inconsistent and cfg.scan_reject_inconsistent:
+                    return None
         r = float(cfg.loop_place_radius_m)
         if r <= 0.0:
             return np.zeros(3)

@@ -30,8 +30,15 @@ subscribed.
 - ``map_path``: the map is loaded at start when the file exists and saved at the end (after
   settling), to continue in a later mission with the same odometry frame.
 
+- sonar (``expmap.scan_topic``, with ``loop_scan_matching``): every beam's wall echo becomes
+  a point in the dead-reckoning frame with the latest ``Odometry`` pose; each experience
+  keeps the last full sweep, and a loop closure registers the two experiences' sweeps for
+  the loop edge's displacement (:mod:`services.expmap.scans`).
+
 Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_interval``,
-``loop_rejected_route``, ``corrections_clamped`` (a closure scaled to max_correction_norm),
+``loop_rejected_route``, ``loop_rejected_scan`` (the two sweeps do not fit),
+``loop_scan_registered`` / ``loop_scan_untrusted`` (how closures got their displacement),
+``scan_beams_before_odometry`` (beams before the first pose, unused), ``corrections_clamped`` (a closure scaled to max_correction_norm),
 ``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
 max_correction_step), ``experience_images``, ``events_without_image``,
 ``image_wait_overflow``, ``maps_published``.
@@ -165,6 +172,9 @@ class ExpMapNode(ServiceNode):
                      " ".join(f"{v:.2f}" for v in self.graph.loop_deltas[-1]), how)
         if res.rejected:
             self.count(f"loop_rejected_{res.rejected}")
+            if res.rejected == "scan":
+                log.info("expmap: loop closure %d -> %d rejected: the sonar sweeps do not fit (%s)", res.match,
+                         res.node, self.graph.last_registration.reason)
         if res.correction_clamped:
             self.count("corrections_clamped")
         if res.iterations:

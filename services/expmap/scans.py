@@ -32,7 +32,8 @@ dissertation's zero displacement otherwise.
   near-best translations (cost <= best + ``scan_ambiguity_margin_m``) have a spread; along a
   principal axis whose spread (std) exceeds ``scan_max_ambiguity_m`` the registration says
   nothing, and the loop edge keeps the map's current separation along that axis.  Both axes
-  ambiguous: not trusted.
+  ambiguous: not trusted.  Too few inliers: ``inconsistent`` (the sweeps do not show the
+  same walls), which the map uses to reject the loop closure (geometric verification).
 
 Only horizontal (x, y) is registered; the vertical component of the loop displacement comes
 from the odometry (pressure depth is absolute).  The published frame must keep z vertical
@@ -131,6 +132,7 @@ class Registration:
     ambiguous_axis: np.ndarray | None   # unit vector along which the registration says nothing (or None)
     trusted: bool
     reason: str = ""
+    inconsistent: bool = False       # enough echoes, but the sweeps do not fit: not the same walls
 
 
 @njit(cache=True)
@@ -164,7 +166,7 @@ def _rotate(pts: np.ndarray, deg: float) -> np.ndarray:
 
 def register_sweeps(ref: np.ndarray, cur: np.ndarray, map_separation, *, cell_m: float = 0.1,
                     search_radius_m: float = 4.0, max_rotation_deg: float = 2.0, rotation_step_deg: float = 1.0,
-                    min_points: int = 50, min_inlier_fraction: float = 0.5, ambiguity_margin_m: float = 0.01,
+                    min_points: int = 50, min_inlier_fraction: float = 0.65, ambiguity_margin_m: float = 0.01,
                     max_ambiguity_m: float = 0.3, max_window_m: float = 12.0) -> Registration:
     """Translation p_n - p_m laying the current sweep ``cur`` onto the stored one ``ref``
     (both relative to their experience's odometry position); see the module doc."""
@@ -227,6 +229,7 @@ def register_sweeps(ref: np.ndarray, cur: np.ndarray, map_separation, *, cell_m:
     res = Registration(t, rot, cost, inl, spread, None, False)
     if inl < min_inlier_fraction:
         res.reason = f"inlier fraction {inl:.2f} < {min_inlier_fraction}"
+        res.inconsistent = True
         return res
     if spread[0] > max_ambiguity_m:
         res.reason = f"ambiguous in every direction (spread {spread[0]:.2f}, {spread[1]:.2f} m)"

@@ -188,3 +188,31 @@ def test_sweeps_survive_save_and_load(tmp_path):
     assert len(back._scans) == em.n_nodes
     for a, b in zip(em._scans, back._scans):
         assert (a is None and b is None) or np.array_equal(a, b)
+
+
+def test_a_closure_whose_sweeps_do_not_fit_is_rejected():
+    """Geometric verification: the LVCs say "same place" but the second pass is in another
+    chamber; the closure is refused (or, with the check off, closed with zero displacement)."""
+    ang = np.linspace(0, 2 * np.pi, 7)[:-1] + 0.3
+    other = np.c_[2 + 5 * np.cos(ang), 4 + 4 * np.sin(ang)]               # a hexagonal chamber
+    cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0)
+
+    def run(c):
+        em = ExperienceMap(c)
+        base = np.array([1.0, 3.0])
+        results = []
+        for lap in range(2):
+            for k in range(40):
+                a = 2 * math.pi * k / 40
+                p = base + np.array([2.5 * math.sin(a), 1.5 * (1 - math.cos(a))])
+                walls = [CHAMBER] if lap == 0 else [other]
+                pub = [p[1], p[0], 0.0]
+                results.append(em.add_event((lap * 40 + k) * SEC, k, pc_of(pub), pub, 0.0, sweep=_sweep(p, walls)))
+        return em, results
+
+    em, results = run(cfg)
+    assert em.corrections == 0 and not em.loops
+    assert any(r.rejected == "scan" for r in results) and em.scan_registrations["untrusted"] >= 1
+    assert em.last_registration is not None and em.last_registration.inconsistent
+    em_off, _ = run(cfg.model_copy(update={"scan_reject_inconsistent": False}))
+    assert em_off.corrections >= 1 and np.allclose(em_off.loop_deltas[0], 0.0)
