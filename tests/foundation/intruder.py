@@ -1,6 +1,7 @@
 """A hostile session for the secured multi-host test: joins a router (or fails to), subscribes
 to some keys and puts forged messages on others until SIGTERM (or ``--seconds``), then prints
-a JSON report on stdout: ``joined``, ``received`` {key: samples}, ``put`` {key: attempts},
+a JSON report on stdout: ``joined``, ``received`` {key: samples}, ``data`` {key: data frames
+among them (the rest are watermarks and end-of-stream)}, ``put`` {key: attempts},
 ``error`` (why it could not join).
 
 python -m tests.foundation.intruder ENDPOINT TLS_DIR TLS_HOST [--user U --password-file F]
@@ -49,7 +50,8 @@ def main() -> None:
                         password_file=args.password_file)
     conf.insert_json5("connect/timeout_ms", "4000")
     conf.insert_json5("connect/exit_on_failure", "true")
-    report: dict = {"joined": False, "received": {k: 0 for k in args.subscribe}, "put": {k: 0 for k in args.put}}
+    report: dict = {"joined": False, "received": {k: 0 for k in args.subscribe},
+                    "data": {k: 0 for k in args.subscribe}, "put": {k: 0 for k in args.put}}
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
@@ -60,9 +62,10 @@ def main() -> None:
     lock = threading.Lock()
 
     def counter(key: str):
-        def on_sample(_sample: zenoh.Sample) -> None:
+        def on_sample(sample: zenoh.Sample) -> None:
             with lock:
                 report["received"][key] += 1
+                report["data"][key] += sample.payload.to_bytes()[:1] == b"D"
         return on_sample
 
     subs = [session.declare_subscriber(f"{args.namespace}/{k}", counter(k)) for k in args.subscribe]
