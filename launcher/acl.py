@@ -10,7 +10,10 @@ Default deny, then an allow-list per identity (Zenoh user = service name, see
   (:data:`services.player.player.SOURCE_KEYS`) and subscribe to no data;
 - ``recorder`` may subscribe to every data key (``NS/**``) and put no data;
 - every identity gets the bus's control traffic listed in :data:`CONTROL_GRANTS`;
-- ``router`` (the other computers' hubs) may do everything on the namespace.
+- ``router`` (the other computers' hubs) may do everything on the namespace: a hub that opens
+  a link authenticates as user ``router``; on the hub that accepted it, the link has no user,
+  so hubs are also recognised by the common name of their certificate
+  (:data:`launcher.certs.HUB_COMMON_NAME`, ``hub.<host>.pem`` of ``poseidon certs``).
 
 Rules are written from the router's point of view (it enforces them on each client's
 link): *ingress* is what a client sends to the router, *egress* what the router forwards
@@ -143,8 +146,10 @@ def access_control(config=None) -> dict:
     control_keys = sorted({f"{ns}/" + key.replace("{name}", "*") for _v, key, _r in CONTROL_GRANTS})
     rules.append({"id": "router_all", "permission": "allow", "flows": ["ingress", "egress"],
                   "messages": list(ALL_MESSAGES), "key_exprs": [f"{ns}/**", *control_keys]})
+    from launcher.certs import HUB_COMMON_NAME
     subjects.append({"id": "router", "usernames": ["router"]})
-    policies.append({"subjects": ["router"], "rules": ["router_all"]})
+    subjects.append({"id": "hub_certificate", "cert_common_names": [HUB_COMMON_NAME]})
+    policies.append({"subjects": ["router", "hub_certificate"], "rules": ["router_all"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 

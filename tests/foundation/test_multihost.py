@@ -91,8 +91,9 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     """The secured profile (deploy/zenoh/secured-*.json5, ``poseidon certs``): mutual TLS,
     user/password, and default-deny access control generated from the services' keys.
 
-    Host A (sensor computer): hub, player, robot_state; host B: encoder, htm, posecells,
-    expmap, recorder.  Every service runs with its own credentials and the recording equals
+    Host A (sensor computer): hub, player, robot_state; host B: hub (connected to A's as user
+    ``router``; A's recognises it by its hub certificate), encoder, htm, posecells, expmap,
+    recorder; each service joins its own host's hub.  Every service runs with its own credentials and the recording equals
     an unsecured run's, message for message.  Meanwhile intruders try: the right certificate
     without credentials and a certificate of another CA cannot join; the player's credentials
     can neither put Odometry nor read the camera; the encoder's can neither put the camera nor
@@ -117,31 +118,42 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     baseline = run_embedded(config, short_mission, tmp_path / "unsecured.mcap", progress=False, timeout_s=300)
     t_baseline = time.monotonic() - t0
 
-    endpoint = "tls/10.77.0.1:7447"
-    router = str(REPO / "deploy" / "zenoh" / "secured-router.json5")
+    endpoint = {host_a: "tls/10.77.0.1:7447", host_b: "tls/10.77.0.2:7447"}  # each host's own hub
+    router_a = REPO / "deploy" / "zenoh" / "secured-router.json5"
+    router_b = tmp_path / "secured-router-b.json5"  # B's hub connects to A's
+    text = router_a.read_text()
+    assert text.count("endpoints: [],  // the other computers' routers") == 1
+    router_b.write_text(text.replace("endpoints: [],  // the other computers' routers",
+                                     f'endpoints: ["{endpoint[host_a]}"],  // A'))
     service = str(REPO / "deploy" / "zenoh" / "secured-service.json5")
     out = tmp_path / "secured.mcap"
 
     def in_ns(ns, *cmd):
         return ["ip", "netns", "exec", ns, *cmd]
 
+    def hub(ns, config):
+        return subprocess.Popen(in_ns(ns, *py, "hub", "--listen", endpoint[ns], "--zenoh-config", str(config),
+                                      "--tls-dir", str(tls), "--tls-host", f"hub.{ip[ns]}", "--zenoh-user", "router",
+                                      "--zenoh-password-file", str(tls / "router.password")), cwd=REPO)
+
     def run_service(ns, name, *extra):
-        cmd = in_ns(ns, *py, "service", name, "--connect", endpoint, "--zenoh-config", service, "--tls-dir", str(tls),
-                    "--tls-host", ip[ns], "--zenoh-user", name, "--zenoh-password-file", str(tls / f"{name}.password"),
-                    *[a for s in sets for a in ("--set", s)], "--stats", str(tmp_path / f"{name}.json"), *extra)
+        cmd = in_ns(ns, *py, "service", name, "--connect", endpoint[ns], "--zenoh-config", service, "--tls-dir",
+                    str(tls), "--tls-host", ip[ns], "--zenoh-user", name, "--zenoh-password-file",
+                    str(tls / f"{name}.password"), *[a for s in sets for a in ("--set", s)],
+                    "--stats", str(tmp_path / f"{name}.json"), *extra)
         return subprocess.Popen(cmd, cwd=REPO)
 
     def intruder(ns, tls_dir, user, *args):
         cred = ["--user", user, "--password-file", str(tls / f"{user}.password")] if user else []
-        return subprocess.Popen(in_ns(ns, sys.executable, "-m", "tests.foundation.intruder", endpoint, str(tls_dir),
-                                      ip[ns], *cred, *args), cwd=REPO, stdout=subprocess.PIPE, text=True)
+        return subprocess.Popen(in_ns(ns, sys.executable, "-m", "tests.foundation.intruder", endpoint[ns],
+                                      str(tls_dir), ip[ns], *cred, *args), cwd=REPO, stdout=subprocess.PIPE, text=True)
 
     procs: dict[str, subprocess.Popen] = {}
     intruders: dict[str, subprocess.Popen] = {}
     t0 = time.monotonic()
     try:
-        procs["hub"] = subprocess.Popen(in_ns(host_a, *py, "hub", "--listen", endpoint, "--zenoh-config", router,
-                                             "--tls-dir", str(tls), "--tls-host", "10.77.0.1"), cwd=REPO)
+        procs["hub_a"] = hub(host_a, router_a)
+        procs["hub_b"] = hub(host_b, router_b)
         time.sleep(1.0)
         intruders = {
             "no_credentials": intruder(host_b, tls, None, "--put", "Odometry", "--subscribe", "camera/image_raw"),
