@@ -63,6 +63,7 @@ DELEGATED = {
     "path": "services.expmap.path:main",
     "export": "missions.export.cli:main",
     "certs": "launcher.certs:main",
+    "acl": "launcher.acl:main",
 }
 
 

@@ -1,53 +1,89 @@
-"""A hostile session for the secured multi-host test: tries to join a router, subscribe to
-the camera and put forged Odometry for a while; prints a JSON report on stdout.
+"""A hostile session for the secured multi-host test: joins a router (or fails to), subscribes
+to some keys and puts forged messages on others until SIGTERM (or ``--seconds``), then prints
+a JSON report on stdout: ``joined``, ``received`` {key: samples}, ``data`` {key: data frames
+among them (the rest are watermarks and end-of-stream)}, ``put`` {key: attempts},
+``error`` (why it could not join).
 
-python -m tests.foundation.intruder ENDPOINT TLS_DIR TLS_HOST [USER PASSWORD_FILE] SECONDS
+python -m tests.foundation.intruder ENDPOINT TLS_DIR TLS_HOST [--user U --password-file F]
+    [--put KEY]... [--subscribe KEY]... [--seconds S]
+
+Forged messages are schema-valid (an ``Odometry`` far away, a 2x2 camera ``Image``), so a
+recorder would record them if the router let them through.
 """
+import argparse
 import json
-import sys
+import signal
+import threading
 import time
 
+import numpy as np
 import zenoh
 
 from common.bus import zenoh_config
 from common.codec import encode_frame
-from common.messages import Header, Odometry
+from common.messages import Header, Image, Odometry
+
+
+def forged(key: str, seq: int):
+    header = Header(seq=seq, stamp=1_372_687_208_000_000_000 + seq, frame_id="intruder")
+    if key.endswith("image_raw"):
+        return Image(header=header, height=2, width=2, data=np.full((2, 2, 3), 255, np.uint8))
+    return Odometry(header=header, position=[666.0, 0.0, 0.0], orientation=[0.0, 0.0, 0.0, 1.0])
 
 
 def main() -> None:
-    endpoint, tls_dir, host = sys.argv[1:4]
-    user, pw = (sys.argv[4], sys.argv[5]) if len(sys.argv) > 6 else (None, None)
-    seconds = float(sys.argv[-1])
-    conf = zenoh_config("client", connect=[endpoint], config_file="deploy/zenoh/secured-service.json5",
-                        tls_dir=tls_dir, tls_host=host, user=user, password_file=pw)
+    ap = argparse.ArgumentParser()
+    ap.add_argument("endpoint")
+    ap.add_argument("tls_dir")
+    ap.add_argument("tls_host")
+    ap.add_argument("--user")
+    ap.add_argument("--password-file")
+    ap.add_argument("--namespace", default="poseidon")
+    ap.add_argument("--put", action="append", default=[])
+    ap.add_argument("--subscribe", action="append", default=[])
+    ap.add_argument("--seconds", type=float, default=300.0)
+    args = ap.parse_args()
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    conf = zenoh_config("client", connect=[args.endpoint], config_file="deploy/zenoh/secured-service.json5",
+                        tls_dir=args.tls_dir, tls_host=args.tls_host, user=args.user,
+                        password_file=args.password_file)
     conf.insert_json5("connect/timeout_ms", "4000")
     conf.insert_json5("connect/exit_on_failure", "true")
-    report = {"joined": False, "camera_received": 0, "odometry_put": 0}
+    report: dict = {"joined": False, "received": {k: 0 for k in args.subscribe},
+                    "data": {k: 0 for k in args.subscribe}, "put": {k: 0 for k in args.put}}
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
         report["error"] = str(exc)[:300]
-        print(json.dumps(report))
+        print(json.dumps(report), flush=True)
         return
     report["joined"] = True
+    lock = threading.Lock()
 
-    def on_camera(_sample):
-        report["camera_received"] += 1
+    def counter(key: str):
+        def on_sample(sample: zenoh.Sample) -> None:
+            with lock:
+                report["received"][key] += 1
+                report["data"][key] += sample.payload.to_bytes()[:1] == b"D"
+        return on_sample
 
-    sub = session.declare_subscriber("poseidon/camera/image_raw", on_camera)
-    pub = session.declare_publisher("poseidon/Odometry")
-    t_end = time.monotonic() + seconds
+    subs = [session.declare_subscriber(f"{args.namespace}/{k}", counter(k)) for k in args.subscribe]
+    pubs = {k: session.declare_publisher(f"{args.namespace}/{k}") for k in args.put}
+    print("ready", flush=True)  # the test waits for this line before it starts the run
+    t_end = time.monotonic() + args.seconds
     seq = 0
-    while time.monotonic() < t_end:
-        forged = Odometry(header=Header(seq=seq, stamp=1_372_687_208_000_000_000 + seq), position=[666.0, 0.0, 0.0],
-                          orientation=[0.0, 0.0, 0.0, 1.0])
-        pub.put(encode_frame(forged))
-        report["odometry_put"] += 1
+    while not stop.is_set() and time.monotonic() < t_end:
+        for key, pub in pubs.items():
+            pub.put(encode_frame(forged(key, seq)))
+            report["put"][key] += 1
         seq += 1
-        time.sleep(0.05)
-    sub.undeclare()
+        stop.wait(0.05)
+    for sub in subs:
+        sub.undeclare()
     session.close()
-    print(json.dumps(report))
+    with lock:
+        print(json.dumps(report), flush=True)
 
 
 if __name__ == "__main__":

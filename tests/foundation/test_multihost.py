@@ -1,8 +1,9 @@
 """Two vehicle computers on one machine: network namespaces joined by a veth pair.
 
 Host A (10.77.0.1) runs the hub (a Zenoh router) and the player; host B (10.77.0.2) runs
-the recorder, connected to A's router across the link.  Every message must arrive.
-Needs root and iproute2 (as on the build machines); skipped otherwise.
+the recorder, connected to A's router across the link.  Every message must arrive.  The
+secured profile runs the whole pipeline across the two hosts under default-deny access
+control, with intruders.  Needs root and iproute2 (as on the build machines); skipped otherwise.
 """
 import json
 import os
@@ -77,67 +78,127 @@ def test_services_on_two_hosts_through_a_router(two_hosts, tmp_path):
     assert json.loads((tmp_path / "rec.json").read_text())["recorded"] == counts
 
 
-def test_secured_profile_on_two_hosts(two_hosts, tmp_path):
-    """deploy/zenoh/secured-*.json5 with `poseidon certs`: mutual TLS, user/password, access
-    control.  With the right certificates and credentials every message flows; a session with
-    the right certificate but no credentials cannot publish Odometry nor receive the camera;
-    the player's credentials cannot put Odometry (only robot_state may); a certificate of
-    another CA cannot join."""
+@pytest.fixture(scope="module")
+def short_mission(tmp_path_factory):
+    from missions.sim.cli import main as sim_main
+    path = tmp_path_factory.mktemp("mission") / "cave.mcap"
+    assert sim_main(["--minutes", "0.1", "--seed", "3", "--out", str(path)]) == 0
+    return path
+
+
+@pytest.mark.timeout(480)
+def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
+    """The secured profile (deploy/zenoh/secured-*.json5, ``poseidon certs``): mutual TLS,
+    user/password, and default-deny access control generated from the services' keys.
+
+    Host A (sensor computer): hub, player, robot_state; host B: hub (connected to A's as user
+    ``router``; A's recognises it by its hub certificate), encoder, htm, posecells, expmap,
+    recorder; each service joins its own host's hub.  Every service runs with its own credentials and the recording equals
+    an unsecured run's, message for message.  Meanwhile intruders try: the right certificate
+    without credentials and a certificate of another CA cannot join; the player's credentials
+    can neither put Odometry nor read the camera; the encoder's can neither put the camera nor
+    read Odometry; the expmap's (allowed to read the camera) do receive it, which shows the
+    intruders' subscriptions would see a leak.
+    """
     pytest.importorskip("cryptography")
+    from common.config import load_config
+    from launcher.run import plan_run, run_embedded
+    from tests.foundation.recordings import payloads_by_key
+
     host_a, host_b = two_hosts
+    ip = {host_a: "10.77.0.1", host_b: "10.77.0.2"}
     py = [sys.executable, "-m", "launcher.cli"]
     tls, rogue = tmp_path / "tls", tmp_path / "rogue"
     for out, hosts in ((tls, "10.77.0.1,10.77.0.2"), (rogue, "10.77.0.2")):
         subprocess.run([*py, "certs", "--out", str(out), "--hosts", hosts], cwd=REPO, check=True, timeout=60)
-    src = tmp_path / "mission.mcap"
-    counts = six_stream_recording(src, 1500, image_every=10)
-    endpoint = "tls/10.77.0.1:7447"
-    out = tmp_path / "recorded_on_b.mcap"
-    router = str(REPO / "deploy" / "zenoh" / "secured-router.json5")
+    sets = [f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"]
+    config = load_config(overrides=sets)
+    plan = plan_run(config, short_mission)
+    t0 = time.monotonic()
+    baseline = run_embedded(config, short_mission, tmp_path / "unsecured.mcap", progress=False, timeout_s=300)
+    t_baseline = time.monotonic() - t0
+
+    endpoint = {host_a: "tls/10.77.0.1:7447", host_b: "tls/10.77.0.2:7447"}  # each host's own hub
+    router_a = REPO / "deploy" / "zenoh" / "secured-router.json5"
+    router_b = tmp_path / "secured-router-b.json5"  # B's hub connects to A's
+    text = router_a.read_text()
+    assert text.count("endpoints: [],  // the other computers' routers") == 1
+    router_b.write_text(text.replace("endpoints: [],  // the other computers' routers",
+                                     f'endpoints: ["{endpoint[host_a]}"],  // A'))
     service = str(REPO / "deploy" / "zenoh" / "secured-service.json5")
+    out = tmp_path / "secured.mcap"
 
-    def secure(host, user):
-        return ["--zenoh-config", service, "--tls-dir", str(tls), "--tls-host", host, "--zenoh-user", user,
-                "--zenoh-password-file", str(tls / f"{user}.password")]
+    def in_ns(ns, *cmd):
+        return ["ip", "netns", "exec", ns, *cmd]
 
-    hub = subprocess.Popen(["ip", "netns", "exec", host_a, *py, "hub", "--listen", endpoint, "--zenoh-config", router,
-                            "--tls-dir", str(tls), "--tls-host", "10.77.0.1"], cwd=REPO)
-    rec = subprocess.Popen(["ip", "netns", "exec", host_b, *py, "service", "recorder", "--connect", endpoint,
-                            *secure("10.77.0.2", "recorder"), "--out", str(out), "--expect", ",".join(sorted(counts)),
-                            "--stats", str(tmp_path / "rec.json")], cwd=REPO)
-    intruder = [sys.executable, "-m", "tests.foundation.intruder", endpoint]
-    intruders = {
-        "no_credentials": subprocess.Popen(["ip", "netns", "exec", host_b, *intruder, str(tls), "10.77.0.2", "12"],
-                                           cwd=REPO, stdout=subprocess.PIPE, text=True),
-        "player_credentials": subprocess.Popen(["ip", "netns", "exec", host_b, *intruder, str(tls), "10.77.0.2",
-                                                "player", str(tls / "player.password"), "12"],
-                                               cwd=REPO, stdout=subprocess.PIPE, text=True),
-        "wrong_certificate": subprocess.Popen(["ip", "netns", "exec", host_b, *intruder, str(rogue), "10.77.0.2",
-                                               "recorder", str(tls / "recorder.password"), "12"],
-                                              cwd=REPO, stdout=subprocess.PIPE, text=True),
-    }
+    def hub(ns, config):
+        return subprocess.Popen(in_ns(ns, *py, "hub", "--listen", endpoint[ns], "--zenoh-config", str(config),
+                                      "--tls-dir", str(tls), "--tls-host", f"hub.{ip[ns]}", "--zenoh-user", "router",
+                                      "--zenoh-password-file", str(tls / "router.password")), cwd=REPO)
+
+    def run_service(ns, name, *extra):
+        cmd = in_ns(ns, *py, "service", name, "--connect", endpoint[ns], "--zenoh-config", service, "--tls-dir",
+                    str(tls), "--tls-host", ip[ns], "--zenoh-user", name, "--zenoh-password-file",
+                    str(tls / f"{name}.password"), *[a for s in sets for a in ("--set", s)],
+                    "--stats", str(tmp_path / f"{name}.json"), *extra)
+        return subprocess.Popen(cmd, cwd=REPO)
+
+    def intruder(ns, tls_dir, user, *args):
+        cred = ["--user", user, "--password-file", str(tls / f"{user}.password")] if user else []
+        return subprocess.Popen(in_ns(ns, sys.executable, "-m", "tests.foundation.intruder", endpoint[ns],
+                                      str(tls_dir), ip[ns], *cred, *args), cwd=REPO, stdout=subprocess.PIPE, text=True)
+
+    procs: dict[str, subprocess.Popen] = {}
+    intruders: dict[str, subprocess.Popen] = {}
+    t0 = time.monotonic()
     try:
-        time.sleep(2.0)
-        player = subprocess.run(["ip", "netns", "exec", host_a, *py, "service", "player", "--connect", endpoint,
-                                 *secure("10.77.0.1", "player"), "--input", str(src), "--wait-for", "recorder",
-                                 "--no-progress", "--stats", str(tmp_path / "player.json")], cwd=REPO, timeout=120)
-        assert player.returncode == 0
-        assert rec.wait(timeout=60) == 0
-        reports = {name: json.loads(p.communicate(timeout=60)[0].strip().splitlines()[-1])
-                   for name, p in intruders.items()}
-    finally:
-        for p in (rec, hub, *intruders.values()):
+        procs["hub_a"] = hub(host_a, router_a)
+        procs["hub_b"] = hub(host_b, router_b)
+        time.sleep(1.0)
+        intruders = {
+            "no_credentials": intruder(host_b, tls, None, "--put", "Odometry", "--subscribe", "camera/image_raw"),
+            "wrong_certificate": intruder(host_b, rogue, "recorder", "--subscribe", "camera/image_raw"),
+            "player": intruder(host_a, tls, "player", "--put", "Odometry", "--subscribe", "camera/image_raw"),
+            "encoder": intruder(host_b, tls, "encoder", "--put", "camera/image_raw", "--subscribe", "Odometry"),
+            "expmap": intruder(host_b, tls, "expmap", "--subscribe", "camera/image_raw"),
+        }
+        first = {name: p.stdout.readline().strip() for name, p in intruders.items()}  # "ready", or its report
+        procs["recorder"] = run_service(host_b, "recorder", "--out", str(out), "--expect", ",".join(plan.expect))
+        for name in plan.services:
+            procs[name] = run_service(host_a if name == "robot_state" else host_b, name)
+        procs["player"] = run_service(host_a, "player", "--input", str(short_mission), "--keys",
+                                      ",".join(plan.player_keys), "--wait-for", ",".join(["recorder", *plan.services]),
+                                      "--no-progress")
+        assert procs["recorder"].wait(timeout=300) == 0
+        for p in intruders.values():  # their subscriptions end before the player drains
             if p.poll() is None:
                 p.terminate()
-                p.wait(timeout=10)
-    assert json.loads((tmp_path / "player.json").read_text())["published"] == counts
-    recorded = json.loads((tmp_path / "rec.json").read_text())
-    assert recorded["recorded"] == counts and recorded["invalid"] == {}  # no forged Odometry got in
-    print("\n[secured] intruders:", reports)
-    # a certificate of another CA, or the right certificate without credentials: no session at all,
-    # so neither Odometry put nor camera received
-    for name in ("wrong_certificate", "no_credentials"):
-        assert reports[name]["joined"] is False and reports[name]["camera_received"] == 0, reports[name]
-    # the player's own credentials joined and tried to put Odometry: the router dropped every one
-    assert reports["player_credentials"]["joined"] is True and reports["player_credentials"]["odometry_put"] > 50
-    assert "Odometry" not in recorded["recorded"]
+        reports = {name: json.loads(first[name] if first[name].startswith("{")
+                                    else intruders[name].communicate(timeout=30)[0])
+                   for name in intruders}
+        for name in ("player", *plan.services):
+            assert procs[name].wait(timeout=120) == 0, name
+    finally:
+        for p in [*intruders.values(), *procs.values()]:
+            if p.poll() is None:
+                p.terminate()
+                p.wait(timeout=15)
+    t_secured = time.monotonic() - t0
+    recorded = json.loads((tmp_path / "recorder.json").read_text())
+    print(f"\n[secured] {sum(recorded['recorded'].values())} messages recorded in {t_secured:.0f} s over TLS with "
+          f"access control (unsecured embedded baseline: {sum(baseline.recording['counts'].values())} in "
+          f"{t_baseline:.0f} s); intruders: {reports}")
+    # every service with its own credentials: the whole pipeline flowed, exactly as without security
+    assert recorded["recorded"] == baseline.recording["counts"] and recorded["invalid"] == {}
+    assert payloads_by_key(out) == payloads_by_key(tmp_path / "unsecured.mcap")  # nothing forged got in
+    assert {"Odometry", "neocortex/sdr", "local_view_cells", "experience_event", "map"} <= set(recorded["recorded"])
+    # no session at all without credentials, or with a certificate of another CA
+    for name in ("no_credentials", "wrong_certificate"):
+        assert reports[name]["joined"] is False and "error" in reports[name], reports[name]
+    # credentials used beyond their rights: joined, tried for the whole run, got nothing through
+    assert reports["player"]["joined"] and reports["player"]["put"]["Odometry"] > 20
+    assert reports["player"]["received"]["camera/image_raw"] == 0
+    assert reports["encoder"]["joined"] and reports["encoder"]["put"]["camera/image_raw"] > 20
+    assert reports["encoder"]["received"]["Odometry"] == 0
+    # ... while a subscription within its rights receives every camera frame
+    assert reports["expmap"]["data"]["camera/image_raw"] == recorded["recorded"]["camera/image_raw"]
