@@ -37,8 +37,10 @@ import argparse
 import importlib
 import json
 import logging
+import os
 import signal
 import sys
+import traceback
 from pathlib import Path
 from typing import Any, Callable
 
@@ -379,5 +381,38 @@ def main(argv: list[str] | None = None) -> int:
     return int(args.func(args) or 0)
 
 
+def entry() -> None:
+    """The ``poseidon`` console script (and ``python -m launcher.cli``): :func:`main`, then leave
+    without interpreter finalisation.
+
+    Zenoh's Rust threads call into Python.  If the interpreter finalises while one of them
+    waits for the GIL, CPython ends that thread with ``pthread_exit``; its forced unwind meets
+    the Rust FFI boundary, which aborts the process ("FATAL: exception not rethrown", SIGABRT,
+    exit -6) after a run that succeeded -- seen about once in a few hundred runs under load.
+    Every command has closed its sessions, recordings and files when :func:`main` returns, so
+    the process flushes logging and stdio and ends with ``os._exit`` (no finalisation, no abort).
+    """
+    try:
+        code = main()
+    except SystemExit as exc:          # argparse errors (2), explicit exits
+        if exc.code is None or isinstance(exc.code, int):
+            code = exc.code or 0
+        else:
+            print(exc.code, file=sys.stderr)
+            code = 1
+    except KeyboardInterrupt:
+        code = 130
+    except BaseException:              # noqa: BLE001 - reported in full, then the same exit as Python's
+        traceback.print_exc()
+        code = 1
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):   # a closed pipe or stream: the output is lost, so not a success
+            code = code or 1
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()
