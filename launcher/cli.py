@@ -27,6 +27,7 @@ Subcommands:
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
+"restarts": {name: number of supervised restarts},
 "evaluation": {"front_end": {...}, "dead_reckoning": {...}, "back_end": {...}}}`` (``demo`` adds
 ``"mission"``: the simulated input file; the evaluation keys are documented in
 :mod:`eval.summary`, present when the run has LVC ids / ground truth / a map).
