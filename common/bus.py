@@ -227,6 +227,14 @@ class ProgressReporter:
             self._pub.put(struct.pack("<q", stamp))
             self._last, self._last_wall = stamp, now
 
+    def repeat(self, min_interval_s: float = 0.2) -> None:
+        """Say the last progress again (at most every ``min_interval_s``): a restarted player
+        learns it from the duplicates it sends (progress reports are not kept by the bus)."""
+        now = time.monotonic()
+        if self._last > -2 and now - self._last_wall >= min_interval_s:
+            self._pub.put(struct.pack("<q", self._last))
+            self._last_wall = now
+
 
 class ProgressWatcher:
     """The latest progress of every consumer (thread-safe, filled by a Zenoh callback)."""

@@ -287,9 +287,12 @@ class NodeRunner:
                 log.warning("%s: consumers %s not finished after %.0f s; leaving", self.node.name, waiting, timeout_s)
                 return
             try:
-                self.queue.get(timeout=0.05)
+                key, _data = self.queue.get(timeout=0.05)
             except queue.Empty:
-                pass
+                self.progress.repeat(1.0)
+                continue
+            if key != _WAKE:  # a restarted player sends its recording again: it learns we finished
+                self.progress.repeat()
 
     def run(self) -> RunnerStats:
         """Process until end of stream on every input (or :attr:`stop_event`, or an abort).
@@ -316,10 +319,14 @@ class NodeRunner:
                 try:
                     key, data = self.queue.get(timeout=0.2)
                 except queue.Empty:
+                    if self.supervision is not None:  # a restarted player learns where we are
+                        self.progress.repeat(1.0)
                     continue
                 if key == _WAKE:
                     continue
                 res = self.accept(merger, key, data)
+                if res == "duplicate":
+                    self.progress.repeat()
                 if res is None or res in ("duplicate", "skipped", "replay"):
                     continue
                 t0 = time.perf_counter()

@@ -189,6 +189,8 @@ class Recorder:
                 try:
                     key, data = self.queue.get(timeout=0.2)
                 except queue.Empty:
+                    if sup is not None:  # a restarted player learns where we are
+                        self.progress.repeat(1.0)
                     continue
                 self._handle(key, data)
                 if self._seen >= 0:
@@ -224,6 +226,7 @@ class Recorder:
             return
         if not self.gate.data(key, frame.index):
             self.stats.duplicates += 1
+            self.progress.repeat()  # a restarted player learns how far the recorder is
             return
         try:
             header = decode_dict(frame.payload).get("header")
