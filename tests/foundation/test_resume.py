@@ -101,3 +101,15 @@ def test_a_service_that_always_dies_fails_the_run_after_max_restarts(tmp_path):
     assert "restart 3 of" not in proc.stderr
     assert "boom died (exit code 1) and used its 2 restarts" in proc.stderr
     assert not out.exists() and (tmp_path / "run.partial.mcap").exists()
+
+
+def test_numbered_and_replay_frames_decode_and_malformed_ones_are_rejected():
+    from common.codec import DecodeError, encode, encode_replay_start, encode_sequenced
+    msg = Depth(header=Header(seq=3, stamp=5), depth=1.5)
+    f = decode_frame(encode_sequenced(41, msg.type_name, encode(msg)))
+    assert (f.kind, f.index, f.message()) == ("data", 41, msg)
+    assert (decode_frame(encode_replay_start(7)).kind, decode_frame(encode_replay_start(7)).index) == ("replay", 7)
+    for bad in (b"S", b"S\x01\x00\x00\x00\x00\x00\x00\x00", b"S" + b"\xff" * 8 + b"\x05Depth",
+                encode_sequenced(1, msg.type_name, b"")[:12], encode_sequenced(1, msg.type_name, b""), b"R\x01", b"R" + b"\xff" * 8):
+        with pytest.raises(DecodeError):
+            decode_frame(bad)
