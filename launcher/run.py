@@ -254,7 +254,8 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             cmds[name] = base + [name, *common, "--stats", stats_file(name), *supervise_args]
         cmds["player"] = base + ["player", *common, "--input", str(input_path), "--keys", ",".join(plan.player_keys),
                                  "--wait-for", ",".join(["recorder", *plan.services]),
-                                 "--stats", stats_file("player"), *supervise_args] + ([] if progress else ["--no-progress"])
+                                 "--stats", stats_file("player"), *supervise_args]
+        cmds["player"] += [] if progress else ["--no-progress"]
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         env.setdefault("PYTHONFAULTHANDLER", "1")  # a service killed by a fatal signal prints where it was

@@ -110,6 +110,7 @@ def test_numbered_and_replay_frames_decode_and_malformed_ones_are_rejected():
     assert (f.kind, f.index, f.message()) == ("data", 41, msg)
     assert (decode_frame(encode_replay_start(7)).kind, decode_frame(encode_replay_start(7)).index) == ("replay", 7)
     for bad in (b"S", b"S\x01\x00\x00\x00\x00\x00\x00\x00", b"S" + b"\xff" * 8 + b"\x05Depth",
-                encode_sequenced(1, msg.type_name, b"")[:12], encode_sequenced(1, msg.type_name, b""), b"R\x01", b"R" + b"\xff" * 8):
+                encode_sequenced(1, msg.type_name, b"")[:12], encode_sequenced(1, msg.type_name, b""), b"R\x01",
+                b"R" + b"\xff" * 8):
         with pytest.raises(DecodeError):
             decode_frame(bad)
