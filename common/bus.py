@@ -37,7 +37,9 @@ from typing import Callable, Iterable
 
 import zenoh
 
-from common.codec import ENCODED_EOS, encode_frame, encode_watermark
+from collections import deque
+
+from common.codec import ENCODED_EOS, encode, encode_replay_start, encode_sequenced, encode_watermark
 from common.messages import Message
 
 __all__ = ["zenoh_config", "open_local_session", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher",
@@ -113,17 +115,38 @@ def open_hub(listen: str, config_file: str | None = None, **secure: str | None) 
 
 
 class BusPublisher:
-    """Publishes data, watermark and end-of-stream frames on one key, never dropping."""
+    """Publishes data, watermark and end-of-stream frames on one key, never dropping.
 
-    def __init__(self, session: zenoh.Session, full_key: str):
+    Data frames are numbered (``index``: the transport index, see :mod:`common.codec`).  With
+    ``retain`` the publisher keeps the frames it sent (``retained``) until :meth:`trim`, so
+    that :meth:`replay` can send them again to a restarted consumer (:mod:`common.resume`).
+    """
+
+    def __init__(self, session: zenoh.Session, full_key: str, retain: bool = False):
         self.key = full_key
         self._pub = session.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK,
                                               reliability=zenoh.Reliability.RELIABLE)
         self.sent = 0
         self.watermark = -1
+        self.index = 0  # transport index of the next data frame
+        self.ended = False
+        self.retain = retain
+        self.retained: deque[tuple[int, bytes]] = deque()
+        self.retained_bytes = 0
+        self._lock = threading.Lock()
 
     def send(self, msg: Message) -> None:
-        self._pub.put(encode_frame(msg))
+        self.send_data(msg.type_name, encode(msg))
+
+    def send_data(self, type_name: str, payload: bytes | memoryview) -> None:
+        """A numbered data frame of an encoded message."""
+        frame = encode_sequenced(self.index, type_name, payload)
+        self._pub.put(frame)
+        if self.retain:
+            with self._lock:
+                self.retained.append((self.index, frame))
+                self.retained_bytes += len(frame)
+        self.index += 1
         self.sent += 1
 
     def send_raw(self, frame: bytes) -> None:
@@ -137,6 +160,49 @@ class BusPublisher:
 
     def send_eos(self) -> None:
         self._pub.put(ENCODED_EOS)
+        self.ended = True
+
+    def trim(self, below: int) -> None:
+        """Forget retained frames with an index below ``below`` (every consumer has them for good)."""
+        with self._lock:
+            while self.retained and self.retained[0][0] < below:
+                self.retained_bytes -= len(self.retained.popleft()[1])
+
+    def replay(self, start: int, frames: Iterable[bytes] | None = None, first: int | None = None) -> int:
+        """Send again every data frame from index ``start`` (``R`` frame first), then the last
+        watermark and, if the stream ended, end-of-stream.  ``frames``/``first``: the frames
+        from index ``first`` when they are kept elsewhere (the player re-reads its recording);
+        default: the retained ones.  Returns the index the replay started from (> ``start``
+        when frames before it were trimmed: the consumer then knows they are lost)."""
+        if frames is None:
+            with self._lock:
+                kept = [(i, f) for i, f in self.retained if i >= start]
+                first = self.retained[0][0] if self.retained else self.index
+            begin = min(max(start, first), self.index)
+            self._pub.put(encode_replay_start(begin))
+            for _i, frame in kept:
+                self._pub.put(frame)
+        else:
+            begin = min(max(start, first if first is not None else start), self.index)
+            self._pub.put(encode_replay_start(begin))
+            for frame in frames:
+                self._pub.put(frame)
+        if self.watermark >= 0:
+            self._pub.put(encode_watermark(self.watermark))
+        if self.ended:
+            self._pub.put(ENCODED_EOS)
+        return begin
+
+    def retained_state(self) -> dict:
+        """What a checkpoint keeps of this publisher: next index, retained frames, watermark."""
+        with self._lock:
+            return {"index": self.index, "retained": list(self.retained), "watermark": self.watermark}
+
+    def restore(self, state: dict) -> None:
+        with self._lock:
+            self.index = int(state["index"])
+            self.retained = deque(state["retained"])
+            self.retained_bytes = sum(len(f) for _i, f in self.retained)
 
     def has_subscribers(self) -> bool:
         return bool(self._pub.matching_status.matching)
@@ -160,6 +226,14 @@ class ProgressReporter:
         if stamp > self._last and (force or now - self._last_wall >= self._min_interval_s):
             self._pub.put(struct.pack("<q", stamp))
             self._last, self._last_wall = stamp, now
+
+    def repeat(self, min_interval_s: float = 0.2) -> None:
+        """Say the last progress again (at most every ``min_interval_s``): a restarted player
+        learns it from the duplicates it sends (progress reports are not kept by the bus)."""
+        now = time.monotonic()
+        if self._last > -2 and now - self._last_wall >= min_interval_s:
+            self._pub.put(struct.pack("<q", self._last))
+            self._last_wall = now
 
 
 class ProgressWatcher:
@@ -234,8 +308,8 @@ class Bus:
         prefix = self.namespace + "/"
         return full_key[len(prefix):] if full_key.startswith(prefix) else full_key
 
-    def publisher(self, key: str) -> BusPublisher:
-        return BusPublisher(self.session, self.full_key(key))
+    def publisher(self, key: str, retain: bool = False) -> BusPublisher:
+        return BusPublisher(self.session, self.full_key(key), retain=retain)
 
     def subscribe(self, key: str, sink: "queue.SimpleQueue[tuple[str, bytes]]") -> None:
         """Deliver ``(relative key, frame bytes)`` of ``key`` (wildcards allowed) into ``sink``.

@@ -6,7 +6,11 @@ wraps the received bytes with ``np.frombuffer`` (no copy; the array is read-only
 
 Wire frames (:func:`encode_frame`) add a one-byte tag so data, event-time watermarks and
 end-of-stream travel in order on the same key: ``D`` + type name + message, ``W`` +
-int64 stamp, ``E`` (end of stream).
+int64 stamp, ``E`` (end of stream).  Publishers of a run number their data frames per key
+(``S`` + uint64 index + type name + message: the *transport index*, 0, 1, 2 ... in publish
+order), so a consumer can drop a frame it already has when a restarted service or a replay
+sends it again; ``R`` + uint64 index starts a replay ("the next data frame on this key is
+index n"), see :mod:`common.resume`.
 
 Robustness contract: :func:`decode_frame`, :func:`decode_dict`, :func:`decode` and
 :meth:`Frame.message` raise :class:`DecodeError` (a ``ValueError``) for *any* malformed
@@ -28,7 +32,7 @@ from common.messages import MESSAGE_TYPES, Message
 
 __all__ = [
     "encode", "decode", "decode_dict", "pack_obj", "unpack_obj", "encode_frame", "encode_watermark",
-    "ENCODED_EOS", "decode_frame", "Frame", "DecodeError",
+    "ENCODED_EOS", "decode_frame", "Frame", "DecodeError", "encode_sequenced", "encode_replay_start",
 ]
 
 
@@ -101,7 +105,7 @@ def decode(data: bytes | memoryview, cls: type[Message]) -> Message:
         raise DecodeError(f"{cls.type_name}: {type(exc).__name__}: {exc}") from None
 
 
-_TAG_DATA, _TAG_WM, _TAG_EOS = b"D", b"W", b"E"
+_TAG_DATA, _TAG_WM, _TAG_EOS, _TAG_SEQ, _TAG_REPLAY = b"D", b"W", b"E", b"S", b"R"
 ENCODED_EOS = _TAG_EOS
 
 
@@ -111,21 +115,37 @@ def encode_frame(msg: Message) -> bytes:
     return _TAG_DATA + bytes([len(name)]) + name + encode(msg)
 
 
+def encode_sequenced(index: int, type_name: str | bytes, payload: bytes | memoryview) -> bytes:
+    """Wire frame of a data message with its transport index (``S`` frame)."""
+    name = type_name.encode() if isinstance(type_name, str) else type_name
+    return _TAG_SEQ + struct.pack("<Q", index) + bytes([len(name)]) + name + bytes(payload)
+
+
+def encode_replay_start(index: int) -> bytes:
+    """Wire frame opening a replay: the next data frame on this key has transport index ``index``."""
+    return _TAG_REPLAY + struct.pack("<Q", index)
+
+
 def encode_watermark(stamp: int) -> bytes:
     """Wire frame promising that nothing older than ``stamp`` (ns) follows on this key."""
     return _TAG_WM + struct.pack("<q", stamp)
 
 
 class Frame:
-    """A decoded wire frame: ``kind`` is 'data', 'watermark' or 'eos'."""
+    """A decoded wire frame: ``kind`` is 'data', 'watermark', 'eos' or 'replay'.
 
-    __slots__ = ("kind", "type_name", "payload", "stamp")
+    ``index``: the transport index of an ``S`` data frame (-1 for an unnumbered ``D`` frame),
+    the first index of a replay for 'replay'."""
 
-    def __init__(self, kind: str, type_name: str = "", payload: memoryview | bytes = b"", stamp: int = 0):
+    __slots__ = ("kind", "type_name", "payload", "stamp", "index")
+
+    def __init__(self, kind: str, type_name: str = "", payload: memoryview | bytes = b"", stamp: int = 0,
+                 index: int = -1):
         self.kind = kind
         self.type_name = type_name
         self.payload = payload
         self.stamp = stamp
+        self.index = index
 
     def message(self) -> Message:
         """The validated message of a data frame; DecodeError for anything malformed."""
@@ -140,12 +160,21 @@ def decode_frame(data: bytes | memoryview) -> Frame:
 
     Raises :class:`DecodeError` for every malformed frame: empty, truncated, a type name
     that is not ASCII or not a known message type, a watermark that is not 8 bytes or is
-    negative, an end-of-stream with trailing bytes, an unknown tag.
+    negative, an end-of-stream with trailing bytes, an index above int64, an unknown tag.
     """
     mv = memoryview(data).cast("B") if not isinstance(data, (bytes, bytearray)) else memoryview(data)
     if len(mv) == 0:
         raise DecodeError("empty frame")
     tag = bytes(mv[:1])
+    index = -1
+    if tag == _TAG_SEQ:
+        if len(mv) < 10:
+            raise DecodeError(f"sequenced data frame of {len(mv)} bytes (no index and type name)")
+        index = struct.unpack("<Q", mv[1:9])[0]
+        if index >= 1 << 63:
+            raise DecodeError(f"transport index {index} out of range")
+        mv = mv[8:]
+        tag = _TAG_DATA
     if tag == _TAG_DATA:
         if len(mv) < 2:
             raise DecodeError("data frame of 1 byte (no type name)")
@@ -161,7 +190,7 @@ def decode_frame(data: bytes | memoryview) -> Frame:
             raise DecodeError(f"unknown message type {type_name[:60]!r}")
         if len(mv) == 2 + n:
             raise DecodeError(f"{type_name} frame without a payload")
-        return Frame("data", type_name, mv[2 + n:])
+        return Frame("data", type_name, mv[2 + n:], index=index)
     if tag == _TAG_WM:
         if len(mv) != 9:
             raise DecodeError(f"watermark frame of {len(mv)} bytes (expected 9)")
@@ -169,6 +198,13 @@ def decode_frame(data: bytes | memoryview) -> Frame:
         if stamp < 0:
             raise DecodeError(f"negative watermark {stamp}")
         return Frame("watermark", stamp=stamp)
+    if tag == _TAG_REPLAY:
+        if len(mv) != 9:
+            raise DecodeError(f"replay frame of {len(mv)} bytes (expected 9)")
+        start = struct.unpack("<Q", mv[1:9])[0]
+        if start >= 1 << 63:
+            raise DecodeError(f"replay start {start} out of range")
+        return Frame("replay", index=start)
     if tag == _TAG_EOS:
         if len(mv) != 1:
             raise DecodeError(f"end-of-stream frame of {len(mv)} bytes (expected 1)")

@@ -53,6 +53,22 @@ class RecorderConfig(_Section):
     compression: Literal["zstd", "lz4", "none"] = "zstd"
 
 
+class SuperviseConfig(_Section):
+    """Supervision of a distributed run (launcher/supervise.py, common/resume.py, issue 11)."""
+
+    max_restarts: int = Field(3, ge=0, description="restarts of a service that dies, per service and run; "
+                              "0: no supervision, a dying service ends the run (exit 3 naming it)")
+    restart_backoff_s: float = Field(0.5, ge=0, description="wait before restart n: n x this (s, wall clock)")
+    checkpoint_interval_s: float = Field(30.0, gt=0, description="a service saves its state every this much "
+                                         "EVENT time (s) of the inputs it processed")
+    rejoin_timeout_s: float = Field(60.0, gt=0, description="the player aborts the run when a consumer has "
+                                    "been gone this long (s, wall) without coming back")
+    replay_retry_s: float = Field(3.0, gt=0, description="a restarted consumer repeats its replay request "
+                                  "after this long without an answer (s, wall)")
+    state_dir: str = Field("", description="checkpoint folder; empty: <out stem>.state next to the run's output "
+                           "(removed after a successful run)")
+
+
 class EncoderConfig(_Section):
     fusion_mode: Literal["union", "and", "camera", "sonar"] = "union"
     cnn_backbone: Literal["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"] = Field(
@@ -370,6 +386,7 @@ class PoseidonConfig(_Section):
     bus: BusConfig = Field(default_factory=BusConfig)
     player: PlayerConfig = Field(default_factory=PlayerConfig)
     recorder: RecorderConfig = Field(default_factory=RecorderConfig)
+    supervise: SuperviseConfig = Field(default_factory=SuperviseConfig)
     encoder: EncoderConfig = Field(default_factory=EncoderConfig)
     htm: HtmConfig = Field(default_factory=HtmConfig)
     robot_state: RobotStateConfig = Field(default_factory=RobotStateConfig)

@@ -44,7 +44,7 @@ from common.messages import Message, message_type
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
     "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "code_revision",
-    "recording_status", "recover_recording",
+    "recording_status", "recover_recording", "read_file_order",
 ]
 
 log = logging.getLogger(__name__)
@@ -140,6 +140,12 @@ class RecordingWriter:
         os.fsync(self._file.fileno())
         self._since_flush = 0
 
+    def sync(self) -> None:
+        """End the chunk in progress and flush to disk: every message written so far is then
+        readable from the file even if the process dies the next instant (a recorder checkpoint)."""
+        self._writer.flush()
+        self.flush()
+
     def close(self) -> None:
         if self._closed:
             return
@@ -225,8 +231,10 @@ def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[R
     return out, metadata
 
 
-def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool = False) -> Iterator[RecordedMessage]:
-    """Yield the messages of a recording in event-time order (stamp, then file order).
+def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool = False,
+                  start_ns: int | None = None) -> Iterator[RecordedMessage]:
+    """Yield the messages of a recording in event-time order (stamp, then file order);
+    ``start_ns``: only those stamped at or after it.
 
     A complete file is streamed chunk by chunk.  A file without a summary (killed writer)
     or with a damaged index is read sequentially: every message up to the first unreadable
@@ -238,7 +246,7 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
         with _open(p) as f:
             reader = make_reader(f, validate_crcs=True)
             try:
-                for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True):
+                for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True, start_time=start_ns):
                     yield RecordedMessage(channel.topic, schema.name if schema else "", m.log_time, m.sequence,
                                           bytes(m.data))
                 return
@@ -246,7 +254,7 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
                 raise RecordingError(f"{p}: corrupt chunk at or after byte {f.tell()}: {type(exc).__name__}: {exc}") from None
     messages, _ = _sequential(p, wanted, strict)
     messages.sort(key=lambda r: r.stamp)
-    yield from messages
+    yield from (m for m in messages if start_ns is None or m.stamp >= start_ns)
 
 
 def recording_keys(path: str | Path) -> dict[str, str]:
@@ -300,6 +308,13 @@ def recording_status(path: str | Path) -> dict[str, Any]:
             raise
         return {"complete": False, "size": size, "error": str(exc)}
     return {"complete": False, "size": size, "error": f"{p}: no summary section"}
+
+
+def read_file_order(path: str | Path) -> tuple[list[RecordedMessage], dict[str, dict[str, str]]]:
+    """Every intact message of a recording in file order (as written), and its metadata
+    records; a damaged end is skipped (logged)."""
+    messages, metadata = _sequential(Path(path), None, strict=False)
+    return messages, {m.name: dict(m.metadata) for m in metadata}
 
 
 def recover_recording(src: str | Path, dst: str | Path, compression: str = "zstd") -> int:

@@ -67,6 +67,27 @@ class ServiceNode:
     def close(self) -> None:
         """Release resources and save state (default: nothing)."""
 
+    # ---- checkpoints (common.resume) ---------------------------------------------------
+    #: attributes a checkpoint leaves out: rebuilt from the configuration by ``__init__``
+    checkpoint_exclude: ClassVar[tuple[str, ...]] = ()
+    _CHECKPOINT_NEVER = ("config", "inputs", "outputs", "_outbox")
+
+    def checkpoint_state(self) -> dict:
+        """The node's state for a checkpoint: every instance attribute (the algorithm core's
+        objects, output seqs, counters) but the configuration and ``checkpoint_exclude``.
+        The result is pickled; restoring it into a node built from the same configuration
+        (:meth:`restore_checkpoint`) continues exactly where this one is."""
+        skip = set(self._CHECKPOINT_NEVER) | set(self.checkpoint_exclude)
+        return {k: v for k, v in vars(self).items() if k not in skip}
+
+    def restore_checkpoint(self, state: dict) -> None:
+        """Inverse of :meth:`checkpoint_state` on a node built from the same configuration."""
+        unknown = set(state) - set(vars(self))
+        if unknown:
+            raise ValueError(f"{self.name}: checkpoint has attributes this node does not: {sorted(unknown)}")
+        for k, v in state.items():
+            setattr(self, k, v)
+
     # ---- helpers for subclasses ---------------------------------------------------
     def header(self, key: str, stamp: int, frame_id: str = "") -> Header:
         """Next header of output ``key``: per-key seq, the given event stamp."""

@@ -27,6 +27,7 @@ Subcommands:
 
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
+"restarts": {name: number of supervised restarts},
 "evaluation": {"front_end": {...}, "dead_reckoning": {...}, "back_end": {...}}}`` (``demo`` adds
 ``"mission"``: the simulated input file; the evaluation keys are documented in
 :mod:`eval.summary`, present when the run has LVC ids / ground truth / a map).
@@ -210,6 +211,14 @@ def cmd_service(args: argparse.Namespace) -> int:
         return 2
     namespace = args.namespace or config.bus.namespace
     connect = [args.connect] if args.connect else config.bus.connect
+    supervision = None
+    if args.supervise:
+        from common.resume import Supervision
+        try:
+            supervision = Supervision.from_file(args.supervise, resume=args.resume)
+        except ValueError as exc:
+            print(f"poseidon service {args.name}: {exc}", file=sys.stderr)
+            return 2
     try:
         bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config, **_secure_args(args))
     except (OSError, ValueError) as exc:
@@ -237,7 +246,7 @@ def cmd_service(args: argparse.Namespace) -> int:
                                  heartbeat_ms=config.bus.heartbeat_interval_ms,
                                  startup_timeout_s=config.bus.startup_timeout_s, progress=not args.no_progress,
                                  drain_timeout_s=config.bus.drain_timeout_s,
-                                 flow_window_ms=config.bus.flow_window_ms)
+                                 flow_window_ms=config.bus.flow_window_ms, supervision=supervision)
         elif args.name == "recorder":
             from services.recorder.recorder import Recorder
             if not args.out:
@@ -247,12 +256,13 @@ def cmd_service(args: argparse.Namespace) -> int:
                 "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
             expect = [k for k in (args.expect or "").split(",") if k] or None
             worker = Recorder(bus, args.out, expect=expect, metadata=metadata,
-                              compression=config.recorder.compression, chunk_size=config.recorder.chunk_size)
+                              compression=config.recorder.compression, chunk_size=config.recorder.chunk_size,
+                              supervision=supervision)
         else:
             from common.runtime import NodeRunner
             from launcher.services import build_node
             worker = NodeRunner(build_node(args.name, config), bus, config.bus.heartbeat_interval_ms,
-                                drain_timeout_s=config.bus.drain_timeout_s)
+                                drain_timeout_s=config.bus.drain_timeout_s, supervision=supervision)
         stoppable.append(worker)
         stats = worker.run().as_dict()
     except Exception:  # the service's own failure: logged with its traceback, exit 1
@@ -347,6 +357,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="recorder: output MCAP")
     p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")
     p.add_argument("--metadata", help="recorder: JSON file with the run's metadata record")
+    p.add_argument("--supervise", metavar="FILE", help="supervised run: checkpoints, replays (written by the "
+                   "launcher, see common/resume.py)")
+    p.add_argument("--resume", action="store_true", help="with --supervise: this is a restart, resume from the "
+                   "last checkpoint")
     _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_service)

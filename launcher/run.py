@@ -10,6 +10,17 @@ process has finished (the recorder has seen end-of-stream on every expected key)
 service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
 names the service.
 
+Supervision (distributed runs, ``supervise.max_restarts`` > 0, the default): a service
+(player and recorder included) that dies -- a non-zero exit or a signal, but not exit 4,
+"stopped by an abort" -- is started again with ``--resume`` after ``n x
+supervise.restart_backoff_s`` (restart n), each restart logged with the service, its exit
+code or signal and the attempt; it resumes from its last checkpoint in the run's state
+folder (``supervise.state_dir``, default ``<out stem>.state`` next to the output, emptied at
+the start of a run and removed after a successful one) and its publishers replay what it
+had not checkpointed (:mod:`common.resume`), so the recorded streams equal an uninterrupted
+run's.  When a service has used its ``max_restarts`` the run fails as without supervision
+(:class:`RunFailed` naming it, exit 3).  Embedded runs are not supervised.
+
 Children die with the launcher, even when it is killed with SIGKILL: each is started with
 ``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (Linux), so no service is left running as an orphan.
 
@@ -25,6 +36,7 @@ import ctypes
 import json
 import logging
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -41,6 +53,7 @@ import yaml
 from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
+from common.resume import Supervision
 from common.runtime import NodeRunner
 from launcher.services import available_services, node_class
 from services.player.player import SOURCE_KEYS, Player
@@ -138,10 +151,11 @@ class RunResult:
     wall_s: float
     services: dict[str, dict[str, Any]] = field(default_factory=dict)
     recording: dict[str, Any] = field(default_factory=dict)
+    restarts: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
-                "services": self.services, "recording": self.recording}
+                "services": self.services, "recording": self.recording, "restarts": self.restarts}
 
 
 def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:
@@ -177,12 +191,39 @@ def _summarise(out: Path) -> dict[str, Any]:
     return {"counts": summary["counts"], "duration_s": round(summary["duration_s"], 3)}
 
 
+def state_dir_of(config: PoseidonConfig, out: Path) -> Path:
+    """The checkpoint folder of a supervised run writing ``out``."""
+    return Path(config.supervise.state_dir) if config.supervise.state_dir else out.with_name(out.stem + ".state")
+
+
+def supervision_plan(config: PoseidonConfig, plan: RunPlan, state_dir: Path) -> Supervision:
+    """Who consumes which key (every recorded key: the recorder too), and the intervals."""
+    consumers: dict[str, list[str]] = {}
+    for key in plan.expect:
+        consumers[key] = [n for n in plan.services if key in plan.io[n][0]] + ["recorder"]
+    sup = config.supervise
+    return Supervision(state_dir, consumers, int(round(sup.checkpoint_interval_s * 1e9)), sup.replay_retry_s,
+                       sup.rejoin_timeout_s)
+
+
+def _describe_exit(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f"killed by signal {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"killed by signal {-rc}"
+    return f"exit code {rc}"
+
+
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                     services: list[str] | None = None, timeout_s: float | None = None,
                     progress: bool = True) -> RunResult:
-    """Each service in its own process, connected over loopback Zenoh through a hub."""
+    """Each service in its own process, connected over loopback Zenoh through a hub
+    (supervised when ``supervise.max_restarts`` > 0: see the module notes)."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
     plan = plan_run(config, input_path, services)
+    max_restarts = config.supervise.max_restarts
+    state_dir = state_dir_of(config, out) if max_restarts > 0 else None
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     t0 = time.monotonic()
     hub = open_hub(endpoint)
@@ -198,20 +239,47 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         def stats_file(name: str) -> str:
             return str(Path(tmp) / f"{name}.stats.json")
 
+        supervise_args: list[str] = []
+        if state_dir is not None:
+            if state_dir.exists():  # checkpoints of an earlier run must never be resumed from
+                shutil.rmtree(state_dir)
+            state_dir.mkdir(parents=True)
+            sup_file = Path(tmp) / "supervision.json"
+            sup_file.write_text(supervision_plan(config, plan, state_dir).to_json())
+            supervise_args = ["--supervise", str(sup_file)]
+
         cmds = {"recorder": base + ["recorder", *common, "--out", str(partial), "--expect", ",".join(plan.expect),
-                                    "--metadata", str(meta_file), "--stats", stats_file("recorder")]}
+                                    "--metadata", str(meta_file), "--stats", stats_file("recorder"), *supervise_args]}
         for name in plan.services:
-            cmds[name] = base + [name, *common, "--stats", stats_file(name)]
+            cmds[name] = base + [name, *common, "--stats", stats_file(name), *supervise_args]
         cmds["player"] = base + ["player", *common, "--input", str(input_path), "--keys", ",".join(plan.player_keys),
                                  "--wait-for", ",".join(["recorder", *plan.services]),
-                                 "--stats", stats_file("player")] + ([] if progress else ["--no-progress"])
+                                 "--stats", stats_file("player"), *supervise_args]
+        cmds["player"] += [] if progress else ["--no-progress"]
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         env.setdefault("PYTHONFAULTHANDLER", "1")  # a service killed by a fatal signal prints where it was
+        restarts: dict[str, int] = {}
+
+        def restart(name: str, rc: int) -> subprocess.Popen | None:
+            """Supervision: start ``name`` again (resuming) unless it used its restarts."""
+            n = restarts.get(name, 0)
+            if n >= max_restarts:
+                if max_restarts:
+                    log.error("supervise: service %s died (%s) and used its %d restarts (supervise.max_restarts)",
+                              name, _describe_exit(rc), max_restarts)
+                return None
+            restarts[name] = n + 1
+            delay = config.supervise.restart_backoff_s * (n + 1)
+            log.warning("supervise: service %s died (%s); restart %d of %d in %.1f s, resuming from its last "
+                        "checkpoint", name, _describe_exit(rc), n + 1, max_restarts, delay)
+            time.sleep(delay)
+            return subprocess.Popen(cmds[name] + ["--resume"], env=env, preexec_fn=_die_with_launcher(os.getpid()))
+
         try:
             for name, cmd in cmds.items():
                 procs[name] = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_launcher(os.getpid()))
-            failed = _monitor(procs, timeout_s)
+            failed = _monitor(procs, timeout_s, restart if max_restarts > 0 else None, restarts)
         finally:
             _stop_all(procs)
             hub.close()
@@ -219,7 +287,9 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             name, detail = failed
             raise RunFailed(name, detail, str(partial))
         _publish_output(partial, out)
-        result = RunResult(str(out), "distributed", time.monotonic() - t0)
+        if state_dir is not None and not config.supervise.state_dir:
+            shutil.rmtree(state_dir, ignore_errors=True)
+        result = RunResult(str(out), "distributed", time.monotonic() - t0, restarts=dict(restarts))
         for name in cmds:
             p = Path(stats_file(name))
             if p.exists():
@@ -233,8 +303,10 @@ _ABORTED = 4
 
 
 def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
+             restart: Any = None, restarts: dict[str, int] | None = None,
              blame_grace_s: float = 3.0) -> tuple[str, str] | None:
-    """Wait for every process; the first failure (not a mere abort) is named."""
+    """Wait for every process; the first failure (not a mere abort) is named.  ``restart(name,
+    rc)`` (supervision) may return a new process for one that died instead."""
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     aborted_at: float | None = None
     while True:
@@ -247,7 +319,15 @@ def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
             elif rc == _ABORTED:
                 aborted.append(name)
             elif rc != 0:
-                return name, f"exited with code {rc}" + (" (killed by signal %d)" % -rc if rc < 0 else "")
+                if restart is not None:
+                    again = restart(name, rc)
+                    if again is not None:
+                        procs[name] = again
+                        running += 1
+                        continue
+                used = (restarts or {}).get(name, 0)
+                return name, (f"exited with code {rc}" + (" (killed by signal %d)" % -rc if rc < 0 else "")
+                              + (f" after {used} restart(s)" if used else ""))
         if aborted:
             # stopped because another one failed: give the failing one time to show its exit code
             aborted_at = aborted_at or time.monotonic()

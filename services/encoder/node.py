@@ -34,6 +34,7 @@ frame at about a fifth of a CNN pass (``benchmarks/bench_encoder.py``).
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 
@@ -161,6 +162,35 @@ class EncoderNode(ServiceNode):
             (y,) = self.encoder.embed([self.raster.image3()])
             self._set_sonar(y)
         return self._sonar_cache  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ checkpoints
+    checkpoint_exclude = ("encoder", "_digests")  # the CNN is rebuilt from the configuration
+
+    def _lsbh_digests(self) -> dict[str, str]:
+        digests = self.__dict__.setdefault("_digests", {})
+        for m, e in self.encoder._lsbh.items():
+            if m not in digests:
+                digests[m] = hashlib.sha256(np.ascontiguousarray(e.projection).tobytes()).hexdigest()
+        return dict(digests)
+
+    def checkpoint_state(self) -> dict:
+        """Node state plus the encoder's standardisation statistics and a digest of each LSBH
+        projection (the projections are rebuilt from the seed or their file, then checked)."""
+        state = super().checkpoint_state()
+        state["_standardizers"] = dict(self.encoder._norm)
+        state["_lsbh_digest"] = self._lsbh_digests()
+        return state
+
+    def restore_checkpoint(self, state: dict) -> None:
+        state = dict(state)
+        for modality, st in state.pop("_standardizers").items():
+            self.encoder.set_standardizer(modality, st)
+        for modality, digest in state.pop("_lsbh_digest").items():
+            self.encoder.lsbh(modality)
+            if self._lsbh_digests()[modality] != digest:
+                raise ValueError(f"encoder: the LSBH projection of {modality} differs from the checkpoint's "
+                                 "(encoder.lsbh_seed or encoder.lsbh_matrix_path changed)")
+        super().restore_checkpoint(state)
 
     def finish(self) -> None:
         self.encoder.close()

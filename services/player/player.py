@@ -16,11 +16,19 @@
   progress ``END_OF_TIME`` has died; the player then publishes ``@abort`` naming it (so the
   other services and the recorder stop instead of waiting forever) and stops.  An abort
   published by anyone else stops it too.  ``PlayerStats.aborted`` says why.
+- Supervised (``supervision``, :mod:`common.resume`): data frames carry their transport
+  index (the message's ordinal on its key in the recording); a replay request
+  (``@replay/<key>``) is answered by reading the recording again from that message; a
+  consumer that leaves may come back (the launcher restarts it) within
+  ``supervise.rejoin_timeout_s`` before the run is aborted; at the end the player stays,
+  answering replays, until every consumer reported progress ``END_OF_TIME``.
 """
 from __future__ import annotations
 
+import bisect
 import logging
 import sys
+from array import array
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,8 +38,10 @@ from typing import Any, Iterable
 from tqdm import tqdm
 
 from common.bus import Bus
+from common.codec import encode_sequenced
 from common.mcap_io import read_messages, recording_keys, recording_message_count
 from common.ordering import END_OF_TIME
+from common.resume import ReplayServer, Supervision
 
 __all__ = ["Player", "PlayerStats", "SOURCE_KEYS"]
 
@@ -50,10 +60,11 @@ class PlayerStats:
     wall_s: float = 0.0
     event_s: float = 0.0
     aborted: str = ""
+    replays: int = 0
 
     def as_dict(self) -> dict:
         return {"service": "player", "published": self.published, "wall_s": round(self.wall_s, 3),
-                "event_s": round(self.event_s, 3), "aborted": self.aborted,
+                "event_s": round(self.event_s, 3), "aborted": self.aborted, "replays": self.replays,
                 "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
 
 
@@ -63,7 +74,8 @@ class Player:
     def __init__(self, bus: Bus, path: str | Path, rate: float = 0.0, keys: Iterable[str] | None = None,
                  wait_for: Iterable[str] = (), heartbeat_ms: int = 100, startup_timeout_s: float = 60.0,
                  progress: bool = True, announce_absent: Iterable[str] = SOURCE_KEYS,
-                 drain_timeout_s: float = 0.0, flow_window_ms: int = 3000):
+                 drain_timeout_s: float = 0.0, flow_window_ms: int = 3000,
+                 supervision: Supervision | None = None):
         if rate < 0:
             raise ValueError(f"player rate must be >= 0, got {rate}")
         self.bus = bus
@@ -84,6 +96,9 @@ class Player:
         self._watcher = None
         self._left_since: dict[str, float] = {}
         self._next_check = 0.0
+        self.supervision = supervision
+        self._stamps: dict[str, array] = {k: array("q") for k in self.keys}  # stamp per transport index
+        self._replay: ReplayServer | None = None
         bus.on_abort(self._on_abort)
 
     def _on_abort(self, reason: str) -> None:
@@ -93,13 +108,22 @@ class Player:
         self.stop_event.set()
 
     def _check_consumers(self, grace_s: float = 1.0) -> None:
-        """Abort the run if a consumer left the bus without finishing (it died)."""
+        """Abort the run if a consumer left the bus without finishing (it died) and did not
+        come back within ``grace_s`` (``supervise.rejoin_timeout_s`` when supervised)."""
         now = time.monotonic()
+        if self._replay is not None:
+            self._serve_replays()
         if self._alive is None or now < self._next_check or self.stop_event.is_set():
             return
         self._next_check = now + 0.1
+        if self.supervision is not None:
+            grace_s = self.supervision.rejoin_timeout_s
+        alive = self._alive.alive()
         for name in self._alive.left():
             if name not in self.wait_for or self._watcher.get(name) == END_OF_TIME:
+                continue
+            if name in alive:  # restarted
+                self._left_since.pop(name, None)
                 continue
             first = self._left_since.setdefault(name, now)
             if now - first >= grace_s:  # its last progress report may still be on the way
@@ -123,8 +147,36 @@ class Player:
                 promised = True
             time.sleep(0.001)
 
+    def _replay_source(self, key: str, start: int) -> tuple[int, Any]:
+        """Frames of ``key`` from transport index ``start`` up to the last one sent, read again
+        from the recording (lazily: a generator)."""
+        stamps = self._stamps.get(key, array("q"))
+        n = len(stamps)
+        if start >= n:
+            return n, iter(())
+        t = stamps[start]
+        skip = start - bisect.bisect_left(stamps, t)  # messages of the same stamp before index start
+
+        def frames() -> Any:
+            index = start - skip
+            for rec in read_messages(self.path, keys=[key], start_ns=t):
+                if index >= n:
+                    return
+                if index >= start:
+                    yield encode_sequenced(index, rec.type_name, rec.payload)
+                index += 1
+        return start, frames()
+
+    def _serve_replays(self) -> None:
+        assert self._replay is not None
+        if self._replay.pending():
+            n = self._replay.serve(self._replay_source)
+            self.stats.replays += n
+
     def run(self) -> PlayerStats:
         pubs = {k: self.bus.publisher(k) for k in self.keys + self.absent}
+        if self.supervision is not None:
+            self._replay = ReplayServer(self.bus, pubs, self.supervision.consumers)
         watcher = self.bus.watch_progress() if self.wait_for else None
         if self.wait_for:
             log.info("player: waiting for %s", ", ".join(self.wait_for))
@@ -161,8 +213,8 @@ class Player:
                     for pub in pubs.values():
                         pub.send_watermark(rec.stamp)
                     last_hb = rec.stamp
-                name = rec.type_name.encode()
-                pubs[rec.key].send_raw(b"D" + bytes([len(name)]) + name + rec.payload)
+                pubs[rec.key].send_data(rec.type_name, rec.payload)
+                self._stamps[rec.key].append(rec.stamp)
                 self.stats.published[rec.key] = self.stats.published.get(rec.key, 0) + 1
                 last_stamp = rec.stamp
                 bar.update(1)
@@ -174,6 +226,13 @@ class Player:
             elif not self.stats.aborted:  # stopped early: the streams are incomplete, no end-of-stream
                 self.stats.aborted = "player stopped before the end of the recording"
                 self.bus.abort(self.stats.aborted)
+        if self.supervision is not None and watcher is not None and not self.stop_event.is_set():
+            deadline = time.monotonic() + (self.drain_timeout_s or 3600.0)
+            while not self.stop_event.is_set() and time.monotonic() < deadline:
+                self._check_consumers()
+                if all(watcher.get(w) == END_OF_TIME for w in self.wait_for):
+                    break
+                time.sleep(0.02)
         if self.drain_timeout_s > 0 and not self.stop_event.is_set():
             deadline = time.monotonic() + self.drain_timeout_s
             while not self.stop_event.is_set() and time.monotonic() < deadline:

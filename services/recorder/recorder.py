@@ -15,6 +15,16 @@ sends can stop the recorder.  An ``@abort`` on the bus (a service died, see
 :mod:`common.bus`) stops it after writing what has arrived; the file is then closed with
 its summary and ``RecorderStats.aborted`` says why.  On a normal end it reports progress
 ``END_OF_TIME`` so the player knows it finished.
+
+Numbered frames it already has (a replay, a restarted publisher) are not recorded twice
+(:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``).  Supervised
+(``supervision``), every ``supervise.checkpoint_interval_s`` of event time it ends the MCAP
+chunk in progress, syncs the file and saves per key the messages recorded and the next
+transport index (``<state_dir>/recorder.ckpt``), then reports those positions on
+``@ckpt/recorder``.  Restarted (``supervision.resume``), it rewrites its partial file
+keeping, per key, exactly the messages its checkpoint counted (anything written after the
+checkpoint is received again), continues it, and asks every publisher for a replay from
+its checkpoint: the final file holds every message exactly once.
 """
 from __future__ import annotations
 
@@ -28,8 +38,12 @@ from typing import Any, Iterable
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
-from common.mcap_io import RecordingWriter
+import os
+
+from common.mcap_io import RecordingError, RecordingWriter, read_file_order
 from common.ordering import END_OF_TIME
+from common.resume import (SequenceGate, Supervision, checkpoint_path, load_checkpoint, report_checkpoint,
+                           request_replays, save_checkpoint)
 
 __all__ = ["Recorder", "RecorderStats"]
 
@@ -43,16 +57,22 @@ class RecorderStats:
     ended: list[str] = field(default_factory=list)
     path: str = ""
     aborted: str = ""
+    duplicates: int = 0
+    checkpoints: int = 0
+    checkpoint_ms: float = 0.0
+    resumed_messages: int = 0
 
     def as_dict(self) -> dict:
         return {"service": "recorder", "path": self.path, "recorded": self.recorded, "invalid": self.invalid,
-                "ended": sorted(self.ended), "aborted": self.aborted}
+                "ended": sorted(self.ended), "aborted": self.aborted, "duplicates": self.duplicates,
+                "checkpoints": self.checkpoints, "checkpoint_ms": round(self.checkpoint_ms, 3),
+                "resumed_messages": self.resumed_messages}
 
 
 class Recorder:
     def __init__(self, bus: Bus, out: str | Path, expect: Iterable[str] | None = None,
                  metadata: dict[str, Any] | None = None, compression: str = "zstd", chunk_size: int = 1 << 20,
-                 flush_interval_s: float = 0.5, name: str = "recorder"):
+                 flush_interval_s: float = 0.5, name: str = "recorder", supervision: Supervision | None = None):
         self.bus = bus
         self.out = Path(out)
         self.expect = set(expect) if expect is not None else None
@@ -61,7 +81,15 @@ class Recorder:
         self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self.progress = bus.progress_publisher(name)
         self._seen = -1
-        self.writer = RecordingWriter(self.out, compression=compression, chunk_size=chunk_size)
+        self.supervision = supervision
+        self._compression, self._chunk_size = compression, chunk_size
+        self.gate = SequenceGate(owner=name)
+        self._asked: dict[str, float] = {}
+        self._ckpt_seen: int | None = None
+        self._resume = supervision is not None and supervision.resume
+        # a restarted recorder continues its file (run() rewrites it); never truncate it here
+        self.writer = None if self._resume else RecordingWriter(self.out, compression=compression,
+                                                                 chunk_size=chunk_size)
         self.flush_interval_s = flush_interval_s
         self.stop_event = threading.Event()
         self.stats = RecorderStats(path=str(self.out))
@@ -77,18 +105,92 @@ class Recorder:
     def _done(self) -> bool:
         return self.expect is not None and self.expect <= set(self.stats.ended)
 
+    # ---- supervision ------------------------------------------------------------------
+    def _checkpoint_path(self) -> Path:
+        assert self.supervision is not None
+        return checkpoint_path(self.supervision.state_dir, self.name)
+
+    def checkpoint(self) -> None:
+        """Sync the file, then save what it holds (see the module notes)."""
+        assert self.writer is not None
+        t0 = time.perf_counter()
+        self.writer.sync()
+        positions = dict(self.gate.expected)
+        save_checkpoint(self._checkpoint_path(), {"service": self.name, "counts": dict(self.writer.counts),
+                                                  "positions": positions, "seen": self._seen})
+        report_checkpoint(self.bus, self.name, positions)
+        self._ckpt_seen = self._seen
+        self.stats.checkpoints += 1
+        self.stats.checkpoint_ms += (time.perf_counter() - t0) * 1e3
+
+    def _resume_file(self) -> None:
+        """Restarted: keep per key the messages the checkpoint counted, continue the file."""
+        state = load_checkpoint(self._checkpoint_path())
+        expect = sorted(self.expect or [])
+        if state is None:
+            log.warning("recorder: restarted without a checkpoint: recording again from the start")
+            self.writer = RecordingWriter(self.out, compression=self._compression, chunk_size=self._chunk_size)
+            self.writer.add_metadata("poseidon", self.metadata)
+            self.gate = SequenceGate({}, catch_up=expect, owner=self.name)
+            return
+        counts: dict[str, int] = state["counts"]
+        messages, _meta = read_file_order(self.out) if self.out.exists() else ([], {})
+        kept, n = [], {}
+        for m in messages:
+            if n.get(m.key, 0) < counts.get(m.key, 0):
+                kept.append(m)
+                n[m.key] = n.get(m.key, 0) + 1
+        short = {k: (n.get(k, 0), c) for k, c in counts.items() if n.get(k, 0) < c}
+        if short:
+            raise RecordingError(f"{self.out}: the recorder checkpoint counts messages the file does not hold "
+                                 f"(key: (in file, checkpointed)) {short}")
+        tmp = self.out.with_name(self.out.name + ".resume")
+        writer = RecordingWriter(tmp, compression=self._compression, chunk_size=self._chunk_size)
+        writer.add_metadata("poseidon", self.metadata)
+        for m in kept:
+            writer.write_encoded(m.key, m.type_name, m.payload, m.stamp, m.seq)
+        writer.sync()
+        os.replace(tmp, self.out)  # the open file is now the recording
+        writer.path = self.out
+        self.writer = writer
+        for k, c in counts.items():
+            self.stats.recorded[k] = c
+        self.stats.resumed_messages = len(kept)
+        self._seen = self._ckpt_seen = int(state["seen"])
+        self.gate = SequenceGate(state["positions"], catch_up=sorted(set(expect) | set(state["positions"])),
+                                 owner=self.name)
+        log.warning("recorder: resumed %s with %d messages (of %d intact in the file), positions %s", self.out,
+                    len(kept), len(messages), state["positions"])
+
+    def _maybe_checkpoint(self) -> None:
+        sup = self.supervision
+        if sup is None or self._seen < 0:
+            return
+        if self._ckpt_seen is None:
+            self._ckpt_seen = self._seen
+        elif self._seen - self._ckpt_seen >= sup.checkpoint_interval_ns:
+            self.checkpoint()
+
     def run(self) -> RecorderStats:
-        self.writer.add_metadata("poseidon", self.metadata)
+        if self._resume:
+            self._resume_file()
+        else:
+            self.writer.add_metadata("poseidon", self.metadata)
         self.writer.flush()
         self.bus.declare_alive(self.name)
         last_flush = time.monotonic()
+        sup = self.supervision
         try:
             while not self._done():
                 if self.stop_event.is_set() and self.queue.empty():
                     break
+                if sup is not None and self.gate.catch_up:
+                    request_replays(self.bus, self.gate, self.name, self._asked, sup.replay_retry_s)
                 try:
                     key, data = self.queue.get(timeout=0.2)
                 except queue.Empty:
+                    if sup is not None:  # a restarted player learns where we are
+                        self.progress.repeat(1.0)
                     continue
                 self._handle(key, data)
                 if self._seen >= 0:
@@ -96,6 +198,7 @@ class Recorder:
                 if time.monotonic() - last_flush > self.flush_interval_s:
                     self.writer.flush()
                     last_flush = time.monotonic()
+                self._maybe_checkpoint()
         finally:
             self.writer.close()
         if self._done():
@@ -109,11 +212,21 @@ class Recorder:
             self.stats.invalid[key] = self.stats.invalid.get(key, 0) + 1
             log.error("recorder: bad frame on %s skipped: %s", key, exc)
             return
+        if frame.kind == "replay":
+            self.gate.replay(key, frame.index)
+            return
+        if frame.kind in ("eos", "watermark") and not self.gate.control(key):
+            return
         if frame.kind == "eos":
-            self.stats.ended.append(key)
+            if key not in self.stats.ended:
+                self.stats.ended.append(key)
             return
         if frame.kind == "watermark":
             self._seen = max(self._seen, frame.stamp)
+            return
+        if not self.gate.data(key, frame.index):
+            self.stats.duplicates += 1
+            self.progress.repeat()  # a restarted player learns how far the recorder is
             return
         try:
             header = decode_dict(frame.payload).get("header")

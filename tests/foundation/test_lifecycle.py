@@ -161,12 +161,13 @@ def test_one_declaration_of_keys_used_by_node_and_launcher(tmp_path):
 
 
 def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tmp_path):
-    """SIGKILL of a service mid-run: exit 3 naming it, every other process stops (abort), and the
-    partial recording is closed with its summary (the standard reader opens it)."""
+    """SIGKILL of a service mid-run without supervision (supervise.max_restarts 0): exit 3 naming
+    it, every other process stops (abort), and the partial recording is closed with its summary
+    (the standard reader opens it)."""
     src = tmp_path / "in.mcap"
     six_stream_recording(src, 3000, image_every=10)
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text('{"service_classes": {"stall": "tests.foundation.nodes:Stall"}}')
+    cfg.write_text('{"service_classes": {"stall": "tests.foundation.nodes:Stall"}, "supervise": {"max_restarts": 0}}')
     out = tmp_path / "run.mcap"
     launcher = subprocess.Popen(CLI + ["run", "--input", str(src), "--out", str(out), "--config", str(cfg),
                                        "--services", "stall", "--json"], cwd=REPO, stdout=subprocess.DEVNULL,

@@ -1,0 +1,259 @@
+"""Restart and resume of a supervised run: checkpoints, replay and de-duplication (issue 11).
+
+The launcher (:mod:`launcher.run`) restarts a service that dies; this module makes the
+restarted service continue so that every stream equals an uninterrupted run's:
+
+- **Checkpoints.**  Every ``supervise.checkpoint_interval_s`` of *event* time a service
+  writes ``<state_dir>/<service>.ckpt`` atomically (temporary file, fsync, rename): the
+  node's state (:meth:`common.node.ServiceNode.checkpoint_state`: the algorithm core's
+  objects), per input key the transport index of the next frame it has not processed,
+  the event time of the last processed input, and per output key the next transport index
+  with the frames its consumers may still need.  Pickle is the format: a private file of
+  one run, written and read by the same code (never load one from elsewhere).
+- **Replay.**  Publishers number their data frames per key (transport index,
+  :mod:`common.codec`) and keep what they sent (:class:`common.bus.BusPublisher` with
+  ``retain``) until every consumer of the key has checkpointed past it: consumers report
+  their checkpointed positions on ``@ckpt/<service>`` (JSON ``{key: next index}``), so the
+  retained frames are about one checkpoint interval, whatever the mission length.  A
+  restarted consumer puts ``{"from": n, "by": service}`` on ``@replay/<key>``; the publisher
+  sends an ``R n`` frame, the frames from ``n``, its last watermark and, if the stream ended,
+  end-of-stream, on the key itself, so they arrive in order with the live frames.  The
+  player answers from its recording.
+- **De-duplication** (:class:`SequenceGate`).  Every consumer (the recorder included) keeps
+  per key the next index it expects and drops frames below it: a replay, or a restarted
+  publisher producing again the outputs since its checkpoint, is harmless.  A restarted
+  consumer ignores a key (data, watermarks, end-of-stream) until that key is *in step*:
+  the frame it expects arrives, or a replay starting at or before it.
+- **Finish.**  A finished publisher stays (answering replays) until every consumer of its
+  keys reported progress ``END_OF_TIME``; a finished service checkpoints once more, so a
+  restart after its end only re-announces its end.
+
+Limits: the player is not checkpointed (a restarted player sends its recording again from
+the start; consumers drop the duplicates); an un-numbered ``D`` frame (a foreign publisher)
+is never de-duplicated; if every copy of a frame is gone (a consumer asking for frames
+every other consumer checkpointed past, after its publisher restarted too) the consumer
+fails naming the key (:class:`LostFrames`) instead of resuming wrongly.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import pickle
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+__all__ = ["Supervision", "SequenceGate", "LostFrames", "save_checkpoint", "load_checkpoint", "ReplayServer",
+           "REPLAY", "CKPT", "checkpoint_path"]
+
+log = logging.getLogger(__name__)
+
+REPLAY = "@replay"
+CKPT = "@ckpt"
+_CKPT_VERSION = 1
+
+
+class LostFrames(RuntimeError):
+    """A restarted consumer cannot get the frames it needs (trimmed everywhere)."""
+
+
+@dataclass
+class Supervision:
+    """What a supervised service needs to know (written by the launcher as JSON)."""
+
+    state_dir: Path
+    consumers: dict[str, list[str]] = field(default_factory=dict)  # key -> services that consume it
+    checkpoint_interval_ns: int = 30_000_000_000
+    replay_retry_s: float = 3.0
+    rejoin_timeout_s: float = 60.0
+    resume: bool = False  # this process is a restart: load the checkpoint, ask for replays
+
+    def to_json(self) -> str:
+        return json.dumps({"state_dir": str(self.state_dir), "consumers": self.consumers,
+                           "checkpoint_interval_ns": self.checkpoint_interval_ns,
+                           "replay_retry_s": self.replay_retry_s, "rejoin_timeout_s": self.rejoin_timeout_s})
+
+    @classmethod
+    def from_file(cls, path: str | Path, resume: bool = False) -> "Supervision":
+        try:
+            d = json.loads(Path(path).read_text())
+            return cls(Path(d["state_dir"]), {k: list(v) for k, v in d["consumers"].items()},
+                       int(d["checkpoint_interval_ns"]), float(d["replay_retry_s"]), float(d["rejoin_timeout_s"]),
+                       resume)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"{path}: not a supervision file: {type(exc).__name__}: {exc}") from None
+
+    def consumers_of(self, keys: Iterable[str]) -> set[str]:
+        return {c for k in keys for c in self.consumers.get(k, [])}
+
+
+def checkpoint_path(state_dir: str | Path, service: str) -> Path:
+    return Path(state_dir) / f"{service}.ckpt"
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> int:
+    """Write ``state`` to ``path`` atomically (temporary file, fsync, rename); returns its size in bytes."""
+    data = pickle.dumps({"version": _CKPT_VERSION, **state}, protocol=pickle.HIGHEST_PROTOCOL)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return len(data)
+
+
+def load_checkpoint(path: Path) -> dict[str, Any] | None:
+    """The checkpoint at ``path``, or None when there is none yet; ValueError naming the file if unreadable."""
+    if not path.exists():
+        return None
+    try:
+        state = pickle.loads(path.read_bytes())
+    except Exception as exc:  # noqa: BLE001 - any unpickling failure is a damaged checkpoint
+        raise ValueError(f"{path}: unreadable checkpoint: {type(exc).__name__}: {exc}") from None
+    if not isinstance(state, dict) or state.get("version") != _CKPT_VERSION:
+        raise ValueError(f"{path}: not a checkpoint of version {_CKPT_VERSION}")
+    return state
+
+
+class SequenceGate:
+    """Per-key de-duplication of numbered frames (see the module notes).
+
+    ``positions``: next expected index per key; keys in ``catch_up`` are out of step (a
+    restarted consumer) until the expected frame or a replay starting at or before it arrives.
+    """
+
+    def __init__(self, positions: dict[str, int] | None = None, catch_up: Iterable[str] = (), owner: str = ""):
+        self.expected: dict[str, int] = dict(positions or {})
+        self.catch_up: set[str] = set(catch_up)
+        self.owner = owner
+        self.duplicates = 0
+        self.skipped = 0  # frames of a key that is not in step yet
+        self.gaps = 0
+
+    def in_step(self, key: str) -> bool:
+        return key not in self.catch_up
+
+    def data(self, key: str, index: int) -> bool:
+        """Accept (True) or drop (False) a data frame with transport ``index`` (-1: unnumbered, accepted)."""
+        if index < 0:
+            return True
+        exp = self.expected.get(key)
+        if key in self.catch_up:
+            if index != (exp or 0):
+                self.skipped += 1
+                return False
+            self.catch_up.discard(key)
+            log.info("%s: %s in step again at index %d", self.owner, key, index)
+        elif exp is not None and index < exp:
+            self.duplicates += 1
+            return False
+        elif exp is not None and index > exp:
+            self.gaps += 1
+            log.warning("%s: frames %d..%d of %s never arrived", self.owner, exp, index - 1, key)
+        self.expected[key] = index + 1
+        return True
+
+    def control(self, key: str) -> bool:
+        """Watermarks and end-of-stream count only once the key is in step."""
+        return key not in self.catch_up
+
+    def replay(self, key: str, start: int) -> None:
+        """An ``R start`` frame: the publisher now sends every frame from ``start``."""
+        if key not in self.catch_up:
+            return
+        exp = self.expected.get(key, 0)
+        if start > exp:
+            raise LostFrames(f"{self.owner}: frames {exp}..{start - 1} of {key} are no longer kept by its publisher")
+        self.catch_up.discard(key)
+        log.info("%s: %s in step again (replay from %d, expecting %d)", self.owner, key, start, exp)
+
+
+class ReplayServer:
+    """The publisher side: answers replay requests for ``publishers`` and trims their retained
+    frames by the consumers' checkpoint reports.  Requests are queued by Zenoh callbacks and
+    answered by the owner's thread (:meth:`serve`), so a replay never interleaves with a send."""
+
+    def __init__(self, bus: Any, publishers: dict[str, Any], consumers: dict[str, list[str]],
+                 wake: Callable[[], None] | None = None):
+        self.bus = bus
+        self.publishers = publishers
+        self.consumers = consumers
+        self._acks: dict[str, dict[str, int]] = {}
+        self._requests: list[tuple[str, int, str]] = []
+        self._lock = threading.Lock()
+        self._wake = wake
+        self.served = 0
+        for key in publishers:
+            bus.subscribe_callback(f"{REPLAY}/{key}", self._on_request)
+        bus.subscribe_callback(f"{CKPT}/*", self._on_ack)
+
+    def _on_request(self, key: str, payload: bytes) -> None:
+        key = key.removeprefix(REPLAY + "/")
+        try:
+            req = json.loads(payload)
+            start, by = int(req["from"]), str(req.get("by", "?"))
+        except (ValueError, KeyError, TypeError) as exc:
+            log.error("replay request on %s ignored: %s", key, exc)
+            return
+        if key not in self.publishers or start < 0:
+            return
+        with self._lock:
+            self._requests.append((key, start, by))
+        if self._wake is not None:
+            self._wake()
+
+    def _on_ack(self, key: str, payload: bytes) -> None:
+        service = key.removeprefix(CKPT + "/")
+        try:
+            positions = {str(k): int(v) for k, v in json.loads(payload).items()}
+        except (ValueError, AttributeError, TypeError) as exc:
+            log.error("checkpoint report of %s ignored: %s", service, exc)
+            return
+        with self._lock:
+            self._acks[service] = positions
+            acks = dict(self._acks)
+        for k, pub in self.publishers.items():
+            users = self.consumers.get(k, [])
+            if pub.retain and users and all(u in acks for u in users):
+                pub.trim(min(acks[u].get(k, 0) for u in users))
+
+    def pending(self) -> bool:
+        with self._lock:
+            return bool(self._requests)
+
+    def serve(self, source: Callable[[str, int], tuple[int, Iterable[bytes]]] | None = None) -> int:
+        """Answer the queued requests (owner thread).  ``source(key, start) -> (first, frames)``
+        supplies frames kept elsewhere (the player's recording).  Returns how many were answered."""
+        with self._lock:
+            requests, self._requests = self._requests, []
+        for key, start, by in requests:
+            pub = self.publishers[key]
+            if source is not None:
+                first, frames = source(key, start)
+                begin = pub.replay(start, frames, first)
+            else:
+                begin = pub.replay(start)
+            log.info("replayed %s from %d (asked from %d by %s; next %d)", key, begin, start, by, pub.index)
+            self.served += 1
+        return len(requests)
+
+
+def request_replays(bus: Any, gate: SequenceGate, by: str, last: dict[str, float], retry_s: float) -> None:
+    """Ask (again, every ``retry_s`` wall seconds) for the keys ``gate`` still catches up on."""
+    now = time.monotonic()
+    for key in sorted(gate.catch_up):
+        if now - last.get(key, -1e9) >= retry_s:
+            start = gate.expected.get(key, 0)
+            bus.session.put(bus.full_key(f"{REPLAY}/{key}"), json.dumps({"from": start, "by": by}).encode())
+            last[key] = now
+            log.info("%s: asked for a replay of %s from %d", by, key, start)
+
+
+def report_checkpoint(bus: Any, service: str, positions: dict[str, int]) -> None:
+    """Tell publishers what ``service`` has checkpointed (they may forget older frames)."""
+    bus.session.put(bus.full_key(f"{CKPT}/{service}"), json.dumps(positions).encode())

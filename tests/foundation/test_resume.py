@@ -1,0 +1,116 @@
+"""Issue 11, supervision: de-duplication of replayed frames, replay and trimming on the bus,
+the retry bound of the launcher (a service that always dies)."""
+import subprocess
+import sys
+import time
+
+import pytest
+
+from common.bus import Bus, open_local_session
+from common.codec import decode_frame
+from common.messages import Depth, Header
+from common.resume import LostFrames, SequenceGate, load_checkpoint, save_checkpoint
+from tests.conftest import REPO
+from tests.foundation.recordings import six_stream_recording
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def test_replayed_duplicates_are_dropped_and_a_restarted_consumer_waits_for_its_replay():
+    live = SequenceGate(owner="t")
+    assert [live.data("k", i) for i in (0, 1, 2)] == [True, True, True]
+    live.replay("k", 1)  # somebody else's replay: the frames from 1 come again
+    assert [live.data("k", i) for i in (1, 2, 3)] == [False, False, True]
+    assert live.duplicates == 2 and live.expected["k"] == 4
+    assert live.data("k", -1)  # an unnumbered (foreign) frame is never de-duplicated
+
+    restarted = SequenceGate({"k": 5}, catch_up=["k"], owner="t")
+    assert not restarted.data("k", 9)  # live frames ahead of its checkpoint: they come again in the replay
+    assert not restarted.control("k")  # nor watermarks / end-of-stream before the replay
+    restarted.replay("k", 3)
+    assert restarted.control("k")
+    assert [restarted.data("k", i) for i in (3, 4, 5, 6)] == [False, False, True, True]
+
+    restarted = SequenceGate({"k": 5}, catch_up=["k"], owner="t")
+    assert restarted.data("k", 5) and restarted.in_step("k")  # the expected frame itself puts it in step
+
+    with pytest.raises(LostFrames, match="frames 5..8 of k"):
+        SequenceGate({"k": 5}, catch_up=["k"], owner="t").replay("k", 9)
+
+
+def test_publisher_replays_what_it_kept_and_forgets_what_was_checkpointed(tmp_path):
+    session = open_local_session()
+    bus = Bus(session=session)
+    received = []
+    bus.subscribe_callback("depth_sensor", lambda _k, data: received.append(decode_frame(data)))
+    pub = bus.publisher("depth_sensor", retain=True)
+    time.sleep(0.2)
+    try:
+        for i in range(10):
+            pub.send(Depth(header=Header(seq=i, stamp=100 + i), depth=float(i)))
+        pub.send_watermark(200)
+        pub.send_eos()
+        pub.trim(4)
+        assert [i for i, _f in pub.retained] == list(range(4, 10))
+        assert pub.replay(2) == 4  # frames 2, 3 were forgotten: the replay says it starts at 4
+        deadline = time.monotonic() + 5
+        while len(received) < 10 + 2 + 1 + 6 + 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        bus.close()
+        session.close()
+    kinds = [(f.kind, f.index) for f in received]
+    assert kinds[:12] == [("data", i) for i in range(10)] + [("watermark", -1), ("eos", -1)]
+    assert kinds[12:] == [("replay", 4)] + [("data", i) for i in range(4, 10)] + [("watermark", -1), ("eos", -1)]
+    # a consumer that had checkpointed at 6 gets each message exactly once
+    gate = SequenceGate({"k": 6}, catch_up=["k"], owner="t")
+    got = []
+    for f in received:
+        if f.kind == "replay":
+            gate.replay("k", f.index)
+        elif f.kind == "data" and gate.data("k", f.index):
+            got.append(f.message().header.seq)
+    assert got == [6, 7, 8, 9]
+
+
+def test_checkpoints_are_written_atomically(tmp_path):
+    path = tmp_path / "svc.ckpt"
+    assert load_checkpoint(path) is None
+    size = save_checkpoint(path, {"node": {"x": [1, 2]}})
+    assert size == path.stat().st_size and load_checkpoint(path)["node"] == {"x": [1, 2]}
+    assert not list(tmp_path.glob("*.tmp"))
+    path.write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="svc.ckpt: unreadable checkpoint"):
+        load_checkpoint(path)
+
+
+def test_a_service_that_always_dies_fails_the_run_after_max_restarts(tmp_path):
+    src = tmp_path / "in.mcap"
+    six_stream_recording(src, 800, image_every=20)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text('{"service_classes": {"boom": "tests.foundation.nodes:Boom"}, '
+                   '"supervise": {"max_restarts": 2, "restart_backoff_s": 0.05}}')
+    out = tmp_path / "run.mcap"
+    proc = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(src), "--out", str(out),
+                           "--config", str(cfg), "--services", "boom", "--json"], cwd=REPO, capture_output=True,
+                          text=True, timeout=240)
+    assert proc.returncode == 3, proc.stderr[-3000:]
+    assert "service 'boom' failed: exited with code 1 after 2 restart(s)" in proc.stderr
+    assert "supervise: service boom died (exit code 1); restart 1 of 2" in proc.stderr
+    assert "supervise: service boom died (exit code 1); restart 2 of 2" in proc.stderr
+    assert "restart 3 of" not in proc.stderr
+    assert "boom died (exit code 1) and used its 2 restarts" in proc.stderr
+    assert not out.exists() and (tmp_path / "run.partial.mcap").exists()
+
+
+def test_numbered_and_replay_frames_decode_and_malformed_ones_are_rejected():
+    from common.codec import DecodeError, encode, encode_replay_start, encode_sequenced
+    msg = Depth(header=Header(seq=3, stamp=5), depth=1.5)
+    f = decode_frame(encode_sequenced(41, msg.type_name, encode(msg)))
+    assert (f.kind, f.index, f.message()) == ("data", 41, msg)
+    assert (decode_frame(encode_replay_start(7)).kind, decode_frame(encode_replay_start(7)).index) == ("replay", 7)
+    for bad in (b"S", b"S\x01\x00\x00\x00\x00\x00\x00\x00", b"S" + b"\xff" * 8 + b"\x05Depth",
+                encode_sequenced(1, msg.type_name, b"")[:12], encode_sequenced(1, msg.type_name, b""), b"R\x01",
+                b"R" + b"\xff" * 8):
+        with pytest.raises(DecodeError):
+            decode_frame(bad)
