@@ -68,6 +68,8 @@ CONTROL_GRANTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("put", "@abort", ("player", "service")),                    # abort the run (Bus.abort)
     ("subscribe", "@progress/*", ("player",)),                   # the consumers' progress (watch_progress)
     ("watch", "@alive/*", ("player",)),                          # who is alive (watch_alive)
+    ("put", "@ckpt/{name}", ("recorder", "service")),             # checkpointed positions (common.resume)
+    ("subscribe", "@ckpt/*", ("player", "service")),             # publishers trim their replay buffers
 )
 
 #: every message type Zenoh's access control knows (the router identity gets them all)
@@ -93,18 +95,21 @@ def identity_grants(config=None) -> dict[str, list[Grant]]:
     """What each identity may do under ``config`` (default configuration if None)."""
     from common.config import PoseidonConfig
     from launcher.services import node_class
+    from common.resume import REPLAY
     from services.player.player import SOURCE_KEYS
     config = config if config is not None else PoseidonConfig()
     ns = config.bus.namespace.strip("/")
     out: dict[str, list[Grant]] = {}
     for name, role in identities(config).items():
+        # replay (common.resume): a consumer asks on @replay/<input key>, the key's publisher answers
         if role == "player":
-            data = [Grant("put", k) for k in SOURCE_KEYS]
+            data = [Grant("put", k) for k in SOURCE_KEYS] + [Grant("subscribe", f"{REPLAY}/{k}") for k in SOURCE_KEYS]
         elif role == "recorder":
-            data = [Grant("subscribe", "**")]
+            data = [Grant("subscribe", "**"), Grant("put", f"{REPLAY}/**")]
         else:
             ins, outs = node_class(name, config).io_keys(config)
-            data = [Grant("put", k) for k in outs] + [Grant("subscribe", k) for k in ins]
+            data = ([Grant("put", k) for k in outs] + [Grant("subscribe", k) for k in ins]
+                    + [Grant("subscribe", f"{REPLAY}/{k}") for k in outs] + [Grant("put", f"{REPLAY}/{k}") for k in ins])
         control = [Grant(verb, key.format(name=name)) for verb, key, roles in CONTROL_GRANTS if role in roles]
         out[name] = [Grant(g.verb, f"{ns}/{g.key}") for g in data + control]
     return out

@@ -20,7 +20,7 @@ import numpy as np
 import zenoh
 
 from common.bus import zenoh_config
-from common.codec import encode_frame
+from common.codec import decode_frame, encode_frame
 from common.messages import Header, Image, Odometry
 
 
@@ -65,7 +65,7 @@ def main() -> None:
         def on_sample(sample: zenoh.Sample) -> None:
             with lock:
                 report["received"][key] += 1
-                report["data"][key] += sample.payload.to_bytes()[:1] == b"D"
+                report["data"][key] += decode_frame(sample.payload.to_bytes()).kind == "data"
         return on_sample
 
     subs = [session.declare_subscriber(f"{args.namespace}/{k}", counter(k)) for k in args.subscribe]

@@ -127,3 +127,16 @@ def test_a_new_control_key_is_one_line(monkeypatch):
 
 def test_every_identity_has_credentials():
     assert set(acl.identities()) | {"router"} == set(USERS)
+
+
+def test_replay_requests_go_from_a_key_s_consumers_to_its_publisher(policy):
+    """Supervision (common.resume): a restarted consumer asks on @replay/<input key>, the
+    publisher of that key listens there; checkpoint positions go on @ckpt/<service>."""
+    config = load_config()
+    ins, outs = node_io("htm", config)
+    for k in ins:
+        assert may_put(policy, "htm", f"@replay/{k}")
+    assert not may_put(policy, "htm", "@replay/Odometry")           # not an input of htm
+    assert may_read(policy, "encoder", "@replay/neocortex/sdr") and not may_read(policy, "htm", "@replay/neocortex/sdr")
+    assert may_read(policy, "player", "@replay/camera/image_raw") and may_put(policy, "recorder", "@replay/map")
+    assert may_put(policy, "expmap", "@ckpt/expmap") and not may_put(policy, "expmap", "@ckpt/htm")
