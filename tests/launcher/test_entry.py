@@ -27,3 +27,13 @@ def test_exit_codes_and_output_survive_os_exit(tmp_path):
 def test_console_script_points_at_entry():
     text = (ROOT / "pyproject.toml").read_text()
     assert 'poseidon = "launcher.cli:entry"' in text
+
+
+def test_one_blas_thread_per_process_unless_the_user_says_otherwise():
+    code = "import launcher.cli, os; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    env = {k: v for k, v in __import__("os").environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, env=env, timeout=60)
+    assert out.stdout.strip() == "1"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                         env={**env, "OPENBLAS_NUM_THREADS": "2"}, timeout=60)
+    assert out.stdout.strip() == "2"
