@@ -93,21 +93,25 @@ def _normalise(s, nc, cnt, s1, s2, use_column, prior, update, z):
 
 
 @njit(cache=True)
-def _diagonals(hist, hist_len, head, n_hist, nc, length, offsets, out):
+def _diagonals(hist, hist_len, head, n_hist, nc, length, offsets, acc, out):
     """out[j] = max over velocities of (1/K) sum_k hist[t-k][j - offsets[v, k]] (missing points: 0)."""
     h = hist.shape[0]
     for j in range(nc):
-        best = -1e300
-        for v in range(offsets.shape[0]):
-            acc = 0.0
-            for k in range(min(length, n_hist)):
-                r = (head - k) % h
-                jj = j - offsets[v, k]
-                if 0 <= jj < hist_len[r]:
-                    acc += hist[r, jj]
-            if acc > best:
-                best = acc
-        out[j] = best / length
+        out[j] = -1e300
+    for v in range(offsets.shape[0]):
+        for j in range(nc):
+            acc[j] = 0.0
+        for k in range(min(length, n_hist)):
+            r = (head - k) % h
+            off = offsets[v, k]
+            hi = min(nc, hist_len[r] + off)
+            for j in range(off, hi):
+                acc[j] += hist[r, j - off]
+        for j in range(nc):
+            if acc[j] > out[j]:
+                out[j] = acc[j]
+    for j in range(nc):
+        out[j] /= length
 
 
 class SequenceScore:
@@ -207,7 +211,8 @@ class SequenceMatcher:
         if nc == 0:
             return SequenceScore(-1, 0.0, 0.0)
         out = np.empty(nc, np.float64)
-        _diagonals(self.hist, self.hist_len, self._head, self.steps, nc, self.length, self._offsets, out)
+        _diagonals(self.hist, self.hist_len, self._head, self.steps, nc, self.length, self._offsets,
+                   np.empty(nc, np.float64), out)
         j = int(np.argmax(out))
         lo, hi = max(0, j - self.length), min(nc, j + self.length + 1)
         rest = np.concatenate([out[:lo], out[hi:]])
