@@ -721,7 +721,7 @@ def main(argv: list[str] | None = None) -> int:
         t_htm = time.perf_counter() - t1
         sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
         result["n_lvc"] = len(htm.lvc)
-        result["htm_query_matched"] = sum(1 for i, _, _ in q_out if i >= 0)
+        result["htm_query_matched"] = sum(1 for o in q_out if o[0] >= 0)
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result = {
         "matchers": metrics,
