@@ -54,9 +54,14 @@ argmax, correct iff it is in the query's ground truth):
   sonar) -> SP -> TM -> descriptor D_t -> LVC id (Eqs. 4.4-4.10, :mod:`services.htm`).  The
   reference sequence builds the LVC map (learning as ``htm.learning``); after a reset of the
   temporal context the query sequence only queries that map (no new LVCs; HTM learning off
-  unless ``--htm-query-learning``).  A query whose LVC match is accepted (Eq. 4.9) predicts
-  the reference frame with that LVC id whose descriptor overlaps D_q most (Eq. 4.7), with
-  the match's R as score; a rejected query predicts nothing (it only lowers recall).
+  unless ``--htm-query-learning``; the reset also starts a new traversal of the sequence
+  memory).  A query whose LVC match is accepted (Eq. 4.9, the sequence memory or the
+  place-sequence prior) predicts the reference frame with that LVC id whose descriptor
+  overlaps D_q most (Eq. 4.7) -- or, when the id is that of the stored frame j* where the
+  sequence memory's best diagonal ended, j* itself; its score is the sequence margin
+  S* - S_2 (z units) with the sequence memory on (``htm.sv_seqmem_length`` > 0), else R.
+  A rejected query predicts nothing (it only lowers recall).  On ``--mission`` the same
+  rule picks among the eligible earlier frames.
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
 

@@ -27,6 +27,15 @@ previous frame's id are tried with the gate ``sv_seq_match_threshold`` (on R and
 I >= I_min): a revisit that has locked onto an earlier stretch keeps following it through
 frames that alone would be too weak, as a sequence memory over places.  Query-only steps
 (``store=False``) use the graph without adding to it.
+Sequence memory (``sv_seqmem_length`` K > 0, ours, issue 8; :mod:`services.htm.sequence`):
+every frame's D_t is kept with the id it was given, and each frame scores the SeqSLAM-like
+diagonals of its last K frames against that memory (causal).  The decision of a frame is:
+l* when it passes Eq. 4.9 (+ F1 gate); else the id of the stored frame j* where the best
+diagonal ends, when its score S* >= ``sv_seqmem_threshold`` and S* minus the best score
+ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frames each look
+different -- Nordland winter vs summer -- is recognised by their order); else the
+place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
+report it.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
