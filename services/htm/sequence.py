@@ -14,7 +14,9 @@ first visit in order.  :class:`SequenceMatcher` keeps every stored frame's descr
    made online): per frame t the z-score of s_t over the candidates, then (``column_norm``)
    per stored frame j the running standardisation of those z-scores over the frames of the
    current traversal that have queried it so far, shrunk towards (0, 1) by ``column_prior``
-   pseudo-frames (so a stored frame seen by few queries keeps its row z-score);
+   pseudo-frames (so a stored frame seen by few queries keeps its row z-score; Nordland,
+   K 10, AP of the memory alone with 0 / 3 / 10 / 30 pseudo-frames 0.849 / 0.855 / 0.857 /
+   0.855, corridor 0.899 / 0.937 / 0.928 / 0.910; z-score only 0.639 and 0.865);
 3. sequence score of a diagonal ending at j: S_t(j) = (1/K) sum_{k<K} z_{t-k}(j - round(v k))
    for each velocity v of ``velocities`` (frames of the memory per frame of the traversal),
    the best v kept; a point outside the history or the candidates of its frame adds 0
