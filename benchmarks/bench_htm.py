@@ -1,10 +1,18 @@
-"""SP + TM learning step at the dissertation's parameters (Table 5.1 / Table 4.1), in ms.
+"""SP + TM learning step at the dissertation's parameters (Table 5.1 / Table 4.1), in ms;
+then the default chain (sdr descriptor -> LVC) per frame with and without the sequence memory.
 
 Stream: a route of ``--places`` places, each an LSBH-like fused SDR (``--bits`` active of
 L = 2048; 512 = one modality with s = 0.25, ~1024 = camera OR sonar), visited for
 ``--hold`` frames with ``--noise`` of its bits replaced per frame, looped for ``--steps``
 frames. The reference is htm.core (C++): ~0.41 ms per SP+TM learning step on this machine
 class (ARCHITECTURE.md); the ratio printed is ours / 0.41 ms.
+
+Second part (``--pipeline-frames`` N, 0 skips it): the default configuration (fused SDR as the
+descriptor, R/F1 gates, place-sequence prior, sequence memory of ``services/htm/sequence.py``)
+steps over N frames of the same kind of stream (``--pipeline-bits`` active bits, default 900 =
+camera OR sonar) storing LVCs as online; printed: ms per frame over the last 1000 frames (when
+the frame memory holds ~N frames) with the sequence memory and with ``sv_seqmem_length: 0``,
+measured in the same run, and their ratio.
 
     NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_htm.py
 """
@@ -45,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise", type=float, default=0.05, help="fraction of bits replaced per frame")
     ap.add_argument("--boost", type=float, default=None, help="htm.sp_boostStrength (default: config)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--pipeline-frames", type=int, default=6000,
+                    help="frames for the default-chain timing (6000 = a 20-min mission at 5 Hz; 0: skip)")
+    ap.add_argument("--pipeline-bits", type=int, default=900, help="active bits of the fused SDR in that part")
     args = ap.parse_args(argv)
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
@@ -88,7 +99,32 @@ def main(argv: list[str] | None = None) -> int:
           f"{med(sptm) / HTM_CORE_MS:.2f} (median)")
     print(f"final state: {h.tm.num_segments} segments, {h.tm.num_synapses} synapses, {len(h.lvc)} LVCs, "
           f"mean anomaly last 500 steps {anomalies[-500:].mean():.2f}")
+    if args.pipeline_frames > 0:
+        pipeline_cost(args)
     return 0
+
+
+def pipeline_cost(args: argparse.Namespace) -> None:
+    """Default chain per frame, sequence memory on vs off, same stream, same run."""
+    frames = make_stream(args.pipeline_frames, args.places, args.hold, args.pipeline_bits, args.noise, args.seed + 1)
+    tail = min(1000, len(frames))
+    res = {}
+    for name, cfg in (("sequence memory on (default)", HtmConfig()),
+                      ("sequence memory off", HtmConfig(sv_seqmem_length=0))):
+        warm = NeocortexHtm(cfg)
+        for f in frames[:5]:
+            warm.step(f)
+        h = NeocortexHtm(cfg)
+        t = np.empty(len(frames))
+        for i, f in enumerate(tqdm(frames, desc=name, file=sys.stderr, mininterval=1.0, leave=False)):
+            t0 = time.perf_counter()
+            h.step(f)
+            t[i] = time.perf_counter() - t0
+        res[name] = 1e3 * float(np.mean(t[-tail:]))
+        print(f"default chain, {name:30s} mean {res[name]:.3f} ms per frame over the last {tail} frames "
+              f"({len(frames)} frames stored, {len(h.lvc)} LVCs)")
+    on, off = res.values()
+    print(f"ratio sequence memory on / off: {on / off:.2f} (+{on - off:.3f} ms per frame)")
 
 
 if __name__ == "__main__":

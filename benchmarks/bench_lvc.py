@@ -8,6 +8,11 @@ answers are compared on every query.
 Descriptor spaces: ``tm`` 15 bits of 81 920 TM cells (sv_tm_topk, default), ``sp`` 20 of
 2048 columns, ``sdr`` 512 of 2048 SDR bits (the raw LSBH code, baseline matcher).
 
+Then the sequence memory (``services/htm/sequence.py``, default K = ``htm.sv_seqmem_length``)
+at the same numbers of stored *frames* (``--seq-bits`` active of 2048, default 900 = fused
+camera OR sonar): ms per ``score`` (F1 against every stored frame, normalisation, diagonals),
+next to the inverted-index LVC query of the ``sdr`` space at the same size, same run.
+
     NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_lvc.py
 """
 from __future__ import annotations
@@ -19,7 +24,9 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from common.config import HtmConfig
 from services.htm.lvc import LvcMatcher
+from services.htm.sequence import SequenceMatcher
 
 SPACES = {"tm": (81920, 15), "sp": (2048, 20), "sdr": (2048, 512)}
 
@@ -73,18 +80,43 @@ def run(space: str, n_protos: int, n_queries: int, seed: int) -> tuple[float, fl
     return 1e3 * (t1 - t0) / n_queries, 1e3 * (t2 - t1) / n_queries
 
 
+def run_sequence(n_frames: int, n_queries: int, bits: int, seed: int) -> float:
+    """ms per SequenceMatcher.score with ``n_frames`` stored frames (default configuration)."""
+    cfg = HtmConfig()
+    rng = np.random.default_rng(seed)
+    m = SequenceMatcher(2048, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
+                        cfg.sv_seqmem_column_norm)
+    frames = [np.sort(rng.choice(2048, bits, replace=False)) for _ in range(min(n_frames, 2000))]
+    for i in tqdm(range(n_frames), desc=f"seq: store {n_frames}", file=sys.stderr, mininterval=1.0, leave=False):
+        m.add(frames[i % len(frames)], i)
+    m.reset()
+    queries = [np.sort(rng.choice(2048, bits, replace=False)) for _ in range(n_queries)]
+    for q in queries[:3]:
+        m.score(q)
+    t0 = time.perf_counter()
+    for q in queries:
+        m.score(q)
+    return 1e3 * (time.perf_counter() - t0) / n_queries
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
     ap.add_argument("--spaces", nargs="+", default=["tm", "sp", "sdr"], choices=list(SPACES))
     ap.add_argument("--queries", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seq-bits", type=int, default=900, help="active bits per stored frame (sequence memory)")
     args = ap.parse_args(argv)
     print(f"{'space':5} {'prototypes':>10} {'index ms/query':>15} {'brute ms/query':>15} {'speed-up':>9}")
     for space in args.spaces:
         for n in args.sizes:
             ours, brute = run(space, n, args.queries, args.seed)
             print(f"{space:5} {n:>10} {ours:>15.4f} {brute:>15.4f} {brute / ours:>8.1f}x", flush=True)
+    print(f"{'frames':>10} {'seq memory ms/frame':>20} {'sdr LVC index ms/query':>23} {'ratio':>6}")
+    for n in args.sizes:
+        seq = run_sequence(n, args.queries, args.seq_bits, args.seed)
+        lvc, _ = run("sdr", n, args.queries, args.seed)
+        print(f"{n:>10} {seq:>20.4f} {lvc:>23.4f} {seq / lvc:>6.2f}", flush=True)
     return 0
 
 

@@ -169,9 +169,21 @@ class HtmConfig(_Section):
     sp_learn_steps: int = Field(100, ge=0, description="SP learns during the first N learning steps, then its "
                                 "synapses and boost factors are frozen (0: always learns)")
     # --- added for the place-sequence prior (issue 8); see services/htm/pipeline.py
-    sv_seq_match_threshold: float = Field(0.65, ge=0, le=1, description="R and F1 gate for an LVC predicted by the "
+    sv_seq_match_threshold: float = Field(0.68, ge=0, le=1, description="R and F1 gate for an LVC predicted by the "
                                           "place sequence (a learned successor of the previous frame's id); 0: off")
     sv_seq_hops: int = Field(2, ge=1, description="successor steps a predicted LVC may be ahead of the previous id")
+    # --- added for the sequence memory (issue 8); see services/htm/sequence.py
+    sv_seqmem_length: int = Field(40, ge=0, description="frames K of the sequence score of the LVC decision "
+                                  "(SeqSLAM-like diagonals over the stored frames); 0: off")
+    sv_seqmem_velocities: list[float] = Field(default_factory=lambda: [1.0], min_length=1,
+                                              description="diagonal slopes: stored frames per current frame")
+    sv_seqmem_exclude: int = Field(50, ge=0, description="frames of the current traversal stored this few steps "
+                                   "ago are no sequence candidates (neighbours in time look alike)")
+    sv_seqmem_threshold: float = Field(1.5, description="sequence score S* (z units) a sequence match needs")
+    sv_seqmem_margin: float = Field(1.75, ge=0, description="S* minus the best score ending more than K frames "
+                                    "away (z units) a sequence match needs")
+    sv_seqmem_column_norm: bool = Field(True, description="normalise each stored frame's similarity by its running "
+                                        "mean/std over the current traversal before the per-frame z-score")
 
     @model_validator(mode="after")
     def _consistent(self) -> "HtmConfig":
@@ -183,6 +195,8 @@ class HtmConfig(_Section):
         _check(self.tm_maxNewSynapseCount <= self.tm_maxSynapsesPerSegment,
                f"htm.tm_maxNewSynapseCount ({self.tm_maxNewSynapseCount}) must be <= htm.tm_maxSynapsesPerSegment "
                f"({self.tm_maxSynapsesPerSegment})")
+        _check(all(v > 0 for v in self.sv_seqmem_velocities),
+               f"htm.sv_seqmem_velocities {self.sv_seqmem_velocities} must all be > 0")
         return self
 
 

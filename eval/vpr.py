@@ -54,9 +54,14 @@ argmax, correct iff it is in the query's ground truth):
   sonar) -> SP -> TM -> descriptor D_t -> LVC id (Eqs. 4.4-4.10, :mod:`services.htm`).  The
   reference sequence builds the LVC map (learning as ``htm.learning``); after a reset of the
   temporal context the query sequence only queries that map (no new LVCs; HTM learning off
-  unless ``--htm-query-learning``).  A query whose LVC match is accepted (Eq. 4.9) predicts
-  the reference frame with that LVC id whose descriptor overlaps D_q most (Eq. 4.7), with
-  the match's R as score; a rejected query predicts nothing (it only lowers recall).
+  unless ``--htm-query-learning``; the reset also starts a new traversal of the sequence
+  memory).  A query whose LVC match is accepted (Eq. 4.9, the sequence memory or the
+  place-sequence prior) predicts the reference frame with that LVC id whose descriptor
+  overlaps D_q most (Eq. 4.7) -- or, when the id is that of the stored frame j* where the
+  sequence memory's best diagonal ended, j* itself; its score is the sequence margin
+  S* - S_2 (z units) with the sequence memory on (``htm.sv_seqmem_length`` > 0), else R.
+  A rejected query predicts nothing (it only lowers recall).  On ``--mission`` the same
+  rule picks among the eligible earlier frames.
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
 
@@ -282,27 +287,43 @@ def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.nda
     ref_out, q_out = [], []
     for bits in tqdm(ref_sdrs, desc="htm ref", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32))
-        ref_out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, dtype=np.int64).copy()))
+        ref_out.append(_htm_row(htm, r))
     htm.reset_sequence()
     learn = cfg.learning and query_learning
     for bits in tqdm(query_sdrs, desc="htm query", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32), learn=learn, store=False)
-        q_out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, dtype=np.int64).copy()))
+        q_out.append(_htm_row(htm, r))
     return ref_out, q_out, htm
+
+
+def match_confidence(htm, r) -> float:
+    """The score a query's LVC match is ranked by: with the sequence memory
+    (``htm.sv_seqmem_length`` > 0) the sequence margin S* - S_2 at the predicted frame, else R."""
+    return float(r.seq_margin) if htm.seqmem is not None else float(r.rate)
+
+
+def _htm_row(htm, r) -> tuple[int, float, np.ndarray, int]:
+    """(LVC id, confidence, D_t, memory frame the id was read from or -1) of one step."""
+    frame = int(r.frame) if (htm.seqmem is not None and r.frame >= 0 and r.lvc_id >= 0
+                             and int(htm.seqmem.ids[r.frame]) == r.lvc_id) else -1
+    return int(r.lvc_id), match_confidence(htm, r), np.asarray(htm.last_descriptor, dtype=np.int64).copy(), frame
 
 
 def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
     """(htm_lvc, htm_descriptor) similarity matrices from the HTM outputs (see module doc)."""
-    d_ref = [d for _, _, d in ref_out]
-    d_q = [d for _, _, d in query_out]
+    d_ref = [o[2] for o in ref_out]
+    d_q = [o[2] for o in query_out]
     desc = overlap_similarity(d_q, d_ref).astype(np.float64)
-    ref_ids = np.array([i for i, _, _ in ref_out])
+    ref_ids = np.array([o[0] for o in ref_out])
     lvc = np.full(desc.shape, -np.inf)
-    for qi, (lid, rate, _) in enumerate(query_out):
+    for qi, (lid, score, _, frame) in enumerate(query_out):
+        if 0 <= frame < len(ref_out):   # the sequence match names the reference frame itself
+            lvc[qi, frame] = score
+            continue
         same = np.flatnonzero(ref_ids == lid)
         if same.size:
             best = same[np.argmax(desc[qi, same])]
-            lvc[qi, best] = rate
+            lvc[qi, best] = score
     return lvc, desc
 
 
@@ -493,18 +514,22 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
     for b in tqdm(bits, desc="htm", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(b, np.uint32))
         cols_used.update(htm.last_columns.tolist())
-        out.append((int(r.lvc_id), float(r.rate), np.asarray(htm.last_descriptor, np.int64).copy(), float(r.anomaly)))
+        out.append((*_htm_row(htm, r), float(r.anomaly)))
     n = len(out)
     ids = np.array([o[0] for o in out])
     desc = overlap_similarity([o[2] for o in out], [o[2] for o in out]).astype(np.float64)
     lvc = np.full(desc.shape, -np.inf)
     for i in range(n):
+        frame = out[i][3]   # the memory index is the frame index: every frame is stored in order
+        if 0 <= frame < n and eligible[i, frame]:
+            lvc[i, frame] = out[i][1]
+            continue
         same = np.flatnonzero(eligible[i] & (ids == ids[i]))
         if same.size:
             lvc[i, same[np.argmax(desc[i, same])]] = out[i][1]
     res = lvc_revisit_scores(ids, gt, eligible)
     res.update({"n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
-                "tm_anomaly_mean": round(float(np.mean([o[3] for o in out])), 4) if out else 0.0,
+                "tm_anomaly_mean": round(float(np.mean([o[4] for o in out])), 4) if out else 0.0,
                 "sp_columns_used": len(cols_used)})
     return {"scores": res, "htm_lvc": lvc, "htm_descriptor": np.where(eligible, desc, -np.inf), "ids": ids}
 
@@ -701,7 +726,7 @@ def main(argv: list[str] | None = None) -> int:
         t_htm = time.perf_counter() - t1
         sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
         result["n_lvc"] = len(htm.lvc)
-        result["htm_query_matched"] = sum(1 for i, _, _ in q_out if i >= 0)
+        result["htm_query_matched"] = sum(1 for o in q_out if o[0] >= 0)
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result = {
         "matchers": metrics,

@@ -37,7 +37,10 @@ class LvcResult:
 
     ``best_*`` describe the best stored candidate l* before the new id was created
     (-1 / 0 when there was none) for diagnostics; ``anomaly`` is the TM anomaly of the
-    step (0 when the TM did not run) and ``descriptor_bits`` = |D_t|.
+    step (0 when the TM did not run) and ``descriptor_bits`` = |D_t|.  With the sequence memory
+    (:mod:`services.htm.sequence`): ``by_sequence`` when the id came from the sequence match,
+    ``frame`` the stored frame (memory index) whose diagonal ended best, ``seq_score`` its
+    score S* and ``seq_margin`` S* minus the best score ending elsewhere (z units; 0 when off).
     """
 
     lvc_id: int
@@ -49,6 +52,10 @@ class LvcResult:
     best_intersection: int = 0
     descriptor_bits: int = 0
     anomaly: float = 0.0
+    by_sequence: bool = False
+    frame: int = -1
+    seq_score: float = 0.0
+    seq_margin: float = 0.0
 
 
 def overlap_scores(a: np.ndarray, b: np.ndarray) -> dict[str, float]:

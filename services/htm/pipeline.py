@@ -27,6 +27,15 @@ previous frame's id are tried with the gate ``sv_seq_match_threshold`` (on R and
 I >= I_min): a revisit that has locked onto an earlier stretch keeps following it through
 frames that alone would be too weak, as a sequence memory over places.  Query-only steps
 (``store=False``) use the graph without adding to it.
+Sequence memory (``sv_seqmem_length`` K > 0, ours, issue 8; :mod:`services.htm.sequence`):
+every frame's D_t is kept with the id it was given, and each frame scores the SeqSLAM-like
+diagonals of its last K frames against that memory (causal).  The decision of a frame is:
+l* when it passes Eq. 4.9 (+ F1 gate); else the id of the stored frame j* where the best
+diagonal ends, when its score S* >= ``sv_seqmem_threshold`` and S* minus the best score
+ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frames each look
+different -- Nordland winter vs summer -- is recognised by their order); else the
+place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
+report it.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -43,6 +52,7 @@ import numpy as np
 from common.config import HtmConfig
 from services.htm.descriptor import DescriptorBuilder
 from services.htm.lvc import LvcMatcher, LvcResult, overlap_scores
+from services.htm.sequence import SequenceMatcher, SequenceScore
 from services.htm.spatial_pooler import SpatialPooler
 from services.htm.temporal_memory import TemporalMemory
 
@@ -142,6 +152,8 @@ class NeocortexHtm:
                               cfg.min_f1, cfg.sv_use_iou_tiebreak)
         self.multimodal = ModalityPrototypes({"camera": cfg.sv_min_img_score, "sonar": cfg.sv_min_sonar_score}) \
             if cfg.sv_require_multimodal else None
+        self.seqmem = SequenceMatcher(n_bits, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
+                                      cfg.sv_seqmem_column_norm) if cfg.sv_seqmem_length > 0 else None
         self.steps = 0
         self.successors: dict[int, set[int]] = {}
         self.last_id = -1
@@ -208,26 +220,51 @@ class NeocortexHtm:
         self.steps += 1
         mm = self.multimodal
         veto = None if mm is None else (lambda lvc_id: mm.disagree(lvc_id, modalities))
+        seq = self.seqmem.score(d) if self.seqmem is not None else None
+        res = self._decide(d, veto, seq, store)
         if store:
-            res = self.lvc.match(d, veto) if self.cfg.sv_seq_match_threshold <= 0 else self._match_in_sequence(d, veto)
             if mm is not None and res.is_new:
                 mm.store(res.lvc_id, modalities)
             if self.last_id >= 0 and res.lvc_id != self.last_id:
                 self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
-            self.last_id = res.lvc_id
-            return replace(res, anomaly=anomaly)
+            if self.seqmem is not None:
+                self.seqmem.add(d, res.lvc_id)
+        self.last_id = res.lvc_id
+        return replace(res, anomaly=anomaly)
+
+    def _decide(self, d: np.ndarray, veto, seq: SequenceScore | None, store: bool) -> LvcResult:
+        """Eq. 4.9 on l*, then the sequence match, then the place-sequence prior, then Eq. 4.10
+        (``store``) or no id (-1)."""
         best, i = self.lvc.best(d)
         n = d.size
         rate = i / n if n else 0.0
-        ok = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best))
-        if not ok and self.cfg.sv_seq_match_threshold > 0:
-            seq = self._predicted_match(d, veto)
-            if seq is not None:
-                self.last_id = seq[0]
-                return LvcResult(seq[0], seq[1], False, seq[2], best, rate, i, n, anomaly)
-        self.last_id = best if ok else -1
-        return LvcResult(best if ok else -1, rate if ok else 0.0, False, i if ok else 0, best, rate, i, n,
-                         anomaly)
+        extra = {} if seq is None else {"frame": seq.frame, "seq_score": seq.score,
+                                         "seq_margin": seq.score - seq.second}
+        if best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best)):
+            return LvcResult(best, rate, False, i, best, rate, i, n, **extra)
+        sm = self._sequence_match(d, seq, veto)
+        if sm is not None:
+            return LvcResult(sm[0], sm[1], False, sm[2], best, rate, i, n, by_sequence=True, **extra)
+        if self.cfg.sv_seq_match_threshold > 0:
+            pm = self._predicted_match(d, veto)
+            if pm is not None:
+                return LvcResult(pm[0], pm[1], False, pm[2], best, rate, i, n, **extra)
+        if store:
+            new_id = self.lvc.add(d)
+            return LvcResult(new_id, 1.0 if n else 0.0, True, 0, best, rate, i, n, **extra)
+        return LvcResult(-1, 0.0, False, 0, best, rate, i, n, **extra)
+
+    def _sequence_match(self, d: np.ndarray, seq: SequenceScore | None, veto) -> tuple[int, float, int] | None:
+        """(id, R, I) of the sequence match when S* and its margin pass the gates, else None."""
+        cfg = self.cfg
+        if seq is None or seq.frame < 0 or seq.score < cfg.sv_seqmem_threshold \
+                or seq.score - seq.second < cfg.sv_seqmem_margin:
+            return None
+        lid = int(self.seqmem.ids[seq.frame])
+        if lid < 0 or (veto and veto(lid)):
+            return None
+        i = int(np.intersect1d(d, self.lvc.prototype(lid), assume_unique=True).size)
+        return lid, (i / d.size if d.size else 0.0), i
 
     def predicted_ids(self) -> list[int]:
         """LVC ids 1 .. ``sv_seq_hops`` successor steps ahead of the previous frame's id (sorted)."""
@@ -253,24 +290,13 @@ class NeocortexHtm:
                 best = (lid, i / n, i)
         return best
 
-    def _match_in_sequence(self, d: np.ndarray, veto) -> LvcResult:
-        """Eqs. 4.8-4.10 with the place-sequence prior (see the module doc)."""
-        best, i = self.lvc.best(d)
-        n = d.size
-        rate = i / n if n else 0.0
-        if best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best)):
-            return LvcResult(best, rate, False, i, best, rate, i, n)
-        seq = self._predicted_match(d, veto)
-        if seq is not None:
-            return LvcResult(seq[0], seq[1], False, seq[2], best, rate, i, n)
-        new_id = self.lvc.add(d)
-        return LvcResult(new_id, 1.0 if n else 0.0, True, 0, best, rate, i, n)
-
     def reset_sequence(self) -> None:
         """Forget the temporal context (TM predictions, pooling window, interval run); keep learning."""
         if self.tm is not None:
             self.tm.reset()
         self.descriptor.reset()
+        if self.seqmem is not None:
+            self.seqmem.reset()
         self.last_id = -1
 
     # ---- persistence ------------------------------------------------------------------
@@ -279,7 +305,7 @@ class NeocortexHtm:
         path = Path(path)
         arrays: dict[str, np.ndarray] = {}
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
-                             ("mm", self.multimodal)):
+                             ("mm", self.multimodal), ("seqmem", self.seqmem)):
             if part is not None:
                 for k, v in part.state().items():
                     arrays[f"{prefix}.{k}"] = v
@@ -317,7 +343,7 @@ class NeocortexHtm:
             if getattr(self.cfg, k) != v:
                 raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {getattr(self.cfg, k)!r}")
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
-                             ("mm", self.multimodal)):
+                             ("mm", self.multimodal), ("seqmem", self.seqmem)):
             if part is not None:
                 pre = prefix + "."
                 part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})

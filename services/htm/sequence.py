@@ -1,0 +1,266 @@
+"""Sequence memory over stored frames: the LVC decision of a frame from its recent sequence (ours, issue 8).
+
+Single-frame matching (Eqs. 4.6-4.9) fails when a place looks different on a revisit
+(Nordland summer vs winter: no summer frame passes the R/F1 gates for its winter frame).
+What survives is the *sequence*: the frames of a revisit follow the stored frames of the
+first visit in order.  :class:`SequenceMatcher` keeps every stored frame's descriptor D_j
+(bit-packed) with the LVC id it was given, and for the current frame t:
+
+1. similarity s_t(j) = F1(D_t, D_j) = 2 |D_t & D_j| / (|D_t| + |D_j|) (the F1 of the LVC
+   gate, Eq. 4.9) against every *candidate* frame j: all stored frames except those of the
+   current traversal stored in the last ``exclude`` steps (neighbours in time trivially look
+   alike; a ``reset()`` starts a new traversal, after which every stored frame is a candidate);
+2. causal normalisation (the local contrast enhancement of SeqSLAM, Milford & Wyeth 2012,
+   made online): per frame t the z-score of s_t over the candidates, then (``column_norm``)
+   per stored frame j the running standardisation of those z-scores over the frames of the
+   current traversal that have queried it so far, shrunk towards (0, 1) by ``column_prior``
+   pseudo-frames (so a stored frame seen by few queries keeps its row z-score; Nordland,
+   K 10, AP of the memory alone with 0 / 3 / 10 / 30 pseudo-frames 0.849 / 0.855 / 0.857 /
+   0.855, corridor 0.899 / 0.937 / 0.928 / 0.910; z-score only 0.639 and 0.865);
+3. sequence score of a diagonal ending at j: S_t(j) = (1/K) sum_{k<K} z_{t-k}(j - round(v k))
+   for each velocity v of ``velocities`` (frames of the memory per frame of the traversal),
+   the best v kept; a point outside the history or the candidates of its frame adds 0
+   (so a diagonal shorter than K cannot outscore a full one).  The history holds the last
+   K normalised rows, so the cost per frame is O(#memory x (words + K x #velocities)).
+
+``score(D_t)`` does 1-3 and returns (j*, S*, S_2): the best ending frame, its score and the
+best score ending outside ``j* +- K`` (uniqueness, as in SeqSLAM; 0, the mean of a z-score,
+when there is none; (-1, 0, 0) without candidates).  ``add(D_t, lvc_id)``
+appends the frame to the memory.  Everything is causal: the frame t only uses frames up to t.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from numba import njit
+
+from services.htm._bits import popcount64
+
+__all__ = ["SequenceMatcher", "SequenceScore"]
+
+
+@njit(cache=True)
+def _f1_row(q, q_size, mem, sizes, n, out):
+    """out[j] = 2 |q & mem_j| / (|q| + |mem_j|) for j < n (packed uint64 rows)."""
+    w = q.shape[0]
+    for j in range(n):
+        c = 0
+        for k in range(w):
+            c += popcount64(q[k] & mem[j, k])
+        den = q_size + sizes[j]
+        out[j] = 2.0 * c / den if den > 0 else 0.0
+
+
+@njit(cache=True)
+def _pack(d, words):
+    """Sorted bit indices -> little-endian uint64 words (bit i in word i // 64, position i % 64)."""
+    out = np.zeros(words, np.uint64)
+    for b in d:
+        out[b >> 6] |= np.uint64(1) << np.uint64(b & 63)
+    return out
+
+
+@njit(cache=True)
+def _normalise(s, nc, cnt, s1, s2, use_column, prior, update, z):
+    """z[:nc] = z-score of s over the candidates, then (``use_column``) standardised per stored
+    frame by its running mean / variance over the traversal, shrunk towards (0, 1) by ``prior``
+    pseudo-frames; updates those per-frame statistics when ``update``."""
+    if nc == 0:
+        return
+    m = 0.0
+    for j in range(nc):
+        m += s[j]
+    m /= nc
+    var = 0.0
+    for j in range(nc):
+        var += (s[j] - m) ** 2
+    sd = np.sqrt(var / nc)
+    for j in range(nc):
+        z[j] = (s[j] - m) / sd if sd > 1e-12 else 0.0
+    if not use_column:
+        return
+    for j in range(nc):
+        v = z[j]
+        if update:
+            cnt[j] += 1.0
+            s1[j] += v
+            s2[j] += v * v
+        n = cnt[j] + prior
+        if n <= 0.0:
+            continue
+        mu = s1[j] / n
+        var = (s2[j] + prior) / n - mu * mu
+        z[j] = (v - mu) / np.sqrt(var) if var > 1e-12 else 0.0
+
+
+@njit(cache=True)
+def _diagonals(hist, hist_len, head, n_hist, nc, length, offsets, acc, out):
+    """out[j] = max over velocities of (1/K) sum_k hist[t-k][j - offsets[v, k]] (missing points: 0)."""
+    h = hist.shape[0]
+    for j in range(nc):
+        out[j] = -1e300
+    for v in range(offsets.shape[0]):
+        for j in range(nc):
+            acc[j] = 0.0
+        for k in range(min(length, n_hist)):
+            r = (head - k) % h
+            off = offsets[v, k]
+            hi = min(nc, hist_len[r] + off)
+            for j in range(off, hi):
+                acc[j] += hist[r, j - off]
+        for j in range(nc):
+            if acc[j] > out[j]:
+                out[j] = acc[j]
+    for j in range(nc):
+        out[j] /= length
+
+
+class SequenceScore:
+    """Outcome of :meth:`SequenceMatcher.score`: best ending frame, its score, the runner-up."""
+
+    __slots__ = ("frame", "score", "second", "last")
+
+    def __init__(self, frame: int, score: float, second: float, last: float = 0.0):
+        self.frame = frame      # memory index j* (-1: no candidate)
+        self.score = score      # S*(j*), z units
+        self.second = second    # best S outside j* +- K (0: none)
+        self.last = last        # the current frame's own normalised similarity z_t(j*)
+
+    def __repr__(self) -> str:
+        return f"SequenceScore(frame={self.frame}, score={self.score:.3f}, second={self.second:.3f})"
+
+
+class SequenceMatcher:
+    """Frame memory + online SeqSLAM-style sequence scores (see the module doc)."""
+
+    def __init__(self, n_bits: int, length: int, velocities: Sequence[float], exclude: int,
+                 column_norm: bool = True, column_prior: float = 10.0):
+        if length < 1:
+            raise ValueError(f"sequence length must be >= 1, got {length}")
+        if not velocities or any(v <= 0 for v in velocities):
+            raise ValueError(f"sequence velocities must be > 0, got {list(velocities)}")
+        self.n_bits = int(n_bits)
+        self.length = int(length)
+        self.velocities = [float(v) for v in velocities]
+        self.exclude = int(exclude)
+        self.column_norm = bool(column_norm)
+        self.column_prior = float(column_prior)
+        self.words = (self.n_bits + 63) // 64
+        self._offsets = np.array([[int(np.floor(v * k + 0.5)) for k in range(self.length)]
+                                  for v in self.velocities], np.int64)
+        self._alloc(256)
+        self.size = 0
+        self.traversal_start = 0   # memory frames before this index were stored before the last reset()
+        self.steps = 0             # frames scored since the last reset()
+        self._head = -1
+        self._scratch = np.zeros(256, np.float64)
+
+    def _alloc(self, cap: int) -> None:
+        self.mem = np.zeros((cap, self.words), np.uint64)
+        self.sizes = np.zeros(cap, np.int64)
+        self.ids = np.zeros(cap, np.int64)
+        self.cnt = np.zeros(cap, np.float64)
+        self.s1 = np.zeros(cap, np.float64)
+        self.s2 = np.zeros(cap, np.float64)
+        self.hist = np.zeros((self.length, cap), np.float64)
+        self.hist_len = np.zeros(self.length, np.int64)
+
+    def _grow(self, need: int) -> None:
+        cap = self.mem.shape[0]
+        if need <= cap:
+            return
+        new = max(2 * cap, need)
+        old = (self.mem, self.sizes, self.ids, self.cnt, self.s1, self.s2, self.hist)
+        hist_len = self.hist_len
+        self._alloc(new)
+        for dst, src in zip((self.mem, self.sizes, self.ids, self.cnt, self.s1, self.s2), old[:6]):
+            dst[:cap] = src
+        self.hist[:, :cap] = old[6]
+        self.hist_len = hist_len
+
+    def __len__(self) -> int:
+        return self.size
+
+    def pack(self, d: np.ndarray) -> np.ndarray:
+        """Descriptor (sorted unique bit indices) -> packed uint64 words."""
+        d = np.ascontiguousarray(d, np.int64)
+        if d.size and (d.min() < 0 or d.max() >= self.n_bits):
+            raise ValueError(f"descriptor bit out of range [0, {self.n_bits})")
+        return _pack(d, self.words)
+
+    def candidates(self) -> int:
+        """Number of candidate frames (a prefix of the memory): all but the last ``exclude``
+        frames stored in the current traversal."""
+        return max(min(self.traversal_start, self.size), self.size - self.exclude, 0)
+
+    def score(self, d: np.ndarray, update: bool = True) -> SequenceScore:
+        """Steps 1-3 of the module doc for the current frame's descriptor; pushes its row.
+
+        ``update`` False leaves the per-frame (column) statistics unchanged.
+        """
+        q = self.pack(d)
+        nc = self.candidates()
+        if self._scratch.shape[0] < self.size:
+            self._scratch = np.zeros(self.mem.shape[0], np.float64)
+        s = self._scratch
+        _f1_row(q, np.int64(np.asarray(d).size), self.mem, self.sizes, nc, s)
+        self._head = (self._head + 1) % self.length
+        row = self.hist[self._head]
+        _normalise(s, nc, self.cnt, self.s1, self.s2, self.column_norm, self.column_prior, update, row)
+        self.hist_len[self._head] = nc
+        self.steps += 1
+        if nc == 0:
+            return SequenceScore(-1, 0.0, 0.0)
+        out = np.empty(nc, np.float64)
+        _diagonals(self.hist, self.hist_len, self._head, self.steps, nc, self.length, self._offsets,
+                   np.empty(nc, np.float64), out)
+        j = int(np.argmax(out))
+        lo, hi = max(0, j - self.length), min(nc, j + self.length + 1)
+        rest = np.concatenate([out[:lo], out[hi:]])
+        return SequenceScore(j, float(out[j]), float(rest.max()) if rest.size else 0.0, float(row[j]))
+
+    def add(self, d: np.ndarray, lvc_id: int) -> int:
+        """Append a frame with its LVC id to the memory; returns its memory index."""
+        q = self.pack(d)
+        self._grow(self.size + 1)
+        j = self.size
+        self.mem[j] = q
+        self.sizes[j] = np.asarray(d).size
+        self.ids[j] = int(lvc_id)
+        self.size += 1
+        return j
+
+    def reset(self) -> None:
+        """A new traversal: forget the history rows and the per-frame statistics (they describe
+        how the stored frames look from the current traversal); every stored frame becomes a candidate."""
+        self.hist_len[:] = 0
+        self.cnt[:] = 0.0
+        self.s1[:] = 0.0
+        self.s2[:] = 0.0
+        self.steps = 0
+        self._head = -1
+        self.traversal_start = self.size
+
+    # ---- persistence ------------------------------------------------------------------
+    def state(self) -> dict[str, np.ndarray]:
+        n = self.size
+        return {"mem": self.mem[:n].copy(), "sizes": self.sizes[:n].copy(), "ids": self.ids[:n].copy(),
+                "cnt": self.cnt[:n].copy(), "s1": self.s1[:n].copy(), "s2": self.s2[:n].copy(),
+                "hist": self.hist[:, :n].copy(), "hist_len": self.hist_len.copy(),
+                "counters": np.array([self.traversal_start, self.steps, self._head], np.int64)}
+
+    def set_state(self, st: dict[str, np.ndarray]) -> None:
+        if "mem" not in st:      # a state saved before the sequence memory existed
+            return
+        n = st["mem"].shape[0]
+        if st["mem"].shape[1] != self.words or st["hist"].shape[0] != self.length:
+            raise ValueError(f"sequence memory saved with {st['mem'].shape[1]} words x length {st['hist'].shape[0]}, "
+                             f"configuration has {self.words} x {self.length}")
+        self._alloc(max(256, n))
+        self.mem[:n], self.sizes[:n], self.ids[:n] = st["mem"], st["sizes"], st["ids"]
+        self.cnt[:n], self.s1[:n], self.s2[:n] = st["cnt"], st["s1"], st["s2"]
+        self.hist[:, :n] = st["hist"]
+        self.hist_len = st["hist_len"].astype(np.int64).copy()
+        self.traversal_start, self.steps, self._head = (int(x) for x in st["counters"])
+        self.size = n

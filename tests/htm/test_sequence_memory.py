@@ -1,0 +1,124 @@
+"""Sequence memory (services/htm/sequence.py): a revisit whose frames look different from the
+stored ones, one by one, is recognised by the order of its frames; a shuffled revisit is not."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.config import HtmConfig
+from services.htm.pipeline import NeocortexHtm
+from services.htm.sequence import SequenceMatcher
+
+L = 2048
+K = 8
+
+
+def _place(rng: np.random.Generator, bits: int = 300) -> np.ndarray:
+    return np.sort(rng.choice(L, bits, replace=False)).astype(np.int64)
+
+
+def _other_appearance(place: np.ndarray, keep: float, rng: np.random.Generator) -> np.ndarray:
+    """The same place seen differently: only ``keep`` of its bits, the rest random elsewhere."""
+    kept = rng.choice(place, int(round(place.size * keep)), replace=False)
+    others = rng.choice(np.setdiff1d(np.arange(L), place), place.size - kept.size, replace=False)
+    return np.sort(np.concatenate([kept, others])).astype(np.int64)
+
+
+def _route(seed: int = 3, n: int = 40):
+    rng = np.random.default_rng(seed)
+    route = [_place(rng) for _ in range(n)]
+    # a revisit of places 10..29, every frame a new appearance: R with its place = 0.35 (0.72 gate
+    # fails; two unrelated frames overlap by ~0.15)
+    revisit = [_other_appearance(route[p], 0.35, rng) for p in range(10, 30)]
+    return route, revisit, rng
+
+
+def test_pack_matches_the_set_overlap():
+    m = SequenceMatcher(L, 3, [1.0], 0)
+    rng = np.random.default_rng(0)
+    a, b = _place(rng), _place(rng)
+    pa, pb = m.pack(a), m.pack(b)
+    inter = sum(bin(int(x) & int(y)).count("1") for x, y in zip(pa, pb))
+    assert inter == np.intersect1d(a, b).size
+    with pytest.raises(ValueError, match="out of range"):
+        m.pack(np.array([L]))
+
+
+def test_consistent_revisit_scores_its_diagonal_and_a_shuffled_one_does_not():
+    route, revisit, rng = _route()
+    m = SequenceMatcher(L, K, [1.0], 0)
+    for i, p in enumerate(route):
+        m.add(p, i)
+    m.reset()
+    ordered = [m.score(f) for f in revisit]
+    # once K frames of the revisit are in, the best diagonal ends at the stored frame of the place
+    assert [s.frame for s in ordered[K:]] == list(range(10 + K, 30))
+    assert min(s.score for s in ordered[K:]) > 2.0
+    assert min(s.score - s.second for s in ordered[K:]) > HtmConfig().sv_seqmem_margin
+    m.reset()
+    order = rng.permutation(len(revisit))
+    shuffled = [m.score(revisit[k]) for k in order]
+    # single hits, no line: nothing scores like the diagonal, nothing passes the default margin gate
+    assert max(s.score for s in shuffled) < 0.6 * min(s.score for s in ordered[K:])
+    assert max(s.score - s.second for s in shuffled) < HtmConfig().sv_seqmem_margin
+
+
+def test_causal_the_score_of_a_frame_ignores_later_frames():
+    route, revisit, _ = _route()
+    a, b = SequenceMatcher(L, K, [1.0], 0), SequenceMatcher(L, K, [1.0], 0)
+    for i, p in enumerate(route):
+        a.add(p, i)
+        b.add(p, i)
+    a.reset()
+    b.reset()
+    sa = [a.score(f) for f in revisit[:12]]
+    sb = [b.score(f) for f in revisit[:12] + revisit[12:]][:12]
+    assert [(s.frame, s.score, s.second) for s in sa] == [(s.frame, s.score, s.second) for s in sb]
+
+
+def _pipeline(seqmem_length: int, revisit_order=None, tmp_path=None):
+    route, revisit, rng = _route()
+    cfg = HtmConfig(input_size=L, sv_seqmem_length=seqmem_length, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0)
+    h = NeocortexHtm(cfg)
+    first = [h.step(p.astype(np.uint32)).lvc_id for p in route]
+    if tmp_path is not None:   # the frame memory and its history are part of the saved state
+        h.save(tmp_path / "h.npz")
+        h = NeocortexHtm.load(tmp_path / "h.npz", cfg)
+    frames = revisit if revisit_order is None else [revisit[k] for k in revisit_order]
+    again = [h.step(f.astype(np.uint32)) for f in frames]
+    return first, again, h
+
+
+def test_pipeline_gives_a_consistent_revisit_the_ids_of_its_places(tmp_path):
+    first, again, h = _pipeline(K, tmp_path=tmp_path)
+    assert first == list(range(40))                      # the route: one new LVC per place
+    late = again[K:]
+    assert all(r.by_sequence and not r.is_new for r in late)
+    assert [r.lvc_id for r in late] == list(range(10 + K, 30))
+    assert all(r.rate < 0.72 for r in late)              # each frame alone fails Eq. 4.9's gate
+    _, off, _ = _pipeline(0)
+    assert all(r.is_new for r in off)                    # without the sequence memory: new places
+
+
+def test_pipeline_does_not_match_a_shuffled_revisit():
+    order = np.random.default_rng(11).permutation(20)
+    _, again, _ = _pipeline(K, revisit_order=order)
+    assert not any(r.by_sequence for r in again)
+    assert all(r.is_new for r in again)
+
+
+def test_query_only_steps_leave_the_memory_unchanged():
+    route, revisit, _ = _route()
+    h = NeocortexHtm(HtmConfig(input_size=L, sv_seqmem_length=K, sv_seq_match_threshold=0.0))
+    for p in route:
+        h.step(p.astype(np.uint32))
+    h.reset_sequence()
+    ids = [h.step(f.astype(np.uint32), store=False) for f in revisit]
+    assert len(h.seqmem) == 40 and len(h.lvc) == 40
+    assert [r.lvc_id for r in ids[K:]] == list(range(10 + K, 30))
+    assert [r.frame for r in ids[K:]] == list(range(10 + K, 30))
+
+
+def test_bad_configuration_is_named():
+    with pytest.raises(ValueError, match="sv_seqmem_velocities"):
+        HtmConfig(sv_seqmem_velocities=[1.0, 0.0])
