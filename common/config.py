@@ -350,9 +350,10 @@ class ExpMapConfig(_Section):
     image_buffer_size: int = Field(400, ge=1)
     image_sync_slop: float = Field(0.75, ge=0)
     # --- added for the experience map service (issue 9); see services/expmap/
-    pc_proximity_sigma_cells: float = Field(3.5, gt=0, description="pose-cell proximity exp(-d^2/2s^2) of the "
-                                            "wrap-aware centroid distance d in lattice cells (3.5: with Table 4.1 "
-                                            "weights a same-LVC node matches within 1 cell)")
+    pc_proximity_sigma_cells: float = Field(100.0, gt=0, description="pose-cell proximity exp(-d^2/2s^2) of the "
+                                            "wrap-aware centroid distance d in lattice cells (100: proximity > 0.99 "
+                                            "anywhere on the (15,15,15,8) lattice, so a same-LVC node matches and the "
+                                            "sonar registration verifies the geometry; 3.5: within 1 cell)")
     loop_confirmation_gap: int = Field(10, ge=0, description="consecutive events confirm a loop when their matched "
                                        "nodes are at most this many experiences apart on the old route")
     loop_edge_weight: float = Field(1.0, gt=0, description="w of a loop-closure edge in Eq. 4.20 (odometry edges: 1)")

@@ -14,7 +14,10 @@ Loop closure (Table 4.1), decided for the new node n of every event:
   measured in lattice cells (x, y, z in units of ``distance_between_neurons``, each axis
   wrapping at ``number_of_neurons`` cells; yaw in bins of 2 pi / n_yaw, wrapping at 2 pi),
   s = ``pc_proximity_sigma_cells`` (3.5: with the Table 4.1 weights and threshold, a
-  same-LVC node matches iff its centroid is within one cell).  When
+  same-LVC node matches iff its centroid is within one cell; the default 100 makes the
+  proximity > 0.99 anywhere on the default lattice, whose x/y/z wrap every 1.5 m and so
+  cannot tell places apart beyond that: a same-LVC node matches, and the sonar registration
+  below is the geometric check).  When
   ``pc_factor < match_threshold`` a node of another LVC can never reach the threshold, so
   only the nodes of the same LVC are scored, through an index lvc -> nodes (cost
   O(candidates)); otherwise every old node is scored.

@@ -168,7 +168,7 @@ def test_pose_cell_proximity_is_wrap_aware():
     assert pc_distance_cells([0.01, 0, 0, 0], [1.49, 0, 0, 0], shape, spacing) == pytest.approx(0.2)
     assert pc_distance_cells([0, 0, 0, 0.1], [0, 0, 0, 2 * np.pi - 0.1], shape, spacing) == \
         pytest.approx(0.2 / (2 * np.pi / 8))
-    em = ExperienceMap(small_cfg(loop_confirmations=1))
+    em = ExperienceMap(small_cfg(loop_confirmations=1, pc_proximity_sigma_cells=3.5))
     feed(em, [(0, 0, [0.01, 0.7, 0.7, 0.0], [0.0, 0, 0])] + line_lap(30, t0=1, lvc0=1))
     far = feed(em, [(31, 0, [0.3, 0.7, 0.7, 0.0], [0.0, 0, 0])])[0]     # same LVC, 2.9 cells away
     assert far.match == -1
