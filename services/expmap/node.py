@@ -38,7 +38,7 @@ subscribed.
 Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_interval``,
 ``loop_rejected_route``, ``loop_rejected_scan`` (the two sweeps do not fit),
 ``loop_scan_registered`` / ``loop_scan_untrusted`` (how closures got their displacement),
-``scan_beams_before_odometry`` (beams before the first pose, unused), ``corrections_clamped`` (a closure scaled to max_correction_norm),
+``scan_beams_before_odometry`` (beams before the first pose, unused), ``odometry_without_attitude`` (a zero quaternion, not used for the sweep), ``corrections_clamped`` (a closure scaled to max_correction_norm),
 ``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
 max_correction_step), ``experience_images``, ``events_without_image``,
 ``image_wait_overflow``, ``maps_published``.
@@ -46,7 +46,6 @@ max_correction_step), ``experience_images``, ``events_without_image``,
 from __future__ import annotations
 
 import logging
-import math
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -54,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from common.config import ConfigError, PoseidonConfig
+from common.geometry import quaternion_to_matrix, yaw_of_quaternion
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceNode, Header, Image,
                              Odometry, PoseStamped, RangeImageBeam)
 from common.messages import ExperienceMap as ExperienceMapMsg
@@ -64,19 +64,6 @@ from services.expmap.scans import SweepBuffer, echo_range
 __all__ = ["ExpMapNode", "map_message"]
 
 log = logging.getLogger(__name__)
-
-
-def _yaw_of(q: list[float]) -> float:
-    x, y, z, w = q
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def _rotation_of(q: list[float]) -> np.ndarray:
-    """Body->world rotation matrix of a quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def map_message(em: ExperienceMap, header: Header) -> ExperienceMapMsg:
@@ -192,7 +179,11 @@ class ExpMapNode(ServiceNode):
 
     def _on_odometry(self, od: Odometry) -> None:
         if self.scan_key is not None:
-            self.sweeps.add_pose(od.position, _rotation_of(od.orientation))
+            try:
+                self.sweeps.add_pose(od.position, quaternion_to_matrix(od.orientation))
+            except ValueError as exc:   # a zero quaternion: no attitude to place the beams with
+                log.warning("expmap: Odometry seq %d not used for the sonar sweep: %s", od.header.seq, exc)
+                self.count("odometry_without_attitude")
         period = int(round(self.cfg.dead_reckoning_period_sec * 1e9))
         t = od.header.stamp
         if self._last_dr_stamp is not None and period > 0 and t - self._last_dr_stamp < period:
@@ -200,7 +191,7 @@ class ExpMapNode(ServiceNode):
         self._last_dr_stamp = t
         self.publish("dead_reckoning", PoseStamped(
             header=self.header("dead_reckoning", t, od.header.frame_id),
-            position=list(od.position), yaw=_yaw_of(od.orientation)))
+            position=list(od.position), yaw=yaw_of_quaternion(od.orientation)))
 
     def _on_beam(self, beam: RangeImageBeam) -> None:
         c = self.cfg

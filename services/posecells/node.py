@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from common.config import PoseidonConfig
+from common.geometry import yaw_of_quaternion
 from common.messages import ExperienceEvent, LocalViewCells, Message, Odometry
 from common.node import ServiceNode
 from services.posecells.gates import EventGate
@@ -58,12 +59,6 @@ _NODE_STATE_VERSION = 1
 
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def yaw_of_quaternion(q: list[float]) -> float:
-    """Yaw (rad, about z) of a quaternion ``[x, y, z, w]``."""
-    x, y, z, w = (float(v) for v in q)
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 class PoseCellsNode(ServiceNode):

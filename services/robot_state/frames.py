@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from common.config import ConfigError
+from common.geometry import quaternion_to_matrix
 
 __all__ = ["rot_x", "rot_y", "rot_z", "euler_to_matrix", "euler_to_world_rate", "matrix_to_euler", "matrix_to_quaternion",
            "quaternion_to_matrix", "wrap_angle", "OutputFrame"]
@@ -104,18 +105,6 @@ def matrix_to_quaternion(r: np.ndarray) -> list[float]:
     return [float(v) for v in q]
 
 
-def quaternion_to_matrix(q: list[float] | np.ndarray) -> np.ndarray:
-    """Rotation matrix of a quaternion ``[x, y, z, w]`` (normalised first)."""
-    x, y, z, w = (float(v) for v in q)
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not n > 0.0:
-        raise ValueError(f"quaternion {list(q)} has zero norm")
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 class OutputFrame:
