@@ -403,6 +403,25 @@ def main(argv: list[str] | None = None) -> int:
     return int(args.func(args) or 0)
 
 
+def _main_profiled() -> int:
+    """:func:`main` under :mod:`cProfile` (developer aid): with ``POSEIDON_PROFILE_DIR=DIR`` set,
+    each ``poseidon`` process (every service of a distributed run is one) writes
+    ``DIR/<command>[-<service>]-<pid>.prof`` for ``python -m pstats``.  Only the main thread is
+    profiled -- where every service decodes and processes its inputs -- and timed by that
+    thread's CPU clock (waiting for input costs nothing)."""
+    import cProfile
+    import time
+    out = Path(os.environ["POSEIDON_PROFILE_DIR"])
+    out.mkdir(parents=True, exist_ok=True)
+    argv = sys.argv[1:]
+    tag = "-".join(argv[:2]) if argv[:1] == ["service"] else (argv[0] if argv else "poseidon")
+    prof = cProfile.Profile(time.thread_time)
+    try:
+        return int(prof.runcall(main) or 0)
+    finally:
+        prof.dump_stats(str(out / f"{tag}-{os.getpid()}.prof"))
+
+
 def entry() -> None:
     """The ``poseidon`` console script (and ``python -m launcher.cli``): :func:`main`, then leave
     without interpreter finalisation.
@@ -415,7 +434,7 @@ def entry() -> None:
     the process flushes logging and stdio and ends with ``os._exit`` (no finalisation, no abort).
     """
     try:
-        code = main()
+        code = _main_profiled() if os.environ.get("POSEIDON_PROFILE_DIR") else main()
     except SystemExit as exc:          # argparse errors (2), explicit exits
         if exc.code is None or isinstance(exc.code, int):
             code = exc.code or 0
