@@ -21,7 +21,8 @@ replayed as fast as the services take it (player rate 0), every service in its o
 "transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
 {"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
 "peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second},
-"cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended)}}``.
+"cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended)},
+"cpu_s_per_sixth": {service: [CPU s used in each sixth of the wall time]}}``.
 """
 from __future__ import annotations
 
@@ -88,6 +89,7 @@ class RssSampler:
     def __init__(self, period_s: float = 1.0):
         self.period_s = period_s
         self.samples: list[tuple[float, str, float]] = []   # (wall s from start, service, MiB)
+        self.cpu_samples: list[tuple[float, str, float]] = []  # (wall s from start, service, CPU s so far)
         self.cpu_s: dict[str, float] = {}                   # service -> CPU s used at its last sample
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
@@ -104,6 +106,7 @@ class RssSampler:
                 cpu = _cpu_s(pid)
                 if cpu is not None:
                     self.cpu_s[name] = cpu
+                    self.cpu_samples.append((t, name, cpu))
 
     def __enter__(self) -> "RssSampler":
         self._t0 = time.monotonic()
@@ -120,6 +123,21 @@ class RssSampler:
             k = min(int(t / max(wall_s, 1e-9) * SIXTHS), SIXTHS - 1)
             row = out.setdefault(name, [0.0] * SIXTHS)
             row[k] = max(row[k], round(rss, 1))
+        return out
+
+    def cpu_per_sixth(self, wall_s: float) -> dict[str, list[float]]:
+        """CPU seconds each service used in each sixth of the run's wall time (a per-frame cost
+        that grows with the map shows as a rising row)."""
+        last: dict[str, list[float]] = {}
+        for t, name, cpu in self.cpu_samples:
+            k = min(int(t / max(wall_s, 1e-9) * SIXTHS), SIXTHS - 1)
+            row = last.setdefault(name, [0.0] * SIXTHS)
+            row[k] = max(row[k], cpu)
+        out = {}
+        for name, row in last.items():
+            for k in range(1, SIXTHS):  # a sixth without samples: nothing used in it
+                row[k] = max(row[k], row[k - 1])
+            out[name] = [round(row[0], 1)] + [round(row[k] - row[k - 1], 1) for k in range(1, SIXTHS)]
         return out
 
 
@@ -167,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         "peak_rss_mib": peaks,
         "rss_growth_mib": {n: round(v[-1] - v[1], 1) for n, v in peaks.items()},
         "cpu_s": {n: round(v, 1) for n, v in sorted(sampler.cpu_s.items())},
+        "cpu_s_per_sixth": sampler.cpu_per_sixth(res.wall_s),
     }
     if args.json:
         print(json.dumps(out, indent=1))
@@ -181,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"CPU seconds per service (sum {total:.0f} s over {p['wall_s']} s wall on {os.cpu_count()} cores): " +
           ", ".join(f"{n} {v:.0f} s ({100 * v / max(total, 1e-9):.0f} %)" for n, v in
                     sorted(out["cpu_s"].items(), key=lambda kv: -kv[1])))
+    print("CPU seconds per sixth of the run (the first includes start-up):")
+    for name, row in sorted(out["cpu_s_per_sixth"].items()):
+        print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row))
     print("peak RSS per sixth of the run (MiB):")
     for name, row in sorted(peaks.items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row) + f"   growth 2nd->6th {out['rss_growth_mib'][name]:+.1f}")

@@ -110,6 +110,9 @@ class EncoderConfig(_Section):
     input_size: int = Field(160, ge=32, description="frames and sonar rasters are resized to input_size x "
                             "input_size pixels before the CNN (Table 4.1 networks: 224; 160 measured as good "
                             "on Nordland and 0.5x the cost)")
+    fold_batchnorm: bool = Field(True, description="fold each batch norm into its convolution before running the "
+                                 "backbone: same embedding to ~1e-5 relative, ~15 % less CPU per frame "
+                                 "(benchmarks/bench_encoder.py)")
     sonar_encode_sweep_deg: float = Field(45.0, ge=0, description="the sonar raster is re-encoded once the beams "
                                           "have swept this many degrees since its last encoding (0: every new "
                                           "beam); in between the last sonar SDR is reused")

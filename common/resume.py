@@ -95,16 +95,19 @@ def checkpoint_path(state_dir: str | Path, service: str) -> Path:
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> int:
-    """Write ``state`` to ``path`` atomically (temporary file, fsync, rename); returns its size in bytes."""
-    data = pickle.dumps({"version": _CKPT_VERSION, **state}, protocol=pickle.HIGHEST_PROTOCOL)
+    """Write ``state`` to ``path`` atomically (temporary file, fsync, rename); returns its size in bytes.
+
+    Pickled straight into the file (no in-memory copy of the whole checkpoint: a service's
+    peak memory does not grow with its state at every checkpoint)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        f.write(data)
+        pickle.dump({"version": _CKPT_VERSION, **state}, f, protocol=pickle.HIGHEST_PROTOCOL)
         f.flush()
         os.fsync(f.fileno())
+        size = f.tell()
     os.replace(tmp, path)
-    return len(data)
+    return size
 
 
 def load_checkpoint(path: Path) -> dict[str, Any] | None:
@@ -112,7 +115,8 @@ def load_checkpoint(path: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     try:
-        state = pickle.loads(path.read_bytes())
+        with open(path, "rb") as f:
+            state = pickle.load(f)
     except Exception as exc:  # noqa: BLE001 - any unpickling failure is a damaged checkpoint
         raise ValueError(f"{path}: unreadable checkpoint: {type(exc).__name__}: {exc}") from None
     if not isinstance(state, dict) or state.get("version") != _CKPT_VERSION:

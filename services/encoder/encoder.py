@@ -12,10 +12,11 @@ separate projections P_camera, P_sonar.
 Pre-processing: RGB in [0, 1], resized to ``input_size`` x ``input_size`` with bilinear
 :func:`torch.nn.functional.interpolate` (antialiased when shrinking), ImageNet mean/std
 normalisation.  Inference: CPU, ``torch.set_num_threads(encoder.torch_threads)``,
-channels_last, :func:`torch.inference_mode`, batches of up to ``encoder.batch_max`` frames.
+batch norms folded into their convolutions (``encoder.fold_batchnorm``), channels_last, :func:`torch.inference_mode`, batches of up to ``encoder.batch_max`` frames.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Mapping, Sequence
 
@@ -26,7 +27,7 @@ import torch.nn.functional as F
 from common.config import EncoderConfig
 from common.messages import Image
 
-from .backbones import LoadedBackbone, load_backbone
+from .backbones import LoadedBackbone, fold_batchnorm, load_backbone
 from .fusion import fuse as fuse_sdrs
 from .lsbh import LsbhEncoder, load_or_create_projection, projection_path
 from .standardize import EmbeddingStandardizer, norm_path
@@ -78,6 +79,8 @@ class MultimodalEncoder:
         self.input_size = int(cfg.input_size)
         self.channels_last = channels_last
         self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
+        if cfg.fold_batchnorm:
+            self.backbone = dataclasses.replace(self.backbone, model=fold_batchnorm(self.backbone.model))
         self.model = self.backbone.model.eval().to(memory_format=self.memory_format)
         self.dim = self.backbone.embedding_channels * cfg.pool_grid ** 2
         self._mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1)

@@ -162,3 +162,35 @@ def test_encoder_embedding_dims_and_batching(tmp_path, monkeypatch):
         enc.encode_camera([np.zeros((4, 4, 2))])
     alex = MultimodalEncoder(cfg.model_copy(update={"cnn_backbone": "alexnet_conv3"}))
     assert alex.encode_camera(imgs[:1])[0].shape == (384 * 4,)
+
+
+@pytest.mark.parametrize("name", ["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"])
+def test_fold_batchnorm_keeps_the_function_and_removes_every_batch_norm(name):
+    from services.encoder.backbones import fold_batchnorm
+    model = build_backbone(name)
+    model.load_state_dict(_perturbed(model, 3))  # non-trivial running statistics and affine terms
+    model.eval()
+    folded = fold_batchnorm(model)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in model.modules()) == (name != "alexnet_conv3")
+    x = torch.randn(2, 3, 96, 96, generator=torch.Generator().manual_seed(0))
+    with torch.inference_mode():
+        a, b = model.features(x) if name != "alexnet_conv3" else model(x), \
+            folded.features(x) if name != "alexnet_conv3" else folded(x)
+    scale = float(a.abs().max())
+    assert scale > 0
+    assert float((a - b).abs().max()) <= 1e-4 * scale
+    # the original is untouched
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in model.modules()) == (name != "alexnet_conv3")
+
+
+def test_encoder_folds_batch_norm_by_default_with_the_same_embedding():
+    cfg = EncoderConfig(untrained=True)
+    rng = np.random.default_rng(1)
+    frames = [rng.integers(0, 255, (72, 96, 3), dtype=np.uint8) for _ in range(3)]
+    folded = MultimodalEncoder(cfg)
+    eager = MultimodalEncoder(cfg.model_copy(update={"fold_batchnorm": False}))
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.model.modules())
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in eager.model.modules())
+    a, b = np.stack(eager.embed(frames)), np.stack(folded.embed(frames))
+    assert np.abs(a - b).max() <= 1e-4 * np.abs(a).max()
