@@ -4,7 +4,8 @@ The launcher (:mod:`launcher.run`) restarts a service that dies; this module mak
 restarted service continue so that every stream equals an uninterrupted run's:
 
 - **Checkpoints.**  Every ``supervise.checkpoint_interval_s`` of *event* time a service
-  writes ``<state_dir>/<service>.ckpt`` atomically (temporary file, fsync, rename): the
+  (the recorder: every ``supervise.recorder_checkpoint_interval_s``, shorter because
+  every publisher holds its frames until the recorder has them on disk) writes ``<state_dir>/<service>.ckpt`` atomically (temporary file, fsync, rename): the
   node's state (:meth:`common.node.ServiceNode.checkpoint_state`: the algorithm core's
   objects), per input key the transport index of the next frame it has not processed,
   the event time of the last processed input, and per output key the next transport index
@@ -70,11 +71,13 @@ class Supervision:
     replay_retry_s: float = 3.0
     rejoin_timeout_s: float = 60.0
     resume: bool = False  # this process is a restart: load the checkpoint, ask for replays
+    recorder_checkpoint_interval_ns: int = 5_000_000_000
 
     def to_json(self) -> str:
         return json.dumps({"state_dir": str(self.state_dir), "consumers": self.consumers,
                            "checkpoint_interval_ns": self.checkpoint_interval_ns,
-                           "replay_retry_s": self.replay_retry_s, "rejoin_timeout_s": self.rejoin_timeout_s})
+                           "replay_retry_s": self.replay_retry_s, "rejoin_timeout_s": self.rejoin_timeout_s,
+                           "recorder_checkpoint_interval_ns": self.recorder_checkpoint_interval_ns})
 
     @classmethod
     def from_file(cls, path: str | Path, resume: bool = False) -> "Supervision":
@@ -82,7 +85,7 @@ class Supervision:
             d = json.loads(Path(path).read_text())
             return cls(Path(d["state_dir"]), {k: list(v) for k, v in d["consumers"].items()},
                        int(d["checkpoint_interval_ns"]), float(d["replay_retry_s"]), float(d["rejoin_timeout_s"]),
-                       resume)
+                       resume, int(d["recorder_checkpoint_interval_ns"]))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{path}: not a supervision file: {type(exc).__name__}: {exc}") from None
 

@@ -203,7 +203,8 @@ def supervision_plan(config: PoseidonConfig, plan: RunPlan, state_dir: Path) -> 
         consumers[key] = [n for n in plan.services if key in plan.io[n][0]] + ["recorder"]
     sup = config.supervise
     return Supervision(state_dir, consumers, int(round(sup.checkpoint_interval_s * 1e9)), sup.replay_retry_s,
-                       sup.rejoin_timeout_s)
+                       sup.rejoin_timeout_s,
+                       recorder_checkpoint_interval_ns=int(round(sup.recorder_checkpoint_interval_s * 1e9)))
 
 
 def _describe_exit(rc: int) -> str:

@@ -18,7 +18,7 @@ its summary and ``RecorderStats.aborted`` says why.  On a normal end it reports 
 
 Numbered frames it already has (a replay, a restarted publisher) are not recorded twice
 (:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``).  Supervised
-(``supervision``), every ``supervise.checkpoint_interval_s`` of event time it ends the MCAP
+(``supervision``), every ``supervise.recorder_checkpoint_interval_s`` of event time it ends the MCAP
 chunk in progress, syncs the file and saves per key the messages recorded and the next
 transport index (``<state_dir>/recorder.ckpt``), then reports those positions on
 ``@ckpt/recorder``.  Restarted (``supervision.resume``), it rewrites its partial file
@@ -168,7 +168,7 @@ class Recorder:
             return
         if self._ckpt_seen is None:
             self._ckpt_seen = self._seen
-        elif self._seen - self._ckpt_seen >= sup.checkpoint_interval_ns:
+        elif self._seen - self._ckpt_seen >= sup.recorder_checkpoint_interval_ns:
             self.checkpoint()
 
     def run(self) -> RecorderStats:

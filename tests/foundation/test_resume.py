@@ -9,7 +9,7 @@ import pytest
 from common.bus import Bus, open_local_session
 from common.codec import decode_frame
 from common.messages import Depth, Header
-from common.resume import LostFrames, SequenceGate, load_checkpoint, save_checkpoint
+from common.resume import LostFrames, SequenceGate, Supervision, load_checkpoint, save_checkpoint
 from tests.conftest import REPO
 from tests.foundation.recordings import six_stream_recording
 
@@ -114,3 +114,21 @@ def test_numbered_and_replay_frames_decode_and_malformed_ones_are_rejected():
                 b"R" + b"\xff" * 8):
         with pytest.raises(DecodeError):
             decode_frame(bad)
+
+
+def test_supervision_file_round_trip_carries_both_checkpoint_intervals(tmp_path):
+    from common.config import load_config
+    from launcher.run import plan_run, supervision_plan
+    from missions.sim.cli import main as sim_main
+    assert sim_main(["--minutes", "0.05", "--seed", "1", "--out", str(tmp_path / "m.mcap")]) == 0
+    cfg = load_config(overrides=["supervise.checkpoint_interval_s=12", "supervise.recorder_checkpoint_interval_s=1.5"])
+    sup = supervision_plan(cfg, plan_run(cfg, tmp_path / "m.mcap", None), tmp_path / "state")
+    f = tmp_path / "sup.json"
+    f.write_text(sup.to_json())
+    back = Supervision.from_file(f, resume=True)
+    assert back.checkpoint_interval_ns == 12_000_000_000
+    assert back.recorder_checkpoint_interval_ns == 1_500_000_000
+    assert back.resume and back.consumers == sup.consumers and "recorder" in back.consumers["camera/image_raw"]
+    f.write_text('{"state_dir": "x"}')
+    with pytest.raises(ValueError, match="not a supervision file"):
+        Supervision.from_file(f)

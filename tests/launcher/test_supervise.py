@@ -41,7 +41,8 @@ def work(tmp_path_factory):
 
 def _settings(work: Path) -> list[str]:
     return ["--set", f"encoder.lsbh_matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy",
-            "--set", f"supervise.checkpoint_interval_s={CHECKPOINT_S}", "--set", "supervise.restart_backoff_s=0.1"]
+            "--set", f"supervise.checkpoint_interval_s={CHECKPOINT_S}",
+            "--set", f"supervise.recorder_checkpoint_interval_s={CHECKPOINT_S / 2}", "--set", "supervise.restart_backoff_s=0.1"]
 
 
 def _launch(work: Path, out: Path) -> subprocess.Popen:
