@@ -37,6 +37,7 @@ from typing import Any
 
 from common.config import load_config
 from common.mcap_io import recording_summary
+from launcher.cli import isolate_stdout
 from launcher.run import run_distributed
 
 SIXTHS = 6
@@ -148,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default="/tmp/poseidon-soak")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    isolate_stdout()  # the in-process hub's native log lines go to stderr, not into --json
     cache = Path(args.cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     mission = cache / f"soak_{args.minutes:g}min_seed{args.seed}.mcap"

@@ -422,6 +422,21 @@ def _main_profiled() -> int:
         prof.dump_stats(str(out / f"{tag}-{os.getpid()}.prof"))
 
 
+def isolate_stdout() -> None:
+    """Native code (Zenoh's Rust logging, e.g. "timer overrun" under load) writes to file
+    descriptor 1, which would corrupt a ``--json`` document on stdout.  Point descriptor 1 at
+    stderr and keep :data:`sys.stdout` on a duplicate of the original: the command's own
+    output stays alone on stdout, everything else goes to stderr."""
+    try:
+        saved = os.dup(1)
+    except OSError:  # started without a stdout (fd 1 closed): nothing to keep apart
+        return
+    sys.stdout.flush()
+    os.dup2(2, 1)
+    sys.stdout = os.fdopen(saved, "w", buffering=1 if sys.stdout.line_buffering else -1,
+                           encoding=sys.stdout.encoding, errors=sys.stdout.errors)
+
+
 def entry() -> None:
     """The ``poseidon`` console script (and ``python -m launcher.cli``): :func:`main`, then leave
     without interpreter finalisation.
@@ -433,6 +448,7 @@ def entry() -> None:
     Every command has closed its sessions, recordings and files when :func:`main` returns, so
     the process flushes logging and stdio and ends with ``os._exit`` (no finalisation, no abort).
     """
+    isolate_stdout()
     try:
         code = _main_profiled() if os.environ.get("POSEIDON_PROFILE_DIR") else main()
     except SystemExit as exc:          # argparse errors (2), explicit exits

@@ -275,11 +275,14 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             log.warning("supervise: service %s died (%s); restart %d of %d in %.1f s, resuming from its last "
                         "checkpoint", name, _describe_exit(rc), n + 1, max_restarts, delay)
             time.sleep(delay)
-            return subprocess.Popen(cmds[name] + ["--resume"], env=env, preexec_fn=_die_with_launcher(os.getpid()))
+            return subprocess.Popen(cmds[name] + ["--resume"], env=env, stdout=2,
+                                    preexec_fn=_die_with_launcher(os.getpid()))
 
         try:
             for name, cmd in cmds.items():
-                procs[name] = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_launcher(os.getpid()))
+                # a service's stdout (and any native library writing there) goes to our stderr: our
+                # stdout carries only this command's own output (``run --json``)
+                procs[name] = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=_die_with_launcher(os.getpid()))
             failed = _monitor(procs, timeout_s, restart if max_restarts > 0 else None, restarts)
         finally:
             _stop_all(procs)

@@ -1,6 +1,7 @@
 """The console script leaves with the command's exit code, its output flushed, without finalisation."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -37,3 +38,27 @@ def test_one_blas_thread_per_process_unless_the_user_says_otherwise():
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                          env={**env, "OPENBLAS_NUM_THREADS": "2"}, timeout=60)
     assert out.stdout.strip() == "2"
+
+
+def test_native_writes_to_descriptor_1_do_not_reach_stdout():
+    """Zenoh's Rust logging writes to file descriptor 1; stdout must carry only the command's
+    own output (a ``--json`` document), the rest goes to stderr -- in the launcher and in
+    every service it starts."""
+    code = ("import json, os, subprocess, sys\n"
+            "import launcher.cli as cli\n"
+            "def fake_main():\n"
+            "    os.write(1, b'NATIVE LOG LINE\\n')\n"
+            "    subprocess.run([sys.executable, '-c', 'import os; os.write(1, b\"CHILD LINE\\\\n\")'], stdout=2, check=True)\n"
+            "    print(json.dumps({'ok': True}))\n"
+            "    return 0\n"
+            "cli.main = fake_main\n"
+            "cli.entry()\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout) == {"ok": True}
+    assert "NATIVE LOG LINE" in out.stderr and "CHILD LINE" in out.stderr
+
+
+def test_distributed_services_do_not_inherit_the_launchers_stdout():
+    text = (ROOT / "launcher" / "run.py").read_text()
+    assert text.count("subprocess.Popen(") == 2 and text.count("stdout=2") == 2
