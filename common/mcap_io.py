@@ -242,11 +242,14 @@ def _open(path: Path) -> IO[bytes]:
         raise RecordingError(f"{path}: is a directory, not an MCAP recording") from None
 
 
+_UNREADABLE = (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error)
+
+
 def _has_summary(path: Path) -> bool:
     with _open(path) as f:
         try:
             return make_reader(f).get_summary() is not None
-        except (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error):
+        except _UNREADABLE:
             return False
 
 
@@ -380,12 +383,15 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
     """
     p = Path(path)
     wanted = set(keys) if keys is not None else None
-    if _has_summary(p):
-        with _open(p) as f:
+    with _open(p) as f:
+        try:
             reader = make_reader(f, validate_crcs=True)
+            summary = reader.get_summary()
+        except _UNREADABLE:
+            summary = None
+        if summary is not None:
             try:
-                summary = reader.get_summary()
-                if summary is not None and summary.chunk_indexes:
+                if summary.chunk_indexes:
                     yield from _merge_chunks(f, summary, keys, start_ns, validate_crc=True)
                     return
                 for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True, start_time=start_ns):
@@ -477,15 +483,43 @@ def recover_recording(src: str | Path, dst: str | Path, compression: str = "zstd
     return len(messages)
 
 
+def _summary_statistics(path: Path) -> Any:
+    """The summary of a complete recording that has a statistics record, else None."""
+    if not _has_summary(path):
+        return None
+    with _open(path) as f:
+        summary = make_reader(f).get_summary()
+    return summary if summary is not None and summary.statistics is not None else None
+
+
 def recording_summary(path: str | Path) -> dict[str, Any]:
-    """Per-key message counts, types and time span of a recording."""
+    """Per-key message counts, types and time span of a recording.
+
+    A complete recording answers from its summary section (statistics: messages per
+    channel, first and last log time; channels and schemas: the types) without reading a
+    message; a file without one (killed writer) is read through."""
+    p = Path(path)
+    summary = _summary_statistics(p)
     counts: dict[str, int] = {}
     types: dict[str, str] = {}
     first = last = None
-    for r in read_messages(path):
-        counts[r.key] = counts.get(r.key, 0) + 1
-        types[r.key] = r.type_name
-        first = r.stamp if first is None else min(first, r.stamp)
-        last = r.stamp if last is None else max(last, r.stamp)
+    if summary is not None:
+        stats = summary.statistics
+        for cid, n in sorted(stats.channel_message_counts.items()):
+            if n <= 0:
+                continue
+            ch = summary.channels[cid]
+            counts[ch.topic] = counts.get(ch.topic, 0) + n
+            types[ch.topic] = summary.schemas[ch.schema_id].name if ch.schema_id != 0 else ""
+        if stats.message_count > 0:
+            first, last = stats.message_start_time, stats.message_end_time
+    else:
+        for r in read_messages(p):
+            counts[r.key] = counts.get(r.key, 0) + 1
+            types[r.key] = r.type_name
+            first = r.stamp if first is None else min(first, r.stamp)
+            last = r.stamp if last is None else max(last, r.stamp)
+    counts = {k: counts[k] for k in sorted(counts)}  # keys sorted: the same dict, in the same order, both ways
+    types = {k: types[k] for k in sorted(types)}
     return {"counts": counts, "types": types, "start_ns": first, "end_ns": last,
             "duration_s": (last - first) / 1e9 if first is not None else 0.0}
