@@ -316,8 +316,16 @@ class Bus:
 
         The callback never blocks (see the module notes on flow control).
         """
+        relative: dict[str, str] = {}  # full key -> relative key (one lookup per frame)
+
         def on_sample(sample: zenoh.Sample) -> None:
-            sink.put_nowait((self.relative_key(str(sample.key_expr)), sample.payload.to_bytes()))
+            full = str(sample.key_expr)
+            rel = relative.get(full)
+            if rel is None:
+                rel = self.relative_key(full)
+                if len(relative) < 4096:  # a wildcard subscription meets a bounded number of keys
+                    relative[full] = rel
+            sink.put_nowait((rel, sample.payload.to_bytes()))
         self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
 
     def subscribe_callback(self, key: str, callback: Callable[[str, bytes], None]) -> None:
