@@ -156,7 +156,9 @@ class Player:
                 for pub in pubs.values():
                     pub.send_watermark(stamp)
                 promised = True
-            time.sleep(0.001)
+            # woken by the progress report that lets ``stamp`` go; at the latest after 10 ms, to
+            # answer replays and notice an abort or a consumer that left
+            watcher.wait_slowest(self.wait_for, first, stamp - self.flow_window_ns, 0.01)
 
     def _replay_source(self, key: str, start: int) -> tuple[int, Any]:
         """Frames of ``key`` from transport index ``start`` up to the last one sent, read again
