@@ -242,11 +242,20 @@ class ProgressWatcher:
     def __init__(self) -> None:
         self._progress: dict[str, int] = {}
         self._lock = threading.Lock()
+        self._awaited: tuple[list[str], int, int] | None = None  # (services, default, progress) of wait_slowest
+        self._reached = threading.Event()
 
     def update(self, service: str, stamp: int) -> None:
         with self._lock:
             if stamp > self._progress.get(service, -2):
                 self._progress[service] = stamp
+                awaited = self._awaited
+                if awaited is not None and self._slowest(awaited[0], awaited[1]) >= awaited[2]:
+                    self._reached.set()
+
+    def _slowest(self, services: Iterable[str], default: int) -> int:
+        values = [self._progress.get(s, default) for s in services]
+        return min(values) if values else default
 
     def get(self, service: str, default: int = -2) -> int:
         with self._lock:
@@ -255,8 +264,21 @@ class ProgressWatcher:
     def slowest(self, services: Iterable[str], default: int) -> int:
         """Minimum progress over ``services``; one that has not reported counts as ``default``."""
         with self._lock:
-            values = [self._progress.get(s, default) for s in services]
-        return min(values) if values else default
+            return self._slowest(services, default)
+
+    def wait_slowest(self, services: Iterable[str], default: int, at_least: int, timeout_s: float) -> bool:
+        """Wait (at most ``timeout_s``) until :meth:`slowest` reaches ``at_least``; True if it has.
+        Woken by the progress report that gets it there (no polling)."""
+        services = list(services)
+        with self._lock:
+            if self._slowest(services, default) >= at_least:
+                return True
+            self._awaited = (services, default, at_least)
+            self._reached.clear()
+        reached = self._reached.wait(timeout_s)
+        with self._lock:
+            self._awaited = None
+        return reached
 
 
 class AliveWatcher:
@@ -316,8 +338,16 @@ class Bus:
 
         The callback never blocks (see the module notes on flow control).
         """
+        relative: dict[str, str] = {}  # full key -> relative key (one lookup per frame)
+
         def on_sample(sample: zenoh.Sample) -> None:
-            sink.put_nowait((self.relative_key(str(sample.key_expr)), sample.payload.to_bytes()))
+            full = str(sample.key_expr)
+            rel = relative.get(full)
+            if rel is None:
+                rel = self.relative_key(full)
+                if len(relative) < 4096:  # a wildcard subscription meets a bounded number of keys
+                    relative[full] = rel
+            sink.put_nowait((rel, sample.payload.to_bytes()))
         self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
 
     def subscribe_callback(self, key: str, callback: Callable[[str, bytes], None]) -> None:

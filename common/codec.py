@@ -155,6 +155,12 @@ class Frame:
         return decode(self.payload, cls)
 
 
+_UNPACK_Q = struct.Struct("<Q").unpack_from
+_UNPACK_q = struct.Struct("<q").unpack_from
+_T_DATA, _T_WM, _T_EOS, _T_SEQ, _T_REPLAY = _TAG_DATA[0], _TAG_WM[0], _TAG_EOS[0], _TAG_SEQ[0], _TAG_REPLAY[0]
+_TYPE_NAMES: dict[bytes, str] = {}  # encoded type name -> type name, for the known types seen so far
+
+
 def decode_frame(data: bytes | memoryview) -> Frame:
     """Parse a wire frame (no message validation: see :meth:`Frame.message`).
 
@@ -162,51 +168,59 @@ def decode_frame(data: bytes | memoryview) -> Frame:
     that is not ASCII or not a known message type, a watermark that is not 8 bytes or is
     negative, an end-of-stream with trailing bytes, an index above int64, an unknown tag.
     """
-    mv = memoryview(data).cast("B") if not isinstance(data, (bytes, bytearray)) else memoryview(data)
-    if len(mv) == 0:
+    buf = data if isinstance(data, (bytes, bytearray)) else memoryview(data).cast("B")
+    size = len(buf)
+    if size == 0:
         raise DecodeError("empty frame")
-    tag = bytes(mv[:1])
-    index = -1
-    if tag == _TAG_SEQ:
-        if len(mv) < 10:
-            raise DecodeError(f"sequenced data frame of {len(mv)} bytes (no index and type name)")
-        index = struct.unpack("<Q", mv[1:9])[0]
-        if index >= 1 << 63:
-            raise DecodeError(f"transport index {index} out of range")
-        mv = mv[8:]
-        tag = _TAG_DATA
-    if tag == _TAG_DATA:
-        if len(mv) < 2:
-            raise DecodeError("data frame of 1 byte (no type name)")
-        n = mv[1]
-        if len(mv) < 2 + n:
-            raise DecodeError(f"data frame of {len(mv)} bytes truncated inside its {n}-byte type name")
-        raw = bytes(mv[2:2 + n])
-        try:
-            type_name = raw.decode("ascii")
-        except UnicodeDecodeError:
-            raise DecodeError(f"type name {raw[:40]!r} is not ASCII") from None
-        if type_name not in MESSAGE_TYPES:
-            raise DecodeError(f"unknown message type {type_name[:60]!r}")
-        if len(mv) == 2 + n:
-            raise DecodeError(f"{type_name} frame without a payload")
-        return Frame("data", type_name, mv[2 + n:], index=index)
-    if tag == _TAG_WM:
-        if len(mv) != 9:
-            raise DecodeError(f"watermark frame of {len(mv)} bytes (expected 9)")
-        stamp = struct.unpack("<q", mv[1:9])[0]
+    tag = buf[0]
+    if tag == _T_WM:
+        if size != 9:
+            raise DecodeError(f"watermark frame of {size} bytes (expected 9)")
+        stamp = _UNPACK_q(buf, 1)[0]
         if stamp < 0:
             raise DecodeError(f"negative watermark {stamp}")
         return Frame("watermark", stamp=stamp)
-    if tag == _TAG_REPLAY:
-        if len(mv) != 9:
-            raise DecodeError(f"replay frame of {len(mv)} bytes (expected 9)")
-        start = struct.unpack("<Q", mv[1:9])[0]
-        if start >= 1 << 63:
-            raise DecodeError(f"replay start {start} out of range")
-        return Frame("replay", index=start)
-    if tag == _TAG_EOS:
-        if len(mv) != 1:
-            raise DecodeError(f"end-of-stream frame of {len(mv)} bytes (expected 1)")
+    index = -1
+    start = 0  # where the data frame's tag would be
+    if tag == _T_SEQ:
+        if size < 10:
+            raise DecodeError(f"sequenced data frame of {size} bytes (no index and type name)")
+        index = _UNPACK_Q(buf, 1)[0]
+        if index >= 1 << 63:
+            raise DecodeError(f"transport index {index} out of range")
+        start = 8
+        tag = _T_DATA
+    if tag == _T_DATA:
+        length = size - start
+        if length < 2:
+            raise DecodeError("data frame of 1 byte (no type name)")
+        n = buf[start + 1]
+        if length < 2 + n:
+            raise DecodeError(f"data frame of {length} bytes truncated inside its {n}-byte type name")
+        raw = bytes(buf[start + 2:start + 2 + n])
+        type_name = _TYPE_NAMES.get(raw)
+        if type_name is None:
+            try:
+                type_name = raw.decode("ascii")
+            except UnicodeDecodeError:
+                raise DecodeError(f"type name {raw[:40]!r} is not ASCII") from None
+            if type_name not in MESSAGE_TYPES:
+                raise DecodeError(f"unknown message type {type_name[:60]!r}")
+            _TYPE_NAMES[raw] = type_name
+        elif type_name not in MESSAGE_TYPES:  # (the registry only grows; checked to stay exact)
+            raise DecodeError(f"unknown message type {type_name[:60]!r}")
+        if length == 2 + n:
+            raise DecodeError(f"{type_name} frame without a payload")
+        return Frame("data", type_name, memoryview(buf)[start + 2 + n:], index=index)
+    if tag == _T_REPLAY:
+        if size != 9:
+            raise DecodeError(f"replay frame of {size} bytes (expected 9)")
+        first = _UNPACK_Q(buf, 1)[0]
+        if first >= 1 << 63:
+            raise DecodeError(f"replay start {first} out of range")
+        return Frame("replay", index=first)
+    if tag == _T_EOS:
+        if size != 1:
+            raise DecodeError(f"end-of-stream frame of {size} bytes (expected 1)")
         return Frame("eos")
-    raise DecodeError(f"unknown frame tag {tag!r}")
+    raise DecodeError(f"unknown frame tag {bytes([tag])!r}")

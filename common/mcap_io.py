@@ -22,21 +22,27 @@ opens (``poseidon info FILE --recover FIXED.mcap``).
 """
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
 import logging
 import os
 import struct
 import subprocess
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Iterator
 
+import zstandard
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Channel, Message as McapMessage, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.opcode import Opcode
+from mcap.reader import _chunks_matching_topics, make_reader
+from mcap.records import Channel, Chunk, Message as McapMessage, MessageIndex, Metadata, Schema
+from mcap.stream_reader import CRCValidationError, StreamReader
 from mcap.writer import CompressionType, Writer
+from zstandard import ZstdError
 
 from common.codec import decode, encode
 from common.messages import Message, message_type
@@ -77,6 +83,19 @@ def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+_MESSAGE_OPCODE = int(Opcode.MESSAGE)
+_MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
+
+
+class _MessageIndex(MessageIndex):
+    """mcap's MessageIndex record, written with one ``struct.pack`` (same bytes)."""
+
+    def write(self, stream: Any) -> None:
+        n = len(self.records)
+        flat = [v for pair in self.records for v in pair]
+        stream.write(struct.pack(f"<BQHI{2 * n}Q", Opcode.MESSAGE_INDEX, 6 + 16 * n, self.channel_id, 16 * n, *flat))
+
+
 class RecordingWriter:
     """Write PoseidonSLAM messages into one MCAP file.
 
@@ -100,6 +119,11 @@ class RecordingWriter:
         self._flush_every = flush_every
         self._since_flush = 0
         self._closed = False
+        self._chunk_size = chunk_size
+        # the mcap writer's own state, which write_encoded updates directly (see _add_message)
+        self._stats = getattr(self._writer, "_Writer__statistics", None)
+        self._fast = (self._stats is not None and hasattr(self._writer, "_Writer__chunk_builder")
+                      and hasattr(self._writer, "_Writer__finalize_chunk"))
 
     def _channel(self, key: str, type_name: str) -> int:
         cid = self._channels.get(key)
@@ -124,12 +148,46 @@ class RecordingWriter:
     def write_encoded(self, key: str, type_name: str, payload: bytes | memoryview, stamp: int, seq: int) -> None:
         """Record an already encoded payload (the recorder stores what it received, byte for byte)."""
         cid = self._channel(key, type_name)
-        self._writer.add_message(cid, log_time=stamp, data=bytes(payload), publish_time=stamp, sequence=seq & 0xFFFFFFFF)
+        if self._fast:
+            self._add_message(cid, stamp, bytes(payload), seq & 0xFFFFFFFF)
+        else:
+            self._writer.add_message(cid, log_time=stamp, data=bytes(payload), publish_time=stamp,
+                                     sequence=seq & 0xFFFFFFFF)
         self.counts[key] = self.counts.get(key, 0) + 1
         if self._flush_every:
             self._since_flush += 1
             if self._since_flush >= self._flush_every:
                 self.flush()
+
+    def _add_message(self, cid: int, stamp: int, data: bytes, seq: int) -> None:
+        """What ``mcap.writer.Writer.add_message(cid, stamp, data, stamp, seq)`` does -- the same
+        statistics, chunk bounds, message index entry and Message record, byte for byte
+        (``tests/foundation/test_mcap_fast.py`` compares the files) -- with one ``struct.pack``
+        instead of a record object and a write call per field."""
+        head = _MESSAGE_RECORD.pack(_MESSAGE_OPCODE, 22 + len(data), cid, seq, stamp, stamp)
+        w = self._writer
+        st = self._stats
+        if st.message_count == 0 or stamp < st.message_start_time:
+            st.message_start_time = stamp
+        if stamp > st.message_end_time:
+            st.message_end_time = stamp
+        st.channel_message_counts[cid] += 1
+        st.message_count += 1
+        cb = w._Writer__chunk_builder
+        if cb.num_messages == 0 or stamp < cb.message_start_time:
+            cb.message_start_time = stamp
+        if stamp > cb.message_end_time:
+            cb.message_end_time = stamp
+        index = cb.message_indices.get(cid)
+        if index is None:
+            index = cb.message_indices[cid] = _MessageIndex(channel_id=cid, records=[])
+        buf = cb.record_writer._buffer
+        index.records.append((stamp, buf.tell()))
+        cb.num_messages += 1
+        buf.write(head)
+        buf.write(data)
+        if buf.tell() > self._chunk_size:
+            w._Writer__finalize_chunk()
 
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         """Add a metadata record; values that are not strings are stored as JSON."""
@@ -184,11 +242,14 @@ def _open(path: Path) -> IO[bytes]:
         raise RecordingError(f"{path}: is a directory, not an MCAP recording") from None
 
 
+_UNREADABLE = (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error)
+
+
 def _has_summary(path: Path) -> bool:
     with _open(path) as f:
         try:
             return make_reader(f).get_summary() is not None
-        except (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error):
+        except _UNREADABLE:
             return False
 
 
@@ -231,26 +292,113 @@ def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[R
     return out, metadata
 
 
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
+
+
+def _chunk_records(chunk: Chunk, validate_crc: bool) -> bytes:
+    """The decompressed records of ``chunk`` (CRC-checked as mcap's own reader does)."""
+    if chunk.compression == "zstd":
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+        data = lz4.frame.decompress(chunk.data)
+    else:  # "" (and, as mcap's reader does, anything else) is stored as is
+        data = chunk.data
+    if validate_crc and chunk.uncompressed_crc != 0:
+        crc = zlib.crc32(data)
+        if crc != chunk.uncompressed_crc:
+            raise CRCValidationError(expected=chunk.uncompressed_crc, actual=crc, record=chunk)
+    return data
+
+
+def _chunk_messages(data: bytes, offset: int, channels: dict[int, tuple[str, str] | None],
+                    start_ns: int | None) -> list[tuple[int, int, int, str, str, int, bytes]]:
+    """``(log time, chunk offset, record index, key, type, seq, payload)`` of every wanted
+    message in the records ``data`` of the chunk at file offset ``offset``; ``channels``:
+    channel id -> (key, type) or None for a channel not wanted (KeyError for an unknown one)."""
+    out = []
+    pos, end, index = 0, len(data), 0
+    unpack_record, unpack_message = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+    while pos < end:
+        opcode, length = unpack_record(data, pos)
+        body = pos + 9
+        pos = body + length
+        if pos > end:
+            raise McapError(f"chunk record of {length} bytes overruns its chunk ({end - body} bytes left)")
+        if opcode == _MESSAGE_OPCODE:
+            if length < 22:
+                raise McapError(f"message record of {length} bytes (at least 22)")
+            cid, seq, log_time, _publish = unpack_message(data, body)
+            named = channels[cid]
+            if named is not None and (start_ns is None or log_time >= start_ns):
+                out.append((log_time, offset, index, named[0], named[1], seq, data[body + 22:pos]))
+        index += 1
+    return out
+
+
+def _merge_chunks(f: IO[bytes], summary: Any, keys: list[str] | None, start_ns: int | None,
+                  validate_crc: bool) -> Iterator[RecordedMessage]:
+    """The messages of the summary's chunks in mcap's log-time order -- (log time, chunk
+    start offset, record index inside the chunk), what ``iter_messages(log_time_order=True)``
+    yields -- reading each chunk once.  A chunk is opened in (message start time, offset)
+    order; every buffered message that sorts before the next chunk's first possible
+    message is emitted (one sort per chunk instead of a heap operation per message)."""
+    wanted = None if keys is None else set(keys)
+    channels: dict[int, tuple[str, str] | None] = {}
+    for cid, ch in summary.channels.items():
+        if wanted is not None and ch.topic not in wanted:
+            channels[cid] = None
+        elif ch.schema_id == 0:
+            channels[cid] = (ch.topic, "")
+        elif ch.schema_id in summary.schemas:  # else a message on it is a KeyError, as with mcap's reader
+            channels[cid] = (ch.topic, summary.schemas[ch.schema_id].name)
+    chunks = sorted(_chunks_matching_topics(summary, keys, start_ns, None),
+                    key=lambda c: (c.message_start_time, c.chunk_start_offset))
+    pending: list[tuple[int, int, int, str, str, int, bytes]] = []
+    for i, ci in enumerate(chunks):
+        f.seek(ci.chunk_start_offset + 1 + 8)
+        chunk = Chunk.read(ReadDataStream(f))
+        pending.extend(_chunk_messages(_chunk_records(chunk, validate_crc), ci.chunk_start_offset, channels, start_ns))
+        pending.sort()  # keys are unique (offset, index): the payloads are never compared
+        if i + 1 < len(chunks):
+            nxt = chunks[i + 1]
+            cut = bisect.bisect_left(pending, (nxt.message_start_time, nxt.chunk_start_offset))
+        else:
+            cut = len(pending)
+        for stamp, _off, _idx, key, type_name, seq, payload in pending[:cut]:
+            yield RecordedMessage(key, type_name, stamp, seq, payload)
+        del pending[:cut]
+
+
 def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool = False,
                   start_ns: int | None = None) -> Iterator[RecordedMessage]:
     """Yield the messages of a recording in event-time order (stamp, then file order);
     ``start_ns``: only those stamped at or after it.
 
-    A complete file is streamed chunk by chunk.  A file without a summary (killed writer)
+    A complete file is streamed chunk by chunk, in exactly the order of mcap's
+    ``iter_messages(log_time_order=True)``.  A file without a summary (killed writer)
     or with a damaged index is read sequentially: every message up to the first unreadable
     record is returned (``strict=True`` raises :class:`RecordingError` instead).
     """
     p = Path(path)
     wanted = set(keys) if keys is not None else None
-    if _has_summary(p):
-        with _open(p) as f:
+    with _open(p) as f:
+        try:
             reader = make_reader(f, validate_crcs=True)
+            summary = reader.get_summary()
+        except _UNREADABLE:
+            summary = None
+        if summary is not None:
             try:
+                if summary.chunk_indexes:
+                    yield from _merge_chunks(f, summary, keys, start_ns, validate_crc=True)
+                    return
                 for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True, start_time=start_ns):
                     yield RecordedMessage(channel.topic, schema.name if schema else "", m.log_time, m.sequence,
                                           bytes(m.data))
                 return
-            except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error) as exc:
+            except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error, ZstdError) as exc:
                 raise RecordingError(f"{p}: corrupt chunk at or after byte {f.tell()}: {type(exc).__name__}: {exc}") from None
     messages, _ = _sequential(p, wanted, strict)
     messages.sort(key=lambda r: r.stamp)
@@ -335,15 +483,43 @@ def recover_recording(src: str | Path, dst: str | Path, compression: str = "zstd
     return len(messages)
 
 
+def _summary_statistics(path: Path) -> Any:
+    """The summary of a complete recording that has a statistics record, else None."""
+    if not _has_summary(path):
+        return None
+    with _open(path) as f:
+        summary = make_reader(f).get_summary()
+    return summary if summary is not None and summary.statistics is not None else None
+
+
 def recording_summary(path: str | Path) -> dict[str, Any]:
-    """Per-key message counts, types and time span of a recording."""
+    """Per-key message counts, types and time span of a recording.
+
+    A complete recording answers from its summary section (statistics: messages per
+    channel, first and last log time; channels and schemas: the types) without reading a
+    message; a file without one (killed writer) is read through."""
+    p = Path(path)
+    summary = _summary_statistics(p)
     counts: dict[str, int] = {}
     types: dict[str, str] = {}
     first = last = None
-    for r in read_messages(path):
-        counts[r.key] = counts.get(r.key, 0) + 1
-        types[r.key] = r.type_name
-        first = r.stamp if first is None else min(first, r.stamp)
-        last = r.stamp if last is None else max(last, r.stamp)
+    if summary is not None:
+        stats = summary.statistics
+        for cid, n in sorted(stats.channel_message_counts.items()):
+            if n <= 0:
+                continue
+            ch = summary.channels[cid]
+            counts[ch.topic] = counts.get(ch.topic, 0) + n
+            types[ch.topic] = summary.schemas[ch.schema_id].name if ch.schema_id != 0 else ""
+        if stats.message_count > 0:
+            first, last = stats.message_start_time, stats.message_end_time
+    else:
+        for r in read_messages(p):
+            counts[r.key] = counts.get(r.key, 0) + 1
+            types[r.key] = r.type_name
+            first = r.stamp if first is None else min(first, r.stamp)
+            last = r.stamp if last is None else max(last, r.stamp)
+    counts = {k: counts[k] for k in sorted(counts)}  # keys sorted: the same dict, in the same order, both ways
+    types = {k: types[k] for k in sorted(types)}
     return {"counts": counts, "types": types, "start_ns": first, "end_ns": last,
             "duration_s": (last - first) / 1e9 if first is not None else 0.0}

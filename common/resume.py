@@ -230,8 +230,9 @@ class ReplayServer:
                 pub.trim(min(acks[u].get(k, 0) for u in users))
 
     def pending(self) -> bool:
-        with self._lock:
-            return bool(self._requests)
+        # asked once per frame by the owner thread: reading the list's length is atomic, and a
+        # request appended during the read is seen at the next call (as it would be with the lock)
+        return bool(self._requests)
 
     def serve(self, source: Callable[[str, int], tuple[int, Iterable[bytes]]] | None = None) -> int:
         """Answer the queued requests (owner thread).  ``source(key, start) -> (first, frames)``

@@ -99,6 +99,7 @@ class Player:
         self.supervision = supervision
         self._stamps: dict[str, array] = {k: array("q") for k in self.keys}  # stamp per transport index
         self._replay: ReplayServer | None = None
+        self._flow_bound = -1  # stamps up to this are within the flow window (slowest progress + window)
         bus.on_abort(self._on_abort)
 
     def _on_abort(self, reason: str) -> None:
@@ -135,17 +136,29 @@ class Player:
                 return
 
     def _wait_for_consumers(self, watcher: Any, stamp: int, first: int, pubs: dict[str, Any]) -> None:
-        """Flow control: hold ``stamp`` until the slowest consumer is within the window."""
+        """Flow control: hold ``stamp`` until the slowest consumer is within the window.
+
+        Once every consumer has reported, their progress only grows: a stamp within the
+        last bound seen then needs no new look."""
+        if stamp <= self._flow_bound and not self.stop_event.is_set():
+            return
         promised = False
         while not self.stop_event.is_set():
-            if stamp <= watcher.slowest(self.wait_for, default=first) + self.flow_window_ns:
+            slowest = watcher.slowest(self.wait_for, default=-2)
+            if slowest > -2:  # every consumer reported: this bound holds from now on
+                self._flow_bound = bound = slowest + self.flow_window_ns
+            else:
+                bound = watcher.slowest(self.wait_for, default=first) + self.flow_window_ns
+            if stamp <= bound:
                 return
             self._check_consumers()
             if not promised:  # consumers may be waiting for time to pass (a gap in the recording)
                 for pub in pubs.values():
                     pub.send_watermark(stamp)
                 promised = True
-            time.sleep(0.001)
+            # woken by the progress report that lets ``stamp`` go; at the latest after 10 ms, to
+            # answer replays and notice an abort or a consumer that left
+            watcher.wait_slowest(self.wait_for, first, stamp - self.flow_window_ns, 0.01)
 
     def _replay_source(self, key: str, start: int) -> tuple[int, Any]:
         """Frames of ``key`` from transport index ``start`` up to the last one sent, read again

@@ -93,6 +93,7 @@ class Recorder:
         self.flush_interval_s = flush_interval_s
         self.stop_event = threading.Event()
         self.stats = RecorderStats(path=str(self.out))
+        self._ended: set[str] = set()  # = set(stats.ended)
         bus.subscribe("**", self.queue)
         bus.on_abort(self._on_abort)
 
@@ -103,7 +104,7 @@ class Recorder:
         self.stop_event.set()
 
     def _done(self) -> bool:
-        return self.expect is not None and self.expect <= set(self.stats.ended)
+        return self.expect is not None and self.expect <= self._ended
 
     # ---- supervision ------------------------------------------------------------------
     def _checkpoint_path(self) -> Path:
@@ -212,17 +213,18 @@ class Recorder:
             self.stats.invalid[key] = self.stats.invalid.get(key, 0) + 1
             log.error("recorder: bad frame on %s skipped: %s", key, exc)
             return
-        if frame.kind == "replay":
+        kind = frame.kind
+        if kind == "watermark":  # the most frequent frame
+            if self.gate.control(key) and frame.stamp > self._seen:
+                self._seen = frame.stamp
+            return
+        if kind == "replay":
             self.gate.replay(key, frame.index)
             return
-        if frame.kind in ("eos", "watermark") and not self.gate.control(key):
-            return
-        if frame.kind == "eos":
-            if key not in self.stats.ended:
+        if kind == "eos":
+            if self.gate.control(key) and key not in self._ended:
+                self._ended.add(key)
                 self.stats.ended.append(key)
-            return
-        if frame.kind == "watermark":
-            self._seen = max(self._seen, frame.stamp)
             return
         if not self.gate.data(key, frame.index):
             self.stats.duplicates += 1

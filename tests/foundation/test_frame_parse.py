@@ -1,0 +1,54 @@
+"""decode_frame: every frame kind and every malformation, from bytes, bytearray and memoryview."""
+import struct
+
+import pytest
+
+from common.codec import (ENCODED_EOS, DecodeError, decode_frame, encode, encode_frame, encode_replay_start,
+                          encode_sequenced, encode_watermark)
+from common.messages import Depth, Header
+
+MSG = Depth(header=Header(seq=3, stamp=77), depth=1.5)
+NAME = b"poseidon_msgs/Depth"
+
+GOOD = [
+    (encode_frame(MSG), ("data", "poseidon_msgs/Depth", encode(MSG), 0, -1)),
+    (encode_sequenced(41, MSG.type_name, encode(MSG)), ("data", "poseidon_msgs/Depth", encode(MSG), 0, 41)),
+    (encode_watermark(123456789), ("watermark", "", b"", 123456789, -1)),
+    (encode_replay_start(7), ("replay", "", b"", 0, 7)),
+    (ENCODED_EOS, ("eos", "", b"", 0, -1)),
+]
+
+BAD = [
+    (b"", "empty frame"),
+    (b"S" + b"\0" * 8, "sequenced data frame of 9 bytes (no index and type name)"),
+    (b"S" + struct.pack("<Q", 1 << 63) + b"\x01", f"transport index {1 << 63} out of range"),
+    (b"D", "data frame of 1 byte (no type name)"),
+    (b"D\x05abc", "data frame of 5 bytes truncated inside its 5-byte type name"),
+    (b"S" + struct.pack("<Q", 2) + b"\x05abc", "data frame of 5 bytes truncated inside its 5-byte type name"),
+    (b"D\x02\xff\xfe\x01", r"type name b'\xff\xfe' is not ASCII"),
+    (b"D\x03abc\x01", "unknown message type 'abc'"),
+    (b"D" + bytes([len(NAME)]) + NAME, "poseidon_msgs/Depth frame without a payload"),
+    (b"W" + b"\0" * 7, "watermark frame of 8 bytes (expected 9)"),
+    (b"W" + struct.pack("<q", -1), "negative watermark -1"),
+    (b"R" + b"\0" * 9, "replay frame of 10 bytes (expected 9)"),
+    (b"R" + struct.pack("<Q", 1 << 63), f"replay start {1 << 63} out of range"),
+    (b"EE", "end-of-stream frame of 2 bytes (expected 1)"),
+    (b"Zjunk", "unknown frame tag b'Z'"),
+]
+
+
+@pytest.mark.parametrize("form", [bytes, bytearray, memoryview])
+def test_every_frame_kind(form):
+    for data, (kind, type_name, payload, stamp, index) in GOOD:
+        f = decode_frame(form(data))
+        assert (f.kind, f.type_name, bytes(f.payload), f.stamp, f.index) == (kind, type_name, payload, stamp, index)
+        if kind == "data":
+            assert isinstance(f.payload, memoryview) and f.message() == MSG
+
+
+@pytest.mark.parametrize("form", [bytes, bytearray, memoryview])
+def test_every_malformation_names_what_is_wrong(form):
+    for data, text in BAD:
+        with pytest.raises(DecodeError) as err:
+            decode_frame(form(data))
+        assert str(err.value) == text

@@ -1,0 +1,107 @@
+"""The fast paths of common.mcap_io give exactly what mcap's own reader and writer give."""
+import numpy as np
+from mcap.reader import make_reader
+
+from common import mcap_io
+from common.mcap_io import RecordingWriter, read_messages, recording_summary
+from common.messages import Depth, Header, Image
+
+KEYS = ["depth_sensor", "odometry_depth", "camera/image_raw", "other_depth"]
+
+
+def _shuffled_recording(path, n=600, chunk_size=700, seed=3, fast=True):
+    """Messages written out of stamp order, many stamps shared across keys, chunks of a few
+    messages (they overlap in time), a few forced chunk ends; returns the writer's counts."""
+    rng = np.random.default_rng(seed)
+    w = RecordingWriter(path, chunk_size=chunk_size)
+    w._fast = fast and w._fast
+    w.add_metadata("poseidon", {"seed": seed})
+    seqs = {}
+    for i in range(n):
+        key = KEYS[int(rng.integers(len(KEYS)))]
+        stamp = int(rng.integers(0, 80)) * 1000 + (0 if rng.random() < 0.7 else int(rng.integers(1, 999)))
+        seq = seqs.get(key, 0)
+        seqs[key] = seq + 1
+        h = Header(seq=seq, stamp=stamp)
+        if key == "camera/image_raw":
+            msg = Image(header=h, height=2, width=3, encoding="mono8",
+                        data=rng.integers(0, 255, (2, 3), dtype=np.uint8))
+        else:
+            msg = Depth(header=h, depth=float(rng.normal()))
+        w.write(key, msg)
+        if i % 97 == 96:
+            w.sync()
+    w.close()
+    return dict(w.counts)
+
+
+def _mcap_order(path, keys=None, start_ns=None):
+    with open(path, "rb") as f:
+        return [(c.topic, s.name, m.log_time, m.sequence, bytes(m.data))
+                for s, c, m in make_reader(f).iter_messages(topics=keys, starting_at=start_ns, log_time_order=True)]
+
+
+def _ours(path, keys=None, start_ns=None):
+    return [(r.key, r.type_name, r.stamp, r.seq, r.payload) for r in read_messages(path, keys=keys, start_ns=start_ns)]
+
+
+def test_read_messages_is_mcaps_log_time_order(tmp_path):
+    path = tmp_path / "shuffled.mcap"
+    _shuffled_recording(path)
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    assert len(chunks) > 20  # several chunks ...
+    assert any(b.message_start_time < a.message_end_time for a, b in zip(chunks, chunks[1:]))  # ... overlapping
+    ref = _mcap_order(path)
+    assert len(ref) == 600 and [m[2] for m in ref] == sorted(m[2] for m in ref)
+    stamps = [m[2] for m in ref]
+    assert any(a == b and ka[0] != kb[0] for a, b, ka, kb in zip(stamps, stamps[1:], ref, ref[1:]))  # equal stamps, other key
+    assert [m[0] for m in ref] != [m[0] for m in sorted(ref, key=lambda m: (m[2], m[0]))]  # file order decides ties
+    assert _ours(path) == ref
+    for keys in (["depth_sensor"], ["camera/image_raw", "other_depth"], [], ["no/such/key"]):
+        assert _ours(path, keys=keys) == _mcap_order(path, keys=keys)
+    for start in (0, 1000, 40_000, 40_500, 79_000, 10**9):
+        assert _ours(path, start_ns=start) == _mcap_order(path, start_ns=start)
+        assert _ours(path, keys=["odometry_depth", "depth_sensor"], start_ns=start) == \
+            _mcap_order(path, keys=["odometry_depth", "depth_sensor"], start_ns=start)
+
+
+def test_fast_writer_writes_mcaps_bytes(tmp_path):
+    a, b = tmp_path / "mcap_writer.mcap", tmp_path / "fast.mcap"
+    assert _shuffled_recording(a, fast=False) == _shuffled_recording(b, fast=True)
+    assert a.read_bytes() == b.read_bytes()
+    big_a, big_b = tmp_path / "big_a.mcap", tmp_path / "big_b.mcap"  # default chunk size: one chunk
+    _shuffled_recording(big_a, n=300, chunk_size=1 << 20, fast=False)
+    _shuffled_recording(big_b, n=300, chunk_size=1 << 20, fast=True)
+    assert big_a.read_bytes() == big_b.read_bytes()
+
+
+def test_recording_summary_from_statistics_equals_full_scan(tmp_path, monkeypatch):
+    path = tmp_path / "s.mcap"
+    counts = _shuffled_recording(path)
+    fast = recording_summary(path)
+    assert fast["counts"] == {k: counts[k] for k in sorted(counts)}
+    assert fast["types"] == {"camera/image_raw": "poseidon_msgs/Image", "depth_sensor": "poseidon_msgs/Depth",
+                             "odometry_depth": "poseidon_msgs/Depth", "other_depth": "poseidon_msgs/Depth"}
+    ref = _mcap_order(path)
+    assert (fast["start_ns"], fast["end_ns"]) == (min(m[2] for m in ref), max(m[2] for m in ref))
+    monkeypatch.setattr(mcap_io, "_summary_statistics", lambda p: None)  # the killed-writer path
+    scanned = recording_summary(path)
+    assert scanned == fast and list(scanned["counts"]) == list(fast["counts"])
+    assert type(scanned["duration_s"]) is type(fast["duration_s"]) is float
+
+
+def test_recording_summary_of_a_file_without_summary(tmp_path):
+    path = tmp_path / "full.mcap"
+    _shuffled_recording(path)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])  # a writer killed half way: no summary section
+    intact = list(read_messages(cut))
+    got = recording_summary(cut)
+    assert 0 < sum(got["counts"].values()) == len(intact) < 600
+    assert got["start_ns"] == min(r.stamp for r in intact) and got["end_ns"] == max(r.stamp for r in intact)
+    empty = tmp_path / "empty.mcap"
+    RecordingWriter(empty).close()
+    assert recording_summary(empty) == {"counts": {}, "types": {}, "start_ns": None, "end_ns": None, "duration_s": 0.0}
