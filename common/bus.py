@@ -127,7 +127,8 @@ class BusPublisher:
         self._pub = session.declare_publisher(full_key, congestion_control=zenoh.CongestionControl.BLOCK,
                                               reliability=zenoh.Reliability.RELIABLE)
         self.sent = 0
-        self.watermark = -1
+        self.watermark = -1   # last watermark sent
+        self.data_stamp = -1  # stamp of the newest data frame sent (when the sender said it)
         self.index = 0  # transport index of the next data frame
         self.ended = False
         self.retain = retain
@@ -136,12 +137,15 @@ class BusPublisher:
         self._lock = threading.Lock()
 
     def send(self, msg: Message) -> None:
-        self.send_data(msg.type_name, encode(msg))
+        self.send_data(msg.type_name, encode(msg), msg.header.stamp)
 
-    def send_data(self, type_name: str, payload: bytes | memoryview) -> None:
-        """A numbered data frame of an encoded message."""
+    def send_data(self, type_name: str, payload: bytes | memoryview, stamp: int = -1) -> None:
+        """A numbered data frame of an encoded message (``stamp``: its header stamp, for
+        :meth:`heartbeat`; -1 when unknown)."""
         frame = encode_sequenced(self.index, type_name, payload)
         self._pub.put(frame)
+        if stamp > self.data_stamp:
+            self.data_stamp = stamp
         if self.retain:
             with self._lock:
                 self.retained.append((self.index, frame))
@@ -157,6 +161,19 @@ class BusPublisher:
         if stamp > self.watermark:
             self._pub.put(encode_watermark(stamp))
             self.watermark = stamp
+
+    def heartbeat(self, stamp: int, interval_ns: int) -> None:
+        """Watermark ``stamp`` unless the key spoke within ``interval_ns`` before it.
+
+        A data frame stamped t already promises W >= t to every consumer's merger
+        (:mod:`common.ordering`), so a key with data at least every ``interval_ns`` needs
+        no separate watermark: the sonar beams, the IMU and most outputs send none, which
+        halves the frames on the bus.  Only the release of other streams' messages can wait
+        (at most ``interval_ns`` of event time); what is released, and in which order, does not change.
+        """
+        last = max(self.watermark, self.data_stamp)
+        if last < 0 or stamp >= last + interval_ns:
+            self.send_watermark(stamp)
 
     def send_eos(self) -> None:
         self._pub.put(ENCODED_EOS)

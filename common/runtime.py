@@ -3,8 +3,8 @@
 The runner subscribes to the node's inputs, merges them by event time
 (:class:`~common.ordering.EventTimeMerger`), calls the node, publishes its outputs, reports
 its progress (event time consumed, for the player's flow control), and forwards event-time
-watermarks (rate-limited to ``bus.heartbeat_interval_ms`` of event
-time) and end-of-stream so downstream services can merge deterministically too.
+watermarks (on an output key silent for ``bus.heartbeat_interval_ms`` of event
+time, :meth:`common.bus.BusPublisher.heartbeat`) and end-of-stream so downstream services can merge deterministically too.
 Any frame that cannot be used is a counted, logged rejection (key, seq when readable, the
 reason), never an exception: malformed frames and messages that fail validation
 (:mod:`common.codec`), data older than its own stream's watermark (``late``: it would be
@@ -188,8 +188,10 @@ class NodeRunner:
             return
         out = self.node.output_watermark(wm)
         for pub in self._publishers.values():
-            if force or out >= pub.watermark + self.heartbeat_ns:
+            if force:
                 pub.send_watermark(out)
+            else:
+                pub.heartbeat(out, self.heartbeat_ns)
 
     def process(self, key: str, msg: Message) -> None:
         """Hand one merged input to the node and publish what it emits.  A node exception

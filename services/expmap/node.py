@@ -235,8 +235,11 @@ class ExpMapNode(ServiceNode):
             source_stamp=best.header.stamp))
 
     def output_watermark(self, input_watermark: int) -> int:
-        """Hold the promise at the oldest event still waiting for its image."""
-        out = input_watermark
+        """Hold the promise at the oldest event still waiting for its image, and never past
+        the newest input processed: the final map is stamped with that input's stamp, which
+        does not depend on which heartbeats happened to arrive (a resumed run equals an
+        uninterrupted one)."""
+        out = min(input_watermark, self._last_stamp)
         if self._waiting:
             out = min(out, self._waiting[0][0].stamp)
         self._promised = max(self._promised, out)

@@ -7,8 +7,9 @@
 - Before the first message it waits until every expected service is alive (Zenoh drops
   what is published before a subscriber exists).
 - Payloads are sent byte for byte as recorded (no re-encoding).
-- Event-time watermarks go out on every key every ``heartbeat_ms`` of event time, and
-  end-of-stream on every key at the end.  Source keys the recording does not have get
+- Event-time watermarks go out every ``heartbeat_ms`` of event time on every key that has
+  been silent that long (a data frame promises its own stamp, :meth:`common.bus.BusPublisher.heartbeat`),
+  and end-of-stream on every key at the end.  Source keys the recording does not have get
   end-of-stream at once, so services waiting on them (e.g. an absent IMU) are not blocked.
 - In its own process (``drain_timeout_s`` > 0) it stays until its consumers have left
   (:meth:`common.bus.Bus.drain`): closing earlier would discard frames still queued.
@@ -224,9 +225,9 @@ class Player:
                         break
                 if rec.stamp - last_hb >= self.heartbeat_ns:
                     for pub in pubs.values():
-                        pub.send_watermark(rec.stamp)
+                        pub.heartbeat(rec.stamp, self.heartbeat_ns)
                     last_hb = rec.stamp
-                pubs[rec.key].send_data(rec.type_name, rec.payload)
+                pubs[rec.key].send_data(rec.type_name, rec.payload, rec.stamp)
                 self._stamps[rec.key].append(rec.stamp)
                 self.stats.published[rec.key] = self.stats.published.get(rec.key, 0) + 1
                 last_stamp = rec.stamp

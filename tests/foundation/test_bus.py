@@ -219,3 +219,42 @@ def test_run_rejects_unreadable_input_and_bad_config(tmp_path):
                            str(tmp_path / "o.mcap"), "--set", "htm.sp_numActiveColumns=lots"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "htm.sp_numActiveColumns" in proc.stderr
+
+
+def test_heartbeat_watermarks_only_keys_that_were_silent():
+    """A data frame stamped t promises W >= t, so a key with data every 50 ms gets no separate
+    watermark from a 100-ms heartbeat; a key silent for 100 ms or more gets one."""
+    import queue
+
+    from common.codec import decode_frame
+    from common.messages import Depth, Header
+
+    session = open_local_session()
+    bus = Bus(session=session)
+    sink: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe("depth_sensor", sink)
+    bus.subscribe("dvl_linkquest", sink)
+    time.sleep(0.3)
+    busy, quiet = bus.publisher("depth_sensor"), bus.publisher("dvl_linkquest")
+    ms = 1_000_000
+    for k in range(20):  # 0 .. 950 ms: depth data every 50 ms, heartbeat every 100 ms
+        t = k * 50 * ms
+        busy.send(Depth(header=Header(seq=k, stamp=t), depth=1.0))
+        if k % 2 == 0:
+            busy.heartbeat(t, 100 * ms)
+            quiet.heartbeat(t, 100 * ms)
+    busy.heartbeat(1200 * ms, 100 * ms)  # silent since 950 ms: a watermark
+    deadline = time.monotonic() + 10
+    frames: dict[str, list] = {"depth_sensor": [], "dvl_linkquest": []}
+    while sum(len(v) for v in frames.values()) < 20 + 1 + 10 and time.monotonic() < deadline:
+        try:
+            key, data = sink.get(timeout=0.5)
+        except queue.Empty:
+            continue
+        frames[key].append(decode_frame(data))
+    bus.close()
+    session.close()
+    depth_kinds = [f.kind for f in frames["depth_sensor"]]
+    assert depth_kinds.count("data") == 20 and depth_kinds.count("watermark") == 1
+    assert frames["depth_sensor"][-1].kind == "watermark" and frames["depth_sensor"][-1].stamp == 1200 * ms
+    assert [f.stamp for f in frames["dvl_linkquest"]] == [t * 100 * ms for t in range(10)]
