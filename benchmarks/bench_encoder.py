@@ -10,7 +10,10 @@ standardisation and LSBH -- what :class:`EncoderNode` does per frame.  Variants:
 * ``efficientnet_lite0@S sonar/frame`` -- EfficientNet-Lite0 to block 10 at S px, sonar every frame;
 * ``efficientnet_lite0@S sonar/5`` -- the same with the sonar re-encoded every 5th camera frame
   (the default ``encoder.sonar_encode_sweep_deg`` 45 deg at the Micron's 42 deg/s and a 5 Hz camera);
+* ``... unfolded BN`` -- the default before ``encoder.fold_batchnorm`` (batch norm run as its own operator);
 * ``... batch 8`` -- eight camera frames per forward pass (what a replay backlog allows).
+
+Every variant but ``unfolded BN`` runs with ``encoder.fold_batchnorm`` (the default).
 
 All timings are medians of interleaved rounds on ``--threads`` torch threads (default
 ``encoder.torch_threads`` = 1), so the ratio column (variant / baseline, same run) stays
@@ -82,18 +85,20 @@ def main(argv: list[str] | None = None) -> int:
     sonar = np.repeat(rng.random((224, 224, 1), dtype=np.float32), 3, axis=2)
     base = dict(lsbh_matrix_path="", torch_threads=args.threads, embedding_norm="running")
     variants: dict[str, tuple[Callable[[], None], int]] = {}
-    specs = [("shufflenetv2@224 sonar/frame", "shufflenetv2", 224, 1, 1),
-             ("efficientnet_lite0@224 sonar/frame", "efficientnet_lite0", 224, 1, 1),
-             ("efficientnet_lite0@160 sonar/frame", "efficientnet_lite0", 160, 1, 1),
-             ("efficientnet_lite0@160 sonar/5", "efficientnet_lite0", 160, 5, 1),
-             ("efficientnet_lite0@128 sonar/5", "efficientnet_lite0", 128, 5, 1),
-             ("efficientnet_lite0@160 sonar/5 batch 8", "efficientnet_lite0", 160, 5, 8)]
-    encoders: dict[tuple[str, int], MultimodalEncoder] = {}
-    for label, name, size, every, batch in specs:
-        key = (name, size)
+    specs = [("shufflenetv2@224 sonar/frame", "shufflenetv2", 224, 1, 1, True),
+             ("efficientnet_lite0@224 sonar/frame", "efficientnet_lite0", 224, 1, 1, True),
+             ("efficientnet_lite0@160 sonar/frame", "efficientnet_lite0", 160, 1, 1, True),
+             ("efficientnet_lite0@160 sonar/5 unfolded BN", "efficientnet_lite0", 160, 5, 1, False),
+             ("efficientnet_lite0@160 sonar/5", "efficientnet_lite0", 160, 5, 1, True),
+             ("efficientnet_lite0@128 sonar/5", "efficientnet_lite0", 128, 5, 1, True),
+             ("efficientnet_lite0@160 sonar/5 batch 8", "efficientnet_lite0", 160, 5, 8, True)]
+    encoders: dict[tuple[str, int, bool], MultimodalEncoder] = {}
+    for label, name, size, every, batch, fold in specs:
+        key = (name, size, fold)
         if key not in encoders:
             encoders[key] = MultimodalEncoder(EncoderConfig(cnn_backbone=name, input_size=size, batch_max=8,
-                                                            untrained=name != "efficientnet_lite0", **base))
+                                                            untrained=name != "efficientnet_lite0",
+                                                            fold_batchnorm=fold, **base))
         variants[label] = _variant(encoders[key], frames[:10] if batch == 1 else frames, sonar, every, batch)
     print(f"encoder benchmark: torch {torch.__version__}, {args.threads} thread(s), median of {args.repeats} "
           f"interleaved rounds; camera 384x288 RGB uint8, sonar raster 224x224; LSBH L=2048, s=0.25")

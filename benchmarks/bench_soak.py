@@ -17,6 +17,9 @@ replayed as fast as the services take it (player rate 0), every service in its o
     .venv/bin/python benchmarks/bench_soak.py                   # 60 min (~4 min to simulate, ~10 to run)
     .venv/bin/python benchmarks/bench_soak.py --minutes 10 --json
 
+The two run recordings (player + recorder alone, full pipeline) are deleted once measured
+(``--keep-outputs`` keeps them: ~12 GB for the 60-min mission); the simulated mission stays cached.
+
 ``--json``: ``{"minutes", "mission", "pipeline": {"wall_s", "mission_s", "real_time_factor"},
 "transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
 {"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
@@ -148,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--cache-dir", default="/tmp/poseidon-soak")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--keep-outputs", action="store_true",
+                    help="keep the two run recordings (about 12 GB for 60 min) in --cache-dir")
     args = ap.parse_args(argv)
     isolate_stdout()  # the in-process hub's native log lines go to stderr, not into --json
     cache = Path(args.cache_dir)
@@ -167,6 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     print("full pipeline", file=sys.stderr)
     with RssSampler() as sampler:
         res = run_distributed(cfg, mission, cache / "soak_run.mcap", progress=True)
+    if not args.keep_outputs:  # measured; the mission itself stays cached
+        for f in (cache / "soak_transport.mcap", cache / "soak_run.mcap"):
+            f.unlink(missing_ok=True)
     counts = res.recording["counts"]
     played = [k for k in inp["counts"] if k not in ("neocortex/sdr", "local_view_cells")]
     dropped = {k: inp["counts"][k] - counts.get(k, 0) for k in played}
