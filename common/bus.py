@@ -167,9 +167,9 @@ class BusPublisher:
 
         A data frame stamped t already promises W >= t to every consumer's merger
         (:mod:`common.ordering`), so a key with data at least every ``interval_ns`` needs
-        no separate watermark: the sonar beams, the IMU and most outputs send none, which
-        halves the frames on the bus.  Only the release of other streams' messages can wait
-        (at most ``interval_ns`` of event time); what is released, and in which order, does not change.
+        no separate watermark: the sonar beams and the IMU send none.  Only the release of
+        other streams' messages can wait (at most ``interval_ns`` of event time); what is
+        released, and in which order, does not change.
         """
         last = max(self.watermark, self.data_stamp)
         if last < 0 or stamp >= last + interval_ns:

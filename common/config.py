@@ -65,7 +65,7 @@ class SuperviseConfig(_Section):
                                                   "the file and reports its position every this much EVENT time (s). "
                                                   "Publishers keep their frames for replay until every consumer, the "
                                                   "recorder included, checkpointed past them, so this bounds what they "
-                                                  "hold (expmap's evidence images: 24 MB with 30 s, 4 MB with 5 s)")
+                                                  "hold, and what a killed recorder can lose from its file")
     rejoin_timeout_s: float = Field(60.0, gt=0, description="the player aborts the run when a consumer has "
                                     "been gone this long (s, wall) without coming back")
     replay_retry_s: float = Field(3.0, gt=0, description="a restarted consumer repeats its replay request "
