@@ -94,7 +94,7 @@ class EncoderConfig(_Section):
     sonar_polar_height: int = Field(224, ge=8)
     sonar_rmax: float = Field(30.0, gt=0, description="m")
     sonar_use_intensities: bool = True
-    sonar_topic: Literal["sonar_micron", "sonar_seaking", "sonar_micron_ros", "sonar_seaking_ros"] = "sonar_micron"
+    sonar_topic: Literal["sonar_micron", "sonar_seaking", "sonar_micron_ros", "sonar_seaking_ros", "scan"] = "sonar_micron"
     # --- added for the embedding standardisation (issue 4); see services/encoder/standardize.py
     embedding_norm: Literal["none", "running", "fixed"] = Field(
         "running", description="per-dimension standardisation of y before LSBH; none: Eq. 4.2 exactly")
@@ -209,6 +209,9 @@ class HtmConfig(_Section):
 
 
 class RobotStateConfig(_Section):
+    source: Literal["dvl_imu_depth", "wheel_odometry"] = Field(
+        "dvl_imu_depth", description="dvl_imu_depth: the EKF of DVL, IMU and depth; wheel_odometry: a ground "
+        "robot's odometry (key wheel_odometry, e.g. an imported CARMEN log) republished as Odometry")
     use_imu: bool = True
     imu_topic: Literal["imu_adis_ros", "imu_adis"] = "imu_adis_ros"
     axis_remap: str = Field("yxz", pattern=r"^[xyz]{3}$", description="dead-reckoning frame alignment")
@@ -342,6 +345,64 @@ class VprGuardConfig(_Section):
         return self
 
 
+class ScanGraphConfig(_Section):
+    """Planar experience map of a range sensor (``expmap.graph: scan_graph``;
+    services/expmap/scan_graph.py documents every rule)."""
+
+    max_range_m: float = Field(20.0, gt=0, description="returns farther than this are not used (m)")
+    min_range_m: float = Field(0.05, ge=0, description="returns nearer than this are not used (m)")
+    voxel_m: float = Field(0.05, gt=0, description="one scan point per square of this size (m)")
+    min_points: int = Field(30, ge=3, description="fewest points a scan or local map needs to be registered")
+    local_map_experiences: int = Field(10, ge=1, description="previous experiences whose scans form the chain "
+                                       "registration's local map")
+    chain_window_m: float = Field(0.3, gt=0, description="chain registration search window around the odometry (m)")
+    chain_window_deg: float = Field(6.0, ge=0, description="chain registration heading window (deg)")
+    chain_coarse_cell_m: float = Field(0.05, gt=0, description="coarse grid of the chain registration (m)")
+    chain_coarse_yaw_step_deg: float = Field(1.0, gt=0)
+    chain_prior_sigma_m: float = Field(0.2, ge=0, description="odometry prior of the chain registration (m; 0: none)")
+    chain_prior_sigma_deg: float = Field(4.0, ge=0, description="odometry prior of the chain registration (deg)")
+    chain_min_score: float = Field(0.3, ge=0, le=1, description="a chain registration scoring less keeps the "
+                                   "odometry increment")
+    fine_cell_m: float = Field(0.025, gt=0, description="fine grid of every registration (m)")
+    fine_sigma_m: float = Field(0.05, gt=0, description="likelihood-field sigma of the fine grid (m)")
+    fine_yaw_step_deg: float = Field(0.25, gt=0)
+    scan_sigma_m: float = Field(0.05, gt=0, description="std of a registered edge's translation (m)")
+    scan_sigma_deg: float = Field(1.0, gt=0, description="std of a registered edge's heading (deg)")
+    odom_sigma_m: float = Field(0.1, gt=0, description="std of an odometry edge's translation (m)")
+    odom_sigma_deg: float = Field(3.0, gt=0, description="std of an odometry edge's heading (deg)")
+    loop_every: int = Field(1, ge=1, description="loop search on every k-th experience")
+    loop_min_route_m: float = Field(10.0, ge=0, description="a loop candidate is at least this far back along the "
+                                    "odometry route (m)")
+    loop_radius_m: float = Field(0.5, gt=0, description="loop search radius right after a closure (m)")
+    loop_radius_growth: float = Field(0.03, ge=0, description="radius growth per metre travelled since (m/m)")
+    loop_radius_max_m: float = Field(4.0, gt=0)
+    loop_lvc_radius_m: float = Field(8.0, ge=0, description="an experience of the same LVC id is tried up to this "
+                                     "far in the map (m; appearance proposes, geometry verifies)")
+    loop_window_deg: float = Field(8.0, ge=0, description="loop registration heading window after a closure (deg)")
+    loop_window_growth_deg_per_m: float = Field(0.1, ge=0)
+    loop_window_max_deg: float = Field(20.0, ge=0)
+    loop_coarse_cell_m: float = Field(0.15, gt=0, description="coarse grid of the loop registration (m)")
+    loop_coarse_yaw_step_deg: float = Field(1.0, gt=0)
+    loop_query_experiences: int = Field(4, ge=0, description="predecessors of the current experience in the query")
+    loop_reference_experiences: int = Field(6, ge=0, description="experiences either side of the candidate in the "
+                                            "reference")
+    loop_query_voxel_m: float = Field(0.1, gt=0, description="query points thinned to one per square (m)")
+    loop_min_score: float = Field(0.5, ge=0, le=1, description="fine score a loop registration needs")
+    loop_max_spread_m: float = Field(0.3, gt=0, description="largest principal std of the near-best coarse "
+                                     "translations (m): a corridor's slide is not a loop")
+    loop_max_second_ratio: float = Field(0.9, gt=0, description="reject a loop registration whose best score "
+                                         "more than 0.5 m from the best pose reaches this fraction of the best "
+                                         "(repeated structure)")
+    loop_confirm_within: int = Field(10, ge=1, description="a verified loop waits this many experiences for a "
+                                     "confirming one")
+    loop_confirm_m: float = Field(0.2, gt=0, description="two loop measurements agree within this (m)")
+    loop_confirm_deg: float = Field(2.0, gt=0, description="... and this (deg)")
+    relax_threshold_m: float = Field(0.02, ge=0, description="relax when a new loop edge's residual exceeds this (m)")
+    relax_threshold_deg: float = Field(0.3, ge=0, description="... or this (deg)")
+    relax_iterations: int = Field(10, ge=1, description="Gauss-Newton iterations per relaxation")
+    huber: float = Field(3.0, ge=0, description="Huber threshold on an edge's Mahalanobis residual (0: off)")
+
+
 class ExpMapConfig(_Section):
     match_threshold: float = Field(0.98, ge=0)
     lv_factor: float = Field(0.5, ge=0)
@@ -400,6 +461,11 @@ class ExpMapConfig(_Section):
                                              "(0: one PoseStamped per Odometry)")
     map_path: str = Field("", description="load the experience map from here at start and save it at the end "
                           "(npz; empty: off)")
+    graph: Literal["experience_map", "scan_graph"] = Field(
+        "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
+        "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "
+        "(services/expmap/scan_graph.py, the laser preset)")
+    scan_graph: ScanGraphConfig = Field(default_factory=ScanGraphConfig)
 
 
 class PoseidonConfig(_Section):

@@ -35,6 +35,15 @@ subscribed.
   keeps the last full sweep, and a loop closure registers the two experiences' sweeps for
   the loop edge's displacement (:mod:`services.expmap.scans`).
 
+- range scans (``expmap.graph: scan_graph``, the laser preset): ``expmap.scan_topic`` carries
+  ``LaserScan``; each scan's returns (``scan_graph.min_range_m`` .. ``max_range_m``) become
+  points in the dead-reckoning frame with the latest ``Odometry`` pose, and an experience keeps
+  the latest scan expressed in its own frame (motion between the scan and the event
+  compensated by the odometry); :class:`services.expmap.scan_graph.ScanGraph` registers the
+  scans for every edge.  Its counters (``chain_scan``, ``chain_odometry``, ``loop_tried``,
+  ``loop_verified``, ``loop_rejected_score``, ``loop_rejected_ambiguous``, ``loop_from_lvc``)
+  are added to the node's at the end.
+
 Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_interval``,
 ``loop_rejected_route``, ``loop_rejected_scan`` (the two sweeps do not fit),
 ``loop_scan_registered`` / ``loop_scan_untrusted`` (how closures got their displacement),
@@ -55,10 +64,13 @@ import numpy as np
 from common.config import ConfigError, PoseidonConfig
 from common.geometry import quaternion_to_matrix, yaw_of_quaternion
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceNode, Header, Image,
-                             Odometry, PoseStamped, RangeImageBeam)
+                             LaserScan, Odometry, PoseStamped, RangeImageBeam)
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
 from services.expmap.graph import ExperienceMap
+from services.expmap.laser_match import scan_points, transform_points
+from services.expmap.pose_graph import relative_pose
+from services.expmap.scan_graph import ScanGraph
 from services.expmap.scans import SweepBuffer, echo_range
 
 __all__ = ["ExpMapNode", "map_message"]
@@ -66,7 +78,7 @@ __all__ = ["ExpMapNode", "map_message"]
 log = logging.getLogger(__name__)
 
 
-def map_message(em: ExperienceMap, header: Header) -> ExperienceMapMsg:
+def map_message(em: ExperienceMap | ScanGraph, header: Header) -> ExperienceMapMsg:
     """The ``map`` message of the graph (nodes with map positions, odometry and loop links)."""
     pos, yaw, lvc, st = em.positions, em.yaws, em.lvc_ids, em.stamps
     nodes = [ExperienceNode.model_construct(id=i, lvc_id=int(lvc[i]), position=[float(v) for v in pos[i]],
@@ -90,7 +102,7 @@ class ExpMapNode(ServiceNode):
         """Input keys under ``config`` (the camera key is configurable, and optional)."""
         cfg = config.expmap
         ins = ((cfg.image_topic,) if cfg.publish_experience_image else ()) + ("experience_event", "Odometry")
-        if cfg.loop_scan_matching:
+        if cfg.loop_scan_matching or cfg.graph == "scan_graph":
             ins += (cfg.scan_topic,)
         return ins, cls.outputs
 
@@ -101,7 +113,12 @@ class ExpMapNode(ServiceNode):
         self.slop_ns = int(round(min(config.sync.sync_stale_sec, cfg.image_sync_slop) * 1e9))
         shape, spacing = config.posecells.number_of_neurons, config.posecells.distance_between_neurons
         self.map_path = Path(cfg.map_path) if cfg.map_path else None
-        if self.map_path is not None and self.map_path.exists():
+        self.scan_graph = cfg.graph == "scan_graph"
+        self.graph: ExperienceMap | ScanGraph
+        if self.scan_graph:
+            self.graph = (ScanGraph.load(self.map_path, cfg.scan_graph)
+                          if self.map_path is not None and self.map_path.exists() else ScanGraph(cfg.scan_graph))
+        elif self.map_path is not None and self.map_path.exists():
             self.graph = ExperienceMap.load(self.map_path, cfg, shape, spacing)
             log.info("expmap: loaded %d experiences (%d loop closures) from %s", self.graph.n_nodes,
                      len(self.graph.loops), self.map_path)
@@ -114,7 +131,9 @@ class ExpMapNode(ServiceNode):
         self._last_dr_stamp: int | None = None
         self._since_map = 0
         self._dirty = False
-        self.scan_key = cfg.scan_topic if cfg.loop_scan_matching else None
+        self.scan_key = cfg.scan_topic if (cfg.loop_scan_matching or self.scan_graph) else None
+        self._odom_pose: np.ndarray | None = None       # latest Odometry (x, y, yaw)
+        self._scan_odom: np.ndarray | None = None       # latest range scan's points in the odometry frame
         if self.scan_key is not None and config.robot_state.axis_remap[2] != "z":
             raise ConfigError(f"expmap.loop_scan_matching needs a vertical published z axis, but "
                               f"robot_state.axis_remap={config.robot_state.axis_remap!r}; set "
@@ -137,7 +156,13 @@ class ExpMapNode(ServiceNode):
 
     def _on_event(self, ev: ExperienceEvent) -> None:
         try:
-            sweep = self.sweeps.sweep(ev.odom_position[:2]) if self.scan_key is not None else None
+            if self.scan_graph:
+                sweep = None
+                if self._scan_odom is not None:
+                    sweep = transform_points(self._scan_odom, relative_pose(
+                        np.array([ev.odom_position[0], ev.odom_position[1], ev.odom_yaw]), np.zeros(3)))
+            else:
+                sweep = self.sweeps.sweep(ev.odom_position[:2]) if self.scan_key is not None else None
             res = self.graph.add_event(ev.header.stamp, ev.lvc_id, ev.pc_centroid, ev.odom_position, ev.odom_yaw,
                                        sweep=sweep)
         except ValueError as exc:
@@ -146,7 +171,11 @@ class ExpMapNode(ServiceNode):
             return
         self._dirty = True
         self.count("events")
-        if res.loop_closed:
+        if res.loop_closed and isinstance(self.graph, ScanGraph):
+            self.count("loop_closures")
+            log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m)", res.match, res.node,
+                      res.score, res.correction_norm)
+        elif res.loop_closed:
             self.count("loop_closures")
             reg = self.graph.last_registration
             how = "zero displacement (no sweep)" if self.scan_key is not None else "zero displacement"
@@ -159,7 +188,7 @@ class ExpMapNode(ServiceNode):
                      " ".join(f"{v:.2f}" for v in self.graph.loop_deltas[-1]), how)
         if res.rejected:
             self.count(f"loop_rejected_{res.rejected}")
-            if res.rejected == "scan":
+            if res.rejected == "scan" and isinstance(self.graph, ExperienceMap):
                 log.info("expmap: loop closure %d -> %d rejected: the sonar sweeps do not fit (%s)", res.match,
                          res.node, self.graph.last_registration.reason)
         if res.correction_clamped:
@@ -178,7 +207,10 @@ class ExpMapNode(ServiceNode):
             self._associate(ev.header)
 
     def _on_odometry(self, od: Odometry) -> None:
-        if self.scan_key is not None:
+        if self.scan_graph:
+            if np.all(np.isfinite(od.position)) and any(od.orientation):
+                self._odom_pose = np.array([od.position[0], od.position[1], yaw_of_quaternion(od.orientation)])
+        elif self.scan_key is not None:
             try:
                 self.sweeps.add_pose(od.position, quaternion_to_matrix(od.orientation))
             except ValueError as exc:   # a zero quaternion: no attitude to place the beams with
@@ -193,11 +225,27 @@ class ExpMapNode(ServiceNode):
             header=self.header("dead_reckoning", t, od.header.frame_id),
             position=list(od.position), yaw=yaw_of_quaternion(od.orientation)))
 
-    def _on_beam(self, beam: RangeImageBeam) -> None:
+    def _on_beam(self, beam: RangeImageBeam | LaserScan) -> None:
+        if isinstance(beam, LaserScan):
+            self._on_scan(beam)
+            return
         c = self.cfg
         rng = echo_range(beam.beam_data, float(beam.max_range), c.scan_min_range_m, c.scan_echo_threshold)
         if not self.sweeps.add_beam(beam.angle_rad, rng):
             self.count("scan_beams_before_odometry")
+
+    def _on_scan(self, scan: LaserScan) -> None:
+        """Keep the scan's returns in the odometry frame (latest pose at or before its stamp)."""
+        if not self.scan_graph:
+            raise ConfigError(f"expmap: {self.scan_key} carries LaserScan; range scans need expmap.graph=scan_graph")
+        if self._odom_pose is None:
+            self.count("scans_before_odometry")
+            return
+        c = self.cfg.scan_graph
+        pts = scan_points(scan.ranges, scan.angle_min, scan.angle_increment, max(c.min_range_m, scan.range_min),
+                          min(c.max_range_m, scan.range_max * 0.999) if scan.range_max > 0 else c.max_range_m)
+        self._scan_odom = transform_points(pts, self._odom_pose)
+        self.count("scans")
 
     def _on_image(self, img: Image) -> None:
         while self._waiting and self._waiting[0][0].stamp <= img.header.stamp:
@@ -252,6 +300,9 @@ class ExpMapNode(ServiceNode):
         self.publish("map", map_message(self.graph, self.header("map", stamp)))
 
     def finish(self) -> None:
+        if isinstance(self.graph, ScanGraph):
+            for k, v in self.graph.counters.items():
+                self.count(k, v - self.counters.get(k, 0))
         while self._waiting:
             hdr, before = self._waiting.popleft()
             self._decide(hdr, before, None)

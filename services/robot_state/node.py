@@ -31,8 +31,17 @@ event counted since the previous output (``dvl_invalid_flag``, ``dvl_nonfinite``
 ``timestamp_backwards``, ``late``, ...); the totals are in ``counters``.
 
 ``ground_truth`` relays each ``odometry`` message unchanged except its header seq.
+
+Ground robots (``robot_state.source: wheel_odometry``, the laser preset): the only input
+besides ``odometry`` is ``wheel_odometry`` (e.g. a CARMEN log's ODOM records) and each of
+its messages is republished as ``Odometry`` with the same stamp, pose and velocities (frame
+``odom_wheel``, status ``wheel_odometry``): wheel odometry is already a pose, and its own
+stamps are the finest time base there is.  A message with a non-finite pose or a zero
+quaternion is logged, counted (``wheel_odometry_invalid``) and skipped.
 """
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 
@@ -43,6 +52,8 @@ from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot
 from services.robot_state.frames import OutputFrame, euler_to_matrix, matrix_to_quaternion
 
 __all__ = ["RobotStateNode", "odometry_from_snapshot"]
+
+log = logging.getLogger(__name__)
 
 
 def odometry_from_snapshot(snap: FilterSnapshot, frame: OutputFrame, header, status: list[str],
@@ -82,6 +93,8 @@ class RobotStateNode(ServiceNode):
     def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """Inputs under ``config``: the configured IMU key (none with ``use_imu`` false) first."""
         cfg = config.robot_state
+        if cfg.source == "wheel_odometry":
+            return ("wheel_odometry", "odometry"), cls.outputs
         imu = (cfg.imu_topic,) if cfg.use_imu else ()
         return imu + ("dvl_linkquest", "depth_sensor", "odometry"), cls.outputs
 
@@ -129,6 +142,10 @@ class RobotStateNode(ServiceNode):
             self.publish("ground_truth", msg.model_copy(
                 update={"header": self.header("ground_truth", stamp, msg.header.frame_id)}))
             return
+        if key == "wheel_odometry":
+            assert isinstance(msg, Odometry)
+            self._on_wheel_odometry(msg)
+            return
         if self._last_input is not None and stamp - self._last_input >= self.cfg.max_gap_s * NS:
             self.count("gap")
             self._gap_from, self._gap_until = self._last_input, stamp
@@ -148,6 +165,18 @@ class RobotStateNode(ServiceNode):
             self._next_pub = -(-self.filter.t // self.period) * self.period
             self.count("initialised")
         self._last_input = stamp if self._last_input is None else max(self._last_input, stamp)
+
+    def _on_wheel_odometry(self, msg: Odometry) -> None:
+        q = np.asarray(msg.orientation, np.float64)
+        if not (np.all(np.isfinite(msg.position)) and np.all(np.isfinite(q))) or float(q @ q) < 1e-12:
+            log.warning("robot_state: wheel_odometry seq %d skipped: non-finite pose or zero quaternion",
+                        msg.header.seq)
+            self.count("wheel_odometry_invalid")
+            return
+        self.count("wheel_odometry")
+        self.publish("Odometry", msg.model_copy(update={
+            "header": self.header("Odometry", msg.header.stamp, "odom_wheel"), "child_frame_id": "base_link",
+            "status": ["wheel_odometry"]}))
 
     def finish(self) -> None:
         if self._last_input is not None:
