@@ -44,7 +44,7 @@ from the robot pose in the robot frame (median over the log) is in the ``--json`
 
 Stamps: ``header.stamp = round(ipc_ts * 1e9)`` ns, computed from the decimal text, so
 ``t = stamp / 1e9`` (printed with 9 decimals, :func:`ns_to_text`) reproduces ``ipc_ts`` to
-1 ns.  Messages are written in chronological order (equal stamps: file order); ``seq`` counts
+1 ns (:mod:`common.stamps`).  Messages are written in chronological order (equal stamps: file order); ``seq`` counts
 per key from 0 in that order.  ``PARAM`` lines take either ``PARAM name value ipc_ts host
 logger_ts`` or, as in older logs, ``PARAM name value host logger_ts`` (no ipc timestamp).
 
@@ -71,7 +71,6 @@ import bz2
 import gzip
 import math
 from dataclasses import dataclass, field
-from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import IO, Any, Iterator
 
@@ -79,6 +78,7 @@ import numpy as np
 
 from common.mcap_io import RecordingWriter
 from common.messages import Header, LaserScan, Message, Odometry
+from common.stamps import ns_to_text, seconds_to_ns
 from missions.importers.errors import InputFormatError
 
 __all__ = ["CARMEN_SUFFIXES", "DEFAULT_RANGE_MAX_M", "KNOWN_UNUSED", "is_carmen_log", "import_carmen",
@@ -103,27 +103,6 @@ _RANGE_PARAM = {"FLASER": "robot_front_laser_max", "RLASER": "robot_rear_laser_m
 
 class _Reject(ValueError):
     """A malformed line: the reason goes into ``rejected``."""
-
-
-def seconds_to_ns(text: str) -> int:
-    """Decimal seconds text -> integer nanoseconds, rounded half to even (exact: no float).
-
-    :raises ValueError: not a finite decimal number.
-    """
-    try:
-        d = Decimal(text)
-    except InvalidOperation:
-        raise ValueError(f"{text!r} is not a number") from None
-    if not d.is_finite():
-        raise ValueError(f"{text!r} is not finite")
-    return int((d * 1_000_000_000).to_integral_value())
-
-
-def ns_to_text(ns: int) -> str:
-    """Integer nanoseconds -> seconds with exactly 9 decimals (``stamp / 1e9`` without rounding)."""
-    sign = "-" if ns < 0 else ""
-    q, r = divmod(abs(int(ns)), 1_000_000_000)
-    return f"{sign}{q}.{r:09d}"
 
 
 def flaser_geometry(n: int) -> tuple[float, float, float]:
