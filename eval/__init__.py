@@ -13,4 +13,5 @@ command, benchmarks and tests do.
 - :mod:`eval.deadreckon` -- ``poseidon deadreckon``: robot_state offline against plain integration;
 - :mod:`eval.corrected` -- the map-corrected trajectory (``poseidon export --tum``), TUM files;
 - :mod:`eval.relations` -- the Freiburg benchmark's relation error (``poseidon eval --relations``).
+- :mod:`eval.report.benchmark` -- the benchmark section of ``poseidon report --relations`` (laser point maps, loop closures over time, published results).
 """
