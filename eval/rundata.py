@@ -3,7 +3,9 @@
 :func:`load_run` reads an MCAP recording (``poseidon run`` output, or any recording with
 some of the keys below) and returns a :class:`RunData`.  Only the keys the metrics use are
 decoded; the heavy ones are reduced on the way (camera frames to their stamps,
-``experience_image`` to header + ``source_stamp``, ``map`` to its last message).  The
+``experience_image`` to header + ``source_stamp``, ``map`` to its last message;
+``Odometry`` and ``wheel_odometry`` are also kept as published poses for the relation
+error, :mod:`eval.relations`).  The
 configuration is the one recorded in the run's ``poseidon`` metadata (``config``), unless
 one is given; ``config_source`` says which was used.
 """

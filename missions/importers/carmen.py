@@ -15,8 +15,9 @@ line            key                 message
                                     [0, 0, rv]``; ``accel`` is not kept
 ``FLASER``      ``scan``            :class:`~common.messages.LaserScan` (frame ``front_laser``)
 ``RLASER``      ``scan_rear``       the same (frame ``rear_laser``)
-``ROBOTLASER1`` ``scan``            the same, with the line's own start angle, fov, resolution
-                                    and maximum range
+``ROBOTLASER1`` ``scan``            the same, with the line's own start angle, resolution and
+                                    maximum range (``angle_max = start + (n - 1) * res``; the
+                                    line's fov is not needed)
 ``PARAM``       --                  metadata record ``carmen_params`` (name -> value; a name
                                     given twice keeps its last value, as CARMEN's parameter
                                     server does)
