@@ -10,5 +10,8 @@ command, benchmarks and tests do.
 - :mod:`eval.audit` -- ``poseidon audit``: ``audit_run`` (event-evidence association, sequence gaps);
 - :mod:`eval.compare` -- ``poseidon compare``: ``compare_runs`` (Tables 5.2-5.4 and our additions);
 - :mod:`eval.summary` -- the evaluation block of ``poseidon run`` / ``demo``;
-- :mod:`eval.deadreckon` -- ``poseidon deadreckon``: robot_state offline against plain integration.
+- :mod:`eval.deadreckon` -- ``poseidon deadreckon``: robot_state offline against plain integration;
+- :mod:`eval.corrected` -- the map-corrected trajectory (``poseidon export --tum``), TUM files;
+- :mod:`eval.relations` -- the Freiburg benchmark's relation error (``poseidon eval --relations``);
+- :mod:`eval.report.benchmark` -- the benchmark section of ``poseidon report --relations`` (laser point maps, loop closures over time, published results).
 """

@@ -1,4 +1,4 @@
-"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10] [--config FILE] [--set K=V]``.
+"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10] [--relations FILE] [--config FILE] [--set K=V]``.
 
 A run judged against ground truth.  :func:`evaluate_run` reads a run recording once
 (:func:`eval.rundata.load_run`; the configuration recorded in the run's metadata, defaults
@@ -61,7 +61,16 @@ truth of an experience" = ``truth/pose`` interpolated at the node's stamp.
   (:func:`eval.frontend.lvc_false_associations`);
 - ``dead_reckoning``: the whole ``Odometry`` stream against ``truth/pose``
   (:func:`eval.trajectory.anchored_errors`): ``ate_rmse_m``, ``final_error_m``,
-  ``final_drift_pct``, ``max_error_m``, ``truth_distance_m``.
+  ``final_drift_pct``, ``max_error_m``, ``truth_distance_m``;
+- with ``--relations FILE`` (the Freiburg benchmark's reference relations; error definition
+  in :mod:`eval.relations`): ``relations_file``, ``relations_in_file``; ``relations`` = the
+  error of the map-corrected trajectory (:func:`eval.corrected.map_corrected`, the trajectory
+  ``poseidon export --tum`` writes), null without a ``map`` message or ``Odometry``;
+  ``relations_odometry`` = the error of the raw odometry, null without any; each
+  ``{source, count, outside, trans_abs_m: {mean, std}, rot_abs_deg: {mean, std},
+  trans_sq_m2: {mean, std}}``, ``source`` = ``map_corrected`` | ``wheel_odometry`` (when
+  the recording has it, e.g. a CARMEN import) | ``Odometry`` (the dead reckoning).  Works
+  on an imported log alone (no run): ``relations`` null, ``relations_odometry`` filled.
 
 Exit status: 0, or 2 when the recording or its configuration cannot be read.
 """
@@ -77,11 +86,13 @@ import numpy as np
 
 from common.config import PoseidonConfig
 from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
+from eval.corrected import PoseSeries, map_corrected
+from eval.relations import read_relations, relation_summary
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 from eval.trajectory import Trajectory, anchored_errors, ate, drift_pct, rpe
 
 __all__ = ["evaluate_run", "format_eval", "main", "map_trajectory", "loop_closure_table", "front_end_metrics",
-           "stability_proxies", "RPE_DELTA_S"]
+           "stability_proxies", "relations_block", "RPE_DELTA_S"]
 
 RPE_DELTA_S = 10.0
 
@@ -288,9 +299,32 @@ def _ate_block(run: RunData, mp: Trajectory | None) -> tuple[dict[str, Any], dic
     return ate_d, rpe_d, drift, dist
 
 
+def _scored(source: str, poses: PoseSeries, rel: Any) -> dict[str, Any]:
+    return {"source": source, **relation_summary(poses.stamps, poses.positions[:, 0], poses.positions[:, 1],
+                                                 poses.yaws, rel)}
+
+
+def relations_block(run: RunData, relations: str | Path) -> dict[str, Any]:
+    """``relations_file``, ``relations_in_file``, ``relations``, ``relations_odometry`` (module docstring).
+
+    :raises ValueError: unreadable or malformed relations file (names file and line).
+    """
+    rel = read_relations(relations)
+    out: dict[str, Any] = {"relations_file": str(relations), "relations_in_file": len(rel), "relations": None,
+                           "relations_odometry": None}
+    if run.odometry_poses is not None and run.final_map is not None and run.final_map.nodes:
+        out["relations"] = _scored("map_corrected", map_corrected(run.odometry_poses, run.final_map.nodes), rel)
+    if run.wheel_odometry is not None:
+        out["relations_odometry"] = _scored("wheel_odometry", run.wheel_odometry, rel)
+    elif run.odometry_poses is not None:
+        out["relations_odometry"] = _scored("Odometry", run.odometry_poses, rel)
+    return out
+
+
 def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: PoseidonConfig | None = None,
-                 min_gap_m: float = 10.0) -> dict[str, Any]:
-    """Judge a run recording (``path`` or an already loaded :class:`RunData`); keys in the module docstring."""
+                 min_gap_m: float = 10.0, relations: str | Path | None = None) -> dict[str, Any]:
+    """Judge a run recording (``path`` or an already loaded :class:`RunData`); keys in the module docstring.
+    ``relations``: a Freiburg relations file to score the map and the odometry against."""
     run = path if isinstance(path, RunData) else load_run(path, config)
     mp, _ = map_trajectory(run)
     m = run.final_map
@@ -331,6 +365,8 @@ def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: Poseido
     out["dead_reckoning"] = None
     if run.has_truth and run.odometry is not None and len(run.odometry) > 1:
         out["dead_reckoning"] = {k: _r(v, 4) for k, v in anchored_errors(run.odometry, run.truth).items()}  # type: ignore[arg-type]
+    if relations is not None:
+        out.update(relations_block(run, relations))
     return out
 
 
@@ -365,6 +401,20 @@ def format_eval(r: dict[str, Any]) -> list[str]:
         lines.append(f"proxies MAP/GT     span {_f(q['span_norm_map_gt'])}, volume {_f(q['volume_map_gt'])}, "
                      f"end displacement {_f(q['end_displacement_map_gt'])}")
     lines.append(f"VPR window ok_ratio {_f(r['vpr_ok_ratio'])}")
+    if "relations_file" in r:
+        lines.append(f"relations          {r['relations_in_file']} in {r['relations_file']} "
+                     "(error: mean +- std over the relations used)")
+        for name in ("relations", "relations_odometry"):
+            b = r[name]
+            label = "map" if name == "relations" else "odometry"
+            if b is None:
+                why = "no map message" if name == "relations" else "no odometry"
+                lines.append(f"  {label:<16} n/a ({why})")
+                continue
+            t, a = b["trans_abs_m"], b["rot_abs_deg"]
+            lines.append(f"  {label:<16} {_f(t['mean'])} +- {_f(t['std'])} m, {_f(a['mean'], '.2f')} +- "
+                         f"{_f(a['std'], '.2f')} deg over {b['count']} relations ({b['outside']} outside the "
+                         f"trajectory; {b['source']})")
     return lines
 
 
@@ -375,9 +425,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--far-m", type=float, default=5.0, help="d_gt threshold of a true loop closure (m)")
     ap.add_argument("--min-gap-m", type=float, default=10.0,
                     help="distance travelled before an LVC id re-use counts as a claimed revisit (m)")
+    ap.add_argument("--relations", type=Path, default=None, metavar="FILE",
+                    help="Freiburg benchmark relations (t_i t_j dx dy dz roll pitch dyaw): score the map-corrected "
+                         "trajectory and the raw odometry (eval/relations.py)")
     add_config_args(ap)
     args = ap.parse_args(argv)
-    return report_cli("eval", lambda: evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m, config=config_from_args(args)), format_eval, args.json)
+    return report_cli("eval", lambda: evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m,
+                                                   config=config_from_args(args), relations=args.relations),
+                      format_eval, args.json)
 
 
 if __name__ == "__main__":

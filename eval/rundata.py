@@ -3,7 +3,9 @@
 :func:`load_run` reads an MCAP recording (``poseidon run`` output, or any recording with
 some of the keys below) and returns a :class:`RunData`.  Only the keys the metrics use are
 decoded; the heavy ones are reduced on the way (camera frames to their stamps,
-``experience_image`` to header + ``source_stamp``, ``map`` to its last message).  The
+``experience_image`` to header + ``source_stamp``, ``map`` to its last message;
+``Odometry`` and ``wheel_odometry`` are also kept as published poses for the relation
+error, :mod:`eval.relations`).  The
 configuration is the one recorded in the run's ``poseidon`` metadata (``config``), unless
 one is given; ``config_source`` says which was used.
 """
@@ -23,12 +25,13 @@ from common.config import ConfigError, PoseidonConfig, load_config
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, LocalViewCells, Message, Odometry,
                              RevisitTruth, message_type)
+from eval.corrected import PoseSeries, pose_series
 from eval.trajectory import Trajectory, published_to_ned
 
 __all__ = ["RunData", "EvidenceRecord", "load_run", "config_of_recording", "add_config_args", "config_from_args"]
 
 #: keys decoded into messages (every other key is only counted and its header seq kept)
-DECODED = ("truth/pose", "truth/revisits", "local_view_cells", "Odometry", "experience_event")
+DECODED = ("truth/pose", "truth/revisits", "local_view_cells", "Odometry", "experience_event", "wheel_odometry")
 
 
 @dataclass(frozen=True)
@@ -55,6 +58,8 @@ class RunData:
     camera_stamps: list[int] = field(default_factory=list)
     lvcs: list[LocalViewCells] = field(default_factory=list)
     odometry: Trajectory | None = None
+    odometry_poses: PoseSeries | None = None  # Odometry as published (frame, quaternions kept)
+    wheel_odometry: PoseSeries | None = None  # wheel_odometry (e.g. a CARMEN import), as recorded
     events: list[ExperienceEvent] = field(default_factory=list)
     images: list[EvidenceRecord] = field(default_factory=list)
     final_map: ExperienceMap | None = None
@@ -99,6 +104,13 @@ def _decode(rec: RecordedMessage, path: Path) -> Message:
         raise RecordingError(f"{path}: key {rec.key!r} message seq {rec.seq} stamped {rec.stamp}: {exc}") from None
 
 
+def _poses(msgs: list[Odometry], path: Path, key: str) -> PoseSeries:
+    try:
+        return pose_series(msgs)
+    except ValueError as exc:  # a zero quaternion
+        raise RecordingError(f"{path}: key {key!r}: {exc}") from None
+
+
 def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
     """Read ``path`` once (see the module docstring)."""
     p = Path(path)
@@ -111,6 +123,7 @@ def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
     run = RunData(path=p, config=config, config_source=source)
     poses: list[Odometry] = []
     odom: list[Odometry] = []
+    wheel: list[Odometry] = []
     last_map: RecordedMessage | None = None
     for rec in read_messages(p):
         run.counts[rec.key] = run.counts.get(rec.key, 0) + 1
@@ -137,6 +150,8 @@ def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
                 run.lvcs.append(m)  # type: ignore[arg-type]
             elif rec.key == "Odometry":
                 odom.append(m)  # type: ignore[arg-type]
+            elif rec.key == "wheel_odometry":
+                wheel.append(m)  # type: ignore[arg-type]
             else:
                 run.events.append(m)  # type: ignore[arg-type]
     if poses:
@@ -144,6 +159,9 @@ def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
         run.truth = Trajectory([m.header.stamp for m in poses], [m.position for m in poses])
     if odom:
         run.odometry = Trajectory([m.header.stamp for m in odom], run.to_ned(np.array([m.position for m in odom])))
+        run.odometry_poses = _poses(odom, p, "Odometry")
+    if wheel:
+        run.wheel_odometry = _poses(wheel, p, "wheel_odometry")
     if last_map is not None:
         m = _decode(last_map, p)
         assert isinstance(m, ExperienceMap)

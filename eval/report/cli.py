@@ -1,4 +1,4 @@
-"""``poseidon report RUN.mcap [RUN2.mcap ...] --out DIR [--json]``: the run(s) as one HTML page.
+"""``poseidon report RUN.mcap [RUN2.mcap ...] --out DIR [--relations FILE] [--json]``: the run(s) as one HTML page.
 
 Writes ``DIR/index.html``: self-contained (plotly.js inlined, images as data URIs; opens
 offline), with the figures of Section 5.4 (3D overlay, XY/XZ/YZ projections, final
@@ -13,7 +13,11 @@ page as unavailable with the reason (and logged); ``--strict`` makes that an err
 Options: ``--label L`` (once per run, default ``<file stem> (VPR Guard ON|OFF)``),
 ``--max-points`` (per trajectory, default 3000), ``--max-frames`` (similarity matrix,
 default 500), ``--min-gap-m`` (pairs closer in true travel are left out of
-precision-recall, default 10 m, the simulator's revisit rule).
+precision-recall, default 10 m, the simulator's revisit rule), ``--relations FILE`` (a
+Freiburg benchmark relations file: the evaluation tables score the map and the raw
+odometry against it, and a section "Benchmark" adds the laser point maps at corrected and
+raw poses, the loop closures over time and the relations table beside the published
+results: :mod:`eval.report.benchmark`; one run only).
 
 Exit codes: 0 written, 2 bad input (unreadable recording, wrong options), 3 ``--strict``
 and a table unavailable.
@@ -99,7 +103,8 @@ def present_comparison(c: dict[str, Any], label_a: str, label_b: str) -> dict[st
 COMPARISON = "Comparison (Table 5.4, Tables 5.2-5.3)"
 
 
-def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, dict], dict[str, str], list[str]]:
+def evaluation_tables(paths: list[Path], labels: list[str],
+                      relations: Path | None = None) -> tuple[dict[str, dict], dict[str, str], list[str]]:
     """The tables of the eval package for the runs: (name -> dict, name -> why unavailable, names of the
     per-run detail tables, shown folded when there is a comparison)."""
     tables: dict[str, dict] = {}
@@ -124,12 +129,30 @@ def evaluation_tables(paths: list[Path], labels: list[str]) -> tuple[dict[str, d
         if result is not None:
             tables[name] = present_comparison(result, labels[0], label)
     details: list[str] = []
+    if relations is not None and evaluate_run is not None:
+        evaluate = evaluate_run
+        evaluate_run = lambda run: evaluate(run, relations=relations)  # noqa: E731
     for inp, label in zip(inputs, labels):
         for name, func, why in ((f"Evaluation (trajectory error, loop closures): {label}", evaluate_run, why_eval),
                                 (f"Audit (event-evidence association): {label}", audit_run, why_audit)):
             _guarded(tables, unavailable, name, func, why, inp)
             details.append(name)
     return tables, unavailable, (details if len(paths) > 1 else [])
+
+
+RELATIONS_TABLE = "Relations (Freiburg benchmark): this run and published results"
+
+
+def _benchmark_section(path: Path, relations: Path, tables: dict[str, dict]) -> tuple[str, str, list[Any]]:
+    """Adds the relations table to ``tables``; returns the benchmark section (:mod:`eval.report.benchmark`)."""
+    from eval.report.benchmark import benchmark_figures, relations_table
+    from eval.rundata import load_run as load_eval_run
+    from eval.run_eval import relations_block
+
+    run = load_eval_run(path)
+    tables[RELATIONS_TABLE] = {"relation error, mean ± population std over the relations used":
+                               relations_table(relations_block(run, relations))}
+    return "sec-benchmark", "Benchmark (laser maps, loop closures, relations)", benchmark_figures(run)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -140,6 +163,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--label", action="append", default=[], help="name of a run (once per run, in order)")
     ap.add_argument("--json", action="store_true", help="print what was written as JSON")
     ap.add_argument("--strict", action="store_true", help="fail (exit 3) when a table is unavailable")
+    ap.add_argument("--relations", type=Path, default=None, metavar="FILE",
+                    help="Freiburg benchmark relations file: relation errors, laser point maps, loop closures over "
+                         "time, published results (one run)")
     ap.add_argument("--max-points", type=int, default=3000, help="points per trajectory drawn")
     ap.add_argument("--max-frames", type=int, default=500, help="frames of the similarity matrix")
     ap.add_argument("--min-gap-m", type=float, default=10.0,
@@ -150,6 +176,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.max_points < 2 or args.max_frames < 2:
         print("poseidon report: --max-points and --max-frames must be at least 2", file=sys.stderr)
+        return 2
+    if args.relations is not None and len(args.runs) != 1:
+        print(f"poseidon report: --relations takes one run, got {len(args.runs)}", file=sys.stderr)
         return 2
     from common.codec import DecodeError
     from eval.report.data import load_run
@@ -164,10 +193,17 @@ def main(argv: list[str] | None = None) -> int:
     if len(set(labels)) != len(labels):  # labels name the series and table columns: make them unique
         for i, r in enumerate(runs):
             r.label = f"{i + 1}: {r.label}"
-    tables, unavailable, details = evaluation_tables(paths, [r.label for r in runs])
+    tables, unavailable, details = evaluation_tables(paths, [r.label for r in runs], args.relations)
+    extra = []
+    if args.relations is not None:
+        try:
+            extra = [_benchmark_section(paths[0], args.relations, tables)]
+        except (RecordingError, DecodeError, ValueError) as exc:
+            print(f"poseidon report: {exc}", file=sys.stderr)
+            return 2
     result = render_report(runs, tables, args.out, unavailable=unavailable, folded=details,
                            max_points=args.max_points,
-                           max_frames=args.max_frames, min_gap_m=args.min_gap_m)
+                           max_frames=args.max_frames, min_gap_m=args.min_gap_m, extra_sections=extra)
     result["runs"] = [{"path": str(r.path), "label": r.label, "duration_s": round(r.duration_s, 3),
                        "counts": r.counts} for r in runs]
     if args.json:

@@ -246,9 +246,13 @@ SECTIONS = [
 
 def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | Path, *,
                   unavailable: dict[str, str] | None = None, folded: list[str] | tuple[str, ...] = (), max_points: int = 3000, max_frames: int = 500,
-                  min_gap_m: float = 10.0, title: str = "PoseidonSLAM run report") -> dict[str, Any]:
+                  min_gap_m: float = 10.0, title: str = "PoseidonSLAM run report",
+                  extra_sections: list[tuple[str, str, list[FigureSpec]]] | None = None) -> dict[str, Any]:
     """Write ``out_dir/index.html``; return ``{"out", "bytes", "figures", "tables", "unavailable",
     "precision_recall"}`` (figure id -> ``shown`` or the reason it is not).
+
+    ``extra_sections``: (section id, title, figures) drawn after the standard sections
+    (e.g. :mod:`eval.report.benchmark`).
 
     ``tables``: name -> dict, rendered in order after the run summary (nested dicts become
     sub-tables, lists of dicts row tables); ``unavailable``: name -> why a table is missing;
@@ -259,6 +263,10 @@ def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | P
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     specs, pr_summary = build_figures(runs, max_points=max_points, max_frames=max_frames, min_gap_m=min_gap_m)
+    sections = list(SECTIONS)
+    for sid, name, extra in extra_sections or []:
+        specs = specs + list(extra)
+        sections.append((sid, name, [x.id for x in extra]))
     by_id = {s.id: s for s in specs}
     scripts: list[str] = []
     keys = sorted({k for r in runs for k in r.counts})
@@ -269,7 +277,7 @@ def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | P
         f"mission, code revision <code>{html.escape(str(r.metadata.get('code_revision', 'unknown')))}</code></li>"
         for r in runs)
     toc = ['<li><a href="#sec-tables">Tables</a></li>']
-    toc += [f'<li><a href="#{sid}">{html.escape(name)}</a></li>' for sid, name, _ in SECTIONS]
+    toc += [f'<li><a href="#{sid}">{html.escape(name)}</a></li>' for sid, name, _ in sections]
     toc.append('<li><a href="#sec-config">Configuration and code revision</a></li>')
     body = [f"<h1>{html.escape(title)}</h1>", f"<ul>{runs_list}</ul>",
             "<p>How to read this page: the tables first give the numbers (what each run recorded, the "
@@ -284,7 +292,7 @@ def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | P
     for name, reason in unavailable.items():
         body.append(f'<div class="unavailable" id="{table_id(name)}"><h3>{html.escape(name)}</h3>'
                     f'<p>Unavailable: {html.escape(reason)}</p></div>')
-    for sid, name, ids in SECTIONS:
+    for sid, name, ids in sections:
         body.append(f'<h2 id="{sid}">{html.escape(name)}</h2>')
         body += [_figure_html(by_id[i], scripts) for i in ids]
     body.append('<h2 id="sec-config">Configuration and code revision</h2>')

@@ -8,7 +8,11 @@ sensor bag of the caves dataset become one recording):
 - rostopic-echo CSV logs (``.csv``; kind detected from the columns, key = kind:
   ``dvl_linkquest``, ``depth_sensor``, ``imu_adis``; :mod:`missions.importers.rostopic_csv`);
 - a folder of image frames with a timestamps file (key ``camera/image_raw``;
-  :mod:`missions.importers.frames`).
+  :mod:`missions.importers.frames`);
+- a CARMEN robot log (``.clf``, ``.clf.bz2``, ``.clf.gz``; :mod:`missions.importers.carmen`,
+  which documents its mapping and its own ``--json`` keys): imported on its own, not
+  merged with other sources; ``--topic-map``, ``--raw`` and ``--frames-timestamps`` do
+  not apply to it.  Exit 1 when a line was rejected, as for a bag's unreadable records.
 
 Topics map to keys by :data:`~missions.importers.rosbags_io.DEFAULT_TOPIC_MAP`, other
 topics to the topic without its leading slash.  ``--topic-map`` is a YAML mapping
@@ -55,6 +59,7 @@ from tqdm import tqdm
 from common.mcap_io import RecordingWriter
 from common.messages import RAW_KEY_PREFIX, Header, Message, RawMessage
 from missions.importers import frames as frames_mod
+from missions.importers.carmen import import_carmen, is_carmen_log
 from missions.importers.errors import InputFormatError
 from missions.importers.rostopic_csv import read_rostopic_csv
 from missions.importers.rosbags_io import (CONVERTERS, DEFAULT_TOPIC_MAP, ConversionError, connection_definition,
@@ -353,7 +358,9 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="poseidon import", description=__doc__.split("\n\n")[0])
-    ap.add_argument("sources", nargs="+", help="ROS1 .bag, ROS2 bag folder/.db3/.mcap, rostopic CSV, frames folder")
+    ap.add_argument("sources", nargs="+",
+                    help="ROS1 .bag, ROS2 bag folder/.db3/.mcap, rostopic CSV, frames folder, or one CARMEN log "
+                         "(.clf, .clf.bz2, .clf.gz)")
     ap.add_argument("--out", required=True, help="output MCAP recording")
     ap.add_argument("--topic-map", default=None, help="YAML mapping 'topic: key' (null drops a topic)")
     ap.add_argument("--frames-timestamps", default=None, help="timestamps file of a frames folder")
@@ -363,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
+    if any(is_carmen_log(s) for s in args.sources):
+        return _main_carmen(ap, args)
     try:
         summary = import_sources(args.sources, args.out, load_topic_map(args.topic_map), args.frames_timestamps,
                                  progress=not args.no_progress, raw_topics=set(args.raw) if args.raw else None)
@@ -377,6 +386,29 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {args.out}: {sum(summary['written'].values())} messages {summary['written']}; "
               f"carried raw (no model or no lossless conversion) {raw}; rejected {summary['rejected']}",
               file=sys.stderr)
+    return 1 if summary["rejected"] else 0
+
+
+def _main_carmen(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``poseidon import LOG.clf[.bz2|.gz] --out FILE.mcap``: one CARMEN log on its own."""
+    if len(args.sources) != 1:
+        ap.error(f"a CARMEN log is imported on its own, got {len(args.sources)} sources: {args.sources}")
+    if args.topic_map or args.raw or args.frames_timestamps:
+        ap.error("--topic-map, --raw and --frames-timestamps do not apply to a CARMEN log")
+    try:
+        summary = import_carmen(args.sources[0], args.out)
+    except InputFormatError as exc:
+        print(f"poseidon import: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        json.dump(summary, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(f"wrote {args.out}: {sum(summary['written'].values())} messages {summary['written']} from "
+              f"{summary['lines']} lines (odometry from {summary['odometry_from']}); "
+              f"{len(summary['rejected'])} lines rejected, unknown types {summary['unknown']}", file=sys.stderr)
+        for r in summary["rejected"][:10]:
+            print(f"  {args.sources[0]}:{r['line']}: {r['type']}: {r['reason']}", file=sys.stderr)
     return 1 if summary["rejected"] else 0
 
 
