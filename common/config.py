@@ -387,12 +387,18 @@ class ScanGraphConfig(_Section):
     loop_reference_experiences: int = Field(6, ge=0, description="experiences either side of the candidate in the "
                                             "reference")
     loop_query_voxel_m: float = Field(0.1, gt=0, description="query points thinned to one per square (m)")
+    loop_coarse_voxel_m: float = Field(0.25, ge=0, description="... and for the coarse search to one per square of "
+                                       "this size (m; 0: as the fine search)")
     loop_min_score: float = Field(0.5, ge=0, le=1, description="fine score a loop registration needs")
     loop_max_spread_m: float = Field(0.3, gt=0, description="largest principal std of the near-best coarse "
                                      "translations (m): a corridor's slide is not a loop")
     loop_max_second_ratio: float = Field(0.9, gt=0, description="reject a loop registration whose best score "
                                          "more than 0.5 m from the best pose reaches this fraction of the best "
                                          "(repeated structure)")
+    loop_max_free_space: float = Field(0.05, ge=0, le=1, description="reject a loop registration that puts more "
+                                       "than this fraction of the query's points where a reference scan saw through")
+    loop_free_space_margin_m: float = Field(0.3, ge=0, description="a point counts as seen through when the "
+                                            "reference return on its bearing is this much farther (m)")
     loop_confirm_within: int = Field(10, ge=1, description="a verified loop waits this many experiences for a "
                                      "confirming one")
     loop_confirm_m: float = Field(0.2, gt=0, description="two loop measurements agree within this (m)")

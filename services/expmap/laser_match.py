@@ -9,7 +9,8 @@ L over the query's transformed points (points off the grid score 0).  The search
 exhaustive over a window around a prior, coarse to fine:
 
 1. coarse: a field with cell ``coarse_cell_m`` and sigma ``coarse_sigma_m`` over the whole
-   window, yaw step ``coarse_yaw_step_deg``;
+   window, yaw step ``coarse_yaw_step_deg``, the query thinned to one point per
+   ``coarse_query_voxel_m`` square (0: all points);
 2. fine: around each of the best ``refine_peaks`` coarse peaks (non-maximum suppressed), a
    field with cell ``fine_cell_m`` and sigma ``fine_sigma_m``, +- one coarse step in x, y and
    yaw at the fine steps;
@@ -35,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LikelihoodField", "ScanMatch", "match_scan", "scan_points", "voxel_filter", "transform_points"]
+__all__ = ["LikelihoodField", "ScanMatch", "match_scan", "scan_points", "voxel_filter", "transform_points",
+           "free_space_fraction"]
 
 
 def scan_points(ranges: np.ndarray, angle_min: float, angle_increment: float, range_min: float,
@@ -93,16 +95,22 @@ def _splat(grid, ox, oy, cell, sigma, ref):
     nx, ny = grid.shape
     k = int(math.ceil(3.0 * sigma / cell))
     inv = 0.5 / (sigma * sigma)
+    gx = np.empty(2 * k + 1)
+    gy = np.empty(2 * k + 1)
     for p in range(ref.shape[0]):
         fi = (ref[p, 0] - ox) / cell
         fj = (ref[p, 1] - oy) / cell
         ci = int(math.floor(fi))
         cj = int(math.floor(fj))
+        for a in range(2 * k + 1):      # the Gaussian is separable: exp(-dx^2 c) * exp(-dy^2 c)
+            dx = (ci - k + a + 0.5 - fi) * cell
+            dy = (cj - k + a + 0.5 - fj) * cell
+            gx[a] = math.exp(-dx * dx * inv)
+            gy[a] = math.exp(-dy * dy * inv)
         for i in range(max(0, ci - k), min(nx, ci + k + 1)):
-            dx = (i + 0.5 - fi) * cell
+            vx = gx[i - ci + k]
             for j in range(max(0, cj - k), min(ny, cj + k + 1)):
-                dy = (j + 0.5 - fj) * cell
-                v = math.exp(-(dx * dx + dy * dy) * inv)
+                v = vx * gy[j - cj + k]
                 if v > grid[i, j]:
                     grid[i, j] = v
 
@@ -182,8 +190,8 @@ def match_scan(ref: np.ndarray, query: np.ndarray, prior, *, window_xy_m: float,
                coarse_cell_m: float = 0.1, coarse_sigma_m: float = 0.2, coarse_yaw_step_deg: float = 1.0,
                fine_cell_m: float = 0.025, fine_sigma_m: float = 0.05, fine_yaw_step_deg: float = 0.25,
                refine_peaks: int = 3, ambiguity_ratio: float = 0.95, second_peak_m: float = 0.5,
-               prior_sigma_xy_m: float = 0.0,
-               prior_sigma_yaw_deg: float = 0.0) -> ScanMatch:
+               prior_sigma_xy_m: float = 0.0, prior_sigma_yaw_deg: float = 0.0,
+               coarse_query_voxel_m: float = 0.0) -> ScanMatch:
     """Register ``query`` (k x 2, its own frame) against ``ref`` (reference frame) near ``prior``
     (the query frame's pose in the reference frame); see the module doc."""
     ref = np.asarray(ref, np.float64).reshape(-1, 2)
@@ -192,13 +200,23 @@ def match_scan(ref: np.ndarray, query: np.ndarray, prior, *, window_xy_m: float,
     if q.shape[0] == 0 or ref.shape[0] == 0:
         raise ValueError(f"scan registration needs points on both sides (reference {ref.shape[0]}, "
                          f"query {q.shape[0]})")
+    # only the reference near where the query can land matters
+    placed = transform_points(q, prior)
+    reach = window_xy_m + 3.0 * max(coarse_sigma_m, fine_sigma_m) + float(np.max(np.hypot(q[:, 0], q[:, 1]))) * \
+        math.sin(min(math.radians(window_yaw_deg), math.pi / 2)) + coarse_cell_m
+    lo, hi = placed.min(axis=0) - reach, placed.max(axis=0) + reach
+    ref = ref[np.all((ref >= lo) & (ref <= hi), axis=1)]
+    if ref.shape[0] == 0:
+        return ScanMatch(pose=prior.copy(), score=0.0, spread_m=math.inf, spread_yaw_deg=math.inf,
+                         n_points=int(q.shape[0]), second_ratio=1.0)
     sxy = float(prior_sigma_xy_m)
     syaw = math.radians(prior_sigma_yaw_deg) if prior_sigma_yaw_deg > 0 else 1.0
     coarse = LikelihoodField(ref, coarse_cell_m, coarse_sigma_m, margin_m=3 * coarse_sigma_m)
     w = max(1, int(math.ceil(window_xy_m / coarse_cell_m)))
     na = max(0, int(math.ceil(window_yaw_deg / coarse_yaw_step_deg)))
     yaws = prior[2] + np.radians(coarse_yaw_step_deg) * np.arange(-na, na + 1)
-    sc = _search(coarse.grid, coarse.origin[0], coarse.origin[1], coarse.cell, q, yaws, prior[0], prior[1], w,
+    qc = np.ascontiguousarray(voxel_filter(q, coarse_query_voxel_m)) if coarse_query_voxel_m > 0 else q
+    sc = _search(coarse.grid, coarse.origin[0], coarse.origin[1], coarse.cell, qc, yaws, prior[0], prior[1], w,
                  prior[0], prior[1], prior[2], sxy, syaw)
     best = float(sc.max())
     near = np.argwhere(sc >= ambiguity_ratio * best)
@@ -229,3 +247,38 @@ def match_scan(ref: np.ndarray, query: np.ndarray, prior, *, window_xy_m: float,
     best_pose[2] = (best_pose[2] + math.pi) % (2 * math.pi) - math.pi
     return ScanMatch(pose=best_pose, score=best_raw, spread_m=spread, spread_yaw_deg=spread_yaw,
                      n_points=int(q.shape[0]), second_ratio=second)
+
+
+def free_space_fraction(scans: list[np.ndarray], poses: list[np.ndarray], query: np.ndarray, *,
+                        margin_m: float = 0.3, bin_deg: float = 1.0) -> float:
+    """Fraction of ``query`` points (reference frame) that lie where a reference scan saw
+    through: for a scan (points in its own frame, taken at ``pose`` in the reference frame),
+    a point at bearing b and range r is in its free space when the scan's nearest return in
+    b's bin (``bin_deg`` wide) and the two bins beside it is farther than r + ``margin_m``.  A true registration puts the query's walls on or
+    behind the reference's walls; a false one (a corridor of another width, a shifted room)
+    puts some of them in space the reference laser looked through.  Bearings without a
+    return say nothing: the fraction is over the points on a bearing some scan has a return on."""
+    q = np.asarray(query, np.float64).reshape(-1, 2)
+    if q.shape[0] == 0:
+        return 0.0
+    nbins = int(round(360.0 / bin_deg))
+    seen = np.zeros(q.shape[0], bool)
+    covered = np.zeros(q.shape[0], bool)
+    for pts, pose in zip(scans, poses):
+        if pts is None or len(pts) == 0:
+            continue
+        far = np.full(nbins, np.inf)       # nearest return per bearing bin: where the rays stopped
+        b = ((np.degrees(np.arctan2(pts[:, 1], pts[:, 0])) + 180.0) / bin_deg).astype(np.int64) % nbins
+        np.minimum.at(far, b, np.hypot(pts[:, 0], pts[:, 1]))
+        c, s_ = math.cos(pose[2]), math.sin(pose[2])
+        dx, dy = q[:, 0] - pose[0], q[:, 1] - pose[1]
+        lx, ly = c * dx + s_ * dy, -s_ * dx + c * dy
+        qb = ((np.degrees(np.arctan2(ly, lx)) + 180.0) / bin_deg).astype(np.int64) % nbins
+        # the nearest return over the bin and its two neighbours: a wall seen at a grazing
+        # angle spans metres of range within one bin
+        near = np.minimum(np.minimum(far[qb], far[(qb + 1) % nbins]), far[(qb - 1) % nbins])
+        hit = np.isfinite(near)
+        seen |= hit & (near > np.hypot(lx, ly) + margin_m)
+        covered |= hit
+    n = int(np.count_nonzero(covered))
+    return float(np.count_nonzero(seen)) / n if n else 0.0

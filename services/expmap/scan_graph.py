@@ -24,7 +24,11 @@ pose graph (:mod:`services.expmap.pose_graph`), every edge a *measured* relative
   predecessors in n's frame; the reference the scans of the ``loop_reference_experiences``
   experiences either side of m in m's frame; the window is r and ``loop_window_deg`` (grown
   like r up to ``loop_window_max_deg``), no prior.  Verification: score >= ``loop_min_score``
-  and spread (the near-best translations' principal std) <= ``loop_max_spread_m``; and a
+  and spread (the near-best translations' principal std) <= ``loop_max_spread_m`` and
+  second-peak ratio <= ``loop_max_second_ratio`` (repeated structure); at most
+  ``loop_max_free_space`` of the query's points where a reference scan saw through (more than
+  ``loop_free_space_margin_m`` in front of its return: a corridor of another width, a shifted
+  room; :func:`services.expmap.laser_match.free_space_fraction`); and a
   *confirmation*: a verified match is kept pending until a later experience (within
   ``loop_confirm_within`` experiences) also verifies one whose implied pose of the map agrees
   (the relative pose of the two current experiences implied by the two loop measurements
@@ -49,7 +53,7 @@ import numpy as np
 
 from common.config import ScanGraphConfig
 from services.expmap.graph import EventResult
-from services.expmap.laser_match import ScanMatch, match_scan, transform_points, voxel_filter
+from services.expmap.laser_match import ScanMatch, free_space_fraction, match_scan, transform_points, voxel_filter
 from services.expmap.pose_graph import compose, relative_pose, relax_se2, wrap_angle
 
 __all__ = ["ScanGraph"]
@@ -81,7 +85,7 @@ class ScanGraph:
         self.corrections = 0
         self.solves = 0
         self.counters = {"chain_scan": 0, "chain_odometry": 0, "loop_tried": 0, "loop_verified": 0,
-                         "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_confirm": 0,
+                         "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_free_space": 0, "loop_rejected_confirm": 0,
                          "loop_from_lvc": 0}
         self.last_registration: ScanMatch | None = None
 
@@ -215,7 +219,8 @@ class ScanGraph:
             s = self._scans[k]
             if s is not None:
                 parts.append(transform_points(s, relative_pose(self._pose[frame], self._pose[k])))
-        return np.concatenate(parts) if parts else None
+        # overlapping scans see the same walls: one point per voxel keeps the field's cost flat
+        return voxel_filter(np.concatenate(parts), self.cfg.voxel_m) if parts else None
 
     # ---- loops ------------------------------------------------------------------------
     def _loop_step(self, n: int, res: EventResult) -> None:
@@ -266,7 +271,8 @@ class ScanGraph:
         mt = match_scan(ref, query, prior, window_xy_m=r, window_yaw_deg=yaw_win,
                         coarse_cell_m=c.loop_coarse_cell_m, coarse_sigma_m=c.loop_coarse_cell_m * 1.5,
                         coarse_yaw_step_deg=c.loop_coarse_yaw_step_deg, fine_cell_m=c.fine_cell_m,
-                        fine_sigma_m=c.fine_sigma_m, fine_yaw_step_deg=c.fine_yaw_step_deg, refine_peaks=3)
+                        fine_sigma_m=c.fine_sigma_m, fine_yaw_step_deg=c.fine_yaw_step_deg, refine_peaks=3,
+                        coarse_query_voxel_m=c.loop_coarse_voxel_m)
         self.last_registration = mt
         res.match, res.score = m, mt.score
         if mt.score < c.loop_min_score:
@@ -274,6 +280,20 @@ class ScanGraph:
             return False
         if mt.spread_m > c.loop_max_spread_m or mt.second_ratio > c.loop_max_second_ratio:
             self.counters["loop_rejected_ambiguous"] += 1
+            return False
+        refs = range(max(0, m - c.loop_reference_experiences), min(self.n_nodes, m + c.loop_reference_experiences + 1))
+        # both ways: the query's walls against the reference's free space, and back
+        placed = transform_points(query, mt.pose)
+        free = free_space_fraction([self._scans[k] for k in refs],
+                                   [relative_pose(self._pose[m], self._pose[k]) for k in refs], placed,
+                                   margin_m=c.loop_free_space_margin_m)
+        qs = range(max(0, n - c.loop_query_experiences), n + 1)
+        ref_in_query = transform_points(ref, relative_pose(mt.pose, np.zeros(3)))
+        free = max(free, free_space_fraction([self._scans[k] for k in qs],
+                                             [relative_pose(self._pose[n], self._pose[k]) for k in qs], ref_in_query,
+                                             margin_m=c.loop_free_space_margin_m))
+        if free > c.loop_max_free_space:
+            self.counters["loop_rejected_free_space"] += 1
             return False
         self.counters["loop_verified"] += 1
         z_new = mt.pose

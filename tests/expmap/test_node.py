@@ -187,3 +187,59 @@ def test_poseidon_path_on_a_map_file_and_a_recording(tmp_path, capsys):
     assert res2["nodes"] == res["nodes"] and res2["duration_s"] == pytest.approx(res["duration_s"])
     assert path_main([str(rec), "--from", "0", "--to", "100000"]) == 2
     assert "--to 100000" in capsys.readouterr().err
+
+
+def test_laser_scans_make_a_scan_graph_map():
+    """expmap.graph=scan_graph: LaserScan + Odometry + events through the node; the scans
+    reach the core in each experience's own frame and the published map carries its yaws."""
+    from common.messages import LaserScan
+    from services.expmap.scan_graph import ScanGraph
+    from tests.expmap.laser_world import drifting_odometry, raycast, ring_route, ring_world
+
+    cfg = PoseidonConfig().model_copy(deep=True)
+    cfg.expmap.graph = "scan_graph"
+    cfg.expmap.scan_topic = "scan"
+    cfg.expmap.loop_scan_matching = False
+    cfg.expmap.publish_experience_image = False
+    truth = ring_route(laps=2, step=0.5)[:150]
+    odo = drifting_odometry(truth, yaw_drift_deg_per_m=0.4, scale=1.01)
+    rng = np.random.default_rng(1)
+    msgs = []
+    for k, (t, o) in enumerate(zip(truth, odo)):
+        stamp = (k + 1) * 1_000_000_000
+        ranges = raycast(ring_world(), t, noise=0.01, rng=rng).astype(np.float32)
+        msgs.append(("Odometry", odometry(k, stamp - 2 * MS, (o[0], o[1], 0.0), float(o[2]))))
+        msgs.append(("scan", LaserScan(header=Header(seq=k, stamp=stamp - MS, frame_id="laser"),
+                                       angle_min=-math.pi / 2, angle_max=math.pi / 2, angle_increment=math.pi / 180,
+                                       range_min=0.0, range_max=30.0, ranges=ranges,
+                                       intensities=np.zeros(0, np.float32))))
+        ev = ExperienceEvent(header=Header(seq=k, stamp=stamp, frame_id="map"), lvc_id=k, pc_centroid=[0.0] * 4,
+                             odom_position=[float(o[0]), float(o[1]), 0.0], odom_yaw=float(o[2]), gate="off",
+                             vpr_count=1)
+        msgs.append(("experience_event", ev))
+    node = ExpMapNode(cfg)
+    assert "scan" in ExpMapNode.io_keys(cfg)[0]
+    out = run_offline(node, msgs)
+    assert isinstance(node.graph, ScanGraph)
+    final = outputs(out, "map")[-1]
+    assert len(final.nodes) == 150 and node.counters["loop_closures"] >= 1
+    assert node.counters["scans"] == 150 and node.counters["chain_scan"] >= 140
+    assert any(link.loop_closure for link in final.links)
+    yaw_err = [abs(math.remainder(n.yaw - truth[n.id, 2] + truth[0, 2] - final.nodes[0].yaw, 2 * math.pi))
+               for n in final.nodes]
+    assert max(yaw_err) < math.radians(2.0)
+
+
+def test_laser_scan_without_scan_graph_is_a_configuration_error():
+    from common.config import ConfigError
+    from common.messages import LaserScan
+
+    cfg = PoseidonConfig().model_copy(deep=True)
+    cfg.expmap.scan_topic = "scan"
+    node = ExpMapNode(cfg)
+    node.process("Odometry", odometry(0, 1, (0.0, 0.0, 0.0), 0.0))
+    scan = LaserScan(header=Header(seq=0, stamp=2, frame_id="laser"), angle_min=-1.0, angle_max=1.0,
+                     angle_increment=1.0, range_min=0.0, range_max=10.0, ranges=np.ones(3, np.float32),
+                     intensities=np.zeros(0, np.float32))
+    with pytest.raises(ConfigError, match="scan_graph"):
+        node.process("scan", scan)
