@@ -187,7 +187,11 @@ def corrected_from_recording(path: str | Path, key: str = "Odometry") -> tuple[P
         mp = _decode(last_map, p)
         assert isinstance(mp, ExperienceMap)
         nodes = mp.nodes
-    return map_corrected(pose_series(odo), nodes), last_map is not None
+    try:
+        odom = pose_series(odo)
+    except ValueError as exc:  # a zero quaternion
+        raise RecordingError(f"{p}: key {key!r}: {exc}") from None
+    return map_corrected(odom, nodes), last_map is not None
 
 
 def write_tum(path: str | Path, poses: PoseSeries) -> int:

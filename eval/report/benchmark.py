@@ -9,8 +9,8 @@ relations)":
   the one ``poseidon export --tum`` writes, interpolated at each scan stamp) and at the raw
   odometry poses (``wheel_odometry`` when present, else ``Odometry``).  Beam i of a scan
   points at ``angle_min + i * angle_increment`` in the laser frame; the laser sits at the
-  offset the import measured (``poseidon`` metadata ``laser_offsets``, zero when absent:
-  said in a note).  Beams at or beyond ``range_max`` (no return) or beyond
+  offset the import measured (``poseidon`` metadata ``laser_offsets`` of the recording, else
+  of the input recording a run names in its metadata, else zero: said in a note).  Beams at or beyond ``range_max`` (no return) or beyond
   :data:`MAX_DRAW_RANGE_M` are left out; scans outside the trajectory's span are left out.
   Each panel is a raster (PNG, data URI): a pixel is darker the more beam end points fall in
   it, at :func:`raster_resolution` metres per pixel (at most :data:`MAX_PIXELS` pixels
@@ -171,13 +171,23 @@ def raster_png(points: np.ndarray, resolution: float, path_xy: np.ndarray | None
 
 
 def _laser_offset(path: Path) -> tuple[tuple[float, float, float], str | None]:
-    raw = read_metadata(path).get("poseidon", {}).get("laser_offsets")
+    """The ``scan`` laser offset (dx, dy, dtheta) from the recording's ``poseidon`` metadata, else
+    from that of its input recording (a run's metadata names it: ``input``), else zero; and a note
+    when it is not the recording's own."""
+    meta = read_metadata(path).get("poseidon", {})
+    where = None
+    if "laser_offsets" not in meta and meta.get("input") and Path(meta["input"]).is_file():
+        where = meta["input"]
+        meta = read_metadata(where).get("poseidon", {})
+    raw = meta.get("laser_offsets")
     if raw is None:
-        return (0.0, 0.0, 0.0), "no laser offset in the recording's metadata: the laser is drawn at the robot pose"
-    o = json.loads(raw).get("scan") if isinstance(raw, str) else None
+        return (0.0, 0.0, 0.0), "no laser offset in the recording's metadata (nor its input's): the laser is drawn " \
+                                "at the robot pose"
+    o = json.loads(raw).get("scan")
     if not isinstance(o, dict):
         return (0.0, 0.0, 0.0), f"metadata laser_offsets has no 'scan' entry ({raw!r}): laser drawn at the robot pose"
-    return (float(o["dx"]), float(o["dy"]), float(o["dtheta"])), None
+    note = None if where is None else f"laser offset from the input recording {where}"
+    return (float(o["dx"]), float(o["dy"]), float(o["dtheta"])), note
 
 
 def fig_scan_maps(run: EvalRun) -> FigureSpec:

@@ -35,7 +35,8 @@ Beam geometry of ``FLASER``/``RLASER`` (the line gives only the count n), as CAR
 reader guesses it (``carmen_laser_guess_angle_increment`` in ``readlog.c``): first beam at
 ``angle_min = -pi/2``; increment pi/180 (1 deg) for n = 180 or 181, pi/360 (0.5 deg) for
 n = 360 or 361, pi/720 for n = 400 or 401, else pi/(n - 1); ``angle_max = angle_min +
-(n - 1) * increment`` (n = 180: -90 .. +89 deg; 181: -90 .. +90; 361: -90 .. +90).
+(n - 1) * increment`` (n = 180: -90 .. +89 deg; 181: -90 .. +90; 360: -90 .. +89.5;
+361: -90 .. +90).
 ``range_min`` 0; ``range_max`` from the log's ``PARAM robot_front_laser_max`` (``scan``) /
 ``robot_rear_laser_max`` (``scan_rear``), else :data:`DEFAULT_RANGE_MAX_M` = 81.9 m (a SICK
 LMS reports "no return" as 81.91 m, just beyond it).  Ranges float32, intensities an empty
@@ -45,8 +46,8 @@ from the robot pose in the robot frame (median over the log) is in the ``--json`
 
 Stamps: ``header.stamp = round(ipc_ts * 1e9)`` ns, computed from the decimal text, so
 ``t = stamp / 1e9`` (printed with 9 decimals, :func:`ns_to_text`) reproduces ``ipc_ts`` to
-1 ns (:mod:`common.stamps`).  Messages are written in chronological order (equal stamps: file order); ``seq`` counts
-per key from 0 in that order.  ``PARAM`` lines take either ``PARAM name value ipc_ts host
+1 ns (:mod:`common.stamps`).  Messages are written in chronological order (equal stamps:
+file order); ``seq`` counts per key from 0 in that order.  ``PARAM`` lines take either ``PARAM name value ipc_ts host
 logger_ts`` or, as in older logs, ``PARAM name value host logger_ts`` (no ipc timestamp).
 
 Every line is accounted for (``--json``):
@@ -62,8 +63,8 @@ Every line is accounted for (``--json``):
 - ``accounted``: comments + blank + every type's lines + unknown lines (= ``lines``);
 - ``out``, ``input``, ``format`` (``"carmen"``), ``odometry_from``, ``written`` (key ->
   messages), ``scan_geometry`` (key -> list of the distinct ``{n, angle_min, angle_max,
-  angle_increment, range_max, lines}``), ``range_max_from`` (key -> ``"PARAM <name>"`` | ``"default"`` |
-  ``"line"``), ``laser_offsets`` (key -> ``{dx, dy, dtheta, max_deviation_m}``), ``params``
+  angle_increment, range_max, lines}``), ``range_max_from`` (key -> ``"PARAM <name>"`` |
+  ``"default"`` | ``"line"``), ``laser_offsets`` (key -> ``{dx, dy, dtheta, max_deviation_m}``), ``params``
   (PARAM names kept), ``start_ns``, ``end_ns``, ``duration_s``.
 """
 from __future__ import annotations

@@ -113,3 +113,22 @@ def test_relations_table_without_map_says_so():
     assert rows[1]["translation (m)"] == "1.0000 ± 0.5000" and rows[1]["relations"] == "3 (1 outside)"
     assert [r["method"] for r in rows[2:]] == ["scan matching", "GMapping", "graph mapping", "Cartographer"]
     assert all(r["data set"] == "fr079" for r in rows)
+
+
+def test_laser_offset_comes_from_the_run_or_its_input(tmp_path):
+    from eval.report.benchmark import _laser_offset
+
+    imported = tmp_path / "imported.mcap"
+    with RecordingWriter(imported) as w:
+        w.write("Odometry", Odometry(header=Header(seq=0, stamp=1), position=[0, 0, 0], orientation=_q(0)))
+        w.add_metadata("poseidon", {"laser_offsets": {"scan": {"dx": -0.04, "dy": 0.0, "dtheta": 0.0}}})
+    run = tmp_path / "run.mcap"
+    with RecordingWriter(run) as w:
+        w.write("Odometry", Odometry(header=Header(seq=0, stamp=1), position=[0, 0, 0], orientation=_q(0)))
+        w.add_metadata("poseidon", {"input": str(imported)})
+    assert _laser_offset(imported) == ((-0.04, 0.0, 0.0), None)
+    offset, note = _laser_offset(run)
+    assert offset == (-0.04, 0.0, 0.0) and note is not None and str(imported) in note
+    imported.unlink()
+    offset, note = _laser_offset(run)
+    assert offset == (0.0, 0.0, 0.0) and note is not None and "robot pose" in note
