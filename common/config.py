@@ -337,6 +337,8 @@ class VprGuardConfig(_Section):
     motion_gate_enable: bool = True
     min_event_trans_xy: float = Field(0.12, ge=0)
     min_event_dz: float = Field(0.05, ge=0)
+    min_event_dyaw_deg: float = Field(0.0, ge=0, description="a turn of this many degrees since the last event also "
+                                      "passes the motion gate (ours; 0: off, the dissertation's gate)")
 
     @model_validator(mode="after")
     def _consistent(self) -> "VprGuardConfig":
@@ -363,6 +365,8 @@ class ScanGraphConfig(_Section):
     chain_prior_sigma_deg: float = Field(4.0, ge=0, description="odometry prior of the chain registration (deg)")
     chain_min_score: float = Field(0.3, ge=0, le=1, description="a chain registration scoring less keeps the "
                                    "odometry increment")
+    chain_max_spread_m: float = Field(0.0, ge=0, description="a chain registration whose near-best translations "
+                                      "spread more (m) keeps the odometry's translation and its heading only (0: off)")
     fine_cell_m: float = Field(0.025, gt=0, description="fine grid of every registration (m)")
     fine_sigma_m: float = Field(0.05, gt=0, description="likelihood-field sigma of the fine grid (m)")
     fine_yaw_step_deg: float = Field(0.25, gt=0)
@@ -376,6 +380,8 @@ class ScanGraphConfig(_Section):
     loop_radius_m: float = Field(0.5, gt=0, description="loop search radius right after a closure (m)")
     loop_radius_growth: float = Field(0.03, ge=0, description="radius growth per metre travelled since (m/m)")
     loop_radius_max_m: float = Field(4.0, gt=0)
+    loop_max_heading_diff_deg: float = Field(60.0, gt=0, le=180, description="a geometric loop candidate faces "
+                                             "within this of the current experience (deg)")
     loop_lvc_radius_m: float = Field(8.0, ge=0, description="an experience of the same LVC id is tried up to this "
                                      "far in the map (m; appearance proposes, geometry verifies)")
     loop_window_deg: float = Field(8.0, ge=0, description="loop registration heading window after a closure (deg)")

@@ -13,12 +13,17 @@ pose graph (:mod:`services.expmap.pose_graph`), every edge a *measured* relative
   odometry prior (sigmas ``chain_prior_sigma_m`` / ``chain_prior_sigma_deg``).  A
   registration scoring at least ``chain_min_score`` becomes the edge (information
   ``1 / scan_sigma_m^2``, ``1 / scan_sigma_deg^2``); otherwise the odometry increment is
-  (``1 / odom_sigma_m^2``, ``1 / odom_sigma_deg^2``), counted as ``chain_odometry``.
+  (``1 / odom_sigma_m^2``, ``1 / odom_sigma_deg^2``), counted as ``chain_odometry``.  When
+  the near-best translations spread more than ``chain_max_spread_m`` (a corridor, whose walls
+  fix the heading but not the slide along it), the edge takes the registered heading and
+  the odometry's translation (``chain_heading_only``).
 - **Loop edge** (experience m -> n): candidates are older experiences whose route distance
   from n along the chain is at least ``loop_min_route_m`` and whose map position lies within
   the search radius ``r = min(loop_radius_max_m, loop_radius_m + loop_radius_growth *
   L)`` of n, L the distance travelled since the last accepted loop edge (the map's
-  uncertainty grows with it); the nearest one is tried, and, when the front-end's place
+  uncertainty grows with it) or along the route from m to n if shorter; the nearest one
+  whose map heading is within ``loop_max_heading_diff_deg`` of n's is tried (a scan taken
+  facing away shares little with n's), and, when the front-end's place
   identity (LVC id) of n names an older experience, that experience too (appearance
   proposes, geometry verifies).  The query is the scans of n and its ``loop_query_experiences``
   predecessors in n's frame; the reference the scans of the ``loop_reference_experiences``
@@ -84,7 +89,7 @@ class ScanGraph:
         self.since_loop_m = 0.0
         self.corrections = 0
         self.solves = 0
-        self.counters = {"chain_scan": 0, "chain_odometry": 0, "loop_tried": 0, "loop_verified": 0,
+        self.counters = {"chain_scan": 0, "chain_odometry": 0, "chain_heading_only": 0, "loop_tried": 0, "loop_verified": 0,
                          "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_free_space": 0, "loop_rejected_confirm": 0,
                          "loop_from_lvc": 0}
         self.last_registration: ScanMatch | None = None
@@ -209,6 +214,10 @@ class ScanGraph:
         if m.score < c.chain_min_score:
             self.counters["chain_odometry"] += 1
             return d, odom_w
+        if c.chain_max_spread_m > 0 and m.spread_m > c.chain_max_spread_m:
+            # a corridor: the walls fix the heading, the odometry the slide along it
+            self.counters["chain_heading_only"] += 1
+            return np.array([d[0], d[1], m.pose[2]]), np.array([odom_w[0], odom_w[1], self._scan_info()[2]])
         self.counters["chain_scan"] += 1
         return m.pose, self._scan_info()
 
@@ -239,7 +248,10 @@ class ScanGraph:
         P = np.asarray(self._pose)
         dist = np.hypot(P[old, 0] - P[n, 0], P[old, 1] - P[n, 1])
         cands: list[tuple[int, str, float]] = []
-        inside = np.flatnonzero(dist <= radius)
+        # a 180-degree scan overlaps little with one taken facing away: prefer candidates
+        # facing the same way (within loop_max_heading_diff_deg), nearest first
+        facing = np.abs(wrap_angle(P[old, 2] - P[n, 2])) <= math.radians(c.loop_max_heading_diff_deg)
+        inside = np.flatnonzero((dist <= radius) & facing)
         if inside.size:
             k = int(inside[int(np.argmin(dist[inside]))])
             cands.append((int(old[k]), "geometry", float(radius[k])))

@@ -13,7 +13,10 @@
 
 :class:`MotionGate`: an event needs ``>= min_event_trans_xy`` metres of horizontal or
 ``>= min_event_dz`` metres of vertical odometry displacement since the last event (the first
-event always passes).
+event always passes); with ``min_event_dyaw_deg`` > 0 (ours; 0 = the dissertation's gate) a
+turn of that many degrees also passes, so a robot turning on the spot still makes
+experiences (the laser preset: the scan registration between experiences then sees a
+bounded turn).
 
 How they combine (our decision, see :meth:`EventGate.decide`): the motion gate is asked
 first.  A frame that fails it is not a candidate: its id still enters the VPR window, but
@@ -103,34 +106,40 @@ class VprGuard:
 class MotionGate:
     """Minimum odometry displacement since the last event (Table 4.1, metres)."""
 
-    def __init__(self, min_xy: float = 0.12, min_dz: float = 0.05, enabled: bool = True):
+    def __init__(self, min_xy: float = 0.12, min_dz: float = 0.05, enabled: bool = True, min_dyaw_deg: float = 0.0):
         self.min_xy = float(min_xy)
         self.min_dz = float(min_dz)
+        self.min_dyaw = math.radians(min_dyaw_deg)
         self.enabled = bool(enabled)
         self.last: tuple[float, float, float] | None = None
+        self.last_yaw = 0.0
 
     @classmethod
     def from_config(cls, cfg: VprGuardConfig) -> "MotionGate":
-        return cls(cfg.min_event_trans_xy, cfg.min_event_dz, cfg.motion_gate_enable)
+        return cls(cfg.min_event_trans_xy, cfg.min_event_dz, cfg.motion_gate_enable, cfg.min_event_dyaw_deg)
 
-    def passes(self, position: list[float] | tuple[float, ...]) -> bool:
-        """True when the displacement from the last event's position reaches a threshold."""
+    def passes(self, position: list[float] | tuple[float, ...], yaw: float = 0.0) -> bool:
+        """True when the displacement (or, with ``min_dyaw_deg`` > 0, the turn) since the last
+        event reaches a threshold."""
         if not self.enabled or self.last is None:
             return True
         dxy = math.hypot(position[0] - self.last[0], position[1] - self.last[1])
         dz = abs(position[2] - self.last[2])
-        return dxy >= self.min_xy or dz >= self.min_dz
+        turned = self.min_dyaw > 0 and abs(math.remainder(yaw - self.last_yaw, 2 * math.pi)) >= self.min_dyaw
+        return dxy >= self.min_xy or dz >= self.min_dz or turned
 
-    def mark(self, position: list[float] | tuple[float, ...]) -> None:
-        """An event was emitted at ``position``."""
+    def mark(self, position: list[float] | tuple[float, ...], yaw: float = 0.0) -> None:
+        """An event was emitted at ``position`` (heading ``yaw``)."""
         self.last = (float(position[0]), float(position[1]), float(position[2]))
+        self.last_yaw = float(yaw)
 
     def state(self) -> dict[str, Any]:
-        return {"last": list(self.last) if self.last is not None else None}
+        return {"last": list(self.last) if self.last is not None else None, "last_yaw": self.last_yaw}
 
     def load_state(self, state: dict[str, Any]) -> None:
         last = state["last"]
         self.last = None if last is None else (float(last[0]), float(last[1]), float(last[2]))
+        self.last_yaw = float(state.get("last_yaw", 0.0))
 
 
 class EventGate:
@@ -140,13 +149,13 @@ class EventGate:
         self.motion = MotionGate.from_config(cfg)
         self.vpr = VprGuard.from_config(cfg)
 
-    def decide(self, lvc_id: int, position: list[float] | tuple[float, ...]) -> GateDecision:
+    def decide(self, lvc_id: int, position: list[float] | tuple[float, ...], yaw: float = 0.0) -> GateDecision:
         count = self.vpr.observe(lvc_id)
-        if not self.motion.passes(position):
+        if not self.motion.passes(position, yaw):
             return GateDecision(False, "motion", count)
         decision = self.vpr.decide(count)
         if decision.accepted:
-            self.motion.mark(position)
+            self.motion.mark(position, yaw)
         return decision
 
     def state(self) -> dict[str, Any]:

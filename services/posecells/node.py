@@ -143,7 +143,7 @@ class PoseCellsNode(ServiceNode):
         self._ref_yaw = self._odom[1]
         self.net.step(forward, left, up, dyaw, self.active_lvcs(msg))
         position, yaw = self._odom
-        decision = self.gate.decide(lvc_id, position)
+        decision = self.gate.decide(lvc_id, position, yaw)
         if not decision.accepted:
             self.count(f"rejected_{decision.gate}")
             return
