@@ -407,11 +407,13 @@ class ScanGraphConfig(_Section):
                                             "reference return on its bearing is this much farther (m)")
     loop_confirm_within: int = Field(10, ge=1, description="a verified loop waits this many experiences for a "
                                      "confirming one")
-    loop_confirm_m: float = Field(0.2, gt=0, description="two loop measurements agree within this (m)")
-    loop_confirm_deg: float = Field(2.0, gt=0, description="... and this (deg)")
+    loop_confirm_m: float = Field(0.1, gt=0, description="two loop measurements agree within this (m)")
+    loop_confirm_deg: float = Field(1.0, gt=0, description="... and this (deg)")
     relax_threshold_m: float = Field(0.02, ge=0, description="relax when a new loop edge's residual exceeds this (m)")
     relax_threshold_deg: float = Field(0.3, ge=0, description="... or this (deg)")
     relax_iterations: int = Field(10, ge=1, description="Gauss-Newton iterations per relaxation")
+    loop_max_residual: float = Field(3.0, ge=0, description="take back a closure whose loop edges keep a larger "
+                                     "Mahalanobis residual after relaxation (0: off)")
     huber: float = Field(3.0, ge=0, description="Huber threshold on an edge's Mahalanobis residual (0: off)")
 
 

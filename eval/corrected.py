@@ -12,15 +12,20 @@ nodes of the run's **last** ``map`` message (id, position[3], yaw, stamp).  One 
 per ``Odometry`` stamp t:
 
 1. e = the latest node with stamp <= t (nodes ordered by stamp, then id); before the first
-   node, the first node;
-2. the odometry pose at e.stamp, interpolated from the ``Odometry`` stream between the
+   node, the first node; e' = the node after e (e itself after the last node);
+2. the odometry pose at a node's stamp, interpolated from the ``Odometry`` stream between the
    bracketing samples (position linear, orientation SLERP, so yaw moves by the shortest
    angle; clamped to the first / last sample outside the stream's span);
-3. the correction C = T_map(e) * T_odom(e)^-1, restricted to a rotation about the vertical
-   axis: R = Rz(yaw_map(e) - yaw_odom(e)), C(p) = R (p - p_odom(e)) + p_map(e);
-4. the pose at t: position C(p_odom(t)), orientation q_R * q_odom(t) (pre-multiplied by the
-   yaw rotation), so roll and pitch of a 3D (underwater) odometry are carried through and
-   z is shifted by p_map(e).z - p_odom(e).z.
+3. a node's correction C = T_map(node) * T_odom(node)^-1, restricted to a rotation about the
+   vertical axis: R = Rz(yaw_map - yaw_odom), C(p) = R (p - p_odom(node)) + p_map(node);
+4. the pose at t blends the two corrections by time, f = (t - t_e) / (t_e' - t_e) in [0, 1]:
+   position (1 - f) C_e(p_odom(t)) + f C_e'(p_odom(t)), heading correction
+   psi_e + f wrap(psi_e' - psi_e), orientation q_psi * q_odom(t) (pre-multiplied by the yaw
+   rotation), so roll and pitch of a 3D (underwater) odometry are carried through and z is
+   shifted by the blended p_map.z - p_odom.z.  At a node's stamp the pose is the node's;
+   between nodes the dead reckoning is corrected by a correction that moves smoothly from
+   one experience's to the next (a correction held constant until the next node jumps
+   there: on ACES 0.051 vs 0.044 m, 1.28 vs 0.90 deg relation error, same run).
 
 Without a map message (or with an empty map) the trajectory is the dead reckoning itself.
 
@@ -149,11 +154,21 @@ def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> P
     at_nodes = odom.interpolate(nt)
     dpsi = np.array([n.yaw for n in ns], dtype=float) - at_nodes.yaws
     m_pos = np.array([n.position for n in ns], dtype=float)
+
+    def through(e: np.ndarray) -> np.ndarray:
+        """Odometry positions corrected by node e's correction."""
+        c, s = np.cos(dpsi[e]), np.sin(dpsi[e])
+        d = odom.positions - at_nodes.positions[e]
+        return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]]) + m_pos[e]
+
     e = np.clip(np.searchsorted(nt, odom.stamps, side="right") - 1, 0, len(ns) - 1)
-    c, s = np.cos(dpsi[e]), np.sin(dpsi[e])
-    d = odom.positions - at_nodes.positions[e]
-    p = np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]]) + m_pos[e]
-    qz = np.column_stack([np.zeros(len(e)), np.zeros(len(e)), np.sin(dpsi[e] / 2), np.cos(dpsi[e] / 2)])
+    e1 = np.minimum(e + 1, len(ns) - 1)
+    span = (nt[e1] - nt[e]).astype(np.float64)
+    f = np.where(span > 0, (odom.stamps - nt[e]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
+    f = np.clip(f, 0.0, 1.0)
+    p = (1.0 - f)[:, None] * through(e) + f[:, None] * through(e1)
+    psi = dpsi[e] + f * np.angle(np.exp(1j * (dpsi[e1] - dpsi[e])))
+    qz = np.column_stack([np.zeros(len(e)), np.zeros(len(e)), np.sin(psi / 2), np.cos(psi / 2)])
     return PoseSeries(odom.stamps.copy(), p, _normalised(quat_multiply(qz, odom.quaternions)))
 
 

@@ -42,7 +42,10 @@ pose graph (:mod:`services.expmap.pose_graph`), every edge a *measured* relative
 - **Relaxation**: after new loop edges whose residual in the current map exceeds
   ``relax_threshold_m`` / ``relax_threshold_deg``, the whole graph is relaxed to its
   least-squares optimum (Gauss-Newton, Huber kernel ``huber``; node 0 fixed); the map's
-  correction is applied at once (the clamps of the sonar map do not apply).
+  correction is applied at once (the clamps of the sonar map do not apply).  A closure whose
+  loop edges the relaxed map still cannot satisfy (Mahalanobis residual above
+  ``loop_max_residual``: the rest of the map disagrees) is taken back, edges and all
+  (``loop_rejected_residual``).
 
 The vertical coordinate of an experience is its odometry z (planar sensor).  Yaws are part
 of the map: a node's ``yaw`` is its relaxed heading.  Deterministic: fixed search orders,
@@ -90,7 +93,7 @@ class ScanGraph:
         self.corrections = 0
         self.solves = 0
         self.counters = {"chain_scan": 0, "chain_odometry": 0, "chain_heading_only": 0, "loop_tried": 0, "loop_verified": 0,
-                         "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_free_space": 0, "loop_rejected_confirm": 0,
+                         "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_free_space": 0, "loop_rejected_residual": 0, "loop_rejected_confirm": 0,
                          "loop_from_lvc": 0}
         self.last_registration: ScanMatch | None = None
 
@@ -329,25 +332,40 @@ class ScanGraph:
     def _close(self, loops: list[tuple[int, int, np.ndarray]], res: EventResult) -> None:
         c = self.cfg
         worst_m, worst_deg = 0.0, 0.0
+        first = len(self.ei)
         for m, n, z in loops:
             self._add_edge(m, n, z, self._scan_info(), loop=True, stamp=self._stamp[n])
             pred = relative_pose(self._pose[m], self._pose[n])
             e = pred - z
             worst_m = max(worst_m, math.hypot(e[0], e[1]))
             worst_deg = max(worst_deg, abs(math.degrees(float(wrap_angle(e[2])))))
-        self.corrections += 1
-        self.since_loop_m = 0.0
-        res.loop_closed = True
-        res.confirmations = 2
         if worst_m > c.relax_threshold_m or worst_deg > c.relax_threshold_deg:
             before = np.asarray(self._pose)
             after, it = relax_se2(before, np.asarray(self.ei), np.asarray(self.ej), np.asarray(self.z),
                                   np.asarray(self.w), huber=c.huber, iterations=c.relax_iterations)
             self.solves += 1
+            # the rest of the map must agree: loop edges the relaxed map still cannot satisfy
+            # (Mahalanobis residual > loop_max_residual) were a wrong place; take them back
+            ei, ej = np.asarray(self.ei[first:]), np.asarray(self.ej[first:])
+            r = relative_pose(after[ei], after[ej]) - np.asarray(self.z[first:])
+            r[:, 2] = wrap_angle(r[:, 2])
+            maha = np.sqrt(np.sum(np.asarray(self.w[first:]) * r * r, axis=1))
+            if c.loop_max_residual > 0 and float(maha.max()) > c.loop_max_residual:
+                for lst in (self.ei, self.ej, self.z, self.w, self.is_loop):
+                    del lst[first:]
+                del self.loop_stamps[len(self.loop_stamps) - len(loops):]
+                self.solves -= 1
+                self.counters["loop_rejected_residual"] += 1
+                res.rejected = "residual"
+                return
             self._pose = [p for p in after]
             res.iterations = it
             res.correction_norm = float(np.max(np.hypot(after[:, 0] - before[:, 0], after[:, 1] - before[:, 1])))
             res.settled = True
+        self.corrections += 1
+        self.since_loop_m = 0.0
+        res.loop_closed = True
+        res.confirmations = 2
 
     # ---- persistence ----------------------------------------------------------------
     def save(self, path: str | Path) -> None:

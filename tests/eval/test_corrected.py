@@ -43,11 +43,17 @@ NODES = [_node(0, T0 + 2 * NS, [2.0, 1.0, -2.0], 0.0), _node(1, T0 + 5_500_000_0
 
 
 def _expected(k: int) -> tuple[list[float], float]:
-    """Hand-computed corrected position and yaw at t = k s."""
-    if k < 5.5:  # node 0 (also before it): translation by (0, 1, 0)
-        return [float(k), 1.0, -2.0], 0.0
-    d = k - 5.5  # odom at 5.5 s = (5.5, 0, -2); R = Rz(pi/2): (d, 0, 0) -> (0, d, 0)
-    return [10.0, 5.0 + d, 1.0], math.pi / 2
+    """Hand-computed corrected position and yaw at t = k s: before node 0 (t = 2 s) its
+    correction, a translation by (0, 1, 0); after node 1 (t = 5.5 s) its correction, odom at
+    5.5 s = (5.5, 0, -2) rotated by Rz(pi/2) onto (10, 5, 1); between them the two blended by
+    f = (k - 2) / 3.5."""
+    c0 = np.array([float(k), 1.0, -2.0])
+    d = k - 5.5
+    c1 = np.array([10.0, 5.0 + d, 1.0])
+    f = min(max((k - 2.0) / 3.5, 0.0), 1.0)
+    if k >= 5.5:
+        return list(c1), math.pi / 2
+    return list((1 - f) * c0 + f * c1), f * math.pi / 2
 
 
 def test_map_correction_by_hand():
