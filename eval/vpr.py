@@ -290,9 +290,11 @@ def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.nda
         ref_out.append(_htm_row(htm, r))
     htm.reset_sequence()
     learn = cfg.learning and query_learning
+    htm.query_decisions = {k: 0 for k in DECISION_KINDS}
     for bits in tqdm(query_sdrs, desc="htm query", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32), learn=learn, store=False)
         q_out.append(_htm_row(htm, r))
+        htm.query_decisions[decision_kind(r)] += 1
     return ref_out, q_out, htm
 
 
@@ -402,12 +404,14 @@ class MissionStreams:
     seconds_embed: float
 
 
-def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool) -> dict:
+def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool,
+                chains: Sequence[str] = ()) -> dict:
     """The front-end (EncoderNode, then NeocortexHtm storing LVCs online) over one MCAP mission.
 
-    Returns the figures of the ``--mission`` JSON (see the module doc).
+    Returns the figures of the ``--mission`` JSON (see the module doc); ``chains`` names the
+    chains of :mod:`services.htm.chains` also run on the fused stream.
     """
-    return score_mission(encode_mission(path, cfg, enc_cfg, min_gap_m), cfg, enc_cfg, use_htm)
+    return score_mission(encode_mission(path, cfg, enc_cfg, min_gap_m), cfg, enc_cfg, use_htm, chains)
 
 
 def encode_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None) -> MissionStreams:
@@ -511,10 +515,12 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
     htm = NeocortexHtm(htm_cfg.model_copy(update={"input_size": length}))
     out = []
     cols_used: set[int] = set()
+    kinds = {k: 0 for k in DECISION_KINDS}
     for b in tqdm(bits, desc="htm", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(b, np.uint32))
         cols_used.update(htm.last_columns.tolist())
         out.append((*_htm_row(htm, r), float(r.anomaly)))
+        kinds[decision_kind(r)] += 1
     n = len(out)
     ids = np.array([o[0] for o in out])
     desc = overlap_similarity([o[2] for o in out], [o[2] for o in out]).astype(np.float64)
@@ -530,8 +536,25 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
     res = lvc_revisit_scores(ids, gt, eligible)
     res.update({"n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
                 "tm_anomaly_mean": round(float(np.mean([o[4] for o in out])), 4) if out else 0.0,
-                "sp_columns_used": len(cols_used)})
+                "sp_columns_used": len(cols_used), "decisions": kinds,
+                "tm_decision_share": round(kinds["tm"] / max(n - kinds["new"], 1), 4)})
     return {"scores": res, "htm_lvc": lvc, "htm_descriptor": np.where(eligible, desc, -np.inf), "ids": ids}
+
+
+DECISION_KINDS = ("gate", "tm", "seqmem", "prior", "new")
+
+
+def decision_kind(r) -> str:
+    """Which rule gave a frame its id: ``gate`` (Eq. 4.9 on l*), ``tm`` (the TM's predictions,
+    :mod:`services.htm.tm_match`), ``seqmem`` (the sequence memory's diagonal), ``prior`` (the
+    place-sequence prior), ``new`` (Eq. 4.10, or no id on a query-only step)."""
+    if r.is_new or r.lvc_id < 0:
+        return "new"
+    if r.by_tm:
+        return "tm"
+    if r.by_sequence:
+        return "seqmem"
+    return "gate" if r.lvc_id == r.best_candidate else "prior"
 
 
 def run_length_stats(ids: np.ndarray) -> dict:
@@ -546,7 +569,7 @@ def run_length_stats(ids: np.ndarray) -> dict:
             "frames_in_runs_ge3": round(float(runs[runs >= 3].sum() / ids.size), 4)}
 
 
-def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool) -> dict:
+def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Sequence[str] = ()) -> dict:
     """The ``--mission`` figures (see the module doc) from the encoded streams."""
     gt, eligible, n = st.gt, st.eligible, len(st.gt)
 
@@ -582,6 +605,13 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool) -> dict:
                 sims["htm_lvc"], sims["htm_descriptor"] = h["htm_lvc"], h["htm_descriptor"]
                 result.update(h["scores"])
         result["modalities"] = per
+        if chains:
+            from services.htm.chains import chain_config
+            result["chains"] = {}
+            for cname in chains:
+                h = mission_htm(chain_config(cfg.htm, cname), enc_cfg.sp_columns, fused, gt, eligible)
+                sims[cname] = h["htm_lvc"]
+                result["chains"][cname] = h["scores"]
         t_htm = time.perf_counter() - t1
     result["matchers"] = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result["seconds"] = {"embed": round(st.seconds_embed, 2), "htm": round(t_htm, 2)}
@@ -610,6 +640,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--config", default=None, help="PoseidonSLAM YAML configuration")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
+    ap.add_argument("--no-chains", action="store_true",
+                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, sp_tm) beside the default")
     ap.add_argument("--htm-query-learning", action="store_true",
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
     ap.add_argument("--save-norm", default=None, metavar="FILE.npz",
@@ -617,6 +649,13 @@ def _parser() -> argparse.ArgumentParser:
                          "e.g. for encoder.embedding_norm fixed")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
+
+
+def _print_lvc(name: str, r: dict) -> None:
+    d = r.get("decisions", {})
+    print(f"{name:12s} LVC ids {r['n_lvc']}, per-frame revisit recall {r['lvc_recall']:.3f}, "
+          f"precision {r['lvc_precision']:.3f}; SP columns used {r.get('sp_columns_used', 0)}; decisions "
+          + ", ".join(f"{k} {v}" for k, v in d.items()) + f" (TM share {r.get('tm_decision_share', 0.0):.3f})")
 
 
 def _print_table(title: str, metrics: dict) -> None:
@@ -645,6 +684,8 @@ def main(argv: list[str] | None = None) -> int:
         print("poseidon vpr: --mission excludes --ref/--query", file=sys.stderr)
         return 2
     errors = (ConfigError, VprInputError, WeightsError, LsbhError, StandardizerError)
+    from services.htm.chains import CHAINS
+    chains = () if (args.no_htm or args.no_chains) else tuple(CHAINS)
     try:
         cfg = load_config(args.config, args.overrides)
         enc_cfg = cfg.encoder
@@ -661,7 +702,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.mission is not None:
         try:
-            result = run_mission(args.mission, cfg, enc_cfg, args.min_gap_m, not args.no_htm)
+            result = run_mission(args.mission, cfg, enc_cfg, args.min_gap_m, not args.no_htm, chains)
         except errors as exc:
             print(f"poseidon vpr: {exc}", file=sys.stderr)
             return 2
@@ -674,8 +715,9 @@ def main(argv: list[str] | None = None) -> int:
                          f"revisits, backbone {enc_cfg.cnn_backbone} ({result['weights']} weights), "
                          f"embedding_norm {enc_cfg.embedding_norm}", result["matchers"])
             if "lvc_recall" in result:
-                print(f"LVC ids: {result['n_lvc']}, recall {result['lvc_recall']:.3f}, "
-                      f"precision {result['lvc_precision']:.3f}")
+                _print_lvc("default", result)
+                for cname, c in result.get("chains", {}).items():
+                    _print_lvc(cname, c)
         return 0
     try:
         ref_names, ref_imgs = load_sequence(args.ref, args.limit)
@@ -723,10 +765,18 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_htm:
         t1 = time.perf_counter()
         ref_out, q_out, htm = run_htm(cfg.htm, s_ref, s_q, length, args.htm_query_learning)
-        t_htm = time.perf_counter() - t1
         sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
         result["n_lvc"] = len(htm.lvc)
         result["htm_query_matched"] = sum(1 for o in q_out if o[0] >= 0)
+        result["decisions"] = htm.query_decisions
+        from services.htm.chains import chain_config
+        result["chains"] = {}
+        for cname in chains:
+            c_ref, c_q, c_htm = run_htm(chain_config(cfg.htm, cname), s_ref, s_q, length, args.htm_query_learning)
+            sims[cname] = htm_similarities(c_ref, c_q)[0]
+            result["chains"][cname] = {"n_lvc": len(c_htm.lvc), "htm_query_matched": sum(1 for o in c_q if o[0] >= 0),
+                                       "decisions": c_htm.query_decisions}
+        t_htm = time.perf_counter() - t1
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result = {
         "matchers": metrics,
