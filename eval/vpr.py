@@ -379,11 +379,14 @@ def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: n
     """LVC-id recall and precision on a mission (see the module doc, ``--mission``), by the one
     definition of :func:`eval.frontend.lvc_revisit_metrics`.  ``eligible[i]`` is a prefix of
     the earlier frames (those at least the revisit gap of travel back)."""
-    from eval.frontend import lvc_revisit_metrics
-    m = lvc_revisit_metrics(ids, gt, eligible_before=np.asarray(eligible, bool).sum(axis=1))
+    from eval.frontend import lvc_pair_metrics, lvc_revisit_metrics
+    before = np.asarray(eligible, bool).sum(axis=1)
+    m = lvc_revisit_metrics(ids, gt, eligible_before=before)
+    pm = lvc_pair_metrics(ids, gt, eligible_before=before)
     return {"lvc_recall": m["recall"] or 0.0, "lvc_precision": m["precision"] or 0.0,
             "n_revisit_frames": m["revisit_frames"], "n_claimed_revisits": m["claimed"],
-            "n_correct_claims": m["correct_claims"]}
+            "n_correct_claims": m["correct_claims"],
+            "lvc_pair_precision": pm["pair_precision"] or 0.0, "lvc_pair_recall": pm["pair_recall"] or 0.0}
 
 
 @dataclass
