@@ -198,7 +198,7 @@ class HtmConfig(_Section):
     tm_input_columns: int = Field(0, ge=0, description="the TM sees the N most strongly driven of the SP's active "
                                   "columns (boosted overlap, ties to the lower index; 0: all): its cost grows with "
                                   "the square of its active columns")
-    sv_tm_share: float = Field(0.5, ge=0, le=1, description="share of a frame's active columns the TM must have "
+    sv_tm_share: float = Field(0.2, ge=0, le=1, description="share of a frame's active columns the TM must have "
                                "predicted in the context of one stored frame for a TM decision")
     sv_seqmem_column_norm: bool = Field(True, description="normalise each stored frame's similarity by its running "
                                         "mean/std over the current traversal before the per-frame z-score")

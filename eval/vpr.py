@@ -4,9 +4,9 @@ Usage::
 
     poseidon vpr --ref DIR --query DIR [--gt FILE] [--tolerance N] [--weights PATH]
                  [--backbone shufflenetv2|alexnet_conv3] [--limit N] [--config FILE]
-                 [--set key=value ...] [--no-htm] [--htm-query-learning] [--save-norm FILE] [--json]
+                 [--set key=value ...] [--no-htm] [--no-chains] [--htm-query-learning] [--save-norm FILE] [--json]
     poseidon vpr --mission FILE.mcap [--min-gap-m M] [--weights PATH] [--backbone ...]
-                 [--config FILE] [--set key=value ...] [--no-htm] [--json]
+                 [--config FILE] [--set key=value ...] [--no-htm] [--no-chains] [--json]
 
 Both folders are image sequences (``.png`` / ``.jpg`` / ``.jpeg``, sorted by file name,
 read with PIL as RGB); ``--limit N`` keeps the first N of each.  Ground truth: with
@@ -38,7 +38,11 @@ top-level LVC figures and the ``htm_*`` matchers are those of the fused code.  E
 ``lsbh_fused_overlap`` (fused camera+sonar SDR overlap).  LVC-id figures: ``lvc_recall`` =
 fraction of revisit frames whose LVC id equals the id of one of their true earlier frames;
 a frame *claims* a revisit when its id was given to a candidate earlier frame (>= the
-gap back), ``lvc_precision`` = fraction of claims whose id is that of a true earlier frame.
+gap back), ``lvc_precision`` = fraction of claims whose id is that of a true earlier frame
+(the *per-frame* revisit recall / precision of :func:`eval.frontend.lvc_revisit_metrics`, the
+figures of the run summary and ``poseidon eval`` too); ``lvc_pair_precision`` /
+``lvc_pair_recall`` are the *frame-pair* measure of "same LVC id"
+(:func:`eval.frontend.lvc_pair_metrics`), a different quantity.
 
 Matchers (each gives an n_query x n_ref similarity; the best reference of a query is its
 argmax, correct iff it is in the query's ground truth):
@@ -64,6 +68,16 @@ argmax, correct iff it is in the query's ground truth):
   rule picks among the eligible earlier frames.
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
+* ``sdr_seqmem``, ``sp_tm`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains`
+  (the configured ``htm`` section with the chain's overrides), run on the same SDRs in the
+  same run, printed beside the default (``--no-chains`` skips them): ``sdr_seqmem`` is the
+  fused-SDR chain with the sequence memory (no SP, no TM), ``sp_tm`` the spatial pooler +
+  temporal memory chain (the TM's predictions decide revisits, :mod:`services.htm.tm_match`).
+
+Decisions (``decisions``: counts per rule of how a frame got its id, :func:`decision_kind`):
+``gate`` Eq. 4.9 on l*, ``tm`` the TM's predictions, ``seqmem`` the sequence memory,
+``prior`` the place-sequence prior, ``new`` Eq. 4.10 (or no id on a query-only step);
+``tm_decision_share`` = tm / (all but new).
 
 Per matcher, with queries ranked by score (thresholds at every distinct score):
 precision = correct / predicted, recall = correct / queries having a ground-truth match.
@@ -80,7 +94,9 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
      "backbone": "shufflenetv2", "embedding_dim": .., "embedding_norm": "none|running|fixed",
      "sdr_bits": .., "sdr_length": .., "ground_truth": "file name +-N" | "<gt file>",
      "sdr_overlap": {"same_place": .., "different_place": ..},   # mean |A_q & A_r| / 2k (random: s = 0.25)
-     "n_lvc": .., "htm_query_matched": .., "seconds": {"embed": .., "htm": ..}}
+     "n_lvc": .., "htm_query_matched": .., "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..},
+     "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "sp_tm": {...}},
+     "seconds": {"embed": .., "htm": ..}}   # htm: the default and the chains
 
 and with ``--mission``::
 
@@ -89,10 +105,13 @@ and with ``--mission``::
      "fused_bits_mean": .., "encoder_counters": {..},
      "lvc_recall": .., "lvc_precision": .., "n_claimed_revisits": .., "n_correct_claims": ..,
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
+     "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
+     "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
+     "chains": {"sdr_seqmem": {<the LVC figures above>}, "sp_tm": {...}},   # without --no-htm / --no-chains
      "lvc_run_length": {"median": .., "mean": .., "frames_in_runs_ge3": ..},  # runs of identical consecutive ids
      "modalities": {"fused_<fusion_mode>": {...}, "camera": {...}, "sonar": {...}},  # without --no-htm
      "matchers": {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized", "lsbh_overlap",
-                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor": {...}},
+                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "sp_tm": {...}},
      "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).

@@ -95,3 +95,11 @@ def test_chains_and_state_round_trip(tmp_path):
         assert (ra.lvc_id, ra.by_tm, ra.tm_frame) == (rb.lvc_id, rb.by_tm, rb.tm_frame)
     sdr = NeocortexHtm(chain_config(HtmConfig(input_size=L), "sdr_seqmem"))
     assert sdr.sp is None and sdr.tm is None
+
+
+def test_the_sp_tm_preset_is_the_sp_tm_chain():
+    from common.config import load_config
+    from tests.conftest import REPO
+    cfg = load_config(REPO / "services" / "htm" / "presets" / "sp_tm.yaml")
+    want = chain_config(load_config(None).htm, "sp_tm")
+    assert {k: getattr(cfg.htm, k) for k in CHAINS["sp_tm"]} == {k: getattr(want, k) for k in CHAINS["sp_tm"]}
