@@ -36,6 +36,14 @@ ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frame
 different -- Nordland winter vs summer -- is recognised by their order); else the
 place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
 report it.
+TM decision (``sv_tm_decide``, ours, issue 17; :mod:`services.htm.tm_match`): with
+``sv_descriptor_source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm_input_columns`` most
+strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
+vote for the stored frames where they won, and when the best frame's votes are >=
+``sv_tm_share`` of the TM's columns its id is taken (after Eq. 4.9, before the sequence
+match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp_overlap_norm_steps`` N > 0 makes the SP
+rank standardised overlaps (:mod:`services.htm.spatial_pooler`).  The named chains that use
+them are in :mod:`services.htm.chains`.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object

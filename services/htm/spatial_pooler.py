@@ -13,6 +13,14 @@ duty cycles are moving averages over ``duty_cycle_period``; boosting uses
 overlap duty cycle falls under ``min_pct_overlap_duty_cycle * max(overlapDutyCycle)`` get
 all permanences raised by ``connected / 10`` (BAMI ``increasePermanences``).
 
+Overlap standardisation (``overlap_norm_steps`` N > 0, ours, issue 17): inhibition ranks
+``(overlap - mean_c) / sqrt(var_c + 1)`` with each column's running mean and variance of its
+overlap over the first N learning steps (then frozen), in place of boosting, and the
+permanences do not learn.  A dense input (the camera OR sonar union has ~900 of 2048 bits on)
+otherwise lets the columns wired to frequently-on bits win every frame: on the seed-1234
+mission the descriptor-overlap AP of 4096 columns / 800 active is 0.639 standardised vs
+0.502 (4096 / 400) with BAMI boosting (fused SDR itself 0.623).
+
 Speed: the connected synapses are mirrored in a column-major bit matrix
 ``conn[column, input // 64]`` (uint64 words), so a column's overlap is a popcount of
 ``conn & input`` over ``L / 64`` words (32 for L = 2048), and learning only touches the
