@@ -7,12 +7,14 @@ L = 2048; 512 = one modality with s = 0.25, ~1024 = camera OR sonar), visited fo
 frames. The reference is htm.core (C++): ~0.41 ms per SP+TM learning step on this machine
 class (ARCHITECTURE.md); the ratio printed is ours / 0.41 ms.
 
-Second part (``--pipeline-frames`` N, 0 skips it): the default configuration (fused SDR as the
-descriptor, R/F1 gates, place-sequence prior, sequence memory of ``services/htm/sequence.py``)
-steps over N frames of the same kind of stream (``--pipeline-bits`` active bits, default 900 =
-camera OR sonar) storing LVCs as online; printed: ms per frame over the last 1000 frames (when
-the frame memory holds ~N frames) with the sequence memory and with ``sv_seqmem_length: 0``,
-measured in the same run, and their ratio.
+Second part (``--pipeline-frames`` N, 0 skips it): whole ``NeocortexHtm.step`` calls over N
+frames of the same kind of stream (``--pipeline-bits`` active bits, default 900 = camera OR
+sonar; ``--pipeline-places`` places, default 1000 x 3 frames, so a 6000-frame stream is two laps
+of mostly new places: the TM's worst case, it grows segments while it bursts) storing LVCs as
+online; printed: ms per frame over the last 1000 frames (when the frame memory holds ~N frames)
+for the default configuration, each named chain of ``services/htm/chains.py`` (``sdr_seqmem``:
+fused SDR + sequence memory, no SP/TM; ``sp_tm``: SP + TM + sequence memory) and
+``sdr_seqmem`` without the sequence memory, all in the same run.
 
     NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_htm.py
 """
@@ -56,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pipeline-frames", type=int, default=6000,
                     help="frames for the default-chain timing (6000 = a 20-min mission at 5 Hz; 0: skip)")
     ap.add_argument("--pipeline-bits", type=int, default=900, help="active bits of the fused SDR in that part")
+    ap.add_argument("--pipeline-places", type=int, default=1000, help="places of the stream in that part")
     args = ap.parse_args(argv)
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
@@ -106,11 +109,16 @@ def main(argv: list[str] | None = None) -> int:
 
 def pipeline_cost(args: argparse.Namespace) -> None:
     """Default chain per frame, sequence memory on vs off, same stream, same run."""
-    frames = make_stream(args.pipeline_frames, args.places, args.hold, args.pipeline_bits, args.noise, args.seed + 1)
+    frames = make_stream(args.pipeline_frames, args.pipeline_places, args.hold, args.pipeline_bits, args.noise,
+                         args.seed + 1)
     tail = min(1000, len(frames))
     res = {}
-    for name, cfg in (("sequence memory on (default)", HtmConfig()),
-                      ("sequence memory off", HtmConfig(sv_seqmem_length=0))):
+    from services.htm.chains import CHAINS, chain_config
+    runs = [("default configuration", HtmConfig())]
+    runs += [(f"chain {c}", chain_config(HtmConfig(), c)) for c in CHAINS]
+    runs += [("chain sdr_seqmem, sequence memory off", chain_config(HtmConfig(), "sdr_seqmem").model_copy(
+        update={"sv_seqmem_length": 0}))]
+    for name, cfg in runs:
         warm = NeocortexHtm(cfg)
         for f in frames[:5]:
             warm.step(f)
@@ -121,10 +129,9 @@ def pipeline_cost(args: argparse.Namespace) -> None:
             h.step(f)
             t[i] = time.perf_counter() - t0
         res[name] = 1e3 * float(np.mean(t[-tail:]))
-        print(f"default chain, {name:30s} mean {res[name]:.3f} ms per frame over the last {tail} frames "
-              f"({len(frames)} frames stored, {len(h.lvc)} LVCs)")
-    on, off = res.values()
-    print(f"ratio sequence memory on / off: {on / off:.2f} (+{on - off:.3f} ms per frame)")
+        extra = "" if h.tm is None else f", TM {h.tm.num_segments} segments / {h.tm.num_synapses} synapses"
+        print(f"{name:40s} mean {res[name]:.3f} ms per frame over the last {tail} frames "
+              f"({len(frames)} frames stored, {len(h.lvc)} LVCs{extra})")
 
 
 if __name__ == "__main__":

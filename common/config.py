@@ -190,6 +190,16 @@ class HtmConfig(_Section):
     sv_seqmem_threshold: float = Field(1.5, description="sequence score S* (z units) a sequence match needs")
     sv_seqmem_margin: float = Field(1.75, ge=0, description="S* minus the best score ending more than K frames "
                                     "away (z units) a sequence match needs")
+    sv_tm_decide: bool = Field(False, description="run the TM over the SP columns (descriptor source sp) and "
+                               "let its predictions decide a revisit (services/htm/tm_match.py)")
+    sp_overlap_norm_steps: int = Field(0, ge=0, description="> 0: global inhibition ranks each column's overlap "
+                                       "standardised by its own mean and deviation over the first N learning steps "
+                                       "(then frozen), in place of BAMI boosting and permanence learning (0: BAMI)")
+    tm_input_columns: int = Field(0, ge=0, description="the TM sees the N most strongly driven of the SP's active "
+                                  "columns (boosted overlap, ties to the lower index; 0: all): its cost grows with "
+                                  "the square of its active columns")
+    sv_tm_share: float = Field(0.2, ge=0, le=1, description="share of a frame's active columns the TM must have "
+                               "predicted in the context of one stored frame for a TM decision")
     sv_seqmem_column_norm: bool = Field(True, description="normalise each stored frame's similarity by its running "
                                         "mean/std over the current traversal before the per-frame z-score")
 

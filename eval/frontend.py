@@ -8,6 +8,17 @@
   truth; all earlier frames when no distances are given); a claim is *correct* when the id
   is that of one of its true earlier frames.  recall = recalled / revisit frames,
   precision = correct claims / claims (None when the denominator is 0).
+  These are the *per-frame* revisit precision and recall ("does the id of this frame point
+  to an earlier visit of this place?"): the front-end figures of ``poseidon vpr --mission``
+  (``lvc_precision`` / ``lvc_recall``), the run summary and ``poseidon eval``.
+- :func:`lvc_pair_metrics` -- the *frame-pair* precision and recall of "same LVC id": over
+  the eligible pairs (j < i, ``eligible_before``), a pair is *called* the same place when
+  both frames carry the same id; pair precision = true called pairs / called pairs, pair
+  recall = true called pairs / true pairs (``truth/revisits``).  A different measure with a
+  different name: one revisit frame whose id is right is one correct claim per frame but
+  only as many true pairs as the id has frames among the place's earlier frames, and a
+  long-lived id (a place seen for many frames) calls many pairs; the report's
+  precision-recall star ("same LVC id") is of this kind.
 - :func:`lvc_false_associations` -- frames matched to an existing id (``is_new`` false)
   whose id was created (first ``is_new`` frame of that id) more than ``far_m`` away in
   truth: the dissertation's loop-closure false-positive distance (5 m) applied to ids.
@@ -23,7 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["lvc_revisit_metrics", "lvc_false_associations", "vpr_window_ok_ratio", "frame_indices"]
+__all__ = ["lvc_revisit_metrics", "lvc_pair_metrics", "lvc_false_associations", "vpr_window_ok_ratio", "frame_indices"]
 
 
 def lvc_revisit_metrics(ids: Sequence[int] | np.ndarray, same_place: Sequence[Sequence[int]],
@@ -72,6 +83,35 @@ def lvc_revisit_metrics(ids: Sequence[int] | np.ndarray, same_place: Sequence[Se
     return {"revisit_frames": len(revisit), "recalled": recalled,
             "recall": recalled / len(revisit) if revisit else None,
             "claimed": claimed, "correct_claims": correct, "precision": correct / claimed if claimed else None}
+
+
+def lvc_pair_metrics(ids: Sequence[int] | np.ndarray, same_place: Sequence[Sequence[int]],
+                     eligible_before: np.ndarray | None = None) -> dict[str, Any]:
+    """Frame-pair precision and recall of "same LVC id" (module docstring).
+
+    Frames ``[0, eligible_before[i])`` (default: all earlier frames) are the pairs of frame i;
+    a negative id calls no pair.  Returns ``{"true_pairs", "called_pairs", "correct_pairs",
+    "pair_precision", "pair_recall"}`` (None when the denominator is 0).
+    """
+    ids = np.asarray(ids, dtype=np.int64)
+    n = len(ids)
+    if len(same_place) != n:
+        raise ValueError(f"lvc_pair_metrics: {n} ids but {len(same_place)} ground-truth rows")
+    limit = np.arange(n) if eligible_before is None else np.minimum(np.asarray(eligible_before, np.int64), np.arange(n))
+    true_pairs = called = correct = 0
+    for i in range(n):
+        lim = int(limit[i])
+        js = np.array([int(j) for j in same_place[i] if 0 <= int(j) < lim], np.int64)
+        true_pairs += js.size
+        if ids[i] < 0 or lim == 0:
+            continue
+        same = ids[:lim] == ids[i]
+        called += int(same.sum())
+        if js.size:
+            correct += int(same[js].sum())
+    return {"true_pairs": true_pairs, "called_pairs": called, "correct_pairs": correct,
+            "pair_precision": correct / called if called else None,
+            "pair_recall": correct / true_pairs if true_pairs else None}
 
 
 def lvc_false_associations(ids: Sequence[int], is_new: Sequence[bool], positions: np.ndarray | None,

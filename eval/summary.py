@@ -7,7 +7,9 @@ ones a run summary shows.  Keys (each block present only when the run has its in
 
 - ``front_end`` (``local_view_cells``, with ``truth/revisits`` / ``truth/pose``):
   ``frames``, ``lvc_ids``, ``new_id_fraction``, ``frame_matching``, ``revisit_frames``,
-  ``revisit_recall``, ``claimed_revisits``, ``revisit_precision``, ``min_gap_m``,
+  ``revisit_recall``, ``claimed_revisits``, ``revisit_precision`` (the *per-frame* revisit
+  recall / precision of :func:`eval.frontend.lvc_revisit_metrics`; the frame-pair measure is
+  :func:`eval.frontend.lvc_pair_metrics`), ``min_gap_m``,
   ``matched_frames``, ``false_association_rate`` (``front_end`` of :mod:`eval.run_eval`);
 - ``dead_reckoning`` (``Odometry`` and ``truth/pose``): ``ate_rmse_m``, ``final_error_m``,
   ``final_drift_pct``, ``max_error_m``, ``truth_distance_m`` (start-anchored, no rotation;
@@ -69,7 +71,10 @@ def format_summary(s: dict[str, Any]) -> list[str]:
         line = (f"front-end: {fe['frames']} frames -> {fe['lvc_ids']} LVC ids "
                 f"({100 * fe['new_id_fraction']:.0f}% of frames created an id)")
         if fe.get("revisit_recall") is not None:
-            line += f"; revisits recognised {100 * fe['revisit_recall']:.1f}% of {fe['revisit_frames']} frames"
+            line += (f"; per-frame revisit recall {100 * fe['revisit_recall']:.1f}% of {fe['revisit_frames']} frames"
+                     f" (the frame's id points to an earlier visit of its place)")
+        if fe.get("revisit_precision") is not None:
+            line += f", per-frame revisit precision {100 * fe['revisit_precision']:.1f}% of {fe['claimed_revisits']} claims"
         if fe.get("false_association_rate") is not None:
             line += (f"; {100 * fe['false_association_rate']:.1f}% of {fe['matched_frames']} matches "
                      f"joined places > 5 m apart")

@@ -4,9 +4,9 @@ Usage::
 
     poseidon vpr --ref DIR --query DIR [--gt FILE] [--tolerance N] [--weights PATH]
                  [--backbone shufflenetv2|alexnet_conv3] [--limit N] [--config FILE]
-                 [--set key=value ...] [--no-htm] [--htm-query-learning] [--save-norm FILE] [--json]
+                 [--set key=value ...] [--no-htm] [--no-chains] [--htm-query-learning] [--save-norm FILE] [--json]
     poseidon vpr --mission FILE.mcap [--min-gap-m M] [--weights PATH] [--backbone ...]
-                 [--config FILE] [--set key=value ...] [--no-htm] [--json]
+                 [--config FILE] [--set key=value ...] [--no-htm] [--no-chains] [--json]
 
 Both folders are image sequences (``.png`` / ``.jpg`` / ``.jpeg``, sorted by file name,
 read with PIL as RGB); ``--limit N`` keeps the first N of each.  Ground truth: with
@@ -38,7 +38,11 @@ top-level LVC figures and the ``htm_*`` matchers are those of the fused code.  E
 ``lsbh_fused_overlap`` (fused camera+sonar SDR overlap).  LVC-id figures: ``lvc_recall`` =
 fraction of revisit frames whose LVC id equals the id of one of their true earlier frames;
 a frame *claims* a revisit when its id was given to a candidate earlier frame (>= the
-gap back), ``lvc_precision`` = fraction of claims whose id is that of a true earlier frame.
+gap back), ``lvc_precision`` = fraction of claims whose id is that of a true earlier frame
+(the *per-frame* revisit recall / precision of :func:`eval.frontend.lvc_revisit_metrics`, the
+figures of the run summary and ``poseidon eval`` too); ``lvc_pair_precision`` /
+``lvc_pair_recall`` are the *frame-pair* measure of "same LVC id"
+(:func:`eval.frontend.lvc_pair_metrics`), a different quantity.
 
 Matchers (each gives an n_query x n_ref similarity; the best reference of a query is its
 argmax, correct iff it is in the query's ground truth):
@@ -64,6 +68,16 @@ argmax, correct iff it is in the query's ground truth):
   rule picks among the eligible earlier frames.
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
+* ``sdr_seqmem``, ``sp_tm`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains`
+  (the configured ``htm`` section with the chain's overrides), run on the same SDRs in the
+  same run, printed beside the default (``--no-chains`` skips them): ``sdr_seqmem`` is the
+  fused-SDR chain with the sequence memory (no SP, no TM), ``sp_tm`` the spatial pooler +
+  temporal memory chain (the TM's predictions decide revisits, :mod:`services.htm.tm_match`).
+
+Decisions (``decisions``: counts per rule of how a frame got its id, :func:`decision_kind`):
+``gate`` Eq. 4.9 on l*, ``tm`` the TM's predictions, ``seqmem`` the sequence memory,
+``prior`` the place-sequence prior, ``new`` Eq. 4.10 (or no id on a query-only step);
+``tm_decision_share`` = tm / (all but new).
 
 Per matcher, with queries ranked by score (thresholds at every distinct score):
 precision = correct / predicted, recall = correct / queries having a ground-truth match.
@@ -80,7 +94,9 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
      "backbone": "shufflenetv2", "embedding_dim": .., "embedding_norm": "none|running|fixed",
      "sdr_bits": .., "sdr_length": .., "ground_truth": "file name +-N" | "<gt file>",
      "sdr_overlap": {"same_place": .., "different_place": ..},   # mean |A_q & A_r| / 2k (random: s = 0.25)
-     "n_lvc": .., "htm_query_matched": .., "seconds": {"embed": .., "htm": ..}}
+     "n_lvc": .., "htm_query_matched": .., "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..},
+     "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "sp_tm": {...}},
+     "seconds": {"embed": .., "htm": ..}}   # htm: the default and the chains
 
 and with ``--mission``::
 
@@ -89,10 +105,13 @@ and with ``--mission``::
      "fused_bits_mean": .., "encoder_counters": {..},
      "lvc_recall": .., "lvc_precision": .., "n_claimed_revisits": .., "n_correct_claims": ..,
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
+     "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
+     "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
+     "chains": {"sdr_seqmem": {<the LVC figures above>}, "sp_tm": {...}},   # without --no-htm / --no-chains
      "lvc_run_length": {"median": .., "mean": .., "frames_in_runs_ge3": ..},  # runs of identical consecutive ids
      "modalities": {"fused_<fusion_mode>": {...}, "camera": {...}, "sonar": {...}},  # without --no-htm
      "matchers": {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized", "lsbh_overlap",
-                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor": {...}},
+                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "sp_tm": {...}},
      "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).
@@ -290,9 +309,11 @@ def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.nda
         ref_out.append(_htm_row(htm, r))
     htm.reset_sequence()
     learn = cfg.learning and query_learning
+    htm.query_decisions = {k: 0 for k in DECISION_KINDS}
     for bits in tqdm(query_sdrs, desc="htm query", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32), learn=learn, store=False)
         q_out.append(_htm_row(htm, r))
+        htm.query_decisions[decision_kind(r)] += 1
     return ref_out, q_out, htm
 
 
@@ -377,11 +398,14 @@ def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: n
     """LVC-id recall and precision on a mission (see the module doc, ``--mission``), by the one
     definition of :func:`eval.frontend.lvc_revisit_metrics`.  ``eligible[i]`` is a prefix of
     the earlier frames (those at least the revisit gap of travel back)."""
-    from eval.frontend import lvc_revisit_metrics
-    m = lvc_revisit_metrics(ids, gt, eligible_before=np.asarray(eligible, bool).sum(axis=1))
+    from eval.frontend import lvc_pair_metrics, lvc_revisit_metrics
+    before = np.asarray(eligible, bool).sum(axis=1)
+    m = lvc_revisit_metrics(ids, gt, eligible_before=before)
+    pm = lvc_pair_metrics(ids, gt, eligible_before=before)
     return {"lvc_recall": m["recall"] or 0.0, "lvc_precision": m["precision"] or 0.0,
             "n_revisit_frames": m["revisit_frames"], "n_claimed_revisits": m["claimed"],
-            "n_correct_claims": m["correct_claims"]}
+            "n_correct_claims": m["correct_claims"],
+            "lvc_pair_precision": pm["pair_precision"] or 0.0, "lvc_pair_recall": pm["pair_recall"] or 0.0}
 
 
 @dataclass
@@ -402,12 +426,14 @@ class MissionStreams:
     seconds_embed: float
 
 
-def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool) -> dict:
+def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool,
+                chains: Sequence[str] = ()) -> dict:
     """The front-end (EncoderNode, then NeocortexHtm storing LVCs online) over one MCAP mission.
 
-    Returns the figures of the ``--mission`` JSON (see the module doc).
+    Returns the figures of the ``--mission`` JSON (see the module doc); ``chains`` names the
+    chains of :mod:`services.htm.chains` also run on the fused stream.
     """
-    return score_mission(encode_mission(path, cfg, enc_cfg, min_gap_m), cfg, enc_cfg, use_htm)
+    return score_mission(encode_mission(path, cfg, enc_cfg, min_gap_m), cfg, enc_cfg, use_htm, chains)
 
 
 def encode_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None) -> MissionStreams:
@@ -511,10 +537,12 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
     htm = NeocortexHtm(htm_cfg.model_copy(update={"input_size": length}))
     out = []
     cols_used: set[int] = set()
+    kinds = {k: 0 for k in DECISION_KINDS}
     for b in tqdm(bits, desc="htm", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(b, np.uint32))
         cols_used.update(htm.last_columns.tolist())
         out.append((*_htm_row(htm, r), float(r.anomaly)))
+        kinds[decision_kind(r)] += 1
     n = len(out)
     ids = np.array([o[0] for o in out])
     desc = overlap_similarity([o[2] for o in out], [o[2] for o in out]).astype(np.float64)
@@ -530,8 +558,25 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
     res = lvc_revisit_scores(ids, gt, eligible)
     res.update({"n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
                 "tm_anomaly_mean": round(float(np.mean([o[4] for o in out])), 4) if out else 0.0,
-                "sp_columns_used": len(cols_used)})
+                "sp_columns_used": len(cols_used), "decisions": kinds,
+                "tm_decision_share": round(kinds["tm"] / max(n - kinds["new"], 1), 4)})
     return {"scores": res, "htm_lvc": lvc, "htm_descriptor": np.where(eligible, desc, -np.inf), "ids": ids}
+
+
+DECISION_KINDS = ("gate", "tm", "seqmem", "prior", "new")
+
+
+def decision_kind(r) -> str:
+    """Which rule gave a frame its id: ``gate`` (Eq. 4.9 on l*), ``tm`` (the TM's predictions,
+    :mod:`services.htm.tm_match`), ``seqmem`` (the sequence memory's diagonal), ``prior`` (the
+    place-sequence prior), ``new`` (Eq. 4.10, or no id on a query-only step)."""
+    if r.is_new or r.lvc_id < 0:
+        return "new"
+    if r.by_tm:
+        return "tm"
+    if r.by_sequence:
+        return "seqmem"
+    return "gate" if r.lvc_id == r.best_candidate else "prior"
 
 
 def run_length_stats(ids: np.ndarray) -> dict:
@@ -546,7 +591,7 @@ def run_length_stats(ids: np.ndarray) -> dict:
             "frames_in_runs_ge3": round(float(runs[runs >= 3].sum() / ids.size), 4)}
 
 
-def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool) -> dict:
+def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Sequence[str] = ()) -> dict:
     """The ``--mission`` figures (see the module doc) from the encoded streams."""
     gt, eligible, n = st.gt, st.eligible, len(st.gt)
 
@@ -582,6 +627,13 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool) -> dict:
                 sims["htm_lvc"], sims["htm_descriptor"] = h["htm_lvc"], h["htm_descriptor"]
                 result.update(h["scores"])
         result["modalities"] = per
+        if chains:
+            from services.htm.chains import chain_config
+            result["chains"] = {}
+            for cname in chains:
+                h = mission_htm(chain_config(cfg.htm, cname), enc_cfg.sp_columns, fused, gt, eligible)
+                sims[cname] = h["htm_lvc"]
+                result["chains"][cname] = h["scores"]
         t_htm = time.perf_counter() - t1
     result["matchers"] = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result["seconds"] = {"embed": round(st.seconds_embed, 2), "htm": round(t_htm, 2)}
@@ -610,6 +662,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--config", default=None, help="PoseidonSLAM YAML configuration")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
+    ap.add_argument("--no-chains", action="store_true",
+                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, sp_tm) beside the default")
     ap.add_argument("--htm-query-learning", action="store_true",
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
     ap.add_argument("--save-norm", default=None, metavar="FILE.npz",
@@ -617,6 +671,13 @@ def _parser() -> argparse.ArgumentParser:
                          "e.g. for encoder.embedding_norm fixed")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
+
+
+def _print_lvc(name: str, r: dict) -> None:
+    d = r.get("decisions", {})
+    print(f"{name:12s} LVC ids {r['n_lvc']}, per-frame revisit recall {r['lvc_recall']:.3f}, "
+          f"precision {r['lvc_precision']:.3f}; SP columns used {r.get('sp_columns_used', 0)}; decisions "
+          + ", ".join(f"{k} {v}" for k, v in d.items()) + f" (TM share {r.get('tm_decision_share', 0.0):.3f})")
 
 
 def _print_table(title: str, metrics: dict) -> None:
@@ -645,6 +706,8 @@ def main(argv: list[str] | None = None) -> int:
         print("poseidon vpr: --mission excludes --ref/--query", file=sys.stderr)
         return 2
     errors = (ConfigError, VprInputError, WeightsError, LsbhError, StandardizerError)
+    from services.htm.chains import CHAINS
+    chains = () if (args.no_htm or args.no_chains) else tuple(CHAINS)
     try:
         cfg = load_config(args.config, args.overrides)
         enc_cfg = cfg.encoder
@@ -661,7 +724,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.mission is not None:
         try:
-            result = run_mission(args.mission, cfg, enc_cfg, args.min_gap_m, not args.no_htm)
+            result = run_mission(args.mission, cfg, enc_cfg, args.min_gap_m, not args.no_htm, chains)
         except errors as exc:
             print(f"poseidon vpr: {exc}", file=sys.stderr)
             return 2
@@ -674,8 +737,9 @@ def main(argv: list[str] | None = None) -> int:
                          f"revisits, backbone {enc_cfg.cnn_backbone} ({result['weights']} weights), "
                          f"embedding_norm {enc_cfg.embedding_norm}", result["matchers"])
             if "lvc_recall" in result:
-                print(f"LVC ids: {result['n_lvc']}, recall {result['lvc_recall']:.3f}, "
-                      f"precision {result['lvc_precision']:.3f}")
+                _print_lvc("default", result)
+                for cname, c in result.get("chains", {}).items():
+                    _print_lvc(cname, c)
         return 0
     try:
         ref_names, ref_imgs = load_sequence(args.ref, args.limit)
@@ -723,10 +787,18 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_htm:
         t1 = time.perf_counter()
         ref_out, q_out, htm = run_htm(cfg.htm, s_ref, s_q, length, args.htm_query_learning)
-        t_htm = time.perf_counter() - t1
         sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
         result["n_lvc"] = len(htm.lvc)
         result["htm_query_matched"] = sum(1 for o in q_out if o[0] >= 0)
+        result["decisions"] = htm.query_decisions
+        from services.htm.chains import chain_config
+        result["chains"] = {}
+        for cname in chains:
+            c_ref, c_q, c_htm = run_htm(chain_config(cfg.htm, cname), s_ref, s_q, length, args.htm_query_learning)
+            sims[cname] = htm_similarities(c_ref, c_q)[0]
+            result["chains"][cname] = {"n_lvc": len(c_htm.lvc), "htm_query_matched": sum(1 for o in c_q if o[0] >= 0),
+                                       "decisions": c_htm.query_decisions}
+        t_htm = time.perf_counter() - t1
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
     result = {
         "matchers": metrics,

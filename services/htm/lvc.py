@@ -41,6 +41,9 @@ class LvcResult:
     (:mod:`services.htm.sequence`): ``by_sequence`` when the id came from the sequence match,
     ``frame`` the stored frame (memory index) whose diagonal ended best, ``seq_score`` its
     score S* and ``seq_margin`` S* minus the best score ending elsewhere (z units; 0 when off).
+    With the TM decision (``sv_tm_decide``, :mod:`services.htm.tm_match`): ``by_tm`` when the id
+    came from the TM's predictions, ``tm_frame`` the stored frame j* they point at and ``tm_share``
+    the fraction of the frame's active columns predicted in j*'s context.
     """
 
     lvc_id: int
@@ -56,6 +59,9 @@ class LvcResult:
     frame: int = -1
     seq_score: float = 0.0
     seq_margin: float = 0.0
+    by_tm: bool = False
+    tm_frame: int = -1
+    tm_share: float = 0.0
 
 
 def overlap_scores(a: np.ndarray, b: np.ndarray) -> dict[str, float]:

@@ -36,6 +36,14 @@ ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frame
 different -- Nordland winter vs summer -- is recognised by their order); else the
 place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
 report it.
+TM decision (``sv_tm_decide``, ours, issue 17; :mod:`services.htm.tm_match`): with
+``sv_descriptor_source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm_input_columns`` most
+strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
+vote for the stored frames where they won, and when the best frame's votes are >=
+``sv_tm_share`` of the TM's columns its id is taken (after Eq. 4.9, before the sequence
+match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp_overlap_norm_steps`` N > 0 makes the SP
+rank standardised overlaps (:mod:`services.htm.spatial_pooler`).  The named chains that use
+them are in :mod:`services.htm.chains`.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -55,12 +63,13 @@ from services.htm.lvc import LvcMatcher, LvcResult, overlap_scores
 from services.htm.sequence import SequenceMatcher, SequenceScore
 from services.htm.spatial_pooler import SpatialPooler
 from services.htm.temporal_memory import TemporalMemory
+from services.htm.tm_match import TmFrameIndex
 
 __all__ = ["NeocortexHtm", "LvcResult", "ModalityPrototypes", "descriptor_similarity"]
 
 STATE_VERSION = 1
 # configuration fields that change the shape or meaning of the saved state
-_STRUCTURAL = ("input_size", "sp_enable", "sp_columns", "sp_potentialRadius", "sp_potentialPct",
+_STRUCTURAL = ("input_size", "sp_enable", "sv_tm_decide", "sp_columns", "sp_potentialRadius", "sp_potentialPct", "sp_overlap_norm_steps",
                "tm_cellsPerColumn", "tm_maxSynapsesPerSegment", "sv_descriptor_source",
                "sv_tm_window", "sv_tm_bits", "theta_rho", "seed")
 
@@ -124,8 +133,9 @@ class NeocortexHtm:
     def __init__(self, cfg: HtmConfig):
         self.cfg = cfg
         self.mode = cfg.sv_descriptor_source
-        run_sp = cfg.sp_enable and self.mode in ("tm", "sp")
-        run_tm = self.mode == "tm"
+        self.tm_decides = self.mode in ("sp", "sdr") and cfg.sv_tm_decide and cfg.sp_enable
+        run_sp = cfg.sp_enable and (self.mode in ("tm", "sp") or self.tm_decides)
+        run_tm = self.mode == "tm" or self.tm_decides
         if self.mode == "sp" and not cfg.sp_enable:
             raise ValueError("htm.sv_descriptor_source 'sp' needs htm.sp_enable true")
         if run_tm and not cfg.sp_enable and cfg.sp_columns != cfg.input_size:
@@ -135,7 +145,7 @@ class NeocortexHtm:
             cfg.input_size, cfg.sp_columns, cfg.sp_numActiveColumns, cfg.sp_potentialRadius,
             cfg.sp_potentialPct, cfg.sp_synPermActiveInc, cfg.sp_synPermInactiveDec,
             cfg.sp_synPermConnected, cfg.sp_boostStrength, cfg.sp_dutyCyclePeriod,
-            cfg.sp_minPctOverlapDutyCycle, cfg.seed) if run_sp else None
+            cfg.sp_minPctOverlapDutyCycle, cfg.seed, cfg.sp_overlap_norm_steps) if run_sp else None
         self.tm = TemporalMemory(
             cfg.sp_columns, cfg.tm_cellsPerColumn, cfg.tm_activationThreshold, cfg.tm_minThreshold,
             cfg.tm_initialPermanence, cfg.tm_connectedPermanence, cfg.tm_permanenceIncrement,
@@ -154,6 +164,11 @@ class NeocortexHtm:
             if cfg.sv_require_multimodal else None
         self.seqmem = SequenceMatcher(n_bits, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
                                       cfg.sv_seqmem_column_norm) if cfg.sv_seqmem_length > 0 else None
+        self.tm_index = TmFrameIndex(cfg.sp_columns * cfg.tm_cellsPerColumn) if self.tm_decides else None
+        self.frame_ids: list[int] = []       # LVC id of every frame stored in the TM frame index
+        self.tm_traversal_start = 0
+        self.last_tm_hits = np.zeros(0, np.int64)
+        self.last_tm_columns = 0
         self.steps = 0
         self.successors: dict[int, set[int]] = {}
         self.last_id = -1
@@ -184,21 +199,42 @@ class NeocortexHtm:
         """
         a = self._validate(active)
         learn = self.cfg.learning if learn is None else bool(learn)
-        if self.mode == "sdr":
+        if self.mode == "sdr" and not self.tm_decides:
             return a, 0.0
         if self.sp is not None:
-            sp_learn = learn and (self.cfg.sp_learn_steps == 0 or self.sp.iteration_learn < self.cfg.sp_learn_steps)
+            sp_learn = learn and (self.cfg.sp_learn_steps == 0 or self.sp.iteration_learn < self.cfg.sp_learn_steps
+                                  or self.cfg.sp_overlap_norm_steps > 0)
             cols = self.sp.compute(a, sp_learn)
         else:
             cols = a.astype(np.int32)
         self.last_columns = cols
-        if self.mode == "sp":
-            return cols.astype(np.int64), 0.0
+        if self.mode in ("sp", "sdr"):
+            if self.tm_decides:
+                predicted = self.tm.predictive_cells
+                tm_cols = self._tm_input(cols)
+                self.last_tm_columns = tm_cols.size
+                self.tm.compute(tm_cols, learn)
+                self.last_anomaly = float(self.tm.anomaly)
+                self.last_tm_hits = np.intersect1d(self.tm.active_cells, predicted, assume_unique=True).astype(np.int64)
+            return (a if self.mode == "sdr" else cols.astype(np.int64)), self.last_anomaly
         winners = self.tm.compute(cols, learn).astype(np.int64)
         self.last_anomaly = float(self.tm.anomaly)
         if self.tm_columns:
             winners = np.unique(winners // self.tm.cpc)
         return winners, float(self.tm.anomaly)
+
+    def _tm_input(self, cols: np.ndarray) -> np.ndarray:
+        """The ``tm_input_columns`` most strongly driven active columns (all when 0), sorted."""
+        k = self.cfg.tm_input_columns
+        if k <= 0 or cols.size <= k:
+            return cols
+        sp = self.sp
+        if sp.overlap_norm_steps > 0:
+            drive = (sp.overlaps[cols] - sp.ov_mean[cols]) * sp.ov_isd[cols]
+        else:
+            drive = sp.overlaps[cols] * (sp.boost[cols] if sp.boost_strength > 0 else 1.0)
+        order = np.lexsort((cols, -drive))
+        return np.sort(cols[order[:k]])
 
     def describe(self, active: np.ndarray, learn: bool | None = None) -> np.ndarray:
         """D_t for one fused SDR (SP -> TM -> pooling -> Eq. 4.5 -> cap); the LVC store is untouched."""
@@ -216,12 +252,13 @@ class NeocortexHtm:
         (per-modality SDR indices) are used only with ``sv_require_multimodal``.
         """
         d = self.describe(active, learn)
-        anomaly = self.last_anomaly if self.mode == "tm" else 0.0
+        anomaly = self.last_anomaly if self.tm is not None else 0.0
         self.steps += 1
         mm = self.multimodal
         veto = None if mm is None else (lambda lvc_id: mm.disagree(lvc_id, modalities))
         seq = self.seqmem.score(d) if self.seqmem is not None else None
-        res = self._decide(d, veto, seq, store)
+        tmv = self._tm_vote() if self.tm_index is not None else None
+        res = self._decide(d, veto, seq, store, tmv)
         if store:
             if mm is not None and res.is_new:
                 mm.store(res.lvc_id, modalities)
@@ -229,19 +266,39 @@ class NeocortexHtm:
                 self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
             if self.seqmem is not None:
                 self.seqmem.add(d, res.lvc_id)
+            if self.tm_index is not None:
+                self.tm_index.add(self.tm.winner_cells)
+                self.frame_ids.append(res.lvc_id)
         self.last_id = res.lvc_id
         return replace(res, anomaly=anomaly)
 
-    def _decide(self, d: np.ndarray, veto, seq: SequenceScore | None, store: bool) -> LvcResult:
-        """Eq. 4.9 on l*, then the sequence match, then the place-sequence prior, then Eq. 4.10
-        (``store``) or no id (-1)."""
+    def _tm_vote(self) -> tuple[int, float]:
+        """(stored frame j*, share) the TM's correctly predicted cells point at (:mod:`services.htm.tm_match`);
+        candidates are the stored frames but the last ``sv_seqmem_exclude`` of the current traversal."""
+        idx = self.tm_index
+        nc = max(min(self.tm_traversal_start, idx.size), idx.size - self.cfg.sv_seqmem_exclude, 0)
+        j, votes = idx.vote(self.last_tm_hits, nc)
+        n_cols = max(self.last_tm_columns, 1)
+        return j, votes / n_cols
+
+    def _decide(self, d: np.ndarray, veto, seq: SequenceScore | None, store: bool,
+                tmv: tuple[int, float] | None = None) -> LvcResult:
+        """Eq. 4.9 on l*, then the TM decision, then the sequence match, then the place-sequence
+        prior, then Eq. 4.10 (``store``) or no id (-1)."""
         best, i = self.lvc.best(d)
         n = d.size
         rate = i / n if n else 0.0
         extra = {} if seq is None else {"frame": seq.frame, "seq_score": seq.score,
                                          "seq_margin": seq.score - seq.second}
+        if tmv is not None:
+            extra.update(tm_frame=tmv[0], tm_share=tmv[1])
         if best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best)):
             return LvcResult(best, rate, False, i, best, rate, i, n, **extra)
+        if tmv is not None and tmv[0] >= 0 and tmv[1] >= self.cfg.sv_tm_share:
+            lid = self.frame_ids[tmv[0]]
+            if lid >= 0 and not (veto and veto(lid)):
+                it = int(np.intersect1d(d, self.lvc.prototype(lid), assume_unique=True).size)
+                return LvcResult(lid, it / n if n else 0.0, False, it, best, rate, i, n, by_tm=True, **extra)
         sm = self._sequence_match(d, seq, veto)
         if sm is not None:
             return LvcResult(sm[0], sm[1], False, sm[2], best, rate, i, n, by_sequence=True, **extra)
@@ -297,6 +354,9 @@ class NeocortexHtm:
         self.descriptor.reset()
         if self.seqmem is not None:
             self.seqmem.reset()
+        if self.tm_index is not None:
+            self.tm_traversal_start = self.tm_index.size
+        self.last_tm_hits = np.zeros(0, np.int64)
         self.last_id = -1
 
     # ---- persistence ------------------------------------------------------------------
@@ -305,13 +365,15 @@ class NeocortexHtm:
         path = Path(path)
         arrays: dict[str, np.ndarray] = {}
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
-                             ("mm", self.multimodal), ("seqmem", self.seqmem)):
+                             ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index)):
             if part is not None:
                 for k, v in part.state().items():
                     arrays[f"{prefix}.{k}"] = v
         pairs = sorted((a, b) for a, bs in self.successors.items() for b in bs)
         arrays["seq.pairs"] = np.array(pairs, np.int64).reshape(-1, 2)
         arrays["seq.last_id"] = np.array([self.last_id], np.int64)
+        arrays["tmidx.frame_ids"] = np.array(self.frame_ids, np.int64)
+        arrays["tmidx.traversal_start"] = np.array([self.tm_traversal_start], np.int64)
         meta = {"version": STATE_VERSION, "steps": self.steps,
                 "config": {k: getattr(self.cfg, k) for k in _STRUCTURAL}}
         arrays["meta_json"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
@@ -343,7 +405,7 @@ class NeocortexHtm:
             if getattr(self.cfg, k) != v:
                 raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {getattr(self.cfg, k)!r}")
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
-                             ("mm", self.multimodal), ("seqmem", self.seqmem)):
+                             ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index)):
             if part is not None:
                 pre = prefix + "."
                 part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})
@@ -352,3 +414,5 @@ class NeocortexHtm:
         for a, b in data.get("seq.pairs", np.zeros((0, 2), np.int64)).tolist():
             self.successors.setdefault(int(a), set()).add(int(b))
         self.last_id = int(data["seq.last_id"][0]) if "seq.last_id" in data else -1
+        self.frame_ids = [int(x) for x in data.get("tmidx.frame_ids", np.zeros(0, np.int64))]
+        self.tm_traversal_start = int(data["tmidx.traversal_start"][0]) if "tmidx.traversal_start" in data else 0

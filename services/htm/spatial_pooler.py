@@ -13,6 +13,14 @@ duty cycles are moving averages over ``duty_cycle_period``; boosting uses
 overlap duty cycle falls under ``min_pct_overlap_duty_cycle * max(overlapDutyCycle)`` get
 all permanences raised by ``connected / 10`` (BAMI ``increasePermanences``).
 
+Overlap standardisation (``overlap_norm_steps`` N > 0, ours, issue 17): inhibition ranks
+``(overlap - mean_c) / sqrt(var_c + 1)`` with each column's running mean and variance of its
+overlap over the first N learning steps (then frozen), in place of boosting, and the
+permanences do not learn.  A dense input (the camera OR sonar union has ~900 of 2048 bits on)
+otherwise lets the columns wired to frequently-on bits win every frame: on the seed-1234
+mission the descriptor-overlap AP of 4096 columns / 800 active is 0.639 standardised vs
+0.502 (4096 / 400) with BAMI boosting (fused SDR itself 0.623).
+
 Speed: the connected synapses are mirrored in a column-major bit matrix
 ``conn[column, input // 64]`` (uint64 words), so a column's overlap is a popcount of
 ``conn & input`` over ``L / 64`` words (32 for L = 2048), and learning only touches the
@@ -72,7 +80,7 @@ def _sp_step(active: np.ndarray, inp_bits: np.ndarray, conn: np.ndarray, pot: np
              perm: np.ndarray, boost: np.ndarray, overlap_duty: np.ndarray, active_duty: np.ndarray,
              overlaps: np.ndarray, out: np.ndarray, num_active: int, learn: bool, use_boost: bool,
              boost_strength: float, inc: float, dec: float, connected: float, period: float,
-             min_overlap_duty: float) -> int:
+             min_overlap_duty: float, use_norm: bool, ov_mean: np.ndarray, ov_isd: np.ndarray) -> int:
     """One SP step: overlap (popcount of connected & input), global inhibition, BAMI learning."""
     ncols, nwords = conn.shape
     inp_bits[:] = 0
@@ -85,7 +93,10 @@ def _sp_step(active: np.ndarray, inp_bits: np.ndarray, conn: np.ndarray, pot: np
         for w in range(nwords):
             s += popcount64(conn[c, w] & inp_bits[w])
         overlaps[c] = s
-        scores[c] = s * boost[c] if use_boost else s
+        if use_norm:
+            scores[c] = (s - ov_mean[c]) * ov_isd[c]
+        else:
+            scores[c] = s * boost[c] if use_boost else s
     k = _top_k(scores, num_active, out)
     if not learn:
         return k
@@ -133,7 +144,7 @@ class SpatialPooler:
     def __init__(self, input_size: int, columns: int, num_active: int, potential_radius: int,
                  potential_pct: float, syn_perm_active_inc: float, syn_perm_inactive_dec: float,
                  syn_perm_connected: float, boost_strength: float, duty_cycle_period: int,
-                 min_pct_overlap_duty_cycle: float, seed: int):
+                 min_pct_overlap_duty_cycle: float, seed: int, overlap_norm_steps: int = 0):
         if num_active > columns:
             raise ValueError(f"sp_numActiveColumns ({num_active}) exceeds sp_columns ({columns})")
         self.input_size = int(input_size)
@@ -145,6 +156,7 @@ class SpatialPooler:
         self.boost_strength = float(boost_strength)
         self.duty_cycle_period = int(duty_cycle_period)
         self.min_pct_overlap = float(min_pct_overlap_duty_cycle)
+        self.overlap_norm_steps = int(overlap_norm_steps)
         rng = np.random.Generator(np.random.PCG64(seed))
 
         radius = min(int(potential_radius), (self.input_size - 1) // 2)
@@ -170,6 +182,11 @@ class SpatialPooler:
         self.iteration = 0
         self.iteration_learn = 0
         self.overlaps = np.zeros(self.columns, np.int32)
+        # overlap standardisation (overlap_norm_steps > 0): running mean / M2 of each column's overlap
+        self.ov_n = 0
+        self.ov_mean = np.zeros(self.columns, np.float64)
+        self.ov_m2 = np.zeros(self.columns, np.float64)
+        self.ov_isd = np.ones(self.columns, np.float64)
         self._out = np.empty(self.num_active, np.int32)
         self._inp_bits = np.zeros(self.nwords, np.uint64)
 
@@ -192,13 +209,26 @@ class SpatialPooler:
             self.iteration_learn += 1
         self.iteration += 1
         period = float(min(self.duty_cycle_period, max(self.iteration_learn, 1)))
+        norm = self.overlap_norm_steps > 0
         k = _sp_step(act, self._inp_bits, self.conn, self.pot, self.perm, self.boost,
                      self.overlap_duty, self.active_duty, self.overlaps, self._out, self.num_active,
-                     bool(learn), self.boost_strength > 0, self.boost_strength, self.inc, self.dec,
-                     self.connected, period, self.min_overlap_duty)
+                     bool(learn) and not norm, self.boost_strength > 0, self.boost_strength, self.inc, self.dec,
+                     self.connected, period, self.min_overlap_duty, norm, self.ov_mean, self.ov_isd)
+        if norm and learn and self.ov_n < self.overlap_norm_steps:
+            self._update_norm()
         if learn and self.iteration_learn % self.UPDATE_PERIOD == 0:
             self.min_overlap_duty = self.min_pct_overlap * float(self.overlap_duty.max())
         return self._out[:k].copy()
+
+    def _update_norm(self) -> None:
+        """Welford update of the per-column overlap statistics with this step's overlaps."""
+        x = self.overlaps.astype(np.float64)
+        self.ov_n += 1
+        d = x - self.ov_mean
+        self.ov_mean += d / self.ov_n
+        self.ov_m2 += d * (x - self.ov_mean)
+        # 1 / sqrt(var + 1): a column whose overlap never varied ranks by its raw deviation
+        self.ov_isd = 1.0 / np.sqrt(self.ov_m2 / self.ov_n + 1.0)
 
     # ---- persistence ---------------------------------------------------------------
     def state(self) -> dict[str, np.ndarray]:
@@ -207,6 +237,7 @@ class SpatialPooler:
             "active_duty": self.active_duty, "boost": self.boost,
             "scalars": np.array([self.iteration, self.iteration_learn], np.int64),
             "min_overlap_duty": np.array([self.min_overlap_duty], np.float64),
+            "ov_n": np.array([self.ov_n], np.int64), "ov_mean": self.ov_mean, "ov_m2": self.ov_m2,
         }
 
     def set_state(self, st: dict[str, np.ndarray]) -> None:
@@ -219,4 +250,9 @@ class SpatialPooler:
         self.boost = np.array(st["boost"], np.float64)
         self.iteration, self.iteration_learn = (int(x) for x in st["scalars"])
         self.min_overlap_duty = float(st["min_overlap_duty"][0])
+        if "ov_n" in st:
+            self.ov_n = int(st["ov_n"][0])
+            self.ov_mean = np.array(st["ov_mean"], np.float64)
+            self.ov_m2 = np.array(st["ov_m2"], np.float64)
+            self.ov_isd = 1.0 / np.sqrt(self.ov_m2 / max(self.ov_n, 1) + 1.0)
         self._rebuild_conn()

@@ -50,3 +50,20 @@ def test_vpr_window_ok_ratio_counts_eq_4_11_gate():
 def test_frame_indices_by_stamp_or_order():
     assert frame_indices([10, 30], {10: 0, 20: 1, 30: 2}) == ([0, 2], "stamp")
     assert frame_indices([10, 40], {10: 0}) == ([0, 1], "order")
+
+
+def test_pair_metrics_count_pairs_not_frames():
+    from eval.frontend import lvc_pair_metrics, lvc_revisit_metrics
+    # frames 0,1 one place (id 0), frame 2 another (id 1), frames 3,4 revisit the first place;
+    # frame 3 gets id 0 (right), frame 4 gets id 1 (wrong: place of frame 2)
+    ids = [0, 0, 1, 0, 1]
+    same = [[], [0], [], [0, 1], [0, 1, 3]]
+    m = lvc_pair_metrics(ids, same)
+    # true pairs: (1,0) (3,0) (3,1) (4,0) (4,1) (4,3) = 6; called: (1,0) (3,0) (3,1) (4,2) = 4; correct 3
+    assert (m["true_pairs"], m["called_pairs"], m["correct_pairs"]) == (6, 4, 3)
+    assert m["pair_precision"] == 0.75 and m["pair_recall"] == 0.5
+    f = lvc_revisit_metrics(ids, same)
+    # per frame: revisit frames 1, 3, 4; recalled 1, 3; claims 1, 3, 4 (4's id exists earlier) -> 2 of 3
+    assert (f["recalled"], f["claimed"], f["correct_claims"]) == (2, 3, 2)
+    # only eligible pairs count
+    assert lvc_pair_metrics(ids, same, eligible_before=[0, 0, 0, 0, 0])["called_pairs"] == 0

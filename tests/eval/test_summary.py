@@ -35,7 +35,8 @@ def test_revisit_recall_and_false_associations(tmp_path):
     dr = s["dead_reckoning"]
     assert dr["truth_distance_m"] == pytest.approx(40.0)
     assert dr["max_error_m"] == pytest.approx(0.5)
-    assert "revisits recognised 100.0% of 1 frames" in format_summary(s)[0]
+    assert "per-frame revisit recall 100.0% of 1 frames" in format_summary(s)[0]
+    assert "per-frame revisit precision" in format_summary(s)[0]
 
 
 def test_back_end_block_on_a_run_with_a_map(tmp_path):

@@ -86,7 +86,14 @@ def test_main_synthetic_json(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "lsbh_overlap", "htm_lvc",
-                                    "htm_descriptor"}
+                                    "htm_descriptor", "sdr_seqmem", "sp_tm"}
+    # the named chains run beside the default, with how each query got its id
+    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm"}
+    for c in list(out["chains"].values()) + [out]:
+        assert set(c["decisions"]) == {"gate", "tm", "seqmem", "prior", "new"}
+        assert sum(c["decisions"].values()) == 6
+    # the default is the sdr_seqmem chain: the same figures
+    assert out["matchers"]["sdr_seqmem"] == out["matchers"]["htm_lvc"]
     assert out["matchers"]["patchnorm_sad"]["auc"] == pytest.approx(1.0)  # identical images
     assert out["embedding_norm"] == "none"
     assert out["matchers"]["cnn_cosine"]["auc"] == pytest.approx(1.0)
@@ -153,7 +160,15 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized",
-                                    "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor"}
+                                    "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor",
+                                    "sdr_seqmem", "sp_tm"}
+    # the named chains beside the default: the same LVC figures, SP columns and the TM's share of decisions
+    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm"}
+    assert out["chains"]["sp_tm"]["sp_columns_used"] > 0 and out["chains"]["sdr_seqmem"]["sp_columns_used"] == 0
+    for c in list(out["chains"].values()) + [out]:
+        assert sum(c["decisions"].values()) == 119 and 0 <= c["tm_decision_share"] <= 1
+        assert 0 <= c["lvc_pair_precision"] <= 1 and 0 <= c["lvc_pair_recall"] <= 1
+    assert out["chains"]["sdr_seqmem"]["lvc_recall"] == out["lvc_recall"]
     # the modality table: the fused code and each single modality through its own HTM, same run
     assert set(out["modalities"]) == {"fused_union", "camera", "sonar"}
     for m in out["modalities"].values():
