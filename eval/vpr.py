@@ -576,7 +576,7 @@ def decision_kind(r) -> str:
         return "tm"
     if r.by_sequence:
         return "seqmem"
-    return "gate" if r.lvc_id == r.best_candidate else "prior"
+    return "prior" if r.by_prior else "gate"
 
 
 def run_length_stats(ids: np.ndarray) -> dict:

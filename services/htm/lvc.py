@@ -60,6 +60,7 @@ class LvcResult:
     seq_score: float = 0.0
     seq_margin: float = 0.0
     by_tm: bool = False
+    by_prior: bool = False
     tm_frame: int = -1
     tm_share: float = 0.0
 

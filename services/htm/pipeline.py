@@ -305,7 +305,7 @@ class NeocortexHtm:
         if self.cfg.sv_seq_match_threshold > 0:
             pm = self._predicted_match(d, veto)
             if pm is not None:
-                return LvcResult(pm[0], pm[1], False, pm[2], best, rate, i, n, **extra)
+                return LvcResult(pm[0], pm[1], False, pm[2], best, rate, i, n, by_prior=True, **extra)
         if store:
             new_id = self.lvc.add(d)
             return LvcResult(new_id, 1.0 if n else 0.0, True, 0, best, rate, i, n, **extra)
