@@ -25,7 +25,7 @@ and a table unavailable.
 ``--json`` prints ``{"out": path of index.html, "bytes": page size, "figures": {figure id:
 "shown" | "not shown: reason"}, "tables": [table names], "unavailable": {table name:
 reason}, "precision_recall": {run label: {"source", "pairs", "positives",
-"average_precision", "best_f1", "lvc_precision", "lvc_recall", "lvc_f1"}}, "runs":
+"average_precision", "best_f1", "lvc_pair_precision", "lvc_pair_recall", "lvc_pair_f1"}}, "runs":
 [{"path", "label", "duration_s", "counts": {key: n}}]}``.
 """
 from __future__ import annotations

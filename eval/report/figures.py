@@ -618,7 +618,10 @@ def fig_pr(runs: list[RunData], sims: list[tuple[int, Similarity | None]]) -> tu
         "travel apart) is called the same place when its similarity reaches the threshold, and is scored "
         "against the ground-truth matrix. Precision = correct / called; recall = correct / true revisits. "
         "Up and to the right is better; AP (average precision, area under the curve) and the best F1 are in the "
-        "legend. The star marks the front-end's actual decision (two frames with the same LVC id).")
+        "legend. The star marks the front-end's actual decision as a frame-pair measure: two frames are called the "
+        "same place when they carry the same LVC id (pair precision P, pair recall R over the same pairs; "
+        "eval/frontend.py lvc_pair_metrics). It is not the per-frame revisit precision/recall of the evaluation "
+        "table (does a frame's id point to an earlier visit of its place).")
     summary: dict[str, Any] = {}
     fig = go.Figure()
     drawn = False
@@ -664,10 +667,11 @@ def fig_pr(runs: list[RunData], sims: list[tuple[int, Similarity | None]]) -> tu
                 p = tp / called if called else 1.0
                 rc = tp / pos
                 f1 = 2 * p * rc / (p + rc) if p + rc else 0.0
-                entry.update(lvc_precision=p, lvc_recall=rc, lvc_f1=f1)
+                entry.update(lvc_pair_precision=p, lvc_pair_recall=rc, lvc_pair_f1=f1)
                 fig.add_trace(go.Scatter(x=[rc], y=[p], mode="markers", marker=dict(symbol="star", size=14,
                                                                                    color=_color(i)),
-                                         name=f"{r.label}: same LVC id (P {p:.3f}, R {rc:.3f}, F1 {f1:.3f})"))
+                                         name=f"{r.label}: frame pairs with the same LVC id (pair P {p:.3f}, "
+                                              f"pair R {rc:.3f}, F1 {f1:.3f})"))
                 drawn = True
         summary[r.label] = entry
     if drawn:
