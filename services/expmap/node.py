@@ -37,7 +37,8 @@ subscribed.
 
 - range scans (``expmap.graph: scan_graph``, the laser preset): ``expmap.scan_topic`` carries
   ``LaserScan``; each scan's returns (``scan_graph.min_range_m`` .. ``max_range_m``) become
-  points in the dead-reckoning frame with the latest ``Odometry`` pose, and an experience keeps
+  points in the dead-reckoning frame with the latest ``Odometry`` pose (after
+  ``scan_graph.sensor_offset``, the sensor's pose on the robot), and an experience keeps
   the latest scan expressed in its own frame (motion between the scan and the event
   compensated by the odometry); :class:`services.expmap.scan_graph.ScanGraph` registers the
   scans for every edge.  Its counters (``chain_scan``, ``chain_odometry``, ``loop_tried``,
@@ -55,6 +56,7 @@ max_correction_step), ``experience_images``, ``events_without_image``,
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -244,6 +246,9 @@ class ExpMapNode(ServiceNode):
         c = self.cfg.scan_graph
         pts = scan_points(scan.ranges, scan.angle_min, scan.angle_increment, max(c.min_range_m, scan.range_min),
                           min(c.max_range_m, scan.range_max * 0.999) if scan.range_max > 0 else c.max_range_m)
+        off = c.sensor_offset
+        if any(off):   # sensor frame -> robot frame
+            pts = transform_points(pts, (off[0], off[1], math.radians(off[2])))
         self._scan_odom = transform_points(pts, self._odom_pose)
         self.count("scans")
 

@@ -243,3 +243,29 @@ def test_laser_scan_without_scan_graph_is_a_configuration_error():
                      intensities=np.zeros(0, np.float32))
     with pytest.raises(ConfigError, match="scan_graph"):
         node.process("scan", scan)
+
+
+def test_laser_sensor_offset_places_returns_in_the_robot_frame():
+    """A return 1 m straight ahead of a laser mounted 0.5 m forward and turned 90 degrees
+    left lies at (0.5, 1.0) in the robot frame; the experience keeps it there."""
+    from common.messages import LaserScan
+
+    cfg = PoseidonConfig().model_copy(deep=True)
+    cfg.expmap.graph = "scan_graph"
+    cfg.expmap.scan_topic = "scan"
+    cfg.expmap.loop_scan_matching = False
+    cfg.expmap.publish_experience_image = False
+    cfg.expmap.scan_graph.sensor_offset = [0.5, 0.0, 90.0]
+    cfg.expmap.scan_graph.min_points = 3
+    node = ExpMapNode(cfg)
+    node.process("Odometry", odometry(0, 10, (2.0, 3.0, 0.0), math.pi / 2))
+    scan = LaserScan(header=Header(seq=0, stamp=20, frame_id="laser"), angle_min=0.0, angle_max=0.0,
+                     angle_increment=0.0, range_min=0.0, range_max=10.0, ranges=np.array([1.0], np.float32),
+                     intensities=np.zeros(0, np.float32))
+    node.process("scan", scan)
+    node.process("experience_event", ExperienceEvent(
+        header=Header(seq=0, stamp=30, frame_id="map"), lvc_id=0, pc_centroid=[0.0] * 4,
+        odom_position=[2.0, 3.0, 0.0], odom_yaw=math.pi / 2, gate="off", vpr_count=1))
+    kept = node.graph.scan(0)
+    assert kept is not None and kept.shape == (1, 2)
+    np.testing.assert_allclose(kept[0], [0.5, 1.0], atol=1e-9)
