@@ -361,9 +361,10 @@ class ScanGraphConfig(_Section):
     """Planar experience map of a range sensor (``expmap.graph: scan_graph``;
     services/expmap/scan_graph.py documents every rule)."""
 
-    sensor_offset: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3,
-                                       description="the range sensor's pose on the robot: x m forward, y m left, "
-                                       "yaw deg (a CARMEN import reports it: laser_offsets in --json and metadata)")
+    sensor_offset: list[float] | None = Field(None, min_length=3, max_length=3,
+                                              description="the range sensor's pose on the robot: x m forward, y m "
+                                              "left, yaw deg; null: the input recording's own (a CARMEN import's "
+                                              "laser_offsets metadata), else 0 0 0 (launcher/run.py)")
     max_range_m: float = Field(20.0, gt=0, description="returns farther than this are not used (m)")
     min_range_m: float = Field(0.05, ge=0, description="returns nearer than this are not used (m)")
     voxel_m: float = Field(0.05, gt=0, description="one scan point per square of this size (m)")

@@ -35,6 +35,7 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
+import math
 import os
 import shutil
 import signal
@@ -52,7 +53,7 @@ import yaml
 
 from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
-from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
+from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
 from common.runtime import NodeRunner
 from launcher.services import available_services, node_class
@@ -122,6 +123,27 @@ class RunPlan:
     player_keys: list[str]
     expect: list[str]
     io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]]
+
+
+def calibrate_from_input(config: PoseidonConfig, input_path: str | Path) -> None:
+    """Take what the input recording says about its own sensors where the configuration
+    leaves it open: ``expmap.scan_graph.sensor_offset`` null (the default) becomes the offset
+    of ``expmap.scan_topic``'s sensor that the import measured (``poseidon`` metadata
+    ``laser_offsets``: dx, dy m, dtheta rad), else 0 0 0.  Logged at INFO."""
+    sg = config.expmap.scan_graph
+    if config.expmap.graph != "scan_graph" or sg.sensor_offset is not None:
+        return
+    offset = [0.0, 0.0, 0.0]
+    raw = read_metadata(input_path).get("poseidon", {}).get("laser_offsets")
+    if raw:
+        try:
+            entry = json.loads(raw).get(config.expmap.scan_topic)
+        except (json.JSONDecodeError, AttributeError) as exc:
+            raise RecordingError(f"{input_path}: metadata poseidon.laser_offsets is not a JSON object ({exc})") from None
+        if entry:
+            offset = [float(entry["dx"]), float(entry["dy"]), math.degrees(float(entry["dtheta"]))]
+            log.info("expmap.scan_graph.sensor_offset from %s: %.3f m, %.3f m, %.2f deg", input_path, *offset)
+    sg.sensor_offset = offset
 
 
 def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None) -> RunPlan:
@@ -222,6 +244,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     """Each service in its own process, connected over loopback Zenoh through a hub
     (supervised when ``supervise.max_restarts`` > 0: see the module notes)."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
+    calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
     max_restarts = config.supervise.max_restarts
     state_dir = state_dir_of(config, out) if max_restarts > 0 else None
@@ -367,6 +390,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                  progress: bool = True) -> RunResult:
     """Every service as a thread on one Zenoh session in this process."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
+    calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
     t0 = time.monotonic()
     # every node is built (and its configuration checked) before anything opens the output

@@ -246,7 +246,7 @@ class ExpMapNode(ServiceNode):
         c = self.cfg.scan_graph
         pts = scan_points(scan.ranges, scan.angle_min, scan.angle_increment, max(c.min_range_m, scan.range_min),
                           min(c.max_range_m, scan.range_max * 0.999) if scan.range_max > 0 else c.max_range_m)
-        off = c.sensor_offset
+        off = c.sensor_offset or (0.0, 0.0, 0.0)
         if any(off):   # sensor frame -> robot frame
             pts = transform_points(pts, (off[0], off[1], math.radians(off[2])))
         self._scan_odom = transform_points(pts, self._odom_pose)

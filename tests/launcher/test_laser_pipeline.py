@@ -75,3 +75,33 @@ def test_laser_preset_maps_a_hand_made_log(tmp_path):
     back = read_tum(out)
     assert len(back) == res.recording["counts"]["Odometry"] == len(truth)
     assert math.isclose(back.stamps[0] / 1e9, 100.0)
+
+
+def _recording_with_offsets(path: Path, offsets: dict | None) -> Path:
+    from common.mcap_io import RecordingWriter
+    from common.messages import Header, Odometry
+    with RecordingWriter(path) as w:
+        w.write("wheel_odometry", Odometry(header=Header(seq=0, stamp=1), position=[0.0, 0.0, 0.0],
+                                           orientation=[0.0, 0.0, 0.0, 1.0]))
+        if offsets is not None:
+            w.add_metadata("poseidon", {"tool": "test", "laser_offsets": offsets})
+    return path
+
+
+def test_sensor_offset_comes_from_the_input_unless_configured(tmp_path):
+    from launcher.run import calibrate_from_input
+    rec = _recording_with_offsets(tmp_path / "a.mcap", {"scan": {"dx": -0.04, "dy": 0.0, "dtheta": math.pi / 2,
+                                                                "max_deviation_m": 0.0}})
+    cfg = load_config(PRESET)
+    assert cfg.expmap.scan_graph.sensor_offset is None
+    calibrate_from_input(cfg, rec)
+    assert cfg.expmap.scan_graph.sensor_offset == pytest.approx([-0.04, 0.0, 90.0])
+    mine = load_config(PRESET, overrides=["expmap.scan_graph.sensor_offset=[0.1,0,0]"])
+    calibrate_from_input(mine, rec)
+    assert mine.expmap.scan_graph.sensor_offset == [0.1, 0.0, 0.0]
+    bare = load_config(PRESET)
+    calibrate_from_input(bare, _recording_with_offsets(tmp_path / "b.mcap", None))
+    assert bare.expmap.scan_graph.sensor_offset == [0.0, 0.0, 0.0]
+    sonar = load_config()                     # the underwater map is left alone
+    calibrate_from_input(sonar, rec)
+    assert sonar.expmap.scan_graph.sensor_offset is None
