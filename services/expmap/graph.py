@@ -75,6 +75,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -652,11 +653,7 @@ class ExperienceMap:
              lattice_spacing=(0.1, 0.1, 0.1)) -> "ExperienceMap":
         """Read a map written by :meth:`save`; the lattice must match the saved one."""
         path = Path(path)
-        try:
-            z = np.load(path, allow_pickle=False)
-            meta = json.loads(bytes(z["meta"]).decode())
-        except (OSError, ValueError, KeyError) as exc:
-            raise ValueError(f"{path}: not an experience map file ({exc})") from None
+        z, meta = read_map_file(path, "an experience map")
         if meta.get("format") != FORMAT_VERSION:
             raise ValueError(f"{path}: map format {meta.get('format')} (this build reads {FORMAT_VERSION})")
         if list(meta["lattice_shape"]) != [int(v) for v in lattice_shape] or \
@@ -692,6 +689,16 @@ class ExperienceMap:
         else:
             em._scans = [None] * n
         return em
+
+
+def read_map_file(path: Path, what: str) -> tuple[Any, dict]:
+    """The arrays and the ``meta`` JSON record of a map file written by a ``save`` (npz);
+    ValueError naming the file when it is not one (``what``: the kind, for the message)."""
+    try:
+        z = np.load(path, allow_pickle=False)
+        return z, json.loads(bytes(z["meta"]).decode())
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"{path}: not {what} file ({exc})") from None
 
 
 # --------------------------------------------------------------------------- path planning

@@ -60,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from common.config import ScanGraphConfig
-from services.expmap.graph import EventResult
+from services.expmap.graph import EventResult, read_map_file
 from services.expmap.laser_match import ScanMatch, free_space_fraction, match_scan, transform_points, voxel_filter
 from services.expmap.pose_graph import compose, relative_pose, relax_se2, wrap_angle
 
@@ -93,7 +93,7 @@ class ScanGraph:
         self.corrections = 0
         self.solves = 0
         self.counters = {"chain_scan": 0, "chain_odometry": 0, "chain_heading_only": 0, "loop_tried": 0, "loop_verified": 0,
-                         "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_free_space": 0, "loop_rejected_residual": 0, "loop_rejected_confirm": 0,
+                         "loop_rejected_score": 0, "loop_rejected_ambiguous": 0, "loop_rejected_free_space": 0, "loop_rejected_residual": 0,
                          "loop_from_lvc": 0}
         self.last_registration: ScanMatch | None = None
 
@@ -326,7 +326,6 @@ class ScanGraph:
                 return True
         self._pending.append((m, n, z_new))
         res.confirmations = 1
-        self.counters["loop_rejected_confirm"] += 0
         return False
 
     def _close(self, loops: list[tuple[int, int, np.ndarray]], res: EventResult) -> None:
@@ -393,11 +392,7 @@ class ScanGraph:
     def load(cls, path: str | Path, cfg: ScanGraphConfig) -> "ScanGraph":
         """Read a map written by :meth:`save`."""
         path = Path(path)
-        try:
-            zf = np.load(path, allow_pickle=False)
-            meta = json.loads(bytes(zf["meta"]).decode())
-        except (OSError, ValueError, KeyError) as exc:
-            raise ValueError(f"{path}: not a scan-graph map file ({exc})") from None
+        zf, meta = read_map_file(path, "a scan-graph map")
         if meta.get("kind") != "scan_graph" or meta.get("format") != FORMAT_VERSION:
             raise ValueError(f"{path}: not a scan-graph map of format {FORMAT_VERSION} "
                              f"(kind {meta.get('kind')!r}, format {meta.get('format')})")
