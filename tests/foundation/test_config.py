@@ -6,7 +6,7 @@ from common.write_defaults import render
 
 
 def test_defaults_are_table_4_1():
-    # the fields whose default is ours (README "Defaults that are ours") come from the dissertation preset
+    # the fields whose default is ours (docs/DECISIONS.md "Defaults that are ours") come from the dissertation preset
     from services.htm.presets import DISSERTATION_PRESET
     c = load_config(DISSERTATION_PRESET)
     assert (c.encoder.cnn_backbone, c.encoder.input_size, c.encoder.embedding_norm) == ("shufflenetv2", 224, "none")

@@ -1,5 +1,5 @@
 """`poseidon demo`: the checks it prints and the mission cache (the full demo is run by hand:
-it takes minutes; its figures are in the README)."""
+it takes minutes; its figures are in the README and docs/DECISIONS.md)."""
 from __future__ import annotations
 
 import json

@@ -1,7 +1,7 @@
 """Named configuration presets (YAML files loaded with ``--config``).
 
 ``dissertation.yaml`` (:data:`DISSERTATION_PRESET`): Table 4.1 values for every field whose
-PoseidonSLAM default is ours (README, "Defaults that are ours").
+PoseidonSLAM default is ours (docs/DECISIONS.md, "Defaults that are ours").
 """
 from pathlib import Path
 
