@@ -121,6 +121,7 @@ class PoseCellsNode(ServiceNode):
             return
         self.count("events")
         self.count(f"events_{decision.gate}")
+        assert step.centroid is not None and step.position is not None   # an accepted step carries both
         self.publish("experience_event", ExperienceEvent(
             header=self.header("experience_event", msg.header.stamp, msg.header.frame_id),
             lvc_id=int(msg.most_active_cell),
