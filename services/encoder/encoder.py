@@ -17,6 +17,7 @@ batch norms folded into their convolutions (``encoder.fold_batchnorm``), channel
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
 from typing import Mapping, Sequence
 
@@ -87,6 +88,7 @@ class MultimodalEncoder:
         self._std = torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1)
         self._lsbh: dict[str, LsbhEncoder] = {}
         self._norm: dict[str, EmbeddingStandardizer] = {}
+        self._digests: dict[str, str] = {}
 
     @property
     def weights(self) -> str:
@@ -163,6 +165,19 @@ class MultimodalEncoder:
             st = self._norm[modality] = EmbeddingStandardizer(self.dim, c.embedding_norm, c.embedding_norm_warmup,
                                                              c.embedding_norm_rate, c.embedding_norm_scale, path)
         return st
+
+    @property
+    def standardizers(self) -> dict[str, EmbeddingStandardizer]:
+        """The standardisers created so far, by modality (a new dict; the objects are the encoder's)."""
+        return dict(self._norm)
+
+    def lsbh_digests(self) -> dict[str, str]:
+        """sha256 (hex) of each LSBH projection created so far, by modality: identifies P_m
+        without storing it (the projections are rebuilt from the seed or their file)."""
+        for m, e in self._lsbh.items():
+            if m not in self._digests:
+                self._digests[m] = hashlib.sha256(np.ascontiguousarray(e.projection).tobytes()).hexdigest()
+        return dict(self._digests)
 
     def set_standardizer(self, modality: str, st: EmbeddingStandardizer) -> None:
         """Use ``st`` for ``modality`` (e.g. statistics fitted on a reference set)."""

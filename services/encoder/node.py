@@ -31,32 +31,35 @@ is no sonar SDR yet (start, after a ring reset); otherwise the last sonar SDR is
 (counted as ``sonar_sdr_reused``).  A raster changes little within a few degrees of sweep
 while the CNN costs as much as a camera frame, so this keeps the sonar cost per camera
 frame at about a fifth of a CNN pass (``benchmarks/bench_encoder.py``).
+
+The rules live in :class:`services.encoder.clock.EncoderCore` and
+:class:`~services.encoder.clock.SonarClock`; the node subscribes, calls the core, publishes
+and counts.
 """
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 
 import numpy as np
 
 from common.config import PoseidonConfig
-from common.messages import Header, Image, LaserScan, NeocortexSdr, RangeImageBeam, Sdr
+from common.messages import Header, NeocortexSdr, Sdr
 from common.node import ServiceNode
 
-from .encoder import MultimodalEncoder, image_to_rgb
+from .clock import EncoderCore, SonarClock
+from .encoder import MultimodalEncoder
 from .sonar import SonarRaster
 
 __all__ = ["EncoderNode"]
 
 log = logging.getLogger(__name__)
 
-TWO_PI = 2.0 * math.pi
 OUT = "neocortex/sdr"
 
 
 class EncoderNode(ServiceNode):
-    """Thin transport wrapper around :class:`MultimodalEncoder` and :class:`SonarRaster`."""
+    """Transport wrapper around :class:`EncoderCore` (a :class:`MultimodalEncoder` and a :class:`SonarClock`)."""
 
     name = "encoder"
     outputs = (OUT,)
@@ -70,124 +73,58 @@ class EncoderNode(ServiceNode):
         cfg = config.encoder
         self.sonar_key = cfg.sonar_topic
         self.encoder = encoder if encoder is not None else MultimodalEncoder(cfg)
-        self.raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax,
-                                  cfg.sonar_use_intensities)
         self.mode = cfg.fusion_mode
         if config.htm.state_path and cfg.embedding_norm == "running" and not cfg.embedding_norm_path:
             log.warning("encoder: htm.state_path keeps the LVC map across runs but encoder.embedding_norm_path is "
                         "empty: the running embedding statistics restart every run, so the SDRs of known places "
                         "change; set encoder.embedding_norm_path (e.g. state/embnorm_{backbone}_{modality}.npz)")
             self.count("embedding_norm_not_persisted")
-        self.stale_ns = int(round(config.sync.sync_stale_sec * 1e9))
+        raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax, cfg.sonar_use_intensities)
+        clock = SonarClock(raster, self.mode, int(round(config.sync.sync_stale_sec * 1e9)),
+                           math.radians(cfg.sonar_encode_sweep_deg))
+        self.core = EncoderCore(self.encoder, clock)
         self.length = cfg.sp_columns
-        self._last_camera: int | None = None
-        self._sweep_rad = 0.0
-        self._sonar_cache: np.ndarray | None = None  # the last sonar SDR
-        self._since_sonar_rad = 0.0  # bearing swept since the sonar raster was last encoded
-        self._reencode_rad = math.radians(cfg.sonar_encode_sweep_deg)
 
     # ------------------------------------------------------------------ inputs
     def process(self, key: str, msg) -> None:
         if key == "camera/image_raw":
-            self._on_camera(msg)
+            sdrs = self.core.on_camera(msg)
+            self._drain()
+            if sdrs is not None:
+                self._emit(msg.header.stamp, msg.header.frame_id, sdrs)
         elif key == self.sonar_key:
-            self._on_sonar(msg)
+            sdrs = self.core.on_sonar(msg)
+            self._drain()
+            if sdrs is not None:
+                self._emit(msg.header.stamp, msg.header.frame_id, sdrs)
+                self.count("sonar_clocked_outputs")
         else:
             raise KeyError(f"encoder: unexpected input key {key!r}")
 
-    def _on_sonar(self, msg: RangeImageBeam | LaserScan) -> None:
-        stamp = msg.header.stamp
-        if self.raster.last_stamp is not None and stamp - self.raster.last_stamp > self.stale_ns:
-            self.raster.reset()
-            self._sweep_rad = 0.0
-            self._sonar_cache = None
-            self.count("sonar_ring_reset")
-        prev = self.raster.last_angle
-        if isinstance(msg, RangeImageBeam):
-            self.raster.add_beam(msg)
-            angles = [msg.angle_rad]
-        elif isinstance(msg, LaserScan):
-            angles = self.raster.add_scan(msg)
-        else:
-            raise TypeError(f"encoder: {self.sonar_key} carries {type(msg).__name__}, "
-                            "expected RangeImageBeam or LaserScan")
-        for a in angles:
-            if prev is not None:
-                step = abs((a - prev + math.pi) % TWO_PI - math.pi)
-                self._sweep_rad += step
-                self._since_sonar_rad += step
-            prev = a
-        self.count("sonar_beams", len(angles))
-        camera_silent = self._last_camera is None or stamp - self._last_camera > self.stale_ns
-        sonar_clock = self.mode == "sonar" or (self.mode in ("union", "and") and camera_silent)
-        if sonar_clock and self._sweep_rad >= TWO_PI:
-            self._emit(stamp, msg.header.frame_id, {"sonar": self._sonar_sdr()})
-            self.count("sonar_clocked_outputs")
-
-    def _on_camera(self, msg: Image) -> None:
-        self._last_camera = msg.header.stamp
-        if self.mode == "sonar":
-            self.count("camera_frames_unused")
-            return
-        stamp = msg.header.stamp
-        rgb = image_to_rgb(msg)
-        sonar_fresh = (self.mode != "camera" and self.raster.has_data and self.raster.last_stamp is not None
-                       and stamp - self.raster.last_stamp <= self.stale_ns)
-        sdrs: dict[str, np.ndarray] = {}
-        if sonar_fresh and self._sonar_due():
-            y_cam, y_son = self.encoder.embed([rgb, self.raster.image3()])
-            self._set_sonar(y_son)
-        else:
-            (y_cam,) = self.encoder.embed([rgb])
-            if sonar_fresh:
-                self.count("sonar_sdr_reused")
-        sdrs["camera"] = self.encoder.sdr("camera", y_cam)
-        if sonar_fresh:
-            sdrs["sonar"] = self._sonar_cache  # type: ignore[assignment]
-        else:
-            self.count("frames_without_sonar")
-        self._emit(stamp, msg.header.frame_id, sdrs)
-
-    def _sonar_due(self) -> bool:
-        """The encoding rule of the module doc: no sonar SDR yet, or swept far enough since the last."""
-        return self._sonar_cache is None or self._since_sonar_rad >= self._reencode_rad
-
-    def _set_sonar(self, y: np.ndarray) -> None:
-        self._sonar_cache = self.encoder.sdr("sonar", y)
-        self._since_sonar_rad = 0.0
-        self.count("sonar_encodings")
-
-    def _sonar_sdr(self) -> np.ndarray:
-        if self._sonar_due():
-            (y,) = self.encoder.embed([self.raster.image3()])
-            self._set_sonar(y)
-        return self._sonar_cache  # type: ignore[return-value]
+    def _drain(self) -> None:
+        for what, n in self.core.take_events():
+            self.count(what, n)
 
     # ------------------------------------------------------------------ checkpoints
-    checkpoint_exclude = ("encoder", "_digests")  # the CNN is rebuilt from the configuration
-
-    def _lsbh_digests(self) -> dict[str, str]:
-        digests = self.__dict__.setdefault("_digests", {})
-        for m, e in self.encoder._lsbh.items():
-            if m not in digests:
-                digests[m] = hashlib.sha256(np.ascontiguousarray(e.projection).tobytes()).hexdigest()
-        return dict(digests)
+    checkpoint_exclude = ("encoder", "core")  # the CNN is rebuilt from the configuration
 
     def checkpoint_state(self) -> dict:
-        """Node state plus the encoder's standardisation statistics and a digest of each LSBH
-        projection (the projections are rebuilt from the seed or their file, then checked)."""
+        """Node state plus the sonar clock, the encoder's standardisation statistics and a digest
+        of each LSBH projection (the projections are rebuilt from the seed or their file, then checked)."""
         state = super().checkpoint_state()
-        state["_standardizers"] = dict(self.encoder._norm)
-        state["_lsbh_digest"] = self._lsbh_digests()
+        state["_clock"] = self.core.clock
+        state["_standardizers"] = self.encoder.standardizers
+        state["_lsbh_digest"] = self.encoder.lsbh_digests()
         return state
 
     def restore_checkpoint(self, state: dict) -> None:
         state = dict(state)
+        self.core.clock = state.pop("_clock")
         for modality, st in state.pop("_standardizers").items():
             self.encoder.set_standardizer(modality, st)
         for modality, digest in state.pop("_lsbh_digest").items():
             self.encoder.lsbh(modality)
-            if self._lsbh_digests()[modality] != digest:
+            if self.encoder.lsbh_digests()[modality] != digest:
                 raise ValueError(f"encoder: the LSBH projection of {modality} differs from the checkpoint's "
                                  "(encoder.lsbh_seed or encoder.lsbh_matrix_path changed)")
         super().restore_checkpoint(state)
@@ -200,9 +137,8 @@ class EncoderNode(ServiceNode):
 
     # ------------------------------------------------------------------ output
     def _emit(self, stamp: int, frame_id: str, sdrs: dict[str, np.ndarray]) -> None:
-        self._sweep_rad = 0.0  # the sonar clock counts travel since the last output
         header = self.header(OUT, stamp, frame_id)
-        fused = self.encoder.fuse(sdrs, self.mode)
+        fused = self.core.fuse(sdrs)
 
         def sdr(modality: str, bits: np.ndarray) -> Sdr:
             return Sdr(header=Header(seq=header.seq, stamp=stamp, frame_id=frame_id), modality=modality,

@@ -18,6 +18,7 @@ subscribed.
   outputs' promise at the oldest undecided event.  At most ``image_buffer_size`` events wait;
   beyond that the oldest is decided with the frames seen so far (``image_wait_overflow``).
   No frame within the window: counted (``events_without_image``), nothing published.
+  The rule is :class:`services.expmap.association.EventImageAssociator`.
 - ``dead_reckoning``: one PoseStamped (position, yaw from the quaternion) per ``Odometry``
   message, or at most one per ``dead_reckoning_period_sec`` of event time; header stamp =
   the odometry stamp.
@@ -57,7 +58,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,7 @@ from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, E
                              LaserScan, Odometry, PoseStamped, RangeImageBeam)
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
+from services.expmap.association import Association, EventImageAssociator
 from services.expmap.graph import ExperienceMap
 from services.expmap.laser_match import scan_points, transform_points
 from services.expmap.pose_graph import relative_pose
@@ -93,7 +94,7 @@ def map_message(em: ExperienceMap | ScanGraph, header: Header) -> ExperienceMapM
 
 
 class ExpMapNode(ServiceNode):
-    """Thin wrapper of :class:`ExperienceMap` with the event-image audit."""
+    """Transport wrapper of :class:`ExperienceMap` (or :class:`ScanGraph`) and :class:`EventImageAssociator`."""
 
     name = "expmap"
     inputs = ("camera/image_raw", "experience_event", "Odometry")
@@ -112,7 +113,8 @@ class ExpMapNode(ServiceNode):
         super().__init__(config)
         self.cfg = cfg = config.expmap
         self.image_key = cfg.image_topic
-        self.slop_ns = int(round(min(config.sync.sync_stale_sec, cfg.image_sync_slop) * 1e9))
+        self.images: EventImageAssociator[Header, Image] = EventImageAssociator(
+            int(round(min(config.sync.sync_stale_sec, cfg.image_sync_slop) * 1e9)), cfg.image_buffer_size)
         shape, spacing = config.posecells.number_of_neurons, config.posecells.distance_between_neurons
         self.map_path = Path(cfg.map_path) if cfg.map_path else None
         self.scan_graph = cfg.graph == "scan_graph"
@@ -126,8 +128,6 @@ class ExpMapNode(ServiceNode):
                      len(self.graph.loops), self.map_path)
         else:
             self.graph = ExperienceMap(cfg, shape, spacing)
-        self._last_frame: Image | None = None
-        self._waiting: deque[tuple[Header, Image | None]] = deque()
         self._last_stamp = 0
         self._promised = 0
         self._last_dr_stamp: int | None = None
@@ -206,7 +206,7 @@ class ExpMapNode(ServiceNode):
         if res.loop_closed or res.settled or (every and self._since_map >= every):
             self._publish_map(ev.header.stamp)
         if self.cfg.publish_experience_image:
-            self._associate(ev.header)
+            self._publish_images(self.images.on_event(ev.header))
 
     def _on_odometry(self, od: Odometry) -> None:
         if self.scan_graph:
@@ -253,39 +253,21 @@ class ExpMapNode(ServiceNode):
         self.count("scans")
 
     def _on_image(self, img: Image) -> None:
-        while self._waiting and self._waiting[0][0].stamp <= img.header.stamp:
-            hdr, before = self._waiting.popleft()
-            self._decide(hdr, before, img)
-        self._last_frame = img
+        self._publish_images(self.images.on_frame(img))
 
-    # ---- event-image association --------------------------------------------------------
-    def _associate(self, hdr: Header) -> None:
-        last = self._last_frame
-        if last is not None and last.header.stamp == hdr.stamp:
-            self._decide(hdr, last, None)      # nothing can be closer
-            return
-        self._waiting.append((hdr, last))
-        if len(self._waiting) > self.cfg.image_buffer_size:
-            self.count("image_wait_overflow")
-            h, before = self._waiting.popleft()
-            self._decide(h, before, None)
-
-    def _decide(self, hdr: Header, before: Image | None, after: Image | None) -> None:
-        best: Image | None = None
-        best_d = self.slop_ns + 1
-        for frame in (before, after):        # earlier first: ties go to the earlier frame
-            if frame is None:
+    # ---- event-image association (services.expmap.association) ----------------------------
+    def _publish_images(self, decisions: list[Association[Header, Image]]) -> None:
+        for a in decisions:
+            if a.overflow:
+                self.count("image_wait_overflow")
+            best = a.frame
+            if best is None:
+                self.count("events_without_image")
                 continue
-            d = abs(frame.header.stamp - hdr.stamp)
-            if d < best_d:
-                best, best_d = frame, d
-        if best is None:
-            self.count("events_without_image")
-            return
-        self.count("experience_images")
-        self.publish("experience_image", ExperienceImage(
-            header=hdr.model_copy(), height=best.height, width=best.width, encoding=best.encoding, data=best.data,
-            source_stamp=best.header.stamp))
+            self.count("experience_images")
+            self.publish("experience_image", ExperienceImage(
+                header=a.header.model_copy(), height=best.height, width=best.width, encoding=best.encoding,
+                data=best.data, source_stamp=best.header.stamp))
 
     def output_watermark(self, input_watermark: int) -> int:
         """Hold the promise at the oldest event still waiting for its image, and never past
@@ -293,8 +275,9 @@ class ExpMapNode(ServiceNode):
         does not depend on which heartbeats happened to arrive (a resumed run equals an
         uninterrupted one)."""
         out = min(input_watermark, self._last_stamp)
-        if self._waiting:
-            out = min(out, self._waiting[0][0].stamp)
+        oldest = self.images.oldest_waiting
+        if oldest is not None:
+            out = min(out, oldest)
         self._promised = max(self._promised, out)
         return out
 
@@ -308,9 +291,7 @@ class ExpMapNode(ServiceNode):
         if isinstance(self.graph, ScanGraph):
             for k, v in self.graph.counters.items():
                 self.count(k, v - self.counters.get(k, 0))
-        while self._waiting:
-            hdr, before = self._waiting.popleft()
-            self._decide(hdr, before, None)
+        self._publish_images(self.images.flush())
         if self.graph.pending:
             self.count("relaxation_iterations", self.graph.settle())
         if self.graph.n_nodes:

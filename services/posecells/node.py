@@ -33,20 +33,21 @@ Counters: ``events``, ``events_vpr`` / ``events_leak`` / ``events_off``, ``rejec
 With ``posecells.state_path`` set, the activity, the sparse associations, the gates and the
 odometry reference are loaded at start when the file exists and saved (``.npz``) when the
 inputs end and when the node closes, so a later run continues where this one stopped.
+
+The rules live in :class:`services.posecells.core.PoseCellsCore` (odometry integration in
+:class:`~services.posecells.core.OdometryIntegrator`); the node subscribes, calls the core,
+publishes, counts and logs.
 """
 from __future__ import annotations
 
-import json
 import logging
-import math
 from pathlib import Path
-
-import numpy as np
 
 from common.config import PoseidonConfig
 from common.geometry import yaw_of_quaternion
 from common.messages import ExperienceEvent, LocalViewCells, Message, Odometry
 from common.node import ServiceNode
+from services.posecells.core import PoseCellsCore
 from services.posecells.gates import EventGate
 from services.posecells.network import PoseCellNetwork
 
@@ -54,15 +55,9 @@ __all__ = ["PoseCellsNode", "yaw_of_quaternion"]
 
 log = logging.getLogger(__name__)
 
-_NODE_STATE_VERSION = 1
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
 
 class PoseCellsNode(ServiceNode):
-    """Runs :class:`PoseCellNetwork` and the event gates on odometry and LVC frames."""
+    """Runs :class:`PoseCellsCore` on odometry and LVC frames."""
 
     name = "posecells"
     inputs = ("Odometry", "local_view_cells")
@@ -71,20 +66,25 @@ class PoseCellsNode(ServiceNode):
     def __init__(self, config: PoseidonConfig):
         super().__init__(config)
         self.cfg = config.posecells
-        self.net = PoseCellNetwork(self.cfg)
-        self.gate = EventGate(config.vpr_guard)
-        self._odom: tuple[list[float], float] | None = None  # latest (position, yaw)
-        self._pending = np.zeros(4)  # forward, left, up (m), dyaw (rad) since the last frame
-        self._ref_yaw = 0.0  # odometry yaw at the last pose-cell step (frame of the pending motion)
-        self._placed = False  # the packet has been placed at an odometry pose
+        self.core = PoseCellsCore(self.cfg, config.vpr_guard)
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         self._dirty = False
         if self.state_path is not None:
             if self.state_path.exists():
-                self._load(self.state_path)
+                self.core.load(self.state_path)
                 log.info("posecells: loaded state from %s (%d LVC associations)", self.state_path, len(self.net.beta))
             else:
                 log.info("posecells: no state at %s yet, starting fresh", self.state_path)
+
+    @property
+    def net(self) -> PoseCellNetwork:
+        """The pose-cell network of the core."""
+        return self.core.net
+
+    @property
+    def gate(self) -> EventGate:
+        """The event gates of the core."""
+        return self.core.gate
 
     # ---- inputs ---------------------------------------------------------------------------
     def process(self, key: str, msg: Message) -> None:
@@ -98,97 +98,48 @@ class PoseCellsNode(ServiceNode):
     def _on_odometry(self, msg: Odometry) -> None:
         pos = [float(v) for v in msg.position]
         yaw = yaw_of_quaternion(msg.orientation)
-        if not all(math.isfinite(v) for v in pos + [yaw]):
+        what = self.core.on_odometry(pos, yaw)
+        if what == "non_finite":
             log.error("posecells: Odometry seq %d skipped: non-finite pose %s yaw %s", msg.header.seq, pos, yaw)
             self.count("odometry_non_finite")
             return
-        if self._odom is None:
-            if not self._placed:
-                self.net.reset_at_pose(pos[0], pos[1], pos[2], yaw)
-                self._placed = True
-            self._ref_yaw = yaw
-        else:
-            prev, prev_yaw = self._odom
-            d = [pos[i] - prev[i] for i in range(3)]
-            if math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) > self.cfg.max_odometry_step:
-                log.warning("posecells: Odometry seq %d jumps %.2f m (> posecells.max_odometry_step %.2f m): "
-                            "treated as a discontinuity", msg.header.seq, math.sqrt(sum(v * v for v in d)),
-                            self.cfg.max_odometry_step)
-                self.count("odometry_discontinuities")
-            else:
-                c, s = math.cos(self._ref_yaw), math.sin(self._ref_yaw)
-                self._pending += (c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2], _wrap(yaw - prev_yaw))
-        self._odom = (pos, yaw)
+        if what == "discontinuity":
+            log.warning("posecells: Odometry seq %d jumps %.2f m (> posecells.max_odometry_step %.2f m): "
+                        "treated as a discontinuity", msg.header.seq, self.core.odometry.last_jump, self.cfg.max_odometry_step)
+            self.count("odometry_discontinuities")
         self._dirty = True
-
-    def active_lvcs(self, msg: LocalViewCells) -> list[int]:
-        """V_l = 1 set of Eq. 4.19: the most active LVC, plus (multi-hypothesis) the others
-        of ``active_cells`` with rate >= ``min_exc``, by rate, up to ``top_k`` in all."""
-        active = [int(msg.most_active_cell)]
-        if self.cfg.multiple_local_view_active:
-            others = sorted((c for c in msg.active_cells if c.id != msg.most_active_cell and c.rate >= self.cfg.min_exc),
-                            key=lambda c: (-c.rate, c.id))
-            active += [int(c.id) for c in others[: self.cfg.top_k - 1]]
-        return active
 
     def _on_lvc(self, msg: LocalViewCells) -> None:
-        lvc_id = int(msg.most_active_cell)
         self._dirty = True
-        if self._odom is None:
-            self.gate.vpr.observe(lvc_id)
+        step = self.core.on_lvc(msg.most_active_cell, msg.active_cells)
+        decision = step.decision
+        if decision is None:
             self.count("lvc_before_odometry")
             return
-        forward, left, up, dyaw = (float(v) for v in self._pending)
-        self._pending[:] = 0.0
-        self._ref_yaw = self._odom[1]
-        self.net.step(forward, left, up, dyaw, self.active_lvcs(msg))
-        position, yaw = self._odom
-        decision = self.gate.decide(lvc_id, position, yaw)
         if not decision.accepted:
             self.count(f"rejected_{decision.gate}")
             return
         self.count("events")
         self.count(f"events_{decision.gate}")
+        assert step.centroid is not None and step.position is not None   # an accepted step carries both
         self.publish("experience_event", ExperienceEvent(
             header=self.header("experience_event", msg.header.stamp, msg.header.frame_id),
-            lvc_id=lvc_id,
-            pc_centroid=self.net.centroid(),
-            odom_position=list(position),
-            odom_yaw=yaw,
+            lvc_id=int(msg.most_active_cell),
+            pc_centroid=step.centroid,
+            odom_position=step.position,
+            odom_yaw=step.yaw,
             gate=decision.gate,
             vpr_count=decision.vpr_count,
         ))
 
     # ---- persistence ----------------------------------------------------------------------
-    def _node_state(self) -> dict:
-        return {"version": _NODE_STATE_VERSION, "gate": self.gate.state(),
-                "odom": None if self._odom is None else [self._odom[0], self._odom[1]],
-                "pending": [float(v) for v in self._pending], "ref_yaw": self._ref_yaw, "placed": self._placed}
-
     def save(self, path: Path) -> None:
         """Write the network and the node's state to ``path`` (``.npz``)."""
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as f:  # an open file keeps np.savez from appending ".npz"
-            np.savez(f, node_state=np.array(json.dumps(self._node_state())), **self.net.state_arrays())
-
-    def _load(self, path: Path) -> None:
-        with np.load(path) as f:
-            if "node_state" not in f:
-                raise ValueError(f"{path}: not a posecells state file (no node_state)")
-            self.net.load_arrays(f, source=str(path))
-            state = json.loads(str(f["node_state"]))
-        if state.get("version") != _NODE_STATE_VERSION:
-            raise ValueError(f"{path}: posecells node state version {state.get('version')}, "
-                             f"expected {_NODE_STATE_VERSION}")
-        self.gate.load_state(state["gate"])
-        self._odom = None if state["odom"] is None else ([float(v) for v in state["odom"][0]], float(state["odom"][1]))
-        self._pending = np.array(state["pending"], dtype=np.float64)
-        self._ref_yaw = float(state["ref_yaw"])
-        self._placed = bool(state["placed"])
+        self.core.save(path)
 
     def _save(self) -> None:
         if self.state_path is not None and self._dirty:
-            self.save(self.state_path)
+            self.core.save(self.state_path)
             self._dirty = False
             log.info("posecells: saved state to %s (%d LVC associations)", self.state_path, len(self.net.beta))
 

@@ -172,9 +172,10 @@ def test_odometry_jump_is_a_discontinuity_not_motion():
 def test_multiple_active_lvcs_by_rate_and_top_k():
     node = PoseCellsNode(config())
     msg = lvc(0, T0, 5, extra=[(9, 0.5), (2, 0.02), (4, 0.7), (8, 0.1), (6, 0.09)])
-    assert node.active_lvcs(msg) == [5, 4, 9, 8]  # top_k 4: most active, then by rate >= 0.03
+    core = node.core
+    assert core.active_lvcs(msg.most_active_cell, msg.active_cells) == [5, 4, 9, 8]  # top_k 4, rate >= 0.03
     node.cfg.multiple_local_view_active = False
-    assert node.active_lvcs(msg) == [5]
+    assert core.active_lvcs(msg.most_active_cell, msg.active_cells) == [5]
 
 
 def test_save_load_continue_equals_an_uninterrupted_run(tmp_path):

@@ -1,0 +1,126 @@
+"""Storage of the experience map: the append-only node columns and the map file (npz).
+
+:class:`ColumnStore` keeps one array per node attribute with amortised doubling.
+:func:`save_map` / :func:`load_map` write and read everything needed to continue a map
+(:class:`services.expmap.graph.ExperienceMap`): nodes, odometry increments, loop edges,
+sonar sweeps, the confirmation chain, the pending correction and the last event's odometry
+(a continued mission must use the same odometry frame).  :func:`read_map_file` opens a map
+file of either kind (also :mod:`services.expmap.scan_graph`'s).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from services.expmap.graph import ExperienceMap
+
+__all__ = ["ColumnStore", "read_map_file", "save_map", "load_map", "FORMAT_VERSION"]
+
+FORMAT_VERSION = 1
+
+
+@dataclass
+class ColumnStore:
+    """Append-only column store with amortised doubling."""
+
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    n: int = 0
+
+    def add(self, name: str, shape: tuple[int, ...], dtype: Any) -> None:
+        self.arrays[name] = np.zeros((64,) + shape, dtype)
+
+    def reserve(self, n: int) -> None:
+        cap = next(iter(self.arrays.values())).shape[0]
+        if n <= cap:
+            return
+        while cap < n:
+            cap *= 2
+        for k, a in self.arrays.items():
+            b = np.zeros((cap,) + a.shape[1:], a.dtype)
+            b[: self.n] = a[: self.n]
+            self.arrays[k] = b
+
+
+def read_map_file(path: Path, what: str) -> tuple[Any, dict]:
+    """The arrays and the ``meta`` JSON record of a map file written by a ``save`` (npz);
+    ValueError naming the file when it is not one (``what``: the kind, for the message)."""
+    try:
+        z = np.load(path, allow_pickle=False)
+        return z, json.loads(bytes(z["meta"]).decode())
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"{path}: not {what} file ({exc})") from None
+
+
+def save_map(em: "ExperienceMap", path: str | Path) -> None:
+    """Write everything needed to continue ``em`` (npz, written to a temporary name then moved)."""
+    meta = {
+        "format": FORMAT_VERSION, "lattice_shape": list(em.lattice_shape),
+        "lattice_spacing": list(em.lattice_spacing), "last_match": em.last_match,
+        "confirmations": em.confirmations, "last_correction_stamp": em.last_correction_stamp,
+        "corrections": em.corrections, "solves": em.solves,
+        "phi": em._phi, "peak": em._peak,
+    }
+    arrays = {k: em._a(k) for k in em._g.arrays}
+    loops = np.array([(m, n, s) for m, n, _w, s in em.loops], np.int64).reshape(-1, 3)
+    loop_w = np.array([w for _m, _n, w, _s in em.loops], np.float64)
+    loop_d = np.asarray(em.loop_deltas, np.float64).reshape(-1, 3)
+    last_odom = em.last_odom if em.last_odom is not None else np.full(3, np.nan)
+    sweeps = [np.zeros((0, 2), np.float32) if a is None else a for a in em._scans]
+    sweep_ptr = np.concatenate([[0], np.cumsum([len(a) for a in sweeps])]).astype(np.int64)
+    sweep_pts = np.concatenate(sweeps).astype(np.float32) if sweeps else np.zeros((0, 2), np.float32)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w,
+             loop_delta=loop_d, last_odom=last_odom, sweep_ptr=sweep_ptr, sweep_pts=sweep_pts, **arrays)
+    tmp.replace(path)
+
+
+def _check_header(path: Path, meta: dict, lattice_shape: tuple, lattice_spacing: tuple) -> None:
+    if meta.get("format") != FORMAT_VERSION:
+        raise ValueError(f"{path}: map format {meta.get('format')} (this build reads {FORMAT_VERSION})")
+    if list(meta["lattice_shape"]) != [int(v) for v in lattice_shape] or \
+            not np.allclose(meta["lattice_spacing"], lattice_spacing):
+        raise ValueError(f"{path}: saved with pose-cell lattice {meta['lattice_shape']} x "
+                         f"{meta['lattice_spacing']} m, configured {list(lattice_shape)} x {list(lattice_spacing)}")
+
+
+def load_map(em: "ExperienceMap", path: str | Path) -> "ExperienceMap":
+    """Fill the empty map ``em`` (built with the configuration and lattice of the run) from a
+    file written by :func:`save_map`; the lattice must match the saved one."""
+    path = Path(path)
+    z, meta = read_map_file(path, "an experience map")
+    _check_header(path, meta, em.lattice_shape, em.lattice_spacing)
+    n = int(z["pos"].shape[0])
+    em._g.reserve(max(n, 1))
+    for k in em._g.arrays:
+        if k not in z:
+            raise ValueError(f"{path}: missing array {k!r}")
+        em._g.arrays[k][:n] = z[k]
+    em._g.n = n
+    deltas = z["loop_delta"] if "loop_delta" in z else np.zeros((len(z["loops"]), 3))
+    for (m, k, s), w, dl in zip(z["loops"], z["loop_weight"], deltas):
+        em.add_loop_edge(int(m), int(k), float(w), int(s), dl)
+    em._phi, em._peak = float(meta["phi"]), float(meta["peak"])
+    lo = z["last_odom"]
+    em.last_odom = None if np.any(np.isnan(lo)) else lo.astype(np.float64)
+    em.last_match = int(meta["last_match"])
+    em.confirmations = int(meta["confirmations"])
+    em.last_correction_stamp = int(meta["last_correction_stamp"])
+    em.corrections = int(meta["corrections"])
+    em.solves = int(meta["solves"])
+    for i, l in enumerate(em.lvc_ids.tolist()):
+        em._lvc_index.setdefault(int(l), []).append(i)
+    if "sweep_ptr" in z:                      # maps saved before sonar sweeps existed have none
+        ptr, pts = z["sweep_ptr"], z["sweep_pts"]
+        if len(ptr) != n + 1:
+            raise ValueError(f"{path}: {len(ptr) - 1} sonar sweeps for {n} experiences")
+        em._scans = [pts[ptr[i]:ptr[i + 1]].copy() if ptr[i + 1] > ptr[i] else None for i in range(n)]
+    else:
+        em._scans = [None] * n
+    return em
