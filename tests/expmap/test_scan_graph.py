@@ -9,7 +9,7 @@ import pytest
 
 from common.config import ScanGraphConfig
 from services.expmap.laser_match import scan_points
-from services.expmap.pose_graph import relative_pose, wrap_angle
+from services.expmap.pose_graph import compose, relative_pose, wrap_angle
 from services.expmap.scan_graph import ScanGraph
 from tests.expmap.laser_world import drifting_odometry, raycast, ring_route, ring_world
 
@@ -127,3 +127,35 @@ def test_event_with_non_finite_odometry_is_refused():
     g = ScanGraph(ScanGraphConfig())
     with pytest.raises(ValueError, match="finite"):
         g.add_event(0, 0, [0.0] * 4, [0.0, float("nan"), 0.0], 0.0)
+
+
+def _backing_up_route() -> tuple[np.ndarray, np.ndarray]:
+    """The robot drives 6 m along the ring's first side, backs up 3 m (heading unchanged), drives
+    on; its wheel odometry reports the backing up as forward motion (a speed without sign)."""
+    side = ring_route(laps=1, step=0.25)[:40]                     # 10 m of the first side, facing +x
+    truth = np.concatenate([side[:25], side[23:11:-1], side[12:40]])
+    truth[:, 2] = side[0, 2]
+    odo = [truth[0].copy()]
+    for k in range(1, len(truth)):
+        d = relative_pose(truth[k - 1], truth[k])
+        odo.append(compose(odo[-1], np.array([abs(d[0]), d[1], d[2]])))
+    return truth, np.asarray(odo)
+
+
+def test_laser_preset_follows_the_scans_when_the_odometry_reports_the_wrong_direction():
+    """deploy/presets/laser2d.yaml (as FR079 needs): no translation prior and a 0.8 m window let the
+    scans decide a step the odometry got backwards; the default chain (0.3 m window, 0.2 m prior)
+    keeps the odometry's error."""
+    from pathlib import Path
+
+    from common.config import load_config
+    preset = load_config(Path(__file__).resolve().parents[2] / "deploy/presets/laser2d.yaml", []).expmap.scan_graph
+    truth, odo = _backing_up_route()
+    worst = {}
+    for name, cfg in (("preset", preset), ("default", ScanGraphConfig())):
+        g = ScanGraph(cfg)
+        drive(g, truth, odo, ring_world())
+        worst[name] = errors(np.column_stack([g.positions[:, :2], g.yaws]), truth)[0]
+    assert errors(odo, truth)[0] > 5.0                 # the odometry went 6 m the wrong way
+    assert worst["preset"] < 0.15, worst
+    assert worst["default"] > 1.0, worst
