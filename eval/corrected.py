@@ -5,7 +5,7 @@ One definition serves ``poseidon export RUN --tum OUT.txt`` and ``poseidon eval 
 
 Frames: everything stays in the frame the run publishes (``Odometry`` and the ``map``
 nodes share it, :mod:`eval.trajectory`); nothing is converted to NED.  Yaw is the rotation
-about +z of the ``[x, y, z, w]`` orientation quaternion (:func:`common.geometry.yaw_of_quaternion`).
+about +z of the ``[x, y, z, w]`` orientation quaternion (:func:`common.geometry.yaws_of_quaternions`).
 
 Definition.  Input: the ``Odometry`` stream (the ``robot_state`` dead reckoning) and the
 nodes of the run's **last** ``map`` message (id, position[3], yaw, stamp).  One output pose
@@ -44,11 +44,12 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from common.codec import DecodeError, decode
+from common.geometry import wrap_angle, yaws_of_quaternions
 from common.mcap_io import RecordedMessage, RecordingError, read_messages
 from common.messages import ExperienceMap, ExperienceNode, Odometry, message_type
 from common.stamps import ns_to_text, seconds_to_ns
 
-__all__ = ["PoseSeries", "pose_series", "slerp", "quat_multiply", "yaw_of", "map_corrected", "corrected_from_recording",
+__all__ = ["PoseSeries", "pose_series", "slerp", "quat_multiply", "map_corrected", "corrected_from_recording",
            "write_tum", "read_tum"]
 
 NS = 1_000_000_000
@@ -76,8 +77,8 @@ class PoseSeries:
 
     @property
     def yaws(self) -> np.ndarray:
-        """Yaw (rad, about +z) of every orientation, in (-pi, pi]."""
-        return yaw_of(self.quaternions)
+        """Yaw (rad, about +z) of every orientation, in [-pi, pi]."""
+        return yaws_of_quaternions(self.quaternions)
 
     def interpolate(self, stamps: Sequence[int] | np.ndarray) -> "PoseSeries":
         """Poses at ``stamps``: position linear, orientation SLERP between the bracketing samples
@@ -111,12 +112,6 @@ def pose_series(messages: Iterable[Odometry]) -> PoseSeries:
     p = np.array([m.position for m in ms], dtype=float).reshape(-1, 3)[order]
     q = np.array([m.orientation for m in ms], dtype=float).reshape(-1, 4)[order]
     return PoseSeries(t[order], p, _normalised(q) if len(q) else q)
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of quaternions (..., 4) ``[x, y, z, w]`` (the ZYX yaw)."""
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -168,7 +163,7 @@ def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> P
     f = np.where(span > 0, (odom.stamps - nt[e]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
     f = np.clip(f, 0.0, 1.0)
     p = (1.0 - f)[:, None] * through(e) + f[:, None] * through(e1)
-    psi = dpsi[e] + f * np.angle(np.exp(1j * (dpsi[e1] - dpsi[e])))
+    psi = dpsi[e] + f * wrap_angle(dpsi[e1] - dpsi[e])
     qz = np.column_stack([np.zeros(len(e)), np.zeros(len(e)), np.sin(psi / 2), np.cos(psi / 2)])
     return PoseSeries(odom.stamps.copy(), p, _normalised(quat_multiply(qz, odom.quaternions)))
 

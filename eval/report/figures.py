@@ -1,6 +1,6 @@
 """The figures of the report (Section 5.4 of the dissertation), built with plotly.
 
-Every builder takes the loaded runs (:class:`eval.report.data.RunData`) and returns a
+Every builder takes the loaded runs (:class:`eval.report.data.RunView`) and returns a
 :class:`FigureSpec`: a stable element id (:data:`FIGURE_IDS`), a title, a caption saying
 what the figure shows and how to read it, and the plotly figure (or, when the runs lack
 the data, a note saying which key is missing).
@@ -25,7 +25,8 @@ import numpy as np
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from eval.report.data import RunData, Track
+from eval.report.data import RunView
+from eval.trajectory import Trajectory
 
 __all__ = ["FigureSpec", "FIGURE_IDS", "build_figures", "Similarity", "frame_similarity", "precision_recall"]
 
@@ -70,21 +71,21 @@ def _enu(ned: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ned[:, 1], ned[:, 0], -ned[:, 2]
 
 
-def _same_track(a: Track, b: Track) -> bool:
-    return a.ned.shape == b.ned.shape and np.array_equal(a.stamps, b.stamps) and np.allclose(a.ned, b.ned)
+def _same_track(a: Trajectory, b: Trajectory) -> bool:
+    return a.p.shape == b.p.shape and np.array_equal(a.t, b.t) and np.allclose(a.p, b.p)
 
 
-def _distinct(runs: list[RunData], attr: str) -> list[tuple[int, Track]]:
+def _distinct(runs: list[RunView], attr: str) -> list[tuple[int, Trajectory]]:
     """Tracks (truth or dead reckoning) of the runs, each distinct one once."""
-    out: list[tuple[int, Track]] = []
+    out: list[tuple[int, Trajectory]] = []
     for i, r in enumerate(runs):
-        t: Track = getattr(r, attr)
+        t: Trajectory = getattr(r, attr)
         if len(t) and not any(_same_track(t, o) for _, o in out):
             out.append((i, t))
     return out
 
 
-def _track_name(base: str, runs: list[RunData], i: int, n_distinct: int) -> str:
+def _track_name(base: str, runs: list[RunView], i: int, n_distinct: int) -> str:
     return base if n_distinct <= 1 else f"{base} ({runs[i].label})"
 
 
@@ -100,14 +101,14 @@ def _layout(fig: go.Figure, height: int, **kw: Any) -> go.Figure:
     return fig
 
 
-def _no_trajectories(runs: list[RunData]) -> bool:
+def _no_trajectories(runs: list[RunView]) -> bool:
     return not any(len(r.truth) or len(r.dead_reckoning) or len(r.node_ids) for r in runs)
 
 
 # --------------------------------------------------------------------------- trajectories
 
 
-def fig_overlay_3d(runs: list[RunData], max_points: int) -> FigureSpec:
+def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-overlay-3d", "3D overlay: ground truth, dead reckoning and map (cf. Fig. 5.19)",
         "Ground truth (green), dead reckoning (orange) and the final experience map of each run (its nodes in "
@@ -122,12 +123,12 @@ def fig_overlay_3d(runs: list[RunData], max_points: int) -> FigureSpec:
     truths, drs = _distinct(runs, "truth"), _distinct(runs, "dead_reckoning")
     for i, t in truths:
         k = _decimate(len(t), max_points)
-        x, y, z = _enu(t.ned[k])
+        x, y, z = _enu(t.p[k])
         fig.add_trace(go.Scatter3d(x=x, y=y, z=z, mode="lines", line=dict(color=TRUTH_COLOR, width=4),
                                    name=_track_name("ground truth", runs, i, len(truths))))
     for i, t in drs:
         k = _decimate(len(t), max_points)
-        x, y, z = _enu(t.ned[k])
+        x, y, z = _enu(t.p[k])
         fig.add_trace(go.Scatter3d(x=x, y=y, z=z, mode="lines", line=dict(color=DR_COLOR, width=3),
                                    name=_track_name("dead reckoning", runs, i, len(drs))))
     for i, r in enumerate(runs):
@@ -140,7 +141,7 @@ def fig_overlay_3d(runs: list[RunData], max_points: int) -> FigureSpec:
                                    marker=dict(size=2, color=_color(i)), name=f"map: {r.label}"))
     # true proportions horizontally; the vertical axis at least a quarter of the largest extent, so a
     # mission at nearly constant depth does not collapse into a plane
-    pts = np.concatenate([np.stack(_enu(t.ned), axis=1) for _, t in truths + drs]
+    pts = np.concatenate([np.stack(_enu(t.p), axis=1) for _, t in truths + drs]
                          + [np.stack(_enu(r.node_ned), axis=1) for r in runs if len(r.node_ids)])
     extent = np.maximum(np.nanmax(pts, axis=0) - np.nanmin(pts, axis=0), 1e-3)
     ratio = extent / extent[:2].max()
@@ -161,7 +162,7 @@ def fig_overlay_3d(runs: list[RunData], max_points: int) -> FigureSpec:
     return spec
 
 
-def fig_projections(runs: list[RunData], max_points: int) -> FigureSpec:
+def fig_projections(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-projections", "Planar projections XY, XZ, YZ (cf. Fig. 5.20)",
         "The same trajectories seen from above (XY: east vs north, equal scales), from the south (XZ: east vs "
@@ -175,8 +176,8 @@ def fig_projections(runs: list[RunData], max_points: int) -> FigureSpec:
                         horizontal_spacing=0.07)
     series: list[tuple[str, str, np.ndarray, str]] = []
     truths, drs = _distinct(runs, "truth"), _distinct(runs, "dead_reckoning")
-    series += [(_track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.ned, "lines") for i, t in truths]
-    series += [(_track_name("dead reckoning", runs, i, len(drs)), DR_COLOR, t.ned, "lines") for i, t in drs]
+    series += [(_track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.p, "lines") for i, t in truths]
+    series += [(_track_name("dead reckoning", runs, i, len(drs)), DR_COLOR, t.p, "lines") for i, t in drs]
     series += [(f"map: {r.label}", _color(i), r.node_ned, "lines+markers") for i, r in enumerate(runs)
                if len(r.node_ids)]
     for name, color, ned, mode in series:
@@ -205,7 +206,7 @@ def _segments(ned: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return xs, ys
 
 
-def fig_topology(runs: list[RunData], max_points: int) -> FigureSpec:
+def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-topology", "Final topology of each run (cf. Fig. 5.21)",
         "The final experience map seen from above, one panel per run (VPR Guard ON and OFF side by side when "
@@ -232,7 +233,7 @@ def fig_topology(runs: list[RunData], max_points: int) -> FigureSpec:
         for t, color, name in ((r.truth, TRUTH_COLOR, "ground truth"), (r.dead_reckoning, DR_COLOR, "dead reckoning")):
             if len(t):
                 k = _decimate(len(t), max_points)
-                e, n, _ = _enu(t.ned[k])
+                e, n, _ = _enu(t.p[k])
                 fig.add_trace(go.Scatter(x=e, y=n, mode="lines", name=name, legendgroup=name, showlegend=first,
                                          opacity=0.35, line=dict(color=color, width=1.5)), row=row, col=col)
         index = {int(nid): j for j, nid in enumerate(r.node_ids)}
@@ -261,8 +262,8 @@ def fig_topology(runs: list[RunData], max_points: int) -> FigureSpec:
             fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", name="loop-closure link", legendgroup="loop closure",
                                      showlegend=True if first else False, hoverinfo="skip",
                                      line=dict(color="#d62728", width=4)), row=row, col=col)
-            truth_a = r.truth.at(r.node_stamps[lc[:, 0]])
-            truth_b = r.truth.at(r.node_stamps[lc[:, 1]])
+            truth_a = r.truth.positions_within(r.node_stamps[lc[:, 0]])
+            truth_b = r.truth.positions_within(r.node_stamps[lc[:, 1]])
             d_gt = np.linalg.norm(truth_a - truth_b, axis=1)
             mid_e = (xs[0::3] + xs[1::3]) / 2
             mid_n = (ys[0::3] + ys[1::3]) / 2
@@ -280,14 +281,14 @@ def fig_topology(runs: list[RunData], max_points: int) -> FigureSpec:
     return spec
 
 
-def _deviation(est: Track, truth: Track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _deviation(est: Trajectory, truth: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stamps, distance to truth in m, truth NED) where truth covers the estimate."""
-    ref = truth.at(est.stamps)
+    ref = truth.positions_within(est.t)
     ok = ~np.isnan(ref).any(axis=1)
-    return est.stamps[ok], np.linalg.norm(est.ned[ok] - ref[ok], axis=1), ref[ok]
+    return est.t[ok], np.linalg.norm(est.p[ok] - ref[ok], axis=1), ref[ok]
 
 
-def _deviation_series(runs: list[RunData]) -> list[tuple[str, str, RunData, np.ndarray, np.ndarray, np.ndarray]]:
+def _deviation_series(runs: list[RunView]) -> list[tuple[str, str, RunView, np.ndarray, np.ndarray, np.ndarray]]:
     out = []
     drs = _distinct(runs, "dead_reckoning")
     for i, t in drs:
@@ -298,11 +299,11 @@ def _deviation_series(runs: list[RunData]) -> list[tuple[str, str, RunData, np.n
         if len(r.node_ids) and len(r.truth):
             order = np.argsort(r.node_stamps, kind="stable")
             out.append((f"map: {r.label}", _color(i), r,
-                        *_deviation(Track(r.node_stamps[order], r.node_ned[order], "map"), r.truth)))
+                        *_deviation(Trajectory(r.node_stamps[order], r.node_ned[order], source="map"), r.truth)))
     return [s for s in out if len(s[3])]
 
 
-def fig_deviation_time(runs: list[RunData], max_points: int) -> FigureSpec:
+def fig_deviation_time(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-deviation-time", "Deviation from ground truth over time (cf. Fig. 5.24)",
         "Distance (m) between each estimate and the ground-truth position at the same event time: dead "
@@ -325,7 +326,7 @@ def fig_deviation_time(runs: list[RunData], max_points: int) -> FigureSpec:
     return spec
 
 
-def fig_deviation_xy(runs: list[RunData], max_points: int) -> FigureSpec:
+def fig_deviation_xy(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-deviation-xy", "Where the deviation occurs, on the XY plane (cf. Fig. 5.25)",
         "One panel per estimate: the true positions (top view, east vs north) coloured by the estimate's "
@@ -392,7 +393,7 @@ def _camera_index(stamps: np.ndarray, revisit_stamps: np.ndarray) -> np.ndarray:
     return out
 
 
-def frame_similarity(run: RunData, max_frames: int = 500, min_gap_m: float = 10.0) -> Similarity | None:
+def frame_similarity(run: RunView, max_frames: int = 500, min_gap_m: float = 10.0) -> Similarity | None:
     """The similarity matrix of (at most ``max_frames``) frames of ``run``; None without SDR/LVC frames."""
     lvc_by_stamp = dict(zip(run.lvc_stamps.tolist(), run.lvc_id.tolist()))
     if len(run.sdr_stamps) >= 2:
@@ -439,8 +440,8 @@ def frame_similarity(run: RunData, max_frames: int = 500, min_gap_m: float = 10.
     aligned = cam >= 0
     pair_ok = np.tril(np.outer(aligned, aligned), k=-1)
     if len(run.truth) >= 2:
-        travelled = np.interp((stamps - run.truth.stamps[0]).astype(np.float64),
-                              (run.truth.stamps - run.truth.stamps[0]).astype(np.float64), run.truth.travelled())
+        travelled = np.interp((stamps - run.truth.t[0]).astype(np.float64),
+                              (run.truth.t - run.truth.t[0]).astype(np.float64), run.truth.cumulative_distance())
         near = np.abs(travelled[:, None] - travelled[None, :]) < min_gap_m
         pair_ok &= ~near | truth
     else:
@@ -486,11 +487,11 @@ def _same_similarity(a: Similarity, b: Similarity) -> bool:
     return a.source == b.source and np.array_equal(a.stamps, b.stamps) and np.array_equal(a.percent, b.percent)
 
 
-def _similarities(runs: list[RunData], max_frames: int, min_gap_m: float) -> list[tuple[int, Similarity | None]]:
+def _similarities(runs: list[RunView], max_frames: int, min_gap_m: float) -> list[tuple[int, Similarity | None]]:
     return [(i, frame_similarity(r, max_frames, min_gap_m)) for i, r in enumerate(runs)]
 
 
-def fig_similarity(runs: list[RunData], sims: list[tuple[int, Similarity | None]]) -> FigureSpec:
+def fig_similarity(runs: list[RunView], sims: list[tuple[int, Similarity | None]]) -> FigureSpec:
     spec = FigureSpec(
         "fig-similarity", "Similarity matrix and ground-truth revisit matrix (cf. Figs 5.9-5.10, 5.15-5.16)",
         "Left: similarity between every pair of frames (row = frame, column = frame, both in time order; "
@@ -545,7 +546,7 @@ def fig_similarity(runs: list[RunData], sims: list[tuple[int, Similarity | None]
     return spec
 
 
-def _revisit_frames(r: RunData, min_gap_m: float) -> np.ndarray:
+def _revisit_frames(r: RunView, min_gap_m: float) -> np.ndarray:
     """Frames matched to an existing cell created at least ``min_gap_m`` of travel earlier (truth, else
     dead reckoning; without either, 60 s earlier)."""
     created: dict[int, int] = {}
@@ -555,15 +556,15 @@ def _revisit_frames(r: RunData, min_gap_m: float) -> np.ndarray:
     first = np.array([created[c] for c in r.lvc_id.tolist()], dtype=np.int64)
     track = r.truth if len(r.truth) >= 2 else r.dead_reckoning
     if len(track) >= 2:
-        along = np.interp((r.lvc_stamps - track.stamps[0]).astype(np.float64),
-                          (track.stamps - track.stamps[0]).astype(np.float64), track.travelled())
+        along = np.interp((r.lvc_stamps - track.t[0]).astype(np.float64),
+                          (track.t - track.t[0]).astype(np.float64), track.cumulative_distance())
         gap, limit = along - along[first], min_gap_m
     else:
         gap, limit = (r.lvc_stamps - r.lvc_stamps[first]) / 1e9, 60.0
     return ~r.lvc_new & (gap >= limit)
 
 
-def fig_viewcells(runs: list[RunData], max_points: int, min_gap_m: float = 10.0) -> FigureSpec:
+def fig_viewcells(runs: list[RunView], max_points: int, min_gap_m: float = 10.0) -> FigureSpec:
     spec = FigureSpec(
         "fig-viewcells", "View cells over time: creation and recognition (cf. Figs 5.11-5.12)",
         "One panel per run. Each frame's local view cell (LVC) id against time: blue crosses are frames that "
@@ -611,7 +612,7 @@ def fig_viewcells(runs: list[RunData], max_points: int, min_gap_m: float = 10.0)
     return spec
 
 
-def fig_pr(runs: list[RunData], sims: list[tuple[int, Similarity | None]]) -> tuple[FigureSpec, dict[str, Any]]:
+def fig_pr(runs: list[RunView], sims: list[tuple[int, Similarity | None]]) -> tuple[FigureSpec, dict[str, Any]]:
     spec = FigureSpec(
         "fig-pr", "Precision-recall of place recognition (cf. Figs 5.17-5.18)",
         "Each curve sweeps a threshold over the similarity matrix: a pair of frames (at least the minimum "
@@ -681,7 +682,7 @@ def fig_pr(runs: list[RunData], sims: list[tuple[int, Similarity | None]]) -> tu
     return spec, summary
 
 
-def fig_evidence(runs: list[RunData]) -> FigureSpec:
+def fig_evidence(runs: list[RunView]) -> FigureSpec:
     import html as _html
     spec = FigureSpec(
         "fig-evidence", "Evidence: camera frames stored with experience events",
@@ -705,7 +706,7 @@ def fig_evidence(runs: list[RunData]) -> FigureSpec:
     return spec
 
 
-def build_figures(runs: list[RunData], max_points: int = 3000, max_frames: int = 500,
+def build_figures(runs: list[RunView], max_points: int = 3000, max_frames: int = 500,
                   min_gap_m: float = 10.0) -> tuple[list[FigureSpec], dict[str, Any]]:
     """Every figure of the page, in :data:`FIGURE_IDS` order, and the PR summary per run."""
     sims = _similarities(runs, max_frames, min_gap_m)
