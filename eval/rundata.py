@@ -37,8 +37,8 @@ from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, Lo
 from eval.corrected import PoseSeries, pose_series
 from eval.trajectory import Trajectory
 
-__all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "config_of_recording", "metadata_of_recording",
-           "add_config_args", "config_from_args", "report_cli"]
+__all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "config_of_recording",
+           "metadata_of_recording", "add_config_args", "config_from_args", "report_cli"]
 
 #: keys decoded into messages (every other key is only counted and its header seq kept; ``map`` is
 #: decoded for its last message only, ``experience_image`` without keeping its pixels)
@@ -129,7 +129,8 @@ def _config_of_metadata(path: str | Path, meta: dict[str, Any]) -> PoseidonConfi
     try:
         return PoseidonConfig.model_validate(json.loads(raw) if isinstance(raw, str) else raw)
     except (ValueError, ValidationError) as exc:
-        raise RecordingError(f"{path}: metadata 'poseidon' field 'config' is not a valid configuration: {exc}") from None
+        raise RecordingError(f"{path}: metadata 'poseidon' field 'config' is not a valid configuration: "
+                             f"{exc}") from None
 
 
 def config_of_recording(path: str | Path) -> PoseidonConfig | None:

@@ -4,10 +4,11 @@ Frames.  Every trajectory evaluated here is held in the world **NED** frame (x n
 y east, z down, metres), the frame of ``truth/pose`` (``missions/sim``: "world NED",
 quaternion body->world, body FRD).  ``Odometry`` is published by ``robot_state`` in the
 frame of Table 4.1's ``axis_remap``/``axis_sign_z`` (default ``yxz``, ``-1``: **ENU**, x
-east, y north, z up; the conventions and conversions are in :mod:`common.geometry`);
-:func:`common.geometry.published_to_ned` undoes that remap.  With the defaults
-``ned = (enu_y, enu_x, -enu_z)`` and ``yaw_ned = pi/2 - yaw_enu``.  The experience map (``map`` node positions, ``experience_event.odom_position``) integrates
-the published ``Odometry`` and is therefore in the same published frame.
+east, y north, z up); :func:`common.geometry.published_to_ned` undoes that remap (with the
+defaults ``ned = (enu_y, enu_x, -enu_z)`` and ``yaw_ned = pi/2 - yaw_enu``; the conventions
+are in :mod:`common.geometry`).  The experience map (``map`` node positions,
+``experience_event.odom_position``) integrates the published ``Odometry`` and is therefore
+in the same published frame.
 
 Errors (the dissertation lacks them; ``../shared/design/EVALUATION.md``):
 

@@ -298,7 +298,7 @@ def test_lvc_operating_point_counts_the_aliased_place(page: tuple[Path, dict]) -
 
 
 def test_view_cells_separate_revisits_from_the_same_pass(runs: tuple[Path, Path]) -> None:
-    from eval.report.figures import _revisit_frames
+    from eval.report.fig_recognition import revisit_frames as _revisit_frames
     r = load_run(runs[0])
     revisit = _revisit_frames(r, 10.0)
     lap = 160
