@@ -36,9 +36,9 @@ import numpy as np
 from common.config import ConfigError
 
 __all__ = ["TWO_PI", "wrap_angle", "wrap_angles", "yaw_of_quaternion", "yaws_of_quaternions", "quaternion_of_yaw",
-           "quaternion_to_matrix", "matrix_to_quaternion", "rot_x", "rot_y", "rot_z", "euler_to_matrix",
-           "euler_to_world_rate", "matrix_to_euler", "enu_to_ned", "ned_to_enu", "yaw_enu_to_ned",
-           "published_to_ned", "OutputFrame"]
+           "normalise_quaternions", "slerp", "quat_multiply", "quaternion_to_matrix", "matrix_to_quaternion",
+           "rot_x", "rot_y", "rot_z", "euler_to_matrix", "euler_to_world_rate", "matrix_to_euler",
+           "enu_to_ned", "ned_to_enu", "yaw_enu_to_ned", "published_to_ned", "OutputFrame"]
 
 TWO_PI = 2.0 * math.pi
 
@@ -73,7 +73,41 @@ def quaternion_of_yaw(yaw: float) -> list[float]:
     return [0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)]
 
 
-# --------------------------------------------------------------------------- rotations
+# --------------------------------------------------------------------------- quaternions and rotations
+
+
+def normalise_quaternions(q: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) scaled to unit norm (ValueError for a zero one)."""
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(~(n > 0)):
+        raise ValueError("quaternion of zero norm")
+    return q / n
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (n, 4) at fractions f (n,), shortest arc."""
+    q0 = np.asarray(q0, dtype=float)
+    q1 = np.asarray(q1, dtype=float).copy()
+    f = np.asarray(f, dtype=float)[:, None]
+    d = np.sum(q0 * q1, axis=1)
+    q1[d < 0] *= -1.0
+    d = np.abs(d)[:, None]
+    theta = np.arccos(np.clip(d, -1.0, 1.0))
+    s = np.sin(theta)
+    small = s[:, 0] < 1e-9
+    w0 = np.where(small[:, None], 1.0 - f, np.sin((1.0 - f) * theta) / np.where(small[:, None], 1.0, s))
+    w1 = np.where(small[:, None], f, np.sin(f * theta) / np.where(small[:, None], 1.0, s))
+    return normalise_quaternions(w0 * q0 + w1 * q1)
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b of quaternions (..., 4) ``[x, y, z, w]``."""
+    ax, ay, az, aw = (a[..., k] for k in range(4))
+    bx, by, bz, bw = (b[..., k] for k in range(4))
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz], axis=-1)
 
 
 def quaternion_to_matrix(q: list[float] | np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 import numpy as np
 from pydantic import ValidationError
 
@@ -33,9 +33,8 @@ from common.config import ConfigError, PoseidonConfig, load_config
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.geometry import published_to_ned
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, LocalViewCells, Message, NeocortexSdr,
-                             Odometry, RevisitTruth, message_type)
-from eval.corrected import PoseSeries, pose_series
-from eval.trajectory import Trajectory
+                             Odometry, PoseStamped, RevisitTruth, message_type)
+from eval.trajectory import PoseSeries, Trajectory, pose_series
 
 __all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "config_of_recording",
            "metadata_of_recording", "add_config_args", "config_from_args", "report_cli"]
@@ -160,9 +159,9 @@ class _Reader:
 
     def __init__(self, run: RunData):
         self.run = run
-        self.truth: list[Odometry] = []
+        self.truth: list[Odometry | PoseStamped] = []
         self.odom: list[Odometry] = []
-        self.dead_reckoning: list[Odometry] = []
+        self.dead_reckoning: list[Odometry | PoseStamped] = []
         self.wheel: list[Odometry] = []
         self.last_map: RecordedMessage | None = None
 
@@ -197,11 +196,16 @@ class _Reader:
             assert isinstance(m, NeocortexSdr)
             run.sdrs.append(SdrRecord(m.header.stamp, np.asarray(m.fused.active, dtype=np.int64), m.fused.size))
         else:
-            lists = {"truth/pose": self.truth, "Odometry": self.odom, "dead_reckoning": self.dead_reckoning,
-                     "wheel_odometry": self.wheel}
-            lists[key].append(m)  # type: ignore[arg-type]
+            # poses need an orientation; truth and dead reckoning only a position
+            want: tuple[type, ...] = (Odometry,) if key in ("Odometry", "wheel_odometry") else (Odometry, PoseStamped)
+            if not isinstance(m, want):
+                raise RecordingError(f"{run.path}: key {key!r} carries {m.type_name}, not "
+                                     f"{' or '.join(w.type_name for w in want)}")
+            lists: dict[str, list[Any]] = {"truth/pose": self.truth, "Odometry": self.odom,
+                                           "dead_reckoning": self.dead_reckoning, "wheel_odometry": self.wheel}
+            lists[key].append(m)
 
-    def _published(self, msgs: list[Odometry], key: str) -> Trajectory:
+    def _published(self, msgs: Sequence[Odometry | PoseStamped], key: str) -> Trajectory:
         return Trajectory([m.header.stamp for m in msgs], self.run.to_ned(np.array([m.position for m in msgs])),
                           source=key)
 
@@ -225,8 +229,9 @@ class _Reader:
         return run
 
 
-def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
-    """Read ``path`` once (see the module docstring); ``config`` replaces the recorded one.
+def load_run(path: str | Path, config: PoseidonConfig | None = None, keys: Sequence[str] | None = None) -> RunData:
+    """Read ``path`` once (see the module docstring); ``config`` replaces the recorded one;
+    ``keys`` limits the pass to those keys (counts and stamps then cover only them).
 
     :raises RecordingError: unreadable recording, undecodable message or invalid recorded
         configuration (the message names the file).
@@ -240,7 +245,7 @@ def load_run(path: str | Path, config: PoseidonConfig | None = None) -> RunData:
         if config is None:
             config, source = PoseidonConfig(), "defaults"
     reader = _Reader(RunData(path=p, config=config, config_source=source, metadata=metadata))
-    for rec in read_messages(p):
+    for rec in read_messages(p, keys=None if keys is None else list(keys)):
         reader.add(rec)
     return reader.finish()
 

@@ -1,4 +1,10 @@
-"""Trajectories and trajectory error: the one :class:`Trajectory` of the project.
+"""Trajectories and trajectory error.
+
+Two series of poses, for two contracts: :class:`Trajectory` is a position track in NED
+(with yaw) that the errors against ground truth and the report's figures use;
+:class:`PoseSeries` keeps poses exactly as a recording published them (frame unchanged,
+full orientation as quaternions, SLERP between samples) for the relation error
+(:mod:`eval.relations`) and the TUM export (:mod:`eval.corrected`).
 
 Frames.  Every trajectory evaluated here is held in the world **NED** frame (x north,
 y east, z down, metres), the frame of ``truth/pose`` (``missions/sim``: "world NED",
@@ -27,11 +33,15 @@ Errors (the dissertation lacks them; ``../shared/design/EVALUATION.md``):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
 
-__all__ = ["NS", "Trajectory", "align_rigid", "align_trajectory", "ate", "rpe", "anchored_errors", "drift_pct"]
+from common.geometry import normalise_quaternions, slerp, yaws_of_quaternions
+from common.messages import Odometry
+
+__all__ = ["NS", "Trajectory", "PoseSeries", "pose_series", "align_rigid", "align_trajectory", "ate", "rpe", "anchored_errors", "drift_pct"]
 
 NS = 1_000_000_000
 
@@ -164,6 +174,58 @@ class Trajectory:
         seg = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(self.p, axis=0), axis=1))]
         ts, s = self._seconds(np.asarray(stamps, dtype=np.int64))
         return np.interp(s, ts, seg)
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Poses over time in the frame they were published in: ``stamps`` (n,) int64 ns
+    non-decreasing, ``positions`` (n, 3) m, ``quaternions`` (n, 4) ``[x, y, z, w]`` of unit norm."""
+
+    stamps: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.stamps)
+        if self.stamps.ndim != 1 or self.positions.shape != (n, 3) or self.quaternions.shape != (n, 4):
+            raise ValueError(f"PoseSeries: stamps {self.stamps.shape}, positions {self.positions.shape}, "
+                             f"quaternions {self.quaternions.shape} do not agree")
+        if n > 1 and np.any(np.diff(self.stamps) < 0):
+            raise ValueError("PoseSeries: stamps must be non-decreasing")
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def yaws(self) -> np.ndarray:
+        """Yaw (rad, about +z) of every orientation, in [-pi, pi]."""
+        return yaws_of_quaternions(self.quaternions)
+
+    def interpolate(self, stamps: Sequence[int] | np.ndarray) -> "PoseSeries":
+        """Poses at ``stamps``: position linear, orientation SLERP between the bracketing samples
+        (the last of samples with equal stamps counts); clamped outside the span."""
+        if not len(self):
+            raise ValueError("PoseSeries is empty")
+        q = np.asarray(stamps, dtype=np.int64).reshape(-1)
+        if len(self) == 1:
+            return PoseSeries(q, np.repeat(self.positions, len(q), 0), np.repeat(self.quaternions, len(q), 0))
+        i = np.clip(np.searchsorted(self.stamps, q, side="right") - 1, 0, len(self) - 2)
+        t0, t1 = self.stamps[i], self.stamps[i + 1]
+        span = (t1 - t0).astype(np.float64)
+        f = np.where(span > 0, (q - t0).astype(np.float64) / np.where(span > 0, span, 1.0), 1.0)
+        f = np.clip(f, 0.0, 1.0)
+        p = self.positions[i] + f[:, None] * (self.positions[i + 1] - self.positions[i])
+        return PoseSeries(q, p, slerp(self.quaternions[i], self.quaternions[i + 1], f))
+
+
+def pose_series(messages: Iterable[Odometry]) -> PoseSeries:
+    """The poses of ``Odometry`` messages, sorted by stamp (stable)."""
+    ms = list(messages)
+    t = np.array([m.header.stamp for m in ms], dtype=np.int64)
+    order = np.argsort(t, kind="stable")
+    p = np.array([m.position for m in ms], dtype=float).reshape(-1, 3)[order]
+    q = np.array([m.orientation for m in ms], dtype=float).reshape(-1, 4)[order]
+    return PoseSeries(t[order], p, normalise_quaternions(q) if len(q) else q)
 
 
 def align_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -37,9 +37,10 @@ import plotly.graph_objects as go
 
 from common.mcap_io import read_messages, read_metadata
 from common.messages import LaserScan
-from eval.corrected import PoseSeries, map_corrected
+from eval.corrected import map_corrected
 from eval.report.style import FONT, RUN_COLORS, FigureSpec
 from eval.rundata import RunData
+from eval.trajectory import PoseSeries
 
 __all__ = ["PUBLISHED", "MAX_DRAW_RANGE_M", "MAX_PIXELS", "benchmark_figures", "relations_table", "scan_endpoints",
            "raster_png", "raster_resolution", "dataset_of"]
