@@ -78,7 +78,7 @@ from typing import IO, Any, Iterator
 
 import numpy as np
 
-from common.geometry import wrap_angle
+from common.geometry import quaternion_of_yaw, wrap_angle
 from common.mcap_io import RecordingWriter
 from common.messages import Header, LaserScan, Message, Odometry
 from common.stamps import ns_to_text, seconds_to_ns
@@ -345,13 +345,9 @@ def _parse_line(log: CarmenLog, text: str, lineno: int) -> None:
     t["mapped"] += 1
 
 
-def _yaw_quaternion(theta: float) -> list[float]:
-    return [0.0, 0.0, math.sin(theta / 2.0), math.cos(theta / 2.0)]
-
-
 def _odometry(stamp: int, seq: int, pose: np.ndarray, tv: float, rv: float, status: list[str]) -> Odometry:
     return Odometry(header=Header(seq=seq, stamp=stamp, frame_id="odom"), child_frame_id="base_link",
-                    position=[float(pose[0]), float(pose[1]), 0.0], orientation=_yaw_quaternion(float(pose[2])),
+                    position=[float(pose[0]), float(pose[1]), 0.0], orientation=quaternion_of_yaw(float(pose[2])),
                     linear_velocity=[tv, 0.0, 0.0], angular_velocity=[0.0, 0.0, rv], status=status)
 
 
