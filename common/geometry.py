@@ -219,7 +219,7 @@ class OutputFrame:
         or the pair a reflection.
     """
 
-    def __init__(self, axis_remap: str = "yxz", axis_sign_z: float = -1.0):
+    def __init__(self, axis_remap: str = "yxz", axis_sign_z: float = -1.0) -> None:
         if sorted(axis_remap) != ["x", "y", "z"]:
             raise ConfigError(f"robot_state.axis_remap must be a permutation of 'xyz', got {axis_remap!r}")
         if axis_sign_z not in (1.0, -1.0):

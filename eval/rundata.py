@@ -157,7 +157,7 @@ def _poses(msgs: list[Odometry], path: Path, key: str) -> PoseSeries:
 class _Reader:
     """The messages of one pass, kept until :meth:`finish` builds the trajectories."""
 
-    def __init__(self, run: RunData):
+    def __init__(self, run: RunData) -> None:
         self.run = run
         self.truth: list[Odometry | PoseStamped] = []
         self.odom: list[Odometry] = []
@@ -197,7 +197,8 @@ class _Reader:
             run.sdrs.append(SdrRecord(m.header.stamp, np.asarray(m.fused.active, dtype=np.int64), m.fused.size))
         else:
             # poses need an orientation; truth and dead reckoning only a position
-            want: tuple[type, ...] = (Odometry,) if key in ("Odometry", "wheel_odometry") else (Odometry, PoseStamped)
+            want: tuple[type[Message], ...] = (Odometry,) if key in ("Odometry", "wheel_odometry") else \
+                (Odometry, PoseStamped)
             if not isinstance(m, want):
                 raise RecordingError(f"{run.path}: key {key!r} carries {m.type_name}, not "
                                      f"{' or '.join(w.type_name for w in want)}")

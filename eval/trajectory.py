@@ -41,7 +41,8 @@ import numpy as np
 from common.geometry import normalise_quaternions, slerp, yaws_of_quaternions
 from common.messages import Odometry
 
-__all__ = ["NS", "Trajectory", "PoseSeries", "pose_series", "align_rigid", "align_trajectory", "ate", "rpe", "anchored_errors", "drift_pct"]
+__all__ = ["NS", "Trajectory", "PoseSeries", "pose_series", "align_rigid", "align_trajectory", "ate", "rpe",
+           "anchored_errors", "drift_pct"]
 
 NS = 1_000_000_000
 
@@ -55,7 +56,7 @@ class Trajectory:
     """
 
     def __init__(self, stamps: Sequence[int] | np.ndarray, positions: Sequence[Sequence[float]] | np.ndarray,
-                 yaws: Sequence[float] | np.ndarray | None = None, source: str = ""):
+                 yaws: Sequence[float] | np.ndarray | None = None, source: str = "") -> None:
         t = np.asarray(stamps, dtype=np.int64).reshape(-1)
         p = np.asarray(positions, dtype=float).reshape(-1, 3)
         if len(t) != len(p):

@@ -150,19 +150,19 @@ def _empty(source: str) -> Trajectory:
     return Trajectory(_i64([]), np.zeros((0, 3)), source=source)
 
 
-def _map_arrays(run: RunData, dr: Trajectory, truth: Trajectory) -> dict[str, np.ndarray]:
-    """The final map's nodes (id order, anchored) and links, as the :class:`RunView` fields."""
+def _map_arrays(run: RunData, dr: Trajectory, truth: Trajectory) -> tuple[np.ndarray, ...]:
+    """The final map's node ids, LVC ids, stamps, anchored NED positions (id order), links
+    and their loop-closure flags (the :class:`RunView` fields, in that order)."""
     m = run.final_map
     if m is None or not m.nodes:
-        return dict(node_ids=_i64([]), node_lvc=_i64([]), node_stamps=_i64([]), node_ned=np.zeros((0, 3)),
-                    links=_i64([]).reshape(0, 2), link_loop=np.zeros(0, dtype=bool))
+        return (_i64([]), _i64([]), _i64([]), np.zeros((0, 3)), _i64([]).reshape(0, 2), np.zeros(0, dtype=bool))
     nodes = sorted(m.nodes, key=lambda n: n.id)
     stamps = _i64([n.stamp for n in nodes])
     ned = run.to_ned(np.asarray([n.position for n in nodes], dtype=np.float64)).reshape(-1, 3)
     anchored = _anchor(Trajectory(stamps, ned, source="map"), dr if len(dr) else truth)
-    return dict(node_ids=_i64([n.id for n in nodes]), node_lvc=_i64([n.lvc_id for n in nodes]), node_stamps=stamps,
-                node_ned=anchored.p, links=_i64([[ln.source, ln.target] for ln in m.links]).reshape(-1, 2),
-                link_loop=np.asarray([ln.loop_closure for ln in m.links], dtype=bool))
+    return (_i64([n.id for n in nodes]), _i64([n.lvc_id for n in nodes]), stamps, anchored.p,
+            _i64([[ln.source, ln.target] for ln in m.links]).reshape(-1, 2),
+            np.asarray([ln.loop_closure for ln in m.links], dtype=bool))
 
 
 def _revisit_arrays(run: RunData) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -201,10 +201,12 @@ def run_view(run: RunData, label: str | None = None, max_images: int = 12) -> Ru
     dr = _anchor(dr, truth)
     ev = run.events
     revisit_stamps, revisit_same = _revisit_arrays(run)
+    node_ids, node_lvc, node_stamps, node_ned, links, link_loop = _map_arrays(run, dr, truth)
     view = RunView(
         run=run, label=label or run_label(run.metadata, run.path, bool(ev)), truth=truth, dead_reckoning=dr,
         event_stamps=_i64([e.header.stamp for e in ev]), event_lvc=_i64([e.lvc_id for e in ev]),
-        event_gate=[e.gate for e in ev], **_map_arrays(run, dr, truth),
+        event_gate=[e.gate for e in ev], node_ids=node_ids, node_lvc=node_lvc, node_stamps=node_stamps,
+        node_ned=node_ned, links=links, link_loop=link_loop,
         lvc_stamps=_i64([m.header.stamp for m in run.lvcs]), lvc_id=_i64([m.most_active_cell for m in run.lvcs]),
         lvc_new=np.asarray([m.is_new for m in run.lvcs], dtype=bool),
         sdr_stamps=_i64([s.stamp for s in run.sdrs]), sdr_active=[s.active for s in run.sdrs],
