@@ -3,8 +3,10 @@
 Services never import this package (they import only ``common``); the ``poseidon``
 command, benchmarks and tests do.
 
-- :mod:`eval.trajectory` -- the one ``Trajectory`` (NED), frames, rigid alignment, ATE, RPE, drift;
-- :mod:`eval.rundata` -- one pass over a run recording (``load_run``);
+- :mod:`eval.rundata` -- the run model: one pass over a run recording (``load_run`` -> ``RunData``), used by
+  every command here and by the report;
+- :mod:`eval.trajectory` -- ``Trajectory`` (NED track), ``PoseSeries`` (poses as published), rigid alignment,
+  ATE, RPE, drift (frame conventions and angle helpers: :mod:`common.geometry`);
 - :mod:`eval.frontend` -- LVC revisit recall/precision, false associations, VPR window ok_ratio;
 - :mod:`eval.run_eval` -- ``poseidon eval``: ``evaluate_run`` (loop closures, recall, ATE, proxies);
 - :mod:`eval.audit` -- ``poseidon audit``: ``audit_run`` (event-evidence association, sequence gaps);

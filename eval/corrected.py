@@ -5,7 +5,7 @@ One definition serves ``poseidon export RUN --tum OUT.txt`` and ``poseidon eval 
 
 Frames: everything stays in the frame the run publishes (``Odometry`` and the ``map``
 nodes share it, :mod:`eval.trajectory`); nothing is converted to NED.  Yaw is the rotation
-about +z of the ``[x, y, z, w]`` orientation quaternion (:func:`common.geometry.yaw_of_quaternion`).
+about +z of the ``[x, y, z, w]`` orientation quaternion (:func:`common.geometry.yaws_of_quaternions`).
 
 Definition.  Input: the ``Odometry`` stream (the ``robot_state`` dead reckoning) and the
 nodes of the run's **last** ``map`` message (id, position[3], yaw, stamp).  One output pose
@@ -37,112 +37,19 @@ decimals; a ``#`` header line names the columns.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from common.codec import DecodeError, decode
-from common.mcap_io import RecordedMessage, RecordingError, read_messages
-from common.messages import ExperienceMap, ExperienceNode, Odometry, message_type
+from common.geometry import normalise_quaternions, quat_multiply, wrap_angle
+from common.mcap_io import RecordingError
+from common.messages import ExperienceNode
 from common.stamps import ns_to_text, seconds_to_ns
+from eval.rundata import load_run
+from eval.trajectory import PoseSeries
 
-__all__ = ["PoseSeries", "pose_series", "slerp", "quat_multiply", "yaw_of", "map_corrected", "corrected_from_recording",
-           "write_tum", "read_tum"]
-
-NS = 1_000_000_000
-
-
-@dataclass(frozen=True)
-class PoseSeries:
-    """Poses over time: ``stamps`` (n,) int64 ns non-decreasing, ``positions`` (n, 3) m,
-    ``quaternions`` (n, 4) ``[x, y, z, w]`` of unit norm."""
-
-    stamps: np.ndarray
-    positions: np.ndarray
-    quaternions: np.ndarray
-
-    def __post_init__(self) -> None:
-        n = len(self.stamps)
-        if self.stamps.ndim != 1 or self.positions.shape != (n, 3) or self.quaternions.shape != (n, 4):
-            raise ValueError(f"PoseSeries: stamps {self.stamps.shape}, positions {self.positions.shape}, "
-                             f"quaternions {self.quaternions.shape} do not agree")
-        if n > 1 and np.any(np.diff(self.stamps) < 0):
-            raise ValueError("PoseSeries: stamps must be non-decreasing")
-
-    def __len__(self) -> int:
-        return len(self.stamps)
-
-    @property
-    def yaws(self) -> np.ndarray:
-        """Yaw (rad, about +z) of every orientation, in (-pi, pi]."""
-        return yaw_of(self.quaternions)
-
-    def interpolate(self, stamps: Sequence[int] | np.ndarray) -> "PoseSeries":
-        """Poses at ``stamps``: position linear, orientation SLERP between the bracketing samples
-        (the last of samples with equal stamps counts); clamped outside the span."""
-        if not len(self):
-            raise ValueError("PoseSeries is empty")
-        q = np.asarray(stamps, dtype=np.int64).reshape(-1)
-        if len(self) == 1:
-            return PoseSeries(q, np.repeat(self.positions, len(q), 0), np.repeat(self.quaternions, len(q), 0))
-        i = np.clip(np.searchsorted(self.stamps, q, side="right") - 1, 0, len(self) - 2)
-        t0, t1 = self.stamps[i], self.stamps[i + 1]
-        span = (t1 - t0).astype(np.float64)
-        f = np.where(span > 0, (q - t0).astype(np.float64) / np.where(span > 0, span, 1.0), 1.0)
-        f = np.clip(f, 0.0, 1.0)
-        p = self.positions[i] + f[:, None] * (self.positions[i + 1] - self.positions[i])
-        return PoseSeries(q, p, slerp(self.quaternions[i], self.quaternions[i + 1], f))
-
-
-def _normalised(q: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(~(n > 0)):
-        raise ValueError("quaternion of zero norm")
-    return q / n
-
-
-def pose_series(messages: Iterable[Odometry]) -> PoseSeries:
-    """The poses of ``Odometry`` messages, sorted by stamp (stable)."""
-    ms = list(messages)
-    t = np.array([m.header.stamp for m in ms], dtype=np.int64)
-    order = np.argsort(t, kind="stable")
-    p = np.array([m.position for m in ms], dtype=float).reshape(-1, 3)[order]
-    q = np.array([m.orientation for m in ms], dtype=float).reshape(-1, 4)[order]
-    return PoseSeries(t[order], p, _normalised(q) if len(q) else q)
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of quaternions (..., 4) ``[x, y, z, w]`` (the ZYX yaw)."""
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation of unit quaternions (n, 4) at fractions f (n,), shortest arc."""
-    q0 = np.asarray(q0, dtype=float)
-    q1 = np.asarray(q1, dtype=float).copy()
-    f = np.asarray(f, dtype=float)[:, None]
-    d = np.sum(q0 * q1, axis=1)
-    q1[d < 0] *= -1.0
-    d = np.abs(d)[:, None]
-    theta = np.arccos(np.clip(d, -1.0, 1.0))
-    s = np.sin(theta)
-    small = s[:, 0] < 1e-9
-    w0 = np.where(small[:, None], 1.0 - f, np.sin((1.0 - f) * theta) / np.where(small[:, None], 1.0, s))
-    w1 = np.where(small[:, None], f, np.sin(f * theta) / np.where(small[:, None], 1.0, s))
-    return _normalised(w0 * q0 + w1 * q1)
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a * b of quaternions (..., 4) ``[x, y, z, w]``."""
-    ax, ay, az, aw = (a[..., k] for k in range(4))
-    bx, by, bz, bw = (b[..., k] for k in range(4))
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz], axis=-1)
+__all__ = ["map_corrected", "corrected_from_recording", "write_tum", "read_tum"]
 
 
 def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> PoseSeries:
@@ -168,46 +75,22 @@ def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> P
     f = np.where(span > 0, (odom.stamps - nt[e]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
     f = np.clip(f, 0.0, 1.0)
     p = (1.0 - f)[:, None] * through(e) + f[:, None] * through(e1)
-    psi = dpsi[e] + f * np.angle(np.exp(1j * (dpsi[e1] - dpsi[e])))
+    psi = dpsi[e] + f * wrap_angle(dpsi[e1] - dpsi[e])
     qz = np.column_stack([np.zeros(len(e)), np.zeros(len(e)), np.sin(psi / 2), np.cos(psi / 2)])
-    return PoseSeries(odom.stamps.copy(), p, _normalised(quat_multiply(qz, odom.quaternions)))
+    return PoseSeries(odom.stamps.copy(), p, normalise_quaternions(quat_multiply(qz, odom.quaternions)))
 
 
-def _decode(rec: RecordedMessage, path: Path) -> object:
-    try:
-        return decode(rec.payload, message_type(rec.type_name))
-    except (DecodeError, KeyError) as exc:
-        raise RecordingError(f"{path}: key {rec.key!r} message seq {rec.seq} stamped {rec.stamp}: {exc}") from None
+def corrected_from_recording(path: str | Path) -> tuple[PoseSeries, bool]:
+    """(:func:`map_corrected` of the run at ``path``, whether it had a map message); the
+    recording is read by :func:`eval.rundata.load_run` (``Odometry`` and ``map`` only).
 
-
-def corrected_from_recording(path: str | Path, key: str = "Odometry") -> tuple[PoseSeries, bool]:
-    """(:func:`map_corrected` of the run at ``path``, whether it had a map message).
-
-    :raises RecordingError: unreadable recording, or no ``key`` messages in it.
+    :raises RecordingError: unreadable recording, or no ``Odometry`` messages in it.
     """
-    p = Path(path)
-    odo: list[Odometry] = []
-    last_map: RecordedMessage | None = None
-    for rec in read_messages(p, keys=[key, "map"]):
-        if rec.key == "map":
-            last_map = rec
-        else:
-            m = _decode(rec, p)
-            if not isinstance(m, Odometry):
-                raise RecordingError(f"{p}: key {key!r} carries {rec.type_name}, not Odometry")
-            odo.append(m)
-    if not odo:
-        raise RecordingError(f"{p}: no {key!r} messages: nothing to export (is it a run recording?)")
-    nodes = None
-    if last_map is not None:
-        mp = _decode(last_map, p)
-        assert isinstance(mp, ExperienceMap)
-        nodes = mp.nodes
-    try:
-        odom = pose_series(odo)
-    except ValueError as exc:  # a zero quaternion
-        raise RecordingError(f"{p}: key {key!r}: {exc}") from None
-    return map_corrected(odom, nodes), last_map is not None
+    run = load_run(path, keys=("Odometry", "map"))
+    if run.odometry_poses is None:
+        raise RecordingError(f"{run.path}: no 'Odometry' messages: nothing to export (is it a run recording?)")
+    nodes = run.final_map.nodes if run.final_map is not None else None
+    return map_corrected(run.odometry_poses, nodes), run.final_map is not None
 
 
 def write_tum(path: str | Path, poses: PoseSeries) -> int:

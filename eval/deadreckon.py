@@ -52,12 +52,11 @@ from tqdm import tqdm
 
 from common.codec import DecodeError
 from common.config import ConfigError, PoseidonConfig, RobotStateConfig, load_config
+from common.geometry import OutputFrame, euler_to_matrix, matrix_to_euler, quaternion_to_matrix, rot_z
 from common.mcap_io import RecordingError, read_messages
 from common.messages import Depth, LinkquestDvl, Message, Odometry
 from common.node import run_offline
 from eval.trajectory import NS, Trajectory, anchored_errors
-from services.robot_state.frames import (OutputFrame, euler_to_matrix, matrix_to_euler, quaternion_to_matrix,
-                                         rot_z)
 from services.robot_state.node import RobotStateNode
 
 __all__ = ["main", "PlainIntegrator", "Trajectory", "read_cone_passes", "cone_scores", "truth_scores",

@@ -34,16 +34,12 @@ from typing import Any
 
 import numpy as np
 
+from common.geometry import wrap_angles as wrap
 from common.stamps import seconds_to_ns
 
-__all__ = ["Relations", "read_relations", "interpolate_planar", "relation_errors", "relation_summary", "wrap"]
+__all__ = ["Relations", "read_relations", "interpolate_planar", "relation_errors", "relation_summary"]
 
 _FIELDS = ("t_i", "t_j", "dx", "dy", "dz", "roll", "pitch", "dyaw")
-
-
-def wrap(a: np.ndarray | float) -> np.ndarray:
-    """Angles wrapped to [-pi, pi)."""
-    return (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 @dataclass(frozen=True)

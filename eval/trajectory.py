@@ -1,14 +1,20 @@
-"""Trajectories and trajectory error: the one :class:`Trajectory` of the project.
+"""Trajectories and trajectory error.
+
+Two series of poses, for two contracts: :class:`Trajectory` is a position track in NED
+(with yaw) that the errors against ground truth and the report's figures use;
+:class:`PoseSeries` keeps poses exactly as a recording published them (frame unchanged,
+full orientation as quaternions, SLERP between samples) for the relation error
+(:mod:`eval.relations`) and the TUM export (:mod:`eval.corrected`).
 
 Frames.  Every trajectory evaluated here is held in the world **NED** frame (x north,
 y east, z down, metres), the frame of ``truth/pose`` (``missions/sim``: "world NED",
 quaternion body->world, body FRD).  ``Odometry`` is published by ``robot_state`` in the
 frame of Table 4.1's ``axis_remap``/``axis_sign_z`` (default ``yxz``, ``-1``: **ENU**, x
-east, y north, z up; :mod:`services.robot_state.frames`); :func:`published_to_ned`
-undoes that remap.  With the defaults ``ned = (enu_y, enu_x, -enu_z)`` and
-``yaw_ned = pi/2 - yaw_enu`` (:func:`enu_to_ned`, :func:`ned_to_enu`, :func:`yaw_enu_to_ned`).
-The experience map (``map`` node positions, ``experience_event.odom_position``) integrates
-the published ``Odometry`` and is therefore in the same published frame.
+east, y north, z up); :func:`common.geometry.published_to_ned` undoes that remap (with the
+defaults ``ned = (enu_y, enu_x, -enu_z)`` and ``yaw_ned = pi/2 - yaw_enu``; the conventions
+are in :mod:`common.geometry`).  The experience map (``map`` node positions,
+``experience_event.odom_position``) integrates the published ``Odometry`` and is therefore
+in the same published frame.
 
 Errors (the dissertation lacks them; ``../shared/design/EVALUATION.md``):
 
@@ -27,50 +33,30 @@ Errors (the dissertation lacks them; ``../shared/design/EVALUATION.md``):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
 
-__all__ = ["NS", "Trajectory", "enu_to_ned", "ned_to_enu", "yaw_enu_to_ned", "published_to_ned",
-           "align_rigid", "align_trajectory", "ate", "rpe", "anchored_errors", "drift_pct"]
+from common.geometry import normalise_quaternions, slerp, yaws_of_quaternions
+from common.messages import Odometry
+
+__all__ = ["NS", "Trajectory", "PoseSeries", "pose_series", "align_rigid", "align_trajectory", "ate", "rpe",
+           "anchored_errors", "drift_pct"]
 
 NS = 1_000_000_000
 
 
-def enu_to_ned(p: np.ndarray) -> np.ndarray:
-    """ENU (x east, y north, z up) positions (..., 3) -> NED (x north, y east, z down)."""
-    p = np.asarray(p, dtype=float)
-    return np.stack([p[..., 1], p[..., 0], -p[..., 2]], axis=-1)
-
-
-def ned_to_enu(p: np.ndarray) -> np.ndarray:
-    """NED positions (..., 3) -> ENU (the same swap; the map is its own inverse)."""
-    return enu_to_ned(p)
-
-
-def yaw_enu_to_ned(yaw: float | np.ndarray) -> float | np.ndarray:
-    """ENU yaw (counter-clockwise from east) -> NED yaw (clockwise from north), rad; self-inverse."""
-    return np.pi / 2 - yaw
-
-
-def published_to_ned(p: np.ndarray, axis_remap: str = "yxz", axis_sign_z: float = -1.0) -> np.ndarray:
-    """Positions (..., 3) in ``robot_state``'s published frame -> NED (the inverse of
-    :class:`services.robot_state.frames.OutputFrame`, which defines the remap)."""
-    from services.robot_state.frames import OutputFrame
-
-    m = OutputFrame(axis_remap, axis_sign_z).m  # NED -> published, orthogonal
-    return np.asarray(p, dtype=float) @ m
-
-
 class Trajectory:
-    """Samples (stamp ns, NED position m, yaw rad) with linear interpolation.
+    """Samples (stamp ns, NED position m, yaw rad) with linear interpolation; ``source`` names
+    the key they came from (e.g. ``truth/pose``, ``Odometry``, ``map``).
 
     Stamps must be non-decreasing (samples are sorted by stamp, stable).  ``yaw`` is
     unwrapped so that interpolation never crosses the +-pi seam the long way.
     """
 
     def __init__(self, stamps: Sequence[int] | np.ndarray, positions: Sequence[Sequence[float]] | np.ndarray,
-                 yaws: Sequence[float] | np.ndarray | None = None):
+                 yaws: Sequence[float] | np.ndarray | None = None, source: str = "") -> None:
         t = np.asarray(stamps, dtype=np.int64).reshape(-1)
         p = np.asarray(positions, dtype=float).reshape(-1, 3)
         if len(t) != len(p):
@@ -82,6 +68,7 @@ class Trajectory:
         self.t = t[order]
         self.p = p[order]
         self.yaw = np.unwrap(y[order]) if len(y) else y
+        self.source = source
 
     def __len__(self) -> int:
         return len(self.t)
@@ -124,6 +111,20 @@ class Trajectory:
         ts, s = self._seconds(st)
         return np.interp(s, ts, self.yaw)
 
+    def positions_within(self, stamps: Sequence[int] | np.ndarray) -> np.ndarray:
+        """Positions (n, 3) interpolated linearly at ``stamps`` (ns); NaN rows outside the
+        covered span (where :meth:`positions_at` clamps)."""
+        t = np.asarray(stamps, dtype=np.int64)
+        out = np.full((len(t), 3), np.nan)
+        if not len(self.t):
+            return out
+        inside = (t >= self.t[0]) & (t <= self.t[-1])
+        ref = (self.t - self.t[0]).astype(np.float64)
+        q = (t[inside] - self.t[0]).astype(np.float64)
+        for k in range(3):
+            out[inside, k] = np.interp(q, ref, self.p[:, k])
+        return out
+
     def at(self, stamp: int) -> tuple[np.ndarray, float]:
         """Position and yaw at one stamp."""
         return self.positions_at([stamp])[0], float(self.yaws_at([stamp])[0])
@@ -132,6 +133,16 @@ class Trajectory:
         """A new trajectory sampled at ``stamps``."""
         s = np.asarray(stamps, dtype=np.int64)
         return Trajectory(s, self.positions_at(s), self.yaws_at(s))
+
+    def translated(self, offset: np.ndarray) -> "Trajectory":
+        """The same samples moved by ``offset`` (3,) metres."""
+        return Trajectory(self.t, self.p + offset, self.yaw, self.source)
+
+    def cumulative_distance(self) -> np.ndarray:
+        """Distance travelled (m, raw sample steps) from the first sample to each sample."""
+        if not len(self.p):
+            return np.zeros(0)
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.p, axis=0), axis=1))])
 
     def window(self, t0: int, t1: int) -> "Trajectory":
         """The samples with t0 <= stamp <= t1."""
@@ -164,6 +175,58 @@ class Trajectory:
         seg = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(self.p, axis=0), axis=1))]
         ts, s = self._seconds(np.asarray(stamps, dtype=np.int64))
         return np.interp(s, ts, seg)
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Poses over time in the frame they were published in: ``stamps`` (n,) int64 ns
+    non-decreasing, ``positions`` (n, 3) m, ``quaternions`` (n, 4) ``[x, y, z, w]`` of unit norm."""
+
+    stamps: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.stamps)
+        if self.stamps.ndim != 1 or self.positions.shape != (n, 3) or self.quaternions.shape != (n, 4):
+            raise ValueError(f"PoseSeries: stamps {self.stamps.shape}, positions {self.positions.shape}, "
+                             f"quaternions {self.quaternions.shape} do not agree")
+        if n > 1 and np.any(np.diff(self.stamps) < 0):
+            raise ValueError("PoseSeries: stamps must be non-decreasing")
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def yaws(self) -> np.ndarray:
+        """Yaw (rad, about +z) of every orientation, in [-pi, pi]."""
+        return yaws_of_quaternions(self.quaternions)
+
+    def interpolate(self, stamps: Sequence[int] | np.ndarray) -> "PoseSeries":
+        """Poses at ``stamps``: position linear, orientation SLERP between the bracketing samples
+        (the last of samples with equal stamps counts); clamped outside the span."""
+        if not len(self):
+            raise ValueError("PoseSeries is empty")
+        q = np.asarray(stamps, dtype=np.int64).reshape(-1)
+        if len(self) == 1:
+            return PoseSeries(q, np.repeat(self.positions, len(q), 0), np.repeat(self.quaternions, len(q), 0))
+        i = np.clip(np.searchsorted(self.stamps, q, side="right") - 1, 0, len(self) - 2)
+        t0, t1 = self.stamps[i], self.stamps[i + 1]
+        span = (t1 - t0).astype(np.float64)
+        f = np.where(span > 0, (q - t0).astype(np.float64) / np.where(span > 0, span, 1.0), 1.0)
+        f = np.clip(f, 0.0, 1.0)
+        p = self.positions[i] + f[:, None] * (self.positions[i + 1] - self.positions[i])
+        return PoseSeries(q, p, slerp(self.quaternions[i], self.quaternions[i + 1], f))
+
+
+def pose_series(messages: Iterable[Odometry]) -> PoseSeries:
+    """The poses of ``Odometry`` messages, sorted by stamp (stable)."""
+    ms = list(messages)
+    t = np.array([m.header.stamp for m in ms], dtype=np.int64)
+    order = np.argsort(t, kind="stable")
+    p = np.array([m.position for m in ms], dtype=float).reshape(-1, 3)[order]
+    q = np.array([m.orientation for m in ms], dtype=float).reshape(-1, 4)[order]
+    return PoseSeries(t[order], p, normalise_quaternions(q) if len(q) else q)
 
 
 def align_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -37,9 +37,10 @@ import plotly.graph_objects as go
 
 from common.mcap_io import read_messages, read_metadata
 from common.messages import LaserScan
-from eval.corrected import PoseSeries, map_corrected
-from eval.report.figures import FONT, RUN_COLORS, FigureSpec
-from eval.rundata import RunData as EvalRun
+from eval.corrected import map_corrected
+from eval.report.style import FONT, RUN_COLORS, FigureSpec
+from eval.rundata import RunData
+from eval.trajectory import PoseSeries
 
 __all__ = ["PUBLISHED", "MAX_DRAW_RANGE_M", "MAX_PIXELS", "benchmark_figures", "relations_table", "scan_endpoints",
            "raster_png", "raster_resolution", "dataset_of"]
@@ -190,7 +191,7 @@ def _laser_offset(path: Path) -> tuple[tuple[float, float, float], str | None]:
     return (float(o["dx"]), float(o["dy"]), float(o["dtheta"])), note
 
 
-def fig_scan_maps(run: EvalRun) -> FigureSpec:
+def fig_scan_maps(run: RunData) -> FigureSpec:
     """``fig-scan-maps`` (module docstring)."""
     spec = FigureSpec("fig-scan-maps", "Laser point maps: final map's corrected poses vs raw odometry",
                       "Every laser scan drawn at the pose the run estimates for its stamp. Left: the final "
@@ -234,7 +235,7 @@ def fig_scan_maps(run: EvalRun) -> FigureSpec:
     return spec
 
 
-def fig_loop_closures(run: EvalRun) -> FigureSpec:
+def fig_loop_closures(run: RunData) -> FigureSpec:
     """``fig-loop-closures`` (module docstring)."""
     spec = FigureSpec("fig-loop-closures", "Loop closures over time",
                       "Cumulative number of loop closures in the final map, at the time of the newer experience "
@@ -261,6 +262,6 @@ def fig_loop_closures(run: EvalRun) -> FigureSpec:
     return spec
 
 
-def benchmark_figures(run: EvalRun) -> list[FigureSpec]:
+def benchmark_figures(run: RunData) -> list[FigureSpec]:
     """The section's figures for one run (eval.rundata.load_run result)."""
     return [fig_scan_maps(run), fig_loop_closures(run)]

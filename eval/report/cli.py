@@ -37,30 +37,24 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
+from common.codec import DecodeError
 from common.mcap_io import RecordingError
+from eval.audit import audit_run
+from eval.compare import compare_runs
+from eval.report.benchmark import benchmark_figures, relations_table
+from eval.report.data import RunView, run_view
+from eval.report.page import render_report
+from eval.run_eval import evaluate_run, relations_block
+from eval.rundata import RunData, load_run
 
-__all__ = ["main", "evaluation_tables"]
+__all__ = ["main", "evaluation_tables", "load_views"]
 
 log = logging.getLogger("poseidon.report")
 
 
-def _import(module: str, name: str, optional: bool = False) -> tuple[Callable[..., Any] | None, str]:
-    """The function, or None and why it cannot be imported."""
-    import importlib
-    try:
-        return getattr(importlib.import_module(module), name), ""
-    except (ImportError, AttributeError) as exc:
-        reason = f"{module}.{name} is not available in this build ({type(exc).__name__}: {exc})"
-        log.log(logging.INFO if optional else logging.WARNING, "report: %s", reason)
-        return None, reason
-
-
 def _guarded(tables: dict[str, dict], unavailable: dict[str, str], name: str,
-             func: Callable[..., dict] | None, where: str, *args: Any) -> dict | None:
-    """Table ``name`` = ``func(*args)``; when the function is missing or fails, the reason."""
-    if func is None:
-        unavailable[name] = where
-        return None
+             func: Callable[..., dict], where: str, *args: Any) -> dict | None:
+    """Table ``name`` = ``func(*args)``; when the function fails, the reason in ``unavailable``."""
     try:
         result = func(*args)
     except Exception as exc:  # noqa: BLE001 - reported on the page and in the log, fatal with --strict
@@ -103,56 +97,58 @@ def present_comparison(c: dict[str, Any], label_a: str, label_b: str) -> dict[st
 COMPARISON = "Comparison (Table 5.4, Tables 5.2-5.3)"
 
 
-def evaluation_tables(paths: list[Path], labels: list[str],
+def evaluation_tables(runs: list[RunData], labels: list[str],
                       relations: Path | None = None) -> tuple[dict[str, dict], dict[str, str], list[str]]:
     """The tables of the eval package for the runs: (name -> dict, name -> why unavailable, names of the
     per-run detail tables, shown folded when there is a comparison)."""
     tables: dict[str, dict] = {}
     unavailable: dict[str, str] = {}
-    found = {name: _import(module, name) for module, name in
-             (("eval.run_eval", "evaluate_run"), ("eval.audit", "audit_run"), ("eval.compare", "compare_runs"))}
-    evaluate_run, why_eval = found["evaluate_run"][0], found["evaluate_run"][1] or "eval.run_eval.evaluate_run"
-    audit_run, why_audit = found["audit_run"][0], found["audit_run"][1] or "eval.audit.audit_run"
-    compare_runs, why_compare = found["compare_runs"][0], found["compare_runs"][1] or "eval.compare.compare_runs"
-    # the eval functions take a path or a run loaded once by eval.rundata.load_run (read each file once)
-    loader, _ = _import("eval.rundata", "load_run", optional=True)
-    inputs: list[Any] = list(paths)
-    if loader is not None and any(f is not None for f in (evaluate_run, audit_run, compare_runs)):
-        for i, p in enumerate(paths):
-            try:
-                inputs[i] = loader(p)
-            except Exception:  # noqa: BLE001 - each table then reports its own failure on the path
-                log.exception("report: eval.rundata.load_run(%s) failed; the eval functions get the path", p)
-    for inp, label in zip(inputs[1:], labels[1:]):
+    for run, label in zip(runs[1:], labels[1:]):
         name = f"{COMPARISON}: {labels[0]} vs {label}"
-        result = _guarded(tables, unavailable, name, compare_runs, why_compare, inputs[0], inp)
+        result = _guarded(tables, unavailable, name, compare_runs, "eval.compare.compare_runs", runs[0], run)
         if result is not None:
             tables[name] = present_comparison(result, labels[0], label)
     details: list[str] = []
-    if relations is not None and evaluate_run is not None:
-        evaluate = evaluate_run
-        evaluate_run = lambda run: evaluate(run, relations=relations)  # noqa: E731
-    for inp, label in zip(inputs, labels):
-        for name, func, why in ((f"Evaluation (trajectory error, loop closures): {label}", evaluate_run, why_eval),
-                                (f"Audit (event-evidence association): {label}", audit_run, why_audit)):
-            _guarded(tables, unavailable, name, func, why, inp)
+    evaluate: Callable[..., dict] = evaluate_run
+    if relations is not None:
+        evaluate = lambda run: evaluate_run(run, relations=relations)  # noqa: E731
+    for run, label in zip(runs, labels):
+        for name, func, where in ((f"Evaluation (trajectory error, loop closures): {label}", evaluate,
+                                   "eval.run_eval.evaluate_run"),
+                                  (f"Audit (event-evidence association): {label}", audit_run, "eval.audit.audit_run")):
+            _guarded(tables, unavailable, name, func, where, run)
             details.append(name)
-    return tables, unavailable, (details if len(paths) > 1 else [])
+    return tables, unavailable, (details if len(runs) > 1 else [])
 
 
 RELATIONS_TABLE = "Relations (Freiburg benchmark): this run and published results"
 
 
-def _benchmark_section(path: Path, relations: Path, tables: dict[str, dict]) -> tuple[str, str, list[Any]]:
+def _benchmark_section(run: RunData, relations: Path, tables: dict[str, dict]) -> tuple[str, str, list[Any]]:
     """Adds the relations table to ``tables``; returns the benchmark section (:mod:`eval.report.benchmark`)."""
-    from eval.report.benchmark import benchmark_figures, relations_table
-    from eval.rundata import load_run as load_eval_run
-    from eval.run_eval import relations_block
-
-    run = load_eval_run(path)
     tables[RELATIONS_TABLE] = {"relation error, mean ± population std over the relations used":
                                relations_table(relations_block(run, relations))}
     return "sec-benchmark", "Benchmark (laser maps, loop closures, relations)", benchmark_figures(run)
+
+
+def load_views(paths: list[Path], labels: list[str]) -> list[RunView]:
+    """Each recording read once and viewed for the figures; labels made unique.
+
+    :raises RecordingError: a missing, unreadable or empty recording (named).
+    """
+    views = []
+    for i, p in enumerate(paths):
+        if not p.is_file():
+            raise RecordingError(f"{p}: no such recording")
+        run = load_run(p)
+        if not run.counts:
+            raise RecordingError(f"{p}: no readable message (not an MCAP recording, or an empty one)")
+        views.append(run_view(run, label=(labels[i] if labels else None)))
+    names = [v.label for v in views]
+    if len(set(names)) != len(names):  # labels name the series and table columns: make them unique
+        for i, v in enumerate(views):
+            v.label = f"{i + 1}: {v.label}"
+    return views
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -180,24 +176,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.relations is not None and len(args.runs) != 1:
         print(f"poseidon report: --relations takes one run, got {len(args.runs)}", file=sys.stderr)
         return 2
-    from common.codec import DecodeError
-    from eval.report.data import load_run
-    from eval.report.page import render_report
     paths = [Path(p) for p in args.runs]
     try:
-        runs = [load_run(p, label=(args.label[i] if args.label else None)) for i, p in enumerate(paths)]
+        runs = load_views(paths, args.label)
     except (RecordingError, DecodeError, KeyError) as exc:
         print(f"poseidon report: {exc}", file=sys.stderr)
         return 2
-    labels = [r.label for r in runs]
-    if len(set(labels)) != len(labels):  # labels name the series and table columns: make them unique
-        for i, r in enumerate(runs):
-            r.label = f"{i + 1}: {r.label}"
-    tables, unavailable, details = evaluation_tables(paths, [r.label for r in runs], args.relations)
+    tables, unavailable, details = evaluation_tables([r.run for r in runs], [r.label for r in runs], args.relations)
     extra = []
     if args.relations is not None:
         try:
-            extra = [_benchmark_section(paths[0], args.relations, tables)]
+            extra = [_benchmark_section(runs[0].run, args.relations, tables)]
         except (RecordingError, DecodeError, ValueError) as exc:
             print(f"poseidon report: {exc}", file=sys.stderr)
             return 2

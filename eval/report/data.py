@@ -1,23 +1,24 @@
-"""What the report needs from one run's MCAP recording (:class:`RunData`, :func:`load_run`).
+"""What the figures draw of one run (:class:`RunView`), derived from the one run model
+:class:`eval.rundata.RunData` (:func:`run_view`); nothing here reads messages but the few
+evidence images shown.
 
 Frames and units:
 
-- Every position is taken to the NED world frame of ``robot_state`` (metres; x north,
-  y east, z down): ``truth/pose`` is NED already; ``Odometry``, ``dead_reckoning``, the
-  ``map`` nodes and the events are in the published frame of ``robot_state``
-  (``axis_remap``/``axis_sign_z`` of the run's configuration, metadata record
-  ``poseidon``; the defaults when the recording has none) and are taken back to NED.
+- Every position is in the NED world frame of ``robot_state`` (metres; x north, y east,
+  z down), as :func:`eval.rundata.load_run` delivers it: ``truth/pose`` is NED already;
+  ``Odometry``, ``dead_reckoning`` and the ``map`` nodes are taken back from the published
+  frame (``axis_remap``/``axis_sign_z`` of the run's configuration).
 - The estimates start wherever their producer put their origin.  To compare shapes with
-  ground truth, dead reckoning is translated so that its first sample coincides with the
-  truth at that stamp, and the map so that its first node (by id) coincides with the
-  translated dead reckoning at that node's stamp (the map is built from odometry deltas).
+  ground truth, dead reckoning (``Odometry``, else ``dead_reckoning``) is translated so that
+  its first sample coincides with the truth at that stamp, and the map so that its first
+  node (by id) coincides with the translated dead reckoning at that node's stamp (the map is
+  built from odometry deltas).
 - Times are event times in ns; figures show seconds since the first message of the run.
 """
 from __future__ import annotations
 
 import base64
 import io
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,76 +26,35 @@ from typing import Any
 
 import numpy as np
 
-from common.mcap_io import RecordingError, read_messages, read_metadata
+from common.mcap_io import read_messages
 from common.messages import ExperienceImage
+from eval.rundata import RunData
+from eval.trajectory import Trajectory
 
-__all__ = ["RunData", "Track", "load_run", "run_label"]
+__all__ = ["RunView", "run_view", "run_label"]
 
 log = logging.getLogger(__name__)
 
-#: keys the report reads (everything else in the recording is only counted)
-REPORT_KEYS = ["truth/pose", "Odometry", "dead_reckoning", "experience_event", "map", "experience_image",
-               "local_view_cells", "truth/revisits", "neocortex/sdr"]
-
 
 @dataclass
-class Track:
-    """A time-stamped 3D trajectory in NED (``stamps`` int64 ns, ``ned`` (n, 3) metres)."""
+class RunView:
+    """Everything the figures of one run are drawn from (arrays in the order stated)."""
 
-    stamps: np.ndarray
-    ned: np.ndarray
-    source: str = ""
-
-    def __len__(self) -> int:
-        return len(self.stamps)
-
-    def at(self, stamps: np.ndarray) -> np.ndarray:
-        """Positions linearly interpolated at ``stamps``; NaN outside the covered span."""
-        t = np.asarray(stamps, dtype=np.int64)
-        out = np.full((len(t), 3), np.nan)
-        if len(self.stamps) == 0:
-            return out
-        inside = (t >= self.stamps[0]) & (t <= self.stamps[-1])
-        ref = (self.stamps - self.stamps[0]).astype(np.float64)
-        q = (t[inside] - self.stamps[0]).astype(np.float64)
-        for k in range(3):
-            out[inside, k] = np.interp(q, ref, self.ned[:, k])
-        return out
-
-    def translated(self, offset: np.ndarray) -> "Track":
-        return Track(self.stamps, self.ned + offset, self.source)
-
-    def travelled(self) -> np.ndarray:
-        """Cumulative distance travelled (m) at each sample."""
-        if len(self.ned) == 0:
-            return np.zeros(0)
-        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.ned, axis=0), axis=1))])
-
-
-@dataclass
-class RunData:
-    """Everything the figures of one run are drawn from."""
-
-    path: Path
+    run: RunData
     label: str
-    metadata: dict[str, Any]
-    counts: dict[str, int]
-    start_ns: int
-    end_ns: int
-    truth: Track
-    dead_reckoning: Track
+    truth: Trajectory
+    dead_reckoning: Trajectory  # anchored to the truth
     #: ``experience_event``: stamps, LVC id, gate
     event_stamps: np.ndarray
     event_lvc: np.ndarray
     event_gate: list[str]
-    #: final ``map``: node id, LVC id, stamp, NED position; links (source, target, loop_closure)
+    #: final ``map`` in id order: node id, LVC id, stamp, anchored NED position; links (source, target, loop_closure)
     node_ids: np.ndarray
     node_lvc: np.ndarray
     node_stamps: np.ndarray
     node_ned: np.ndarray
     links: np.ndarray
     link_loop: np.ndarray
-    maps_received: int
     #: ``local_view_cells`` per frame
     lvc_stamps: np.ndarray
     lvc_id: np.ndarray
@@ -108,40 +68,38 @@ class RunData:
     revisit_same: list[np.ndarray]
     #: a few ``experience_image`` frames as JPEG data URIs: (stamp, lvc id or -1, uri, size)
     images: list[tuple[int, int, str, str]] = field(default_factory=list)
-    image_count: int = 0
+
+    @property
+    def path(self) -> Path:
+        return self.run.path
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        return self.run.metadata
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return self.run.counts
+
+    @property
+    def start_ns(self) -> int:
+        return int(self.run.start_ns or 0)
 
     @property
     def duration_s(self) -> float:
-        return (self.end_ns - self.start_ns) / 1e9
+        return self.run.duration_s
+
+    @property
+    def maps_received(self) -> int:
+        return self.run.map_messages
+
+    @property
+    def image_count(self) -> int:
+        return len(self.run.images)
 
     def seconds(self, stamps: np.ndarray) -> np.ndarray:
         """Seconds since the run's first message."""
         return (np.asarray(stamps, dtype=np.int64) - self.start_ns) / 1e9
-
-    @property
-    def map_track(self) -> Track:
-        """The final map's nodes in id order (the experience path)."""
-        return Track(self.node_stamps, self.node_ned, "map")
-
-
-def _parse_metadata(path: Path) -> dict[str, Any]:
-    raw = read_metadata(path).get("poseidon", {})
-    out: dict[str, Any] = {}
-    for k, v in raw.items():
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v  # plain strings are stored as they are (see RecordingWriter.add_metadata)
-    return out
-
-
-def _output_frame(metadata: dict[str, Any]) -> Any:
-    from common.config import PoseidonConfig
-    from services.robot_state.frames import OutputFrame
-    cfg = metadata.get("config")
-    rs = (cfg or {}).get("robot_state", {}) if isinstance(cfg, dict) else {}
-    default = PoseidonConfig().robot_state
-    return OutputFrame(rs.get("axis_remap", default.axis_remap), float(rs.get("axis_sign_z", default.axis_sign_z)))
 
 
 def run_label(metadata: dict[str, Any], path: Path, has_events: bool = True) -> str:
@@ -173,129 +131,86 @@ def _image_uri(msg: ExperienceImage, max_width: int = 256) -> tuple[str, str]:
     return "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode(), f"{msg.width}x{msg.height}"
 
 
-def _anchor(track: Track, reference: Track) -> Track:
+def _anchor(track: Trajectory, reference: Trajectory) -> Trajectory:
     """Translate ``track`` so its first sample lies on ``reference`` at the same stamp."""
     if len(track) == 0 or len(reference) == 0:
         return track
-    ref = reference.at(track.stamps[:1])[0]
+    ref = reference.positions_within(track.t[:1])[0]
     if np.isnan(ref).any():
         log.warning("%s starts outside the span of %s: not anchored", track.source, reference.source)
         return track
-    return track.translated(ref - track.ned[0])
+    return track.translated(ref - track.p[0])
 
 
-def load_run(path: str | Path, label: str | None = None, max_images: int = 12) -> RunData:
-    """Read what the report draws from one run recording (raises RecordingError)."""
-    p = Path(path)
-    if not p.is_file():
-        raise RecordingError(f"{p}: no such recording")
-    metadata = _parse_metadata(p)
-    frame = _output_frame(metadata)
-    counts: dict[str, int] = {}
-    first = last = None
-    truth_t: list[int] = []
-    truth_p: list[list[float]] = []
-    odo_t: list[int] = []
-    odo_p: list[np.ndarray] = []
-    drk_t: list[int] = []
-    drk_p: list[np.ndarray] = []
-    ev_t: list[int] = []
-    ev_l: list[int] = []
-    ev_g: list[str] = []
-    last_map: Any = None
-    maps = 0
-    lvc_t: list[int] = []
-    lvc_i: list[int] = []
-    lvc_n: list[bool] = []
-    sdr_t: list[int] = []
-    sdr_a: list[np.ndarray] = []
-    sdr_size = 0
-    rev: dict[int, tuple[int, np.ndarray]] = {}
-    img_stamps: list[int] = []
-    for r in read_messages(p):
-        counts[r.key] = counts.get(r.key, 0) + 1
-        first = r.stamp if first is None else min(first, r.stamp)
-        last = r.stamp if last is None else max(last, r.stamp)
-        if r.key not in REPORT_KEYS:
-            continue
-        if r.key == "experience_image":
-            img_stamps.append(r.stamp)  # decoded below, only the few shown
-            continue
-        m: Any = r.message()
-        st = m.header.stamp
-        if r.key == "truth/pose":
-            truth_t.append(st)
-            truth_p.append(m.position)
-        elif r.key == "Odometry":
-            odo_t.append(st)
-            odo_p.append(frame.position_to_ned(np.asarray(m.position, dtype=np.float64)))
-        elif r.key == "dead_reckoning":
-            drk_t.append(st)
-            drk_p.append(frame.position_to_ned(np.asarray(m.position, dtype=np.float64)))
-        elif r.key == "experience_event":
-            ev_t.append(st)
-            ev_l.append(m.lvc_id)
-            ev_g.append(m.gate)
-        elif r.key == "map":
-            last_map = m
-            maps += 1
-        elif r.key == "local_view_cells":
-            lvc_t.append(st)
-            lvc_i.append(m.most_active_cell)
-            lvc_n.append(m.is_new)
-        elif r.key == "truth/revisits":
-            rev[m.frame_index] = (st, np.asarray(m.same_place, dtype=np.int64))
-        elif r.key == "neocortex/sdr":
-            sdr_t.append(st)
-            sdr_a.append(np.asarray(m.fused.active, dtype=np.int64))
-            sdr_size = max(sdr_size, m.fused.size)
-    if not counts:
-        raise RecordingError(f"{p}: no readable message (not an MCAP recording, or an empty one)")
-    i64 = lambda v: np.asarray(v, dtype=np.int64)  # noqa: E731
-    xyz = lambda v: np.asarray(v, dtype=np.float64).reshape(-1, 3)  # noqa: E731
-    truth = Track(i64(truth_t), xyz(truth_p), "truth/pose")
-    dr = Track(i64(odo_t), xyz(odo_p), "Odometry") if odo_t else Track(i64(drk_t), xyz(drk_p), "dead_reckoning")
-    dr = _anchor(dr, truth)
-    if last_map is not None and last_map.nodes:
-        nodes = sorted(last_map.nodes, key=lambda n: n.id)
-        node_ids = i64([n.id for n in nodes])
-        node_lvc = i64([n.lvc_id for n in nodes])
-        node_stamps = i64([n.stamp for n in nodes])
-        node_ned = xyz([frame.position_to_ned(np.asarray(n.position, dtype=np.float64)) for n in nodes])
-        anchored = _anchor(Track(node_stamps, node_ned, "map"), dr if len(dr) else truth)
-        node_ned = anchored.ned
-        links = i64([[ln.source, ln.target] for ln in last_map.links]).reshape(-1, 2)
-        link_loop = np.asarray([ln.loop_closure for ln in last_map.links], dtype=bool)
-    else:
-        node_ids = node_lvc = node_stamps = i64([])
-        node_ned = xyz([])
-        links = i64([]).reshape(0, 2)
-        link_loop = np.zeros(0, dtype=bool)
-    frames = sorted(rev)
+def _i64(v: Any) -> np.ndarray:
+    return np.asarray(v, dtype=np.int64)
+
+
+def _empty(source: str) -> Trajectory:
+    return Trajectory(_i64([]), np.zeros((0, 3)), source=source)
+
+
+def _map_arrays(run: RunData, dr: Trajectory, truth: Trajectory) -> tuple[np.ndarray, ...]:
+    """The final map's node ids, LVC ids, stamps, anchored NED positions (id order), links
+    and their loop-closure flags (the :class:`RunView` fields, in that order)."""
+    m = run.final_map
+    if m is None or not m.nodes:
+        return (_i64([]), _i64([]), _i64([]), np.zeros((0, 3)), _i64([]).reshape(0, 2), np.zeros(0, dtype=bool))
+    nodes = sorted(m.nodes, key=lambda n: n.id)
+    stamps = _i64([n.stamp for n in nodes])
+    ned = run.to_ned(np.asarray([n.position for n in nodes], dtype=np.float64)).reshape(-1, 3)
+    anchored = _anchor(Trajectory(stamps, ned, source="map"), dr if len(dr) else truth)
+    return (_i64([n.id for n in nodes]), _i64([n.lvc_id for n in nodes]), stamps, anchored.p,
+            _i64([[ln.source, ln.target] for ln in m.links]).reshape(-1, 2),
+            np.asarray([ln.loop_closure for ln in m.links], dtype=bool))
+
+
+def _revisit_arrays(run: RunData) -> tuple[np.ndarray, list[np.ndarray]]:
+    frames = sorted(run.revisits)
     if frames and frames != list(range(len(frames))):
         log.warning("%s: truth/revisits frame indices are not 0..%d; missing frames are left out",
-                    p, len(frames) - 1)
+                    run.path, len(frames) - 1)
     n_frames = (frames[-1] + 1) if frames else 0
-    revisit_stamps = np.full(n_frames, -1, dtype=np.int64)
-    revisit_same: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n_frames
+    stamps = np.full(n_frames, -1, dtype=np.int64)
+    same: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * n_frames
     for k in frames:
-        revisit_stamps[k], revisit_same[k] = rev[k]
-    data = RunData(
-        path=p, label=label or run_label(metadata, p, bool(ev_t)), metadata=metadata, counts=counts,
-        start_ns=int(first or 0), end_ns=int(last or 0), truth=truth, dead_reckoning=dr,
-        event_stamps=i64(ev_t), event_lvc=i64(ev_l), event_gate=ev_g,
-        node_ids=node_ids, node_lvc=node_lvc, node_stamps=node_stamps, node_ned=node_ned,
-        links=links, link_loop=link_loop, maps_received=maps,
-        lvc_stamps=i64(lvc_t), lvc_id=i64(lvc_i), lvc_new=np.asarray(lvc_n, dtype=bool),
-        sdr_stamps=i64(sdr_t), sdr_active=sdr_a, sdr_size=sdr_size,
-        revisit_stamps=revisit_stamps, revisit_same=revisit_same, image_count=len(img_stamps))
-    if img_stamps and max_images > 0:
-        chosen = {img_stamps[i] for i in np.unique(np.linspace(0, len(img_stamps) - 1, max_images).round().astype(int))}
-        ev_lvc = dict(zip(ev_t, ev_l))
-        for r in read_messages(p, keys=["experience_image"]):
-            if r.stamp in chosen:
-                chosen.discard(r.stamp)
-                img: Any = r.message()
-                uri, size = _image_uri(img)
-                data.images.append((r.stamp, int(ev_lvc.get(r.stamp, -1)), uri, size))
-    return data
+        r = run.revisits[k]
+        stamps[k], same[k] = r.header.stamp, np.asarray(r.same_place, dtype=np.int64)
+    return stamps, same
+
+
+def _thumbnails(view: RunView, max_images: int) -> None:
+    """Decode ``max_images`` evenly spaced ``experience_image`` frames into ``view.images``."""
+    img_stamps = [r.stamp for r in view.run.images]
+    if not img_stamps or max_images <= 0:
+        return
+    chosen = {img_stamps[i] for i in np.unique(np.linspace(0, len(img_stamps) - 1, max_images).round().astype(int))}
+    ev_lvc = dict(zip(view.event_stamps.tolist(), view.event_lvc.tolist()))
+    for r in read_messages(view.path, keys=["experience_image"]):
+        if r.stamp in chosen:
+            chosen.discard(r.stamp)
+            img: Any = r.message()
+            uri, size = _image_uri(img)
+            view.images.append((r.stamp, int(ev_lvc.get(r.stamp, -1)), uri, size))
+
+
+def run_view(run: RunData, label: str | None = None, max_images: int = 12) -> RunView:
+    """The figures' view of ``run`` (module docstring); ``label`` defaults to :func:`run_label`."""
+    truth = run.truth if run.truth is not None else _empty("truth/pose")
+    dr = run.odometry if run.odometry is not None else (run.dead_reckoning or _empty("dead_reckoning"))
+    dr = _anchor(dr, truth)
+    ev = run.events
+    revisit_stamps, revisit_same = _revisit_arrays(run)
+    node_ids, node_lvc, node_stamps, node_ned, links, link_loop = _map_arrays(run, dr, truth)
+    view = RunView(
+        run=run, label=label or run_label(run.metadata, run.path, bool(ev)), truth=truth, dead_reckoning=dr,
+        event_stamps=_i64([e.header.stamp for e in ev]), event_lvc=_i64([e.lvc_id for e in ev]),
+        event_gate=[e.gate for e in ev], node_ids=node_ids, node_lvc=node_lvc, node_stamps=node_stamps,
+        node_ned=node_ned, links=links, link_loop=link_loop,
+        lvc_stamps=_i64([m.header.stamp for m in run.lvcs]), lvc_id=_i64([m.most_active_cell for m in run.lvcs]),
+        lvc_new=np.asarray([m.is_new for m in run.lvcs], dtype=bool),
+        sdr_stamps=_i64([s.stamp for s in run.sdrs]), sdr_active=[s.active for s in run.sdrs],
+        sdr_size=max([s.size for s in run.sdrs], default=0),
+        revisit_stamps=revisit_stamps, revisit_same=revisit_same)
+    _thumbnails(view, max_images)
+    return view

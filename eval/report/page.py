@@ -19,7 +19,7 @@ import numpy as np
 import plotly.io as pio
 from plotly.offline import get_plotlyjs
 
-from eval.report.data import RunData
+from eval.report.data import RunView
 from eval.report.figures import FigureSpec, build_figures
 
 __all__ = ["render_report", "render_table", "table_id"]
@@ -162,7 +162,7 @@ def render_table(name: str, data: dict[str, Any], folded: bool = False) -> str:
     return f'<div class="table" id="{table_id(name)}"><h3>{html.escape(name)}</h3>{body}</div>'
 
 
-def _run_summary(runs: list[RunData], pr: dict[str, Any]) -> dict[str, dict[str, Any]]:
+def _run_summary(runs: list[RunView], pr: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Plain counts read from the recordings (no metric: those are in the evaluation tables)."""
     out: dict[str, dict[str, Any]] = {}
     for r in runs:
@@ -194,7 +194,7 @@ def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix: d}
 
 
-def _configuration(runs: list[RunData]) -> str:
+def _configuration(runs: list[RunView]) -> str:
     parts = []
     flat = [_flatten(r.metadata.get("config") or {}) for r in runs]
     if len(runs) > 1:
@@ -244,7 +244,7 @@ SECTIONS = [
 ]
 
 
-def render_report(runs: list[RunData], tables: dict[str, dict], out_dir: str | Path, *,
+def render_report(runs: list[RunView], tables: dict[str, dict], out_dir: str | Path, *,
                   unavailable: dict[str, str] | None = None, folded: list[str] | tuple[str, ...] = (), max_points: int = 3000, max_frames: int = 500,
                   min_gap_m: float = 10.0, title: str = "PoseidonSLAM run report",
                   extra_sections: list[tuple[str, str, list[FigureSpec]]] | None = None) -> dict[str, Any]:

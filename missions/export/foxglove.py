@@ -42,10 +42,11 @@ from typing import IO, Any
 
 import numpy as np
 
+from common.geometry import quaternion_of_yaw
 from common.mcap_io import read_messages
 from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, Image, LaserScan, LocalViewCells, Message,
                              NavSatFix, Odometry, PoseStamped, RangeImageBeam, RawMessage)
-from missions.export.ros_types import make_export_typestore, to_ros, yaw_quaternion
+from missions.export.ros_types import make_export_typestore, to_ros
 from missions.export.rosbag import ExportError
 
 __all__ = ["export_foxglove", "file_descriptor_set"]
@@ -225,7 +226,7 @@ class FoxgloveExporter:
 
     def _trajectory(self, key: str, m: Odometry | PoseStamped) -> None:
         frame = m.header.frame_id or "world"
-        q = m.orientation if isinstance(m, Odometry) else yaw_quaternion(m.yaw)
+        q = m.orientation if isinstance(m, Odometry) else quaternion_of_yaw(m.yaw)
         pose = self._pose(m.position, q)
         pif = self.pb.PoseInFrame(frame_id=frame, pose=pose)
         _ts(pif.timestamp, m.header.stamp)
@@ -252,7 +253,7 @@ class FoxgloveExporter:
         _ts(ent.timestamp, m.header.stamp)
         node_color = pb.Color(r=0.1, g=0.6, b=1.0, a=1.0)
         for n in m.nodes:
-            ent.spheres.append(pb.SpherePrimitive(pose=self._pose(n.position, yaw_quaternion(n.yaw)),
+            ent.spheres.append(pb.SpherePrimitive(pose=self._pose(n.position, quaternion_of_yaw(n.yaw)),
                                                   size=pb.Vector3(x=0.4, y=0.4, z=0.4),
                                                   color=pb.Color(r=1.0, g=0.8, b=0.0, a=1.0) if n.id == m.current
                                                   else node_color))

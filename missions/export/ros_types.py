@@ -32,20 +32,19 @@ RawMessage                  its original type, bytes unchanged (converted       
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
+from common.geometry import quaternion_of_yaw
 from common.messages import (DiagnosticArray, Depth, ExperienceEvent, ExperienceImage, ExperienceMap, FluidPressure,
                              Header, Image, Imu, LaserScan, LinkquestDvl, LocalViewCells, MagneticField, Message,
                              NavSatFix, NeocortexSdr, Odometry, PoseStamped, PoseWithCovarianceStamped, RangeImageBeam,
                              RawMessage, RevisitTruth, Sdr, Temperature, TFMessage, TwistStamped)
 from missions.importers.rosbags_io import CALA_VIUDA_MSGS
 
-__all__ = ["MSG_DIR", "POSEIDON_MSGS", "make_export_typestore", "ros_type_of", "to_ros", "RawConverter",
-           "yaw_quaternion"]
+__all__ = ["MSG_DIR", "POSEIDON_MSGS", "make_export_typestore", "ros_type_of", "to_ros", "RawConverter"]
 
 #: the .msg files of poseidon_msgs
 MSG_DIR = Path(__file__).resolve().parent / "msg"
@@ -75,11 +74,6 @@ def make_export_typestore(ros2: bool) -> Any:
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store
-
-
-def yaw_quaternion(yaw: float) -> list[float]:
-    """Quaternion x y z w of a rotation by ``yaw`` (rad) about z."""
-    return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
 
 
 class _Build:
@@ -171,7 +165,7 @@ class _Build:
 
     def pose_stamped(self, m: PoseStamped) -> Any:
         return self.T["geometry_msgs/msg/PoseStamped"](header=self.header(m.header),
-                                                       pose=self.pose(m.position, yaw_quaternion(m.yaw)))
+                                                       pose=self.pose(m.position, quaternion_of_yaw(m.yaw)))
 
     def navsatfix(self, m: NavSatFix) -> Any:
         return self.T["sensor_msgs/msg/NavSatFix"](

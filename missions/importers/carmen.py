@@ -78,6 +78,7 @@ from typing import IO, Any, Iterator
 
 import numpy as np
 
+from common.geometry import quaternion_of_yaw, wrap_angle
 from common.mcap_io import RecordingWriter
 from common.messages import Header, LaserScan, Message, Odometry
 from common.stamps import ns_to_text, seconds_to_ns
@@ -344,13 +345,9 @@ def _parse_line(log: CarmenLog, text: str, lineno: int) -> None:
     t["mapped"] += 1
 
 
-def _yaw_quaternion(theta: float) -> list[float]:
-    return [0.0, 0.0, math.sin(theta / 2.0), math.cos(theta / 2.0)]
-
-
 def _odometry(stamp: int, seq: int, pose: np.ndarray, tv: float, rv: float, status: list[str]) -> Odometry:
     return Odometry(header=Header(seq=seq, stamp=stamp, frame_id="odom"), child_frame_id="base_link",
-                    position=[float(pose[0]), float(pose[1]), 0.0], orientation=_yaw_quaternion(float(pose[2])),
+                    position=[float(pose[0]), float(pose[1]), 0.0], orientation=quaternion_of_yaw(float(pose[2])),
                     linear_velocity=[tv, 0.0, 0.0], angular_velocity=[0.0, 0.0, rv], status=status)
 
 
@@ -408,10 +405,6 @@ def _messages(log: CarmenLog, range_max: dict[str, float]) -> Iterator[tuple[str
             yield key, _scan(rec, seq, rec.max_range if rec.max_range is not None else range_max[rec.kind])
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def laser_offsets(log: CarmenLog) -> dict[str, dict[str, float]]:
     """Per scan key: the median laser pose relative to the robot pose, in the robot frame
     (dx forward, dy left m, dtheta rad), and the largest distance of a line's offset from it (m)."""
@@ -423,7 +416,7 @@ def laser_offsets(log: CarmenLog) -> dict[str, dict[str, float]]:
         d = lp[:, :2] - rp[:, :2]
         c, s = np.cos(rp[:, 2]), np.sin(rp[:, 2])
         fwd, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
-        dth = _wrap(lp[:, 2] - rp[:, 2])
+        dth = wrap_angle(lp[:, 2] - rp[:, 2])
         med = np.array([np.median(fwd), np.median(left)])
         dev = float(np.max(np.hypot(fwd - med[0], left - med[1])))
         out[key] = {"dx": round(float(med[0]), 6), "dy": round(float(med[1]), 6),

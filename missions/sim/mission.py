@@ -40,6 +40,7 @@ from typing import Any, Callable
 import numpy as np
 from tqdm import tqdm
 
+from common.geometry import wrap_angle
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
@@ -136,10 +137,6 @@ def quat_from_rpy(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.nd
     cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
     return np.stack([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
                      cr * cp * cy + sr * sp * sy], axis=-1)
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 # camera axes in the body frame (columns): x_c = body y, y_c = -body x, z_c = body z
@@ -416,7 +413,7 @@ def _imu(out: _Out, p: SimParams, traj: VehicleMotion, times: np.ndarray, yaw_er
     an = np.deg2rad(p.imu_att_noise_deg)
     roll = s["rpy"][:, 0] + rng.normal(0, an, n)
     pitch = s["rpy"][:, 1] + rng.normal(0, an, n)
-    yaw = _wrap(s["rpy"][:, 2] + np.interp(times, traj.t, yaw_err) + rng.normal(0, an, n))
+    yaw = wrap_angle(s["rpy"][:, 2] + np.interp(times, traj.t, yaw_err) + rng.normal(0, an, n))
     q = quat_from_rpy(roll, pitch, yaw)
     gyro = s["omega_b"] + gyro_bias + rng.normal(0, np.deg2rad(p.imu_gyro_noise_deg_s), (n, 3))
     r = rot_wb(s["rpy"][:, 0], s["rpy"][:, 1], s["rpy"][:, 2])
@@ -479,7 +476,7 @@ def _dvl(out: _Out, p: SimParams, traj: VehicleMotion, world: World, all_times: 
     vinst = vb * p.dvl_scale + np.asarray(p.dvl_bias_m_s) + rng.normal(0, p.dvl_noise_m_s, (n, 3))
     flag = good.sum(axis=1) >= 3
     vbeam = vb @ beams.T + rng.normal(0, p.dvl_noise_m_s, (n, 4))
-    head = np.rad2deg(_wrap(s["rpy"][:, 2] + math.radians(heading_off))) + rng.normal(0, p.dvl_heading_noise_deg, n)
+    head = np.rad2deg(wrap_angle(s["rpy"][:, 2] + math.radians(heading_off))) + rng.normal(0, p.dvl_heading_noise_deg, n)
     hr = np.deg2rad(head)
     rr = rot_wb(s["rpy"][:, 0], s["rpy"][:, 1], hr)
     vearth = np.einsum("nij,nj->ni", rr, vinst)
@@ -508,7 +505,7 @@ def _odom(out: _Out, p: SimParams, traj: VehicleMotion, times: np.ndarray, odom_
     s = traj.at(times)
     err = np.stack([np.interp(times, traj.t, odom_err[:, k]) for k in range(3)], axis=1)
     pos = s["pos"] + err
-    yaw = _wrap(s["rpy"][:, 2] + 0.5 * np.interp(times, traj.t, yaw_err))
+    yaw = wrap_angle(s["rpy"][:, 2] + 0.5 * np.interp(times, traj.t, yaw_err))
     q = quat_from_rpy(s["rpy"][:, 0], s["rpy"][:, 1], yaw)
     vb = _body_vel(s) + rng.normal(0, 0.01, (n, 3))
     cov = [0.0] * 36

@@ -15,7 +15,7 @@ attitude measurements make them observable; unmodelled, a 0.03 deg/s bias lagged
 by ~0.6 deg on the simulated missions); a DVL velocity bias is not (unobservable without
 an absolute position fix).
 
-State ``x`` (15; conventions in :mod:`services.robot_state.frames`): position NED ``p``
+State ``x`` (15; conventions in :mod:`common.geometry`): position NED ``p``
 (m), body-frame (FRD) velocity ``v`` (m/s), attitude ``e = (roll, pitch, yaw)`` (rad),
 ``b_imu`` (error of the IMU's reported yaw, prior 0: the IMU defines the initial heading;
 it grows at the rate ``d_imu`` plus a random walk ``imu_yaw_drift_sigma_deg_s``),
@@ -99,7 +99,7 @@ import numpy as np
 
 from common.config import RobotStateConfig
 from common.messages import Depth, Imu, LinkquestDvl
-from services.robot_state.frames import euler_to_matrix, matrix_to_euler, wrap_angle
+from common.geometry import euler_to_matrix, matrix_to_euler, wrap_angle
 
 __all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
 

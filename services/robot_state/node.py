@@ -21,7 +21,7 @@ inside it is bridged by prediction (velocity held, then decaying, covariance gro
 grid stamp before the next input, every bridged output flagged ``gap_bridged``.
 
 ``Odometry`` (frame ``odom_<frame>``, child ``base_link``; conventions in
-:mod:`services.robot_state.frames`): ``position`` and ``orientation`` in the published
+:mod:`common.geometry`): ``position`` and ``orientation`` in the published
 frame (``axis_remap``/``axis_sign_z``, default ENU), ``linear_velocity`` and
 ``angular_velocity`` in the published body frame, ``pose_covariance`` (x y z roll pitch
 yaw, row-major 6x6) and ``twist_covariance`` transformed to the published frame.
@@ -49,7 +49,7 @@ from common.config import PoseidonConfig
 from common.messages import Depth, Imu, LinkquestDvl, Message, Odometry
 from common.node import ServiceNode
 from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot
-from services.robot_state.frames import OutputFrame, euler_to_matrix, matrix_to_quaternion
+from common.geometry import OutputFrame, euler_to_matrix, matrix_to_quaternion
 
 __all__ = ["RobotStateNode", "odometry_from_snapshot"]
 

@@ -11,7 +11,9 @@ from common.geometry import quaternion_to_matrix
 from common.mcap_io import RecordingWriter
 from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
 from common.stamps import ns_to_text
-from eval.corrected import PoseSeries, map_corrected, pose_series, read_tum, slerp, write_tum
+from common.geometry import slerp
+from eval.corrected import map_corrected, read_tum, write_tum
+from eval.trajectory import PoseSeries, pose_series
 from missions.export.cli import main as export_main
 
 NS = 1_000_000_000

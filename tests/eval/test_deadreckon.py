@@ -9,7 +9,7 @@ import numpy as np
 from common.mcap_io import RecordingWriter
 from common.messages import Header, Odometry
 from eval.deadreckon import main
-from services.robot_state.frames import euler_to_matrix, matrix_to_quaternion
+from common.geometry import euler_to_matrix, matrix_to_quaternion
 from tests.robot_state.synth import NS, T0, mission
 
 U, W = 0.5, math.pi / 10  # forward speed m/s, turn rate rad/s

@@ -10,7 +10,8 @@ import pytest
 
 from common.mcap_io import RecordingWriter
 from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
-from eval.relations import Relations, interpolate_planar, read_relations, relation_errors, relation_summary, wrap
+from common.geometry import wrap_angles as wrap
+from eval.relations import Relations, interpolate_planar, read_relations, relation_errors, relation_summary
 from eval.run_eval import evaluate_run, main as eval_main
 
 NS = 1_000_000_000

@@ -1,41 +1,15 @@
-"""eval.trajectory: frames, interpolation, rigid alignment, ATE / RPE / drift on known answers."""
+"""eval.trajectory: interpolation, rigid alignment, ATE / RPE / drift on known answers."""
 import math
 
 import numpy as np
 import pytest
 
-from eval.trajectory import (NS, Trajectory, align_rigid, align_trajectory, anchored_errors, ate, drift_pct, enu_to_ned, ned_to_enu,
-                             published_to_ned, rpe, yaw_enu_to_ned)
+from eval.trajectory import NS, Trajectory, align_rigid, align_trajectory, anchored_errors, ate, drift_pct, rpe
 
 
 def _rot_z(a):
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-
-
-def test_frames_enu_ned():
-    ned = np.array([[1.0, 2.0, 3.0], [-4.0, 5.0, -6.0]])
-    enu = ned_to_enu(ned)
-    assert enu.tolist() == [[2.0, 1.0, -3.0], [5.0, -4.0, 6.0]]
-    assert np.allclose(enu_to_ned(enu), ned)
-    # robot_state's default published frame (yxz, z sign -1) is ENU; xyz/+1 is NED unchanged
-    assert np.allclose(published_to_ned(enu), ned)
-    assert np.allclose(published_to_ned(ned, "xyz", 1.0), ned)
-    # heading north (NED yaw 0) is ENU yaw pi/2; east (NED pi/2) is ENU 0
-    assert yaw_enu_to_ned(math.pi / 2) == pytest.approx(0.0)
-    assert yaw_enu_to_ned(0.0) == pytest.approx(math.pi / 2)
-
-
-def test_published_frame_matches_robot_state_output_frame():
-    from services.robot_state.frames import OutputFrame
-    rng = np.random.default_rng(0)
-    for remap, sign in (("yxz", -1.0), ("xyz", 1.0), ("yxz", 1.0), ("xzy", -1.0)):
-        try:
-            f = OutputFrame(remap, sign)
-        except ValueError:
-            continue  # a reflection: not a valid published frame
-        p = rng.normal(size=3)
-        assert np.allclose(published_to_ned(f.position(p), remap, sign), p)
 
 
 def test_trajectory_interpolation_coverage_and_distance():

@@ -8,7 +8,7 @@ import pytest
 
 from common.config import load_config
 from common.node import run_offline
-from services.robot_state.frames import OutputFrame, matrix_to_euler, quaternion_to_matrix
+from common.geometry import OutputFrame, matrix_to_euler, quaternion_to_matrix
 from services.robot_state.node import RobotStateNode
 from synth import mission, odometry_positions
 

@@ -53,18 +53,22 @@ def enu(ned: np.ndarray) -> list[float]:
     return [float(ned[1]), float(ned[0]), float(-ned[2])]
 
 
-def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float = 2.0, false_closure: bool = False,
-                       seed: int = 0, revision: str = "0123456789abcdef-test") -> dict[str, int]:
-    """Write the run; returns message counts per key."""
-    rng = np.random.default_rng(seed)
-    seqs: dict[str, int] = {}
-    out: list[tuple[int, str, object]] = []
+class _Headers:
+    """Header factory: one seq counter per key."""
 
-    def hdr(key: str, stamp: int) -> Header:
-        seqs[key] = seqs.get(key, 0) + 1
-        return Header(seq=seqs[key] - 1, stamp=stamp, frame_id=key)
+    def __init__(self) -> None:
+        self.seqs: dict[str, int] = {}
 
-    duration = LAPS * 4 * SIDE_M  # s at 1 m/s
+    def __call__(self, key: str, stamp: int) -> Header:
+        self.seqs[key] = self.seqs.get(key, 0) + 1
+        return Header(seq=self.seqs[key] - 1, stamp=stamp, frame_id=key)
+
+
+Out = list[tuple[int, str, object]]
+
+
+def _poses(out: Out, hdr: _Headers, duration: float) -> None:
+    """``truth/pose`` (NED) and ``Odometry`` (ENU, drifting) at 5 Hz."""
     t_pose = np.arange(0.0, duration, 0.2)
     truth = square_ned(t_pose)
     dr = dead_reckoning_ned(t_pose, truth)
@@ -74,6 +78,10 @@ def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float =
                                                orientation=[0.0, 0.0, 0.0, 1.0])))
         out.append((st + 1, "Odometry", Odometry(header=hdr("Odometry", st + 1), position=enu(q),
                                                  orientation=[0.0, 0.0, 0.0, 1.0])))
+
+
+def _frames(out: Out, hdr: _Headers, duration: float, rng: np.random.Generator) -> None:
+    """Per camera frame (2 Hz): the fused SDR, the LVC id and the revisit truth."""
     prototypes = [np.sort(rng.choice(SDR_SIZE, 40, replace=False)) for _ in range(PLACES)]
     t_cam = np.arange(0.1, duration, 0.5)
     cam_pos = square_ned(t_cam)
@@ -97,7 +105,11 @@ def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float =
                                  & (t - t_cam[:k] >= 10.0)).astype(np.int32)
         out.append((st, "truth/revisits", RevisitTruth(header=hdr("truth/revisits", st), frame_index=k,
                                                        same_place=earlier)))
-    # events, map, evidence images
+
+
+def _events(out: Out, hdr: _Headers, duration: float, guard_on: bool, event_every_m: float,
+            false_closure: bool) -> None:
+    """Events, evidence images and the growing map (loop closures a lap apart)."""
     t_ev = np.arange(event_every_m / 2, duration, event_every_m)
     truth_ev = square_ned(t_ev)
     dr_ev = dead_reckoning_ned(t_ev, truth_ev)
@@ -130,6 +142,18 @@ def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float =
         if i % 10 == 9 or i == len(t_ev) - 1:
             out.append((st, "map", ExperienceMap(header=hdr("map", st), nodes=list(nodes), links=list(links),
                                                  current=i)))
+
+
+def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float = 2.0, false_closure: bool = False,
+                       seed: int = 0, revision: str = "0123456789abcdef-test") -> dict[str, int]:
+    """Write the run; returns message counts per key."""
+    rng = np.random.default_rng(seed)
+    hdr = _Headers()
+    out: Out = []
+    duration = LAPS * 4 * SIDE_M  # s at 1 m/s
+    _poses(out, hdr, duration)
+    _frames(out, hdr, duration, rng)
+    _events(out, hdr, duration, guard_on, event_every_m, false_closure)
     out.sort(key=lambda x: x[0])
     config = PoseidonConfig().model_dump(mode="json")
     config["vpr_guard"]["require_vpr_for_event"] = guard_on

@@ -3,19 +3,26 @@ from __future__ import annotations
 
 import json
 import re
-import sys
-import types
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from eval.report import FIGURE_IDS, load_run, render_report, table_id
+import eval.report.cli as report_cli
+from eval.report import FIGURE_IDS, RunView, render_report, run_view, table_id
 from eval.report.cli import main as report_main
 from eval.report.figures import build_figures, frame_similarity, precision_recall
+from eval.rundata import RunData
+from eval.rundata import load_run as load_eval_run
 from tests.eval.report.handmade import PLACES, T0, dead_reckoning_ned, square_ned, write_handmade_run
 
-EVAL_MODULES = ("eval.run_eval", "eval.audit", "eval.compare", "eval.rundata")
+TABLE_FUNCTIONS = ("evaluate_run", "audit_run", "compare_runs")
+
+
+def load_run(path: Path) -> RunView:
+    """What the report draws of one recording."""
+    return run_view(load_eval_run(path))
 
 
 @pytest.fixture(scope="module")
@@ -27,18 +34,21 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return on, off
 
 
+def _left_out(*args: Any, **kwargs: Any) -> dict:
+    raise RuntimeError("left out of this test")
+
+
 def _without_eval_tables(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The eval table functions absent (as on a branch without them): importing them fails."""
-    for name in EVAL_MODULES:
-        monkeypatch.setitem(sys.modules, name, None)
+    """The eval table functions fail (figures only; the tables are tested apart)."""
+    for name in TABLE_FUNCTIONS:
+        monkeypatch.setattr(report_cli, name, _left_out)
 
 
 @pytest.fixture(scope="module")
 def page(runs: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("report-page")
     with pytest.MonkeyPatch.context() as mp:
-        for name in EVAL_MODULES:
-            mp.setitem(sys.modules, name, None)
+        _without_eval_tables(mp)
         import io
         from contextlib import redirect_stdout
         buf = io.StringIO()
@@ -85,11 +95,11 @@ def test_tables_and_configuration_are_on_the_page(page: tuple[Path, dict]) -> No
     path, result = page
     html = path.read_text(encoding="utf-8")
     assert f'id="{table_id("Run summary (read from the recordings)")}"' in html
-    # eval tables unavailable here: named on the page with the reason
+    # eval tables failing here: named on the page with the reason
     assert len(result["unavailable"]) == 5
     for name, reason in result["unavailable"].items():
-        assert f'id="{table_id(name)}"' in html and "not available in this build" in reason
-    assert "Unavailable: eval.compare.compare_runs is not available" in html
+        assert f'id="{table_id(name)}"' in html and "failed: RuntimeError: left out of this test" in reason
+    assert "Unavailable: eval.compare.compare_runs failed" in html
     # configuration: the one field that differs, and the code revision of each run
     assert 'id="table-config-differences"' in html
     diff = re.search(r'id="table-config-differences">(.*?)</div>', html, flags=re.S).group(1)
@@ -102,27 +112,21 @@ def test_eval_tables_rendered_from_the_eval_functions(runs: tuple[Path, Path], t
                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     calls: list[tuple] = []
 
-    def module(name: str, **funcs: object) -> types.ModuleType:
-        m = types.ModuleType(name)
-        for k, f in funcs.items():
-            setattr(m, k, f)
-        return m
-
-    def load(p: Path) -> tuple[str, str]:
+    def load(p: Path) -> RunData:
         calls.append(("load", Path(p).name))
-        return ("loaded", Path(p).name)
+        return load_eval_run(p)
 
-    def evaluate_run(run: tuple[str, str]) -> dict:
-        calls.append(("evaluate", run[1]))
+    def evaluate_run(run: RunData) -> dict:
+        calls.append(("evaluate", run.path.name))
         return {"ate": {"map": {"rmse_m": 0.8125, "n": 80}, "dead_reckoning": {"rmse_m": 2.5, "n": 80}},
                 "loop_closures": {"table": [{"event_seq": 40, "d_gt_m": 0.42, "label": "TP"}]}}
 
-    def audit_run(run: tuple[str, str]) -> dict:
-        calls.append(("audit", run[1]))
+    def audit_run(run: RunData) -> dict:
+        calls.append(("audit", run.path.name))
         return {"f1": 1.0, "missing_images": 0}
 
-    def compare_runs(a: tuple[str, str], b: tuple[str, str]) -> dict:
-        calls.append(("compare", a[1], b[1]))
+    def compare_runs(a: RunData, b: RunData) -> dict:
+        calls.append(("compare", a.path.name, b.path.name))
         return {"runs": {"a": {"label": "A"}, "b": {"label": "B"}},
                 "table_5_4": {"event_density_per_s": {"label": "event density (1/s)", "a": 0.5, "b": 1.0},
                               "nodes": {"label": "nodes", "a": 80, "b": 160}},
@@ -130,10 +134,9 @@ def test_eval_tables_rendered_from_the_eval_functions(runs: tuple[Path, Path], t
                                   "b": [{"event_seq": 45, "d_gt_m": 10.3, "label": "FP"}]},
                 "far_m": 5.0}
 
-    monkeypatch.setitem(sys.modules, "eval.rundata", module("eval.rundata", load_run=load))
-    monkeypatch.setitem(sys.modules, "eval.run_eval", module("eval.run_eval", evaluate_run=evaluate_run))
-    monkeypatch.setitem(sys.modules, "eval.audit", module("eval.audit", audit_run=audit_run))
-    monkeypatch.setitem(sys.modules, "eval.compare", module("eval.compare", compare_runs=compare_runs))
+    for name, func in (("load_run", load), ("evaluate_run", evaluate_run), ("audit_run", audit_run),
+                       ("compare_runs", compare_runs)):
+        monkeypatch.setattr(report_cli, name, func)
     rc = report_main([str(runs[0]), str(runs[1]), "--out", str(tmp_path), "--strict"])
     assert rc == 0
     # each recording loaded once; the comparison first, then each run's evaluation and audit
@@ -161,19 +164,16 @@ def test_failing_eval_function_is_reported_and_strict_fails(runs: tuple[Path, Pa
                                                             monkeypatch: pytest.MonkeyPatch,
                                                             caplog: pytest.LogCaptureFixture) -> None:
     _without_eval_tables(monkeypatch)
-    broken = types.ModuleType("eval.audit")
 
-    def audit_run(p: Path) -> dict:
+    def audit_run(run: RunData) -> dict:
         raise ValueError("experience_image missing on purpose")
-    broken.audit_run = audit_run  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "eval.audit", broken)
+    monkeypatch.setattr(report_cli, "audit_run", audit_run)
     rc = report_main([str(runs[0]), "--out", str(tmp_path), "--strict"])
     assert rc == 3
     html = (tmp_path / "index.html").read_text(encoding="utf-8")  # the page is still written
     assert "eval.audit.audit_run failed: ValueError: experience_image missing on purpose" in html
-    assert "eval.run_eval.evaluate_run is not available" in html
+    assert "eval.run_eval.evaluate_run failed: RuntimeError: left out of this test" in html
     assert any("failed" in r.getMessage() and r.levelname == "ERROR" for r in caplog.records)
-    assert any("not available in this build" in r.getMessage() and r.levelname == "WARNING" for r in caplog.records)
 
 
 def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -213,12 +213,12 @@ def test_run_with_only_truth_still_renders_and_says_what_is_missing(tmp_path: Pa
 
 def test_positions_are_taken_to_ned_and_anchored(runs: tuple[Path, Path]) -> None:
     r = load_run(runs[0])
-    t = (r.truth.stamps - T0) / 1e9
-    np.testing.assert_allclose(r.truth.ned, square_ned(t), atol=1e-9)
+    t = (r.truth.t - T0) / 1e9
+    np.testing.assert_allclose(r.truth.p, square_ned(t), atol=1e-9)
     # Odometry was published ENU (robot_state's default frame); back in NED it is the known drift
-    t_dr = (r.dead_reckoning.stamps - T0) / 1e9
+    t_dr = (r.dead_reckoning.t - T0) / 1e9
     expected = dead_reckoning_ned(t_dr, square_ned(t_dr))
-    np.testing.assert_allclose(r.dead_reckoning.ned, expected, atol=1e-6)
+    np.testing.assert_allclose(r.dead_reckoning.p, expected, atol=1e-6)
     assert r.dead_reckoning.source == "Odometry"
     # final map: 80 nodes, 30 % of the way from truth to dead reckoning (anchoring moves it < 1 cm here)
     assert len(r.node_ids) == 80 and len(r.links) == 79 + 4 and int(r.link_loop.sum()) == 4
@@ -298,7 +298,7 @@ def test_lvc_operating_point_counts_the_aliased_place(page: tuple[Path, dict]) -
 
 
 def test_view_cells_separate_revisits_from_the_same_pass(runs: tuple[Path, Path]) -> None:
-    from eval.report.figures import _revisit_frames
+    from eval.report.fig_recognition import revisit_frames as _revisit_frames
     r = load_run(runs[0])
     revisit = _revisit_frames(r, 10.0)
     lap = 160

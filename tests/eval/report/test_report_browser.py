@@ -5,7 +5,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import sys
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from eval.report import FIGURE_IDS
 from eval.report.cli import main as report_main
 from tests.eval.report.cdp import CHROMIUM
 from tests.eval.report.handmade import write_handmade_run
+from tests.eval.report.test_report import _without_eval_tables
 
 pytestmark = pytest.mark.skipif(
     not os.access(CHROMIUM, os.X_OK),
@@ -31,8 +31,7 @@ def test_report_renders_in_headless_chromium(tmp_path: Path, monkeypatch: pytest
     on, off = tmp_path / "on.mcap", tmp_path / "off.mcap"
     write_handmade_run(on, guard_on=True)
     write_handmade_run(off, guard_on=False, event_every_m=1.0, false_closure=True)
-    for name in ("eval.run_eval", "eval.audit", "eval.compare", "eval.rundata"):  # figures only: tables tested apart
-        monkeypatch.setitem(sys.modules, name, None)
+    _without_eval_tables(monkeypatch)  # figures only: tables tested apart
     buf = io.StringIO()
     with redirect_stdout(buf):
         assert report_main([str(on), str(off), "--out", str(tmp_path / "report"), "--json"]) == 0
