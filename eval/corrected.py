@@ -24,9 +24,7 @@ per ``Odometry`` stamp t:
    rotation), so roll and pitch of a 3D (underwater) odometry are carried through and z is
    shifted by the blended p_map.z - p_odom.z.  At a node's stamp the pose is the node's;
    between nodes the dead reckoning is corrected by a correction that moves smoothly from
-   one experience's to the next (a correction held constant until the next node jumps
-   there: chosen on ACES, 0.044 vs 0.051 m and 0.90 vs 1.28 deg relation error; on FR079,
-   which did not choose it, 0.661 vs 0.666 m and 5.28 vs 5.92 deg; same runs).
+   one experience's to the next (why blended: docs/DECISIONS.md, "The corrected trajectory").
 
 Without a map message (or with an empty map) the trajectory is the dead reckoning itself.
 
