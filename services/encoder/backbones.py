@@ -437,7 +437,7 @@ def load_backbone(name: str, weights_path: str = "", seed: int = 42, untrained: 
         _apply_state_dict(model, load_state_dict_file(source), source)
     except WeightsError as exc:
         raise WeightsError(f"{exc}\n  fix: {_how_to_fix(name)}") from None
-    log.info("encoder: %s weights loaded from %s (%s)", name, source, where)
+    log.debug("encoder: %s weights loaded from %s (%s)", name, source, where)
     return LoadedBackbone(model.eval(), name, str(source), True)
 
 

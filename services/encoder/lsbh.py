@@ -116,7 +116,7 @@ def load_or_create_projection(path: Path | None, d: int, half: int, seed: int, m
                             f"encoder.lsbh_matrix_path elsewhere")
         if not np.all(np.isfinite(p)):
             raise LsbhError(f"LSBH projection {path} contains non-finite values")
-        log.info("encoder: LSBH projection for %s loaded from %s", modality, path)
+        log.debug("encoder: LSBH projection for %s loaded from %s", modality, path)
         return np.ascontiguousarray(p, dtype=np.float32)
     p = make_projection(d, half, seed, modality)
     if path is not None:
@@ -124,7 +124,7 @@ def load_or_create_projection(path: Path | None, d: int, half: int, seed: int, m
         tmp = path.with_name(path.name + ".tmp.npy")
         np.save(tmp, p, allow_pickle=False)
         tmp.replace(path)
-        log.info("encoder: LSBH projection for %s (%d x %d, seed %d) saved to %s", modality, d, half, seed, path)
+        log.debug("encoder: LSBH projection for %s (%d x %d, seed %d) saved to %s", modality, d, half, seed, path)
     return p
 
 

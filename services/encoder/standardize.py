@@ -123,7 +123,7 @@ class EmbeddingStandardizer:
             self.m2 += d * (y - self.mean)
             if self.mode == "running" and self.count >= self.warmup:
                 self.frozen = True
-                log.info("encoder: embedding statistics frozen after %d frames", self.count)
+                log.debug("encoder: embedding statistics frozen after %d frames", self.count)
                 self.save()
             self._dirty = True
         elif self.mode == "running" and self.rate > 0.0:  # slow EMA after the warm-up

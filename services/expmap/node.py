@@ -185,13 +185,13 @@ class ExpMapNode(ServiceNode):
                 how = (f"sonar registration{' along one axis' if reg.ambiguous_axis is not None else ''}, "
                        f"inliers {reg.inlier_fraction:.2f}" if reg.trusted else f"zero displacement ({reg.reason})")
                 self.count("loop_scan_registered" if reg.trusted else "loop_scan_untrusted")
-            log.info("expmap: loop closure %d -> %d (score %.3f, correction %.2f m%s; loop edge %s: %s)", res.match,
+            log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m%s; loop edge %s: %s)", res.match,
                      res.node, res.score, res.correction_norm, ", clamped" if res.correction_clamped else "",
                      " ".join(f"{v:.2f}" for v in self.graph.loop_deltas[-1]), how)
         if res.rejected:
             self.count(f"loop_rejected_{res.rejected}")
             if res.rejected == "scan" and isinstance(self.graph, ExperienceMap):
-                log.info("expmap: loop closure %d -> %d rejected: the sonar sweeps do not fit (%s)", res.match,
+                log.debug("expmap: loop closure %d -> %d rejected: the sonar sweeps do not fit (%s)", res.match,
                          res.node, self.graph.last_registration.reason)
         if res.correction_clamped:
             self.count("corrections_clamped")
