@@ -55,10 +55,9 @@ from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
-from common.runtime import NodeRunner
-from launcher.services import available_services, node_class
-from services.player.player import SOURCE_KEYS, Player
-from services.recorder.recorder import Recorder
+from common.worker import Worker
+from launcher.services import WorkerSpec, available_services, build_worker, node_class
+from services.player.player import SOURCE_KEYS
 
 __all__ = ["RunFailed", "ServiceStartError", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
 
@@ -400,19 +399,19 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     errors: dict[str, BaseException] = {}
     results: dict[str, dict[str, Any]] = {}
     threads: list[threading.Thread] = []
-    stoppable: list[Any] = []
+    stoppable: list[Worker] = []
     try:
-        runners = {n: NodeRunner(node, bus, config.bus.heartbeat_interval_ms) for n, node in nodes.items()}
-        stoppable.extend(runners.values())
-        player = Player(bus, input_path, rate=config.player.rate, keys=plan.player_keys,
-                        wait_for=["recorder", *plan.services], heartbeat_ms=config.bus.heartbeat_interval_ms,
-                        startup_timeout_s=config.bus.startup_timeout_s, progress=progress,
-                        flow_window_ms=config.bus.flow_window_ms)
-        stoppable.append(player)
-        recorder = Recorder(bus, partial, expect=plan.expect, compression=config.recorder.compression,
-                            chunk_size=config.recorder.chunk_size,
-                            metadata=run_metadata(config, input_path, "embedded", plan.services))
-        stoppable.append(recorder)
+        # the recorder last: it opens the output, once everything else could be built
+        specs = {**{n: WorkerSpec(node=node) for n, node in nodes.items()},
+                 "player": WorkerSpec(input=input_path, keys=plan.player_keys, wait_for=["recorder", *plan.services],
+                                      progress=progress),
+                 "recorder": WorkerSpec(out=partial, expect=plan.expect,
+                                        metadata=run_metadata(config, input_path, "embedded", plan.services))}
+        built: dict[str, Worker] = {}
+        for name, spec in specs.items():
+            built[name] = build_worker(name, config, bus, spec)
+            stoppable.append(built[name])
+        workers = {"recorder": built["recorder"], **{n: built[n] for n in nodes}, "player": built["player"]}
 
         def target(name: str, fn: Any) -> None:
             try:
@@ -421,9 +420,8 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                 log.exception("service %s failed", name)
                 errors[name] = exc
 
-        workers = {"recorder": recorder.run, **{n: r.run for n, r in runners.items()}, "player": player.run}
-        threads = [threading.Thread(target=target, args=(n, fn), name=f"poseidon-{n}", daemon=True)
-                   for n, fn in workers.items()]
+        threads = [threading.Thread(target=target, args=(n, w.run), name=f"poseidon-{n}", daemon=True)
+                   for n, w in workers.items()]
         for t in threads:
             t.start()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
@@ -438,7 +436,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                 errors[name] = RuntimeError(f"aborted: {st['aborted']}")
     finally:
         for obj in stoppable:
-            obj.stop_event.set()
+            obj.stop()
         for t in threads:
             t.join(timeout=10)
         still = [t.name for t in threads if t.is_alive()]
