@@ -107,7 +107,7 @@ class Player(Source):
         supervised)."""
         now = time.monotonic()
         self.stats.replays += self.serve_replays(self._replay_source)
-        if self._alive is None or now < self._next_check or self.stop_event.is_set():
+        if self._alive is None or self._watcher is None or now < self._next_check or self.stop_event.is_set():
             return
         self._next_check = now + 0.1
         if self.supervision is not None:
@@ -188,7 +188,7 @@ class Player(Source):
             pubs[k].send_eos()
         return pubs, watcher
 
-    def _publish(self, pubs: dict[str, BusPublisher], watcher: ProgressWatcher | None, total: int,
+    def _publish(self, pubs: dict[str, BusPublisher], watcher: ProgressWatcher | None, total: int | None,
                  t_wall0: float) -> tuple[int | None, int]:
         """Send the ``total`` messages of the recording in event-time order (paced from
         ``t_wall0``, flow-controlled); returns the first and the last stamp sent (None, 0 if

@@ -81,13 +81,19 @@ class Recorder(Sink):
         self._compression, self._chunk_size = compression, chunk_size
         self._resume = supervision is not None and supervision.resume
         # a restarted recorder continues its file (run() rewrites it); never truncate it here
-        self.writer = None if self._resume else RecordingWriter(self.out, compression=compression,
-                                                                 chunk_size=chunk_size)
+        self._writer = None if self._resume else RecordingWriter(self.out, compression=compression,
+                                                                  chunk_size=chunk_size)
         self.flush_interval_s = flush_interval_s
         self._last_flush = 0.0
         self._ended: set[str] = set()  # = set(stats.ended)
         super().__init__(name, bus, RecorderStats(path=str(self.out)), supervision)
         self.subscribe(["**"])
+
+    @property
+    def writer(self) -> RecordingWriter:
+        """The open recording (after :meth:`run` started it)."""
+        assert self._writer is not None
+        return self._writer
 
     def finished(self) -> bool:
         return self.expect is not None and self.expect <= self._ended
@@ -95,15 +101,15 @@ class Recorder(Sink):
     # ---- supervision ------------------------------------------------------------------
     def checkpoint(self) -> None:
         """Sync the file, then save what it holds (see the module notes)."""
-        assert self.writer is not None
         t0 = time.perf_counter()
         self.writer.sync()
         positions = dict(self.gate.expected)
         self.save_state({"service": self.name, "counts": dict(self.writer.counts), "positions": positions,
                          "seen": self._seen}, positions, self._seen, t0)
 
-    def _new_file(self) -> RecordingWriter:
-        writer = RecordingWriter(self.out, compression=self._compression, chunk_size=self._chunk_size)
+    def _new_file(self, path: Path) -> RecordingWriter:
+        """A recording at ``path`` holding the run's metadata record."""
+        writer = RecordingWriter(path, compression=self._compression, chunk_size=self._chunk_size)
         writer.add_metadata("poseidon", self.metadata)
         return writer
 
@@ -113,12 +119,13 @@ class Recorder(Sink):
         expect = sorted(self.expect or [])
         if state is None:
             log.warning("recorder: restarted without a checkpoint: recording again from the start")
-            self.writer = self._new_file()
+            self._writer = self._new_file(self.out)
             self.resume_gate({}, expect)
             return
         counts: dict[str, int] = state["counts"]
         messages, _meta = read_file_order(self.out) if self.out.exists() else ([], {})
-        kept, n = [], {}
+        kept = []
+        n: dict[str, int] = {}
         for m in messages:
             if n.get(m.key, 0) < counts.get(m.key, 0):
                 kept.append(m)
@@ -128,14 +135,13 @@ class Recorder(Sink):
             raise RecordingError(f"{self.out}: the recorder checkpoint counts messages the file does not hold "
                                  f"(key: (in file, checkpointed)) {short}")
         tmp = self.out.with_name(self.out.name + ".resume")
-        writer = RecordingWriter(tmp, compression=self._compression, chunk_size=self._chunk_size)
-        writer.add_metadata("poseidon", self.metadata)
+        writer = self._new_file(tmp)
         for m in kept:
             writer.write_encoded(m.key, m.type_name, m.payload, m.stamp, m.seq)
         writer.sync()
         os.replace(tmp, self.out)  # the open file is now the recording
         writer.path = self.out
-        self.writer = writer
+        self._writer = writer
         for k, c in counts.items():
             self.stats.recorded[k] = c
         self.stats.resumed_messages = len(kept)
