@@ -10,7 +10,8 @@ Subcommands:
   job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
   every service with the VPR Guard ON and OFF, a summary with the method's checks, an HTML report.
 - ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
-  algorithm service) anywhere, connected to a hub or router.  Exit 0 when its inputs
+  algorithm service, built by :func:`launcher.services.build_worker` as the embedded run
+  builds them) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
   another service died (see :mod:`common.bus`).
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
