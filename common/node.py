@@ -18,7 +18,7 @@ from common.config import PoseidonConfig
 from common.messages import Header, Message
 from common.ordering import EventTimeMerger
 
-__all__ = ["ServiceNode", "run_offline", "SERVICE_REGISTRY", "register_service"]
+__all__ = ["ServiceNode", "run_offline"]
 
 log = logging.getLogger(__name__)
 
@@ -107,14 +107,6 @@ class ServiceNode:
     def take_outbox(self) -> list[tuple[str, Message]]:
         out, self._outbox = self._outbox, []
         return out
-
-
-SERVICE_REGISTRY: dict[str, str] = {}
-
-
-def register_service(name: str, dotted_class: str) -> None:
-    """Register ``module:Class`` of a service node under ``name`` for the launcher."""
-    SERVICE_REGISTRY[name] = dotted_class
 
 
 def run_offline(node: ServiceNode, messages: Iterable[tuple[str, Message]]) -> list[tuple[str, Message]]:

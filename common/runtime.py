@@ -1,4 +1,6 @@
-"""Runs a :class:`~common.node.ServiceNode` on the bus.
+"""Runs a :class:`~common.node.ServiceNode` on the bus: a :class:`~common.worker.Sink` of its
+inputs and a :class:`~common.worker.Source` of its outputs (:mod:`common.worker`: the base
+the player and the recorder share).
 
 The runner subscribes to the node's inputs, merges them by event time
 (:class:`~common.ordering.EventTimeMerger`), calls the node, publishes its outputs, reports
@@ -25,18 +27,16 @@ after it.  A node failure then does not abort the run: the launcher restarts the
 from __future__ import annotations
 
 import logging
-import queue
-import threading
 import time
 from dataclasses import dataclass, field
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
-from common.node import ServiceNode
 from common.messages import Message
+from common.node import ServiceNode
 from common.ordering import END_OF_TIME, EventTimeMerger
-from common.resume import (ReplayServer, SequenceGate, Supervision, checkpoint_path, load_checkpoint,
-                           report_checkpoint, request_replays, save_checkpoint)
+from common.resume import Supervision
+from common.worker import WAKE, Sink, SinkStats, Source
 
 __all__ = ["NodeRunner", "RunnerStats", "ServiceError"]
 
@@ -48,7 +48,7 @@ class ServiceError(RuntimeError):
 
 
 @dataclass
-class RunnerStats:
+class RunnerStats(SinkStats):
     service: str
     received: dict[str, int] = field(default_factory=dict)
     published: dict[str, int] = field(default_factory=dict)
@@ -57,11 +57,7 @@ class RunnerStats:
     late: int = 0
     busy_s: float = 0.0
     counters: dict[str, int] = field(default_factory=dict)
-    aborted: str = ""
-    duplicates: int = 0
-    checkpoints: int = 0
-    checkpoint_ms: float = 0.0  # total time spent writing checkpoints
-    checkpoint_bytes: int = 0  # size of the last one
+    checkpoint_bytes: int = 0  # size of the last checkpoint
     replays_served: int = 0
 
     def reject(self, key: str, reason: str) -> None:
@@ -86,46 +82,30 @@ def _header_seq(payload: bytes | memoryview) -> str:
     return str(seq) if isinstance(seq, int) else "?"
 
 
-class NodeRunner:
+class NodeRunner(Sink, Source):
     """Drive ``node`` from ``bus`` until every input has ended."""
+
+    stats: RunnerStats
 
     def __init__(self, node: ServiceNode, bus: Bus, heartbeat_ms: int = 100, drain_timeout_s: float = 0.0,
                  supervision: Supervision | None = None):
         self.node = node
-        self.supervision = supervision
-        self.gate = SequenceGate(owner=node.name)
-        self._index_of: dict[int, tuple[str, int]] = {}  # id(message in the merger) -> (key, transport index)
-        self._last_stamp: int | None = None  # stamp of the last processed input
-        self._ckpt_stamp: int | None = None
-        self._asked: dict[str, float] = {}
-        self.bus = bus
-        self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-        self.progress = bus.progress_publisher(node.name)
-        self.heartbeat_ns = heartbeat_ms * 1_000_000
-        self.stats = RunnerStats(node.name)
-        self.stop_event = threading.Event()
-        self.drain_timeout_s = drain_timeout_s
         declared = type(node).io_keys(node.config)
         if (tuple(node.inputs), tuple(node.outputs)) != (tuple(declared[0]), tuple(declared[1])):
             log.warning("%s: the instance's keys %s -> %s differ from %s.io_keys(config) %s -> %s, which the "
                         "launcher wires: declare them once, in io_keys", node.name, node.inputs, node.outputs,
                         type(node).__name__, *declared)
         self._publishers = {k: bus.publisher(k, retain=supervision is not None) for k in node.outputs}
-        for key in node.inputs:
-            bus.subscribe(key, self.queue)
-        bus.on_abort(self._on_abort)
-        self.replay_server: ReplayServer | None = None
+        super().__init__(node.name, bus, RunnerStats(node.name), supervision, drain_timeout_s)
+        self.subscribe(node.inputs)
+        self._index_of: dict[int, tuple[str, int]] = {}  # id(message in the merger) -> (key, transport index)
+        self._last_stamp: int | None = None  # stamp of the last processed input
+        self.heartbeat_ns = heartbeat_ms * 1_000_000
+        self._merger = EventTimeMerger(list(node.inputs))
         self._consumer_progress = None
         if supervision is not None:
-            self.replay_server = ReplayServer(bus, self._publishers, supervision.consumers,
-                                              wake=lambda: self.queue.put_nowait((_WAKE, b"")))
+            self.serve_replays_for(self._publishers, wake=self.wake)
             self._consumer_progress = bus.watch_progress()
-
-    def _on_abort(self, reason: str) -> None:
-        if not self.stats.aborted:
-            log.error("%s: run aborted: %s", self.node.name, reason)
-        self.stats.aborted = reason or "aborted"
-        self.stop_event.set()
 
     def accept(self, merger: EventTimeMerger, key: str, data: bytes | memoryview) -> Message | str | None:
         """Decode one received frame and apply it to ``merger``.
@@ -205,6 +185,33 @@ class NodeRunner:
                                f"{msg.header.stamp}: {type(exc).__name__}: {exc}") from exc
         self._publish_outbox()
 
+    # ---- the receive loop (common.worker.Sink) ------------------------------------------
+    def finished(self) -> bool:
+        return self._merger.finished
+
+    def tick(self) -> None:
+        """Ask for the replays still missing; answer the replay requests queued."""
+        super().tick()
+        self.stats.replays_served += self.serve_replays()
+
+    def on_frame(self, key: str, data: bytes) -> None:
+        merger = self._merger
+        res = self.accept(merger, key, data)
+        if res == "duplicate":
+            self.progress.repeat()
+        if res is None or res in ("duplicate", "skipped", "replay"):
+            return
+        t0 = time.perf_counter()
+        for in_key, _stamp, msg in merger.pop_ready():
+            self.process(in_key, msg)
+        self.stats.busy_s += time.perf_counter() - t0
+        sup = self.supervision
+        if sup is not None and self.checkpoint_due(self._last_stamp, sup.checkpoint_interval_ns):
+            self.checkpoint()
+        self._forward_watermark(merger)
+        if merger.watermark >= 0:
+            self.progress.report(merger.watermark, force=self.queue.empty())
+
     # ---- supervision ------------------------------------------------------------------
     def _positions(self) -> dict[str, int]:
         """Per input key, the transport index of the first frame not processed yet."""
@@ -215,87 +222,41 @@ class NodeRunner:
 
     def checkpoint(self, finished: bool = False) -> None:
         """Save the node, the input positions and the retained outputs (see :mod:`common.resume`)."""
-        sup = self.supervision
-        assert sup is not None
         t0 = time.perf_counter()
         positions = self._positions()
         state = {"service": self.node.name, "node": self.node.checkpoint_state(), "positions": positions,
                  "stamp": self._last_stamp, "finished": finished,
                  "outputs": {k: p.retained_state() for k, p in self._publishers.items()}}
-        self.stats.checkpoint_bytes = save_checkpoint(checkpoint_path(sup.state_dir, self.node.name), state)
-        report_checkpoint(self.bus, self.node.name, positions)
-        self._ckpt_stamp = self._last_stamp
-        self.stats.checkpoints += 1
-        ms = (time.perf_counter() - t0) * 1e3
-        self.stats.checkpoint_ms += ms
-        log.info("%s: checkpoint at event time %s (%.1f ms, %.2f MB)", self.node.name, self._last_stamp, ms,
-                 self.stats.checkpoint_bytes / 1e6)
-
-    def _maybe_checkpoint(self) -> None:
-        sup = self.supervision
-        if sup is None or self._last_stamp is None:
-            return
-        if self._ckpt_stamp is None:
-            self._ckpt_stamp = self._last_stamp  # the interval counts from the first input
-        elif self._last_stamp - self._ckpt_stamp >= sup.checkpoint_interval_ns:
-            self.checkpoint()
+        self.stats.checkpoint_bytes = self.save_state(state, positions, self._last_stamp, t0)
 
     def _restore(self) -> bool:
         """Load the last checkpoint (resume); returns True if the service had already finished."""
-        sup = self.supervision
-        assert sup is not None
-        path = checkpoint_path(sup.state_dir, self.node.name)
-        state = load_checkpoint(path)
+        state = self.load_state()
         inputs = list(self.node.inputs)
         if state is None:
             log.warning("%s: restarted without a checkpoint: starting over, inputs replayed from the start",
                         self.node.name)
-            self.gate = SequenceGate({}, catch_up=inputs, owner=self.node.name)
+            self.resume_gate({}, inputs)
             return False
         self.node.restore_checkpoint(state["node"])
         for key, st in state["outputs"].items():
             if key in self._publishers:
                 self._publishers[key].restore(st)
         finished = bool(state["finished"])
-        self.gate = SequenceGate(state["positions"], catch_up=[] if finished else inputs, owner=self.node.name)
+        self.resume_gate(state["positions"], [] if finished else inputs)
         self._last_stamp = self._ckpt_stamp = state["stamp"]
-        log.warning("%s: resumed from %s (event time %s, inputs from %s%s)", self.node.name, path, state["stamp"],
-                    state["positions"], ", already finished" if finished else "")
+        log.warning("%s: resumed from %s (event time %s, inputs from %s%s)", self.node.name, self.state_path(),
+                    state["stamp"], state["positions"], ", already finished" if finished else "")
         return finished
 
-    def _tick(self) -> None:
-        """Ask for the replays still missing; answer the replay requests queued."""
-        sup = self.supervision
-        if sup is None:
-            return
-        if self.gate.catch_up:
-            request_replays(self.bus, self.gate, self.node.name, self._asked, sup.replay_retry_s)
-        assert self.replay_server is not None
-        if self.replay_server.pending():
-            self.stats.replays_served += self.replay_server.serve()
+    def _idle(self) -> None:
+        """While waiting for the consumers: a frame from a restarted player is answered with
+        our progress (it learns we finished)."""
+        item = self.next_frame(0.05)
+        if item is not None and item[0] != WAKE:
+            self.progress.repeat()
 
-    def _wait_for_consumers(self, timeout_s: float) -> None:
-        """Supervised end: stay (answering replays) until every consumer of the outputs finished."""
-        sup = self.supervision
-        assert sup is not None and self._consumer_progress is not None
-        consumers = sorted(sup.consumers_of(self.node.outputs))
-        deadline = time.monotonic() + timeout_s
-        while not self.stop_event.is_set():
-            self._tick()
-            waiting = [c for c in consumers if self._consumer_progress.get(c) != END_OF_TIME]
-            if not waiting:
-                return
-            if time.monotonic() > deadline:
-                log.warning("%s: consumers %s not finished after %.0f s; leaving", self.node.name, waiting, timeout_s)
-                return
-            try:
-                key, _data = self.queue.get(timeout=0.05)
-            except queue.Empty:
-                self.progress.repeat(1.0)
-                continue
-            if key != _WAKE:  # a restarted player sends its recording again: it learns we finished
-                self.progress.repeat()
-
+    # ---- run ----------------------------------------------------------------------------
     def run(self) -> RunnerStats:
         """Process until end of stream on every input (or :attr:`stop_event`, or an abort).
 
@@ -304,52 +265,26 @@ class NodeRunner:
         A node failure also aborts the run before the exception propagates (unless
         supervised: the launcher restarts the service).
         """
-        node = self.node
-        merger = EventTimeMerger(list(node.inputs))
-        sup = self.supervision
+        node, merger, sup = self.node, self._merger, self.supervision
         finished_before = self._restore() if sup is not None and sup.resume else False
         if finished_before:
             for key in node.inputs:
                 merger.end(key)
         self.bus.declare_alive(node.name)
         try:
-            while not merger.finished:
-                if self.stop_event.is_set():
-                    log.warning("%s: stopped before end of stream (%d buffered)", node.name, merger.pending())
-                    break
-                self._tick()
-                try:
-                    key, data = self.queue.get(timeout=0.2)
-                except queue.Empty:
-                    if self.supervision is not None:  # a restarted player learns where we are
-                        self.progress.repeat(1.0)
-                    continue
-                if key == _WAKE:
-                    continue
-                res = self.accept(merger, key, data)
-                if res == "duplicate":
-                    self.progress.repeat()
-                if res is None or res in ("duplicate", "skipped", "replay"):
-                    continue
-                t0 = time.perf_counter()
-                for in_key, _stamp, msg in merger.pop_ready():
-                    self.process(in_key, msg)
-                self.stats.busy_s += time.perf_counter() - t0
-                self._maybe_checkpoint()
-                self._forward_watermark(merger)
-                if merger.watermark >= 0:
-                    self.progress.report(merger.watermark, force=self.queue.empty())
+            if not self.receive():
+                log.warning("%s: stopped before end of stream (%d buffered)", node.name, merger.pending())
             if merger.finished and not finished_before:
                 node.finish()
                 self._publish_outbox()
         except BaseException as exc:
             if sup is None:
-                self.bus.abort(f"service {node.name} failed: {exc}")
+                self.abort_run(f"service {node.name} failed: {exc}")
             raise
         self.stats.counters = dict(node.counters)
         if not merger.finished:
             if not self.stats.aborted:
-                self.bus.abort(f"service {node.name} stopped before the end of its inputs")
+                self.abort_run(f"service {node.name} stopped before the end of its inputs")
             node.close()
             return self.stats
         self._forward_watermark(merger, force=True)
@@ -360,14 +295,9 @@ class NodeRunner:
         self.progress.report(END_OF_TIME, force=True)  # finished normally (see common.bus)
         node.close()
         if sup is not None:
-            self._wait_for_consumers(self.drain_timeout_s if self.drain_timeout_s > 0 else 3600.0)
-            if self.drain_timeout_s > 0:  # the frames of the last replay reach the consumers before closing
-                self.bus.drain(self._publishers.values(), 5.0, stop=self.stop_event, warn=False)
-        elif self.drain_timeout_s > 0:
-            self.bus.drain(self._publishers.values(), self.drain_timeout_s, stop=self.stop_event)
+            assert self._consumer_progress is not None
+            self.await_consumers(sup.consumers_of(node.outputs), self._consumer_progress, self.tick, self._idle)
+        self.drain(self._publishers.values(), self.tick)
         self.stats.counters = dict(node.counters)
-        self.stats.replays_served = self.replay_server.served if self.replay_server is not None else 0
+        self.stats.replays_served = self.replays_served
         return self.stats
-
-
-_WAKE = "@wake"  # queue item that only wakes the run loop (a replay request arrived)

@@ -10,7 +10,8 @@ Subcommands:
   job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
   every service with the VPR Guard ON and OFF, a summary with the method's checks, an HTML report.
 - ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
-  algorithm service) anywhere, connected to a hub or router.  Exit 0 when its inputs
+  algorithm service, built by :func:`launcher.services.build_worker` as the embedded run
+  builds them) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
   another service died (see :mod:`common.bus`).
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
@@ -51,7 +52,12 @@ import signal
 import sys
 import traceback
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
+
+if TYPE_CHECKING:  # the commands import what they use when they run (a fast start for every command)
+    from common.config import PoseidonConfig
+    from common.resume import Supervision
+    from launcher.services import WorkerSpec
 
 __all__ = ["main"]
 
@@ -209,9 +215,24 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: Supervision | None) -> WorkerSpec:
+    """What ``poseidon service NAME``'s flags say about the worker (the recorder's
+    ``--metadata`` file is read here)."""
+    from launcher.services import RECORDER, WorkerSpec
+    spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
+                      keys=args.keys.split(",") if args.keys else None,
+                      wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
+                      out=args.out, expect=[k for k in (args.expect or "").split(",") if k] or None)
+    if args.name == RECORDER:
+        spec.metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
+            "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
+    return spec
+
+
 def cmd_service(args: argparse.Namespace) -> int:
     from common.bus import Bus
     from common.config import ConfigError
+    from launcher.services import PLAYER, RECORDER, build_worker
     try:
         config = _load_config(args)
     except ConfigError as exc:
@@ -227,6 +248,12 @@ def cmd_service(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"poseidon service {args.name}: {exc}", file=sys.stderr)
             return 2
+    if args.name == PLAYER and not args.input:
+        print("poseidon service player: --input REC.mcap is required", file=sys.stderr)
+        return 2
+    if args.name == RECORDER and not args.out:
+        print("poseidon service recorder: --out RUN.mcap is required", file=sys.stderr)
+        return 2
     try:
         bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config, **_secure_args(args))
     except (OSError, ValueError) as exc:
@@ -237,40 +264,12 @@ def cmd_service(args: argparse.Namespace) -> int:
     def on_signal(signum: int, _frame: Any) -> None:
         log.warning("%s: signal %d, stopping", args.name, signum)
         for obj in stoppable:
-            obj.stop_event.set()
+            obj.stop()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     try:
-        if args.name == "player":
-            from services.player.player import Player
-            if not args.input:
-                print("poseidon service player: --input REC.mcap is required", file=sys.stderr)
-                return 2
-            rate = config.player.rate if args.rate is None else args.rate
-            keys = args.keys.split(",") if args.keys else (config.player.keys or None)
-            worker: Any = Player(bus, args.input, rate=rate, keys=keys,
-                                 wait_for=[w for w in (args.wait_for or "").split(",") if w],
-                                 heartbeat_ms=config.bus.heartbeat_interval_ms,
-                                 startup_timeout_s=config.bus.startup_timeout_s, progress=not args.no_progress,
-                                 drain_timeout_s=config.bus.drain_timeout_s,
-                                 flow_window_ms=config.bus.flow_window_ms, supervision=supervision)
-        elif args.name == "recorder":
-            from services.recorder.recorder import Recorder
-            if not args.out:
-                print("poseidon service recorder: --out RUN.mcap is required", file=sys.stderr)
-                return 2
-            metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
-                "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
-            expect = [k for k in (args.expect or "").split(",") if k] or None
-            worker = Recorder(bus, args.out, expect=expect, metadata=metadata,
-                              compression=config.recorder.compression, chunk_size=config.recorder.chunk_size,
-                              supervision=supervision)
-        else:
-            from common.runtime import NodeRunner
-            from launcher.services import build_node
-            worker = NodeRunner(build_node(args.name, config), bus, config.bus.heartbeat_interval_ms,
-                                drain_timeout_s=config.bus.drain_timeout_s, supervision=supervision)
+        worker = build_worker(args.name, config, bus, _worker_spec(args, config, supervision))
         stoppable.append(worker)
         stats = worker.run().as_dict()
     except Exception:  # the service's own failure: logged with its traceback, exit 1

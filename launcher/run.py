@@ -21,6 +21,8 @@ had not checkpointed (:mod:`common.resume`), so the recorded streams equal an un
 run's.  When a service has used its ``max_restarts`` the run fails as without supervision
 (:class:`RunFailed` naming it, exit 3).  Embedded runs are not supervised.
 
+Every service process logs at the launcher's level (``--log-level``).
+
 Children die with the launcher, even when it is killed with SIGKILL: each is started with
 ``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (Linux), so no service is left running as an orphan.
 
@@ -55,10 +57,9 @@ from common.bus import Bus, open_hub, open_local_session
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
-from common.runtime import NodeRunner
-from launcher.services import available_services, node_class
-from services.player.player import SOURCE_KEYS, Player
-from services.recorder.recorder import Recorder
+from common.worker import Worker
+from launcher.services import WorkerSpec, available_services, build_worker, node_class
+from services.player.player import SOURCE_KEYS
 
 __all__ = ["RunFailed", "ServiceStartError", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
 
@@ -229,6 +230,11 @@ def supervision_plan(config: PoseidonConfig, plan: RunPlan, state_dir: Path) -> 
                        recorder_checkpoint_interval_ns=int(round(sup.recorder_checkpoint_interval_s * 1e9)))
 
 
+def _log_level() -> str:
+    """The launcher's logging level by name, for its service processes (they log like it)."""
+    return logging.getLevelName(logging.getLogger().getEffectiveLevel())
+
+
 def _describe_exit(rc: int) -> str:
     if rc < 0:
         try:
@@ -236,6 +242,27 @@ def _describe_exit(rc: int) -> str:
         except ValueError:
             return f"killed by signal {-rc}"
     return f"exit code {rc}"
+
+
+def _stats_file(tmp: Path, name: str) -> Path:
+    return tmp / f"{name}.stats.json"
+
+
+def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path, common: list[str],
+                      progress: bool) -> dict[str, list[str]]:
+    """``poseidon service`` command line of every process of a distributed run (recorder,
+    services, player: the order they start in); ``common``: the arguments they all get;
+    ``tmp`` holds the run's metadata file and receives each one's final counters."""
+    base = [sys.executable, "-m", "launcher.cli", "service"]
+    cmds = {"recorder": base + ["recorder", *common, "--out", str(partial), "--expect", ",".join(plan.expect),
+                                "--metadata", str(tmp / "metadata.json"), "--stats", str(_stats_file(tmp, "recorder"))]}
+    for name in plan.services:
+        cmds[name] = base + [name, *common, "--stats", str(_stats_file(tmp, name))]
+    cmds["player"] = base + ["player", *common, "--input", str(input_path), "--keys", ",".join(plan.player_keys),
+                             "--wait-for", ",".join(["recorder", *plan.services]),
+                             "--stats", str(_stats_file(tmp, "player"))]
+    cmds["player"] += [] if progress else ["--no-progress"]
+    return cmds
 
 
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
@@ -257,12 +284,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         cfg_file.write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
         meta_file = Path(tmp) / "metadata.json"
         meta_file.write_text(json.dumps(run_metadata(config, input_path, "distributed", plan.services)))
-        base = [sys.executable, "-m", "launcher.cli", "service"]
-        common = ["--connect", endpoint, "--config", str(cfg_file)]
-
-        def stats_file(name: str) -> str:
-            return str(Path(tmp) / f"{name}.stats.json")
-
+        common = ["--connect", endpoint, "--config", str(cfg_file), "--log-level", _log_level()]
         supervise_args: list[str] = []
         if state_dir is not None:
             if state_dir.exists():  # checkpoints of an earlier run must never be resumed from
@@ -272,14 +294,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             sup_file.write_text(supervision_plan(config, plan, state_dir).to_json())
             supervise_args = ["--supervise", str(sup_file)]
 
-        cmds = {"recorder": base + ["recorder", *common, "--out", str(partial), "--expect", ",".join(plan.expect),
-                                    "--metadata", str(meta_file), "--stats", stats_file("recorder"), *supervise_args]}
-        for name in plan.services:
-            cmds[name] = base + [name, *common, "--stats", stats_file(name), *supervise_args]
-        cmds["player"] = base + ["player", *common, "--input", str(input_path), "--keys", ",".join(plan.player_keys),
-                                 "--wait-for", ",".join(["recorder", *plan.services]),
-                                 "--stats", stats_file("player"), *supervise_args]
-        cmds["player"] += [] if progress else ["--no-progress"]
+        cmds = _service_commands(plan, input_path, partial, Path(tmp), [*common, *supervise_args], progress)
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         env.setdefault("PYTHONFAULTHANDLER", "1")  # a service killed by a fatal signal prints where it was
@@ -318,7 +333,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             shutil.rmtree(state_dir, ignore_errors=True)
         result = RunResult(str(out), "distributed", time.monotonic() - t0, restarts=dict(restarts))
         for name in cmds:
-            p = Path(stats_file(name))
+            p = _stats_file(Path(tmp), name)
             if p.exists():
                 result.services[name] = json.loads(p.read_text())
     result.recording = _summarise(out)
@@ -400,19 +415,19 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     errors: dict[str, BaseException] = {}
     results: dict[str, dict[str, Any]] = {}
     threads: list[threading.Thread] = []
-    stoppable: list[Any] = []
+    stoppable: list[Worker] = []
     try:
-        runners = {n: NodeRunner(node, bus, config.bus.heartbeat_interval_ms) for n, node in nodes.items()}
-        stoppable.extend(runners.values())
-        player = Player(bus, input_path, rate=config.player.rate, keys=plan.player_keys,
-                        wait_for=["recorder", *plan.services], heartbeat_ms=config.bus.heartbeat_interval_ms,
-                        startup_timeout_s=config.bus.startup_timeout_s, progress=progress,
-                        flow_window_ms=config.bus.flow_window_ms)
-        stoppable.append(player)
-        recorder = Recorder(bus, partial, expect=plan.expect, compression=config.recorder.compression,
-                            chunk_size=config.recorder.chunk_size,
-                            metadata=run_metadata(config, input_path, "embedded", plan.services))
-        stoppable.append(recorder)
+        # the recorder last: it opens the output, once everything else could be built
+        specs = {**{n: WorkerSpec(node=node) for n, node in nodes.items()},
+                 "player": WorkerSpec(input=input_path, keys=plan.player_keys, wait_for=["recorder", *plan.services],
+                                      progress=progress),
+                 "recorder": WorkerSpec(out=partial, expect=plan.expect,
+                                        metadata=run_metadata(config, input_path, "embedded", plan.services))}
+        built: dict[str, Worker] = {}
+        for name, spec in specs.items():
+            built[name] = build_worker(name, config, bus, spec)
+            stoppable.append(built[name])
+        workers = {"recorder": built["recorder"], **{n: built[n] for n in nodes}, "player": built["player"]}
 
         def target(name: str, fn: Any) -> None:
             try:
@@ -421,9 +436,8 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                 log.exception("service %s failed", name)
                 errors[name] = exc
 
-        workers = {"recorder": recorder.run, **{n: r.run for n, r in runners.items()}, "player": player.run}
-        threads = [threading.Thread(target=target, args=(n, fn), name=f"poseidon-{n}", daemon=True)
-                   for n, fn in workers.items()]
+        threads = [threading.Thread(target=target, args=(n, w.run), name=f"poseidon-{n}", daemon=True)
+                   for n, w in workers.items()]
         for t in threads:
             t.start()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
@@ -438,7 +452,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                 errors[name] = RuntimeError(f"aborted: {st['aborted']}")
     finally:
         for obj in stoppable:
-            obj.stop_event.set()
+            obj.stop()
         for t in threads:
             t.join(timeout=10)
         still = [t.name for t in threads if t.is_alive()]

@@ -23,26 +23,29 @@
   consumer that leaves may come back (the launcher restarts it) within
   ``supervise.rejoin_timeout_s`` before the run is aborted; at the end the player stays,
   answering replays, until every consumer reported progress ``END_OF_TIME``.
+
+The player is a :class:`common.worker.Source` (abort handling, replay answers, waiting for
+the consumers and draining are shared with the services' runner).
 """
 from __future__ import annotations
 
 import bisect
 import logging
 import sys
-from array import array
-import threading
 import time
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Iterable, Iterator
 
 from tqdm import tqdm
 
-from common.bus import Bus
+from common.bus import AliveWatcher, Bus, BusPublisher, ProgressWatcher
 from common.codec import encode_sequenced
 from common.mcap_io import read_messages, recording_keys, recording_message_count
 from common.ordering import END_OF_TIME
-from common.resume import ReplayServer, Supervision
+from common.resume import Supervision
+from common.worker import Source, WorkerStats
 
 __all__ = ["Player", "PlayerStats", "SOURCE_KEYS"]
 
@@ -56,11 +59,10 @@ SOURCE_KEYS = (
 
 
 @dataclass
-class PlayerStats:
+class PlayerStats(WorkerStats):
     published: dict[str, int] = field(default_factory=dict)
     wall_s: float = 0.0
     event_s: float = 0.0
-    aborted: str = ""
     replays: int = 0
 
     def as_dict(self) -> dict:
@@ -69,8 +71,10 @@ class PlayerStats:
                 "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
 
 
-class Player:
-    """Replay ``path`` on ``bus``."""
+class Player(Source):
+    """Replay ``path`` on ``bus`` (see the module notes)."""
+
+    stats: PlayerStats
 
     def __init__(self, bus: Bus, path: str | Path, rate: float = 0.0, keys: Iterable[str] | None = None,
                  wait_for: Iterable[str] = (), heartbeat_ms: int = 100, startup_timeout_s: float = 60.0,
@@ -79,7 +83,6 @@ class Player:
                  supervision: Supervision | None = None):
         if rate < 0:
             raise ValueError(f"player rate must be >= 0, got {rate}")
-        self.bus = bus
         self.path = Path(path)
         self.rate = rate
         available = recording_keys(self.path)
@@ -89,33 +92,22 @@ class Player:
         self.heartbeat_ns = heartbeat_ms * 1_000_000
         self.startup_timeout_s = startup_timeout_s
         self.progress = progress
-        self.drain_timeout_s = drain_timeout_s
         self.flow_window_ns = flow_window_ms * 1_000_000
-        self.stop_event = threading.Event()
-        self.stats = PlayerStats()
-        self._alive = None
-        self._watcher = None
+        self._alive: AliveWatcher | None = None
+        self._watcher: ProgressWatcher | None = None
         self._left_since: dict[str, float] = {}
         self._next_check = 0.0
-        self.supervision = supervision
         self._stamps: dict[str, array] = {k: array("q") for k in self.keys}  # stamp per transport index
-        self._replay: ReplayServer | None = None
         self._flow_bound = -1  # stamps up to this are within the flow window (slowest progress + window)
-        bus.on_abort(self._on_abort)
-
-    def _on_abort(self, reason: str) -> None:
-        if not self.stats.aborted:
-            log.error("player: run aborted: %s", reason)
-            self.stats.aborted = reason or "aborted"
-        self.stop_event.set()
+        super().__init__("player", bus, PlayerStats(), supervision, drain_timeout_s)
 
     def _check_consumers(self, grace_s: float = 1.0) -> None:
-        """Abort the run if a consumer left the bus without finishing (it died) and did not
-        come back within ``grace_s`` (``supervise.rejoin_timeout_s`` when supervised)."""
+        """Answer replays; abort the run if a consumer left the bus without finishing (it
+        died) and did not come back within ``grace_s`` (``supervise.rejoin_timeout_s`` when
+        supervised)."""
         now = time.monotonic()
-        if self._replay is not None:
-            self._serve_replays()
-        if self._alive is None or now < self._next_check or self.stop_event.is_set():
+        self.stats.replays += self.serve_replays(self._replay_source)
+        if self._alive is None or self._watcher is None or now < self._next_check or self.stop_event.is_set():
             return
         self._next_check = now + 0.1
         if self.supervision is not None:
@@ -131,12 +123,11 @@ class Player:
             if now - first >= grace_s:  # its last progress report may still be on the way
                 reason = f"service {name} left the bus before the end of its inputs (it died or was stopped)"
                 log.error("player: %s; aborting the run", reason)
-                self.stats.aborted = reason
-                self.bus.abort(reason)
-                self.stop_event.set()
+                self.abort_run(reason)
                 return
 
-    def _wait_for_consumers(self, watcher: Any, stamp: int, first: int, pubs: dict[str, Any]) -> None:
+    def _wait_for_consumers(self, watcher: ProgressWatcher, stamp: int, first: int,
+                            pubs: dict[str, BusPublisher]) -> None:
         """Flow control: hold ``stamp`` until the slowest consumer is within the window.
 
         Once every consumer has reported, their progress only grows: a stamp within the
@@ -161,7 +152,7 @@ class Player:
             # answer replays and notice an abort or a consumer that left
             watcher.wait_slowest(self.wait_for, first, stamp - self.flow_window_ns, 0.01)
 
-    def _replay_source(self, key: str, start: int) -> tuple[int, Any]:
+    def _replay_source(self, key: str, start: int) -> tuple[int, Iterator[bytes]]:
         """Frames of ``key`` from transport index ``start`` up to the last one sent, read again
         from the recording (lazily: a generator)."""
         stamps = self._stamps.get(key, array("q"))
@@ -171,7 +162,7 @@ class Player:
         t = stamps[start]
         skip = start - bisect.bisect_left(stamps, t)  # messages of the same stamp before index start
 
-        def frames() -> Any:
+        def frames() -> Iterator[bytes]:
             index = start - skip
             for rec in read_messages(self.path, keys=[key], start_ns=t):
                 if index >= n:
@@ -181,26 +172,27 @@ class Player:
                 index += 1
         return start, frames()
 
-    def _serve_replays(self) -> None:
-        assert self._replay is not None
-        if self._replay.pending():
-            n = self._replay.serve(self._replay_source)
-            self.stats.replays += n
-
-    def run(self) -> PlayerStats:
+    def _start(self) -> tuple[dict[str, BusPublisher], ProgressWatcher | None]:
+        """Publishers (absent source keys get end-of-stream at once), replay answers when
+        supervised, and the consumers: alive before the first message, then watched."""
         pubs = {k: self.bus.publisher(k) for k in self.keys + self.absent}
         if self.supervision is not None:
-            self._replay = ReplayServer(self.bus, pubs, self.supervision.consumers)
+            self.serve_replays_for(pubs)
         watcher = self.bus.watch_progress() if self.wait_for else None
         if self.wait_for:
-            log.info("player: waiting for %s", ", ".join(self.wait_for))
+            log.debug("player: waiting for %s", ", ".join(self.wait_for))
             self._alive = self.bus.watch_alive()
             self.bus.wait_alive(self.wait_for, self.startup_timeout_s)
             self._watcher = watcher
         for k in self.absent:
             pubs[k].send_eos()
-        total = recording_message_count(self.path, self.keys)
-        t_wall0 = time.monotonic()
+        return pubs, watcher
+
+    def _publish(self, pubs: dict[str, BusPublisher], watcher: ProgressWatcher | None, total: int | None,
+                 t_wall0: float) -> tuple[int | None, int]:
+        """Send the ``total`` messages of the recording in event-time order (paced from
+        ``t_wall0``, flow-controlled); returns the first and the last stamp sent (None, 0 if
+        nothing was)."""
         t_event0 = None
         last_hb = -1
         last_stamp = 0
@@ -214,8 +206,7 @@ class Player:
                 if t_event0 is None:
                     t_event0 = rec.stamp
                 if self.rate > 0:
-                    due = t_wall0 + (rec.stamp - t_event0) / 1e9 / self.rate
-                    delay = due - time.monotonic()
+                    delay = t_wall0 + (rec.stamp - t_event0) / 1e9 / self.rate - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
                 if watcher is not None:
@@ -238,21 +229,18 @@ class Player:
                 for k in self.keys:
                     pubs[k].send_eos()
             elif not self.stats.aborted:  # stopped early: the streams are incomplete, no end-of-stream
-                self.stats.aborted = "player stopped before the end of the recording"
-                self.bus.abort(self.stats.aborted)
+                self.abort_run("player stopped before the end of the recording")
+        return t_event0, last_stamp
+
+    def run(self) -> PlayerStats:
+        """Publish the recording, then stay while the consumers need it (see the module notes)."""
+        pubs, watcher = self._start()
+        total = recording_message_count(self.path, self.keys)
+        t_wall0 = time.monotonic()
+        t_event0, last_stamp = self._publish(pubs, watcher, total, t_wall0)
         if self.supervision is not None and watcher is not None and not self.stop_event.is_set():
-            deadline = time.monotonic() + (self.drain_timeout_s or 3600.0)
-            while not self.stop_event.is_set() and time.monotonic() < deadline:
-                self._check_consumers()
-                if all(watcher.get(w) == END_OF_TIME for w in self.wait_for):
-                    break
-                time.sleep(0.02)
-        if self.drain_timeout_s > 0 and not self.stop_event.is_set():
-            deadline = time.monotonic() + self.drain_timeout_s
-            while not self.stop_event.is_set() and time.monotonic() < deadline:
-                if self.bus.drain(pubs.values(), 0.2, warn=False):
-                    break
-                self._check_consumers()
+            self.await_consumers(self.wait_for, watcher, self._check_consumers, lambda: time.sleep(0.02))
+        self.drain(pubs.values(), self._check_consumers)
         self.stats.wall_s = time.monotonic() - t_wall0
         self.stats.event_s = (last_stamp - t_event0) / 1e9 if t_event0 is not None else 0.0
         return self.stats

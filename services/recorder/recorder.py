@@ -25,12 +25,14 @@ transport index (``<state_dir>/recorder.ckpt``), then reports those positions on
 keeping, per key, exactly the messages its checkpoint counted (anything written after the
 checkpoint is received again), continues it, and asks every publisher for a replay from
 its checkpoint: the final file holds every message exactly once.
+
+The recorder is a :class:`common.worker.Sink` (receive loop, de-duplication, replay
+requests, checkpoints and abort handling are shared with the services' runner).
 """
 from __future__ import annotations
 
 import logging
-import queue
-import threading
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,12 +40,10 @@ from typing import Any, Iterable
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
-import os
-
 from common.mcap_io import RecordingError, RecordingWriter, read_file_order
 from common.ordering import END_OF_TIME
-from common.resume import (SequenceGate, Supervision, checkpoint_path, load_checkpoint, report_checkpoint,
-                           request_replays, save_checkpoint)
+from common.resume import Supervision
+from common.worker import Sink, SinkStats
 
 __all__ = ["Recorder", "RecorderStats"]
 
@@ -51,15 +51,11 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class RecorderStats:
+class RecorderStats(SinkStats):
     recorded: dict[str, int] = field(default_factory=dict)
     invalid: dict[str, int] = field(default_factory=dict)
     ended: list[str] = field(default_factory=list)
     path: str = ""
-    aborted: str = ""
-    duplicates: int = 0
-    checkpoints: int = 0
-    checkpoint_ms: float = 0.0
     resumed_messages: int = 0
 
     def as_dict(self) -> dict:
@@ -69,74 +65,67 @@ class RecorderStats:
                 "resumed_messages": self.resumed_messages}
 
 
-class Recorder:
+class Recorder(Sink):
+    """Record every key of the bus's namespace into ``out`` (see the module notes)."""
+
+    stats: RecorderStats
+    stop_at_once = False  # stopped: write what has already arrived, then close the file
+
     def __init__(self, bus: Bus, out: str | Path, expect: Iterable[str] | None = None,
                  metadata: dict[str, Any] | None = None, compression: str = "zstd", chunk_size: int = 1 << 20,
                  flush_interval_s: float = 0.5, name: str = "recorder", supervision: Supervision | None = None):
-        self.bus = bus
         self.out = Path(out)
         self.expect = set(expect) if expect is not None else None
         self.metadata = metadata or {}
-        self.name = name
-        self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-        self.progress = bus.progress_publisher(name)
         self._seen = -1
-        self.supervision = supervision
         self._compression, self._chunk_size = compression, chunk_size
-        self.gate = SequenceGate(owner=name)
-        self._asked: dict[str, float] = {}
-        self._ckpt_seen: int | None = None
         self._resume = supervision is not None and supervision.resume
         # a restarted recorder continues its file (run() rewrites it); never truncate it here
-        self.writer = None if self._resume else RecordingWriter(self.out, compression=compression,
-                                                                 chunk_size=chunk_size)
+        self._writer = None if self._resume else RecordingWriter(self.out, compression=compression,
+                                                                  chunk_size=chunk_size)
         self.flush_interval_s = flush_interval_s
-        self.stop_event = threading.Event()
-        self.stats = RecorderStats(path=str(self.out))
+        self._last_flush = 0.0
         self._ended: set[str] = set()  # = set(stats.ended)
-        bus.subscribe("**", self.queue)
-        bus.on_abort(self._on_abort)
+        super().__init__(name, bus, RecorderStats(path=str(self.out)), supervision)
+        self.subscribe(["**"])
 
-    def _on_abort(self, reason: str) -> None:
-        if not self.stats.aborted:
-            log.error("recorder: run aborted: %s", reason)
-        self.stats.aborted = reason or "aborted"
-        self.stop_event.set()
+    @property
+    def writer(self) -> RecordingWriter:
+        """The open recording (after :meth:`run` started it)."""
+        assert self._writer is not None
+        return self._writer
 
-    def _done(self) -> bool:
+    def finished(self) -> bool:
         return self.expect is not None and self.expect <= self._ended
 
     # ---- supervision ------------------------------------------------------------------
-    def _checkpoint_path(self) -> Path:
-        assert self.supervision is not None
-        return checkpoint_path(self.supervision.state_dir, self.name)
-
     def checkpoint(self) -> None:
         """Sync the file, then save what it holds (see the module notes)."""
-        assert self.writer is not None
         t0 = time.perf_counter()
         self.writer.sync()
         positions = dict(self.gate.expected)
-        save_checkpoint(self._checkpoint_path(), {"service": self.name, "counts": dict(self.writer.counts),
-                                                  "positions": positions, "seen": self._seen})
-        report_checkpoint(self.bus, self.name, positions)
-        self._ckpt_seen = self._seen
-        self.stats.checkpoints += 1
-        self.stats.checkpoint_ms += (time.perf_counter() - t0) * 1e3
+        self.save_state({"service": self.name, "counts": dict(self.writer.counts), "positions": positions,
+                         "seen": self._seen}, positions, self._seen, t0)
+
+    def _new_file(self, path: Path) -> RecordingWriter:
+        """A recording at ``path`` holding the run's metadata record."""
+        writer = RecordingWriter(path, compression=self._compression, chunk_size=self._chunk_size)
+        writer.add_metadata("poseidon", self.metadata)
+        return writer
 
     def _resume_file(self) -> None:
         """Restarted: keep per key the messages the checkpoint counted, continue the file."""
-        state = load_checkpoint(self._checkpoint_path())
+        state = self.load_state()
         expect = sorted(self.expect or [])
         if state is None:
             log.warning("recorder: restarted without a checkpoint: recording again from the start")
-            self.writer = RecordingWriter(self.out, compression=self._compression, chunk_size=self._chunk_size)
-            self.writer.add_metadata("poseidon", self.metadata)
-            self.gate = SequenceGate({}, catch_up=expect, owner=self.name)
+            self._writer = self._new_file(self.out)
+            self.resume_gate({}, expect)
             return
         counts: dict[str, int] = state["counts"]
         messages, _meta = read_file_order(self.out) if self.out.exists() else ([], {})
-        kept, n = [], {}
+        kept = []
+        n: dict[str, int] = {}
         for m in messages:
             if n.get(m.key, 0) < counts.get(m.key, 0):
                 kept.append(m)
@@ -146,65 +135,50 @@ class Recorder:
             raise RecordingError(f"{self.out}: the recorder checkpoint counts messages the file does not hold "
                                  f"(key: (in file, checkpointed)) {short}")
         tmp = self.out.with_name(self.out.name + ".resume")
-        writer = RecordingWriter(tmp, compression=self._compression, chunk_size=self._chunk_size)
-        writer.add_metadata("poseidon", self.metadata)
+        writer = self._new_file(tmp)
         for m in kept:
             writer.write_encoded(m.key, m.type_name, m.payload, m.stamp, m.seq)
         writer.sync()
         os.replace(tmp, self.out)  # the open file is now the recording
         writer.path = self.out
-        self.writer = writer
+        self._writer = writer
         for k, c in counts.items():
             self.stats.recorded[k] = c
         self.stats.resumed_messages = len(kept)
-        self._seen = self._ckpt_seen = int(state["seen"])
-        self.gate = SequenceGate(state["positions"], catch_up=sorted(set(expect) | set(state["positions"])),
-                                 owner=self.name)
+        self._seen = self._ckpt_stamp = int(state["seen"])
+        self.resume_gate(state["positions"], sorted(set(expect) | set(state["positions"])))
         log.warning("recorder: resumed %s with %d messages (of %d intact in the file), positions %s", self.out,
                     len(kept), len(messages), state["positions"])
 
-    def _maybe_checkpoint(self) -> None:
-        sup = self.supervision
-        if sup is None or self._seen < 0:
-            return
-        if self._ckpt_seen is None:
-            self._ckpt_seen = self._seen
-        elif self._seen - self._ckpt_seen >= sup.recorder_checkpoint_interval_ns:
-            self.checkpoint()
-
+    # ---- run ----------------------------------------------------------------------------
     def run(self) -> RecorderStats:
+        """Record until end-of-stream on every expected key, a stop or an abort; the file
+        is closed with its summary in every case."""
         if self._resume:
             self._resume_file()
         else:
             self.writer.add_metadata("poseidon", self.metadata)
         self.writer.flush()
         self.bus.declare_alive(self.name)
-        last_flush = time.monotonic()
-        sup = self.supervision
+        self._last_flush = time.monotonic()
         try:
-            while not self._done():
-                if self.stop_event.is_set() and self.queue.empty():
-                    break
-                if sup is not None and self.gate.catch_up:
-                    request_replays(self.bus, self.gate, self.name, self._asked, sup.replay_retry_s)
-                try:
-                    key, data = self.queue.get(timeout=0.2)
-                except queue.Empty:
-                    if sup is not None:  # a restarted player learns where we are
-                        self.progress.repeat(1.0)
-                    continue
-                self._handle(key, data)
-                if self._seen >= 0:
-                    self.progress.report(self._seen, force=self.queue.empty())
-                if time.monotonic() - last_flush > self.flush_interval_s:
-                    self.writer.flush()
-                    last_flush = time.monotonic()
-                self._maybe_checkpoint()
+            self.receive()
         finally:
             self.writer.close()
-        if self._done():
+        if self.finished():
             self.progress.report(END_OF_TIME, force=True)  # finished normally (see common.bus)
         return self.stats
+
+    def on_frame(self, key: str, data: bytes) -> None:
+        self._handle(key, data)
+        if self._seen >= 0:
+            self.progress.report(self._seen, force=self.queue.empty())
+        if time.monotonic() - self._last_flush > self.flush_interval_s:
+            self.writer.flush()
+            self._last_flush = time.monotonic()
+        sup = self.supervision
+        if sup is not None and self.checkpoint_due(self._seen, sup.recorder_checkpoint_interval_ns):
+            self.checkpoint()
 
     def _handle(self, key: str, data: bytes) -> None:
         try:

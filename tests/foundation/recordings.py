@@ -8,6 +8,11 @@ import numpy as np
 from common.messages import Depth, Header, Image, Imu, LinkquestDvl, Odometry, RangeImageBeam
 from common.mcap_io import RecordingWriter
 
+#: frames a hostile or broken publisher may put on a key (the issue's b"D", b"D\x04\xff...")
+HOSTILE = [b"D", b"D\x04\xff\xfe\xfd\xfc", b"D\x04\xff", b"D\x20poseidon_msgs/Image", b"D\x13poseidon_msgs/Image",
+           b"D\x13poseidon_msgs/Imagex\xc1", b"D\x0bnot/a/type!\x80", b"W", b"W\x01\x02", b"W" + b"\xff" * 8,
+           b"E\x00", b"", b"\x00", b"Z" * 50]
+
 KEYS6 = ["camera/image_raw", "depth_sensor", "imu_adis_ros", "sonar_micron", "odometry", "dvl_linkquest"]
 
 

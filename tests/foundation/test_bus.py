@@ -1,7 +1,6 @@
 """The bus end to end: player -> Zenoh -> services -> recorder, across processes and in one."""
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -92,33 +91,6 @@ def test_services_may_start_before_the_hub(tmp_path):
     assert payloads_by_key(out) == payloads_by_key(src)
 
 
-def test_recorder_killed_with_sigkill_keeps_flushed_chunks(tmp_path):
-    src = tmp_path / "imgs.mcap"
-    six_stream_recording(src, 1500, image_every=2)
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    hub = open_hub(endpoint)
-    out = tmp_path / "killed.mcap"
-    rec = subprocess.Popen([sys.executable, "-m", "launcher.cli", "service", "recorder", "--connect", endpoint,
-                            "--out", str(out), "--set", "recorder.chunk_size=262144"], cwd=REPO)
-    bus = Bus(connect=[endpoint])
-    try:
-        Player(bus, src, wait_for=["recorder"], progress=False, startup_timeout_s=30).run()
-        time.sleep(2.0)  # > the recorder's flush interval
-        rec.send_signal(signal.SIGKILL)
-        rec.wait(timeout=10)
-    finally:
-        bus.close()
-        hub.close()
-    sent = {}
-    for r in read_messages(src):
-        sent.setdefault(r.key, []).append(r.payload)
-    recovered = list(read_messages(out))  # no summary: read up to the last complete chunk
-    total = sum(len(v) for v in sent.values())
-    assert len(recovered) >= total * 0.9, (len(recovered), total)
-    for r in recovered:
-        assert r.payload in sent[r.key]
-
-
 def test_failing_service_is_named_and_recording_kept(tmp_path):
     src = tmp_path / "small.mcap"
     six_stream_recording(src, 600, image_every=20)
@@ -181,30 +153,6 @@ def test_invalid_messages_are_skipped_counted_and_logged(caplog):
     messages = " ".join(r.getMessage() for r in caplog.records)
     assert "invalid message on depth_sensor seq 1" in messages
     assert "bad frame on depth_sensor" in messages
-
-
-@pytest.mark.parametrize("rate", [1.0, 4.0])
-def test_player_paces_at_real_time_or_faster(tmp_path, rate):
-    """1.5 s of recording: real time takes >= 1.5 s of wall time, 4x takes >= 0.375 s."""
-    from common.messages import Depth, Header
-    from common.mcap_io import RecordingWriter
-
-    src = tmp_path / "span.mcap"
-    with RecordingWriter(src) as w:
-        for i in range(16):
-            w.write("depth_sensor", Depth(header=Header(seq=i, stamp=10**18 + i * 100_000_000), depth=float(i)))
-    session = open_local_session()
-    bus = Bus(session=session)
-    try:
-        t0 = time.monotonic()
-        stats = Player(bus, src, rate=rate, progress=False).run()
-        wall = time.monotonic() - t0
-    finally:
-        bus.close()
-        session.close()
-    assert stats.published == {"depth_sensor": 16}
-    assert stats.event_s == pytest.approx(1.5)
-    assert wall >= 1.5 / rate * 0.95
 
 
 def test_run_rejects_unreadable_input_and_bad_config(tmp_path):

@@ -1,0 +1,274 @@
+"""The shared base of everything that runs on the bus: sources, sinks and services.
+
+Three kinds of worker take part in a run, and this module holds what they share:
+
+- a :class:`Source` publishes (the player: a recording's streams);
+- a :class:`Sink` subscribes (the recorder: every key into a file);
+- a service's :class:`~common.runtime.NodeRunner` is both (its inputs in, its outputs out).
+
+Shared by all (:class:`Worker`): the name, the bus, the :class:`WorkerStats` (``aborted``
+says why a run stopped early), :attr:`Worker.stop_event`, abort handling (an ``@abort`` on
+the bus stops the worker; :meth:`Worker.abort_run` publishes one, the first reason wins)
+and the optional :class:`~common.resume.Supervision`.
+
+A :class:`Sink` owns the receive loop: frames from its subscriptions queue up and are
+handed to :meth:`Sink.on_frame` one at a time until :meth:`Sink.finished` (or a stop); it
+de-duplicates numbered frames (:class:`~common.resume.SequenceGate`), asks publishers for
+replays while a restarted sink catches up, repeats its progress when idle under
+supervision (so a restarted player learns where it is), and checkpoints every so much
+event time (:meth:`Sink.checkpoint_due`, :meth:`Sink.save_state`).
+
+A :class:`Source` answers replay requests for its publishers
+(:class:`~common.resume.ReplayServer`) and, at its end, stays until its consumers are done:
+supervised, until every consumer reported progress ``END_OF_TIME`` (answering replays
+meanwhile); in its own process (``drain_timeout_s`` > 0), until no subscriber is left
+(:meth:`common.bus.Bus.drain`: closing a session earlier discards queued frames).
+
+Durations: ``*_s`` wall-clock seconds, ``*_ns`` event-time nanoseconds.
+"""
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from common.bus import Bus, BusPublisher, ProgressWatcher
+from common.ordering import END_OF_TIME
+from common.resume import (ReplayServer, SequenceGate, Supervision, checkpoint_path, load_checkpoint,
+                           report_checkpoint, request_replays, save_checkpoint)
+
+__all__ = ["Worker", "WorkerStats", "Sink", "SinkStats", "Source", "WAKE"]
+
+log = logging.getLogger(__name__)
+
+#: queue item that only wakes a sink's receive loop (e.g. a replay request arrived)
+WAKE = "@wake"
+
+#: how long a supervised source waits for its consumers when no drain timeout is set (s)
+SUPERVISED_WAIT_S = 3600.0
+#: drain bound once every consumer reported its end (supervised): the last frames are out (s)
+SUPERVISED_DRAIN_S = 5.0
+
+
+@dataclass(kw_only=True)
+class WorkerStats:
+    """Counters every worker reports; ``aborted`` is why the run stopped early ("" if it did not)."""
+
+    aborted: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+
+@dataclass(kw_only=True)
+class SinkStats(WorkerStats):
+    """A sink's counters: numbered frames dropped as already received, checkpoints written
+    and the wall time they took (ms, total)."""
+
+    duplicates: int = 0
+    checkpoints: int = 0
+    checkpoint_ms: float = 0.0
+
+
+class Worker:
+    """One participant of a run: name, bus, stats, stop and abort, supervision."""
+
+    def __init__(self, name: str, bus: Bus, stats: WorkerStats, supervision: Supervision | None = None,
+                 drain_timeout_s: float = 0.0) -> None:
+        self.name = name
+        self.bus = bus
+        self.stats = stats
+        self.supervision = supervision
+        self.drain_timeout_s = drain_timeout_s
+        self.stop_event = threading.Event()
+        bus.on_abort(self._on_abort)
+
+    def run(self) -> Any:
+        """Work until the end (or a stop, or an abort); returns :attr:`stats`."""
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to stop (thread-safe; a signal handler may call it)."""
+        self.stop_event.set()
+
+    def _on_abort(self, reason: str) -> None:
+        """Somebody aborted the run (``@abort``): stop; the first reason is kept."""
+        if not self.stats.aborted:
+            log.error("%s: run aborted: %s", self.name, reason)
+            self.stats.aborted = reason or "aborted"
+        self.stop_event.set()
+
+    def abort_run(self, reason: str) -> None:
+        """Stop this worker and every other one: publish ``@abort`` with ``reason``."""
+        if not self.stats.aborted:
+            self.stats.aborted = reason
+        self.bus.abort(reason)
+        self.stop_event.set()
+
+
+class Sink(Worker):
+    """A worker that consumes keys: receive loop, de-duplication, replay requests, checkpoints.
+
+    Subclasses call :meth:`subscribe` once in ``__init__`` and implement :meth:`on_frame`
+    and :meth:`finished`; :meth:`receive` runs the loop.
+    """
+
+    stats: SinkStats
+    #: on a stop, True: leave at once; False: first handle what has already arrived
+    stop_at_once = True
+
+    def subscribe(self, keys: Iterable[str]) -> None:
+        """Subscribe to ``keys`` (key expressions) into the sink's queue; progress publisher, gate."""
+        self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.progress = self.bus.progress_publisher(self.name)
+        self.gate = SequenceGate(owner=self.name)
+        self._asked: dict[str, float] = {}
+        self._ckpt_stamp: int | None = None
+        for key in keys:
+            self.bus.subscribe(key, self.queue)
+
+    def wake(self) -> None:
+        """Wake the receive loop (thread-safe)."""
+        self.queue.put_nowait((WAKE, b""))
+
+    # ---- the receive loop -------------------------------------------------------------
+    def finished(self) -> bool:
+        """True once every input the sink waits for has ended."""
+        raise NotImplementedError
+
+    def on_frame(self, key: str, data: bytes) -> None:
+        """Handle one received frame (any kind: data, watermark, end-of-stream, replay)."""
+        raise NotImplementedError
+
+    def tick(self) -> None:
+        """Once per loop turn: ask (again) for the replays a restarted sink still needs."""
+        sup = self.supervision
+        if sup is not None and self.gate.catch_up:
+            request_replays(self.bus, self.gate, self.name, self._asked, sup.replay_retry_s)
+
+    def next_frame(self, timeout_s: float = 0.2) -> tuple[str, bytes] | None:
+        """The next queued frame, or None after ``timeout_s`` (supervised: progress repeated,
+        so that a restarted player learns where this sink is)."""
+        try:
+            return self.queue.get(timeout=timeout_s)
+        except queue.Empty:
+            if self.supervision is not None:
+                self.progress.repeat(1.0)
+            return None
+
+    def receive(self) -> bool:
+        """Hand frames to :meth:`on_frame` until :meth:`finished`; False if stopped before."""
+        while not self.finished():
+            if self.stop_event.is_set() and (self.stop_at_once or self.queue.empty()):
+                return False
+            self.tick()
+            item = self.next_frame()
+            if item is None or item[0] == WAKE:
+                continue
+            self.on_frame(*item)
+        return True
+
+    # ---- checkpoints (supervision) ------------------------------------------------------
+    def checkpoint_due(self, stamp: int | None, interval_ns: int) -> bool:
+        """True when ``interval_ns`` of event time passed since the last checkpoint; the
+        interval counts from the first stamp seen.  Always False unsupervised."""
+        if self.supervision is None or stamp is None or stamp < 0:
+            return False
+        if self._ckpt_stamp is None:
+            self._ckpt_stamp = stamp
+            return False
+        return stamp - self._ckpt_stamp >= interval_ns
+
+    def save_state(self, state: dict[str, Any], positions: dict[str, int], stamp: int | None,
+                   started: float) -> int:
+        """Write checkpoint ``state`` (atomically), tell the publishers ``positions`` (next
+        transport index per key) and count it; ``started``: its ``perf_counter`` start.
+        Returns the checkpoint's size in bytes."""
+        size = save_checkpoint(self.state_path(), state)
+        report_checkpoint(self.bus, self.name, positions)
+        self._ckpt_stamp = stamp
+        self.stats.checkpoints += 1
+        ms = (time.perf_counter() - started) * 1e3
+        self.stats.checkpoint_ms += ms
+        log.debug("%s: checkpoint at event time %s (%.1f ms, %.2f MB)", self.name, stamp, ms, size / 1e6)
+        return size
+
+    def state_path(self) -> Path:
+        """Where this sink's checkpoint is (supervised only)."""
+        assert self.supervision is not None
+        return checkpoint_path(self.supervision.state_dir, self.name)
+
+    def load_state(self) -> dict[str, Any] | None:
+        """The last checkpoint of this sink (None when there is none)."""
+        return load_checkpoint(self.state_path())
+
+    def resume_gate(self, positions: dict[str, int], catch_up: Iterable[str]) -> None:
+        """Restarted: expect ``positions`` next; ``catch_up`` keys wait for their replay."""
+        self.gate = SequenceGate(positions, catch_up=catch_up, owner=self.name)
+
+
+class Source(Worker):
+    """A worker that publishes keys: replay answers, waiting for its consumers, draining."""
+
+    _replay: ReplayServer | None = None
+
+    def serve_replays_for(self, publishers: dict[str, BusPublisher],
+                          wake: Callable[[], None] | None = None) -> None:
+        """Supervised: answer replay requests for ``publishers`` (see :meth:`serve_replays`)."""
+        assert self.supervision is not None
+        self._replay = ReplayServer(self.bus, publishers, self.supervision.consumers, wake=wake)
+
+    def serve_replays(self, source: Callable[[str, int], tuple[int, Iterable[bytes]]] | None = None) -> int:
+        """Answer the replay requests queued (``source``: frames kept elsewhere, see
+        :meth:`common.resume.ReplayServer.serve`); returns how many."""
+        if self._replay is None or not self._replay.pending():
+            return 0
+        return self._replay.serve(source)
+
+    @property
+    def replays_served(self) -> int:
+        return self._replay.served if self._replay is not None else 0
+
+    def await_consumers(self, consumers: Iterable[str], watcher: ProgressWatcher, tick: Callable[[], None],
+                        idle: Callable[[], None]) -> bool:
+        """Supervised end: stay until every one of ``consumers`` reported progress
+        ``END_OF_TIME``, calling ``tick`` (answer replays...) and ``idle`` (wait a little) in
+        turn; at most ``drain_timeout_s`` (``SUPERVISED_WAIT_S`` if 0).  False on a timeout
+        (logged) or a stop."""
+        names = sorted(consumers)
+        timeout_s = self.drain_timeout_s if self.drain_timeout_s > 0 else SUPERVISED_WAIT_S
+        deadline = time.monotonic() + timeout_s
+        while not self.stop_event.is_set():
+            tick()
+            waiting = [c for c in names if watcher.get(c) != END_OF_TIME]
+            if not waiting:
+                return True
+            if time.monotonic() > deadline:
+                log.warning("%s: consumers %s not finished after %.0f s; leaving", self.name, waiting, timeout_s)
+                return False
+            idle()
+        return False
+
+    def drain(self, publishers: Iterable[BusPublisher], tick: Callable[[], None] | None = None) -> bool:
+        """In its own process (``drain_timeout_s`` > 0): stay until no subscriber of
+        ``publishers`` is left, calling ``tick`` every 0.2 s; at most ``drain_timeout_s``
+        (``SUPERVISED_DRAIN_S`` when supervised: the consumers already reported their end).
+        A timeout is logged unless supervised.  True when drained; False on a timeout or a stop."""
+        if self.drain_timeout_s <= 0 or self.stop_event.is_set():
+            return False
+        pubs = list(publishers)
+        timeout_s = SUPERVISED_DRAIN_S if self.supervision is not None else self.drain_timeout_s
+        deadline = time.monotonic() + timeout_s
+        while not self.stop_event.is_set() and time.monotonic() < deadline:
+            if self.bus.drain(pubs, 0.2, stop=self.stop_event, warn=False):
+                return True
+            if tick is not None:
+                tick()
+        if self.supervision is None and not self.stop_event.is_set():
+            busy = [p.key for p in pubs if p.has_subscribers()]
+            log.warning("%s: consumers of %s still present after %.0f s; closing anyway", self.name, busy, timeout_s)
+        return False

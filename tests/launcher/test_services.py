@@ -1,0 +1,73 @@
+"""The one factory of a run's workers (launcher.services.build_worker), used by both launchers."""
+import pytest
+
+from common.bus import Bus, open_local_session
+from common.config import PoseidonConfig
+from common.runtime import NodeRunner
+from common.worker import Sink, Source, Worker
+from launcher.services import UnknownService, WorkerSpec, build_node, build_worker
+from services.player.player import Player
+from services.recorder.recorder import Recorder
+from tests.foundation.recordings import six_stream_recording
+
+pytestmark = pytest.mark.timeout(60)
+
+
+@pytest.fixture
+def bus():
+    session = open_local_session()
+    b = Bus(session=session)
+    yield b
+    b.close()
+    session.close()
+
+
+@pytest.fixture
+def config():
+    cfg = PoseidonConfig(service_classes={"slow_echo": "tests.foundation.nodes:SlowEcho"})
+    cfg.player.rate = 2.0
+    cfg.bus.drain_timeout_s = 7.0
+    return cfg
+
+
+def test_each_kind_is_built_by_name(tmp_path, bus, config):
+    src = tmp_path / "small.mcap"
+    six_stream_recording(src, 30)
+    player = build_worker("player", config, bus, WorkerSpec(input=src, keys=["depth_sensor"], wait_for=["x"]))
+    recorder = build_worker("recorder", config, bus, WorkerSpec(out=tmp_path / "out.mcap", expect=["depth_sensor"]))
+    runner = build_worker("slow_echo", config, bus)
+    assert isinstance(player, Player) and isinstance(player, Source)
+    assert isinstance(recorder, Recorder) and isinstance(recorder, Sink)
+    assert isinstance(runner, NodeRunner) and isinstance(runner, Sink) and isinstance(runner, Source)
+    assert all(isinstance(w, Worker) for w in (player, recorder, runner))
+    assert (player.name, recorder.name, runner.name) == ("player", "recorder", "slow_echo")
+    assert player.keys == ["depth_sensor"] and player.wait_for == ["x"] and player.rate == 2.0
+    assert recorder.expect == {"depth_sensor"}
+    assert runner.node.inputs == ("depth_sensor", "camera/image_raw")
+
+
+def test_the_spec_says_what_the_configuration_does_not(tmp_path, bus, config):
+    src = tmp_path / "small.mcap"
+    six_stream_recording(src, 30)
+    player = build_worker("player", config, bus, WorkerSpec(input=src, rate=0.0, drain=True))
+    assert player.rate == 0.0 and player.drain_timeout_s == 7.0  # its own process: it drains
+    assert player.keys == sorted(six_stream_recording(tmp_path / "again.mcap", 30))  # every key recorded
+    node = build_node("slow_echo", config)
+    runner = build_worker("slow_echo", config, bus, WorkerSpec(node=node))
+    assert runner.node is node and runner.drain_timeout_s == 0.0  # embedded: no drain
+
+
+def test_an_unknown_name_is_a_clear_error(bus, config):
+    with pytest.raises(UnknownService) as err:
+        build_worker("nosuch", config, bus)
+    assert isinstance(err.value, KeyError)
+    text = str(err.value)
+    assert text.startswith("unknown service 'nosuch'; services: player, recorder, encoder")
+    assert "service_classes" in text
+
+
+def test_player_and_recorder_need_their_files(bus, config):
+    with pytest.raises(ValueError, match="input recording"):
+        build_worker("player", config, bus)
+    with pytest.raises(ValueError, match="output file"):
+        build_worker("recorder", config, bus)

@@ -1,0 +1,130 @@
+"""The player: a source on the shared worker base (common.worker.Source).
+
+Pacing, stopping on an abort, aborting the run when stopped early, waiting for its
+consumers, flow control against the slowest one."""
+import threading
+import time
+
+import pytest
+
+from common.bus import Bus, open_local_session
+from common.codec import decode_frame
+from common.mcap_io import RecordingWriter
+from common.messages import Depth, Header
+from services.player.player import Player
+
+pytestmark = pytest.mark.timeout(120)
+
+T0 = 10**18
+STEP_NS = 100_000_000  # 0.1 s of event time between messages
+
+
+def _depth_recording(path, n=16):
+    with RecordingWriter(path) as w:
+        for i in range(n):
+            w.write("depth_sensor", Depth(header=Header(seq=i, stamp=T0 + i * STEP_NS), depth=float(i)))
+    return path
+
+
+@pytest.fixture
+def bus():
+    session = open_local_session()
+    b = Bus(session=session)
+    yield b
+    b.close()
+    session.close()
+
+
+@pytest.mark.parametrize("rate", [1.0, 4.0])
+def test_player_paces_at_real_time_or_faster(tmp_path, bus, rate):
+    """1.5 s of recording: real time takes >= 1.5 s of wall time, 4x takes >= 0.375 s."""
+    src = _depth_recording(tmp_path / "span.mcap")
+    t0 = time.monotonic()
+    stats = Player(bus, src, rate=rate, progress=False).run()
+    wall = time.monotonic() - t0
+    assert stats.published == {"depth_sensor": 16}
+    assert stats.event_s == pytest.approx(1.5)
+    assert wall >= 1.5 / rate * 0.95
+    assert stats.aborted == ""
+
+
+def test_an_abort_on_the_bus_stops_the_player_and_says_why(tmp_path, bus):
+    src = _depth_recording(tmp_path / "span.mcap", n=40)  # 4 s at real time
+    player = Player(bus, src, rate=1.0, progress=False)
+    threading.Timer(0.5, bus.abort, args=("service x died",)).start()
+    t0 = time.monotonic()
+    stats = player.run()
+    assert time.monotonic() - t0 < 3.0
+    assert stats.aborted == "service x died"
+    assert 0 < stats.published["depth_sensor"] < 40
+
+
+def test_a_player_stopped_early_aborts_the_run_and_sends_no_end_of_stream(tmp_path, bus):
+    import queue
+    src = _depth_recording(tmp_path / "span.mcap", n=40)
+    frames: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe("depth_sensor", frames)
+    aborts: list[str] = []
+    bus.on_abort(aborts.append)
+    player = Player(bus, src, rate=1.0, progress=False, announce_absent=())
+    threading.Timer(0.5, player.stop).start()
+    stats = player.run()
+    assert stats.aborted == "player stopped before the end of the recording"
+    deadline = time.monotonic() + 5
+    while not aborts and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert aborts == ["player stopped before the end of the recording"]
+    kinds = []
+    while not frames.empty():
+        kinds.append(decode_frame(frames.get()[1]).kind)
+    assert "eos" not in kinds and 0 < kinds.count("data") < 40
+
+
+def test_source_keys_missing_from_the_recording_end_at_once(tmp_path, bus):
+    """A service waiting on a sensor the recording lacks (e.g. the IMU) is not blocked."""
+    import queue
+    src = _depth_recording(tmp_path / "span.mcap", n=3)
+    frames: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe("imu_adis", frames)
+    bus.subscribe("depth_sensor", frames)
+    time.sleep(0.2)
+    Player(bus, src, progress=False).run()
+    got: dict[str, list[str]] = {}
+    deadline = time.monotonic() + 5
+    while not all("eos" in got.get(k, []) for k in ("imu_adis", "depth_sensor")) and time.monotonic() < deadline:
+        try:
+            key, data = frames.get(timeout=0.2)
+        except queue.Empty:
+            continue
+        got.setdefault(key, []).append(decode_frame(data).kind)
+    assert got["imu_adis"][0] == "eos" and "data" not in got["imu_adis"]
+    assert got["depth_sensor"][-1] == "eos" and got["depth_sensor"].count("data") == 3
+
+
+def test_the_player_waits_for_its_consumers_and_names_the_missing_one(tmp_path, bus):
+    src = _depth_recording(tmp_path / "span.mcap", n=3)
+    with pytest.raises(TimeoutError, match="ghost"):
+        Player(bus, src, wait_for=["ghost"], progress=False, startup_timeout_s=0.5).run()
+
+
+def test_flow_control_holds_the_player_within_the_window_of_the_slowest_consumer(tmp_path, bus):
+    """A consumer that reports progress only up to the 5th message: with a 0.2-s window the
+    player sends what is within 0.2 s of it and waits; the rest goes once it reports more."""
+    import queue
+    src = _depth_recording(tmp_path / "span.mcap", n=20)
+    frames: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe("depth_sensor", frames)
+    bus.declare_alive("slow")
+    progress = bus.progress_publisher("slow")
+    player = Player(bus, src, wait_for=["slow"], progress=False, flow_window_ms=200, announce_absent=())
+    result: dict = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", player.run()))
+    t.start()
+    time.sleep(0.5)
+    assert player.stats.published.get("depth_sensor", 0) == 3  # nothing reported: the window from the first stamp
+    progress.report(T0 + 4 * STEP_NS, force=True)
+    time.sleep(0.5)
+    assert player.stats.published.get("depth_sensor", 0) == 7  # stamps up to 4 + 2 steps (the 0.2-s window)
+    progress.report(T0 + 100 * STEP_NS, force=True)
+    t.join(timeout=10)
+    assert result["stats"].published == {"depth_sensor": 20}

@@ -1,0 +1,206 @@
+"""The recorder: a sink on the shared worker base (common.worker.Sink).
+
+It ends on end-of-stream of every expected key, writes what has already arrived when
+stopped or aborted and closes a complete file, survives hostile frames, checkpoints when
+supervised, and a SIGKILL leaves every flushed chunk readable."""
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from common.bus import Bus, open_hub, open_local_session
+from common.codec import encode_frame
+from common.mcap_io import read_messages
+from common.messages import Depth, Header
+from common.ordering import END_OF_TIME
+from common.resume import Supervision, load_checkpoint
+from services.player.player import Player
+from services.recorder.recorder import Recorder
+from tests.conftest import REPO
+from tests.foundation.recordings import HOSTILE, inconsistent_image, six_stream_recording
+
+pytestmark = pytest.mark.timeout(180)
+CLI = [sys.executable, "-m", "launcher.cli"]
+
+
+@pytest.fixture
+def bus():
+    session = open_local_session()
+    b = Bus(session=session)
+    yield b
+    b.close()
+    session.close()
+
+
+def _free_endpoint():
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def _standard_reader_count(path: Path) -> int:
+    with open(path, "rb") as f:
+        return sum(1 for _ in make_reader(f).iter_messages())
+
+
+def _depth(i: int, stamp_ns: int) -> Depth:
+    return Depth(header=Header(seq=i, stamp=stamp_ns), depth=float(i))
+
+
+def _start(rec: Recorder) -> tuple[threading.Thread, dict]:
+    result: dict = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", rec.run()))
+    t.start()
+    rec.bus.wait_alive([rec.name], 10)
+    return t, result
+
+
+def _wait_queued(rec: Recorder, n: int, timeout_s: float = 10) -> None:
+    deadline = time.monotonic() + timeout_s
+    while rec.queue.qsize() < n:
+        assert time.monotonic() < deadline, f"{rec.queue.qsize()} of {n} frames arrived"
+        time.sleep(0.01)
+
+
+def test_end_of_stream_on_every_expected_key_ends_the_recording(tmp_path, bus):
+    out = tmp_path / "r.mcap"
+    watcher = bus.watch_progress()
+    rec = Recorder(bus, out, expect=["depth_sensor", "dvl_linkquest"], metadata={"tool": "test"})
+    t, result = _start(rec)
+    depth, dvl = bus.publisher("depth_sensor"), bus.publisher("dvl_linkquest")
+    for i in range(5):
+        depth.send(_depth(i, 1000 + i))
+    depth.send_eos()
+    time.sleep(0.3)
+    assert t.is_alive()  # dvl_linkquest has not ended
+    dvl.send_eos()
+    t.join(timeout=10)
+    assert not t.is_alive()
+    stats = result["stats"]
+    assert stats.recorded == {"depth_sensor": 5} and sorted(stats.ended) == ["depth_sensor", "dvl_linkquest"]
+    assert stats.aborted == ""
+    assert _standard_reader_count(out) == 5  # closed with its summary
+    deadline = time.monotonic() + 5
+    while watcher.get("recorder") != END_OF_TIME and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert watcher.get("recorder") == END_OF_TIME  # the player learns that it finished
+
+
+def test_a_stopped_recorder_writes_what_has_arrived_and_closes_a_complete_file(tmp_path, bus):
+    out = tmp_path / "r.mcap"
+    rec = Recorder(bus, out, expect=["depth_sensor"])
+    pub = bus.publisher("depth_sensor")
+    time.sleep(0.2)
+    for i in range(200):
+        pub.send(_depth(i, 1000 + i))
+    _wait_queued(rec, 200)  # every frame queued, none handled: the recorder has not started
+    rec.stop()
+    stats = rec.run()
+    assert stats.recorded == {"depth_sensor": 200}
+    got = list(read_messages(out, strict=True))
+    assert [r.stamp for r in got] == [1000 + i for i in range(200)]
+
+
+def test_an_abort_stops_the_recorder_and_the_file_holds_what_arrived(tmp_path, bus):
+    out = tmp_path / "r.mcap"
+    rec = Recorder(bus, out, expect=["depth_sensor"])
+    t, result = _start(rec)
+    pub = bus.publisher("depth_sensor")
+    for i in range(10):
+        pub.send(_depth(i, 1000 + i))
+    time.sleep(0.3)
+    bus.abort("service boom failed")
+    t.join(timeout=10)
+    assert not t.is_alive()
+    stats = result["stats"]
+    assert stats.aborted == "service boom failed"
+    assert stats.recorded == {"depth_sensor": 10}
+    assert _standard_reader_count(out) == 10
+
+
+def test_recorder_survives_hostile_frames(tmp_path, bus):
+    rec = Recorder(bus, tmp_path / "r.mcap", expect=["depth_sensor"])
+    t, result = _start(rec)
+    pub = bus.publisher("depth_sensor")
+    other = bus.publisher("camera/image_raw")
+    for frame in HOSTILE + [encode_frame(Depth(header=Header(seq=0, stamp=10), depth=1.0))]:
+        pub.send_raw(frame)
+    name = b"poseidon_msgs/Depth"
+    for payload in (b"\x81\xa6header\x81\xa5stamp\xff", b"\x81\xa6header\x82\xa5stamp\xcf" + b"\xff" * 8 + b"\xa3seq\x00",
+                    b"\x80", b"\xc1"):
+        pub.send_raw(b"D" + bytes([len(name)]) + name + payload)
+    other.send(Depth(header=Header(seq=0, stamp=12), depth=1.0))
+    other.send_raw(encode_frame(inconsistent_image(Header(seq=1, stamp=13))))  # another type on the same key
+    pub.send_eos()
+    t.join(timeout=30)
+    stats = result["stats"]
+    assert stats.recorded == {"depth_sensor": 1, "camera/image_raw": 1}
+    assert stats.invalid == {"depth_sensor": len(HOSTILE) + 4, "camera/image_raw": 1}
+    assert len(list(read_messages(tmp_path / "r.mcap", strict=True))) == 2
+
+
+def test_a_supervised_recorder_checkpoints_what_its_file_holds(tmp_path, bus):
+    """Every 1 s of event time: the file synced, the counts and next transport indices saved."""
+    sup = Supervision(tmp_path / "state", {"depth_sensor": ["recorder"]}, recorder_checkpoint_interval_ns=10**9)
+    reports: list[bytes] = []
+    bus.subscribe_callback("@ckpt/recorder", lambda _key, payload: reports.append(payload))
+    rec = Recorder(bus, tmp_path / "r.mcap", expect=["depth_sensor"], supervision=sup)
+    t, result = _start(rec)
+    pub = bus.publisher("depth_sensor", retain=True)  # numbered frames, as supervised publishers send
+    for i in range(25):  # 0 .. 2.4 s of event time
+        pub.send(_depth(i, i * 100_000_000))
+    pub.send_eos()
+    t.join(timeout=10)
+    stats = result["stats"]
+    assert stats.recorded == {"depth_sensor": 25} and stats.checkpoints == 2
+    state = load_checkpoint(tmp_path / "state" / "recorder.ckpt")
+    assert state["counts"] == {"depth_sensor": 21} and state["positions"] == {"depth_sensor": 21}
+    deadline = time.monotonic() + 5
+    while len(reports) < 2 and time.monotonic() < deadline:  # the publishers learn it (they may forget)
+        time.sleep(0.02)
+    assert [json.loads(r) for r in reports] == [{"depth_sensor": 11}, {"depth_sensor": 21}]
+
+
+def test_recorder_killed_with_sigkill_keeps_flushed_chunks(tmp_path):
+    src = tmp_path / "imgs.mcap"
+    six_stream_recording(src, 1500, image_every=2)
+    endpoint = _free_endpoint()
+    hub = open_hub(endpoint)
+    out = tmp_path / "killed.mcap"
+    rec = subprocess.Popen(CLI + ["service", "recorder", "--connect", endpoint, "--out", str(out),
+                                  "--set", "recorder.chunk_size=262144"], cwd=REPO)
+    bus = Bus(connect=[endpoint])
+    try:
+        Player(bus, src, wait_for=["recorder"], progress=False, startup_timeout_s=30).run()
+        time.sleep(2.0)  # > the recorder's flush interval
+        rec.send_signal(signal.SIGKILL)
+        rec.wait(timeout=10)
+    finally:
+        bus.close()
+        hub.close()
+    sent: dict[str, list[bytes]] = {}
+    for r in read_messages(src):
+        sent.setdefault(r.key, []).append(r.payload)
+    recovered = list(read_messages(out))  # no summary: read up to the last complete chunk
+    total = sum(len(v) for v in sent.values())
+    assert len(recovered) >= total * 0.9, (len(recovered), total)
+    for r in recovered:
+        assert r.payload in sent[r.key]
+    with pytest.raises(Exception):  # no summary: the standard reader cannot open it as it is
+        _standard_reader_count(out)
+    info = subprocess.run(CLI + ["info", str(out)], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert info.returncode == 1 and "--recover" in info.stderr
+    fixed = tmp_path / "fixed.mcap"
+    info = subprocess.run(CLI + ["info", str(out), "--recover", str(fixed)], cwd=REPO, capture_output=True,
+                          text=True, timeout=60)
+    assert info.returncode == 0, info.stderr
+    assert _standard_reader_count(fixed) == len(recovered)
+    assert [r.payload for r in read_messages(fixed, strict=True)] == [r.payload for r in recovered]
+    assert subprocess.run(CLI + ["info", str(fixed)], cwd=REPO, capture_output=True, timeout=60).returncode == 0
