@@ -17,7 +17,7 @@ Robustness contract: :func:`decode_frame`, :func:`decode_dict`, :func:`decode` a
 input -- truncated frames, bytes that are not UTF-8, unknown types, msgpack garbage, arrays
 whose bytes do not fill their shape, fields that contradict each other -- and nothing
 else, so a receiver can count and skip a bad frame with one ``except DecodeError``
-(fuzzed by ``tests/foundation/test_fuzz.py``).
+(fuzzed by ``tests/common/test_fuzz.py``).
 """
 from __future__ import annotations
 

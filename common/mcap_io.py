@@ -162,7 +162,7 @@ class RecordingWriter:
     def _add_message(self, cid: int, stamp: int, data: bytes, seq: int) -> None:
         """What ``mcap.writer.Writer.add_message(cid, stamp, data, stamp, seq)`` does -- the same
         statistics, chunk bounds, message index entry and Message record, byte for byte
-        (``tests/foundation/test_mcap_fast.py`` compares the files) -- with one ``struct.pack``
+        (``tests/common/test_mcap_fast.py`` compares the files) -- with one ``struct.pack``
         instead of a record object and a write call per field."""
         head = _MESSAGE_RECORD.pack(_MESSAGE_OPCODE, 22 + len(data), cid, seq, stamp, stamp)
         w = self._writer

@@ -5,7 +5,7 @@ from common.config import load_config
 from launcher.run import run_distributed, run_embedded
 from launcher.services import available_services
 from missions.sim.cli import main as sim_main
-from tests.foundation.recordings import payloads_by_key
+from tests.common.recordings import payloads_by_key
 
 pytestmark = pytest.mark.timeout(600)
 

@@ -25,9 +25,13 @@ def test_exit_codes_and_output_survive_os_exit(tmp_path):
     assert info.returncode == 2 and str(empty) in info.stderr
 
 
-def test_console_script_points_at_entry():
-    text = (ROOT / "pyproject.toml").read_text()
-    assert 'poseidon = "launcher.cli:entry"' in text
+def test_installed_console_script_runs_the_launcher():
+    from importlib.metadata import entry_points
+    (ep,) = entry_points(group="console_scripts", name="poseidon")
+    assert ep.value == "launcher.cli:entry"
+    script = Path(sys.executable).parent / "poseidon"
+    out = subprocess.run([str(script), "run", "--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "--input" in out.stdout
 
 
 def test_one_blas_thread_per_process_unless_the_user_says_otherwise():
@@ -59,6 +63,15 @@ def test_native_writes_to_descriptor_1_do_not_reach_stdout():
     assert "NATIVE LOG LINE" in out.stderr and "CHILD LINE" in out.stderr
 
 
-def test_distributed_services_do_not_inherit_the_launchers_stdout():
-    text = (ROOT / "launcher" / "run.py").read_text()
-    assert text.count("subprocess.Popen(") == 2 and text.count("stdout=2") == 2
+def test_distributed_services_do_not_inherit_the_launchers_stdout(tmp_path):
+    """A service process that writes to file descriptor 1 does not spoil ``run --json``."""
+    from tests.common.recordings import six_stream_recording
+    rec, cfg = tmp_path / "in.mcap", tmp_path / "cfg.yaml"
+    six_stream_recording(rec, 200)
+    cfg.write_text('{"service_classes": {"chatty": "tests.common.nodes:Chatty"}}')
+    out = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(rec), "--out",
+                          str(tmp_path / "run.mcap"), "--config", str(cfg), "--services", "chatty", "--json"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout)["services"]["chatty"]["received"]
+    assert "CHATTY SERVICE ON FD 1" in out.stderr

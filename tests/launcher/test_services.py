@@ -8,7 +8,7 @@ from common.worker import Sink, Source, Worker
 from launcher.services import UnknownService, WorkerSpec, build_node, build_worker
 from services.player.player import Player
 from services.recorder.recorder import Recorder
-from tests.foundation.recordings import six_stream_recording
+from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -24,7 +24,7 @@ def bus():
 
 @pytest.fixture
 def config():
-    cfg = PoseidonConfig(service_classes={"slow_echo": "tests.foundation.nodes:SlowEcho"})
+    cfg = PoseidonConfig(service_classes={"slow_echo": "tests.common.nodes:SlowEcho"})
     cfg.player.rate = 2.0
     cfg.bus.drain_timeout_s = 7.0
     return cfg

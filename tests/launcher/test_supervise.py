@@ -1,4 +1,4 @@
-"""Issue 11, supervision and resume: SIGKILL of each service in turn mid-run (after its first
+"""Supervision and resume: SIGKILL of each service in turn mid-run (after its first
 checkpoint), and the recorded streams equal an uninterrupted run's message for message; the
 checkpoint of every algorithm core round-trips (save, load into a fresh node, continue: the
 same outputs as a node never interrupted).
@@ -23,7 +23,7 @@ from common.resume import load_checkpoint, save_checkpoint
 from launcher.services import build_node
 from missions.sim.cli import main as sim_main
 from tests.conftest import REPO
-from tests.foundation.recordings import payloads_by_key
+from tests.common.recordings import payloads_by_key
 
 pytestmark = pytest.mark.timeout(900)
 

@@ -23,7 +23,7 @@ from common.resume import Supervision, load_checkpoint
 from services.player.player import Player
 from services.recorder.recorder import Recorder
 from tests.conftest import REPO
-from tests.foundation.recordings import HOSTILE, inconsistent_image, six_stream_recording
+from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording
 
 pytestmark = pytest.mark.timeout(180)
 CLI = [sys.executable, "-m", "launcher.cli"]

@@ -16,7 +16,7 @@ import uuid
 import pytest
 
 from tests.conftest import REPO
-from tests.foundation.recordings import six_stream_recording
+from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -103,7 +103,7 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     pytest.importorskip("cryptography")
     from common.config import load_config
     from launcher.run import plan_run, run_embedded
-    from tests.foundation.recordings import payloads_by_key
+    from tests.common.recordings import payloads_by_key
 
     host_a, host_b = two_hosts
     ip = {host_a: "10.77.0.1", host_b: "10.77.0.2"}
@@ -145,7 +145,7 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
 
     def intruder(ns, tls_dir, user, *args):
         cred = ["--user", user, "--password-file", str(tls / f"{user}.password")] if user else []
-        return subprocess.Popen(in_ns(ns, sys.executable, "-m", "tests.foundation.intruder", endpoint[ns],
+        return subprocess.Popen(in_ns(ns, sys.executable, "-m", "tests.launcher.intruder", endpoint[ns],
                                       str(tls_dir), ip[ns], *cred, *args), cwd=REPO, stdout=subprocess.PIPE, text=True)
 
     procs: dict[str, subprocess.Popen] = {}

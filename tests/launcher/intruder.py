@@ -4,7 +4,7 @@ a JSON report on stdout: ``joined``, ``received`` {key: samples}, ``data`` {key:
 among them (the rest are watermarks and end-of-stream)}, ``put`` {key: attempts},
 ``error`` (why it could not join).
 
-python -m tests.foundation.intruder ENDPOINT TLS_DIR TLS_HOST [--user U --password-file F]
+python -m tests.launcher.intruder ENDPOINT TLS_DIR TLS_HOST [--user U --password-file F]
     [--put KEY]... [--subscribe KEY]... [--seconds S]
 
 Forged messages are schema-valid (an ``Odometry`` far away, a 2x2 camera ``Image``), so a

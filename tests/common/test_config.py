@@ -24,7 +24,7 @@ def test_defaults_are_table_4_1():
         (12, False, 0.45, 0.35)
     assert (h.sv_enable_f1_gate, h.min_f1, h.sv_use_iou_tiebreak, h.max_bits) == (True, 0.55, True, 0)
     assert (h.sv_tm_bits, h.sp_learn_steps, h.sv_seq_match_threshold) == ("cells", 0, 0.0)
-    d = load_config()  # our defaults (issue 8)
+    d = load_config()  # our defaults
     assert (d.encoder.cnn_backbone, d.htm.sv_descriptor_source, d.htm.sv_match_threshold) == \
         ("efficientnet_lite0", "sdr", 0.72)
     assert (c.encoder.sonar_polar_width, c.encoder.sonar_polar_height, c.encoder.sonar_rmax,

@@ -1,4 +1,4 @@
-"""Issue 11, cases 1-2: no input can kill a service; contradictory messages are rejected at
+"""No input can kill a service; contradictory messages are rejected at
 validation; a service that fails ends the run quickly, even without the launcher."""
 import json
 import subprocess
@@ -17,8 +17,8 @@ from common.mcap_io import read_messages
 from common.runtime import NodeRunner
 from launcher.run import run_embedded
 from tests.conftest import REPO
-from tests.foundation.nodes import SlowEcho
-from tests.foundation.recordings import HOSTILE, inconsistent_image, six_stream_recording, with_inconsistent_image
+from tests.common.nodes import SlowEcho
+from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording, with_inconsistent_image
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -109,7 +109,7 @@ def test_inconsistent_image_is_skipped_and_the_run_completes(tmp_path):
     src, bad = tmp_path / "six.mcap", tmp_path / "bad.mcap"
     counts = six_stream_recording(src, 600, image_every=10)
     bad_seq = with_inconsistent_image(src, bad)
-    cfg = PoseidonConfig(service_classes={"image_rows": "tests.foundation.nodes:ImageRows"})
+    cfg = PoseidonConfig(service_classes={"image_rows": "tests.common.nodes:ImageRows"})
     result = run_embedded(cfg, bad, tmp_path / "out.mcap", services=["image_rows"], progress=False, timeout_s=60)
     st = result.services["image_rows"]
     assert st["invalid"] == {"camera/image_raw": 1} and st["rejected"] == {"invalid_message": 1}
@@ -128,7 +128,7 @@ def test_a_dying_service_aborts_a_run_without_launcher(tmp_path):
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text(json.dumps({"service_classes": {"boom": "tests.foundation.nodes:Boom"}}))
+    cfg.write_text(json.dumps({"service_classes": {"boom": "tests.common.nodes:Boom"}}))
     py = [sys.executable, "-m", "launcher.cli", "service"]
     common = ["--connect", endpoint, "--config", str(cfg)]
     out = tmp_path / "rec.mcap"

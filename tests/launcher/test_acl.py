@@ -1,7 +1,7 @@
 """The secured profile's access control (launcher/acl.py): generated from the services' own
 declaration of their keys, default deny, and the checked-in router configuration up to date.
 
-The policy is evaluated here the way Zenoh's router does (tests/foundation/test_multihost.py
+The policy is evaluated here the way Zenoh's router does (tests/launcher/test_multihost.py
 runs it for real): a message is allowed when a rule of the sender's subject for that flow and
 message type has a key expression that *includes* the message's key expression.
 """

@@ -4,7 +4,7 @@ import pytest
 from common.codec import DecodeError, decode, decode_frame, encode, encode_frame, encode_watermark
 from common.messages import (KEYS, MESSAGE_TYPES, Depth, ExperienceEvent, Header, Image, LocalViewCells,
                              NeocortexSdr, Odometry, Sdr, key_type, message_type)
-from tests.foundation.recordings import dvl
+from tests.common.recordings import dvl
 
 
 def test_every_key_has_a_registered_type_and_json_schema():

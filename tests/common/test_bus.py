@@ -13,7 +13,7 @@ from common.mcap_io import read_messages
 from launcher.run import RunFailed, run_distributed, run_embedded
 from services.player.player import Player
 from tests.conftest import REPO
-from tests.foundation.recordings import KEYS6, payloads_by_key, six_stream_recording
+from tests.common.recordings import KEYS6, payloads_by_key, six_stream_recording
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -52,7 +52,7 @@ def test_slow_subscriber_loses_nothing(tmp_path):
     counts = six_stream_recording(src, 2500, image_every=10)
     cfg = PoseidonConfig()
     cfg.bus.flow_window_ms = 200
-    cfg.service_classes = {"slow_echo": "tests.foundation.nodes:SlowEcho"}
+    cfg.service_classes = {"slow_echo": "tests.common.nodes:SlowEcho"}
     result = run_distributed(cfg, src, tmp_path / "slow.mcap", services=["slow_echo"], progress=False,
                              timeout_s=240)
     assert result.recording["counts"]["echo/depth"] == counts["depth_sensor"]
@@ -95,7 +95,7 @@ def test_failing_service_is_named_and_recording_kept(tmp_path):
     src = tmp_path / "small.mcap"
     six_stream_recording(src, 600, image_every=20)
     out = tmp_path / "fail.mcap"
-    cfg = {"service_classes": {"boom": "tests.foundation.nodes:Boom"}}
+    cfg = {"service_classes": {"boom": "tests.common.nodes:Boom"}}
     cfg_file = tmp_path / "cfg.yaml"
     cfg_file.write_text(json.dumps(cfg))
     proc = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(src), "--out", str(out),
@@ -112,7 +112,7 @@ def test_failing_service_is_named_and_recording_kept(tmp_path):
 def test_failing_service_embedded_raises_with_its_name(tmp_path):
     src = tmp_path / "small.mcap"
     six_stream_recording(src, 600, image_every=20)
-    cfg = PoseidonConfig(service_classes={"boom": "tests.foundation.nodes:Boom"})
+    cfg = PoseidonConfig(service_classes={"boom": "tests.common.nodes:Boom"})
     with pytest.raises(RunFailed) as err:
         run_embedded(cfg, src, tmp_path / "fail.mcap", services=["boom"], progress=False, timeout_s=60)
     assert err.value.service == "boom"
@@ -125,7 +125,7 @@ def test_invalid_messages_are_skipped_counted_and_logged(caplog):
     from common.codec import encode, encode_frame
     from common.messages import Depth, Header
     from common.runtime import NodeRunner
-    from tests.foundation.nodes import SlowEcho
+    from tests.common.nodes import SlowEcho
 
     session = open_local_session()
     bus = Bus(session=session)

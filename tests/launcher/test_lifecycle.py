@@ -1,4 +1,4 @@
-"""Issue 11, cases 6-7: children die with the launcher; a killed recorder's file is recovered
+"""Children die with the launcher; a killed recorder's file is recovered
 into one the standard MCAP reader opens; `info` fails on files that are not recordings; one
 declaration of each service's keys."""
 import os
@@ -15,7 +15,7 @@ from common.config import load_config
 from common.node import ServiceNode
 from launcher.run import node_io, plan_run
 from tests.conftest import REPO
-from tests.foundation.recordings import six_stream_recording
+from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(180)
 CLI = [sys.executable, "-m", "launcher.cli"]
@@ -46,7 +46,7 @@ def test_children_die_with_a_launcher_killed_by_sigkill(tmp_path):
     src = tmp_path / "in.mcap"
     six_stream_recording(src, 3000, image_every=10)
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text('{"service_classes": {"stall": "tests.foundation.nodes:Stall"}}')
+    cfg.write_text('{"service_classes": {"stall": "tests.common.nodes:Stall"}}')
     out = tmp_path / "run.mcap"
     launcher = subprocess.Popen(CLI + ["run", "--input", str(src), "--out", str(out), "--config", str(cfg),
                                        "--services", "stall", "--json"], cwd=REPO, stdout=subprocess.DEVNULL)
@@ -126,7 +126,7 @@ def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tm
     src = tmp_path / "in.mcap"
     six_stream_recording(src, 3000, image_every=10)
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text('{"service_classes": {"stall": "tests.foundation.nodes:Stall"}, "supervise": {"max_restarts": 0}}')
+    cfg.write_text('{"service_classes": {"stall": "tests.common.nodes:Stall"}, "supervise": {"max_restarts": 0}}')
     out = tmp_path / "run.mcap"
     launcher = subprocess.Popen(CLI + ["run", "--input", str(src), "--out", str(out), "--config", str(cfg),
                                        "--services", "stall", "--json"], cwd=REPO, stdout=subprocess.DEVNULL,

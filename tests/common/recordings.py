@@ -1,4 +1,4 @@
-"""Small generated recordings for the foundation tests."""
+"""Small generated recordings shared by the tests of common/, the launcher, the player and the recorder."""
 from __future__ import annotations
 
 from pathlib import Path

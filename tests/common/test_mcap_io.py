@@ -4,7 +4,7 @@ import pytest
 from common.mcap_io import (RecordingError, RecordingWriter, read_messages, read_metadata, recording_keys,
                             recording_message_count, recording_summary)
 from common.messages import Depth, Header, Image
-from tests.foundation.recordings import six_stream_recording
+from tests.common.recordings import six_stream_recording
 
 
 def test_write_read_in_event_time_order_with_metadata(tmp_path):

@@ -1,4 +1,4 @@
-"""Issue 11, supervision: de-duplication of replayed frames, replay and trimming on the bus,
+"""Supervision: de-duplication of replayed frames, replay and trimming on the bus,
 the retry bound of the launcher (a service that always dies)."""
 import subprocess
 import sys
@@ -11,7 +11,7 @@ from common.codec import decode_frame
 from common.messages import Depth, Header
 from common.resume import LostFrames, SequenceGate, Supervision, load_checkpoint, save_checkpoint
 from tests.conftest import REPO
-from tests.foundation.recordings import six_stream_recording
+from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -88,7 +88,7 @@ def test_a_service_that_always_dies_fails_the_run_after_max_restarts(tmp_path):
     src = tmp_path / "in.mcap"
     six_stream_recording(src, 800, image_every=20)
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text('{"service_classes": {"boom": "tests.foundation.nodes:Boom"}, '
+    cfg.write_text('{"service_classes": {"boom": "tests.common.nodes:Boom"}, '
                    '"supervise": {"max_restarts": 2, "restart_backoff_s": 0.05}}')
     out = tmp_path / "run.mcap"
     proc = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(src), "--out", str(out),

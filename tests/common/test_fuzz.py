@@ -1,5 +1,5 @@
 """Property-based fuzzing (hypothesis) of the bus's decode paths and each service's input
-handling (issue 11): random and mutated frames never raise anything but a counted
+handling: random and mutated frames never raise anything but a counted
 rejection.  Each test prints how many cases it tried and how many were rejected
 (``pytest -s`` shows them)."""
 from __future__ import annotations
@@ -23,7 +23,7 @@ from common.messages import (DiagnosticArray, FluidPressure, MagneticField, NavS
 from common.ordering import EventTimeMerger
 from common.runtime import NodeRunner
 from launcher.services import available_services
-from tests.foundation.recordings import dvl
+from tests.common.recordings import dvl
 
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

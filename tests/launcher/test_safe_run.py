@@ -1,4 +1,4 @@
-"""Issue 11, cases 4-5: safe outputs of `poseidon run`; bad settings end the run at once."""
+"""Safe outputs of `poseidon run`; bad settings end the run at once."""
 import hashlib
 import os
 import subprocess
@@ -12,7 +12,7 @@ from common.config import ConfigError, PoseidonConfig, load_config
 from common.mcap_io import read_messages
 from launcher.run import RunFailed, ServiceStartError, run_embedded
 from tests.conftest import REPO
-from tests.foundation.recordings import six_stream_recording
+from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -60,7 +60,7 @@ def test_output_moves_into_place_only_on_success(small, tmp_path, embedded):
     out = tmp_path / "run.mcap"
     out.write_bytes(b"old")
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text('{"service_classes": {"boom": "tests.foundation.nodes:Boom"}}')
+    cfg.write_text('{"service_classes": {"boom": "tests.common.nodes:Boom"}}')
     big = tmp_path / "big.mcap"
     six_stream_recording(big, 800, image_every=20)
     mode = ["--embedded"] if embedded else []
@@ -104,14 +104,14 @@ def _poseidon_threads():
 
 
 def test_embedded_service_that_cannot_start_is_named_and_leaves_nothing(small, tmp_path):
-    cfg = PoseidonConfig(service_classes={"cannot_start": "tests.foundation.nodes:CannotStart"})
+    cfg = PoseidonConfig(service_classes={"cannot_start": "tests.common.nodes:CannotStart"})
     with pytest.raises(ServiceStartError, match="service 'cannot_start' cannot start"):
         run_embedded(cfg, small, tmp_path / "o.mcap", services=["cannot_start"], progress=False, timeout_s=10)
     assert not (tmp_path / "o.partial.mcap").exists() and not _poseidon_threads()
 
 
 def test_embedded_timeout_fires_and_stops_every_thread(small, tmp_path):
-    cfg = PoseidonConfig(service_classes={"stall": "tests.foundation.nodes:Stall"})
+    cfg = PoseidonConfig(service_classes={"stall": "tests.common.nodes:Stall"})
     t0 = time.monotonic()
     with pytest.raises(RunFailed, match="did not finish within 2 s"):
         run_embedded(cfg, small, tmp_path / "o.mcap", services=["stall"], progress=False, timeout_s=2)

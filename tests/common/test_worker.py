@@ -40,7 +40,7 @@ def _run_all(workers):
 
 
 def test_one_abort_stops_every_kind_of_worker_with_its_reason(tmp_path, bus):
-    config = PoseidonConfig(service_classes={"slow_echo": "tests.foundation.nodes:SlowEcho"})
+    config = PoseidonConfig(service_classes={"slow_echo": "tests.common.nodes:SlowEcho"})
     config.player.rate = 1.0
     workers = {
         "recorder": build_worker("recorder", config, bus, WorkerSpec(out=tmp_path / "r.mcap", expect=["echo/depth"])),
@@ -59,7 +59,7 @@ def test_one_abort_stops_every_kind_of_worker_with_its_reason(tmp_path, bus):
 
 
 def test_a_service_stopped_early_aborts_the_run_naming_itself(tmp_path, bus):
-    config = PoseidonConfig(service_classes={"slow_echo": "tests.foundation.nodes:SlowEcho"})
+    config = PoseidonConfig(service_classes={"slow_echo": "tests.common.nodes:SlowEcho"})
     config.player.rate = 1.0
     runner = build_worker("slow_echo", config, bus)
     player = build_worker("player", config, bus, WorkerSpec(input=_slow_recording(tmp_path / "in.mcap"),

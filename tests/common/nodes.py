@@ -1,6 +1,7 @@
 """Service nodes used only by the bus tests (loaded through config.service_classes)."""
 from __future__ import annotations
 
+import os
 import time
 
 from common.messages import Depth
@@ -69,3 +70,19 @@ class CannotStart(ServiceNode):
     def __init__(self, config):
         super().__init__(config)
         raise ValueError("cannot_start: refuses every configuration")
+
+
+class Chatty(ServiceNode):
+    """Writes to file descriptor 1 (as a native library's logging would) on start and per depth message."""
+
+    name = "chatty"
+    inputs = ("depth_sensor",)
+    outputs = ()
+
+    def __init__(self, config):
+        super().__init__(config)
+        os.write(1, b"CHATTY SERVICE ON FD 1\n")
+
+    def process(self, key, msg):
+        if msg.header.seq == 1:
+            os.write(1, b"CHATTY SERVICE ON FD 1\n")
