@@ -53,7 +53,7 @@ def wrap_angle(a: Any) -> Any:
 
 def wrap_angles(a: Any) -> np.ndarray:
     """Angles (rad, any array-like) wrapped to [-pi, pi), as a float array."""
-    return wrap_angle(np.asarray(a, dtype=float))
+    return np.asarray(wrap_angle(np.asarray(a, dtype=float)))
 
 
 def yaw_of_quaternion(q: list[float] | np.ndarray) -> float:
@@ -65,7 +65,7 @@ def yaw_of_quaternion(q: list[float] | np.ndarray) -> float:
 def yaws_of_quaternions(q: np.ndarray) -> np.ndarray:
     """Yaw (rad, in [-pi, pi]) of unit quaternions (..., 4) ``[x, y, z, w]`` (the ZYX yaw)."""
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return np.asarray(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
 def quaternion_of_yaw(yaw: float) -> list[float]:
@@ -81,7 +81,7 @@ def normalise_quaternions(q: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(~(n > 0)):
         raise ValueError("quaternion of zero norm")
-    return q / n
+    return np.asarray(q / n)
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -249,19 +249,19 @@ class OutputFrame:
 
     def position(self, p_ned: np.ndarray) -> np.ndarray:
         """Published position of an NED one (m)."""
-        return self.m @ p_ned
+        return np.asarray(self.m @ p_ned)
 
     def position_to_ned(self, p_out: np.ndarray) -> np.ndarray:
         """NED position of a published one (m)."""
-        return self.m.T @ p_out
+        return np.asarray(self.m.T @ p_out)
 
     def rotation(self, r_ned_frd: np.ndarray) -> np.ndarray:
         """Published body->world rotation of an NED/FRD one."""
-        return self.m @ r_ned_frd @ self.b
+        return np.asarray(self.m @ r_ned_frd @ self.b)
 
     def rotation_to_ned(self, r_out: np.ndarray) -> np.ndarray:
         """NED/FRD body->world rotation of a published one."""
-        return self.m.T @ r_out @ self.b
+        return np.asarray(self.m.T @ r_out @ self.b)
 
     def euler_jacobian(self, roll: float, pitch: float, yaw: float) -> np.ndarray:
         """d(published Euler)/d(NED Euler) at an attitude.

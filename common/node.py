@@ -12,7 +12,8 @@ exactly the same outputs.
 from __future__ import annotations
 
 import logging
-from typing import ClassVar, Iterable
+from collections.abc import Iterable
+from typing import Any, ClassVar
 
 from common.config import PoseidonConfig
 from common.messages import Header, Message
@@ -27,8 +28,8 @@ class ServiceNode:
     """Base of every service.  Subclasses set ``name``, ``inputs`` and ``outputs``."""
 
     name: ClassVar[str] = ""
-    inputs: ClassVar[tuple[str, ...]] = ()
-    outputs: ClassVar[tuple[str, ...]] = ()
+    inputs: tuple[str, ...] = ()    # class default of io_keys; the instance's own after __init__
+    outputs: tuple[str, ...] = ()
 
     @classmethod
     def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -72,7 +73,7 @@ class ServiceNode:
     checkpoint_exclude: ClassVar[tuple[str, ...]] = ()
     _CHECKPOINT_NEVER = ("config", "inputs", "outputs", "_outbox")
 
-    def checkpoint_state(self) -> dict:
+    def checkpoint_state(self) -> dict[str, Any]:
         """The node's state for a checkpoint: every instance attribute (the algorithm core's
         objects, output seqs, counters) but the configuration and ``checkpoint_exclude``.
         The result is pickled; restoring it into a node built from the same configuration
@@ -80,7 +81,7 @@ class ServiceNode:
         skip = set(self._CHECKPOINT_NEVER) | set(self.checkpoint_exclude)
         return {k: v for k, v in vars(self).items() if k not in skip}
 
-    def restore_checkpoint(self, state: dict) -> None:
+    def restore_checkpoint(self, state: dict[str, Any]) -> None:
         """Inverse of :meth:`checkpoint_state` on a node built from the same configuration."""
         unknown = set(state) - set(vars(self))
         if unknown:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
@@ -64,7 +65,7 @@ class RunnerStats(SinkStats):
         self.invalid[key] = self.invalid.get(key, 0) + 1
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"service": self.service, "received": self.received, "published": self.published,
                 "invalid": self.invalid, "rejected": self.rejected, "late": self.late,
                 "busy_s": round(self.busy_s, 3), "counters": self.counters, "aborted": self.aborted,

@@ -32,14 +32,23 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from common.bus import Bus, BusPublisher, ProgressWatcher
 from common.ordering import END_OF_TIME
-from common.resume import (ReplayServer, SequenceGate, Supervision, checkpoint_path, load_checkpoint,
-                           report_checkpoint, request_replays, save_checkpoint)
+from common.resume import (
+    ReplayServer,
+    SequenceGate,
+    Supervision,
+    checkpoint_path,
+    load_checkpoint,
+    report_checkpoint,
+    request_replays,
+    save_checkpoint,
+)
 
 __all__ = ["Worker", "WorkerStats", "Sink", "SinkStats", "Source", "WAKE"]
 

@@ -35,8 +35,8 @@ decimals; a ``#`` header line names the columns.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

@@ -22,18 +22,30 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
+
 import numpy as np
 from pydantic import ValidationError
 
 from common.codec import DecodeError, decode
 from common.config import ConfigError, PoseidonConfig, load_config
-from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.geometry import published_to_ned
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, LocalViewCells, Message, NeocortexSdr,
-                             Odometry, PoseStamped, RevisitTruth, message_type)
+from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
+from common.messages import (
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceMap,
+    LocalViewCells,
+    Message,
+    NeocortexSdr,
+    Odometry,
+    PoseStamped,
+    RevisitTruth,
+    message_type,
+)
 from eval.trajectory import PoseSeries, Trajectory, pose_series
 
 __all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "config_of_recording",

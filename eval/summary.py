@@ -27,8 +27,8 @@ from typing import Any
 
 from common.config import PoseidonConfig
 from eval.audit import audit_run
-from eval.rundata import load_run
 from eval.run_eval import evaluate_run
+from eval.rundata import load_run
 
 __all__ = ["summarize_run", "format_summary"]
 

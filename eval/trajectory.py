@@ -33,8 +33,8 @@ Errors (the dissertation lacks them; ``../shared/design/EVALUATION.md``):
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -129,12 +129,12 @@ class Trajectory:
         """Position and yaw at one stamp."""
         return self.positions_at([stamp])[0], float(self.yaws_at([stamp])[0])
 
-    def resampled(self, stamps: Sequence[int] | np.ndarray) -> "Trajectory":
+    def resampled(self, stamps: Sequence[int] | np.ndarray) -> Trajectory:
         """A new trajectory sampled at ``stamps``."""
         s = np.asarray(stamps, dtype=np.int64)
         return Trajectory(s, self.positions_at(s), self.yaws_at(s))
 
-    def translated(self, offset: np.ndarray) -> "Trajectory":
+    def translated(self, offset: np.ndarray) -> Trajectory:
         """The same samples moved by ``offset`` (3,) metres."""
         return Trajectory(self.t, self.p + offset, self.yaw, self.source)
 
@@ -144,12 +144,12 @@ class Trajectory:
             return np.zeros(0)
         return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.p, axis=0), axis=1))])
 
-    def window(self, t0: int, t1: int) -> "Trajectory":
+    def window(self, t0: int, t1: int) -> Trajectory:
         """The samples with t0 <= stamp <= t1."""
         m = (self.t >= t0) & (self.t <= t1)
         return Trajectory(self.t[m], self.p[m], self.yaw[m])
 
-    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> "Trajectory":
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> Trajectory:
         """Positions mapped by p -> R p + t (yaw turned by R's rotation about z)."""
         r = np.asarray(rotation, dtype=float)
         dyaw = math.atan2(r[1, 0], r[0, 0])
@@ -202,7 +202,7 @@ class PoseSeries:
         """Yaw (rad, about +z) of every orientation, in [-pi, pi]."""
         return yaws_of_quaternions(self.quaternions)
 
-    def interpolate(self, stamps: Sequence[int] | np.ndarray) -> "PoseSeries":
+    def interpolate(self, stamps: Sequence[int] | np.ndarray) -> PoseSeries:
         """Poses at ``stamps``: position linear, orientation SLERP between the bracketing samples
         (the last of samples with equal stamps counts); clamped outside the span."""
         if not len(self):

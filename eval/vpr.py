@@ -123,9 +123,9 @@ import json
 import logging
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -233,7 +233,8 @@ def overlap_similarity(q: Sequence[np.ndarray], r: Sequence[np.ndarray]) -> np.n
 
 def load_sequence(folder: str | Path, limit: int = 0) -> tuple[list[str], list[np.ndarray]]:
     """File names (sorted) and RGB uint8 images of an image folder; first ``limit`` if > 0."""
-    from PIL import Image as PILImage, UnidentifiedImageError
+    from PIL import Image as PILImage
+    from PIL import UnidentifiedImageError
 
     d = Path(folder)
     if not d.is_dir():
@@ -440,7 +441,6 @@ def encode_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None) -> M
     """Camera and sonar of one MCAP mission through :class:`EncoderNode`, in event order."""
     from common.codec import DecodeError
     from common.mcap_io import RecordingError, read_messages, read_metadata, recording_keys
-
     from services.encoder.encoder import MultimodalEncoder, image_to_rgb
     from services.encoder.node import EncoderNode
 
@@ -691,7 +691,6 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``poseidon vpr`` (see the module docstring)."""
     args = _parser().parse_args(argv)
     from common.config import ConfigError, load_config
-
     from services.encoder.backbones import WeightsError
     from services.encoder.encoder import MultimodalEncoder
     from services.encoder.lsbh import LsbhError

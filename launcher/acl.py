@@ -94,8 +94,8 @@ def identities(config=None) -> dict[str, str]:
 def identity_grants(config=None) -> dict[str, list[Grant]]:
     """What each identity may do under ``config`` (default configuration if None)."""
     from common.config import PoseidonConfig
-    from launcher.services import node_class
     from common.resume import REPLAY
+    from launcher.services import node_class
     from services.player.player import SOURCE_KEYS
     config = config if config is not None else PoseidonConfig()
     ns = config.bus.namespace.strip("/")

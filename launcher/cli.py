@@ -51,8 +51,9 @@ import logging
 import signal
 import sys
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the commands import what they use when they run (a fast start for every command)
     from common.config import PoseidonConfig
@@ -178,8 +179,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     """Exit 0: a complete recording (or recovered with --recover); 1: damaged (what is readable
     is listed, with how to recover it); 2: not a readable MCAP recording."""
-    from common.mcap_io import (RecordingError, read_metadata, recording_keys, recording_status, recording_summary,
-                                recover_recording)
+    from common.mcap_io import (
+        RecordingError,
+        read_metadata,
+        recording_keys,
+        recording_status,
+        recording_summary,
+        recover_recording,
+    )
     try:
         status = recording_status(args.recording)
         summary = recording_summary(args.recording)

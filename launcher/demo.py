@@ -90,8 +90,8 @@ def _variant(config: PoseidonConfig, overrides: list[str]) -> PoseidonConfig:
 
 def _run_figures(path: Path, wall_s: float, mission_s: float) -> dict[str, Any]:
     from eval.audit import audit_run
-    from eval.rundata import load_run
     from eval.run_eval import evaluate_run
+    from eval.rundata import load_run
     run = load_run(path)
     ev = evaluate_run(run)
     au = audit_run(run)

@@ -368,7 +368,7 @@ def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
                         running += 1
                         continue
                 used = (restarts or {}).get(name, 0)
-                return name, (f"exited with code {rc}" + (" (killed by signal %d)" % -rc if rc < 0 else "")
+                return name, (f"exited with code {rc}" + (f" (killed by signal {-rc})" if rc < 0 else "")
                               + (f" after {used} restart(s)" if used else ""))
         if aborted:
             # stopped because another one failed: give the failing one time to show its exit code

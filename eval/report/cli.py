@@ -34,8 +34,9 @@ import argparse
 import json
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from common.codec import DecodeError
 from common.mcap_io import RecordingError

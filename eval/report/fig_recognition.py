@@ -248,7 +248,7 @@ def fig_viewcells(runs: list[RunView], max_points: int, min_gap_m: float = 10.0)
               f"recognised after >= {min_gap_m:g} m, {int(r.link_loop.sum())} map loop closures" for _, r in with_lvc]
     fig = make_subplots(rows=len(with_lvc), cols=1, subplot_titles=titles, shared_xaxes=False,
                         vertical_spacing=0.12 if len(with_lvc) > 1 else 0.1)
-    for row, (i, r) in enumerate(with_lvc, start=1):
+    for row, (_i, r) in enumerate(with_lvc, start=1):
         t = r.seconds(r.lvc_stamps).astype(np.float32)
         revisit = revisit_frames(r, min_gap_m)
         same_pass = ~r.lvc_new & ~revisit

@@ -10,8 +10,18 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from eval.report.data import RunView
-from eval.report.style import (DR_COLOR, TRUTH_COLOR, FigureSpec, apply_layout, decimate, distinct_tracks,
-                               enu_columns, no_trajectories, run_color, track_name)
+from eval.report.style import (
+    DR_COLOR,
+    TRUTH_COLOR,
+    FigureSpec,
+    apply_layout,
+    decimate,
+    distinct_tracks,
+    enu_columns,
+    no_trajectories,
+    run_color,
+    track_name,
+)
 from eval.trajectory import Trajectory
 
 __all__ = ["fig_overlay_3d", "fig_projections", "fig_topology", "fig_deviation_time", "fig_deviation_xy"]
@@ -251,7 +261,7 @@ def fig_deviation_xy(runs: list[RunView], max_points: int) -> FigureSpec:
     fig = make_subplots(rows=rows, cols=cols, subplot_titles=[s[0] for s in series], horizontal_spacing=0.06,
                         vertical_spacing=0.12)
     vmax = float(max(s[4].max() for s in series))
-    for slot, (name, _color_, _r, _st, d, ref) in enumerate(series):
+    for slot, (name, _color, _r, _st, d, ref) in enumerate(series):
         row, col = slot // cols + 1, slot % cols + 1
         k = decimate(len(d), max_points)
         e, n, _ = enu_columns(ref[k])

@@ -15,10 +15,22 @@ from typing import Any
 import numpy as np
 
 from eval.report.data import RunView
-from eval.report.fig_recognition import Similarity, fig_pr, fig_similarity, fig_viewcells, frame_similarity, \
-    precision_recall, similarities
-from eval.report.fig_trajectories import (fig_deviation_time, fig_deviation_xy, fig_overlay_3d, fig_projections,
-                                          fig_topology)
+from eval.report.fig_recognition import (
+    Similarity,
+    fig_pr,
+    fig_similarity,
+    fig_viewcells,
+    frame_similarity,
+    precision_recall,
+    similarities,
+)
+from eval.report.fig_trajectories import (
+    fig_deviation_time,
+    fig_deviation_xy,
+    fig_overlay_3d,
+    fig_projections,
+    fig_topology,
+)
 from eval.report.style import FIGURE_IDS, FigureSpec
 
 __all__ = ["FigureSpec", "FIGURE_IDS", "build_figures", "Similarity", "frame_similarity",

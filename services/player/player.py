@@ -34,9 +34,10 @@ import logging
 import sys
 import time
 from array import array
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Any
 
 from tqdm import tqdm
 
@@ -65,7 +66,7 @@ class PlayerStats(WorkerStats):
     event_s: float = 0.0
     replays: int = 0
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"service": "player", "published": self.published, "wall_s": round(self.wall_s, 3),
                 "event_s": round(self.event_s, 3), "aborted": self.aborted, "replays": self.replays,
                 "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
@@ -97,7 +98,7 @@ class Player(Source):
         self._watcher: ProgressWatcher | None = None
         self._left_since: dict[str, float] = {}
         self._next_check = 0.0
-        self._stamps: dict[str, array] = {k: array("q") for k in self.keys}  # stamp per transport index
+        self._stamps: dict[str, array[int]] = {k: array("q") for k in self.keys}  # stamp per transport index
         self._flow_bound = -1  # stamps up to this are within the flow window (slowest progress + window)
         super().__init__("player", bus, PlayerStats(), supervision, drain_timeout_s)
 

@@ -34,9 +34,10 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
@@ -58,7 +59,7 @@ class RecorderStats(SinkStats):
     path: str = ""
     resumed_messages: int = 0
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"service": "recorder", "path": self.path, "recorded": self.recorded, "invalid": self.invalid,
                 "ended": sorted(self.ended), "aborted": self.aborted, "duplicates": self.duplicates,
                 "checkpoints": self.checkpoints, "checkpoint_ms": round(self.checkpoint_ms, 3),

@@ -98,8 +98,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.config import RobotStateConfig
-from common.messages import Depth, Imu, LinkquestDvl
 from common.geometry import euler_to_matrix, matrix_to_euler, wrap_angle
+from common.messages import Depth, Imu, LinkquestDvl
 
 __all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
 
@@ -168,7 +168,7 @@ def _rotation_jacobian_times(e: np.ndarray, v: np.ndarray) -> np.ndarray:
     # body velocity with roll applied, then with pitch applied (R = Rz Ry Rx)
     a1, a2 = cr * vy - sr * vz, sr * vy + cr * vz  # Rx v (y, z)
     dr1, dr2 = -sr * vy - cr * vz, cr * vy - sr * vz  # dRx/droll v (y, z)
-    b0, b2 = cp * vx + sp * a2, -sp * vx + cp * a2  # Ry Rx v (x, z); y = a1
+    b0 = cp * vx + sp * a2  # (Ry Rx v).x; y = a1
     # d/droll: Rz Ry (0, dr1, dr2)
     x0, y0, z0 = sp * dr2, dr1, cp * dr2
     j_r = (cy * x0 - sy * y0, sy * x0 + cy * y0, z0)

@@ -3,8 +3,18 @@ and body, ZYX Euler angles, the published frame :class:`OutputFrame`); re-export
 for readers who look for them next to the filter."""
 from __future__ import annotations
 
-from common.geometry import (OutputFrame, euler_to_matrix, euler_to_world_rate, matrix_to_euler, matrix_to_quaternion,
-                             quaternion_to_matrix, rot_x, rot_y, rot_z, wrap_angle)
+from common.geometry import (
+                             OutputFrame,
+                             euler_to_matrix,
+                             euler_to_world_rate,
+                             matrix_to_euler,
+                             matrix_to_quaternion,
+                             quaternion_to_matrix,
+                             rot_x,
+                             rot_y,
+                             rot_z,
+                             wrap_angle,
+)
 
 __all__ = ["rot_x", "rot_y", "rot_z", "euler_to_matrix", "euler_to_world_rate", "matrix_to_euler",
            "matrix_to_quaternion", "quaternion_to_matrix", "wrap_angle", "OutputFrame"]

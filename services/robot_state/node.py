@@ -46,17 +46,17 @@ import logging
 import numpy as np
 
 from common.config import PoseidonConfig
-from common.messages import Depth, Imu, LinkquestDvl, Message, Odometry
+from common.geometry import OutputFrame, euler_to_matrix, matrix_to_quaternion
+from common.messages import Depth, Header, Imu, LinkquestDvl, Message, Odometry
 from common.node import ServiceNode
 from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot
-from common.geometry import OutputFrame, euler_to_matrix, matrix_to_quaternion
 
 __all__ = ["RobotStateNode", "odometry_from_snapshot"]
 
 log = logging.getLogger(__name__)
 
 
-def odometry_from_snapshot(snap: FilterSnapshot, frame: OutputFrame, header, status: list[str],
+def odometry_from_snapshot(snap: FilterSnapshot, frame: OutputFrame, header: Header, status: list[str],
                            gyro_sigma_rad_s: float) -> Odometry:
     """Odometry message of a filter snapshot in the published frame."""
     p = frame.position(snap.position)

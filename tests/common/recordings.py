@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common.messages import Depth, Header, Image, Imu, LinkquestDvl, Odometry, RangeImageBeam
 from common.mcap_io import RecordingWriter
+from common.messages import Depth, Header, Image, Imu, LinkquestDvl, Odometry, RangeImageBeam
 
 #: frames a hostile or broken publisher may put on a key (the issue's b"D", b"D\x04\xff...")
 HOSTILE = [b"D", b"D\x04\xff\xfe\xfd\xfc", b"D\x04\xff", b"D\x20poseidon_msgs/Image", b"D\x13poseidon_msgs/Image",

@@ -12,8 +12,8 @@ from common.config import PoseidonConfig
 from common.mcap_io import read_messages
 from launcher.run import RunFailed, run_distributed, run_embedded
 from services.player.player import Player
-from tests.conftest import REPO
 from tests.common.recordings import KEYS6, payloads_by_key, six_stream_recording
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -122,7 +122,7 @@ def test_invalid_messages_are_skipped_counted_and_logged(caplog):
     """A message failing validation is logged with its key and seq, counted, and skipped."""
     import threading
 
-    from common.codec import encode, encode_frame
+    from common.codec import encode
     from common.messages import Depth, Header
     from common.runtime import NodeRunner
     from tests.common.nodes import SlowEcho

@@ -3,8 +3,16 @@ import struct
 
 import pytest
 
-from common.codec import (ENCODED_EOS, DecodeError, decode_frame, encode, encode_frame, encode_replay_start,
-                          encode_sequenced, encode_watermark)
+from common.codec import (
+    ENCODED_EOS,
+    DecodeError,
+    decode_frame,
+    encode,
+    encode_frame,
+    encode_replay_start,
+    encode_sequenced,
+    encode_watermark,
+)
 from common.messages import Depth, Header
 
 MSG = Depth(header=Header(seq=3, stamp=77), depth=1.5)

@@ -5,21 +5,43 @@ rejection.  Each test prints how many cases it tried and how many were rejected
 from __future__ import annotations
 
 import math
-import threading
 
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from common.bus import Bus, open_local_session
 from common.codec import DecodeError, decode, decode_frame, encode, encode_frame
 from common.config import PoseidonConfig
-from common.messages import (MESSAGE_TYPES, Depth, ExperienceEvent, ExperienceImage, ExperienceMap, Header, Image,
-                             Imu, LaserScan, LocalViewCells, NeocortexSdr, Odometry, PoseStamped, RangeImageBeam,
-                             RevisitTruth, Sdr)
-from common.messages import (DiagnosticArray, FluidPressure, MagneticField, NavSatFix, PoseWithCovarianceStamped,
-                             RawMessage, Temperature, TFMessage, TwistStamped)
+from common.messages import (
+    MESSAGE_TYPES,
+    Depth,
+    DiagnosticArray,
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceMap,
+    FluidPressure,
+    Header,
+    Image,
+    Imu,
+    LaserScan,
+    LocalViewCells,
+    MagneticField,
+    NavSatFix,
+    NeocortexSdr,
+    Odometry,
+    PoseStamped,
+    PoseWithCovarianceStamped,
+    RangeImageBeam,
+    RawMessage,
+    RevisitTruth,
+    Sdr,
+    Temperature,
+    TFMessage,
+    TwistStamped,
+)
 from common.ordering import EventTimeMerger
 from common.runtime import NodeRunner
 from launcher.services import available_services
@@ -204,7 +226,7 @@ def weird_valid(draw, cls):
     empty arrays, 1x1 images, zero bins...): what a faulty sensor may legitimately send."""
     base = EXAMPLES[cls.type_name]
     update = {}
-    for name, info in cls.model_fields.items():
+    for name in cls.model_fields:
         if name == "header" or not draw(st.booleans()):
             continue
         value = getattr(base, name)

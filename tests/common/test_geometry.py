@@ -5,10 +5,23 @@ import numpy as np
 import pytest
 
 from common.config import ConfigError
-from common.geometry import (OutputFrame, enu_to_ned, euler_to_matrix, matrix_to_euler, matrix_to_quaternion,
-                             ned_to_enu, published_to_ned, quaternion_of_yaw, quaternion_to_matrix, rot_z, wrap_angle,
-                             wrap_angles, yaw_enu_to_ned, yaw_of_quaternion, yaws_of_quaternions)
-
+from common.geometry import (
+    OutputFrame,
+    enu_to_ned,
+    euler_to_matrix,
+    matrix_to_euler,
+    matrix_to_quaternion,
+    ned_to_enu,
+    published_to_ned,
+    quaternion_of_yaw,
+    quaternion_to_matrix,
+    rot_z,
+    wrap_angle,
+    wrap_angles,
+    yaw_enu_to_ned,
+    yaw_of_quaternion,
+    yaws_of_quaternions,
+)
 
 # --------------------------------------------------------------------------- wrapping
 

@@ -1,8 +1,15 @@
 import numpy as np
 import pytest
 
-from common.mcap_io import (RecordingError, RecordingWriter, read_messages, read_metadata, recording_keys,
-                            recording_message_count, recording_summary)
+from common.mcap_io import (
+    RecordingError,
+    RecordingWriter,
+    read_messages,
+    read_metadata,
+    recording_keys,
+    recording_message_count,
+    recording_summary,
+)
 from common.messages import Depth, Header, Image
 from tests.common.recordings import six_stream_recording
 

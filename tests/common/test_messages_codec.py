@@ -2,8 +2,20 @@ import numpy as np
 import pytest
 
 from common.codec import DecodeError, decode, decode_frame, encode, encode_frame, encode_watermark
-from common.messages import (KEYS, MESSAGE_TYPES, Depth, ExperienceEvent, Header, Image, LocalViewCells,
-                             NeocortexSdr, Odometry, Sdr, key_type, message_type)
+from common.messages import (
+    KEYS,
+    MESSAGE_TYPES,
+    Depth,
+    ExperienceEvent,
+    Header,
+    Image,
+    LocalViewCells,
+    NeocortexSdr,
+    Odometry,
+    Sdr,
+    key_type,
+    message_type,
+)
 from tests.common.recordings import dvl
 
 

@@ -10,8 +10,8 @@ from common.bus import Bus, open_local_session
 from common.codec import decode_frame
 from common.messages import Depth, Header
 from common.resume import LostFrames, SequenceGate, Supervision, load_checkpoint, save_checkpoint
-from tests.conftest import REPO
 from tests.common.recordings import six_stream_recording
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(300)
 

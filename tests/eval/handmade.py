@@ -29,8 +29,18 @@ import numpy as np
 
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceMap, ExperienceNode, Header,
-                             Image, LocalViewCells, Odometry, RevisitTruth)
+from common.messages import (
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceLink,
+    ExperienceMap,
+    ExperienceNode,
+    Header,
+    Image,
+    LocalViewCells,
+    Odometry,
+    RevisitTruth,
+)
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS

@@ -7,11 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.geometry import quaternion_to_matrix
+from common.geometry import quaternion_to_matrix, slerp
 from common.mcap_io import RecordingWriter
 from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
 from common.stamps import ns_to_text
-from common.geometry import slerp
 from eval.corrected import map_corrected, read_tum, write_tum
 from eval.trajectory import PoseSeries, pose_series
 from missions.export.cli import main as export_main

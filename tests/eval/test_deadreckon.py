@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 
+from common.geometry import euler_to_matrix, matrix_to_quaternion
 from common.mcap_io import RecordingWriter
 from common.messages import Header, Odometry
 from eval.deadreckon import main
-from common.geometry import euler_to_matrix, matrix_to_quaternion
 from tests.robot_state.synth import NS, T0, mission
 
 U, W = 0.5, math.pi / 10  # forward speed m/s, turn rate rad/s

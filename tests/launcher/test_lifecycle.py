@@ -14,8 +14,8 @@ from mcap.reader import make_reader
 from common.config import load_config
 from common.node import ServiceNode
 from launcher.run import node_io, plan_run
-from tests.conftest import REPO
 from tests.common.recordings import six_stream_recording
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(180)
 CLI = [sys.executable, "-m", "launcher.cli"]
@@ -105,9 +105,10 @@ def test_one_declaration_of_keys_used_by_node_and_launcher(tmp_path):
     assert (node.inputs, node.outputs) == _Configured.io_keys(cfg) == (("sonar_seaking", "depth_sensor"),
                                                                         ("configured/out",))
     # the launcher wires the configured key: a recording with sonar_seaking only plans without error
+    import numpy as np
+
     from common.mcap_io import RecordingWriter
     from common.messages import Header, Image, RangeImageBeam
-    import numpy as np
     rec = tmp_path / "seaking.mcap"
     with RecordingWriter(rec) as w:
         w.write("camera/image_raw", Image(header=Header(seq=0, stamp=1), height=1, width=1, encoding="mono8",

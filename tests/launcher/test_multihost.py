@@ -15,8 +15,8 @@ import uuid
 
 import pytest
 
-from tests.conftest import REPO
 from tests.common.recordings import six_stream_recording
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -11,8 +11,8 @@ import pytest
 from common.config import ConfigError, PoseidonConfig, load_config
 from common.mcap_io import read_messages
 from launcher.run import RunFailed, ServiceStartError, run_embedded
-from tests.conftest import REPO
 from tests.common.recordings import six_stream_recording
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -22,8 +22,8 @@ from common.ordering import EventTimeMerger
 from common.resume import load_checkpoint, save_checkpoint
 from launcher.services import build_node
 from missions.sim.cli import main as sim_main
-from tests.conftest import REPO
 from tests.common.recordings import payloads_by_key
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(900)
 

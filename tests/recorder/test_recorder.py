@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from common.bus import Bus, open_hub, open_local_session
@@ -22,8 +23,8 @@ from common.ordering import END_OF_TIME
 from common.resume import Supervision, load_checkpoint
 from services.player.player import Player
 from services.recorder.recorder import Recorder
-from tests.conftest import REPO
 from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording
+from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(180)
 CLI = [sys.executable, "-m", "launcher.cli"]
@@ -193,7 +194,7 @@ def test_recorder_killed_with_sigkill_keeps_flushed_chunks(tmp_path):
     assert len(recovered) >= total * 0.9, (len(recovered), total)
     for r in recovered:
         assert r.payload in sent[r.key]
-    with pytest.raises(Exception):  # no summary: the standard reader cannot open it as it is
+    with pytest.raises(McapError):  # no summary: the standard reader cannot open it as it is
         _standard_reader_count(out)
     info = subprocess.run(CLI + ["info", str(out)], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert info.returncode == 1 and "--recover" in info.stderr

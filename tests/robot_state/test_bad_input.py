@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
 from common.config import load_config
 from common.node import run_offline
 from services.robot_state.node import RobotStateNode
-from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 U = 0.5  # m/s forward, heading 0 -> north
@@ -220,8 +220,9 @@ def test_enu_covariance_is_the_ned_one_remapped():
 
 def test_output_watermark_is_a_promise():
     """Live use: after output_watermark(W) returned w, no later output is stamped below w."""
-    from common.ordering import EventTimeMerger
     from synth import odom
+
+    from common.ordering import EventTimeMerger
 
     msgs = _straight(10.0) + [("odometry", odom(T0 + k * NS // 4, k, [0.0, 0.0, 0.0])) for k in range(40)]
     node = RobotStateNode(load_config())

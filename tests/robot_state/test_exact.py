@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
+from synth import mission, odometry_positions
 
 from common.config import load_config
-from common.node import run_offline
 from common.geometry import OutputFrame, matrix_to_euler, quaternion_to_matrix
+from common.node import run_offline
 from services.robot_state.node import RobotStateNode
-from synth import mission, odometry_positions
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 

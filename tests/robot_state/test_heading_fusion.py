@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
+from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
 from common.config import load_config
 from common.node import run_offline
 from services.robot_state.filter import B_DVL, D_IMU
 from services.robot_state.node import RobotStateNode
-from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 

@@ -121,7 +121,7 @@ class Browser:
         os.close(self._from_child_r)
         self._stderr.close()
 
-    def __enter__(self) -> "Browser":
+    def __enter__(self) -> Browser:
         return self
 
     def __exit__(self, *exc: object) -> None:

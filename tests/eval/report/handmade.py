@@ -19,8 +19,20 @@ import numpy as np
 
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceMap, ExperienceNode, Header,
-                             LocalViewCell, LocalViewCells, NeocortexSdr, Odometry, RevisitTruth, Sdr)
+from common.messages import (
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceLink,
+    ExperienceMap,
+    ExperienceNode,
+    Header,
+    LocalViewCell,
+    LocalViewCells,
+    NeocortexSdr,
+    Odometry,
+    RevisitTruth,
+    Sdr,
+)
 
 SIDE_M = 20.0
 PLACE_M = 2.0

@@ -14,9 +14,9 @@ from PIL import Image
 
 from common.mcap_io import RecordingWriter
 from common.messages import ExperienceLink, ExperienceMap, ExperienceNode, Header, LaserScan, Odometry
-from eval.trajectory import PoseSeries
 from eval.report.benchmark import _world_points, raster_png, relations_table, scan_endpoints
 from eval.report.cli import main as report_main
+from eval.trajectory import PoseSeries
 
 NS = 1_000_000_000
 T0 = 1_000 * NS
