@@ -200,6 +200,18 @@ class HtmConfig(_Section):
                                   "the square of its active columns")
     sv_tm_share: float = Field(0.2, ge=0, le=1, description="share of a frame's active columns the TM must have "
                                "predicted in the context of one stored frame for a TM decision")
+    sv_seqmem_override: bool = Field(False, description="a sequence match (or TM decision) overrides an Eq. 4.9 "
+                                     "match whose LVC was created by a recent frame of the current traversal "
+                                     "(no sequence candidate): the revisit is taken over the pass's own new id")
+    sv_seqmem_min_f1: float = Field(0.0, ge=0, le=1, description="a sequence match also needs the frame's own F1 "
+                                    "with the stored frame j* where the diagonal ends >= this (0: off)")
+    sv_seqmem_f1_quantile: float = Field(0.0, ge=0, le=1, description="self-calibrated F1 check (services/htm/"
+                                         "calibrate.py): a sequence match needs F1(D_t, D_j*) >= this quantile of "
+                                         "the F1 of the traversal's confident sequence matches so far (0: off)")
+    sv_seqmem_confident_margin: float = Field(1.75, ge=0, description="margin S* - S_2 (z units) of a confident "
+                                              "sequence match (the calibration sample; the gate until it is warm)")
+    sv_seqmem_calib_warmup: int = Field(20, ge=1, description="confident matches the self-calibrated F1 check needs "
+                                        "before it replaces the confident margin")
     sv_seqmem_column_norm: bool = Field(True, description="normalise each stored frame's similarity by its running "
                                         "mean/std over the current traversal before the per-frame z-score")
 

@@ -72,7 +72,10 @@ argmax, correct iff it is in the query's ground truth):
   (the configured ``htm`` section with the chain's overrides), run on the same SDRs in the
   same run, printed beside the default (``--no-chains`` skips them): ``sdr_seqmem`` is the
   fused-SDR chain with the sequence memory (no SP, no TM), ``sp_tm`` the spatial pooler +
-  temporal memory chain (the TM's predictions decide revisits, :mod:`services.htm.tm_match`).
+  temporal memory chain (the TM's predictions decide revisits, :mod:`services.htm.tm_match`),
+  ``sdr_seqmem_f1`` / ``sdr_seqmem_cal`` the fused-SDR chain whose sequence match also checks
+  the frame's own F1 with the matched frame against a constant / a self-calibrated level
+  (:mod:`services.htm.calibrate`) and may override an Eq. 4.9 match to a recent id.
 
 Decisions (``decisions``: counts per rule of how a frame got its id, :func:`decision_kind`):
 ``gate`` Eq. 4.9 on l*, ``tm`` the TM's predictions, ``seqmem`` the sequence memory,
@@ -95,7 +98,8 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
      "sdr_bits": .., "sdr_length": .., "ground_truth": "file name +-N" | "<gt file>",
      "sdr_overlap": {"same_place": .., "different_place": ..},   # mean |A_q & A_r| / 2k (random: s = 0.25)
      "n_lvc": .., "htm_query_matched": .., "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..},
-     "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "sp_tm": {...}},
+     "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "sp_tm": {...},
+                "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...}},
      "seconds": {"embed": .., "htm": ..}}   # htm: the default and the chains
 
 and with ``--mission``::
@@ -107,11 +111,13 @@ and with ``--mission``::
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
      "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
      "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
-     "chains": {"sdr_seqmem": {<the LVC figures above>}, "sp_tm": {...}},   # without --no-htm / --no-chains
+     "chains": {"sdr_seqmem": {<the LVC figures above>}, "sp_tm": {...}, "sdr_seqmem_f1": {...},
+                "sdr_seqmem_cal": {...}},   # without --no-htm / --no-chains
      "lvc_run_length": {"median": .., "mean": .., "frames_in_runs_ge3": ..},  # runs of identical consecutive ids
      "modalities": {"fused_<fusion_mode>": {...}, "camera": {...}, "sonar": {...}},  # without --no-htm
      "matchers": {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized", "lsbh_overlap",
-                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "sp_tm": {...}},
+                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "sp_tm", "sdr_seqmem_f1",
+                  "sdr_seqmem_cal": {...}},
      "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).
@@ -663,7 +669,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
     ap.add_argument("--no-chains", action="store_true",
-                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, sp_tm) beside the default")
+                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, sp_tm, sdr_seqmem_f1, "
+                         "sdr_seqmem_cal) beside the default")
     ap.add_argument("--htm-query-learning", action="store_true",
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
     ap.add_argument("--save-norm", default=None, metavar="FILE.npz",

@@ -44,6 +44,19 @@ vote for the stored frames where they won, and when the best frame's votes are >
 match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp_overlap_norm_steps`` N > 0 makes the SP
 rank standardised overlaps (:mod:`services.htm.spatial_pooler`).  The named chains that use
 them are in :mod:`services.htm.chains`.
+Sequence-match checks (ours, issue 17; off by default, used by the ``sdr_seqmem_f1`` /
+``sdr_seqmem_cal`` chains): ``sv_seqmem_override`` -- an Eq. 4.9 match whose l* was created
+by a frame that is no sequence candidate (the current traversal's last ``sv_seqmem_exclude``
+frames: the pass's own new id, no revisit) yields to a sequence (or TM) decision, so a revisit
+the sequence memory recognises a few frames late takes over the new ids its first frames made;
+``sv_seqmem_min_f1`` -- the sequence match (the margin gate above, which replaces nothing of
+Eqs. 4.6-4.10) also needs the frame's own F1(D_t, D_j*) (the F1 of the Eq. 4.9 gate, at the
+stored frame j* where the diagonal ends) >= a constant; ``sv_seqmem_f1_quantile`` q > 0 -- the
+self-calibrated form: F1(D_t, D_j*) >= the q-quantile of F1(D_t', D_j*') over the traversal's
+*confident* sequence matches t' so far (margin >= ``sv_seqmem_confident_margin``; until
+``sv_seqmem_calib_warmup`` of them the confident margin is required instead), read from the
+traversal itself (:mod:`services.htm.calibrate`): a level shift of every F1 moves the threshold
+with it.  The calibration sample restarts with ``reset_sequence()`` and is saved with the state.
 ``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
 ``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
@@ -58,6 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from common.config import HtmConfig
+from services.htm.calibrate import RunningQuantile
 from services.htm.descriptor import DescriptorBuilder
 from services.htm.lvc import LvcMatcher, LvcResult, overlap_scores
 from services.htm.sequence import SequenceMatcher, SequenceScore
@@ -170,6 +184,8 @@ class NeocortexHtm:
         self.last_tm_hits = np.zeros(0, np.int64)
         self.last_tm_columns = 0
         self.steps = 0
+        self.seq_calib = RunningQuantile(cfg.sv_seqmem_calib_warmup)  # own F1 of the confident sequence matches
+        self.lvc_birth: list[int] = []       # memory index of the frame that created each LVC (with the sequence memory)
         self.successors: dict[int, set[int]] = {}
         self.last_id = -1
         self.last_columns = np.zeros(0, np.int32)
@@ -259,12 +275,18 @@ class NeocortexHtm:
         seq = self.seqmem.score(d) if self.seqmem is not None else None
         tmv = self._tm_vote() if self.tm_index is not None else None
         res = self._decide(d, veto, seq, store, tmv)
+        if self.cfg.sv_seqmem_f1_quantile > 0 and seq is not None and seq.frame >= 0 \
+                and seq.score >= self.cfg.sv_seqmem_threshold \
+                and seq.score - seq.second >= self.cfg.sv_seqmem_confident_margin:
+            self.seq_calib.add(seq.f1)
         if store:
             if mm is not None and res.is_new:
                 mm.store(res.lvc_id, modalities)
             if self.last_id >= 0 and res.lvc_id != self.last_id:
                 self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
             if self.seqmem is not None:
+                if res.is_new:
+                    self.lvc_birth.append(self.seqmem.size)
                 self.seqmem.add(d, res.lvc_id)
             if self.tm_index is not None:
                 self.tm_index.add(self.tm.winner_cells)
@@ -292,7 +314,8 @@ class NeocortexHtm:
                                          "seq_margin": seq.score - seq.second}
         if tmv is not None:
             extra.update(tm_frame=tmv[0], tm_share=tmv[1])
-        if best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best)):
+        gate = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best))
+        if gate and not (self.cfg.sv_seqmem_override and self._recent(best)):
             return LvcResult(best, rate, False, i, best, rate, i, n, **extra)
         if tmv is not None and tmv[0] >= 0 and tmv[1] >= self.cfg.sv_tm_share:
             lid = self.frame_ids[tmv[0]]
@@ -300,8 +323,10 @@ class NeocortexHtm:
                 it = int(np.intersect1d(d, self.lvc.prototype(lid), assume_unique=True).size)
                 return LvcResult(lid, it / n if n else 0.0, False, it, best, rate, i, n, by_tm=True, **extra)
         sm = self._sequence_match(d, seq, veto)
-        if sm is not None:
+        if sm is not None and not (gate and sm[0] == best):
             return LvcResult(sm[0], sm[1], False, sm[2], best, rate, i, n, by_sequence=True, **extra)
+        if gate:
+            return LvcResult(best, rate, False, i, best, rate, i, n, **extra)
         if self.cfg.sv_seq_match_threshold > 0:
             pm = self._predicted_match(d, veto)
             if pm is not None:
@@ -311,12 +336,26 @@ class NeocortexHtm:
             return LvcResult(new_id, 1.0 if n else 0.0, True, 0, best, rate, i, n, **extra)
         return LvcResult(-1, 0.0, False, 0, best, rate, i, n, **extra)
 
+    def _recent(self, lvc_id: int) -> bool:
+        """True when LVC ``lvc_id`` was created by a frame that is no sequence candidate (stored in the
+        last ``sv_seqmem_exclude`` steps of the current traversal): its match is no revisit."""
+        if self.seqmem is None or lvc_id >= len(self.lvc_birth):
+            return False
+        return self.lvc_birth[lvc_id] >= self.seqmem.candidates()
+
     def _sequence_match(self, d: np.ndarray, seq: SequenceScore | None, veto) -> tuple[int, float, int] | None:
         """(id, R, I) of the sequence match when S* and its margin pass the gates, else None."""
         cfg = self.cfg
         if seq is None or seq.frame < 0 or seq.score < cfg.sv_seqmem_threshold \
-                or seq.score - seq.second < cfg.sv_seqmem_margin:
+                or seq.score - seq.second < cfg.sv_seqmem_margin or seq.f1 < cfg.sv_seqmem_min_f1:
             return None
+        if cfg.sv_seqmem_f1_quantile > 0:
+            q = self.seq_calib.quantile(cfg.sv_seqmem_f1_quantile)
+            if q is None:       # calibration not yet warm: the margin alone, at the confident level
+                if seq.score - seq.second < cfg.sv_seqmem_confident_margin:
+                    return None
+            elif seq.f1 < q:
+                return None
         lid = int(self.seqmem.ids[seq.frame])
         if lid < 0 or (veto and veto(lid)):
             return None
@@ -354,6 +393,7 @@ class NeocortexHtm:
         self.descriptor.reset()
         if self.seqmem is not None:
             self.seqmem.reset()
+        self.seq_calib.reset()
         if self.tm_index is not None:
             self.tm_traversal_start = self.tm_index.size
         self.last_tm_hits = np.zeros(0, np.int64)
@@ -365,7 +405,8 @@ class NeocortexHtm:
         path = Path(path)
         arrays: dict[str, np.ndarray] = {}
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
-                             ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index)):
+                             ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index),
+                             ("seqcalib", self.seq_calib)):
             if part is not None:
                 for k, v in part.state().items():
                     arrays[f"{prefix}.{k}"] = v
@@ -405,11 +446,19 @@ class NeocortexHtm:
             if getattr(self.cfg, k) != v:
                 raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {getattr(self.cfg, k)!r}")
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
-                             ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index)):
+                             ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index),
+                             ("seqcalib", self.seq_calib)):
             if part is not None:
                 pre = prefix + "."
                 part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})
         self.steps = int(meta["steps"])
+        self.lvc_birth = []
+        if self.seqmem is not None:     # the creating frame of each id: its first frame in the memory
+            seen: set[int] = set()
+            for j, lid in enumerate(self.seqmem.ids[:self.seqmem.size].tolist()):
+                if lid >= 0 and lid not in seen:
+                    seen.add(lid)
+                    self.lvc_birth.append(j)
         self.successors = {}
         for a, b in data.get("seq.pairs", np.zeros((0, 2), np.int64)).tolist():
             self.successors.setdefault(int(a), set()).add(int(b))

@@ -25,7 +25,9 @@ first visit in order.  :class:`SequenceMatcher` keeps every stored frame's descr
 
 ``score(D_t)`` does 1-3 and returns (j*, S*, S_2): the best ending frame, its score and the
 best score ending outside ``j* +- K`` (uniqueness, as in SeqSLAM; 0, the mean of a z-score,
-when there is none; (-1, 0, 0) without candidates).  ``add(D_t, lvc_id)``
+when there is none; (-1, 0, 0) without candidates), with the frame's own F1 s_t(j*) and
+s_t(j2) at the end j2 of that runner-up (``f1``, ``f1_second``: the null sample of the
+self-calibrated F1 check, :mod:`services.htm.calibrate`).  ``add(D_t, lvc_id)``
 appends the frame to the memory.  Everything is causal: the frame t only uses frames up to t.
 """
 from __future__ import annotations
@@ -119,13 +121,16 @@ def _diagonals(hist, hist_len, head, n_hist, nc, length, offsets, acc, out):
 class SequenceScore:
     """Outcome of :meth:`SequenceMatcher.score`: best ending frame, its score, the runner-up."""
 
-    __slots__ = ("frame", "score", "second", "last")
+    __slots__ = ("frame", "score", "second", "last", "f1", "f1_second")
 
-    def __init__(self, frame: int, score: float, second: float, last: float = 0.0):
+    def __init__(self, frame: int, score: float, second: float, last: float = 0.0, f1: float = 0.0,
+                 f1_second: float = -1.0):
         self.frame = frame      # memory index j* (-1: no candidate)
         self.score = score      # S*(j*), z units
         self.second = second    # best S outside j* +- K (0: none)
         self.last = last        # the current frame's own normalised similarity z_t(j*)
+        self.f1 = f1            # the current frame's own F1 with frame j*: s_t(j*)
+        self.f1_second = f1_second  # s_t(j2), j2 the end of the best diagonal outside j* +- K (-1: none)
 
     def __repr__(self) -> str:
         return f"SequenceScore(frame={self.frame}, score={self.score:.3f}, second={self.second:.3f})"
@@ -217,8 +222,13 @@ class SequenceMatcher:
                    np.empty(nc, np.float64), out)
         j = int(np.argmax(out))
         lo, hi = max(0, j - self.length), min(nc, j + self.length + 1)
-        rest = np.concatenate([out[:lo], out[hi:]])
-        return SequenceScore(j, float(out[j]), float(rest.max()) if rest.size else 0.0, float(row[j]))
+        best = float(out[j])
+        second, f1_second = 0.0, -1.0
+        if lo > 0 or hi < nc:
+            out[lo:hi] = -np.inf
+            j2 = int(np.argmax(out))
+            second, f1_second = float(out[j2]), float(s[j2])
+        return SequenceScore(j, best, second, float(row[j]), float(s[j]), f1_second)
 
     def add(self, d: np.ndarray, lvc_id: int) -> int:
         """Append a frame with its LVC id to the memory; returns its memory index."""

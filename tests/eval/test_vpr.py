@@ -85,9 +85,9 @@ def test_main_synthetic_json(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "lsbh_overlap", "htm_lvc",
-                                    "htm_descriptor", "sdr_seqmem", "sp_tm"}
+                                    "htm_descriptor", "sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
     # the named chains run beside the default, with how each query got its id
-    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm"}
+    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
     for c in list(out["chains"].values()) + [out]:
         assert set(c["decisions"]) == {"gate", "tm", "seqmem", "prior", "new"}
         assert sum(c["decisions"].values()) == 6
@@ -160,9 +160,9 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
     assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized",
                                     "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor",
-                                    "sdr_seqmem", "sp_tm"}
+                                    "sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
     # the named chains beside the default: the same LVC figures, SP columns and the TM's share of decisions
-    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm"}
+    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
     assert out["chains"]["sp_tm"]["sp_columns_used"] > 0 and out["chains"]["sdr_seqmem"]["sp_columns_used"] == 0
     for c in list(out["chains"].values()) + [out]:
         assert sum(c["decisions"].values()) == 119 and 0 <= c["tm_decision_share"] <= 1
