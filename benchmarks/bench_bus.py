@@ -30,9 +30,9 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.bus import Bus, open_hub, open_local_session, zenoh_config  # noqa: E402
-from common.codec import decode_frame  # noqa: E402
-from common.messages import Header, Image, Sdr  # noqa: E402
+from common.bus import Bus, open_hub, open_local_session, zenoh_config
+from common.codec import decode_frame
+from common.messages import Header, Image, Sdr
 
 SIZES = {"100B": 100, "330KB": 288 * 384 * 3}
 
@@ -170,10 +170,10 @@ def main() -> int:
                 for kind in ("raw", "ours"):
                     res[kind] = {"burst": run_case(mode, kind, size_name, n_burst, 0.0, endpoint),
                                  "paced": run_case(mode, kind, size_name, n_lat, pace, endpoint)}
-                for label, phase, field, unit in (("msgs/s", "burst", "msgs_per_s", ""),
-                                                  ("MB/s", "burst", "mb_per_s", ""),
-                                                  ("p50 us", "paced", "p50_us", ""),
-                                                  ("p99 us", "paced", "p99_us", "")):
+                for label, phase, field in (("msgs/s", "burst", "msgs_per_s"),
+                                            ("MB/s", "burst", "mb_per_s"),
+                                            ("p50 us", "paced", "p50_us"),
+                                            ("p99 us", "paced", "p99_us")):
                     o, r = res["ours"][phase][field], res["raw"][phase][field]
                     print(f"{mode:<14}{size_name:<7}{label:<12}{o:>12.1f}{r:>12.1f}{o / r:>10.2f}")
                 for kind in ("raw", "ours"):

@@ -129,8 +129,10 @@ def run(n_nodes: int, measure: int) -> dict:
         if res.loop_closed:
             src, dst, delta, w = edge_arrays(em)
         else:
-            src = np.append(src, n - 2); dst = np.append(dst, n - 1)
-            delta = np.vstack([delta, em.deltas[n - 1]]); w = np.append(w, 1.0)
+            src = np.append(src, n - 2)
+            dst = np.append(dst, n - 1)
+            delta = np.vstack([delta, em.deltas[n - 1]])
+            w = np.append(w, 1.0)
         t = time.perf_counter()
         ratslam_sweep(sweep_pos, src, dst, delta)
         sweep_s += time.perf_counter() - t

@@ -32,12 +32,11 @@ import queue
 import struct
 import threading
 import time
+from collections import deque
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 import zenoh
-
-from collections import deque
 
 from common.codec import ENCODED_EOS, encode, encode_replay_start, encode_sequenced, encode_watermark
 from common.messages import Message
@@ -350,7 +349,7 @@ class Bus:
     def publisher(self, key: str, retain: bool = False) -> BusPublisher:
         return BusPublisher(self.session, self.full_key(key), retain=retain)
 
-    def subscribe(self, key: str, sink: "queue.SimpleQueue[tuple[str, bytes]]") -> None:
+    def subscribe(self, key: str, sink: queue.SimpleQueue[tuple[str, bytes]]) -> None:
         """Deliver ``(relative key, frame bytes)`` of ``key`` (wildcards allowed) into ``sink``.
 
         The callback never blocks (see the module notes on flow control).
@@ -372,10 +371,10 @@ class Bus:
             callback(self.relative_key(str(sample.key_expr)), sample.payload.to_bytes())
         self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
 
-    def progress_publisher(self, service: str) -> "ProgressReporter":
+    def progress_publisher(self, service: str) -> ProgressReporter:
         return ProgressReporter(self.session, self.full_key(f"{PROGRESS}/{service}"))
 
-    def watch_progress(self) -> "ProgressWatcher":
+    def watch_progress(self) -> ProgressWatcher:
         watcher = ProgressWatcher()
         prefix = self.full_key(PROGRESS) + "/"
 

@@ -204,7 +204,7 @@ class HtmConfig(_Section):
                                         "mean/std over the current traversal before the per-frame z-score")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "HtmConfig":
+    def _consistent(self) -> HtmConfig:
         _check(self.sp_numActiveColumns <= self.sp_columns,
                f"htm.sp_numActiveColumns ({self.sp_numActiveColumns}) must be <= htm.sp_columns ({self.sp_columns})")
         _check(self.tm_minThreshold <= self.tm_activationThreshold,
@@ -268,7 +268,7 @@ class RobotStateConfig(_Section):
                                      "heading beyond it is rejected, an IMU yaw beyond it resets the yaw; 0: off")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "RobotStateConfig":
+    def _consistent(self) -> RobotStateConfig:
         _check(sorted(self.axis_remap) == ["x", "y", "z"],
                f"robot_state.axis_remap {self.axis_remap!r} must be a permutation of xyz (e.g. yxz)")
         _check(self.axis_sign_z in (-1.0, 1.0), f"robot_state.axis_sign_z must be 1 or -1, got {self.axis_sign_z}")
@@ -329,7 +329,7 @@ class PoseCellsConfig(_Section):
                             "and save at end (empty: off)")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "PoseCellsConfig":
+    def _consistent(self) -> PoseCellsConfig:
         cells = 1
         for n in self.number_of_neurons:
             cells *= n
@@ -351,7 +351,7 @@ class VprGuardConfig(_Section):
                                       "passes the motion gate (ours; 0: off, the dissertation's gate)")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "VprGuardConfig":
+    def _consistent(self) -> VprGuardConfig:
         _check(self.vpr_min_rep <= self.vpr_window,
                f"vpr_guard.vpr_min_rep ({self.vpr_min_rep}) must be <= vpr_guard.vpr_window ({self.vpr_window})")
         return self

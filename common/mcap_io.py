@@ -30,16 +30,18 @@ import os
 import struct
 import subprocess
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any
 
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import _chunks_matching_topics, make_reader
-from mcap.records import Channel, Chunk, Message as McapMessage, MessageIndex, Metadata, Schema
+from mcap.records import Channel, Chunk, MessageIndex, Metadata, Schema
+from mcap.records import Message as McapMessage
 from mcap.stream_reader import CRCValidationError, StreamReader
 from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
@@ -211,7 +213,7 @@ class RecordingWriter:
         self._writer.finish()
         self._file.close()
 
-    def __enter__(self) -> "RecordingWriter":
+    def __enter__(self) -> RecordingWriter:
         return self
 
     def __exit__(self, *exc: object) -> None:

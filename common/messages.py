@@ -125,7 +125,7 @@ class Image(Message):
     data: NDArray
 
     @model_validator(mode="after")
-    def _data_matches_header(self) -> "Image":
+    def _data_matches_header(self) -> Image:
         """``data`` must be (height, width[, channels]) of the dtype and channel count of ``encoding``."""
         d = self.data
         _require(d.ndim in (2, 3), f"data must be (height, width[, channels]), got shape {d.shape}")
@@ -150,7 +150,7 @@ class RangeImageBeam(Message):
     beam_data: NDArray = Field(description="int32 echo intensities, nbins long")
 
     @model_validator(mode="after")
-    def _nbins_matches_data(self) -> "RangeImageBeam":
+    def _nbins_matches_data(self) -> RangeImageBeam:
         _require(self.beam_data.ndim == 1, f"beam_data must be one-dimensional, got shape {self.beam_data.shape}")
         _require(len(self.beam_data) == self.nbins,
                  f"nbins {self.nbins} contradicts beam_data of {len(self.beam_data)} values")
@@ -172,7 +172,7 @@ class LaserScan(Message):
     intensities: NDArray
 
     @model_validator(mode="after")
-    def _arrays_agree(self) -> "LaserScan":
+    def _arrays_agree(self) -> LaserScan:
         """ranges 1-D; intensities empty or one per range; the angle span not reversed."""
         _require(self.ranges.ndim == 1, f"ranges must be one-dimensional, got shape {self.ranges.shape}")
         _require(self.intensities.ndim == 1, f"intensities must be one-dimensional, got shape {self.intensities.shape}")
@@ -283,7 +283,7 @@ class Sdr(Message):
     active: NDArray = Field(description="uint32 sorted active indices")
 
     @model_validator(mode="after")
-    def _active_within_size(self) -> "Sdr":
+    def _active_within_size(self) -> Sdr:
         """Active indices: integers, strictly increasing (sorted, no repeats), in [0, size)."""
         a = self.active
         _index_array(a, "active")
@@ -302,7 +302,7 @@ class NeocortexSdr(Message):
     fusion_mode: str
 
     @model_validator(mode="after")
-    def _one_bit_space(self) -> "NeocortexSdr":
+    def _one_bit_space(self) -> NeocortexSdr:
         sizes = {m.size for m in self.modalities}
         _require(sizes <= {self.fused.size}, f"modality SDR sizes {sorted(sizes)} differ from the fused size "
                  f"{self.fused.size}")
@@ -499,7 +499,7 @@ class RevisitTruth(Message):
     same_place: NDArray = Field(description="int32 indices of earlier frames of the same place")
 
     @model_validator(mode="after")
-    def _earlier_frames(self) -> "RevisitTruth":
+    def _earlier_frames(self) -> RevisitTruth:
         _index_array(self.same_place, "same_place")
         if len(self.same_place):
             _require(int(self.same_place.min()) >= 0 and int(self.same_place.max()) < self.frame_index,

@@ -14,7 +14,8 @@ send sorts after).  Its own stream never holds it back: a stream delivers in its
 from __future__ import annotations
 
 import heapq
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 __all__ = ["EventTimeMerger", "END_OF_TIME"]
 

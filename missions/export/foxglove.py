@@ -43,8 +43,19 @@ from typing import IO, Any
 import numpy as np
 
 from common.mcap_io import read_messages
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, Image, LaserScan, LocalViewCells, Message,
-                             NavSatFix, Odometry, PoseStamped, RangeImageBeam, RawMessage)
+from common.messages import (
+    ExperienceEvent,
+    ExperienceMap,
+    Image,
+    LaserScan,
+    LocalViewCells,
+    Message,
+    NavSatFix,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+    RawMessage,
+)
 from missions.export.ros_types import make_export_typestore, to_ros, yaw_quaternion
 from missions.export.rosbag import ExportError
 
@@ -76,10 +87,25 @@ class _Pb:
     """The foxglove protobuf classes used here (imported lazily)."""
 
     def __init__(self) -> None:
-        from foxglove_schemas_protobuf import (Color_pb2, LaserScan_pb2, LinePrimitive_pb2, LocationFix_pb2, Log_pb2,
-                                               PackedElementField_pb2, Point3_pb2, Pose_pb2, PoseInFrame_pb2,
-                                               PosesInFrame_pb2, PointCloud_pb2, Quaternion_pb2, RawImage_pb2,
-                                               SceneEntity_pb2, SceneUpdate_pb2, SpherePrimitive_pb2, Vector3_pb2)
+        from foxglove_schemas_protobuf import (
+            Color_pb2,
+            LaserScan_pb2,
+            LinePrimitive_pb2,
+            LocationFix_pb2,
+            Log_pb2,
+            PackedElementField_pb2,
+            Point3_pb2,
+            PointCloud_pb2,
+            Pose_pb2,
+            PoseInFrame_pb2,
+            PosesInFrame_pb2,
+            Quaternion_pb2,
+            RawImage_pb2,
+            SceneEntity_pb2,
+            SceneUpdate_pb2,
+            SpherePrimitive_pb2,
+            Vector3_pb2,
+        )
 
         self.RawImage = RawImage_pb2.RawImage
         self.PointCloud = PointCloud_pb2.PointCloud

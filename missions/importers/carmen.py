@@ -72,9 +72,10 @@ from __future__ import annotations
 import bz2
 import gzip
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any
 
 import numpy as np
 
@@ -132,7 +133,7 @@ def _open_text(path: Path) -> IO[str]:
         return bz2.open(path, "rt", encoding="latin-1", newline="")
     if name.endswith(".gz"):
         return gzip.open(path, "rt", encoding="latin-1", newline="")
-    return open(path, "rt", encoding="latin-1", newline="")
+    return open(path, encoding="latin-1", newline="")
 
 
 def _floats(tokens: list[str], what: str) -> np.ndarray:

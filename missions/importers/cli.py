@@ -49,8 +49,9 @@ import json
 import logging
 import struct
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import yaml
 from pydantic import ValidationError
@@ -61,9 +62,16 @@ from common.messages import RAW_KEY_PREFIX, Header, Message, RawMessage
 from missions.importers import frames as frames_mod
 from missions.importers.carmen import import_carmen, is_carmen_log
 from missions.importers.errors import InputFormatError
+from missions.importers.rosbags_io import (
+    CONVERTERS,
+    DEFAULT_TOPIC_MAP,
+    ConversionError,
+    connection_definition,
+    iter_bag,
+    normalise_type,
+    open_bags,
+)
 from missions.importers.rostopic_csv import read_rostopic_csv
-from missions.importers.rosbags_io import (CONVERTERS, DEFAULT_TOPIC_MAP, ConversionError, connection_definition,
-                                           iter_bag, normalise_type, open_bags)
 
 __all__ = ["main", "import_sources", "load_topic_map"]
 
@@ -193,7 +201,7 @@ def _bad_ros1_chunk(reader: Any, last_ns: int | None) -> tuple[str, int, int, di
     after = -1 if last_ns is None else last_ns
     best = None
     for r in getattr(reader, "readers", []):
-        for cid, entries in getattr(r, "indexes", {}).items():
+        for entries in getattr(r, "indexes", {}).values():
             e = next((x for x in entries if x.time > after), None)  # entries are sorted by time
             if e is not None and (best is None or e.time < best[1].time):
                 best = (r, e)
@@ -233,7 +241,7 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
     ros = None
     try:
         ros = reader.deserialize(bm.raw, bm.connection.msgtype)
-    except Exception as exc:  # noqa: BLE001 - rosbags raises many types on a payload that does not fit its definition
+    except Exception as exc:
         conv, why = None, f"payload does not decode against its definition: {type(exc).__name__}: {exc}"
     if conv is not None:
         h = getattr(ros, "header", None)

@@ -33,9 +33,10 @@ image right = body +y, image up = body +x, lever arm (0.4, 0, 0.2) m in body.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -43,8 +44,7 @@ from tqdm import tqdm
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
-from missions.sim.trajectory import (VehicleMotion, _smooth_noise, footprint_centres, make_trajectory,
-                                     revisits, rot_wb)
+from missions.sim.trajectory import VehicleMotion, _smooth_noise, footprint_centres, make_trajectory, revisits, rot_wb
 from missions.sim.world import World, build_world
 
 __all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "quat_from_rpy"]
@@ -345,7 +345,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
             t0, t1 = ci * p.chunk_s, min((ci + 1) * p.chunk_s, duration)
             crng = np.random.default_rng([p.seed, 404, ci])
 
-            def sel(a: np.ndarray) -> np.ndarray:
+            def sel(a: np.ndarray, t0: float = t0, t1: float = t1) -> np.ndarray:
                 return np.nonzero((a >= t0) & (a < t1))[0]
 
             _truth(out, traj, st.truth[sel(st.truth)])

@@ -371,7 +371,6 @@ def build_world(seed: int) -> World:
     route, names = _route(rng)
     pts = np.concatenate(route[:3])
     # per centre-line point: half-width, floor base depth, height (m)
-    n = pts.shape[0]
     # half-width, floor base depth and height are smooth functions of *position* (not of the
     # arc length), so they are continuous where route pieces meet (junctions, loop closures)
     px, py = pts[:, 0], pts[:, 1]

@@ -10,7 +10,7 @@ sorted uint32 arrays of active bit indices; so is the result.
 """
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 

@@ -151,7 +151,7 @@ class EmbeddingStandardizer:
         return np.stack([self.transform(r, update) for r in np.atleast_2d(y)])
 
     @classmethod
-    def fitted(cls, y: np.ndarray, scale: bool = False, path: Path | None = None) -> "EmbeddingStandardizer":
+    def fitted(cls, y: np.ndarray, scale: bool = False, path: Path | None = None) -> EmbeddingStandardizer:
         """A ``fixed`` standardiser with mu, sigma fitted on the rows of ``y`` (a reference sequence)."""
         y = np.atleast_2d(np.asarray(y, dtype=np.float64))
         st = cls(y.shape[1], "none", scale=scale, path=None)

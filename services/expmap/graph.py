@@ -381,6 +381,6 @@ class ExperienceMap:
 
     @classmethod
     def load(cls, path: str | Path, cfg: ExpMapConfig, lattice_shape: Any = (15, 15, 15, 8),
-             lattice_spacing: Any = (0.1, 0.1, 0.1)) -> "ExperienceMap":
+             lattice_spacing: Any = (0.1, 0.1, 0.1)) -> ExperienceMap:
         """Read a map written by :meth:`save`; the lattice must match the saved one."""
         return load_map(cls(cfg, lattice_shape, lattice_spacing), path)

@@ -65,8 +65,18 @@ import numpy as np
 
 from common.config import ConfigError, PoseidonConfig
 from common.geometry import quaternion_to_matrix, yaw_of_quaternion
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceNode, Header, Image,
-                             LaserScan, Odometry, PoseStamped, RangeImageBeam)
+from common.messages import (
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceLink,
+    ExperienceNode,
+    Header,
+    Image,
+    LaserScan,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+)
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
 from services.expmap.association import Association, EventImageAssociator

@@ -67,7 +67,8 @@ def relax_se2(poses: np.ndarray, ei: np.ndarray, ej: np.ndarray, z: np.ndarray, 
     if n < 2 or ei.size == 0:
         return x, 0
     it = 0
-    for it in range(1, iterations + 1):
+    for step in range(1, iterations + 1):
+        it = step
         xi, xj = x[ei], x[ej]
         c, s = np.cos(xi[:, 2]), np.sin(xi[:, 2])
         dx, dy = xj[:, 0] - xi[:, 0], xj[:, 1] - xi[:, 1]

@@ -389,7 +389,7 @@ class ScanGraph:
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: str | Path, cfg: ScanGraphConfig) -> "ScanGraph":
+    def load(cls, path: str | Path, cfg: ScanGraphConfig) -> ScanGraph:
         """Read a map written by :meth:`save`."""
         path = Path(path)
         zf, meta = read_map_file(path, "a scan-graph map")
@@ -412,8 +412,8 @@ class ScanGraph:
         g.is_loop = [bool(v) for v in zf["is_loop"]]
         g.loop_stamps = [int(v) for v in zf["loop_stamps"]]
         g._pending = [(int(r[0]), int(r[1]), r[2:].copy()) for r in zf["pending"]]
-        for i, l in enumerate(g._lvc):
-            g._lvc_index.setdefault(l, []).append(i)
+        for i, lvc in enumerate(g._lvc):
+            g._lvc_index.setdefault(lvc, []).append(i)
         g.since_loop_m = float(meta["since_loop_m"])
         g.corrections = int(meta["corrections"])
         g.solves = int(meta["solves"])

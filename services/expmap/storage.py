@@ -56,7 +56,7 @@ def read_map_file(path: Path, what: str) -> tuple[Any, dict]:
         raise ValueError(f"{path}: not {what} file ({exc})") from None
 
 
-def save_map(em: "ExperienceMap", path: str | Path) -> None:
+def save_map(em: ExperienceMap, path: str | Path) -> None:
     """Write everything needed to continue ``em`` (npz, written to a temporary name then moved)."""
     meta = {
         "format": FORMAT_VERSION, "lattice_shape": list(em.lattice_shape),
@@ -90,7 +90,7 @@ def _check_header(path: Path, meta: dict, lattice_shape: tuple, lattice_spacing:
                          f"{meta['lattice_spacing']} m, configured {list(lattice_shape)} x {list(lattice_spacing)}")
 
 
-def load_map(em: "ExperienceMap", path: str | Path) -> "ExperienceMap":
+def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     """Fill the empty map ``em`` (built with the configuration and lattice of the run) from a
     file written by :func:`save_map`; the lattice must match the saved one."""
     path = Path(path)
@@ -114,8 +114,8 @@ def load_map(em: "ExperienceMap", path: str | Path) -> "ExperienceMap":
     em.last_correction_stamp = int(meta["last_correction_stamp"])
     em.corrections = int(meta["corrections"])
     em.solves = int(meta["solves"])
-    for i, l in enumerate(em.lvc_ids.tolist()):
-        em._lvc_index.setdefault(int(l), []).append(i)
+    for i, lvc in enumerate(em.lvc_ids.tolist()):
+        em._lvc_index.setdefault(int(lvc), []).append(i)
     if "sweep_ptr" in z:                      # maps saved before sonar sweeps existed have none
         ptr, pts = z["sweep_ptr"], z["sweep_pts"]
         if len(ptr) != n + 1:

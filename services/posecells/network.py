@@ -456,7 +456,7 @@ class PoseCellNetwork:
         np.savez(Path(path), **self.state_arrays())
 
     @classmethod
-    def load(cls, path: str | Path, config: PoseCellsConfig | None = None) -> "PoseCellNetwork":
+    def load(cls, path: str | Path, config: PoseCellsConfig | None = None) -> PoseCellNetwork:
         net = cls(config)
         with np.load(Path(path)) as f:
             net.load_arrays(f, source=str(path))

@@ -8,8 +8,14 @@ import pytest
 import torch
 
 from common.config import EncoderConfig
-from services.encoder.backbones import (AlexNetConv3, ShuffleNetV2, WeightsError, build_backbone, hub_checkpoint,
-                                        load_backbone)
+from services.encoder.backbones import (
+    AlexNetConv3,
+    ShuffleNetV2,
+    WeightsError,
+    build_backbone,
+    hub_checkpoint,
+    load_backbone,
+)
 from services.encoder.encoder import MultimodalEncoder
 
 # a few names of torchvision's shufflenet_v2_x1_0 / alexnet state dicts

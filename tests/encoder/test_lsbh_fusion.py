@@ -5,8 +5,15 @@ import numpy as np
 import pytest
 
 from services.encoder.fusion import fuse
-from services.encoder.lsbh import (LsbhEncoder, LsbhError, load_or_create_projection, lsbh_bits, lsbh_k,
-                                   make_projection, projection_path)
+from services.encoder.lsbh import (
+    LsbhEncoder,
+    LsbhError,
+    load_or_create_projection,
+    lsbh_bits,
+    lsbh_k,
+    make_projection,
+    projection_path,
+)
 
 CAM_V = [0.9, -1.2, 0.1, -0.8, 2.1, -0.4, 0.7, -1.5]
 SON_V = [0.2, -0.9, 1.5, -1.1, 0.4, -0.2, 0.8, -1.7]

@@ -77,7 +77,9 @@ def test_optimum_equals_dense_weighted_least_squares():
     for s, t, d, _du, w, _l in em.edges():
         row = np.zeros(N)
         row[t], row[s] = 1.0, -1.0
-        rows.append(row); rhs.append(d); wts.append(w)
+        rows.append(row)
+        rhs.append(d)
+        wts.append(w)
     A, B, W = np.array(rows), np.array(rhs), np.sqrt(np.array(wts))[:, None]
     B = B - A[:, :1] * em.positions[0]
     x, *_ = np.linalg.lstsq(A[:, 1:] * W, B * W, rcond=None)
@@ -244,7 +246,8 @@ def test_route_length_equals_breadth_first_search():
         em.add_loop_edge(int(m), int(n), 1.0, 0)
     adj = {i: set() for i in range(300)}
     for s, t, *_ in em.edges():
-        adj[s].add(t); adj[t].add(s)
+        adj[s].add(t)
+        adj[t].add(s)
     for _ in range(40):
         a, b = (int(v) for v in rng.choice(300, 2, replace=False))
         dist, frontier = {a: 0}, [a]

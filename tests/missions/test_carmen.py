@@ -13,8 +13,7 @@ import pytest
 from common.mcap_io import read_messages, read_metadata
 from common.messages import LaserScan, Odometry
 from launcher.cli import main as poseidon
-from missions.importers.carmen import (DEFAULT_RANGE_MAX_M, flaser_geometry, import_carmen, ns_to_text,
-                                       seconds_to_ns)
+from missions.importers.carmen import DEFAULT_RANGE_MAX_M, flaser_geometry, import_carmen, ns_to_text, seconds_to_ns
 from missions.importers.cli import main as import_main
 from missions.importers.errors import InputFormatError
 

@@ -9,10 +9,31 @@ import numpy as np
 import pytest
 
 from common.mcap_io import RecordingWriter, read_messages
-from common.messages import (Depth, ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceMap, ExperienceNode,
-                             Header, Image, Imu, LaserScan, LinkquestDvl, LocalViewCell, LocalViewCells, NavSatFix,
-                             NeocortexSdr, Odometry, PoseStamped, RangeImageBeam, RawMessage, Sdr, TFMessage,
-                             TransformStamped, key_type)
+from common.messages import (
+    Depth,
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceLink,
+    ExperienceMap,
+    ExperienceNode,
+    Header,
+    Image,
+    Imu,
+    LaserScan,
+    LinkquestDvl,
+    LocalViewCell,
+    LocalViewCells,
+    NavSatFix,
+    NeocortexSdr,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+    RawMessage,
+    Sdr,
+    TFMessage,
+    TransformStamped,
+    key_type,
+)
 from missions.export.cli import main as export_main
 from missions.export.foxglove import export_foxglove
 from missions.export.rosbag import ExportError, export_rosbag
@@ -432,10 +453,10 @@ def test_topic_partly_mapped_partly_raw(tmp_path):
 
 def test_import_cli_raw_option(tmp_path, capsys):
     """--raw TOPIC carries a topic with a model raw (exact bytes), the others stay mapped."""
-    from missions.importers.cli import main as import_main
-
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
+
+    from missions.importers.cli import main as import_main
 
     st = get_typestore(Stores.ROS1_NOETIC)
     T = st.types

@@ -40,7 +40,7 @@ def test_real_ros1_bags_every_message(tmp_path, name):
     own = _bag_counts(bag)
     summary = import_sources([bag], tmp_path / "out.mcap", progress=False)
     rec = _recorded(tmp_path / "out.mcap")
-    for topic, (msgtype, count) in own.items():  # every message of every topic, mapped to a model
+    for topic, (_msgtype, count) in own.items():  # every message of every topic, mapped to a model
         assert summary["read"][topic] == count
         t = summary["topics"][topic]
         assert (t["in_source"], t["mapped"], t["raw"], t["as"]) == (count, count, 0, "mapped"), topic
@@ -72,7 +72,7 @@ def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
     rows = []
     for k in range(n):
         st = 1_372_687_208_000_000_000 + k * 100_000_000
-        h = lambda off, fr: _header(store, 10 + k, st + off, fr, ros2)  # noqa: E731
+        h = lambda off, fr, k=k, st=st: _header(store, 10 + k, st + off, fr, ros2)  # noqa: E731
         dvl = dict(errcode="ok", datagood=np.array([1, 0, 1, 1], np.int32), altitudebeam=np.array([2.0, 2.1, 2.2, 2.3]),
                    bottomvelocitybeam=np.array([0.1, 0.2, 0.3, 0.4]) * k, watervelocitybeam=np.zeros(4),
                    watervelocitycredit=np.ones(4), velocityinst=np.array([0.25, -0.1, 0.01 * k]),
@@ -123,9 +123,7 @@ def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0, mcap: bool = Fals
         store.register(get_types_from_msg("float64 value\nstring note\n", "foo_msgs/msg/Bar"))
     rows = _cala_viuda_msgs(store, ros2)
     if ros2:
-        from rosbags.rosbag2 import Writer
-
-        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import StoragePlugin, Writer
 
         writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3)
     else:
@@ -153,7 +151,7 @@ def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0, mcap: bool = Fals
 def _check_field_by_field(out: Path, rows: list, ros2: bool) -> None:
     rec = _recorded(out)
     by_key: dict[str, list] = {}
-    for topic, msgtype, stamp, msg, exp in rows:
+    for topic, _msgtype, _stamp, msg, exp in rows:
         by_key.setdefault(topic.lstrip("/"), []).append((msg, exp))
     assert set(rec) == set(by_key)
     types = {"dvl_linkquest": LinkquestDvl, "depth_sensor": Depth, "imu_adis": Imu, "sonar_micron": RangeImageBeam,

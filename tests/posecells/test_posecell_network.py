@@ -18,7 +18,10 @@ def settled(cell=(7, 7, 7, 0), updates=30, **cfg) -> PoseCellNetwork:
     return net
 
 
-def wrapped_diff(a, b, n=np.array(DIMS, dtype=float)):
+_DIMS_F = np.array(DIMS, dtype=float)
+
+
+def wrapped_diff(a, b, n=_DIMS_F):
     return (np.asarray(a) - np.asarray(b) + n / 2) % n - n / 2
 
 
