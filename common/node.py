@@ -12,7 +12,8 @@ exactly the same outputs.
 from __future__ import annotations
 
 import logging
-from typing import ClassVar, Iterable
+from collections.abc import Iterable
+from typing import ClassVar
 
 from common.config import PoseidonConfig
 from common.messages import Header, Message

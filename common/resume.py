@@ -43,9 +43,10 @@ import os
 import pickle
 import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 __all__ = ["Supervision", "SequenceGate", "LostFrames", "save_checkpoint", "load_checkpoint", "ReplayServer",
            "REPLAY", "CKPT", "checkpoint_path"]
@@ -80,7 +81,7 @@ class Supervision:
                            "recorder_checkpoint_interval_ns": self.recorder_checkpoint_interval_ns})
 
     @classmethod
-    def from_file(cls, path: str | Path, resume: bool = False) -> "Supervision":
+    def from_file(cls, path: str | Path, resume: bool = False) -> Supervision:
         try:
             d = json.loads(Path(path).read_text())
             return cls(Path(d["state_dir"]), {k: list(v) for k, v in d["consumers"].items()},

@@ -32,11 +32,19 @@ from dataclasses import dataclass, field
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
-from common.node import ServiceNode
 from common.messages import Message
+from common.node import ServiceNode
 from common.ordering import END_OF_TIME, EventTimeMerger
-from common.resume import (ReplayServer, SequenceGate, Supervision, checkpoint_path, load_checkpoint,
-                           report_checkpoint, request_replays, save_checkpoint)
+from common.resume import (
+    ReplayServer,
+    SequenceGate,
+    Supervision,
+    checkpoint_path,
+    load_checkpoint,
+    report_checkpoint,
+    request_replays,
+    save_checkpoint,
+)
 
 __all__ = ["NodeRunner", "RunnerStats", "ServiceError"]
 

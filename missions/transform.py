@@ -116,7 +116,8 @@ def _gauss_blur(f: np.ndarray, sigma: float) -> np.ndarray:
     g = sum(k[i] * g[i:i + f.shape[0]] for i in range(2 * r + 1))
     pad = [(0, 0), (r, r)] + ([(0, 0)] if f.ndim == 3 else [])
     g2 = np.pad(g, pad, mode="edge")
-    return sum(k[i] * g2[:, i:i + f.shape[1]] for i in range(2 * r + 1))
+    out: np.ndarray = sum(k[i] * g2[:, i:i + f.shape[1]] for i in range(2 * r + 1))
+    return out
 
 
 def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) -> tuple[np.ndarray, dict[str, float]]:
@@ -174,6 +175,8 @@ def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) ->
         frac = float(rng.uniform(0.3, 1.0) * p.occlusion)
         rad = math.sqrt(frac * w * h / math.pi)
         u, v = rng.uniform(0, w), rng.uniform(0, h)
+        if xx is None or yy is None:
+            raise RuntimeError("pixel grid missing although occlusion is on")
         mask = np.clip((rad - np.hypot(xx - u, yy - v)) / 4.0, 0.0, 1.0) * 0.85
         f = f * (1 - mask[..., None]) if f.ndim == 3 else f * (1 - mask)
         drawn["occlusion_fraction"] = frac
@@ -209,7 +212,7 @@ def default_segments(meta: dict[str, dict[str, str]], duration_s: float,
     """Source ranges from a sim recording's route segments, else duration fractions."""
     segs = json.loads(meta.get("poseidon", {}).get("segments", "null") or "null")
     if segs:
-        def first(pred: Any, after: float = -1.0) -> dict | None:
+        def first(pred: Any, after: float = -1.0) -> dict[str, Any] | None:
             return next((s for s in segs if pred(s) and s["start_s"] >= after and s["complete"]), None)
 
         entry = first(lambda s: s["name"] == "transition_2_1")
@@ -244,7 +247,7 @@ def _span(path: Path) -> tuple[int, int, bool]:
     for r in read_messages(path):
         first = r.stamp if first is None else first
         last = r.stamp
-    if first is None:
+    if first is None or last is None:
         raise RecordingError(f"{path}: no messages")
     return first, last, False
 

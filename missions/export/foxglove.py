@@ -80,7 +80,8 @@ def file_descriptor_set(desc: Any) -> bytes:
         fset.file.append(proto)
 
     add(desc.file)
-    return fset.SerializeToString()
+    data: bytes = fset.SerializeToString()
+    return data
 
 
 class _Pb:
@@ -165,7 +166,7 @@ class _FoxgloveWriter:
         c["count"] += 1
 
     def finish(self) -> None:
-        self.w.finish()
+        self.w.finish()  # type: ignore[no-untyped-call]  # mcap leaves Writer.finish() unannotated
 
 
 class FoxgloveExporter:
@@ -304,7 +305,8 @@ class FoxgloveExporter:
     def _fix(self, m: NavSatFix) -> Any:
         fix = self.pb.LocationFix(frame_id=m.header.frame_id, latitude=m.latitude, longitude=m.longitude,
                                   altitude=m.altitude, position_covariance=m.position_covariance,
-                                  position_covariance_type=m.position_covariance_type)
+                                  # the generated stub wants the enum's NewType; the runtime takes the int
+                                  position_covariance_type=m.position_covariance_type)  # type: ignore[arg-type]
         _ts(fix.timestamp, m.header.stamp)
         return fix
 

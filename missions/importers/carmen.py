@@ -494,5 +494,5 @@ def import_carmen(path: str | Path, out: str | Path) -> dict[str, Any]:
         "rejected": log.rejected, "unknown": log.unknown, "accounted": log.accounted,
         "written": dict(sorted(writer.counts.items())), "scan_geometry": _geometry(log, range_max),
         "range_max_from": range_from, "laser_offsets": offsets, "params": len(log.params),
-        "start_ns": first, "end_ns": last, "duration_s": (last - first) / 1e9 if first is not None else 0.0,
+        "start_ns": first, "end_ns": last, "duration_s": (last - first) / 1e9 if first is not None and last is not None else 0.0,
     }

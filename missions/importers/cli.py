@@ -151,7 +151,7 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
     from rosbags.rosbag2 import ReaderError as Rosbag2Error
 
     reader, info = open_bags(paths)
-    topics = {}
+    topics: dict[str, dict[str, Any]] = {}
     for c in reader.connections:
         t = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0})
         t["count"] += c.msgcount
@@ -238,7 +238,7 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
         conv, why = None, "carried raw on request (--raw)"
     else:
         why = f"no model for {bm.msgtype}"
-    ros = None
+    ros: Any = None
     try:
         ros = reader.deserialize(bm.raw, bm.connection.msgtype)
     except Exception as exc:
@@ -284,7 +284,7 @@ def _list_stream(items: list[tuple[str, Message]], order: int) -> Iterator[tuple
         yield msg.header.stamp, order, key, msg
 
 
-def _frames_stream(plan: list, order: int) -> Iterator[tuple[int, int, str, Message]]:
+def _frames_stream(plan: list[tuple[int, int, Path]], order: int) -> Iterator[tuple[int, int, str, Message]]:
     for stamp, key, img in frames_mod.iter_frames(plan):
         yield stamp, order, key, img
 
@@ -294,7 +294,7 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
                    raw_topics: set[str] | None = None) -> dict[str, Any]:
     """Import every source into one recording at ``out``; returns the summary (see module doc).
     ``raw_topics``: bag topics carried raw even when a model exists (``{"*"}``: every topic)."""
-    tm = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
+    tm: dict[str, str | None] = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
     stats = _Stats()
     bags: list[Path] = []
     streams: list[Iterator[tuple[int, int, str, Message]]] = []
@@ -360,7 +360,7 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
         "out": str(out), "inputs": stats.inputs, "read": dict(sorted(stats.read.items())),
         "written": dict(sorted(writer.counts.items())), "topics": topics, "dropped_topics": stats.dropped,
         "rejected": stats.rejected, "start_ns": first, "end_ns": last,
-        "duration_s": (last - first) / 1e9 if first is not None else 0.0,
+        "duration_s": (last - first) / 1e9 if first is not None and last is not None else 0.0,
     }
 
 

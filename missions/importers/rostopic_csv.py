@@ -147,7 +147,8 @@ def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[s
         for need in ("header.seq", "header.stamp"):
             if need not in cols:
                 raise InputFormatError(f"{p}: missing column 'field.{need}' (needed for {kind})")
-        plan: list[tuple[str, type, list[tuple[int, str]] | tuple[int, str] | None, int]] = []
+        # (field, value type, (column index, column name) of each element -- one for a scalar, length 0)
+        plan: list[tuple[str, type, list[tuple[int, str]], int]] = []
         for name, typ, length in _field_spec(model):
             if length:
                 idx = []
@@ -159,7 +160,7 @@ def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[s
                     idx.append((cols[col], header[cols[col]]))
                 plan.append((name, typ, idx, length))
             elif name in cols:
-                plan.append((name, typ, (cols[name], header[cols[name]]), 0))
+                plan.append((name, typ, [(cols[name], header[cols[name]])], 0))
             elif typ is str or not model.model_fields[name].is_required():
                 continue  # optional column (errcode, rawdata, defaulted IMU fields)
             else:
@@ -185,9 +186,9 @@ def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[s
             for name, typ, where, length in plan:
                 if length:
                     values[name] = [_number(row[i], typ, p, line, col) if typ is not str else row[i]
-                                    for i, col in where]  # type: ignore[union-attr]
+                                    for i, col in where]
                 else:
-                    i, col = where  # type: ignore[misc]
+                    i, col = where[0]
                     values[name] = row[i] if typ is str else _number(row[i], typ, p, line, col)
             try:
                 msg = model(header=Header(seq=seq, stamp=stamp, frame_id=row[i_frame] if i_frame is not None else ""),

@@ -227,7 +227,8 @@ class _Out:
         self.items: list[tuple[int, int, int, str, Any]] = []
         self.order = {k: i for i, k in enumerate(KEY_ORDER)}
 
-    def add(self, key: str, stamp: int, make: Callable[[Header], Any]) -> None:
+    def add(self, key: str, stamp: int, make: Callable[..., Any]) -> None:
+        """``make(header)`` builds the message (lambdas bind their loop values as defaults)."""
         self.items.append((stamp, self.order[key], len(self.items), key, make))
 
     def flush(self) -> None:
@@ -394,7 +395,8 @@ def _odometry_msg(h: Header, pos: np.ndarray, q: np.ndarray, vb: np.ndarray, wb:
 
 def _body_vel(s: dict[str, np.ndarray]) -> np.ndarray:
     r = rot_wb(s["rpy"][:, 0], s["rpy"][:, 1], s["rpy"][:, 2])
-    return np.einsum("nji,nj->ni", r, s["vel_w"])
+    out: np.ndarray = np.einsum("nji,nj->ni", r, s["vel_w"])
+    return out
 
 
 def _truth(out: _Out, traj: VehicleMotion, times: np.ndarray) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -57,7 +58,8 @@ def _value_noise(x: float, y: float, seed: int) -> float:
     b = _hash2(ix + 1, iy, seed)
     c = _hash2(ix, iy + 1, seed)
     d = _hash2(ix + 1, iy + 1, seed)
-    return (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * ty
+    out: float = (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * ty
+    return out
 
 
 @nb.njit(cache=True)
@@ -267,7 +269,7 @@ class World:
     tiles1: np.ndarray        # (n, TILE/4+2, TILE/4+2, 3) uint8, 4 cm texels with apron
     route: list[np.ndarray]   # centre lines: [area 1 loop, transition, area 2 loop, transition back]
     route_names: list[str]
-    features: list[dict] = field(default_factory=list)
+    features: list[dict[str, Any]] = field(default_factory=list)
     tile_origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (n, 2) world x, y of texel (0, 0)
     tile_ready: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))  # tiles generated so far
     guideline: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (m, 2) guideline points, 5 mm apart
@@ -339,7 +341,8 @@ def _bilinear_grid(g: np.ndarray, x0: float, y0: float, res: float, x: np.ndarra
 def _resample(points: np.ndarray, step: float) -> np.ndarray:
     d = np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))]
     s = np.arange(0.0, d[-1], step)
-    return np.c_[np.interp(s, d, points[:, 0]), np.interp(s, d, points[:, 1])]
+    out: np.ndarray = np.c_[np.interp(s, d, points[:, 0]), np.interp(s, d, points[:, 1])]
+    return out
 
 
 def _route(rng: np.random.Generator) -> tuple[list[np.ndarray], list[str]]:
@@ -420,7 +423,7 @@ def build_world(seed: int) -> World:
     tiles1 = np.zeros((len(origins), t1 + 2, t1 + 2, 3), np.uint8)
 
     # distinctive features along the centre line: rocks and traffic cones, plus a guideline
-    features: list[dict] = []
+    features: list[dict[str, Any]] = []
     for piece, name in zip(route[:3], names[:3]):
         m = len(piece)
         for _ in range(int(m * 0.1 / 12)):  # ~one rock every 12 m

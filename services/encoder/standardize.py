@@ -182,7 +182,8 @@ class EmbeddingStandardizer:
             return
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, **self.state())
+        # numpy's savez stub types **kwds against its allow_pickle: bool keyword
+        np.savez(tmp, **self.state())  # type: ignore[arg-type]
         tmp.replace(path)
         self._dirty = False
         log.info("encoder: embedding statistics (%d frames) saved to %s", self.count, path)

@@ -43,7 +43,7 @@ class EventImageAssociator(Generic[H, F]):
 
     @staticmethod
     def _stamp(x: Any) -> int:
-        return x.header.stamp
+        return int(x.header.stamp)
 
     def on_frame(self, frame: F) -> list[Association[H, F]]:
         """A camera frame: decides every waiting event at or before its stamp."""

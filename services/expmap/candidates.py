@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
@@ -56,7 +57,7 @@ def pc_distance_cells(a: np.ndarray, b: np.ndarray, shape: tuple[int, int, int, 
     return float(np.sqrt(np.sum(d * d)))
 
 
-def lattice_geometry(shape, spacing) -> tuple[np.ndarray, np.ndarray]:
+def lattice_geometry(shape: Sequence[int], spacing: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     cell = np.array([spacing[0], spacing[1], spacing[2], 2.0 * math.pi / shape[3]], float)
     period = np.array([shape[0] * spacing[0], shape[1] * spacing[1], shape[2] * spacing[2], 2.0 * math.pi], float)
     return period, cell

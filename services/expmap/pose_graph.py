@@ -16,6 +16,7 @@ maps keep the odometry's z.
 from __future__ import annotations
 
 import math
+from typing import overload
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,7 +25,11 @@ from scipy.sparse.linalg import splu
 __all__ = ["relax_se2", "relative_pose", "compose", "wrap_angle"]
 
 
-def wrap_angle(a):
+@overload
+def wrap_angle(a: float) -> float: ...
+@overload
+def wrap_angle(a: np.ndarray) -> np.ndarray: ...
+def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
     """Angle(s) wrapped to [-pi, pi)."""
     return (np.asarray(a) + math.pi) % (2.0 * math.pi) - math.pi
 

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -155,7 +156,8 @@ class ScanGraph:
         return self._scans[i]
 
     # ---- the event ----------------------------------------------------------------
-    def add_event(self, stamp: int, lvc_id: int, pc_centroid, odom_position, odom_yaw: float,
+    def add_event(self, stamp: int, lvc_id: int, pc_centroid: np.ndarray | Sequence[float],
+                  odom_position: np.ndarray | Sequence[float], odom_yaw: float,
                   sweep: np.ndarray | None = None) -> EventResult:
         """Add the experience of one accepted event; ``sweep``: its range scan (k x 2, m, own frame)."""
         odom = np.asarray(odom_position, np.float64)
@@ -224,7 +226,7 @@ class ScanGraph:
         self.counters["chain_scan"] += 1
         return m.pose, self._scan_info()
 
-    def _local_points(self, nodes, frame: int) -> np.ndarray | None:
+    def _local_points(self, nodes: Iterable[int], frame: int) -> np.ndarray | None:
         """Scans of ``nodes`` placed by the map, in the frame of experience ``frame``."""
         parts = []
         for k in nodes:

@@ -29,12 +29,13 @@ from __future__ import annotations
 import bisect
 import logging
 import sys
-from array import array
 import threading
 import time
+from array import array
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from tqdm import tqdm
 

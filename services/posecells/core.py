@@ -155,7 +155,9 @@ class PoseCellsCore:
         """Write the network and the core's state to ``path`` (``.npz``)."""
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "wb") as f:  # an open file keeps np.savez from appending ".npz"
-            np.savez(f, node_state=np.array(json.dumps(self.node_state())), **self.net.state_arrays())
+            # numpy's savez stub types **kwds against its allow_pickle: bool keyword
+            np.savez(f, node_state=np.array(json.dumps(self.node_state())),
+                     **self.net.state_arrays())  # type: ignore[arg-type]
 
     def load(self, path: Path) -> None:
         """Continue from a file written by :meth:`save` (same lattice)."""

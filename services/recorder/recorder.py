@@ -29,21 +29,28 @@ its checkpoint: the final file holds every message exactly once.
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
-import os
-
 from common.mcap_io import RecordingError, RecordingWriter, read_file_order
 from common.ordering import END_OF_TIME
-from common.resume import (SequenceGate, Supervision, checkpoint_path, load_checkpoint, report_checkpoint,
-                           request_replays, save_checkpoint)
+from common.resume import (
+    SequenceGate,
+    Supervision,
+    checkpoint_path,
+    load_checkpoint,
+    report_checkpoint,
+    request_replays,
+    save_checkpoint,
+)
 
 __all__ = ["Recorder", "RecorderStats"]
 
