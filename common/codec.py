@@ -22,7 +22,7 @@ else, so a receiver can count and skip a bad frame with one ``except DecodeError
 from __future__ import annotations
 
 import struct
-from typing import Any
+from typing import Any, TypeVar
 
 import msgpack
 import numpy as np
@@ -35,6 +35,8 @@ __all__ = [
     "ENCODED_EOS", "decode_frame", "Frame", "DecodeError", "encode_sequenced", "encode_replay_start",
 ]
 
+
+M = TypeVar("M", bound=Message)
 
 class DecodeError(ValueError):
     """Bytes that are not a valid message; the text says what is wrong."""
@@ -95,7 +97,7 @@ def decode_dict(data: bytes | memoryview) -> dict[str, Any]:
     return obj
 
 
-def decode(data: bytes | memoryview, cls: type[Message]) -> Message:
+def decode(data: bytes | memoryview, cls: type[M]) -> M:
     """msgpack bytes -> validated message of type ``cls``; raises DecodeError naming the field."""
     obj = decode_dict(data)
     try:

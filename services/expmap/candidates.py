@@ -17,6 +17,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 
 from common.config import ExpMapConfig
@@ -48,7 +49,7 @@ def _pc_scores(cand: np.ndarray, pc: np.ndarray, lvc: np.ndarray, q_pc: np.ndarr
 
 
 
-def pc_distance_cells(a: np.ndarray, b: np.ndarray, shape: tuple[int, int, int, int],
+def pc_distance_cells(a: npt.ArrayLike, b: npt.ArrayLike, shape: tuple[int, int, int, int],
                       spacing: tuple[float, float, float]) -> float:
     """Wrap-aware distance (lattice cells) between two pose-cell centroids [x, y, z m, yaw rad]."""
     period, cell = lattice_geometry(shape, spacing)
