@@ -115,6 +115,34 @@ def _number(text: str, typ: type, path: Path, line: int, column: str) -> Any:
     return v
 
 
+#: (field, value type, (column index, column name) of each element -- one for a scalar, length 0)
+_Column = tuple[str, type, list[tuple[int, str]], int]
+
+
+def _column_plan(p: Path, model: type[Message], cols: dict[str, int], header: list[str]) -> list[_Column]:
+    """Where each field of ``model`` is read from; raises :class:`InputFormatError` naming a
+    missing required column."""
+    plan: list[_Column] = []
+    for name, typ, length in _field_spec(model):
+        if length:
+            idx = []
+            for k in range(length):
+                col = f"{name}{k}"
+                if col not in cols:
+                    raise InputFormatError(f"{p}: missing column 'field.{col}' (case-insensitive) "
+                                           f"for {model.__name__}.{name}[{k}]")
+                idx.append((cols[col], header[cols[col]]))
+            plan.append((name, typ, idx, length))
+        elif name in cols:
+            plan.append((name, typ, [(cols[name], header[cols[name]])], 0))
+        elif typ is str or not model.model_fields[name].is_required():
+            continue  # optional column (errcode, rawdata, defaulted IMU fields)
+        else:
+            raise InputFormatError(f"{p}: missing column 'field.{name}' (case-insensitive) "
+                                   f"for {model.__name__}.{name}")
+    return plan
+
+
 def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[str, Message]]:
     """Every record of a rostopic-echo CSV log as ``(key, message)``; ``key`` = ``kind``.
 
@@ -147,25 +175,7 @@ def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[s
         for need in ("header.seq", "header.stamp"):
             if need not in cols:
                 raise InputFormatError(f"{p}: missing column 'field.{need}' (needed for {kind})")
-        # (field, value type, (column index, column name) of each element -- one for a scalar, length 0)
-        plan: list[tuple[str, type, list[tuple[int, str]], int]] = []
-        for name, typ, length in _field_spec(model):
-            if length:
-                idx = []
-                for k in range(length):
-                    col = f"{name}{k}"
-                    if col not in cols:
-                        raise InputFormatError(f"{p}: missing column 'field.{col}' (case-insensitive) "
-                                               f"for {model.__name__}.{name}[{k}]")
-                    idx.append((cols[col], header[cols[col]]))
-                plan.append((name, typ, idx, length))
-            elif name in cols:
-                plan.append((name, typ, [(cols[name], header[cols[name]])], 0))
-            elif typ is str or not model.model_fields[name].is_required():
-                continue  # optional column (errcode, rawdata, defaulted IMU fields)
-            else:
-                raise InputFormatError(f"{p}: missing column 'field.{name}' (case-insensitive) "
-                                       f"for {model.__name__}.{name}")
+        plan = _column_plan(p, model, cols, header)
         i_seq, i_stamp = cols["header.seq"], cols["header.stamp"]
         i_frame = cols.get("header.frame_id")
         out: list[tuple[str, Message]] = []

@@ -14,6 +14,7 @@ import argparse
 import json
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image as PILImage
@@ -43,6 +44,25 @@ def _polar(beams: list[tuple[float, np.ndarray]], size: int, max_range: float) -
 def _sonar_colour(v: np.ndarray) -> np.ndarray:
     t = np.clip((v - 8.0) / 183.0, 0, 1) ** 0.8  # above the noise floor
     return (np.stack([t * 255, t ** 0.6 * 220, t ** 2 * 120], axis=-1)).astype(np.uint8)
+
+
+def _top_view(seed: int, tp: np.ndarray, cones: list[dict[str, Any]], w_avail: int, size: int) -> PILImage.Image:
+    """Top view of the cave with the path ``tp`` (truth positions) and the cones, scaled to
+    fit ``w_avail`` x ``size`` pixels."""
+    world = build_world(seed)
+    free = world.free[::2, ::2]
+    tv_rgb = np.where(free[..., None], np.array([70, 90, 110], np.uint8), np.array([25, 22, 20], np.uint8))
+    tv = PILImage.fromarray(tv_rgb.astype(np.uint8))
+    tdraw = ImageDraw.Draw(tv)
+    res = world.grid_res * 2
+    pts = [((p[1] - world.grid_y0) / res, (p[0] - world.grid_x0) / res) for p in tp[::5]]
+    tdraw.line(pts, fill=(255, 220, 60), width=3)
+    for c in cones:
+        cx, cy = (c["y"] - world.grid_y0) / res, (c["x"] - world.grid_x0) / res
+        tdraw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], fill=(255, 100, 20))
+    scale = min(w_avail / tv.width, size / tv.height)
+    return tv.resize((int(tv.width * scale), int(tv.height * scale)), PILImage.Resampling.BILINEAR).transpose(
+        PILImage.Transpose.FLIP_TOP_BOTTOM)
 
 
 def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 25.0) -> Path:
@@ -104,22 +124,7 @@ def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 25.0) -> P
         img = PILImage.fromarray(_sonar_colour(ras)).resize((size, size), PILImage.Resampling.NEAREST)
         canvas.paste(img, (size, y0))
     draw.text((size + 4, y0 + 4), "SeaKing profiler: range (down, 10 m) x beams", fill=(255, 255, 255))
-    # top view of the cave with the path
-    world = build_world(seed)
-    free = world.free[::2, ::2]
-    tv_rgb = np.where(free[..., None], np.array([70, 90, 110], np.uint8), np.array([25, 22, 20], np.uint8))
-    tv = PILImage.fromarray(tv_rgb.astype(np.uint8))
-    tdraw = ImageDraw.Draw(tv)
-    res = world.grid_res * 2
-    pts = [((p[1] - world.grid_y0) / res, (p[0] - world.grid_x0) / res) for p in tp[::5]]
-    tdraw.line(pts, fill=(255, 220, 60), width=3)
-    for c in cones:
-        cx, cy = (c["y"] - world.grid_y0) / res, (c["x"] - world.grid_x0) / res
-        tdraw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], fill=(255, 100, 20))
-    w_avail = 4 * fw - 2 * size
-    scale = min(w_avail / tv.width, size / tv.height)
-    tv = tv.resize((int(tv.width * scale), int(tv.height * scale)), PILImage.Resampling.BILINEAR).transpose(
-        PILImage.Transpose.FLIP_TOP_BOTTOM)
+    tv = _top_view(seed, tp, cones, 4 * fw - 2 * size, size)
     canvas.paste(tv, (2 * size, y0 + (size - tv.height) // 2))
     draw.text((2 * size + 4, y0 + 4), "top view (north up, east right): cave, path (yellow), cones (orange)",
               fill=(255, 255, 255))
