@@ -366,6 +366,39 @@ def _route(rng: np.random.Generator) -> tuple[list[np.ndarray], list[str]]:
     return pieces, ["area1_ellipse", "transition_1_2", "area2_cave2", "transition_2_1"]
 
 
+def _features(route: list[np.ndarray], names: list[str], rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Rocks (drawn from ``rng``, ~one every 12 m) and traffic cones along the centre lines."""
+    features: list[dict[str, Any]] = []
+    for piece, name in zip(route[:3], names[:3]):
+        m = len(piece)
+        for _ in range(int(m * 0.1 / 12)):  # ~one rock every 12 m
+            k = int(rng.integers(0, m))
+            tang = piece[min(k + 1, m - 1)] - piece[max(k - 1, 0)]
+            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
+            p = piece[k] + nrm * rng.uniform(-1.2, 1.2)
+            features.append({"kind": "rock", "x": float(p[0]), "y": float(p[1]), "r": float(rng.uniform(0.15, 0.45)),
+                             "area": name})
+    for name, piece, fr in (("area1_ellipse", route[0], (0.2, 0.7)), ("transition_1_2", route[1], (0.5,)),
+                            ("area2_cave2", route[2], (0.15, 0.6, 0.85))):
+        for f in fr:
+            k = int(f * len(piece))
+            tang = piece[min(k + 1, len(piece) - 1)] - piece[max(k - 1, 0)]
+            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
+            p = piece[k] + nrm * 0.6
+            features.append({"kind": "cone", "x": float(p[0]), "y": float(p[1]), "r": 0.2, "area": name})
+    return features
+
+
+def _guideline(route: list[np.ndarray]) -> np.ndarray:
+    """A thin yellow line 0.4 m left of the centre line, through every tunnel."""
+    gl = []
+    for piece in route[:3]:
+        tang = np.gradient(piece, axis=0)
+        nrm = np.c_[-tang[:, 1], tang[:, 0]] / (np.hypot(tang[:, 0], tang[:, 1])[:, None] + 1e-9)
+        gl.append(_resample(piece + 0.4 * nrm, 0.005))
+    return np.concatenate(gl)
+
+
 @lru_cache(maxsize=2)
 def build_world(seed: int) -> World:
     """The cave for ``seed`` (deterministic; cached per process, treat as read-only); takes
@@ -423,31 +456,8 @@ def build_world(seed: int) -> World:
     tiles1 = np.zeros((len(origins), t1 + 2, t1 + 2, 3), np.uint8)
 
     # distinctive features along the centre line: rocks and traffic cones, plus a guideline
-    features: list[dict[str, Any]] = []
-    for piece, name in zip(route[:3], names[:3]):
-        m = len(piece)
-        for _ in range(int(m * 0.1 / 12)):  # ~one rock every 12 m
-            k = int(rng.integers(0, m))
-            tang = piece[min(k + 1, m - 1)] - piece[max(k - 1, 0)]
-            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
-            p = piece[k] + nrm * rng.uniform(-1.2, 1.2)
-            features.append({"kind": "rock", "x": float(p[0]), "y": float(p[1]), "r": float(rng.uniform(0.15, 0.45)),
-                             "area": name})
-    for name, piece, fr in (("area1_ellipse", route[0], (0.2, 0.7)), ("transition_1_2", route[1], (0.5,)),
-                            ("area2_cave2", route[2], (0.15, 0.6, 0.85))):
-        for f in fr:
-            k = int(f * len(piece))
-            tang = piece[min(k + 1, len(piece) - 1)] - piece[max(k - 1, 0)]
-            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
-            p = piece[k] + nrm * 0.6
-            features.append({"kind": "cone", "x": float(p[0]), "y": float(p[1]), "r": 0.2, "area": name})
-    # guideline: a thin yellow line 0.4 m left of the centre line, through every tunnel
-    gl = []
-    for piece in route[:3]:
-        tang = np.gradient(piece, axis=0)
-        nrm = np.c_[-tang[:, 1], tang[:, 0]] / (np.hypot(tang[:, 0], tang[:, 1])[:, None] + 1e-9)
-        gl.append(_resample(piece + 0.4 * nrm, 0.005))
-    guideline = np.concatenate(gl)
+    features = _features(route, names, rng)
+    guideline = _guideline(route)
     return World(seed=seed, grid_x0=gx0, grid_y0=gy0, grid_res=GRID_RES, free=free, floor=floor, ceiling=ceil,
                  tex_x0=gx0, tex_y0=gy0, tile_index=index, tiles0=tiles0, tiles1=tiles1, route=route,
                  route_names=names, features=features, tile_origins=origins,
