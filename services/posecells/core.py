@@ -114,7 +114,10 @@ class PoseCellsCore:
         """:meth:`OdometryIntegrator.update`; the first pose ever places the packet there."""
         what = self.odometry.update(position, yaw)
         if what == "first" and not self.placed:
-            pos = self.odometry.odom[0]  # type: ignore[index]
+            odom = self.odometry.odom
+            if odom is None:
+                raise RuntimeError("posecells: the first odometry pose was not kept")
+            pos = odom[0]
             self.net.reset_at_pose(pos[0], pos[1], pos[2], float(yaw))
             self.placed = True
         return what

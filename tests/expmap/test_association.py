@@ -1,10 +1,11 @@
 """EventImageAssociator driven directly with plain stand-ins for frames and event headers."""
 from types import SimpleNamespace
+from typing import Any
 
 from services.expmap.association import Association, EventImageAssociator
 
 MS = 1_000_000
-Assoc = EventImageAssociator[SimpleNamespace, SimpleNamespace]
+Assoc = EventImageAssociator[Any, SimpleNamespace]  # events: plain namespaces with a stamp
 
 
 def fr(t_ms: int, name: str = "") -> SimpleNamespace:
@@ -15,7 +16,7 @@ def ev(t_ms: int) -> SimpleNamespace:
     return SimpleNamespace(stamp=t_ms * MS)
 
 
-def names(decisions: list[Association[SimpleNamespace, SimpleNamespace]]) -> list[tuple[int, str | None, bool]]:
+def names(decisions: list[Association[Any, SimpleNamespace]]) -> list[tuple[int, str | None, bool]]:
     return [(d.header.stamp // MS, None if d.frame is None else d.frame.name, d.overflow) for d in decisions]
 
 
