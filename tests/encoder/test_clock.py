@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pytest
@@ -87,21 +88,21 @@ class StubEncoder:
     def __init__(self) -> None:
         self.batches: list[int] = []
 
-    def embed(self, images: list[np.ndarray]) -> list[np.ndarray]:
+    def embed(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
         self.batches.append(len(images))
         return [np.array([float(np.mean(im))], np.float32) for im in images]
 
-    def sdr(self, modality: str, y: np.ndarray) -> np.ndarray:
-        return np.array([int(round(1000 * float(y[0]))) + (0 if modality == "camera" else 100000)], np.uint32)
+    def sdr(self, modality: str, embedding: np.ndarray) -> np.ndarray:
+        return np.array([int(round(1000 * float(embedding[0]))) + (0 if modality == "camera" else 100000)], np.uint32)
 
-    def fuse(self, sdrs: dict[str, np.ndarray], mode: str) -> np.ndarray:
-        out: np.ndarray = np.unique(np.concatenate(list(sdrs.values())))
+    def fuse(self, sdrs: Mapping[str, np.ndarray | None], mode: str | None = None) -> np.ndarray:
+        out: np.ndarray = np.unique(np.concatenate([v for v in sdrs.values() if v is not None]))
         return out
 
 
 def test_core_batches_camera_and_due_sonar_and_reuses_the_sonar_sdr() -> None:
     enc = StubEncoder()
-    core = EncoderCore(enc, clock())          # type: ignore[arg-type]
+    core = EncoderCore(enc, clock())
     core.on_sonar(beam(0.0, 0.0))
     out = core.on_camera(frame(0.1))
     assert out is not None and set(out) == {"camera", "sonar"} and enc.batches == [2]
@@ -115,7 +116,7 @@ def test_core_batches_camera_and_due_sonar_and_reuses_the_sonar_sdr() -> None:
 
 
 def test_core_sonar_mode_ignores_frames_and_emits_on_the_sweep() -> None:
-    core = EncoderCore(StubEncoder(), clock("sonar"))   # type: ignore[arg-type]
+    core = EncoderCore(StubEncoder(), clock("sonar"))
     assert core.on_camera(frame(0.0)) is None
     outs = [core.on_sonar(beam(k * 0.05, 9.0 * k)) for k in range(81)]
     emitted = [k for k, o in enumerate(outs) if o is not None]
@@ -126,7 +127,7 @@ def test_core_sonar_mode_ignores_frames_and_emits_on_the_sweep() -> None:
 
 @pytest.mark.parametrize("mode", ["union", "and"])
 def test_core_camera_dropout_hands_the_clock_to_the_sonar(mode: str) -> None:
-    core = EncoderCore(StubEncoder(), clock(mode))   # type: ignore[arg-type]
+    core = EncoderCore(StubEncoder(), clock(mode))
     core.on_camera(frame(0.0))
     outs = [core.on_sonar(beam(0.01 + k * 0.05, 9.0 * k)) for k in range(50)]
     # the camera is stale after 0.5 s; the sweep since the frame's output reaches 360 deg at beam 40
