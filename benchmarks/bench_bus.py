@@ -24,20 +24,21 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.bus import Bus, open_hub, open_local_session, zenoh_config  # noqa: E402
-from common.codec import decode_frame  # noqa: E402
-from common.messages import Header, Image, Sdr  # noqa: E402
+from common.bus import Bus, open_hub, open_local_session, zenoh_config
+from common.codec import decode_frame
+from common.messages import Header, Image, Sdr
 
 SIZES = {"100B": 100, "330KB": 288 * 384 * 3}
 
 
-def make_message(size_name: str, stamp: int):
+def make_message(size_name: str, stamp: int) -> Sdr | Image:
     if size_name == "100B":  # an SDR with 8 active bits encodes to ~100 bytes
         return Sdr(header=Header(seq=0, stamp=stamp), modality="camera", size=2048,
                    active=np.arange(8, dtype=np.uint32))
@@ -69,7 +70,7 @@ class Sink:
             self.done.set()
 
 
-def publish(session, kind: str, size_name: str, n: int, pace_s: float) -> None:
+def publish(session: zenoh.Session, kind: str, size_name: str, n: int, pace_s: float) -> None:
     key = f"bench/{kind}/{size_name}"
     if kind == "ours":
         bus = Bus("bench", session=session)
@@ -81,18 +82,18 @@ def publish(session, kind: str, size_name: str, n: int, pace_s: float) -> None:
             if pace_s:
                 time.sleep(pace_s)
     else:
-        pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+        raw_pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
                                         reliability=zenoh.Reliability.RELIABLE)
         body = bytearray(SIZES[size_name])
         for _ in range(n):
             body[:8] = time.monotonic_ns().to_bytes(8, "little")
-            pub.put(bytes(body))
+            raw_pub.put(bytes(body))
             if pace_s:
                 time.sleep(pace_s)
-        pub.undeclare()
+        raw_pub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it unannotated
 
 
-def summarise(sink: Sink, nbytes: int) -> dict:
+def summarise(sink: Sink, nbytes: int) -> dict[str, Any]:
     lat = np.array(sink.latencies) / 1000.0
     dur = max(sink.last - sink.first, 1) / 1e9
     return {"received": len(sink.latencies), "p50_us": float(np.percentile(lat, 50)),
@@ -109,10 +110,10 @@ def subscriber_role(endpoint: str, kind: str, size_name: str, n: int) -> None:
     print(json.dumps({"ok": ok, **summarise(sink, SIZES[size_name])}))
     sys.stdout.flush()
     del sub, token
-    session.close()
+    session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it unannotated
 
 
-def wait_token(session, name: str) -> None:
+def wait_token(session: zenoh.Session, name: str) -> None:
     for _ in range(400):
         if any(r.ok for r in session.liveliness().get(f"bench/@alive/{name}", timeout=1.0)):
             return
@@ -120,7 +121,7 @@ def wait_token(session, name: str) -> None:
     raise TimeoutError(f"subscriber {name} did not come up")
 
 
-def run_case(mode: str, kind: str, size_name: str, n: int, pace_s: float, endpoint: str) -> dict:
+def run_case(mode: str, kind: str, size_name: str, n: int, pace_s: float, endpoint: str) -> dict[str, Any]:
     if mode == "in-process":
         session = open_local_session()
         sink = Sink(kind, n)
@@ -128,8 +129,8 @@ def run_case(mode: str, kind: str, size_name: str, n: int, pace_s: float, endpoi
         publish(session, kind, size_name, n, pace_s)
         sink.done.wait(timeout=120)
         out = summarise(sink, SIZES[size_name])
-        sub.undeclare()
-        session.close()
+        sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it unannotated
+        session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it unannotated
         return out
     proc = subprocess.Popen([sys.executable, __file__, "--role", "sub", "--endpoint", endpoint, "--kind", kind,
                              "--size", size_name, "-n", str(n)], stdout=subprocess.PIPE, text=True)
@@ -137,10 +138,10 @@ def run_case(mode: str, kind: str, size_name: str, n: int, pace_s: float, endpoi
     try:
         wait_token(session, f"{kind}-{size_name}")
         publish(session, kind, size_name, n, pace_s)
-        out = json.loads(proc.communicate(timeout=180)[0].strip().splitlines()[-1])
+        result: dict[str, Any] = json.loads(proc.communicate(timeout=180)[0].strip().splitlines()[-1])
     finally:
-        session.close()
-    return out
+        session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it unannotated
+    return result
 
 
 def main() -> int:
@@ -170,10 +171,10 @@ def main() -> int:
                 for kind in ("raw", "ours"):
                     res[kind] = {"burst": run_case(mode, kind, size_name, n_burst, 0.0, endpoint),
                                  "paced": run_case(mode, kind, size_name, n_lat, pace, endpoint)}
-                for label, phase, field, unit in (("msgs/s", "burst", "msgs_per_s", ""),
-                                                  ("MB/s", "burst", "mb_per_s", ""),
-                                                  ("p50 us", "paced", "p50_us", ""),
-                                                  ("p99 us", "paced", "p99_us", "")):
+                for label, phase, field in (("msgs/s", "burst", "msgs_per_s"),
+                                            ("MB/s", "burst", "mb_per_s"),
+                                            ("p50 us", "paced", "p50_us"),
+                                            ("p99 us", "paced", "p99_us")):
                     o, r = res["ours"][phase][field], res["raw"][phase][field]
                     print(f"{mode:<14}{size_name:<7}{label:<12}{o:>12.1f}{r:>12.1f}{o / r:>10.2f}")
                 for kind in ("raw", "ours"):
@@ -182,7 +183,7 @@ def main() -> int:
                         if res[kind][phase]["received"] != want:
                             print(f"  LOST: {kind} {phase} received {res[kind][phase]['received']} of {want}")
     finally:
-        hub.close()
+        hub.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it unannotated
     return 0
 
 

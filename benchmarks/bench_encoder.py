@@ -30,16 +30,16 @@ import logging
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.config import EncoderConfig  # noqa: E402
-from services.encoder.encoder import MultimodalEncoder  # noqa: E402
+from common.config import EncoderConfig
+from services.encoder.encoder import MultimodalEncoder
 
 
 def _interleaved(fns: dict[str, Callable[[], None]], repeats: int) -> dict[str, float]:

@@ -22,6 +22,8 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -33,7 +35,7 @@ SEC = 1_000_000_000
 PER_LAP = 1000
 
 
-def lap_stream(n_events: int, start: int = 0, seed: int = 0):
+def lap_stream(n_events: int, start: int = 0, seed: int = 0) -> Iterator[tuple[int, int, list[float], np.ndarray]]:
     """Events start..start+n_events-1 of the drifting circular mission (deterministic)."""
     rng = np.random.default_rng(seed + start)
     drift_rate = np.array([0.002, -0.001, 0.0002])
@@ -72,18 +74,18 @@ def ratslam_sweep(pos: np.ndarray, src: np.ndarray, dst: np.ndarray, delta: np.n
             pos[b, k] -= 0.5 * err
 
 
-def objective(pos: np.ndarray, src, dst, delta, w) -> float:
+def objective(pos: np.ndarray, src: np.ndarray, dst: np.ndarray, delta: np.ndarray, w: np.ndarray) -> float:
     r = pos[dst] - pos[src] - delta
     return float(np.sum(w * np.sum(r * r, axis=1)))
 
 
-def edge_arrays(em: ExperienceMap):
+def edge_arrays(em: ExperienceMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     e = em.edges()
     return (np.array([x[0] for x in e], np.int64), np.array([x[1] for x in e], np.int64),
             np.array([x[2] for x in e], float).reshape(-1, 3), np.array([x[4] for x in e], float))
 
 
-def run(n_nodes: int, measure: int) -> dict:
+def run(n_nodes: int, measure: int) -> dict[str, Any]:
     em = ExperienceMap(ExpMapConfig())
     t0 = time.perf_counter()
     for ev in lap_stream(n_nodes):
@@ -94,8 +96,8 @@ def run(n_nodes: int, measure: int) -> dict:
     timers = {"search": 0.0, "relax": 0.0}
     orig_search, orig_close, orig_relax = em._loop_search, em._try_close, em._relax
 
-    def timed(name, fn):
-        def wrapper(*a, **k):
+    def timed(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        def wrapper(*a: Any, **k: Any) -> Any:
             t = time.perf_counter()
             try:
                 return fn(*a, **k)
@@ -103,9 +105,10 @@ def run(n_nodes: int, measure: int) -> dict:
                 timers[name] += time.perf_counter() - t
         return wrapper
 
-    em._loop_search = timed("search", orig_search)
-    em._try_close = timed("relax", orig_close)      # rule checks + the closure's Eq. 4.20 solve
-    em._relax = timed("relax", orig_relax)
+    # the instance's own attributes shadow the methods (what assigning them would do)
+    vars(em).update(_loop_search=timed("search", orig_search),
+                    _try_close=timed("relax", orig_close),      # rule checks + the closure's Eq. 4.20 solve
+                    _relax=timed("relax", orig_relax))
 
     src, dst, delta, w = edge_arrays(em)
     sweep_pos = em.positions.copy()
@@ -129,8 +132,10 @@ def run(n_nodes: int, measure: int) -> dict:
         if res.loop_closed:
             src, dst, delta, w = edge_arrays(em)
         else:
-            src = np.append(src, n - 2); dst = np.append(dst, n - 1)
-            delta = np.vstack([delta, em.deltas[n - 1]]); w = np.append(w, 1.0)
+            src = np.append(src, n - 2)
+            dst = np.append(dst, n - 1)
+            delta = np.vstack([delta, em.deltas[n - 1]])
+            w = np.append(w, 1.0)
         t = time.perf_counter()
         ratslam_sweep(sweep_pos, src, dst, delta)
         sweep_s += time.perf_counter() - t

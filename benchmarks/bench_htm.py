@@ -70,6 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     for f in stream[:5]:
         warm.step(f)
     h = NeocortexHtm(cfg)
+    sp, tmem = h.sp, h.tm
+    if sp is None or tmem is None:
+        raise SystemExit("bench_htm: this configuration builds no spatial pooler or temporal memory to time")
     t_sp = np.empty(len(stream))
     t_tm = np.empty(len(stream))
     t_rest = np.empty(len(stream))
@@ -77,18 +80,23 @@ def main(argv: list[str] | None = None) -> int:
     for i, f in enumerate(tqdm(stream, desc="htm steps", file=sys.stderr, mininterval=1.0)):
         a = f.astype(np.int64)
         t0 = time.perf_counter()
-        cols = h.sp.compute(a, True)
+        cols = sp.compute(a, True)
         t1 = time.perf_counter()
-        winners = h.tm.compute(cols, True)
+        winners = tmem.compute(cols, True)
         t2 = time.perf_counter()
-        src = np.unique(winners.astype(np.int64) // h.tm.cpc) if h.tm_columns else winners.astype(np.int64)
+        src = np.unique(winners.astype(np.int64) // tmem.cpc) if h.tm_columns else winners.astype(np.int64)
         d = h.descriptor.update(src)
         h.lvc.match(d)
         t3 = time.perf_counter()
         t_sp[i], t_tm[i], t_rest[i] = t1 - t0, t2 - t1, t3 - t2
-        anomalies[i] = h.tm.anomaly
-    ms = lambda x: 1e3 * float(np.mean(x))  # noqa: E731
-    med = lambda x: 1e3 * float(np.median(x))  # noqa: E731
+        anomalies[i] = tmem.anomaly
+
+    def ms(x: np.ndarray) -> float:
+        return 1e3 * float(np.mean(x))
+
+    def med(x: np.ndarray) -> float:
+        return 1e3 * float(np.median(x))
+
     sptm = t_sp + t_tm
     print(f"stream: {args.steps} frames, {args.places} places x {args.hold} frames, {args.bits} active bits "
           f"of 2048, noise {args.noise:.0%}")
@@ -100,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"descriptor+LVC   mean {ms(t_rest):.3f} ms")
     print(f"ratio SP+TM / htm.core ({HTM_CORE_MS} ms): {ms(sptm) / HTM_CORE_MS:.2f} (mean), "
           f"{med(sptm) / HTM_CORE_MS:.2f} (median)")
-    print(f"final state: {h.tm.num_segments} segments, {h.tm.num_synapses} synapses, {len(h.lvc)} LVCs, "
+    print(f"final state: {tmem.num_segments} segments, {tmem.num_synapses} synapses, {len(h.lvc)} LVCs, "
           f"mean anomaly last 500 steps {anomalies[-500:].mean():.2f}")
     if args.pipeline_frames > 0:
         pipeline_cost(args)

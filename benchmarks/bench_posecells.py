@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -38,10 +39,11 @@ class NumpyPoseCells:
                 q += w * np.roll(p, int(o), axis=axis)
             p = q
         p = np.maximum(p - self.phi, 0.0)
-        return p / p.sum()
+        out: np.ndarray = p / p.sum()
+        return out
 
 
-def timed(fn, n: int) -> float:
+def timed(fn: Callable[[], object], n: int) -> float:
     """Best of 3 repetitions of ``n`` calls, CPU ms per call of this process (both sides are
     single-threaded; CPU time is less distorted than wall time when other jobs share the cores)."""
     best = float("inf")
@@ -76,11 +78,11 @@ def main() -> int:
 
     state = net.activity.copy()
 
-    def ours_update():
+    def ours_update() -> None:
         net.activity[:] = state
         net.update()
 
-    def numpy_update():
+    def numpy_update() -> None:
         ref.update(p0)
 
     t_ours = timed(ours_update, args.updates)
@@ -94,11 +96,11 @@ def main() -> int:
         net.step()
     net.activity[:] = state
 
-    def ours_step():
+    def ours_step() -> None:
         net.activity[:] = state
         net.step(forward=0.04, left=0.01, up=-0.003, dyaw=0.01, active_lvcs=[1, 2])
 
-    def numpy_step():
+    def numpy_step() -> None:
         p = np.roll(p0, 1, axis=0)
         for lvc in (1, 2):
             b = net.beta[lvc]

@@ -112,7 +112,7 @@ class RssSampler:
                     self.cpu_s[name] = cpu
                     self.cpu_samples.append((t, name, cpu))
 
-    def __enter__(self) -> "RssSampler":
+    def __enter__(self) -> RssSampler:
         self._t0 = time.monotonic()
         self._thread.start()
         return self

@@ -35,6 +35,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -110,7 +111,7 @@ def open_local_session() -> zenoh.Session:
 def open_hub(listen: str, config_file: str | None = None, **secure: str | None) -> zenoh.Session:
     """Open the hub: a router session listening on ``listen`` (e.g. ``tcp/127.0.0.1:7447``).
     ``secure``: ``tls_dir``, ``tls_host``, ``user``, ``password_file`` of :func:`zenoh_config`."""
-    return zenoh.open(zenoh_config("router", listen=[listen], config_file=config_file, **secure))
+    return zenoh.open(zenoh_config("router", connect=(), listen=[listen], config_file=config_file, **secure))
 
 
 class BusPublisher:
@@ -209,22 +210,23 @@ class BusPublisher:
             self._pub.put(ENCODED_EOS)
         return begin
 
-    def retained_state(self) -> dict:
+    def retained_state(self) -> dict[str, Any]:
         """What a checkpoint keeps of this publisher: next index, retained frames, watermark."""
         with self._lock:
             return {"index": self.index, "retained": list(self.retained), "watermark": self.watermark}
 
-    def restore(self, state: dict) -> None:
+    def restore(self, state: dict[str, Any]) -> None:
         with self._lock:
             self.index = int(state["index"])
             self.retained = deque(state["retained"])
             self.retained_bytes = sum(len(f) for _i, f in self.retained)
 
     def has_subscribers(self) -> bool:
-        return bool(self._pub.matching_status.matching)
+        # zenoh's stub types matching_status as bool; it is a MatchingStatus (.matching: bool)
+        return bool(self._pub.matching_status.matching)  # type: ignore[attr-defined]
 
     def undeclare(self) -> None:
-        self._pub.undeclare()
+        self._pub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves undeclare() unannotated
 
 
 class ProgressReporter:
@@ -466,4 +468,4 @@ class Bus:
                 undeclare()
         self._keepalive.clear()
         if self._own_session:
-            self.session.close()
+            self.session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated

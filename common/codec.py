@@ -22,7 +22,7 @@ else, so a receiver can count and skip a bad frame with one ``except DecodeError
 from __future__ import annotations
 
 import struct
-from typing import Any
+from typing import Any, TypeVar
 
 import msgpack
 import numpy as np
@@ -36,6 +36,8 @@ __all__ = [
 ]
 
 
+M = TypeVar("M", bound=Message)
+
 class DecodeError(ValueError):
     """Bytes that are not a valid message; the text says what is wrong."""
 
@@ -45,13 +47,13 @@ def _default(obj: Any) -> Any:
         arr = obj if obj.flags.c_contiguous else np.ascontiguousarray(obj)
         if arr.dtype.byteorder == ">":
             arr = arr.astype(arr.dtype.newbyteorder("<"))
-        return {"__nd__": [arr.dtype.str, list(arr.shape)], "b": memoryview(arr).cast("B")}
+        return {"__nd__": [arr.dtype.str, list(arr.shape)], "b": arr.data.cast("B")}
     if isinstance(obj, np.generic):
         return obj.item()
     raise TypeError(f"cannot encode {type(obj).__name__}")
 
 
-def _object_hook(obj: dict) -> Any:
+def _object_hook(obj: dict[str, Any]) -> Any:
     nd = obj.get("__nd__")
     if nd is not None:
         dtype, shape = nd
@@ -64,7 +66,10 @@ def _object_hook(obj: dict) -> Any:
 
 def pack_obj(obj: Any) -> bytes:
     """msgpack-encode plain Python data that may contain numpy arrays."""
-    return msgpack.packb(obj, default=_default, use_bin_type=True)
+    out = msgpack.packb(obj, default=_default, use_bin_type=True)
+    if not isinstance(out, bytes):
+        raise TypeError(f"msgpack.packb returned {type(out).__name__}, not bytes")
+    return out
 
 
 def unpack_obj(data: bytes | memoryview) -> Any:
@@ -72,7 +77,7 @@ def unpack_obj(data: bytes | memoryview) -> Any:
     return msgpack.unpackb(data, object_hook=_object_hook, raw=False, strict_map_key=False)
 
 
-def _dump(msg: Message) -> dict:
+def _dump(msg: Message) -> dict[str, Any]:
     return msg.model_dump(mode="python", round_trip=True)
 
 
@@ -81,7 +86,7 @@ def encode(msg: Message) -> bytes:
     return pack_obj(_dump(msg))
 
 
-def decode_dict(data: bytes | memoryview) -> dict:
+def decode_dict(data: bytes | memoryview) -> dict[str, Any]:
     """msgpack bytes -> plain dict (arrays as read-only numpy views)."""
     try:
         obj = unpack_obj(data)
@@ -92,7 +97,7 @@ def decode_dict(data: bytes | memoryview) -> dict:
     return obj
 
 
-def decode(data: bytes | memoryview, cls: type[Message]) -> Message:
+def decode(data: bytes | memoryview, cls: type[M]) -> M:
     """msgpack bytes -> validated message of type ``cls``; raises DecodeError naming the field."""
     obj = decode_dict(data)
     try:
@@ -101,7 +106,7 @@ def decode(data: bytes | memoryview, cls: type[Message]) -> Message:
         first = err.errors()[0]
         loc = ".".join(str(p) for p in first["loc"]) or "<message>"
         raise DecodeError(f"{cls.type_name}: field {loc}: {first['msg']}") from None
-    except Exception as exc:  # noqa: BLE001 - anything a hostile payload provokes in a validator
+    except Exception as exc:
         raise DecodeError(f"{cls.type_name}: {type(exc).__name__}: {exc}") from None
 
 

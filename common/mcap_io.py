@@ -123,7 +123,10 @@ class RecordingWriter:
         self._closed = False
         self._chunk_size = chunk_size
         # the mcap writer's own state, which write_encoded updates directly (see _add_message)
-        self._stats = getattr(self._writer, "_Writer__statistics", None)
+        # (mcap's private, name-mangled attributes: untyped, hence Any)
+        self._stats: Any = getattr(self._writer, "_Writer__statistics", None)
+        self._chunk_builder: Any = getattr(self._writer, "_Writer__chunk_builder", None)
+        self._finalize_chunk: Any = getattr(self._writer, "_Writer__finalize_chunk", None)
         self._fast = (self._stats is not None and hasattr(self._writer, "_Writer__chunk_builder")
                       and hasattr(self._writer, "_Writer__finalize_chunk"))
 
@@ -167,7 +170,6 @@ class RecordingWriter:
         (``tests/common/test_mcap_fast.py`` compares the files) -- with one ``struct.pack``
         instead of a record object and a write call per field."""
         head = _MESSAGE_RECORD.pack(_MESSAGE_OPCODE, 22 + len(data), cid, seq, stamp, stamp)
-        w = self._writer
         st = self._stats
         if st.message_count == 0 or stamp < st.message_start_time:
             st.message_start_time = stamp
@@ -175,7 +177,7 @@ class RecordingWriter:
             st.message_end_time = stamp
         st.channel_message_counts[cid] += 1
         st.message_count += 1
-        cb = w._Writer__chunk_builder
+        cb = self._chunk_builder
         if cb.num_messages == 0 or stamp < cb.message_start_time:
             cb.message_start_time = stamp
         if stamp > cb.message_end_time:
@@ -189,7 +191,7 @@ class RecordingWriter:
         buf.write(head)
         buf.write(data)
         if buf.tell() > self._chunk_size:
-            w._Writer__finalize_chunk()
+            self._finalize_chunk()
 
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         """Add a metadata record; values that are not strings are stored as JSON."""
@@ -203,14 +205,14 @@ class RecordingWriter:
     def sync(self) -> None:
         """End the chunk in progress and flush to disk: every message written so far is then
         readable from the file even if the process dies the next instant (a recorder checkpoint)."""
-        self._writer.flush()
+        self._writer.flush()  # type: ignore[no-untyped-call]  # mcap leaves Writer.flush() unannotated
         self.flush()
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()
+        self._writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves Writer.finish() unannotated
         self._file.close()
 
     def __enter__(self) -> RecordingWriter:
@@ -413,6 +415,8 @@ def recording_keys(path: str | Path) -> dict[str, str]:
     if _has_summary(p):
         with _open(p) as f:
             summary = make_reader(f).get_summary()
+            if summary is None:
+                raise ValueError(f"{p}: the recording's summary section cannot be read")
             schemas = summary.schemas
             return {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()}
     messages, _ = _sequential(p, None, strict=False)

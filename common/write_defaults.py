@@ -21,7 +21,8 @@ HEADER = """\
 
 
 def render() -> str:
-    return HEADER + yaml.safe_dump(PoseidonConfig().model_dump(mode="json"), sort_keys=False, width=100)
+    body: str = yaml.safe_dump(PoseidonConfig().model_dump(mode="json"), sort_keys=False, width=100)
+    return HEADER + body
 
 
 def main() -> int:

@@ -43,9 +43,10 @@ import json
 import math
 import struct
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -115,7 +116,8 @@ def _gauss_blur(f: np.ndarray, sigma: float) -> np.ndarray:
     g = sum(k[i] * g[i:i + f.shape[0]] for i in range(2 * r + 1))
     pad = [(0, 0), (r, r)] + ([(0, 0)] if f.ndim == 3 else [])
     g2 = np.pad(g, pad, mode="edge")
-    return sum(k[i] * g2[:, i:i + f.shape[1]] for i in range(2 * r + 1))
+    out: np.ndarray = sum(k[i] * g2[:, i:i + f.shape[1]] for i in range(2 * r + 1))
+    return out
 
 
 def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) -> tuple[np.ndarray, dict[str, float]]:
@@ -173,6 +175,8 @@ def perturb_image(img: np.ndarray, rng: np.random.Generator, p: Perturbation) ->
         frac = float(rng.uniform(0.3, 1.0) * p.occlusion)
         rad = math.sqrt(frac * w * h / math.pi)
         u, v = rng.uniform(0, w), rng.uniform(0, h)
+        if xx is None or yy is None:
+            raise RuntimeError("pixel grid missing although occlusion is on")
         mask = np.clip((rad - np.hypot(xx - u, yy - v)) / 4.0, 0.0, 1.0) * 0.85
         f = f * (1 - mask[..., None]) if f.ndim == 3 else f * (1 - mask)
         drawn["occlusion_fraction"] = frac
@@ -208,7 +212,7 @@ def default_segments(meta: dict[str, dict[str, str]], duration_s: float,
     """Source ranges from a sim recording's route segments, else duration fractions."""
     segs = json.loads(meta.get("poseidon", {}).get("segments", "null") or "null")
     if segs:
-        def first(pred: Any, after: float = -1.0) -> dict | None:
+        def first(pred: Any, after: float = -1.0) -> dict[str, Any] | None:
             return next((s for s in segs if pred(s) and s["start_s"] >= after and s["complete"]), None)
 
         entry = first(lambda s: s["name"] == "transition_2_1")
@@ -243,7 +247,7 @@ def _span(path: Path) -> tuple[int, int, bool]:
     for r in read_messages(path):
         first = r.stamp if first is None else first
         last = r.stamp
-    if first is None:
+    if first is None or last is None:
         raise RecordingError(f"{path}: no messages")
     return first, last, False
 
@@ -272,26 +276,20 @@ def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tup
                 yield r.key, r.type_name, r.stamp, r.payload
 
 
-def transform(src: str | Path, out: str | Path, segments: list[tuple[float, float]] | None = None,
-              seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
-              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY, areas: int = 2) -> dict[str, Any]:
-    """Write the transformed recording; returns a summary (per-key counts, segment table).
-    ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``;
-    ``areas`` 2 is the dissertation's nine-segment protocol, 1 keeps area 1 only."""
+def _check_transform_args(src: Path, out: Path, areas: int, revisit_tolerance: int) -> None:
     if areas not in RANGE_NAMES:
         raise ValueError(f"areas must be 1 or 2, got {areas}")
-    plan, seg_names = (PLAN, SEGMENT_NAMES) if areas == 2 else (PLAN_ONE_AREA, SEGMENT_NAMES_ONE_AREA)
-    src, out = Path(src), Path(out)
     if src.resolve() == out.resolve():
         raise ValueError(f"{out}: output would overwrite the input")
-    pert = pert or Perturbation()
     if not src.is_file():
         raise RecordingError(f"{src}: no such recording")
     if revisit_tolerance < 0:
         raise ValueError(f"revisit tolerance must be >= 0 frames, got {revisit_tolerance}")
-    first, last, indexed = _span(src)
-    duration_s = (last - first) / 1e9
-    meta = read_metadata(src)
+
+
+def _source_segments(src: Path, meta: dict[str, dict[str, str]], segments: list[tuple[float, float]] | None,
+                     duration_s: float, areas: int) -> tuple[list[tuple[float, float]], str]:
+    """The source ranges (s) and where they come from; checked against the recording."""
     how = "given"
     if segments is None:
         segments, how = default_segments(meta, duration_s, areas)
@@ -300,9 +298,12 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     for (a, b), name in zip(segments, RANGE_NAMES[areas]):
         if a >= duration_s + 1e-9:
             raise ValueError(f"{src}: {name} range {a}:{b} s starts after the recording ends ({duration_s:.3f} s)")
-    rng = np.random.default_rng([seed, 909])
+    return segments, how
 
-    # source camera frame index (0-based, recording order) -> its stamp, and the input's own revisits
+
+def _source_revisits(src: Path, image_key: str) -> tuple[dict[int, int], dict[int, set[int]]]:
+    """Source camera frame index (0-based, recording order) of each frame stamp, and the
+    input's own revisits as a symmetric relation."""
     src_frames: list[int] = []
     src_truth: dict[int, list[int]] = {}
     for r in read_messages(src, keys=[image_key, "truth/revisits"]):
@@ -320,6 +321,41 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
         for j in js:
             rel.setdefault(i, set()).add(j)
             rel.setdefault(j, set()).add(i)
+    return frame_of_stamp, rel
+
+
+def _provenance(src: Path, seed: int, how: str, areas: int, segments: list[tuple[float, float]],
+                pert: Perturbation, revisit_tolerance: int) -> dict[str, Any]:
+    """The head of the output's ``poseidon`` metadata record (the key order is part of the bytes)."""
+    return {"tool": "poseidon transform", "source": str(src), "seed": seed, "segments_from": how, "areas": areas,
+            "source_segments_s": segments, "perturbation": pert.__dict__, "revisit_tolerance_frames": revisit_tolerance}
+
+
+def _perturbation_stats(perturb_log: list[dict[str, float]]) -> dict[str, float]:
+    if not perturb_log:
+        return {}
+    sh = np.array([abs(p["shift_px"]) for p in perturb_log])
+    ro = np.array([p["rotation_deg"] for p in perturb_log])
+    return {"images": len(perturb_log), "shift_px_mean": float(sh.mean()), "shift_px_std": float(sh.std()),
+            "rotation_deg_mean": float(ro.mean()), "rotation_deg_std": float(ro.std())}
+
+
+def transform(src: str | Path, out: str | Path, segments: list[tuple[float, float]] | None = None,
+              seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
+              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY, areas: int = 2) -> dict[str, Any]:
+    """Write the transformed recording; returns a summary (per-key counts, segment table).
+    ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``;
+    ``areas`` 2 is the dissertation's nine-segment protocol, 1 keeps area 1 only."""
+    src, out = Path(src), Path(out)
+    _check_transform_args(src, out, areas, revisit_tolerance)
+    plan, seg_names = (PLAN, SEGMENT_NAMES) if areas == 2 else (PLAN_ONE_AREA, SEGMENT_NAMES_ONE_AREA)
+    pert = pert or Perturbation()
+    first, last, indexed = _span(src)
+    duration_s = (last - first) / 1e9
+    meta = read_metadata(src)
+    segments, how = _source_segments(src, meta, segments, duration_s, areas)
+    rng = np.random.default_rng([seed, 909])
+    frame_of_stamp, rel = _source_revisits(src, image_key)
 
     part = out.with_name(out.name + ".part")  # renamed on success, removed on failure
     writer = RecordingWriter(part)
@@ -368,17 +404,9 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
                           "end_s": (end - first) / 1e9, "messages": n_seg})
             cursor = end + GAP_NS
         _write_revisits(writer, out_frames, rel, revisit_tolerance, seq, areas)
-        pstats = {}
-        if perturb_log:
-            sh = np.array([abs(p["shift_px"]) for p in perturb_log])
-            ro = np.array([p["rotation_deg"] for p in perturb_log])
-            pstats = {"images": len(perturb_log), "shift_px_mean": float(sh.mean()), "shift_px_std": float(sh.std()),
-                      "rotation_deg_mean": float(ro.mean()), "rotation_deg_std": float(ro.std())}
-        writer.add_metadata("poseidon", {
-            "tool": "poseidon transform", "source": str(src), "seed": seed, "segments_from": how, "areas": areas,
-            "source_segments_s": segments, "perturbation": pert.__dict__, "revisit_tolerance_frames": revisit_tolerance,
-            "perturbation_stats": pstats, "source_metadata": meta.get("poseidon", {}),
-        })
+        pstats = _perturbation_stats(perturb_log)
+        writer.add_metadata("poseidon", {**_provenance(src, seed, how, areas, segments, pert, revisit_tolerance),
+                                         "perturbation_stats": pstats, "source_metadata": meta.get("poseidon", {})})
         writer.add_metadata("transform_segments", {"segments": table})
         ok = True
     finally:

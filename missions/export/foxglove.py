@@ -44,8 +44,19 @@ import numpy as np
 
 from common.geometry import quaternion_of_yaw
 from common.mcap_io import read_messages
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceMap, Image, LaserScan, LocalViewCells, Message,
-                             NavSatFix, Odometry, PoseStamped, RangeImageBeam, RawMessage)
+from common.messages import (
+    ExperienceEvent,
+    ExperienceMap,
+    Image,
+    LaserScan,
+    LocalViewCells,
+    Message,
+    NavSatFix,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+    RawMessage,
+)
 from missions.export.ros_types import make_export_typestore, to_ros
 from missions.export.rosbag import ExportError
 
@@ -70,17 +81,33 @@ def file_descriptor_set(desc: Any) -> bytes:
         fset.file.append(proto)
 
     add(desc.file)
-    return fset.SerializeToString()
+    data: bytes = fset.SerializeToString()
+    return data
 
 
 class _Pb:
     """The foxglove protobuf classes used here (imported lazily)."""
 
     def __init__(self) -> None:
-        from foxglove_schemas_protobuf import (Color_pb2, LaserScan_pb2, LinePrimitive_pb2, LocationFix_pb2, Log_pb2,
-                                               PackedElementField_pb2, Point3_pb2, Pose_pb2, PoseInFrame_pb2,
-                                               PosesInFrame_pb2, PointCloud_pb2, Quaternion_pb2, RawImage_pb2,
-                                               SceneEntity_pb2, SceneUpdate_pb2, SpherePrimitive_pb2, Vector3_pb2)
+        from foxglove_schemas_protobuf import (
+            Color_pb2,
+            LaserScan_pb2,
+            LinePrimitive_pb2,
+            LocationFix_pb2,
+            Log_pb2,
+            PackedElementField_pb2,
+            Point3_pb2,
+            PointCloud_pb2,
+            Pose_pb2,
+            PoseInFrame_pb2,
+            PosesInFrame_pb2,
+            Quaternion_pb2,
+            RawImage_pb2,
+            SceneEntity_pb2,
+            SceneUpdate_pb2,
+            SpherePrimitive_pb2,
+            Vector3_pb2,
+        )
 
         self.RawImage = RawImage_pb2.RawImage
         self.PointCloud = PointCloud_pb2.PointCloud
@@ -140,7 +167,7 @@ class _FoxgloveWriter:
         c["count"] += 1
 
     def finish(self) -> None:
-        self.w.finish()
+        self.w.finish()  # type: ignore[no-untyped-call]  # mcap leaves Writer.finish() unannotated
 
 
 class FoxgloveExporter:
@@ -279,7 +306,8 @@ class FoxgloveExporter:
     def _fix(self, m: NavSatFix) -> Any:
         fix = self.pb.LocationFix(frame_id=m.header.frame_id, latitude=m.latitude, longitude=m.longitude,
                                   altitude=m.altitude, position_covariance=m.position_covariance,
-                                  position_covariance_type=m.position_covariance_type)
+                                  # the generated stub wants the enum's NewType; the runtime takes the int
+                                  position_covariance_type=m.position_covariance_type)  # type: ignore[arg-type]
         _ts(fix.timestamp, m.header.stamp)
         return fix
 

@@ -32,16 +32,41 @@ RawMessage                  its original type, bytes unchanged (converted       
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from common.geometry import quaternion_of_yaw
-from common.messages import (DiagnosticArray, Depth, ExperienceEvent, ExperienceImage, ExperienceMap, FluidPressure,
-                             Header, Image, Imu, LaserScan, LinkquestDvl, LocalViewCells, MagneticField, Message,
-                             NavSatFix, NeocortexSdr, Odometry, PoseStamped, PoseWithCovarianceStamped, RangeImageBeam,
-                             RawMessage, RevisitTruth, Sdr, Temperature, TFMessage, TwistStamped)
+from common.messages import (
+    Depth,
+    DiagnosticArray,
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceMap,
+    FluidPressure,
+    Header,
+    Image,
+    Imu,
+    LaserScan,
+    LinkquestDvl,
+    LocalViewCells,
+    MagneticField,
+    Message,
+    NavSatFix,
+    NeocortexSdr,
+    Odometry,
+    PoseStamped,
+    PoseWithCovarianceStamped,
+    RangeImageBeam,
+    RawMessage,
+    RevisitTruth,
+    Sdr,
+    Temperature,
+    TFMessage,
+    TwistStamped,
+)
 from missions.importers.rosbags_io import CALA_VIUDA_MSGS
 
 __all__ = ["MSG_DIR", "POSEIDON_MSGS", "make_export_typestore", "ros_type_of", "to_ros", "RawConverter"]

@@ -54,7 +54,7 @@ def export_rosbag(run: str | Path, out: str | Path, ros2: bool = True, overwrite
             if isinstance(msg, RawMessage):
                 topic, msgtype = msg.topic, msg.ros_type
                 if (topic, msgtype) not in conns:
-                    if raw.same_kind(msg) and not ros2 and msg.digest:
+                    if raw.same_kind(msg) and isinstance(writer, Writer1) and msg.digest:
                         conns[(topic, msgtype)] = writer.add_connection(topic, msgtype, msgdef=msg.definition,
                                                                         md5sum=msg.digest)
                     else:

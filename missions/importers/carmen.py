@@ -72,9 +72,10 @@ from __future__ import annotations
 import bz2
 import gzip
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any
 
 import numpy as np
 
@@ -133,7 +134,7 @@ def _open_text(path: Path) -> IO[str]:
         return bz2.open(path, "rt", encoding="latin-1", newline="")
     if name.endswith(".gz"):
         return gzip.open(path, "rt", encoding="latin-1", newline="")
-    return open(path, "rt", encoding="latin-1", newline="")
+    return open(path, encoding="latin-1", newline="")
 
 
 def _floats(tokens: list[str], what: str) -> np.ndarray:
@@ -486,5 +487,5 @@ def import_carmen(path: str | Path, out: str | Path) -> dict[str, Any]:
         "rejected": log.rejected, "unknown": log.unknown, "accounted": log.accounted,
         "written": dict(sorted(writer.counts.items())), "scan_geometry": _geometry(log, range_max),
         "range_max_from": range_from, "laser_offsets": offsets, "params": len(log.params),
-        "start_ns": first, "end_ns": last, "duration_s": (last - first) / 1e9 if first is not None else 0.0,
+        "start_ns": first, "end_ns": last, "duration_s": (last - first) / 1e9 if first is not None and last is not None else 0.0,
     }

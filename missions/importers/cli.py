@@ -49,8 +49,9 @@ import json
 import logging
 import struct
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import yaml
 from pydantic import ValidationError
@@ -61,9 +62,16 @@ from common.messages import RAW_KEY_PREFIX, Header, Message, RawMessage
 from missions.importers import frames as frames_mod
 from missions.importers.carmen import import_carmen, is_carmen_log
 from missions.importers.errors import InputFormatError
+from missions.importers.rosbags_io import (
+    CONVERTERS,
+    DEFAULT_TOPIC_MAP,
+    ConversionError,
+    connection_definition,
+    iter_bag,
+    normalise_type,
+    open_bags,
+)
 from missions.importers.rostopic_csv import read_rostopic_csv
-from missions.importers.rosbags_io import (CONVERTERS, DEFAULT_TOPIC_MAP, ConversionError, connection_definition,
-                                           iter_bag, normalise_type, open_bags)
 
 __all__ = ["main", "import_sources", "load_topic_map"]
 
@@ -143,7 +151,7 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
     from rosbags.rosbag2 import ReaderError as Rosbag2Error
 
     reader, info = open_bags(paths)
-    topics = {}
+    topics: dict[str, dict[str, Any]] = {}
     for c in reader.connections:
         t = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0})
         t["count"] += c.msgcount
@@ -193,7 +201,7 @@ def _bad_ros1_chunk(reader: Any, last_ns: int | None) -> tuple[str, int, int, di
     after = -1 if last_ns is None else last_ns
     best = None
     for r in getattr(reader, "readers", []):
-        for cid, entries in getattr(r, "indexes", {}).items():
+        for entries in getattr(r, "indexes", {}).values():
             e = next((x for x in entries if x.time > after), None)  # entries are sorted by time
             if e is not None and (best is None or e.time < best[1].time):
                 best = (r, e)
@@ -230,10 +238,10 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
         conv, why = None, "carried raw on request (--raw)"
     else:
         why = f"no model for {bm.msgtype}"
-    ros = None
+    ros: Any = None
     try:
         ros = reader.deserialize(bm.raw, bm.connection.msgtype)
-    except Exception as exc:  # noqa: BLE001 - rosbags raises many types on a payload that does not fit its definition
+    except Exception as exc:
         conv, why = None, f"payload does not decode against its definition: {type(exc).__name__}: {exc}"
     if conv is not None:
         h = getattr(ros, "header", None)
@@ -276,7 +284,7 @@ def _list_stream(items: list[tuple[str, Message]], order: int) -> Iterator[tuple
         yield msg.header.stamp, order, key, msg
 
 
-def _frames_stream(plan: list, order: int) -> Iterator[tuple[int, int, str, Message]]:
+def _frames_stream(plan: list[tuple[int, int, Path]], order: int) -> Iterator[tuple[int, int, str, Message]]:
     for stamp, key, img in frames_mod.iter_frames(plan):
         yield stamp, order, key, img
 
@@ -286,7 +294,7 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
                    raw_topics: set[str] | None = None) -> dict[str, Any]:
     """Import every source into one recording at ``out``; returns the summary (see module doc).
     ``raw_topics``: bag topics carried raw even when a model exists (``{"*"}``: every topic)."""
-    tm = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
+    tm: dict[str, str | None] = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
     stats = _Stats()
     bags: list[Path] = []
     streams: list[Iterator[tuple[int, int, str, Message]]] = []
@@ -352,7 +360,7 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
         "out": str(out), "inputs": stats.inputs, "read": dict(sorted(stats.read.items())),
         "written": dict(sorted(writer.counts.items())), "topics": topics, "dropped_topics": stats.dropped,
         "rejected": stats.rejected, "start_ns": first, "end_ns": last,
-        "duration_s": (last - first) / 1e9 if first is not None else 0.0,
+        "duration_s": (last - first) / 1e9 if first is not None and last is not None else 0.0,
     }
 
 

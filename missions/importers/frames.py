@@ -9,8 +9,8 @@ or mono8 (grey) images; seq = position in the timestamps file.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -60,7 +60,8 @@ def frames_plan(folder: str | Path, timestamps: str | Path | None = None) -> lis
 
 
 def load_frame(path: Path, stamp: int, seq: int, frame_id: str = "camera") -> Image:
-    from PIL import Image as PILImage, UnidentifiedImageError
+    from PIL import Image as PILImage
+    from PIL import UnidentifiedImageError
 
     try:
         with PILImage.open(path) as pil:

@@ -40,15 +40,34 @@ from __future__ import annotations
 
 import io
 import math
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
-from common.messages import (DiagnosticArray, DiagnosticStatus, Depth, FluidPressure, Header, Image, Imu, KeyValue,
-                             LaserScan, LinkquestDvl, MagneticField, Message, NavSatFix, Odometry,
-                             PoseWithCovarianceStamped, RangeImageBeam, Temperature, TFMessage, TransformStamped,
-                             TwistStamped)
+from common.messages import (
+    Depth,
+    DiagnosticArray,
+    DiagnosticStatus,
+    FluidPressure,
+    Header,
+    Image,
+    Imu,
+    KeyValue,
+    LaserScan,
+    LinkquestDvl,
+    MagneticField,
+    Message,
+    NavSatFix,
+    Odometry,
+    PoseWithCovarianceStamped,
+    RangeImageBeam,
+    Temperature,
+    TFMessage,
+    TransformStamped,
+    TwistStamped,
+)
 from missions.importers.errors import InputFormatError
 
 __all__ = ["CALA_VIUDA_MSGS", "make_typestore", "CONVERTERS", "normalise_type", "open_bags", "BagMessage",
@@ -145,7 +164,8 @@ def _image(m: Any, h: Header) -> Image:
 
 
 def _compressed(m: Any, h: Header) -> Image:
-    from PIL import Image as PILImage, UnidentifiedImageError
+    from PIL import Image as PILImage
+    from PIL import UnidentifiedImageError
 
     try:
         pil = PILImage.open(io.BytesIO(bytes(np.asarray(m.data, np.uint8))))

@@ -115,6 +115,34 @@ def _number(text: str, typ: type, path: Path, line: int, column: str) -> Any:
     return v
 
 
+#: (field, value type, (column index, column name) of each element -- one for a scalar, length 0)
+_Column = tuple[str, type, list[tuple[int, str]], int]
+
+
+def _column_plan(p: Path, model: type[Message], cols: dict[str, int], header: list[str]) -> list[_Column]:
+    """Where each field of ``model`` is read from; raises :class:`InputFormatError` naming a
+    missing required column."""
+    plan: list[_Column] = []
+    for name, typ, length in _field_spec(model):
+        if length:
+            idx = []
+            for k in range(length):
+                col = f"{name}{k}"
+                if col not in cols:
+                    raise InputFormatError(f"{p}: missing column 'field.{col}' (case-insensitive) "
+                                           f"for {model.__name__}.{name}[{k}]")
+                idx.append((cols[col], header[cols[col]]))
+            plan.append((name, typ, idx, length))
+        elif name in cols:
+            plan.append((name, typ, [(cols[name], header[cols[name]])], 0))
+        elif typ is str or not model.model_fields[name].is_required():
+            continue  # optional column (errcode, rawdata, defaulted IMU fields)
+        else:
+            raise InputFormatError(f"{p}: missing column 'field.{name}' (case-insensitive) "
+                                   f"for {model.__name__}.{name}")
+    return plan
+
+
 def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[str, Message]]:
     """Every record of a rostopic-echo CSV log as ``(key, message)``; ``key`` = ``kind``.
 
@@ -147,24 +175,7 @@ def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[s
         for need in ("header.seq", "header.stamp"):
             if need not in cols:
                 raise InputFormatError(f"{p}: missing column 'field.{need}' (needed for {kind})")
-        plan: list[tuple[str, type, list[tuple[int, str]] | tuple[int, str] | None, int]] = []
-        for name, typ, length in _field_spec(model):
-            if length:
-                idx = []
-                for k in range(length):
-                    col = f"{name}{k}"
-                    if col not in cols:
-                        raise InputFormatError(f"{p}: missing column 'field.{col}' (case-insensitive) "
-                                               f"for {model.__name__}.{name}[{k}]")
-                    idx.append((cols[col], header[cols[col]]))
-                plan.append((name, typ, idx, length))
-            elif name in cols:
-                plan.append((name, typ, (cols[name], header[cols[name]]), 0))
-            elif typ is str or not model.model_fields[name].is_required():
-                continue  # optional column (errcode, rawdata, defaulted IMU fields)
-            else:
-                raise InputFormatError(f"{p}: missing column 'field.{name}' (case-insensitive) "
-                                       f"for {model.__name__}.{name}")
+        plan = _column_plan(p, model, cols, header)
         i_seq, i_stamp = cols["header.seq"], cols["header.stamp"]
         i_frame = cols.get("header.frame_id")
         out: list[tuple[str, Message]] = []
@@ -185,9 +196,9 @@ def read_rostopic_csv(path: str | Path, kind: str | None = None) -> list[tuple[s
             for name, typ, where, length in plan:
                 if length:
                     values[name] = [_number(row[i], typ, p, line, col) if typ is not str else row[i]
-                                    for i, col in where]  # type: ignore[union-attr]
+                                    for i, col in where]
                 else:
-                    i, col = where  # type: ignore[misc]
+                    i, col = where[0]
                     values[name] = row[i] if typ is str else _number(row[i], typ, p, line, col)
             try:
                 msg = model(header=Header(seq=seq, stamp=stamp, frame_id=row[i_frame] if i_frame is not None else ""),

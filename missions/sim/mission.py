@@ -33,9 +33,10 @@ image right = body +y, image up = body +x, lever arm (0.4, 0, 0.2) m in body.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -44,8 +45,7 @@ from common.geometry import wrap_angle
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
-from missions.sim.trajectory import (VehicleMotion, _smooth_noise, footprint_centres, make_trajectory,
-                                     revisits, rot_wb)
+from missions.sim.trajectory import VehicleMotion, _smooth_noise, footprint_centres, make_trajectory, revisits, rot_wb
 from missions.sim.world import World, build_world
 
 __all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "quat_from_rpy"]
@@ -224,7 +224,8 @@ class _Out:
         self.items: list[tuple[int, int, int, str, Any]] = []
         self.order = {k: i for i, k in enumerate(KEY_ORDER)}
 
-    def add(self, key: str, stamp: int, make: Callable[[Header], Any]) -> None:
+    def add(self, key: str, stamp: int, make: Callable[..., Any]) -> None:
+        """``make(header)`` builds the message (lambdas bind their loop values as defaults)."""
         self.items.append((stamp, self.order[key], len(self.items), key, make))
 
     def flush(self) -> None:
@@ -276,6 +277,39 @@ def segments_of(traj: VehicleMotion, duration_s: float) -> list[dict[str, Any]]:
     return out
 
 
+def _all_stamps(p: SimParams, duration: float, rng: np.random.Generator) -> _Streams:
+    """Sample times (s) of every stream, drawn from ``rng`` in this fixed order."""
+    return _Streams(
+        cam=_stamps(duration, p.camera.rate_hz, rng, 0.004, 0.05),
+        micron=_stamps(duration, p.micron_rate_hz, rng, 0.0, 0.013),
+        seaking=_stamps(duration, p.seaking_rate_hz, rng, 0.0, 0.007),
+        imu=_stamps(duration, p.imu_rate_hz, rng, 0.002, 0.021),
+        depth=_stamps(duration, p.depth_rate_hz, rng, 0.002, 0.037),
+        dvl=_stamps(duration, p.dvl_rate_hz, rng, 0.01, 0.11),
+        odom=_stamps(duration, p.odom_rate_hz, rng, 0.0, 0.03),
+        truth=_stamps(duration, p.truth_rate_hz, rng, 0.0, 0.0),
+    )
+
+
+def _metadata(p: SimParams, duration: float, world: World, segs: list[dict[str, Any]], dvl_heading_off: float,
+              gyro_bias: np.ndarray) -> dict[str, Any]:
+    """The recording's ``poseidon`` metadata record."""
+    return {
+        # no wall clock and no git revision (a dirty tree would change the bytes): the generator
+        # version is bumped whenever the output for a given seed changes
+        "tool": "poseidon sim", "generator_version": GENERATOR_VERSION, "seed": p.seed, "minutes": p.minutes,
+        "params": asdict(p), "t0_ns": T0_NS, "duration_s": duration,
+        "frames": "world NED (x north, y east, z down); body x forward, y right, z down; quaternion xyzw body->world",
+        "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m, "
+                               f"vehicle positions within {p.revisit_max_vehicle_m} m, and >= {p.revisit_min_gap_m} m "
+                               f"travelled between the frames; heading "
+                               + ("ignored" if p.revisit_max_heading_deg is None
+                                  else f"within {p.revisit_max_heading_deg} deg")),
+        "route": world.route_names, "segments": segs, "features": world.features,
+        "dvl_heading_offset_deg": dvl_heading_off, "gyro_bias_rad_s": gyro_bias.tolist(),
+    }
+
+
 def generate(out_path: str | Path, params: SimParams, progress: bool = True,
              world: World | None = None) -> dict[str, Any]:
     """Write the mission to ``out_path``; returns the summary (see :mod:`missions.sim.cli`)."""
@@ -286,16 +320,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     world = world if world is not None else build_world(p.seed)
     traj = make_trajectory(world, duration, p.seed, p.speed_m_s)
     rng = np.random.default_rng([p.seed, 303])
-    st = _Streams(
-        cam=_stamps(duration, p.camera.rate_hz, rng, 0.004, 0.05),
-        micron=_stamps(duration, p.micron_rate_hz, rng, 0.0, 0.013),
-        seaking=_stamps(duration, p.seaking_rate_hz, rng, 0.0, 0.007),
-        imu=_stamps(duration, p.imu_rate_hz, rng, 0.002, 0.021),
-        depth=_stamps(duration, p.depth_rate_hz, rng, 0.002, 0.037),
-        dvl=_stamps(duration, p.dvl_rate_hz, rng, 0.01, 0.11),
-        odom=_stamps(duration, p.odom_rate_hz, rng, 0.0, 0.03),
-        truth=_stamps(duration, p.truth_rate_hz, rng, 0.0, 0.0),
-    )
+    st = _all_stamps(p, duration, rng)
     # slow processes on the 50 Hz grid: turbidity, IMU yaw error, odometry drift, gyro bias
     tt = traj.t
     turb = np.clip(1.0 + _smooth_noise(rng, tt, 40.0, 0.3), 0.55, 1.6)
@@ -318,21 +343,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     cam_r = _CameraRenderer(world, p.camera)
     writer = RecordingWriter(out_path)
     out = _Out(writer)
-    meta = {
-        # no wall clock and no git revision (a dirty tree would change the bytes): the generator
-        # version is bumped whenever the output for a given seed changes
-        "tool": "poseidon sim", "generator_version": GENERATOR_VERSION, "seed": p.seed, "minutes": p.minutes,
-        "params": asdict(p), "t0_ns": T0_NS, "duration_s": duration,
-        "frames": "world NED (x north, y east, z down); body x forward, y right, z down; quaternion xyzw body->world",
-        "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m, "
-                               f"vehicle positions within {p.revisit_max_vehicle_m} m, and >= {p.revisit_min_gap_m} m "
-                               f"travelled between the frames; heading "
-                               + ("ignored" if p.revisit_max_heading_deg is None
-                                  else f"within {p.revisit_max_heading_deg} deg")),
-        "route": world.route_names, "segments": segs, "features": world.features,
-        "dvl_heading_offset_deg": dvl_heading_off, "gyro_bias_rad_s": gyro_bias.tolist(),
-    }
-    writer.add_metadata("poseidon", meta)
+    writer.add_metadata("poseidon", _metadata(p, duration, world, segs, dvl_heading_off, gyro_bias))
 
     nchunks = int(math.ceil(duration / p.chunk_s))
     bar = tqdm(total=len(st.cam), desc="sim frames", unit="frame", disable=not progress, file=None)
@@ -342,7 +353,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
             t0, t1 = ci * p.chunk_s, min((ci + 1) * p.chunk_s, duration)
             crng = np.random.default_rng([p.seed, 404, ci])
 
-            def sel(a: np.ndarray) -> np.ndarray:
+            def sel(a: np.ndarray, t0: float = t0, t1: float = t1) -> np.ndarray:
                 return np.nonzero((a >= t0) & (a < t1))[0]
 
             _truth(out, traj, st.truth[sel(st.truth)])
@@ -391,7 +402,8 @@ def _odometry_msg(h: Header, pos: np.ndarray, q: np.ndarray, vb: np.ndarray, wb:
 
 def _body_vel(s: dict[str, np.ndarray]) -> np.ndarray:
     r = rot_wb(s["rpy"][:, 0], s["rpy"][:, 1], s["rpy"][:, 2])
-    return np.einsum("nji,nj->ni", r, s["vel_w"])
+    out: np.ndarray = np.einsum("nji,nj->ni", r, s["vel_w"])
+    return out
 
 
 def _truth(out: _Out, traj: VehicleMotion, times: np.ndarray) -> None:

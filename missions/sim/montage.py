@@ -14,11 +14,14 @@ import argparse
 import json
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from PIL import Image as PILImage, ImageDraw
+from PIL import Image as PILImage
+from PIL import ImageDraw
 
 from common.mcap_io import read_messages, read_metadata
+from common.messages import Image, Odometry, RangeImageBeam
 from missions.sim.mission import SimParams, generate
 from missions.sim.world import build_world
 
@@ -43,6 +46,25 @@ def _sonar_colour(v: np.ndarray) -> np.ndarray:
     return (np.stack([t * 255, t ** 0.6 * 220, t ** 2 * 120], axis=-1)).astype(np.uint8)
 
 
+def _top_view(seed: int, tp: np.ndarray, cones: list[dict[str, Any]], w_avail: int, size: int) -> PILImage.Image:
+    """Top view of the cave with the path ``tp`` (truth positions) and the cones, scaled to
+    fit ``w_avail`` x ``size`` pixels."""
+    world = build_world(seed)
+    free = world.free[::2, ::2]
+    tv_rgb = np.where(free[..., None], np.array([70, 90, 110], np.uint8), np.array([25, 22, 20], np.uint8))
+    tv = PILImage.fromarray(tv_rgb.astype(np.uint8))
+    tdraw = ImageDraw.Draw(tv)
+    res = world.grid_res * 2
+    pts = [((p[1] - world.grid_y0) / res, (p[0] - world.grid_x0) / res) for p in tp[::5]]
+    tdraw.line(pts, fill=(255, 220, 60), width=3)
+    for c in cones:
+        cx, cy = (c["y"] - world.grid_y0) / res, (c["x"] - world.grid_x0) / res
+        tdraw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], fill=(255, 100, 20))
+    scale = min(w_avail / tv.width, size / tv.height)
+    return tv.resize((int(tv.width * scale), int(tv.height * scale)), PILImage.Resampling.BILINEAR).transpose(
+        PILImage.Transpose.FLIP_TOP_BOTTOM)
+
+
 def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 25.0) -> Path:
     """Write the montage PNG; returns its path."""
     out_png = Path(out_png)
@@ -54,15 +76,17 @@ def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 25.0) -> P
         frames, stamps, truth, micron, seaking = [], [], [], [], []
         for r in read_messages(rec, keys=["camera/image_raw", "truth/pose", "sonar_micron", "sonar_seaking"]):
             m = r.message()
-            if r.key == "camera/image_raw":
+            if r.key == "camera/image_raw" and isinstance(m, Image):
                 frames.append(np.asarray(m.data))
                 stamps.append(r.stamp)
-            elif r.key == "truth/pose":
+            elif r.key == "truth/pose" and isinstance(m, Odometry):
                 truth.append((r.stamp, m.position))
-            elif r.key == "sonar_micron":
+            elif r.key == "sonar_micron" and isinstance(m, RangeImageBeam):
                 micron.append((r.stamp, m.angle_rad, np.asarray(m.beam_data)))
-            else:
+            elif isinstance(m, RangeImageBeam):
                 seaking.append((r.stamp, m.angle_rad, np.asarray(m.beam_data)))
+            else:
+                raise TypeError(f"montage: {r.key!r} carries an unexpected {type(m).__name__}")
     tt = np.array([s for s, _ in truth], float)
     tp = np.array([p for _, p in truth])
     fpos = np.stack([np.interp(np.array(stamps, float), tt, tp[:, k]) for k in range(3)], axis=1)
@@ -97,24 +121,10 @@ def make_montage(out_png: str | Path, seed: int = 0, minutes: float = 25.0) -> P
     sk = [b for s, _, b in seaking if s0 <= s <= s1]
     if sk:
         ras = np.stack(sk, axis=1).astype(np.float32)
-        img = PILImage.fromarray(_sonar_colour(ras)).resize((size, size), PILImage.NEAREST)
+        img = PILImage.fromarray(_sonar_colour(ras)).resize((size, size), PILImage.Resampling.NEAREST)
         canvas.paste(img, (size, y0))
     draw.text((size + 4, y0 + 4), "SeaKing profiler: range (down, 10 m) x beams", fill=(255, 255, 255))
-    # top view of the cave with the path
-    world = build_world(seed)
-    free = world.free[::2, ::2]
-    tv = np.where(free[..., None], np.array([70, 90, 110], np.uint8), np.array([25, 22, 20], np.uint8))
-    tv = PILImage.fromarray(tv.astype(np.uint8))
-    tdraw = ImageDraw.Draw(tv)
-    res = world.grid_res * 2
-    pts = [((p[1] - world.grid_y0) / res, (p[0] - world.grid_x0) / res) for p in tp[::5]]
-    tdraw.line(pts, fill=(255, 220, 60), width=3)
-    for c in cones:
-        cx, cy = (c["y"] - world.grid_y0) / res, (c["x"] - world.grid_x0) / res
-        tdraw.ellipse([cx - 5, cy - 5, cx + 5, cy + 5], fill=(255, 100, 20))
-    w_avail = 4 * fw - 2 * size
-    scale = min(w_avail / tv.width, size / tv.height)
-    tv = tv.resize((int(tv.width * scale), int(tv.height * scale)), PILImage.BILINEAR).transpose(PILImage.FLIP_TOP_BOTTOM)
+    tv = _top_view(seed, tp, cones, 4 * fw - 2 * size, size)
     canvas.paste(tv, (2 * size, y0 + (size - tv.height) // 2))
     draw.text((2 * size + 4, y0 + 4), "top view (north up, east right): cave, path (yellow), cones (orange)",
               fill=(255, 255, 255))

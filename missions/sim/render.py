@@ -38,8 +38,9 @@ def _grid(g: np.ndarray, x0: float, y0: float, res: float, x: float, y: float) -
     j = int(fj)
     ti = fi - i
     tj = fj - j
-    return (g[i, j] * (1 - ti) * (1 - tj) + g[i + 1, j] * ti * (1 - tj) + g[i, j + 1] * (1 - ti) * tj
-            + g[i + 1, j + 1] * ti * tj)
+    out: float = (g[i, j] * (1 - ti) * (1 - tj) + g[i + 1, j] * ti * (1 - tj) + g[i, j + 1] * (1 - ti) * tj
+                  + g[i + 1, j + 1] * ti * tj)
+    return out
 
 
 @nb.njit(cache=True, inline="always")
@@ -49,7 +50,8 @@ def _free(free: np.ndarray, x0: float, y0: float, res: float, x: float, y: float
     j = int((y - y0) / res + 0.5)
     if i < 0 or j < 0 or i >= ny or j >= nx:
         return False
-    return free[i, j]
+    out: bool = free[i, j]
+    return out
 
 
 @nb.njit(cache=True, inline="always")
@@ -212,7 +214,8 @@ def _wall_normal_cos(free: np.ndarray, gx0: float, gy0: float, gres: float, x: f
     n = np.sqrt(nx * nx + ny * ny)
     if n == 0.0:
         return 0.7
-    return abs(bx * nx + by * ny) / n
+    out: float = abs(bx * nx + by * ny) / n
+    return out
 
 
 @nb.njit(cache=True)

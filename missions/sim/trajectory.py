@@ -50,7 +50,8 @@ def _smooth_noise(rng: np.random.Generator, t: np.ndarray, knot_s: float, sigma:
     i = np.floor(u).astype(int)
     f = u - i
     f = (1 - np.cos(np.pi * f)) / 2
-    return knots[i] * (1 - f) + knots[i + 1] * f
+    out: np.ndarray = knots[i] * (1 - f) + knots[i + 1] * f
+    return out
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
@@ -58,7 +59,8 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
         return x
     pad = np.concatenate([np.repeat(x[:1], n // 2, axis=0), x, np.repeat(x[-1:], n - n // 2 - 1, axis=0)])
     c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), pad]), axis=0)
-    return (c[n:] - c[:-n]) / n
+    out: np.ndarray = (c[n:] - c[:-n]) / n
+    return out
 
 
 @dataclass
@@ -176,7 +178,8 @@ def footprint_centres(world: World, pos: np.ndarray, rpy: np.ndarray, lever: np.
         zf = world.floor_at(c[:, 0], c[:, 1])
         tt = (zf - cam[:, 2]) / np.maximum(axis[:, 2], 1e-3)
         c = cam[:, :2] + axis[:, :2] * tt[:, None]
-    return c
+    out: np.ndarray = c
+    return out
 
 
 @nb.njit(cache=True)

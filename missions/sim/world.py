@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -57,7 +58,8 @@ def _value_noise(x: float, y: float, seed: int) -> float:
     b = _hash2(ix + 1, iy, seed)
     c = _hash2(ix, iy + 1, seed)
     d = _hash2(ix + 1, iy + 1, seed)
-    return (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * ty
+    out: float = (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * ty
+    return out
 
 
 @nb.njit(cache=True)
@@ -267,7 +269,7 @@ class World:
     tiles1: np.ndarray        # (n, TILE/4+2, TILE/4+2, 3) uint8, 4 cm texels with apron
     route: list[np.ndarray]   # centre lines: [area 1 loop, transition, area 2 loop, transition back]
     route_names: list[str]
-    features: list[dict] = field(default_factory=list)
+    features: list[dict[str, Any]] = field(default_factory=list)
     tile_origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (n, 2) world x, y of texel (0, 0)
     tile_ready: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))  # tiles generated so far
     guideline: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (m, 2) guideline points, 5 mm apart
@@ -339,7 +341,8 @@ def _bilinear_grid(g: np.ndarray, x0: float, y0: float, res: float, x: np.ndarra
 def _resample(points: np.ndarray, step: float) -> np.ndarray:
     d = np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))]
     s = np.arange(0.0, d[-1], step)
-    return np.c_[np.interp(s, d, points[:, 0]), np.interp(s, d, points[:, 1])]
+    out: np.ndarray = np.c_[np.interp(s, d, points[:, 0]), np.interp(s, d, points[:, 1])]
+    return out
 
 
 def _route(rng: np.random.Generator) -> tuple[list[np.ndarray], list[str]]:
@@ -363,6 +366,39 @@ def _route(rng: np.random.Generator) -> tuple[list[np.ndarray], list[str]]:
     return pieces, ["area1_ellipse", "transition_1_2", "area2_cave2", "transition_2_1"]
 
 
+def _features(route: list[np.ndarray], names: list[str], rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Rocks (drawn from ``rng``, ~one every 12 m) and traffic cones along the centre lines."""
+    features: list[dict[str, Any]] = []
+    for piece, name in zip(route[:3], names[:3]):
+        m = len(piece)
+        for _ in range(int(m * 0.1 / 12)):  # ~one rock every 12 m
+            k = int(rng.integers(0, m))
+            tang = piece[min(k + 1, m - 1)] - piece[max(k - 1, 0)]
+            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
+            p = piece[k] + nrm * rng.uniform(-1.2, 1.2)
+            features.append({"kind": "rock", "x": float(p[0]), "y": float(p[1]), "r": float(rng.uniform(0.15, 0.45)),
+                             "area": name})
+    for name, piece, fr in (("area1_ellipse", route[0], (0.2, 0.7)), ("transition_1_2", route[1], (0.5,)),
+                            ("area2_cave2", route[2], (0.15, 0.6, 0.85))):
+        for f in fr:
+            k = int(f * len(piece))
+            tang = piece[min(k + 1, len(piece) - 1)] - piece[max(k - 1, 0)]
+            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
+            p = piece[k] + nrm * 0.6
+            features.append({"kind": "cone", "x": float(p[0]), "y": float(p[1]), "r": 0.2, "area": name})
+    return features
+
+
+def _guideline(route: list[np.ndarray]) -> np.ndarray:
+    """A thin yellow line 0.4 m left of the centre line, through every tunnel."""
+    gl = []
+    for piece in route[:3]:
+        tang = np.gradient(piece, axis=0)
+        nrm = np.c_[-tang[:, 1], tang[:, 0]] / (np.hypot(tang[:, 0], tang[:, 1])[:, None] + 1e-9)
+        gl.append(_resample(piece + 0.4 * nrm, 0.005))
+    return np.concatenate(gl)
+
+
 @lru_cache(maxsize=2)
 def build_world(seed: int) -> World:
     """The cave for ``seed`` (deterministic; cached per process, treat as read-only); takes
@@ -371,7 +407,6 @@ def build_world(seed: int) -> World:
     route, names = _route(rng)
     pts = np.concatenate(route[:3])
     # per centre-line point: half-width, floor base depth, height (m)
-    n = pts.shape[0]
     # half-width, floor base depth and height are smooth functions of *position* (not of the
     # arc length), so they are continuous where route pieces meet (junctions, loop closures)
     px, py = pts[:, 0], pts[:, 1]
@@ -421,31 +456,8 @@ def build_world(seed: int) -> World:
     tiles1 = np.zeros((len(origins), t1 + 2, t1 + 2, 3), np.uint8)
 
     # distinctive features along the centre line: rocks and traffic cones, plus a guideline
-    features: list[dict] = []
-    for piece, name in zip(route[:3], names[:3]):
-        m = len(piece)
-        for _ in range(int(m * 0.1 / 12)):  # ~one rock every 12 m
-            k = int(rng.integers(0, m))
-            tang = piece[min(k + 1, m - 1)] - piece[max(k - 1, 0)]
-            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
-            p = piece[k] + nrm * rng.uniform(-1.2, 1.2)
-            features.append({"kind": "rock", "x": float(p[0]), "y": float(p[1]), "r": float(rng.uniform(0.15, 0.45)),
-                             "area": name})
-    for name, piece, fr in (("area1_ellipse", route[0], (0.2, 0.7)), ("transition_1_2", route[1], (0.5,)),
-                            ("area2_cave2", route[2], (0.15, 0.6, 0.85))):
-        for f in fr:
-            k = int(f * len(piece))
-            tang = piece[min(k + 1, len(piece) - 1)] - piece[max(k - 1, 0)]
-            nrm = np.array([-tang[1], tang[0]]) / (np.hypot(*tang) + 1e-9)
-            p = piece[k] + nrm * 0.6
-            features.append({"kind": "cone", "x": float(p[0]), "y": float(p[1]), "r": 0.2, "area": name})
-    # guideline: a thin yellow line 0.4 m left of the centre line, through every tunnel
-    gl = []
-    for piece in route[:3]:
-        tang = np.gradient(piece, axis=0)
-        nrm = np.c_[-tang[:, 1], tang[:, 0]] / (np.hypot(tang[:, 0], tang[:, 1])[:, None] + 1e-9)
-        gl.append(_resample(piece + 0.4 * nrm, 0.005))
-    guideline = np.concatenate(gl)
+    features = _features(route, names, rng)
+    guideline = _guideline(route)
     return World(seed=seed, grid_x0=gx0, grid_y0=gy0, grid_res=GRID_RES, free=free, floor=floor, ceiling=ceil,
                  tex_x0=gx0, tex_y0=gy0, tile_index=index, tiles0=tiles0, tiles1=tiles1, route=route,
                  route_names=names, features=features, tile_origins=origins,

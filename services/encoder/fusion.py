@@ -10,7 +10,7 @@ sorted uint32 arrays of active bit indices; so is the result.
 """
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -34,6 +34,6 @@ def fuse(sdrs: Mapping[str, np.ndarray | None], mode: str = "union") -> np.ndarr
             out = np.intersect1d(out, v, assume_unique=False)
         return out.astype(np.uint32)
     if mode in ("camera", "sonar"):
-        v = sdrs.get(mode)
-        return np.zeros(0, dtype=np.uint32) if v is None else np.unique(np.asarray(v, dtype=np.uint32))
+        sdr = sdrs.get(mode)
+        return np.zeros(0, dtype=np.uint32) if sdr is None else np.unique(np.asarray(sdr, dtype=np.uint32))
     raise ValueError(f"encoder.fusion_mode: unknown mode {mode!r}; known: {FUSION_MODES}")

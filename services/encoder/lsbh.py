@@ -147,7 +147,8 @@ class LsbhEncoder:
         y = np.asarray(y, dtype=np.float32)
         if y.shape[-1] != self.dim:
             raise LsbhError(f"embedding has {y.shape[-1]} dimensions, the LSBH projection expects {self.dim}")
-        return y @ self.projection
+        out: np.ndarray = y @ self.projection
+        return out
 
     def encode(self, y: np.ndarray) -> np.ndarray:
         """Sorted uint32 active bits (exactly 2k) of one embedding."""

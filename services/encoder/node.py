@@ -40,11 +40,12 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import Any
 
 import numpy as np
 
 from common.config import PoseidonConfig
-from common.messages import Header, NeocortexSdr, Sdr
+from common.messages import Header, Image, LaserScan, Message, NeocortexSdr, RangeImageBeam, Sdr
 from common.node import ServiceNode
 
 from .clock import EncoderCore, SonarClock
@@ -86,13 +87,17 @@ class EncoderNode(ServiceNode):
         self.length = cfg.sp_columns
 
     # ------------------------------------------------------------------ inputs
-    def process(self, key: str, msg) -> None:
+    def process(self, key: str, msg: Message) -> None:
         if key == "camera/image_raw":
+            if not isinstance(msg, Image):
+                raise TypeError(f"encoder: {key!r} carries {type(msg).__name__}, expected Image")
             sdrs = self.core.on_camera(msg)
             self._drain()
             if sdrs is not None:
                 self._emit(msg.header.stamp, msg.header.frame_id, sdrs)
         elif key == self.sonar_key:
+            if not isinstance(msg, (RangeImageBeam, LaserScan)):
+                raise TypeError(f"encoder: {key!r} carries {type(msg).__name__}, expected RangeImageBeam or LaserScan")
             sdrs = self.core.on_sonar(msg)
             self._drain()
             if sdrs is not None:
@@ -108,7 +113,7 @@ class EncoderNode(ServiceNode):
     # ------------------------------------------------------------------ checkpoints
     checkpoint_exclude = ("encoder", "core")  # the CNN is rebuilt from the configuration
 
-    def checkpoint_state(self) -> dict:
+    def checkpoint_state(self) -> dict[str, Any]:
         """Node state plus the sonar clock, the encoder's standardisation statistics and a digest
         of each LSBH projection (the projections are rebuilt from the seed or their file, then checked)."""
         state = super().checkpoint_state()
@@ -117,7 +122,7 @@ class EncoderNode(ServiceNode):
         state["_lsbh_digest"] = self.encoder.lsbh_digests()
         return state
 
-    def restore_checkpoint(self, state: dict) -> None:
+    def restore_checkpoint(self, state: dict[str, Any]) -> None:
         state = dict(state)
         self.core.clock = state.pop("_clock")
         for modality, st in state.pop("_standardizers").items():

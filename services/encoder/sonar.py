@@ -165,11 +165,11 @@ class SonarRaster:
             self._write(msg.angle_min, prof, msg.header.stamp)
             return [float(msg.angle_min)]
         angles = []
-        for i, r in enumerate(ranges):
+        for i, rng_i in enumerate(ranges):
             angle = msg.angle_min + i * msg.angle_increment
             prof = np.zeros(self.height, dtype=np.float32)
-            valid = math.isfinite(r) and msg.range_min <= r <= msg.range_max
-            row = self.row(float(r)) if valid else -1
+            in_range = math.isfinite(rng_i) and msg.range_min <= rng_i <= msg.range_max
+            row = self.row(float(rng_i)) if in_range else -1
             if row >= 0:
                 if self.use_intensities and inten.size:
                     prof[row] = float(np.clip(inten[i] / self.intensity_scale, 0.0, 1.0))

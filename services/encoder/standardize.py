@@ -151,7 +151,7 @@ class EmbeddingStandardizer:
         return np.stack([self.transform(r, update) for r in np.atleast_2d(y)])
 
     @classmethod
-    def fitted(cls, y: np.ndarray, scale: bool = False, path: Path | None = None) -> "EmbeddingStandardizer":
+    def fitted(cls, y: np.ndarray, scale: bool = False, path: Path | None = None) -> EmbeddingStandardizer:
         """A ``fixed`` standardiser with mu, sigma fitted on the rows of ``y`` (a reference sequence)."""
         y = np.atleast_2d(np.asarray(y, dtype=np.float64))
         st = cls(y.shape[1], "none", scale=scale, path=None)
@@ -182,7 +182,8 @@ class EmbeddingStandardizer:
             return
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, **self.state())
+        # numpy's savez stub types **kwds against its allow_pickle: bool keyword
+        np.savez(tmp, **self.state())  # type: ignore[arg-type]
         tmp.replace(path)
         self._dirty = False
         log.info("encoder: embedding statistics (%d frames) saved to %s", self.count, path)

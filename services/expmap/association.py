@@ -15,12 +15,19 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 __all__ = ["Association", "EventImageAssociator"]
 
+
+
+class _Stamped(Protocol):
+    @property
+    def stamp(self) -> int: ...
+
+
 F = TypeVar("F")   # a frame: has .header.stamp
-H = TypeVar("H")   # an event header: has .stamp
+H = TypeVar("H", bound=_Stamped)   # an event header: has .stamp
 
 
 @dataclass
@@ -43,12 +50,12 @@ class EventImageAssociator(Generic[H, F]):
 
     @staticmethod
     def _stamp(x: Any) -> int:
-        return x.header.stamp
+        return int(x.header.stamp)
 
     def on_frame(self, frame: F) -> list[Association[H, F]]:
         """A camera frame: decides every waiting event at or before its stamp."""
         out = []
-        while self.waiting and self.waiting[0][0].stamp <= self._stamp(frame):  # type: ignore[attr-defined]
+        while self.waiting and self.waiting[0][0].stamp <= self._stamp(frame):
             hdr, before = self.waiting.popleft()
             out.append(self.decide(hdr, before, frame))
         self.last_frame = frame
@@ -57,7 +64,7 @@ class EventImageAssociator(Generic[H, F]):
     def on_event(self, header: H) -> list[Association[H, F]]:
         """An event: decided at once when the last frame has its stamp, else it waits."""
         last = self.last_frame
-        if last is not None and self._stamp(last) == header.stamp:  # type: ignore[attr-defined]
+        if last is not None and self._stamp(last) == header.stamp:
             return [self.decide(header, last, None)]      # nothing can be closer
         self.waiting.append((header, last))
         if len(self.waiting) > self.buffer_size:
@@ -78,7 +85,7 @@ class EventImageAssociator(Generic[H, F]):
     @property
     def oldest_waiting(self) -> int | None:
         """Stamp of the oldest undecided event (ns), None when none waits."""
-        return self.waiting[0][0].stamp if self.waiting else None  # type: ignore[attr-defined]
+        return self.waiting[0][0].stamp if self.waiting else None
 
     def decide(self, header: H, before: F | None, after: F | None) -> Association[H, F]:
         """The closer of ``before`` and ``after`` within the slop (ties: ``before``)."""
@@ -87,7 +94,7 @@ class EventImageAssociator(Generic[H, F]):
         for frame in (before, after):        # earlier first: ties go to the earlier frame
             if frame is None:
                 continue
-            d = abs(self._stamp(frame) - header.stamp)  # type: ignore[attr-defined]
+            d = abs(self._stamp(frame) - header.stamp)
             if d < best_d:
                 best, best_d = frame, d
         return Association(header, best)

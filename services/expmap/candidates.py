@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 
 from common.config import ExpMapConfig
@@ -47,7 +49,7 @@ def _pc_scores(cand: np.ndarray, pc: np.ndarray, lvc: np.ndarray, q_pc: np.ndarr
 
 
 
-def pc_distance_cells(a: np.ndarray, b: np.ndarray, shape: tuple[int, int, int, int],
+def pc_distance_cells(a: npt.ArrayLike, b: npt.ArrayLike, shape: tuple[int, int, int, int],
                       spacing: tuple[float, float, float]) -> float:
     """Wrap-aware distance (lattice cells) between two pose-cell centroids [x, y, z m, yaw rad]."""
     period, cell = lattice_geometry(shape, spacing)
@@ -56,7 +58,7 @@ def pc_distance_cells(a: np.ndarray, b: np.ndarray, shape: tuple[int, int, int, 
     return float(np.sqrt(np.sum(d * d)))
 
 
-def lattice_geometry(shape, spacing) -> tuple[np.ndarray, np.ndarray]:
+def lattice_geometry(shape: Sequence[int], spacing: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     cell = np.array([spacing[0], spacing[1], spacing[2], 2.0 * math.pi / shape[3]], float)
     period = np.array([shape[0] * spacing[0], shape[1] * spacing[1], shape[2] * spacing[2], 2.0 * math.pi], float)
     return period, cell

@@ -167,7 +167,8 @@ class ExperienceMap:
 
     def _position(self, i: int) -> np.ndarray:
         A = self._g.arrays
-        return A["pos"][i] + self._phi * A["rem"][i] if self._peak > 0.0 else A["pos"][i]
+        out: np.ndarray = A["pos"][i] + self._phi * A["rem"][i] if self._peak > 0.0 else A["pos"][i]
+        return out
 
     @property
     def stamps(self) -> np.ndarray:
@@ -237,6 +238,8 @@ class ExperienceMap:
             A["cumres"][0] = 0.0
             A["weight"][0] = 0.0
         else:
+            if self.last_odom is None:
+                raise RuntimeError("experience map holds nodes but no last odometry position")
             delta = odom - self.last_odom
             A["delta"][n] = delta
             A["pos"][n] = A["pos"][n - 1] + delta
@@ -381,6 +384,6 @@ class ExperienceMap:
 
     @classmethod
     def load(cls, path: str | Path, cfg: ExpMapConfig, lattice_shape: Any = (15, 15, 15, 8),
-             lattice_spacing: Any = (0.1, 0.1, 0.1)) -> "ExperienceMap":
+             lattice_spacing: Any = (0.1, 0.1, 0.1)) -> ExperienceMap:
         """Read a map written by :meth:`save`; the lattice must match the saved one."""
         return load_map(cls(cfg, lattice_shape, lattice_spacing), path)

@@ -31,9 +31,11 @@ Everything is deterministic (fixed search order; ties go to the first hypothesis
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 
 __all__ = ["LikelihoodField", "ScanMatch", "match_scan", "scan_points", "voxel_filter", "transform_points",
@@ -49,11 +51,12 @@ def scan_points(ranges: np.ndarray, angle_min: float, angle_increment: float, ra
     return np.stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])], axis=1)
 
 
-def transform_points(pts: np.ndarray, pose) -> np.ndarray:
+def transform_points(pts: np.ndarray, pose: npt.ArrayLike) -> np.ndarray:
     """Points given in the frame of ``pose`` (x, y, yaw) expressed in its parent frame."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
+    x, y, yaw = (float(v) for v in np.asarray(pose, np.float64)[:3])
+    c, s = math.cos(yaw), math.sin(yaw)
     p = np.asarray(pts, np.float64).reshape(-1, 2)
-    return np.stack([pose[0] + c * p[:, 0] - s * p[:, 1], pose[1] + s * p[:, 0] + c * p[:, 1]], axis=1)
+    return np.stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]], axis=1)
 
 
 def voxel_filter(pts: np.ndarray, cell: float) -> np.ndarray:
@@ -63,7 +66,8 @@ def voxel_filter(pts: np.ndarray, cell: float) -> np.ndarray:
         return p
     keys = np.floor(p / cell).astype(np.int64)
     _, first = np.unique(keys[:, 0] * 1_000_003 + keys[:, 1], return_index=True)
-    return p[np.sort(first)]
+    out: np.ndarray = p[np.sort(first)]
+    return out
 
 
 class LikelihoodField:
@@ -84,14 +88,14 @@ class LikelihoodField:
         self.grid = np.zeros((int(shape[0]), int(shape[1])), np.float32)
         _splat(self.grid, lo[0], lo[1], self.cell, float(sigma_m), ref)
 
-    def score(self, pts: np.ndarray, pose) -> float:
+    def score(self, pts: np.ndarray, pose: npt.ArrayLike) -> float:
         """Mean likelihood of ``pts`` (query frame) placed at ``pose`` in the reference frame."""
         q = transform_points(pts, pose)
         return float(_mean_lookup(self.grid, self.origin[0], self.origin[1], self.cell, q))
 
 
 @njit(cache=True)
-def _splat(grid, ox, oy, cell, sigma, ref):
+def _splat(grid: np.ndarray, ox: float, oy: float, cell: float, sigma: float, ref: np.ndarray) -> None:
     nx, ny = grid.shape
     k = int(math.ceil(3.0 * sigma / cell))
     inv = 0.5 / (sigma * sigma)
@@ -116,19 +120,21 @@ def _splat(grid, ox, oy, cell, sigma, ref):
 
 
 @njit(cache=True)
-def _mean_lookup(grid, ox, oy, cell, q):
+def _mean_lookup(grid: np.ndarray, ox: float, oy: float, cell: float, q: np.ndarray) -> float:
     nx, ny = grid.shape
-    acc = 0.0
+    acc: float = 0.0
     for k in range(q.shape[0]):
         i = int(math.floor((q[k, 0] - ox) / cell))
         j = int(math.floor((q[k, 1] - oy) / cell))
         if 0 <= i < nx and 0 <= j < ny:
             acc += grid[i, j]
-    return acc / max(q.shape[0], 1)
+    n_q: int = max(q.shape[0], 1)
+    return acc / n_q
 
 
 @njit(cache=True)
-def _search(grid, ox, oy, cell, pts, yaws, cx, cy, w, px, py, pyaw, sxy, syaw):
+def _search(grid: np.ndarray, ox: float, oy: float, cell: float, pts: np.ndarray, yaws: np.ndarray, cx: float,
+            cy: float, w: int, px: float, py: float, pyaw: float, sxy: float, syaw: float) -> np.ndarray:
     """Scores (n_yaw, 2w+1, 2w+1) of the query at yaw yaws[a] and translation
     (cx + i*cell, cy + j*cell), i, j in -w..w, times the prior's Gaussian when sxy > 0."""
     nx, ny = grid.shape
@@ -186,7 +192,7 @@ def _peaks(scores: np.ndarray, k: int, sep: int) -> list[tuple[int, int, int]]:
     return out
 
 
-def match_scan(ref: np.ndarray, query: np.ndarray, prior, *, window_xy_m: float, window_yaw_deg: float,
+def match_scan(ref: np.ndarray, query: np.ndarray, prior: npt.ArrayLike, *, window_xy_m: float, window_yaw_deg: float,
                coarse_cell_m: float = 0.1, coarse_sigma_m: float = 0.2, coarse_yaw_step_deg: float = 1.0,
                fine_cell_m: float = 0.025, fine_sigma_m: float = 0.05, fine_yaw_step_deg: float = 0.25,
                refine_peaks: int = 3, ambiguity_ratio: float = 0.95, second_peak_m: float = 0.5,
@@ -249,7 +255,7 @@ def match_scan(ref: np.ndarray, query: np.ndarray, prior, *, window_xy_m: float,
                      n_points=int(q.shape[0]), second_ratio=second)
 
 
-def free_space_fraction(scans: list[np.ndarray], poses: list[np.ndarray], query: np.ndarray, *,
+def free_space_fraction(scans: Sequence[np.ndarray | None], poses: Sequence[np.ndarray], query: np.ndarray, *,
                         margin_m: float = 0.3, bin_deg: float = 1.0) -> float:
     """Fraction of ``query`` points (reference frame) that lie where a reference scan saw
     through: for a scan (points in its own frame, taken at ``pose`` in the reference frame),

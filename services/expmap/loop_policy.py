@@ -14,6 +14,7 @@ import heapq
 import math
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 
 from common.config import ExpMapConfig
@@ -75,10 +76,10 @@ class LoopEdges:
         self.deltas: list[np.ndarray] = []   # per loop edge: p_n - p_m it asks for (m); zero by default
         self._ends: list[int] = []              # sorted distinct loop-edge endpoints
         self._adj: dict[int, list[int]] = {}    # loop-edge endpoint -> other ends
-        self._csr: tuple | None = None
+        self._csr: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._route_cache: tuple[int, int, int] | None = None   # (m, n, upper bound of their route)
 
-    def add(self, m: int, n: int, weight: float, stamp: int, delta=None) -> None:
+    def add(self, m: int, n: int, weight: float, stamp: int, delta: npt.ArrayLike | None = None) -> None:
         """Record a loop edge m -> n asking p_n - p_m = ``delta`` (default zero: the same place)."""
         self.loops.append((m, n, weight, stamp))
         self.deltas.append(np.zeros(3) if delta is None else np.asarray(delta, np.float64).reshape(3).copy())

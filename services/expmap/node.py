@@ -65,8 +65,18 @@ import numpy as np
 
 from common.config import ConfigError, PoseidonConfig
 from common.geometry import quaternion_to_matrix, yaw_of_quaternion
-from common.messages import (ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceNode, Header, Image,
-                             LaserScan, Odometry, PoseStamped, RangeImageBeam)
+from common.messages import (
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceLink,
+    ExperienceNode,
+    Header,
+    Image,
+    LaserScan,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+)
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
 from services.expmap.association import Association, EventImageAssociator
@@ -177,7 +187,7 @@ class ExpMapNode(ServiceNode):
             self.count("loop_closures")
             log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m)", res.match, res.node,
                       res.score, res.correction_norm)
-        elif res.loop_closed:
+        elif res.loop_closed and isinstance(self.graph, ExperienceMap):
             self.count("loop_closures")
             reg = self.graph.last_registration
             how = "zero displacement (no sweep)" if self.scan_key is not None else "zero displacement"
@@ -191,8 +201,11 @@ class ExpMapNode(ServiceNode):
         if res.rejected:
             self.count(f"loop_rejected_{res.rejected}")
             if res.rejected == "scan" and isinstance(self.graph, ExperienceMap):
+                rejected_by = self.graph.last_registration
+                if rejected_by is None:
+                    raise RuntimeError("expmap: a loop rejected by its scans left no registration")
                 log.debug("expmap: loop closure %d -> %d rejected: the sonar sweeps do not fit (%s)", res.match,
-                         res.node, self.graph.last_registration.reason)
+                          res.node, rejected_by.reason)
         if res.correction_clamped:
             self.count("corrections_clamped")
         if res.iterations:

@@ -30,8 +30,11 @@ def load_map_links(path: Path) -> tuple[np.ndarray, list[tuple[int, int, float]]
             last = r
         if last is None:
             raise ValueError(f"{path}: no 'map' message in this recording")
+        from common.messages import ExperienceMap as MapMessage
         msg = last.message()
-        pos = np.array([n.position for n in msg.nodes], float).reshape(-1, 3)
+        if not isinstance(msg, MapMessage):
+            raise ValueError(f"{path}: the 'map' record holds a {type(msg).__name__}, not an experience map")
+        pos = np.array([n.position for n in msg.nodes], np.float64).reshape(-1, 3)
         ids = [n.id for n in msg.nodes]
         if ids != list(range(len(ids))):
             raise ValueError(f"{path}: map node ids are not 0..{len(ids) - 1}")

@@ -16,6 +16,7 @@ maps keep the odometry's z.
 from __future__ import annotations
 
 import math
+from typing import overload
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,7 +25,11 @@ from scipy.sparse.linalg import splu
 __all__ = ["relax_se2", "relative_pose", "compose", "wrap_angle"]
 
 
-def wrap_angle(a):
+@overload
+def wrap_angle(a: float) -> float: ...
+@overload
+def wrap_angle(a: np.ndarray) -> np.ndarray: ...
+def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
     """Angle(s) wrapped to [-pi, pi)."""
     return (np.asarray(a) + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -67,7 +72,8 @@ def relax_se2(poses: np.ndarray, ei: np.ndarray, ej: np.ndarray, z: np.ndarray, 
     if n < 2 or ei.size == 0:
         return x, 0
     it = 0
-    for it in range(1, iterations + 1):
+    for step in range(1, iterations + 1):
+        it = step
         xi, xj = x[ei], x[ej]
         c, s = np.cos(xi[:, 2]), np.sin(xi[:, 2])
         dx, dy = xj[:, 0] - xi[:, 0], xj[:, 1] - xi[:, 1]

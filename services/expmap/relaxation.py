@@ -17,7 +17,7 @@ iteration (positions = pos + phi * rem).  Positions in m.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.sparse as sp

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import heapq
 import math
-from typing import TYPE_CHECKING, Any, Iterable
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,7 +14,7 @@ if TYPE_CHECKING:
 __all__ = ["quickest_path", "quickest_path_links"]
 
 
-def quickest_path(em: "ExperienceMap", source: int, target: int) -> tuple[list[int], float, float]:
+def quickest_path(em: ExperienceMap, source: int, target: int) -> tuple[list[int], float, float]:
     """Quickest path over the map's edges (see :func:`quickest_path_links`)."""
     return quickest_path_links(em.positions, [(s, t, d) for s, t, _dl, d, _w, _l in em.edges()], source, target)
 

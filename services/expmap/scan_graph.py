@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -155,7 +156,8 @@ class ScanGraph:
         return self._scans[i]
 
     # ---- the event ----------------------------------------------------------------
-    def add_event(self, stamp: int, lvc_id: int, pc_centroid, odom_position, odom_yaw: float,
+    def add_event(self, stamp: int, lvc_id: int, pc_centroid: np.ndarray | Sequence[float],
+                  odom_position: np.ndarray | Sequence[float], odom_yaw: float,
                   sweep: np.ndarray | None = None) -> EventResult:
         """Add the experience of one accepted event; ``sweep``: its range scan (k x 2, m, own frame)."""
         odom = np.asarray(odom_position, np.float64)
@@ -224,7 +226,7 @@ class ScanGraph:
         self.counters["chain_scan"] += 1
         return m.pose, self._scan_info()
 
-    def _local_points(self, nodes, frame: int) -> np.ndarray | None:
+    def _local_points(self, nodes: Iterable[int], frame: int) -> np.ndarray | None:
         """Scans of ``nodes`` placed by the map, in the frame of experience ``frame``."""
         parts = []
         for k in nodes:
@@ -389,7 +391,7 @@ class ScanGraph:
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: str | Path, cfg: ScanGraphConfig) -> "ScanGraph":
+    def load(cls, path: str | Path, cfg: ScanGraphConfig) -> ScanGraph:
         """Read a map written by :meth:`save`."""
         path = Path(path)
         zf, meta = read_map_file(path, "a scan-graph map")
@@ -412,8 +414,8 @@ class ScanGraph:
         g.is_loop = [bool(v) for v in zf["is_loop"]]
         g.loop_stamps = [int(v) for v in zf["loop_stamps"]]
         g._pending = [(int(r[0]), int(r[1]), r[2:].copy()) for r in zf["pending"]]
-        for i, l in enumerate(g._lvc):
-            g._lvc_index.setdefault(l, []).append(i)
+        for i, lvc in enumerate(g._lvc):
+            g._lvc_index.setdefault(lvc, []).append(i)
         g.since_loop_m = float(meta["since_loop_m"])
         g.corrections = int(meta["corrections"])
         g.solves = int(meta["solves"])

@@ -46,6 +46,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 from scipy.ndimage import distance_transform_edt
 
@@ -81,7 +82,7 @@ class SweepBuffer:
         self._pos: np.ndarray | None = None
         self._rot: np.ndarray | None = None
 
-    def add_pose(self, position, rotation: np.ndarray) -> None:
+    def add_pose(self, position: npt.ArrayLike, rotation: np.ndarray) -> None:
         """The latest dead-reckoning pose: position (3, m) and body->world rotation (3x3)."""
         self._pos = np.asarray(position, np.float64)[:3].copy()
         self._rot = np.asarray(rotation, np.float64).reshape(3, 3).copy()
@@ -101,7 +102,7 @@ class SweepBuffer:
         self._n += 1
         return True
 
-    def sweep(self, origin_xy) -> np.ndarray:
+    def sweep(self, origin_xy: npt.ArrayLike) -> np.ndarray:
         """Points (k x 2, float32, m) of the last full head turn relative to ``origin_xy``;
         empty when the buffer holds less than a full turn."""
         n = min(self._n, self.capacity)
@@ -117,7 +118,8 @@ class SweepBuffer:
         take = idx[: full[0] + 1]
         xy = self._xy[take]
         xy = xy[np.isfinite(xy[:, 0])]
-        return (xy - np.asarray(origin_xy, np.float64)[:2]).astype(np.float32)
+        out: np.ndarray = (xy - np.asarray(origin_xy, np.float64)[:2]).astype(np.float32)
+        return out
 
 
 @dataclass
@@ -161,10 +163,11 @@ def _chamfer_grid(dt: np.ndarray, gx0: float, gy0: float, cell: float, tau: floa
 
 def _rotate(pts: np.ndarray, deg: float) -> np.ndarray:
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return pts @ np.array([[c, s], [-s, c]])
+    out: np.ndarray = pts @ np.array([[c, s], [-s, c]])
+    return out
 
 
-def register_sweeps(ref: np.ndarray, cur: np.ndarray, map_separation, *, cell_m: float = 0.1,
+def register_sweeps(ref: np.ndarray, cur: np.ndarray, map_separation: npt.ArrayLike, *, cell_m: float = 0.1,
                     search_radius_m: float = 4.0, max_rotation_deg: float = 2.0, rotation_step_deg: float = 1.0,
                     min_points: int = 50, min_inlier_fraction: float = 0.65, ambiguity_margin_m: float = 0.01,
                     max_ambiguity_m: float = 0.3, max_window_m: float = 12.0) -> Registration:
@@ -196,13 +199,15 @@ def register_sweeps(ref: np.ndarray, cur: np.ndarray, map_separation, *, cell_m:
     ny = int(math.floor((hi[1] - lo[1]) / cell_m)) + 1
     n_rot = int(round(max_rotation_deg / rotation_step_deg)) if rotation_step_deg > 0 else 0
     rots = [0.0] + [s * k * rotation_step_deg for k in range(1, n_rot + 1) for s in (1.0, -1.0)]
-    best = (math.inf, 0.0, None)
+    best: tuple[float, float, np.ndarray | None] = (math.inf, 0.0, None)
     for r in rots:
         c = _chamfer_grid(dt, gx0, gy0, cell_m, tau, _rotate(cur, r), lo[0], lo[1], cell_m, nx, ny)
         k = int(np.argmin(c))
         if c.flat[k] < best[0] - 1e-12:
             best = (float(c.flat[k]), r, c)
     cost, rot, grid = best
+    if grid is None:
+        raise ValueError("register_sweeps: no finite chamfer cost at any rotation")
     i, j = np.unravel_index(int(np.argmin(grid)), grid.shape)
     t = np.array([lo[0] + i * cell_m, lo[1] + j * cell_m])
     # refinement to a quarter cell around the optimum

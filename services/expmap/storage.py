@@ -46,7 +46,7 @@ class ColumnStore:
             self.arrays[k] = b
 
 
-def read_map_file(path: Path, what: str) -> tuple[Any, dict]:
+def read_map_file(path: Path, what: str) -> tuple[Any, dict[str, Any]]:
     """The arrays and the ``meta`` JSON record of a map file written by a ``save`` (npz);
     ValueError naming the file when it is not one (``what``: the kind, for the message)."""
     try:
@@ -56,7 +56,7 @@ def read_map_file(path: Path, what: str) -> tuple[Any, dict]:
         raise ValueError(f"{path}: not {what} file ({exc})") from None
 
 
-def save_map(em: "ExperienceMap", path: str | Path) -> None:
+def save_map(em: ExperienceMap, path: str | Path) -> None:
     """Write everything needed to continue ``em`` (npz, written to a temporary name then moved)."""
     meta = {
         "format": FORMAT_VERSION, "lattice_shape": list(em.lattice_shape),
@@ -76,12 +76,15 @@ def save_map(em: "ExperienceMap", path: str | Path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
+    # numpy's savez stub types **kwds against its allow_pickle: bool keyword
     np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w,
-             loop_delta=loop_d, last_odom=last_odom, sweep_ptr=sweep_ptr, sweep_pts=sweep_pts, **arrays)
+             loop_delta=loop_d, last_odom=last_odom, sweep_ptr=sweep_ptr, sweep_pts=sweep_pts,
+             **arrays)  # type: ignore[arg-type]
     tmp.replace(path)
 
 
-def _check_header(path: Path, meta: dict, lattice_shape: tuple, lattice_spacing: tuple) -> None:
+def _check_header(path: Path, meta: dict[str, Any], lattice_shape: tuple[int, ...],
+                  lattice_spacing: tuple[float, ...]) -> None:
     if meta.get("format") != FORMAT_VERSION:
         raise ValueError(f"{path}: map format {meta.get('format')} (this build reads {FORMAT_VERSION})")
     if list(meta["lattice_shape"]) != [int(v) for v in lattice_shape] or \
@@ -90,7 +93,7 @@ def _check_header(path: Path, meta: dict, lattice_shape: tuple, lattice_spacing:
                          f"{meta['lattice_spacing']} m, configured {list(lattice_shape)} x {list(lattice_spacing)}")
 
 
-def load_map(em: "ExperienceMap", path: str | Path) -> "ExperienceMap":
+def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     """Fill the empty map ``em`` (built with the configuration and lattice of the run) from a
     file written by :func:`save_map`; the lattice must match the saved one."""
     path = Path(path)
@@ -114,8 +117,8 @@ def load_map(em: "ExperienceMap", path: str | Path) -> "ExperienceMap":
     em.last_correction_stamp = int(meta["last_correction_stamp"])
     em.corrections = int(meta["corrections"])
     em.solves = int(meta["solves"])
-    for i, l in enumerate(em.lvc_ids.tolist()):
-        em._lvc_index.setdefault(int(l), []).append(i)
+    for i, lvc in enumerate(em.lvc_ids.tolist()):
+        em._lvc_index.setdefault(int(lvc), []).append(i)
     if "sweep_ptr" in z:                      # maps saved before sonar sweeps existed have none
         ptr, pts = z["sweep_ptr"], z["sweep_pts"]
         if len(ptr) != n + 1:

@@ -17,8 +17,8 @@ posting lengths of the query's bits, not #LVCs x L.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from numba import njit

@@ -424,7 +424,7 @@ class NeocortexHtm:
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: str | Path, cfg: HtmConfig) -> "NeocortexHtm":
+    def load(cls, path: str | Path, cfg: HtmConfig) -> NeocortexHtm:
         """A NeocortexHtm with ``cfg`` and the state saved at ``path``."""
         obj = cls(cfg)
         obj.load_state(path)

@@ -32,7 +32,7 @@ appends the frame to the memory.  Everything is causal: the frame t only uses fr
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from numba import njit

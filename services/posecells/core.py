@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -113,7 +114,10 @@ class PoseCellsCore:
         """:meth:`OdometryIntegrator.update`; the first pose ever places the packet there."""
         what = self.odometry.update(position, yaw)
         if what == "first" and not self.placed:
-            pos = self.odometry.odom[0]  # type: ignore[index]
+            odom = self.odometry.odom
+            if odom is None:
+                raise RuntimeError("posecells: the first odometry pose was not kept")
+            pos = odom[0]
             self.net.reset_at_pose(pos[0], pos[1], pos[2], float(yaw))
             self.placed = True
         return what
@@ -154,7 +158,9 @@ class PoseCellsCore:
         """Write the network and the core's state to ``path`` (``.npz``)."""
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "wb") as f:  # an open file keeps np.savez from appending ".npz"
-            np.savez(f, node_state=np.array(json.dumps(self.node_state())), **self.net.state_arrays())
+            # numpy's savez stub types **kwds against its allow_pickle: bool keyword
+            np.savez(f, node_state=np.array(json.dumps(self.node_state())),
+                     **self.net.state_arrays())  # type: ignore[arg-type]
 
     def load(self, path: Path) -> None:
         """Continue from a file written by :meth:`save` (same lattice)."""

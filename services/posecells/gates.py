@@ -62,7 +62,7 @@ class VprGuard:
         self.rejection_run = 0  # q of Eq. 4.13
 
     @classmethod
-    def from_config(cls, cfg: VprGuardConfig) -> "VprGuard":
+    def from_config(cls, cfg: VprGuardConfig) -> VprGuard:
         return cls(cfg.vpr_window, cfg.vpr_min_rep, cfg.vpr_leak_rate, cfg.require_vpr_for_event)
 
     def observe(self, lvc_id: int) -> int:
@@ -115,7 +115,7 @@ class MotionGate:
         self.last_yaw = 0.0
 
     @classmethod
-    def from_config(cls, cfg: VprGuardConfig) -> "MotionGate":
+    def from_config(cls, cfg: VprGuardConfig) -> MotionGate:
         return cls(cfg.min_event_trans_xy, cfg.min_event_dz, cfg.motion_gate_enable, cfg.min_event_dyaw_deg)
 
     def passes(self, position: list[float] | tuple[float, ...], yaw: float = 0.0) -> bool:

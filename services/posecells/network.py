@@ -98,7 +98,8 @@ def gaussian_kernel(sigma_cells: float, n: int) -> tuple[np.ndarray, np.ndarray]
 
 
 @numba.njit(cache=True)
-def _excite_list(src, dst, idx_src, n_src, idx_dst, flag, stride, n, offsets, weights):
+def _excite_list(src: np.ndarray, dst: np.ndarray, idx_src: np.ndarray, n_src: int, idx_dst: np.ndarray,
+                 flag: np.ndarray, stride: int, n: int, offsets: np.ndarray, weights: np.ndarray) -> int:
     """Scatter the listed non-zero cells of ``src`` into ``dst`` along one wrapped axis (flat
     C-order arrays); lists the touched cells of ``dst`` in ``idx_dst`` and returns their number.
     ``dst`` and ``flag`` must be zero on entry; ``src`` is left zero on exit."""
@@ -128,7 +129,10 @@ def _excite_list(src, dst, idx_src, n_src, idx_dst, flag, stride, n, offsets, we
 
 
 @numba.njit(cache=True)
-def _attractor_update(p, tmp, idx_a, idx_b, flag, strides, dims, off0, w0, off1, w1, off2, w2, off3, w3, phi):
+def _attractor_update(p: np.ndarray, tmp: np.ndarray, idx_a: np.ndarray, idx_b: np.ndarray, flag: np.ndarray,
+                      strides: np.ndarray, dims: np.ndarray, off0: np.ndarray, w0: np.ndarray, off1: np.ndarray,
+                      w1: np.ndarray, off2: np.ndarray, w2: np.ndarray, off3: np.ndarray, w3: np.ndarray,
+                      phi: float) -> float:
     """Eqs. 4.16-4.17 in place on the flat activity ``p``: separable wrapped excitation over
     the non-zero cells only, then ``N(max(0, E - phi))``.  ``tmp`` and ``flag`` are zero
     scratch (left zero).  Returns the total before normalisation."""
@@ -159,7 +163,7 @@ def _attractor_update(p, tmp, idx_a, idx_b, flag, strides, dims, off0, w0, off1,
 
 
 @numba.njit(cache=True)
-def _marginals(p, d0, d1, d2, d3):
+def _marginals(p: np.ndarray, d0: int, d1: int, d2: int, d3: int) -> np.ndarray:
     """The four axis marginals of the flat (d0, d1, d2, d3) activity, concatenated."""
     out = np.zeros(d0 + d1 + d2 + d3)
     i = 0
@@ -178,7 +182,7 @@ def _marginals(p, d0, d1, d2, d3):
 
 
 @numba.njit(cache=True)
-def _roll_axis(src, dst, stride, n, k):
+def _roll_axis(src: np.ndarray, dst: np.ndarray, stride: int, n: int, k: int) -> None:
     """dst = src rolled by ``k`` whole cells along one wrapped axis (flat C-order arrays seen
     as (outer, n, stride)); zero cells skipped."""
     dst[:] = 0.0
@@ -415,7 +419,7 @@ class PoseCellNetwork:
                 np.zeros(0, np.float32)}
 
     @staticmethod
-    def _unpack(arrays, prefix: str) -> dict[int, _Beta]:
+    def _unpack(arrays: dict[str, np.ndarray] | np.lib.npyio.NpzFile, prefix: str) -> dict[int, _Beta]:
         counts = np.asarray(arrays[f"{prefix}_counts"])
         ends = np.cumsum(counts)
         cells, values = arrays[f"{prefix}_cells"], arrays[f"{prefix}_values"]
@@ -453,10 +457,11 @@ class PoseCellNetwork:
         self.last_active = {int(i): int(s) for i, s in zip(arrays["pc_last_ids"], arrays["pc_last_steps"])}
 
     def save(self, path: str | Path) -> None:
-        np.savez(Path(path), **self.state_arrays())
+        # numpy's savez stub types **kwds against its allow_pickle: bool keyword
+        np.savez(Path(path), **self.state_arrays())  # type: ignore[arg-type]
 
     @classmethod
-    def load(cls, path: str | Path, config: PoseCellsConfig | None = None) -> "PoseCellNetwork":
+    def load(cls, path: str | Path, config: PoseCellsConfig | None = None) -> PoseCellNetwork:
         net = cls(config)
         with np.load(Path(path)) as f:
             net.load_arrays(f, source=str(path))

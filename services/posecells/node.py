@@ -89,9 +89,13 @@ class PoseCellsNode(ServiceNode):
     # ---- inputs ---------------------------------------------------------------------------
     def process(self, key: str, msg: Message) -> None:
         if key == "Odometry":
-            self._on_odometry(msg)  # type: ignore[arg-type]
+            if not isinstance(msg, Odometry):
+                raise TypeError(f"posecells: {key!r} carries {type(msg).__name__}, expected Odometry")
+            self._on_odometry(msg)
         elif key == "local_view_cells":
-            self._on_lvc(msg)  # type: ignore[arg-type]
+            if not isinstance(msg, LocalViewCells):
+                raise TypeError(f"posecells: {key!r} carries {type(msg).__name__}, expected LocalViewCells")
+            self._on_lvc(msg)
         else:
             raise KeyError(f"posecells: unexpected input key {key!r}")
 

@@ -66,7 +66,8 @@ def grey(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
         g = a.astype(np.float32)
     else:
         raise ValueError(f"image must be (H, W) or (H, W, C), got shape {a.shape}")
-    return g / np.float32(scale)
+    out: np.ndarray = g / np.float32(scale)
+    return out
 
 
 @nb.njit(cache=True)

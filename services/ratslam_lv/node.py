@@ -55,7 +55,6 @@ class RatSlamViewNode(ServiceNode):
     def __init__(self, config: PoseidonConfig):
         super().__init__(config)
         self.cfg = config.ratslam_lv
-        self.inputs = (self.cfg.image_topic,)
         self.matcher = LocalViewMatcher(self.cfg)
 
     def process(self, key: str, msg: Message) -> None:

@@ -2,14 +2,22 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from common.config import EncoderConfig
-from services.encoder.backbones import (AlexNetConv3, ShuffleNetV2, WeightsError, build_backbone, hub_checkpoint,
-                                        load_backbone)
+from services.encoder.backbones import (
+    AlexNetConv3,
+    EfficientNetLite0,
+    ShuffleNetV2,
+    WeightsError,
+    build_backbone,
+    hub_checkpoint,
+    load_backbone,
+)
 from services.encoder.encoder import MultimodalEncoder
 
 # a few names of torchvision's shufflenet_v2_x1_0 / alexnet state dicts
@@ -32,7 +40,7 @@ def _perturbed(model: torch.nn.Module, seed: int) -> dict[str, torch.Tensor]:
     return sd
 
 
-def test_shufflenet_has_torchvision_names_and_size():
+def test_shufflenet_has_torchvision_names_and_size() -> None:
     m = ShuffleNetV2()
     keys = m.state_dict().keys()
     for k in TORCHVISION_SHUFFLENET_KEYS:
@@ -43,8 +51,9 @@ def test_shufflenet_has_torchvision_names_and_size():
     assert AlexNetConv3().eval()(x).shape == (1, 384, 13, 13)
 
 
-def test_weights_round_trip_shufflenet(tmp_path):
+def test_weights_round_trip_shufflenet(tmp_path: Path) -> None:
     a = build_backbone("shufflenetv2")
+    assert isinstance(a, ShuffleNetV2)
     a.load_state_dict(_perturbed(a, 1))
     path = tmp_path / "shufflenetv2_x1-deadbeef.pth"
     torch.save(a.state_dict(), path)
@@ -56,7 +65,7 @@ def test_weights_round_trip_shufflenet(tmp_path):
         assert torch.equal(a.features(x), b.features(x))
 
 
-def test_weights_round_trip_full_alexnet_state_dict(tmp_path):
+def test_weights_round_trip_full_alexnet_state_dict(tmp_path: Path) -> None:
     a = AlexNetConv3()
     sd = _perturbed(a, 2)
     # a full torchvision AlexNet also has conv4, conv5 and the classifier: accepted and dropped
@@ -72,7 +81,7 @@ def test_weights_round_trip_full_alexnet_state_dict(tmp_path):
         assert torch.equal(a.eval()(x), b.model(x))
 
 
-def test_incompatible_and_missing_weights_give_clear_errors(tmp_path):
+def test_incompatible_and_missing_weights_give_clear_errors(tmp_path: Path) -> None:
     alex = tmp_path / "alexnet.pth"
     torch.save(AlexNetConv3().state_dict(), alex)
     with pytest.raises(WeightsError) as err:
@@ -97,7 +106,7 @@ def test_incompatible_and_missing_weights_give_clear_errors(tmp_path):
         load_backbone("vgg")
 
 
-def test_seeded_init_is_deterministic_and_warns(tmp_path, monkeypatch, caplog):
+def test_seeded_init_is_deterministic_and_warns(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_hub"))
     torch.manual_seed(123)
     before = torch.rand(1)
@@ -114,7 +123,7 @@ def test_seeded_init_is_deterministic_and_warns(tmp_path, monkeypatch, caplog):
     assert not torch.equal(sa["conv1.0.weight"], sc["conv1.0.weight"])
 
 
-def test_missing_weights_is_an_error_saying_how_to_fix(tmp_path, monkeypatch):
+def test_missing_weights_is_an_error_saying_how_to_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_hub"))
     with pytest.raises(WeightsError, match=r"no weights for backbone shufflenetv2.*weights_path.*untrained: true"):
         load_backbone("shufflenetv2")
@@ -127,7 +136,7 @@ def test_missing_weights_is_an_error_saying_how_to_fix(tmp_path, monkeypatch):
         load_backbone("efficientnet_lite0", str(alex))
 
 
-def test_hub_cache_is_used(tmp_path, monkeypatch):
+def test_hub_cache_is_used(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     ckpt = tmp_path / "hub" / "checkpoints"
     ckpt.mkdir(parents=True)
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
@@ -138,10 +147,13 @@ def test_hub_cache_is_used(tmp_path, monkeypatch):
     assert hub_checkpoint("alexnet_conv3") == ckpt / "alexnet-owt-7be5be79.pth"
     b = load_backbone("alexnet_conv3")
     assert b.trained and b.weights.endswith("alexnet-owt-7be5be79.pth")
-    assert torch.equal(b.model.features[0].weight, a.features[0].weight)
+    assert isinstance(b.model, AlexNetConv3)
+    conv_b, conv_a = b.model.features[0], a.features[0]
+    assert isinstance(conv_b, torch.nn.Conv2d) and isinstance(conv_a, torch.nn.Conv2d)
+    assert torch.equal(conv_b.weight, conv_a.weight)
 
 
-def test_encoder_embedding_dims_and_batching(tmp_path, monkeypatch):
+def test_encoder_embedding_dims_and_batching(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
     cfg = EncoderConfig(lsbh_matrix_path=str(tmp_path / "p_{backbone}_{modality}.npy"), batch_max=3, pool_grid=2,
                         torch_threads=1, embedding_norm_path=str(tmp_path / "n_{backbone}_{modality}.npz"),
@@ -165,7 +177,7 @@ def test_encoder_embedding_dims_and_batching(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("name", ["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"])
-def test_fold_batchnorm_keeps_the_function_and_removes_every_batch_norm(name):
+def test_fold_batchnorm_keeps_the_function_and_removes_every_batch_norm(name: str) -> None:
     from services.encoder.backbones import fold_batchnorm
     model = build_backbone(name)
     model.load_state_dict(_perturbed(model, 3))  # non-trivial running statistics and affine terms
@@ -174,9 +186,15 @@ def test_fold_batchnorm_keeps_the_function_and_removes_every_batch_norm(name):
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
     assert any(isinstance(m, torch.nn.BatchNorm2d) for m in model.modules()) == (name != "alexnet_conv3")
     x = torch.randn(2, 3, 96, 96, generator=torch.Generator().manual_seed(0))
+    def feats(m: torch.nn.Module) -> torch.Tensor:
+        if name != "alexnet_conv3":
+            assert isinstance(m, (ShuffleNetV2, EfficientNetLite0))
+            return m.features(x)
+        out: torch.Tensor = m(x)
+        return out
+
     with torch.inference_mode():
-        a, b = model.features(x) if name != "alexnet_conv3" else model(x), \
-            folded.features(x) if name != "alexnet_conv3" else folded(x)
+        a, b = feats(model), feats(folded)
     scale = float(a.abs().max())
     assert scale > 0
     assert float((a - b).abs().max()) <= 1e-4 * scale
@@ -184,7 +202,7 @@ def test_fold_batchnorm_keeps_the_function_and_removes_every_batch_norm(name):
     assert any(isinstance(m, torch.nn.BatchNorm2d) for m in model.modules()) == (name != "alexnet_conv3")
 
 
-def test_encoder_folds_batch_norm_by_default_with_the_same_embedding():
+def test_encoder_folds_batch_norm_by_default_with_the_same_embedding() -> None:
     cfg = EncoderConfig(untrained=True)
     rng = np.random.default_rng(1)
     frames = [rng.integers(0, 255, (72, 96, 3), dtype=np.uint8) for _ in range(3)]

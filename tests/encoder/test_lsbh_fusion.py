@@ -1,12 +1,21 @@
 """LSBH (Eq. 4.2) and fusion (Eq. 4.3): the worked example of Section 4.2.2 and invariants."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from services.encoder.fusion import fuse
-from services.encoder.lsbh import (LsbhEncoder, LsbhError, load_or_create_projection, lsbh_bits, lsbh_k,
-                                   make_projection, projection_path)
+from services.encoder.lsbh import (
+    LsbhEncoder,
+    LsbhError,
+    load_or_create_projection,
+    lsbh_bits,
+    lsbh_k,
+    make_projection,
+    projection_path,
+)
 
 CAM_V = [0.9, -1.2, 0.1, -0.8, 2.1, -0.4, 0.7, -1.5]
 SON_V = [0.2, -0.9, 1.5, -1.1, 0.4, -0.2, 0.8, -1.7]
@@ -16,7 +25,7 @@ def one_based(bits: np.ndarray) -> set[int]:
     return {int(b) + 1 for b in bits}
 
 
-def test_worked_example_section_4_2_2():
+def test_worked_example_section_4_2_2() -> None:
     k = lsbh_k(16, 0.25)
     assert k == 2
     cam = lsbh_bits(np.array(CAM_V), k)
@@ -33,7 +42,7 @@ def test_worked_example_section_4_2_2():
 
 
 @pytest.mark.parametrize("p,s", [(8, 0.25), (1024, 0.25), (1024, 0.02), (37, 0.5), (5, 0.9)])
-def test_exactly_2k_bits_random_and_ties(p, s):
+def test_exactly_2k_bits_random_and_ties(p: int, s: float) -> None:
     rng = np.random.default_rng(p)
     k = int(np.floor(s * p))
     for trial in range(50):
@@ -55,12 +64,12 @@ def test_exactly_2k_bits_random_and_ties(p, s):
         assert np.array_equal(bits, lsbh_bits(v.copy(), k))
 
 
-def test_ties_break_towards_lower_index():
+def test_ties_break_towards_lower_index() -> None:
     v = np.array([1.0, 1.0, 1.0, 0.0, -1.0, -1.0, -1.0, 0.0])
     assert lsbh_bits(v, 2).tolist() == [0, 1, 8 + 4, 8 + 5]
 
 
-def test_bad_inputs_are_clear():
+def test_bad_inputs_are_clear() -> None:
     with pytest.raises(LsbhError, match="non-finite"):
         lsbh_bits(np.array([0.0, np.nan, 1.0, 2.0]), 1)
     with pytest.raises(LsbhError, match="even"):
@@ -69,7 +78,7 @@ def test_bad_inputs_are_clear():
         lsbh_k(4, 0.25)
 
 
-def test_projection_unit_columns_seeded_per_modality():
+def test_projection_unit_columns_seeded_per_modality() -> None:
     a = make_projection(50, 16, 42, "camera")
     assert a.shape == (50, 16) and a.dtype == np.float32
     assert np.allclose(np.linalg.norm(a, axis=0), 1.0, atol=1e-5)
@@ -78,7 +87,7 @@ def test_projection_unit_columns_seeded_per_modality():
     assert not np.allclose(a, make_projection(50, 16, 43, "camera"))
 
 
-def test_projection_persisted_and_reloaded(tmp_path):
+def test_projection_persisted_and_reloaded(tmp_path: Path) -> None:
     path = projection_path(str(tmp_path / "st" / "lsbh_{backbone}_{modality}.npy"), "shufflenetv2", "sonar")
     assert path.name == "lsbh_shufflenetv2_sonar.npy"
     p1 = load_or_create_projection(path, 30, 8, 42, "sonar")
@@ -96,7 +105,7 @@ def test_projection_persisted_and_reloaded(tmp_path):
         projection_path("state/{model}.npy", "a", "b")
 
 
-def test_lsbh_encoder_batch_matches_single():
+def test_lsbh_encoder_batch_matches_single() -> None:
     enc = LsbhEncoder(make_projection(40, 32, 1, "camera"), 64, 0.25)
     y = np.random.default_rng(3).standard_normal((5, 40)).astype(np.float32)
     batch = enc.encode_batch(y)
@@ -107,7 +116,7 @@ def test_lsbh_encoder_batch_matches_single():
         enc.encode(np.zeros(41))
 
 
-def test_fusion_modes_and_missing_modality():
+def test_fusion_modes_and_missing_modality() -> None:
     cam = np.array([1, 4, 9], dtype=np.uint32)
     son = np.array([4, 7], dtype=np.uint32)
     both = {"camera": cam, "sonar": son}

@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pytest
 
 from common.config import PoseidonConfig
-from common.messages import Header, Image, NeocortexSdr, RangeImageBeam
+from common.messages import Header, Image, Message, NeocortexSdr, RangeImageBeam
 from common.node import run_offline
 from services.encoder.encoder import MultimodalEncoder
 from services.encoder.node import EncoderNode
@@ -16,7 +18,7 @@ S = 1_000_000_000
 
 
 @pytest.fixture(scope="module")
-def config(tmp_path_factory) -> PoseidonConfig:
+def config(tmp_path_factory: pytest.TempPathFactory) -> PoseidonConfig:
     tmp = tmp_path_factory.mktemp("enc")
     return PoseidonConfig.model_validate({"encoder": {
         "lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 2,
@@ -25,7 +27,7 @@ def config(tmp_path_factory) -> PoseidonConfig:
 
 
 @pytest.fixture(scope="module")
-def encoder(config) -> MultimodalEncoder:
+def encoder(config: PoseidonConfig) -> MultimodalEncoder:
     return MultimodalEncoder(config.encoder)
 
 
@@ -44,10 +46,11 @@ def ping(t: float, seq: int) -> RangeImageBeam:
                           angle_grad=math.degrees(angle), angle_rad=angle, nbins=100, max_range=30, beam_data=data)
 
 
-def stream(cam_gaps=(), sonar_gaps=(), duration=12.0):
+def stream(cam_gaps: Sequence[tuple[float, float]] = (), sonar_gaps: Sequence[tuple[float, float]] = (),
+           duration: float = 12.0) -> list[tuple[str, Message]]:
     """Camera 5 Hz, sonar 20 Hz (a 360 deg sweep every 2 s), each silent inside its gaps."""
-    msgs = []
-    def inside(t, gaps):
+    msgs: list[tuple[str, Message]] = []
+    def inside(t: float, gaps: Sequence[tuple[float, float]]) -> bool:
         return any(a <= t < b for a, b in gaps)
     seq = 0
     for i in range(int(duration * 5)):
@@ -64,16 +67,20 @@ def stream(cam_gaps=(), sonar_gaps=(), duration=12.0):
     return msgs
 
 
-def run(config, encoder, mode="union", **kw):
+def run(config: PoseidonConfig, encoder: MultimodalEncoder, mode: str = "union",
+        **kw: Any) -> tuple[EncoderNode, list[NeocortexSdr]]:
     cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"fusion_mode": mode})})
     # a fresh encoder per run (the running embedding statistics are state), sharing the backbone
     node = EncoderNode(cfg, encoder=MultimodalEncoder(cfg.encoder, backbone=encoder.backbone))
     out = run_offline(node, stream(**kw))
-    assert all(k == "neocortex/sdr" and isinstance(m, NeocortexSdr) for k, m in out)
-    return node, [m for _, m in out]
+    sdrs: list[NeocortexSdr] = []
+    for k, m in out:
+        assert k == "neocortex/sdr" and isinstance(m, NeocortexSdr)
+        sdrs.append(m)
+    return node, sdrs
 
 
-def check_sdr(msg: NeocortexSdr, config) -> None:
+def check_sdr(msg: NeocortexSdr, config: PoseidonConfig) -> None:
     k = config.encoder.sp_columns // 2 // 4
     mods = {s.modality: s.active for s in msg.modalities}
     for bits in mods.values():
@@ -85,7 +92,7 @@ def check_sdr(msg: NeocortexSdr, config) -> None:
     assert msg.fused.header.stamp == msg.header.stamp
 
 
-def test_one_output_per_frame_with_both_modalities(config, encoder):
+def test_one_output_per_frame_with_both_modalities(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     node, out = run(config, encoder, duration=4.0)
     cams = [m for k, m in stream(duration=4.0) if k == "camera/image_raw"]
     assert [o.header.stamp for o in out] == [c.header.stamp for c in cams]
@@ -101,7 +108,7 @@ def test_one_output_per_frame_with_both_modalities(config, encoder):
     assert all(np.array_equal(a.fused.active, b.fused.active) for a, b in zip(out, again))
 
 
-def test_sonar_dropout_still_yields_camera_sdrs(config, encoder):
+def test_sonar_dropout_still_yields_camera_sdrs(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     node, out = run(config, encoder, sonar_gaps=[(4.0, 8.0)], duration=10.0)
     assert len(out) == 50
     for o in out:
@@ -115,7 +122,7 @@ def test_sonar_dropout_still_yields_camera_sdrs(config, encoder):
     assert node.counters["sonar_ring_reset"] == 1
 
 
-def test_camera_dropout_switches_to_sonar_sweep_clock(config, encoder):
+def test_camera_dropout_switches_to_sonar_sweep_clock(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     node, out = run(config, encoder, cam_gaps=[(4.0, 10.0)], duration=12.0)
     sonar_only = [o for o in out if [s.modality for s in o.modalities] == ["sonar"]]
     stamps = [o.header.stamp / S for o in sonar_only]
@@ -129,7 +136,7 @@ def test_camera_dropout_switches_to_sonar_sweep_clock(config, encoder):
     assert node.counters["sonar_clocked_outputs"] == len(sonar_only)
 
 
-def test_single_modality_and_and_modes(config, encoder):
+def test_single_modality_and_and_modes(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     _, cam = run(config, encoder, mode="camera", duration=3.0)
     assert len(cam) == 15 and all([s.modality for s in o.modalities] == ["camera"] for o in cam)
     assert all(np.array_equal(o.fused.active, o.modalities[0].active) for o in cam)
@@ -142,15 +149,16 @@ def test_single_modality_and_and_modes(config, encoder):
         assert np.array_equal(o.fused.active, np.intersect1d(a, b))
 
 
-def test_sonar_topic_from_config(config, encoder):
+def test_sonar_topic_from_config(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_topic": "sonar_seaking"})})
     node = EncoderNode(cfg, encoder=encoder)
     assert node.inputs == ("camera/image_raw", "sonar_seaking")
     out = run_offline(node, [("sonar_seaking", ping(0.0, 0)), ("camera/image_raw", frame(0.1, 0))])
-    assert [s.modality for s in out[0][1].modalities] == ["camera", "sonar"]
+    first = out[0][1]
+    assert isinstance(first, NeocortexSdr) and [s.modality for s in first.modalities] == ["camera", "sonar"]
 
 
-def test_image_to_rgb_encodings():
+def test_image_to_rgb_encodings() -> None:
     from services.encoder.encoder import image_to_rgb
     rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
     h = Header(seq=0, stamp=0)
@@ -164,7 +172,7 @@ def test_image_to_rgb_encodings():
         image_to_rgb(Image.model_construct(header=h, height=3, width=3, encoding="rgb8", data=rgb))
 
 
-def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config, encoder, caplog):
+def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config: PoseidonConfig, encoder: MultimodalEncoder, caplog: pytest.LogCaptureFixture) -> None:
     cfg = config.model_copy(update={"htm": config.htm.model_copy(update={"state_path": "state/htm.npz"})})
     with caplog.at_level("WARNING", logger="services.encoder.node"):
         node = EncoderNode(cfg, encoder=encoder)
@@ -172,7 +180,7 @@ def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config, enc
     assert "embedding_norm_not_persisted" not in EncoderNode(config, encoder=encoder).counters
 
 
-def test_sonar_is_re_encoded_after_enough_sweep(config, encoder):
+def test_sonar_is_re_encoded_after_enough_sweep(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     """45 deg rule: at 180 deg/s of sweep and 5 camera frames/s (36 deg per frame) the sonar raster goes
     through the CNN about every 2nd frame, the SDR in between is the last one; 0 deg: every frame."""
     node, out = run(config, encoder, duration=4.0)

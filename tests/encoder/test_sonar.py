@@ -20,7 +20,7 @@ def beam(angle: float, echo_m: float | None, stamp: int = 0, nbins: int = 300, m
 
 
 @pytest.mark.parametrize("angle,r", [(0.0, 0.05), (1.0, 10.0), (math.pi, 29.9), (5.9, 15.0), (-0.5, 7.3)])
-def test_single_beam_lights_expected_polar_pixel(angle, r):
+def test_single_beam_lights_expected_polar_pixel(angle: float, r: float) -> None:
     ras = SonarRaster(224, 224, rmax=30.0)
     ras.add_beam(beam(angle, r))
     img = ras.image()
@@ -33,7 +33,7 @@ def test_single_beam_lights_expected_polar_pixel(angle, r):
     assert img[ys[0], xs[0]] == pytest.approx(200 / 255)
 
 
-def test_range_beyond_rmax_is_dropped_and_shorter_rmax_scales_rows():
+def test_range_beyond_rmax_is_dropped_and_shorter_rmax_scales_rows() -> None:
     ras = SonarRaster(64, 100, rmax=10.0)
     ras.add_beam(beam(0.3, 20.0, max_range=50, nbins=500))
     assert not ras.image().any()
@@ -42,7 +42,7 @@ def test_range_beyond_rmax_is_dropped_and_shorter_rmax_scales_rows():
     assert ys.tolist() == [int(5.05 / 10 * 100)]
 
 
-def test_ring_keeps_latest_beam_per_bearing_and_fills_small_steps():
+def test_ring_keeps_latest_beam_per_bearing_and_fills_small_steps() -> None:
     ras = SonarRaster(360, 50, rmax=30.0)  # 1 deg per column
     step = math.radians(1.8)
     for i in range(201):  # a full sweep plus a bit
@@ -56,7 +56,7 @@ def test_ring_keeps_latest_beam_per_bearing_and_fills_small_steps():
     assert not ras.has_data and not ras.image().any()
 
 
-def test_intensities_off_marks_strongest_echo_only():
+def test_intensities_off_marks_strongest_echo_only() -> None:
     ras = SonarRaster(90, 60, rmax=30.0, use_intensities=False)
     data = np.zeros(300, dtype=np.int32)
     data[50] = 40
@@ -68,7 +68,7 @@ def test_intensities_off_marks_strongest_echo_only():
     assert ras.image().max() == 1.0
 
 
-def test_cartesian_fan_geometry():
+def test_cartesian_fan_geometry() -> None:
     ras = SonarRaster(200, 200, rmax=30.0, cartesian=True)
     # straight up, ~half the radius (polar rows are 0.15 m, Cartesian pixels 0.3 m: pick a range
     # whose polar row contains a pixel centre)
@@ -82,7 +82,7 @@ def test_cartesian_fan_geometry():
     assert np.all(np.abs(dx) < 1.0) and np.all(np.abs(dy - 15.15) < 0.3)
 
 
-def test_laserscan_form_and_errors():
+def test_laserscan_form_and_errors() -> None:
     ras = SonarRaster(100, 100, rmax=30.0)
     scan = LaserScan(header=Header(seq=0, stamp=0), angle_min=1.0, angle_max=1.0, angle_increment=0.0,
                      range_min=0.1, range_max=50.0, ranges=np.array([12.0]), intensities=np.array([255.0]))
@@ -96,7 +96,7 @@ def test_laserscan_form_and_errors():
         ras.add_beam(bad)
 
 
-def test_laserscan_beam_profile_matches_range_image_beam():
+def test_laserscan_beam_profile_matches_range_image_beam() -> None:
     # the *_ros form of one MSIS beam: a single bearing, ranges = bin centres, intensities = echoes
     b = beam(2.0, 11.0, nbins=200, max_range=20, value=150)
     centres = ((np.arange(200) + 0.5) * 20 / 200).astype(np.float32)
@@ -108,7 +108,7 @@ def test_laserscan_beam_profile_matches_range_image_beam():
     assert np.array_equal(a.image(), c.image()) and a.image().any()
 
 
-def test_laserscan_multi_bearing_scan():
+def test_laserscan_multi_bearing_scan() -> None:
     ras = SonarRaster(360, 60, rmax=30.0, use_intensities=False)
     scan = LaserScan(header=Header(seq=0, stamp=0), angle_min=0.0, angle_max=math.radians(20),
                      angle_increment=math.radians(10), range_min=0.5, range_max=40.0,

@@ -1,6 +1,8 @@
 """Embedding standardisation before LSBH: cross-place overlap, determinism, freezing, persistence."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -25,7 +27,8 @@ def overlap(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def mean_overlaps(sdrs: list[np.ndarray], place: np.ndarray) -> tuple[float, float]:
-    same, diff = [], []
+    same: list[float] = []
+    diff: list[float] = []
     for i in range(len(sdrs)):
         for j in range(i + 1, len(sdrs)):
             (same if place[i] == place[j] else diff).append(overlap(sdrs[i], sdrs[j]))
@@ -37,7 +40,7 @@ def lsbh() -> LsbhEncoder:
     return LsbhEncoder(make_projection(D, L // 2, 42, "camera"), L, 0.25)
 
 
-def test_standardisation_lowers_cross_place_overlap(lsbh):
+def test_standardisation_lowers_cross_place_overlap(lsbh: LsbhEncoder) -> None:
     y, place = places()
     raw = [lsbh.encode(v) for v in y]
     st = EmbeddingStandardizer(D, "running", warmup=30, scale=False)
@@ -58,7 +61,7 @@ def test_standardisation_lowers_cross_place_overlap(lsbh):
     assert 0.2 < diff_fix < 0.32
 
 
-def test_running_warmup_freezes_and_is_deterministic():
+def test_running_warmup_freezes_and_is_deterministic() -> None:
     y, _ = places(10, 2, seed=1)
     a = EmbeddingStandardizer(D, "running", warmup=5)
     b = EmbeddingStandardizer(D, "running", warmup=5)
@@ -90,7 +93,7 @@ def test_running_warmup_freezes_and_is_deterministic():
     assert np.array_equal(EmbeddingStandardizer(D, "none").transform(y[3]), y[3])
 
 
-def test_statistics_persist_and_reload(tmp_path):
+def test_statistics_persist_and_reload(tmp_path: Path) -> None:
     y, _ = places(10, 2, seed=2)
     path = norm_path(str(tmp_path / "n_{backbone}_{modality}.npz"), "shufflenetv2", "camera")
     assert path.name == "n_shufflenetv2_camera.npz"
@@ -115,7 +118,7 @@ def test_statistics_persist_and_reload(tmp_path):
         a.transform(np.zeros(3))
 
 
-def test_encoder_node_saves_statistics_on_finish(tmp_path):
+def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
     from common.config import PoseidonConfig
     from common.messages import Header, Image
     from common.node import run_offline

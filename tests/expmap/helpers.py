@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -12,32 +14,38 @@ SEC = 1_000_000_000
 PERIOD = 1.5  # pose-cell lattice period in x, y, z (15 cells x 0.1 m)
 
 
-def pc_of(p, yaw: float = 0.0) -> list[float]:
+def pc_of(p: Sequence[float] | np.ndarray, yaw: float = 0.0) -> list[float]:
     """The pose-cell centroid a perfect attractor would report at true position p."""
     return [p[0] % PERIOD, p[1] % PERIOD, p[2] % PERIOD, yaw % (2 * math.pi)]
 
 
-def feed(em: ExperienceMap, events) -> list[EventResult]:
+def feed(em: ExperienceMap, events: Iterable[Event]) -> list[EventResult]:
     """events: (t_s, lvc, pc, odom) tuples."""
     return [em.add_event(int(round(t * SEC)), lvc, pc, odom, 0.0) for t, lvc, pc, odom in events]
 
 
-def line_lap(n: int, t0: float = 0.0, lvc0: int = 0) -> list:
+#: (t_s, lvc, pc, odom) of one experience event
+Event = tuple[float, int, list[float], list[float]]
+
+
+def line_lap(n: int, t0: float = 0.0, lvc0: int = 0) -> list[Event]:
     """n events 1 s and 1 m apart along x; LVC id = lvc0 + index."""
     return [(t0 + i, lvc0 + i, pc_of((float(i), 0.0, 0.0)), [float(i), 0.0, 0.0]) for i in range(n)]
 
 
-def revisit(t: float, lvc: int, odom_x: float = 0.0) -> tuple:
+def revisit(t: float, lvc: int, odom_x: float = 0.0) -> Event:
     """An event at time t seeing place `lvc` of a line lap (pose cells agree), odometry elsewhere."""
     return (t, lvc, pc_of((float(lvc), 0.0, 0.0)), [odom_x, 5.0, 0.0])
 
 
-def loop_laps(laps: int, per_lap: int = 300, radius: float = 20.0, drift_per_event=(0.004, -0.002, 0.0005),
-              dt: float = 0.5, seed: int = 0):
+def loop_laps(laps: int, per_lap: int = 300, radius: float = 20.0,
+              drift_per_event: tuple[float, float, float] = (0.004, -0.002, 0.0005),
+              dt: float = 0.5, seed: int = 0) -> tuple[list[Event], np.ndarray]:
     """A vehicle circling `laps` times; each place keeps its LVC id; odometry drifts linearly
     plus a little noise.  Returns (events, true positions)."""
     rng = np.random.default_rng(seed)
-    events, truth = [], []
+    events: list[Event] = []
+    truth: list[np.ndarray] = []
     drift = np.zeros(3)
     for k in range(laps * per_lap):
         a = 2 * math.pi * (k % per_lap) / per_lap
@@ -49,8 +57,8 @@ def loop_laps(laps: int, per_lap: int = 300, radius: float = 20.0, drift_per_eve
     return events, np.array(truth)
 
 
-def small_cfg(**kw) -> ExpMapConfig:
-    base = dict(min_experience_age=20, loop_confirmations=2, min_correction_route_len=25,
+def small_cfg(**kw: Any) -> ExpMapConfig:
+    base: dict[str, Any] = dict(min_experience_age=20, loop_confirmations=2, min_correction_route_len=25,
                 min_correction_interval_sec=15.0, loop_confirmation_gap=3)
     base.update(kw)
     return ExpMapConfig(**base)

@@ -3,6 +3,7 @@ a ray-casting laser and a drifting wheel odometry (deterministic, fast)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -25,7 +26,7 @@ def ring_world() -> np.ndarray:
     return np.asarray(segs, np.float64)
 
 
-def raycast(segs: np.ndarray, pose, n_beams: int = 181, max_range: float = 30.0, noise: float = 0.0,
+def raycast(segs: np.ndarray, pose: Sequence[float] | np.ndarray, n_beams: int = 181, max_range: float = 30.0, noise: float = 0.0,
             rng: np.random.Generator | None = None) -> np.ndarray:
     """Ranges of a 180-degree laser (angles -90..+90 deg) at ``pose``; max_range = no return."""
     ang = pose[2] + np.linspace(-math.pi / 2, math.pi / 2, n_beams)
@@ -43,7 +44,8 @@ def raycast(segs: np.ndarray, pose, n_beams: int = 181, max_range: float = 30.0,
     r = np.minimum(t.min(axis=1), max_range)
     if noise > 0 and rng is not None:
         r = np.where(r < max_range, r + rng.normal(0.0, noise, r.size), r)
-    return r
+    out: np.ndarray = r
+    return out
 
 
 def ring_route(laps: int = 2, step: float = 0.4) -> np.ndarray:

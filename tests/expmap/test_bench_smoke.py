@@ -5,7 +5,7 @@ import sys
 from tests.conftest import REPO
 
 
-def test_bench_expmap_runs_on_a_small_map():
+def test_bench_expmap_runs_on_a_small_map() -> None:
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_expmap.py"), "--sizes", "1000",
                            "--measure", "300"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -1,6 +1,8 @@
 """Experience map core: Eq. 4.20 relaxation, clamps, loop-closure rules, persistence, paths."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -27,7 +29,7 @@ def residuals(em: ExperienceMap) -> np.ndarray:
     return np.array([p[t] - p[s] - d for s, t, d, _du, _w, _l in em.edges()])
 
 
-def test_consistent_loop_stays_put():
+def test_consistent_loop_stays_put() -> None:
     em = square(10.0)
     assert len(em.loops) == 1
     before = em.positions.copy()
@@ -36,7 +38,7 @@ def test_consistent_loop_stays_put():
     np.testing.assert_allclose(residuals(em), 0.0, atol=1e-12)
 
 
-def test_square_with_one_long_side_spreads_the_error_over_every_edge():
+def test_square_with_one_long_side_spreads_the_error_over_every_edge() -> None:
     em = square(11.0)          # 10 % long: 1 m closing error
     em.settle()
     r = residuals(em)
@@ -56,14 +58,14 @@ def test_square_with_one_long_side_spreads_the_error_over_every_edge():
     assert np.abs(sweep[-1]).max() < 1e-9 and np.abs(sweep[:, 0]).max() > 0.3  # not the least-squares answer
 
 
-def test_stiff_loop_edge_puts_the_error_on_the_odometry_edges():
+def test_stiff_loop_edge_puts_the_error_on_the_odometry_edges() -> None:
     em = square(11.0, ExpMapConfig(**SQUARE_CFG, loop_edge_weight=1e6))
     em.settle()
     r = residuals(em)
     np.testing.assert_allclose(np.abs(r[:4, 0]), 0.25, atol=1e-6)
 
 
-def test_optimum_equals_dense_weighted_least_squares():
+def test_optimum_equals_dense_weighted_least_squares() -> None:
     rng = np.random.default_rng(3)
     em = ExperienceMap(ExpMapConfig(min_experience_age=10_000))
     for i in range(80):
@@ -77,7 +79,9 @@ def test_optimum_equals_dense_weighted_least_squares():
     for s, t, d, _du, w, _l in em.edges():
         row = np.zeros(N)
         row[t], row[s] = 1.0, -1.0
-        rows.append(row); rhs.append(d); wts.append(w)
+        rows.append(row)
+        rhs.append(d)
+        wts.append(w)
     A, B, W = np.array(rows), np.array(rhs), np.sqrt(np.array(wts))[:, None]
     B = B - A[:, :1] * em.positions[0]
     x, *_ = np.linalg.lstsq(A[:, 1:] * W, B * W, rcond=None)
@@ -85,7 +89,7 @@ def test_optimum_equals_dense_weighted_least_squares():
     np.testing.assert_allclose(opt[0], em.positions[0])
 
 
-def test_no_correction_exceeds_the_clamps():
+def test_no_correction_exceeds_the_clamps() -> None:
     cfg = ExpMapConfig(relax_iterations_per_event=1, max_correction_norm=20.0, max_correction_step=0.05,
                        min_correction_interval_sec=15.0)
     events, _truth = loop_laps(3, drift_per_event=(0.08, -0.05, 0.0))  # ~36 m of drift per lap
@@ -107,7 +111,7 @@ def test_no_correction_exceeds_the_clamps():
     assert closures >= 2 and clamped >= 1
 
 
-def test_map_beats_dead_reckoning_on_a_drifting_loop():
+def test_map_beats_dead_reckoning_on_a_drifting_loop() -> None:
     events, truth = loop_laps(3)
     em = ExperienceMap(ExpMapConfig())
     res = feed(em, events)
@@ -122,7 +126,7 @@ def test_map_beats_dead_reckoning_on_a_drifting_loop():
 # ---------------------------------------------------------------- loop-closure rules
 
 
-def test_rule_age():
+def test_rule_age() -> None:
     em = ExperienceMap(small_cfg())
     feed(em, line_lap(40))
     young = feed(em, [revisit(40, 25), revisit(41, 26)])     # ages 15
@@ -131,7 +135,7 @@ def test_rule_age():
     assert [r.match for r in old] == [15, 16] and old[1].loop_closed and em.loops[0][:2] == (16, 43)
 
 
-def test_rule_confirmations():
+def test_rule_confirmations() -> None:
     em = ExperienceMap(small_cfg())
     feed(em, line_lap(40))
     res = feed(em, [revisit(40, 5), (41, 99, pc_of((0, 3, 0)), [0.0, 0.0, 0.0]), revisit(42, 7)])
@@ -142,7 +146,7 @@ def test_rule_confirmations():
     assert res[0].confirmations == 2 and res[0].loop_closed and em.loops[0][:2] == (18, 44)
 
 
-def test_rule_interval():
+def test_rule_interval() -> None:
     em = ExperienceMap(small_cfg())
     feed(em, line_lap(60))
     assert feed(em, [revisit(60, 5), revisit(61, 6)])[1].loop_closed
@@ -153,7 +157,7 @@ def test_rule_interval():
     assert res[1].loop_closed and len(em.loops) == 2
 
 
-def test_rule_route_length_counts_loop_edges():
+def test_rule_route_length_counts_loop_edges() -> None:
     em = ExperienceMap(small_cfg())
     feed(em, line_lap(60))
     assert feed(em, [revisit(60, 5), revisit(61, 6)])[1].loop_closed       # loop 6 <-> 61
@@ -163,7 +167,7 @@ def test_rule_route_length_counts_loop_edges():
     assert res[1].confirmations == 2 and res[1].rejected == "route" and len(em.loops) == 1
 
 
-def test_pose_cell_proximity_is_wrap_aware():
+def test_pose_cell_proximity_is_wrap_aware() -> None:
     shape, spacing = (15, 15, 15, 8), (0.1, 0.1, 0.1)
     assert pc_distance_cells([0.01, 0, 0, 0], [1.49, 0, 0, 0], shape, spacing) == pytest.approx(0.2)
     assert pc_distance_cells([0, 0, 0, 0.1], [0, 0, 0, 2 * np.pi - 0.1], shape, spacing) == \
@@ -176,7 +180,7 @@ def test_pose_cell_proximity_is_wrap_aware():
     assert near.match == 0 and near.score > 0.98
 
 
-def test_index_search_equals_scoring_every_node():
+def test_index_search_equals_scoring_every_node() -> None:
     events, _ = loop_laps(2, per_lap=250)
     a = ExperienceMap(ExpMapConfig())
     b = ExperienceMap(ExpMapConfig(lv_factor=0.02, pc_factor=0.98, match_threshold=0.9996))
@@ -189,7 +193,7 @@ def test_index_search_equals_scoring_every_node():
 # ---------------------------------------------------------------- persistence and paths
 
 
-def test_save_load_continue_equals_uninterrupted(tmp_path):
+def test_save_load_continue_equals_uninterrupted(tmp_path: Path) -> None:
     cfg = ExpMapConfig(relax_iterations_per_event=1)
     events, _ = loop_laps(3, drift_per_event=(0.02, -0.01, 0.0))
     full = ExperienceMap(cfg)
@@ -208,7 +212,7 @@ def test_save_load_continue_equals_uninterrupted(tmp_path):
         assert np.array_equal(resumed._a(name), full._a(name)), name
 
 
-def test_load_rejects_a_foreign_file(tmp_path):
+def test_load_rejects_a_foreign_file(tmp_path: Path) -> None:
     bad = tmp_path / "x.npz"
     np.savez(bad, a=np.zeros(3))
     with pytest.raises(ValueError, match="x.npz"):
@@ -220,7 +224,7 @@ def test_load_rejects_a_foreign_file(tmp_path):
         ExperienceMap.load(tmp_path / "m.npz", ExpMapConfig(), (10, 10, 10, 8))
 
 
-def test_quickest_path_takes_the_loop_shortcut():
+def test_quickest_path_takes_the_loop_shortcut() -> None:
     em = ExperienceMap(small_cfg())
     feed(em, line_lap(60))
     feed(em, [revisit(60, 5), revisit(61, 6)])                 # loop 6 <-> 61 (0 s)
@@ -234,7 +238,7 @@ def test_quickest_path_takes_the_loop_shortcut():
         quickest_path(em, 0, 99)
 
 
-def test_route_length_equals_breadth_first_search():
+def test_route_length_equals_breadth_first_search() -> None:
     rng = np.random.default_rng(5)
     em = ExperienceMap(ExpMapConfig())
     for i in range(300):
@@ -242,9 +246,10 @@ def test_route_length_equals_breadth_first_search():
     for _ in range(12):
         m, n = sorted(rng.choice(300, 2, replace=False))
         em.add_loop_edge(int(m), int(n), 1.0, 0)
-    adj = {i: set() for i in range(300)}
+    adj: dict[int, set[int]] = {i: set() for i in range(300)}
     for s, t, *_ in em.edges():
-        adj[s].add(t); adj[t].add(s)
+        adj[s].add(t)
+        adj[t].add(s)
     for _ in range(40):
         a, b = (int(v) for v in rng.choice(300, 2, replace=False))
         dist, frontier = {a: 0}, [a]
@@ -260,7 +265,7 @@ def test_route_length_equals_breadth_first_search():
         assert em.route_length(a, b, limit=5) >= min(dist[b], 5)
 
 
-def test_place_radius_keeps_separations_within_it_and_pulls_larger_ones_to_it():
+def test_place_radius_keeps_separations_within_it_and_pulls_larger_ones_to_it() -> None:
     """loop_place_radius_m r: a loop whose two experiences are within r of each other stays put
     (the place is recognised, not exactly revisited); one farther apart is pulled to r."""
     within = square(10.5, ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))   # nodes 4 and 0 0.5 m apart
@@ -282,7 +287,7 @@ def test_place_radius_keeps_separations_within_it_and_pulls_larger_ones_to_it():
     np.testing.assert_allclose(link[2], beyond.loop_deltas[0])
 
 
-def test_place_radius_survives_save_and_load(tmp_path):
+def test_place_radius_survives_save_and_load(tmp_path: Path) -> None:
     em = square(13.0, ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))
     em.save(tmp_path / "m.npz")
     back = ExperienceMap.load(tmp_path / "m.npz", ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -10,12 +13,21 @@ import pytest
 from common.codec import decode, encode
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
-from common.messages import ExperienceEvent, ExperienceImage, ExperienceMap, Header, Image, Odometry, PoseStamped
+from common.messages import (
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceMap,
+    Header,
+    Image,
+    Message,
+    Odometry,
+    PoseStamped,
+)
 from common.node import run_offline
 from services.expmap.graph import ExperienceMap as Graph
 from services.expmap.node import ExpMapNode
 from services.expmap.path import main as path_main
-from tests.expmap.helpers import SEC, loop_laps
+from tests.expmap.helpers import SEC, Event, loop_laps
 
 MS = 1_000_000
 
@@ -25,21 +37,23 @@ def frame(seq: int, stamp: int) -> Image:
     return Image(header=Header(seq=seq, stamp=stamp, frame_id="camera"), height=4, width=6, data=data)
 
 
-def event(seq: int, stamp: int, lvc: int = 0, odom=(0.0, 0.0, 0.0), pc=(0.0, 0.0, 0.0, 0.0)) -> ExperienceEvent:
+def event(seq: int, stamp: int, lvc: int = 0, odom: Sequence[float] = (0.0, 0.0, 0.0),
+          pc: Sequence[float] = (0.0, 0.0, 0.0, 0.0)) -> ExperienceEvent:
     return ExperienceEvent(header=Header(seq=seq, stamp=stamp, frame_id="map"), lvc_id=lvc, pc_centroid=list(pc),
                            odom_position=list(odom), odom_yaw=0.3, gate="vpr", vpr_count=3)
 
 
-def odometry(seq: int, stamp: int, pos, yaw: float) -> Odometry:
+def odometry(seq: int, stamp: int, pos: Sequence[float], yaw: float) -> Odometry:
     return Odometry(header=Header(seq=seq, stamp=stamp, frame_id="world"), position=list(pos),
                     orientation=[0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
 
 
-def outputs(out, key):
+def outputs(out: list[tuple[str, Message]], key: str) -> list[Any]:
+    """The messages on ``key`` (typed loosely: each test reads the fields of its key's type)."""
     return [m for k, m in out if k == key]
 
 
-def test_every_experience_image_carries_its_event_header():
+def test_every_experience_image_carries_its_event_header() -> None:
     # camera at 5 Hz from 0 to 2 s, then nothing until 4 s, then 4.0 and 4.2 s
     frames = [frame(i, i * 200 * MS) for i in range(11)] + [frame(11, 4000 * MS), frame(12, 4200 * MS)]
     events = [event(0, 400 * MS),          # exactly on a frame
@@ -66,7 +80,7 @@ def test_every_experience_image_carries_its_event_header():
         assert back.header == m.header and np.array_equal(back.data, m.data)
 
 
-def test_watermark_is_held_until_the_image_is_decided():
+def test_watermark_is_held_until_the_image_is_decided() -> None:
     node = ExpMapNode(PoseidonConfig())
     node.process("camera/image_raw", frame(0, 0))
     node.process("experience_event", event(0, 100 * MS))
@@ -74,11 +88,11 @@ def test_watermark_is_held_until_the_image_is_decided():
     assert node.output_watermark(150 * MS) == 100 * MS
     node.process("camera/image_raw", frame(1, 200 * MS))
     (key, img), = node.take_outbox()
-    assert key == "experience_image" and img.source_stamp == 0
+    assert key == "experience_image" and isinstance(img, ExperienceImage) and img.source_stamp == 0
     assert node.output_watermark(200 * MS) == 200 * MS
 
 
-def test_event_without_camera_when_images_are_off():
+def test_event_without_camera_when_images_are_off() -> None:
     cfg = PoseidonConfig()
     cfg.expmap.publish_experience_image = False
     node = ExpMapNode(cfg)
@@ -87,8 +101,8 @@ def test_event_without_camera_when_images_are_off():
     assert outputs(out, "experience_image") == [] and node.counters["events"] == 1
 
 
-def stream(events, with_odometry=True):
-    msgs = []
+def stream(events: Iterable[Event], with_odometry: bool = True) -> list[tuple[str, Message]]:
+    msgs: list[tuple[str, Message]] = []
     for i, (t, lvc, pc, odom) in enumerate(events):
         stamp = int(round(t * SEC))
         msgs.append(("experience_event", event(i, stamp, lvc, odom, pc)))
@@ -97,7 +111,7 @@ def stream(events, with_odometry=True):
     return msgs
 
 
-def test_map_cadence_and_final_map_equal_the_core():
+def test_map_cadence_and_final_map_equal_the_core() -> None:
     events, _ = loop_laps(3)
     cfg = PoseidonConfig()
     cfg.expmap.map_publish_every = 200
@@ -127,7 +141,7 @@ def test_map_cadence_and_final_map_equal_the_core():
     assert dr[7].yaw == pytest.approx(0.7) and dr[7].position == list(events[7][3])
 
 
-def test_dead_reckoning_decimation():
+def test_dead_reckoning_decimation() -> None:
     cfg = PoseidonConfig()
     cfg.expmap.dead_reckoning_period_sec = 0.5
     msgs = [("Odometry", odometry(i, i * 100 * MS, (i, 0, 0), 0.0)) for i in range(20)]
@@ -135,7 +149,7 @@ def test_dead_reckoning_decimation():
     assert [m.header.stamp for _k, m in out] == [0, 500 * MS, 1000 * MS, 1500 * MS]
 
 
-def test_invalid_event_is_counted_and_skipped():
+def test_invalid_event_is_counted_and_skipped() -> None:
     node = ExpMapNode(PoseidonConfig())
     run_offline(node, [("experience_event", event(0, 0)),
                        ("experience_event", event(1, SEC, odom=(float("nan"), 0.0, 0.0))),
@@ -144,7 +158,7 @@ def test_invalid_event_is_counted_and_skipped():
     assert node.graph.n_nodes == 2
 
 
-def test_two_sessions_with_map_path_equal_one_run(tmp_path):
+def test_two_sessions_with_map_path_equal_one_run(tmp_path: Path) -> None:
     events, _ = loop_laps(3)
     cfg = PoseidonConfig()
     one = ExpMapNode(cfg)
@@ -167,7 +181,7 @@ def test_two_sessions_with_map_path_equal_one_run(tmp_path):
     assert final_two.model_dump(exclude={"header"}) == final_one.model_dump(exclude={"header"})
 
 
-def test_poseidon_path_on_a_map_file_and_a_recording(tmp_path, capsys):
+def test_poseidon_path_on_a_map_file_and_a_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     events, _ = loop_laps(2)
     cfg = PoseidonConfig()
     cfg.expmap.map_path = str(tmp_path / "m.npz")
@@ -189,7 +203,7 @@ def test_poseidon_path_on_a_map_file_and_a_recording(tmp_path, capsys):
     assert "--to 100000" in capsys.readouterr().err
 
 
-def test_laser_scans_make_a_scan_graph_map():
+def test_laser_scans_make_a_scan_graph_map() -> None:
     """expmap.graph=scan_graph: LaserScan + Odometry + events through the node; the scans
     reach the core in each experience's own frame and the published map carries its yaws."""
     from common.messages import LaserScan
@@ -204,7 +218,7 @@ def test_laser_scans_make_a_scan_graph_map():
     truth = ring_route(laps=2, step=0.5)[:150]
     odo = drifting_odometry(truth, yaw_drift_deg_per_m=0.4, scale=1.01)
     rng = np.random.default_rng(1)
-    msgs = []
+    msgs: list[tuple[str, Message]] = []
     for k, (t, o) in enumerate(zip(truth, odo)):
         stamp = (k + 1) * 1_000_000_000
         ranges = raycast(ring_world(), t, noise=0.01, rng=rng).astype(np.float32)
@@ -230,7 +244,7 @@ def test_laser_scans_make_a_scan_graph_map():
     assert max(yaw_err) < math.radians(2.0)
 
 
-def test_laser_scan_without_scan_graph_is_a_configuration_error():
+def test_laser_scan_without_scan_graph_is_a_configuration_error() -> None:
     from common.config import ConfigError
     from common.messages import LaserScan
 
@@ -245,10 +259,11 @@ def test_laser_scan_without_scan_graph_is_a_configuration_error():
         node.process("scan", scan)
 
 
-def test_laser_sensor_offset_places_returns_in_the_robot_frame():
+def test_laser_sensor_offset_places_returns_in_the_robot_frame() -> None:
     """A return 1 m straight ahead of a laser mounted 0.5 m forward and turned 90 degrees
     left lies at (0.5, 1.0) in the robot frame; the experience keeps it there."""
     from common.messages import LaserScan
+    from services.expmap.scan_graph import ScanGraph
 
     cfg = PoseidonConfig().model_copy(deep=True)
     cfg.expmap.graph = "scan_graph"
@@ -266,6 +281,7 @@ def test_laser_sensor_offset_places_returns_in_the_robot_frame():
     node.process("experience_event", ExperienceEvent(
         header=Header(seq=0, stamp=30, frame_id="map"), lvc_id=0, pc_centroid=[0.0] * 4,
         odom_position=[2.0, 3.0, 0.0], odom_yaw=math.pi / 2, gate="off", vpr_count=1))
+    assert isinstance(node.graph, ScanGraph)
     kept = node.graph.scan(0)
     assert kept is not None and kept.shape == (1, 2)
     np.testing.assert_allclose(kept[0], [0.5, 1.0], atol=1e-9)

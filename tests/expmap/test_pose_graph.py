@@ -18,20 +18,20 @@ def square(nodes_per_side: int = 4, side: float = 10.0) -> np.ndarray:
     return np.asarray(poses)
 
 
-def chain_edges(truth: np.ndarray):
+def chain_edges(truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = len(truth)
     ei, ej = np.arange(n - 1), np.arange(1, n)
     z = relative_pose(truth[ei], truth[ej])
     return ei, ej, z
 
 
-def test_compose_and_relative_pose_are_inverse():
+def test_compose_and_relative_pose_are_inverse() -> None:
     a, b = np.array([1.0, -2.0, 2.9]), np.array([-3.0, 0.5, -2.8])
     np.testing.assert_allclose(compose(a, relative_pose(a, b)), b, atol=1e-12)
     assert abs(float(wrap_angle(math.pi + 0.1)) - (-math.pi + 0.1)) < 1e-12
 
 
-def test_consistent_loop_stays_put():
+def test_consistent_loop_stays_put() -> None:
     truth = square()
     ei, ej, z = chain_edges(truth)
     ei, ej = np.append(ei, len(truth) - 1), np.append(ej, 0)
@@ -40,17 +40,17 @@ def test_consistent_loop_stays_put():
     np.testing.assert_allclose(out, truth, atol=1e-9)
 
 
-def test_long_side_error_is_spread_over_every_edge():
+def test_long_side_error_is_spread_over_every_edge() -> None:
     """One side measured 10 % long (1 m over a 10 m side): the loop edge pulls the error
     back, spread over the chain; node 0 does not move."""
     truth = square()
     ei, ej, z = chain_edges(truth)
     z[1:4, 0] *= 1.1 * 4 / 3          # side 0 (edges 0..3, 2.5 m each) is 1 m long in total
     z[0, 0] = 2.5
-    init = [truth[0]]
+    chained = [truth[0]]
     for zz in z:
-        init.append(compose(init[-1], zz))
-    init = np.asarray(init)
+        chained.append(compose(chained[-1], zz))
+    init = np.asarray(chained)
     ei, ej = np.append(ei, len(truth) - 1), np.append(ej, 0)
     z = np.vstack([z, relative_pose(truth[-1], truth[0])])
     w = np.tile([1.0, 1.0, 100.0], (len(ei), 1))
@@ -66,7 +66,7 @@ def test_long_side_error_is_spread_over_every_edge():
     assert np.count_nonzero(norms > 0.01) >= 10    # the error is shared by many edges
 
 
-def test_huber_limits_a_wrong_loop_edge():
+def test_huber_limits_a_wrong_loop_edge() -> None:
     """Several right loop edges and one 3 m wrong: the Huber kernel keeps the map near the truth."""
     truth = square()
     ei, ej, z = chain_edges(truth)
@@ -80,7 +80,7 @@ def test_huber_limits_a_wrong_loop_edge():
     plain, _ = relax_se2(truth, ei, ej, z, w)
     robust, _ = relax_se2(truth, ei, ej, z, w, huber=3.0, iterations=30)
 
-    def err(p):
+    def err(p: np.ndarray) -> float:
         return float(np.max(np.hypot(p[:, 0] - truth[:, 0], p[:, 1] - truth[:, 1])))
 
     assert err(plain) > 0.1

@@ -3,6 +3,8 @@ building with a drifting wheel odometry."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +19,7 @@ SEC = 1_000_000_000
 
 
 def drive(graph: ScanGraph, truth: np.ndarray, odo: np.ndarray, world: np.ndarray, seed: int = 1,
-          lvc_of=lambda k: k) -> None:
+          lvc_of: Callable[[int], int] = lambda k: k) -> None:
     rng = np.random.default_rng(seed)
     for k, (t, o) in enumerate(zip(truth, odo)):
         pts = scan_points(raycast(world, t, noise=0.01, rng=rng), -math.pi / 2, math.pi / 180, 0.05, 29.9)
@@ -33,7 +35,7 @@ def errors(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 @pytest.fixture(scope="module")
-def lap_and_a_bit():
+def lap_and_a_bit() -> tuple[ScanGraph, np.ndarray, np.ndarray]:
     truth = ring_route(laps=2, step=0.5)[:170]        # one lap is 128 poses: the loop is driven again
     odo = drifting_odometry(truth, yaw_drift_deg_per_m=0.4, scale=1.01)
     g = ScanGraph(ScanGraphConfig())
@@ -41,7 +43,7 @@ def lap_and_a_bit():
     return g, truth, odo
 
 
-def test_loops_close_and_the_map_beats_odometry(lap_and_a_bit):
+def test_loops_close_and_the_map_beats_odometry(lap_and_a_bit: tuple[ScanGraph, np.ndarray, np.ndarray]) -> None:
     g, truth, odo = lap_and_a_bit
     odo_m, odo_deg = errors(odo, truth)
     map_m, map_deg = errors(np.column_stack([g.positions[:, :2], g.yaws]), truth)
@@ -51,7 +53,7 @@ def test_loops_close_and_the_map_beats_odometry(lap_and_a_bit):
     assert g.counters["chain_scan"] >= 160
 
 
-def test_every_loop_edge_measures_the_true_relative_pose(lap_and_a_bit):
+def test_every_loop_edge_measures_the_true_relative_pose(lap_and_a_bit: tuple[ScanGraph, np.ndarray, np.ndarray]) -> None:
     g, truth, _ = lap_and_a_bit
     loops = [k for k, lp in enumerate(g.is_loop) if lp]
     assert loops
@@ -62,7 +64,7 @@ def test_every_loop_edge_measures_the_true_relative_pose(lap_and_a_bit):
         assert n - m >= 100
 
 
-def test_map_interface_matches_the_experience_map(lap_and_a_bit):
+def test_map_interface_matches_the_experience_map(lap_and_a_bit: tuple[ScanGraph, np.ndarray, np.ndarray]) -> None:
     g, _truth, _odo = lap_and_a_bit
     edges = g.edges()
     assert len(edges) == g.n_nodes - 1 + len(g.loops)
@@ -73,14 +75,16 @@ def test_map_interface_matches_the_experience_map(lap_and_a_bit):
 
 def other_building() -> np.ndarray:
     """Another building the same route fits in: other corridor widths, other pillars."""
-    box = lambda x0, y0, x1, y1: [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]  # noqa: E731
+    def box(x0: float, y0: float, x1: float, y1: float) -> list[tuple[float, float, float, float]]:
+        return [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]
+
     segs = box(-13, -9, 13, 9) + box(-7.5, -3.5, 7.5, 3.5)
     for x0, y0 in ((-12.0, -8.5), (-4.0, -8.7), (2.5, -4.2), (12.0, 0.0), (8.0, 8.2), (-9.0, 3.8), (-12.6, -2.0)):
         segs += box(x0, y0, x0 + 0.7, y0 + 0.5)
     return np.asarray(segs, np.float64)
 
 
-def test_another_building_gives_no_loop():
+def test_another_building_gives_no_loop() -> None:
     """The second lap runs through another building: its candidates are tried and every one
     is rejected by the registration (or its confirmation), so no loop edge is made."""
     truth = ring_route(laps=2, step=0.5)[:170]
@@ -95,7 +99,7 @@ def test_another_building_gives_no_loop():
     assert g.loops == []
 
 
-def test_save_load_continue_equals_one_run(tmp_path):
+def test_save_load_continue_equals_one_run(tmp_path: Path) -> None:
     truth = ring_route(laps=2, step=0.5)[:150]
     odo = drifting_odometry(truth, yaw_drift_deg_per_m=0.4, scale=1.01)
     one = ScanGraph(ScanGraphConfig())
@@ -116,14 +120,14 @@ def test_save_load_continue_equals_one_run(tmp_path):
     assert second.loops == one.loops and second.counters == one.counters
 
 
-def test_load_rejects_a_sonar_map_file(tmp_path):
+def test_load_rejects_a_sonar_map_file(tmp_path: Path) -> None:
     path = tmp_path / "x.npz"
     np.savez(path, meta=np.frombuffer(b'{"format": 1}', np.uint8))
     with pytest.raises(ValueError, match="not a scan-graph map"):
         ScanGraph.load(path, ScanGraphConfig())
 
 
-def test_event_with_non_finite_odometry_is_refused():
+def test_event_with_non_finite_odometry_is_refused() -> None:
     g = ScanGraph(ScanGraphConfig())
     with pytest.raises(ValueError, match="finite"):
         g.add_event(0, 0, [0.0] * 4, [0.0, float("nan"), 0.0], 0.0)
@@ -142,12 +146,10 @@ def _backing_up_route() -> tuple[np.ndarray, np.ndarray]:
     return truth, np.asarray(odo)
 
 
-def test_laser_preset_follows_the_scans_when_the_odometry_reports_the_wrong_direction():
+def test_laser_preset_follows_the_scans_when_the_odometry_reports_the_wrong_direction() -> None:
     """deploy/presets/laser2d.yaml (as FR079 needs): no translation prior and a 0.8 m window let the
     scans decide a step the odometry got backwards; the default chain (0.3 m window, 0.2 m prior)
     keeps the odometry's error."""
-    from pathlib import Path
-
     from common.config import load_config
     preset = load_config(Path(__file__).resolve().parents[2] / "deploy/presets/laser2d.yaml", []).expmap.scan_graph
     truth, odo = _backing_up_route()

@@ -2,11 +2,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from services.expmap.graph import ExperienceMap
+from common.config import ExpMapConfig
+from services.expmap.graph import EventResult, ExperienceMap
 from services.expmap.scans import SweepBuffer, echo_range, register_sweeps
 from tests.expmap.helpers import SEC, pc_of, small_cfg
 
@@ -16,7 +19,7 @@ CHAMBER = np.array([[0, 0], [9, -1], [12, 3], [10, 8], [5, 7.5], [3, 10], [-2, 6
 TUNNEL = [np.array([[-100, -2.0], [100, -2.0]]), np.array([[100, 2.5], [-100, 2.5]])]
 
 
-def _ray(p, d, walls) -> float:
+def _ray(p: np.ndarray, d: np.ndarray, walls: Sequence[np.ndarray]) -> float:
     """Range from p along unit d to the nearest wall segment (inf if none)."""
     best = math.inf
     for poly in walls:
@@ -33,7 +36,7 @@ def _ray(p, d, walls) -> float:
     return best
 
 
-def _sweep(p, walls, yaw_ned: float = 0.0, enu: bool = True, heading_error_deg: float = 0.0) -> np.ndarray:
+def _sweep(p: np.ndarray, walls: Sequence[np.ndarray], yaw_ned: float = 0.0, enu: bool = True, heading_error_deg: float = 0.0) -> np.ndarray:
     """A full 1.8-degree sweep from a vehicle standing at NED position p, through SweepBuffer.
 
     The simulated beam is the physical one; the dead-reckoning pose handed to the buffer may
@@ -60,7 +63,7 @@ def _to_ned(xy: np.ndarray) -> np.ndarray:
     return xy[:, ::-1]
 
 
-def test_echo_range_takes_the_wall_not_the_ring_down_or_the_noise():
+def test_echo_range_takes_the_wall_not_the_ring_down_or_the_noise() -> None:
     nb, rmax = 400, 20.0
     r = (np.arange(nb) + 0.5) * rmax / nb
     beam = (55 * np.exp(-r / 0.35) + 120 * np.exp(-0.5 * ((r - 6.3) / 0.18) ** 2) + 3).astype(np.int32)
@@ -72,23 +75,23 @@ def test_echo_range_takes_the_wall_not_the_ring_down_or_the_noise():
 
 
 @pytest.mark.parametrize("enu", [True, False])
-def test_sweep_points_lie_on_the_walls_in_either_published_frame(enu):
+def test_sweep_points_lie_on_the_walls_in_either_published_frame(enu: bool) -> None:
     p, yaw = np.array([4.0, 3.0]), math.radians(35.0)
     pts = _sweep(p, [CHAMBER], yaw, enu=enu)
     assert len(pts) >= 150
     ned = (_to_ned(pts) if enu else pts.astype(float)) + p
     # every point is on a wall: its distance to the polygon boundary is ~0
-    def dist(q):
+    def dist(q: np.ndarray) -> float:
         ds = []
         for a, b in zip(CHAMBER, np.roll(CHAMBER, -1, axis=0)):
             e = b - a
             t = np.clip(np.dot(q - a, e) / np.dot(e, e), 0, 1)
             ds.append(np.linalg.norm(q - (a + t * e)))
-        return min(ds)
+        return float(min(ds))
     assert max(dist(q) for q in ned) < 1e-6
 
 
-def test_sweep_needs_a_full_turn_and_no_pose_means_no_points():
+def test_sweep_needs_a_full_turn_and_no_pose_means_no_points() -> None:
     sb = SweepBuffer()
     assert not sb.add_beam(0.0, 3.0)                  # no pose yet
     sb.add_pose([0, 0, 0], np.eye(3))
@@ -101,7 +104,7 @@ def test_sweep_needs_a_full_turn_and_no_pose_means_no_points():
     assert 195 <= len(out) <= 201 and np.allclose(np.linalg.norm(out, axis=1), 3.0, atol=1e-5)
 
 
-def test_registration_measures_the_displacement_between_two_visits():
+def test_registration_measures_the_displacement_between_two_visits() -> None:
     pm, pn = np.array([4.0, 3.0]), np.array([4.7, 2.6])
     ref = _sweep(pm, [CHAMBER], math.radians(10))
     cur = _sweep(pn, [CHAMBER], math.radians(190))          # seen the other way round
@@ -116,7 +119,7 @@ def test_registration_measures_the_displacement_between_two_visits():
     assert reg.rotation_deg != 0.0
 
 
-def test_straight_tunnel_fixes_only_the_across_track_offset():
+def test_straight_tunnel_fixes_only_the_across_track_offset() -> None:
     pm, pn = np.array([0.0, 0.0]), np.array([1.5, 0.6])      # 1.5 m along, 0.6 m across
     ref = _sweep(pm, TUNNEL)
     cur = _sweep(pn, TUNNEL)
@@ -128,7 +131,7 @@ def test_straight_tunnel_fixes_only_the_across_track_offset():
     assert reg.spread_m[1] > 0.3 >= reg.spread_m[0]
 
 
-def test_sweeps_of_different_places_are_not_trusted():
+def test_sweeps_of_different_places_are_not_trusted() -> None:
     ref = _sweep(np.array([4.0, 3.0]), [CHAMBER])
     rng = np.random.default_rng(3)
     cur = rng.uniform(-8, 8, (200, 2)).astype(np.float32)
@@ -157,7 +160,7 @@ def _chamber_loop(em: ExperienceMap, offset_true: np.ndarray, sweeps: bool) -> N
     em.settle()
 
 
-def test_loop_edge_asks_for_the_measured_displacement_not_zero():
+def test_loop_edge_asks_for_the_measured_displacement_not_zero() -> None:
     off = np.array([0.5, -0.3])                                 # NED
     cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0,
                     loop_edge_weight=1000.0)
@@ -179,7 +182,7 @@ def test_loop_edge_asks_for_the_measured_displacement_not_zero():
     assert np.allclose(em1.loop_deltas[0], 0.0) and sum(em1.scan_registrations.values()) == 0
 
 
-def test_sweeps_survive_save_and_load(tmp_path):
+def test_sweeps_survive_save_and_load(tmp_path: Path) -> None:
     cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0)
     em = ExperienceMap(cfg)
     _chamber_loop(em, np.array([0.4, 0.2]), sweeps=True)
@@ -187,17 +190,17 @@ def test_sweeps_survive_save_and_load(tmp_path):
     back = ExperienceMap.load(tmp_path / "m.npz", cfg)
     assert len(back._scans) == em.n_nodes
     for a, b in zip(em._scans, back._scans):
-        assert (a is None and b is None) or np.array_equal(a, b)
+        assert (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
 
-def test_a_closure_whose_sweeps_do_not_fit_is_rejected():
+def test_a_closure_whose_sweeps_do_not_fit_is_rejected() -> None:
     """Geometric verification: the LVCs say "same place" but the second pass is in another
     chamber; the closure is refused (or, with the check off, closed with zero displacement)."""
     ang = np.linspace(0, 2 * np.pi, 7)[:-1] + 0.3
     other = np.c_[2 + 5 * np.cos(ang), 4 + 4 * np.sin(ang)]               # a hexagonal chamber
     cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0)
 
-    def run(c):
+    def run(c: ExpMapConfig) -> tuple[ExperienceMap, list[EventResult]]:
         em = ExperienceMap(c)
         base = np.array([1.0, 3.0])
         results = []

@@ -6,6 +6,7 @@ import gzip
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,8 +14,7 @@ import pytest
 from common.mcap_io import read_messages, read_metadata
 from common.messages import LaserScan, Odometry
 from launcher.cli import main as poseidon
-from missions.importers.carmen import (DEFAULT_RANGE_MAX_M, flaser_geometry, import_carmen, ns_to_text,
-                                       seconds_to_ns)
+from missions.importers.carmen import DEFAULT_RANGE_MAX_M, flaser_geometry, import_carmen, ns_to_text, seconds_to_ns
 from missions.importers.cli import main as import_main
 from missions.importers.errors import InputFormatError
 
@@ -23,7 +23,7 @@ needs_radish = pytest.mark.skipif(not (DATA / "aces.clf.bz2").is_file(),
                                   reason=f"the Freiburg CARMEN logs are not present at {DATA}")
 
 
-def _flaser(kind: str, ranges: list[float], laser: tuple, odom: tuple, ts: str) -> str:
+def _flaser(kind: str, ranges: list[float], laser: tuple[float, ...], odom: tuple[float, ...], ts: str) -> str:
     r = " ".join(f"{v:.2f}" for v in ranges)
     return f"{kind} {len(ranges)} {r} {' '.join(map(str, laser))} {' '.join(map(str, odom))} {ts} host 0.5"
 
@@ -66,12 +66,13 @@ def _write(path: Path, lines: list[str]) -> Path:
     return path
 
 
-def _recorded(path: Path) -> list[tuple[str, object]]:
+def _recorded(path: Path) -> list[tuple[str, Any]]:
+    """(key, message) in file order (typed loosely: each test reads the fields of its key's type)."""
     return [(r.key, r.message()) for r in read_messages(path)]
 
 
 @pytest.mark.parametrize("name", ["log.clf", "log.clf.bz2", "log.clf.gz"])
-def test_every_line_is_accounted_for(tmp_path, name):
+def test_every_line_is_accounted_for(tmp_path: Path, name: str) -> None:
     s = import_carmen(_write(tmp_path / name, LINES), tmp_path / "out.mcap")
     assert s["lines"] == len(LINES) == s["accounted"]
     assert s["comments"] == 2 and s["blank"] == 2
@@ -95,7 +96,7 @@ def test_every_line_is_accounted_for(tmp_path, name):
     assert s["odometry_from"] == "ODOM"
 
 
-def test_messages_follow_the_mapping(tmp_path):
+def test_messages_follow_the_mapping(tmp_path: Path) -> None:
     out = tmp_path / "out.mcap"
     import_carmen(_write(tmp_path / "log.clf", LINES), out)
     rec = _recorded(out)
@@ -128,7 +129,7 @@ def test_messages_follow_the_mapping(tmp_path):
     assert meta["poseidon"]["odometry_from"] == "ODOM"
 
 
-def test_cli_exit_1_on_rejected_lines_and_json(tmp_path, capsys):
+def test_cli_exit_1_on_rejected_lines_and_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log = _write(tmp_path / "log.clf", LINES)
     assert import_main([str(log), "--out", str(tmp_path / "o.mcap"), "--json"]) == 1
     s = json.loads(capsys.readouterr().out)
@@ -137,7 +138,7 @@ def test_cli_exit_1_on_rejected_lines_and_json(tmp_path, capsys):
     assert import_main([str(clean), "--out", str(tmp_path / "c.mcap")]) == 0
 
 
-def test_cli_refuses_bad_inputs(tmp_path, capsys):
+def test_cli_refuses_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert import_main([str(tmp_path / "missing.clf"), "--out", str(tmp_path / "o.mcap")]) == 2
     assert "no such file" in capsys.readouterr().err
     junk = _write(tmp_path / "junk.clf", ["hello world", "more text"])
@@ -152,7 +153,7 @@ def test_cli_refuses_bad_inputs(tmp_path, capsys):
         import_main([str(log), str(log), "--out", str(tmp_path / "o.mcap")])
 
 
-def test_flaser_only_log_takes_odometry_from_its_lines(tmp_path):
+def test_flaser_only_log_takes_odometry_from_its_lines(tmp_path: Path) -> None:
     lines = [_flaser("FLASER", R361, (5.1, 1.0, 0.3), (5.0, 1.0, 0.3), f"{1134864629 + i}.895182") for i in range(3)]
     s = import_carmen(_write(tmp_path / "mit.clf", lines), tmp_path / "o.mcap")
     assert s["odometry_from"] == "FLASER" and s["written"] == {"scan": 3, "wheel_odometry": 3}
@@ -169,7 +170,7 @@ def test_flaser_only_log_takes_odometry_from_its_lines(tmp_path):
     assert off["dy"] == pytest.approx(-0.1 * math.sin(0.3), abs=1e-6)
 
 
-def test_robotlaser_only_log_uses_its_own_geometry_and_pose(tmp_path):
+def test_robotlaser_only_log_uses_its_own_geometry_and_pose(tmp_path: Path) -> None:
     n, rem = 4, 2
     head = "ROBOTLASER1 0 -1.0 2.0 0.5 30.0 0.01 0"
     line = (f"{head} {n} 1 2 3 4 {rem} 9 9 0.22 0 0 0 0 0.1 0.5 0.05 1.0 0.5 0.0 1232658478.161285 zoidberg2 0.1")
@@ -186,7 +187,7 @@ def test_robotlaser_only_log_uses_its_own_geometry_and_pose(tmp_path):
     assert s["rejected"][0]["line"] == 1 and "n_rem = 3" in s["rejected"][0]["reason"]
 
 
-def test_stamps_are_exact_to_the_nanosecond():
+def test_stamps_are_exact_to_the_nanosecond() -> None:
     assert seconds_to_ns("1071078718.462369") == 1_071_078_718_462_369_000
     assert seconds_to_ns("70.179699") == 70_179_699_000
     assert seconds_to_ns("1.0000000005") == 1_000_000_000  # half to even
@@ -201,14 +202,14 @@ def test_stamps_are_exact_to_the_nanosecond():
 
 @pytest.mark.parametrize("n,inc_deg,last_deg", [(180, 1.0, 89.0), (181, 1.0, 90.0), (360, 0.5, 89.5),
                                                 (361, 0.5, 90.0), (91, 2.0, 90.0)])
-def test_flaser_beam_geometry_follows_carmen(n, inc_deg, last_deg):
+def test_flaser_beam_geometry_follows_carmen(n: int, inc_deg: float, last_deg: float) -> None:
     a0, a1, inc = flaser_geometry(n)
     assert a0 == pytest.approx(-math.pi / 2)
     assert math.degrees(inc) == pytest.approx(inc_deg)
     assert math.degrees(a1) == pytest.approx(last_deg)
 
 
-def test_bad_range_param_is_an_error_naming_it(tmp_path):
+def test_bad_range_param_is_an_error_naming_it(tmp_path: Path) -> None:
     log = _write(tmp_path / "log.clf", ["PARAM robot_front_laser_max far nohost 0",
                                         _flaser("FLASER", R180, (0, 0, 0), (0, 0, 0), "1.0")])
     with pytest.raises(InputFormatError, match="robot_front_laser_max"):
@@ -220,7 +221,8 @@ def test_bad_range_param_is_an_error_naming_it(tmp_path):
     ("aces", {"ODOM": 7375, "FLASER": 7374, "PARAM": 4}, 14762),
     ("fr079", {"ODOM": 8951, "FLASER": 4934, "PARAM": 187}, 14083),
 ])
-def test_real_freiburg_logs(tmp_path, capsys, name, counts, lines):
+def test_real_freiburg_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str, counts: dict[str, int],
+                            lines: int) -> None:
     out = tmp_path / f"{name}.mcap"
     s = import_carmen(DATA / f"{name}.clf.bz2", out)
     assert s["lines"] == s["accounted"] == lines

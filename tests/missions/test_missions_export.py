@@ -3,16 +3,39 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from common.mcap_io import RecordingWriter, read_messages
-from common.messages import (Depth, ExperienceEvent, ExperienceImage, ExperienceLink, ExperienceMap, ExperienceNode,
-                             Header, Image, Imu, LaserScan, LinkquestDvl, LocalViewCell, LocalViewCells, NavSatFix,
-                             NeocortexSdr, Odometry, PoseStamped, RangeImageBeam, RawMessage, Sdr, TFMessage,
-                             TransformStamped, key_type)
+from common.messages import (
+    Depth,
+    ExperienceEvent,
+    ExperienceImage,
+    ExperienceLink,
+    ExperienceMap,
+    ExperienceNode,
+    Header,
+    Image,
+    Imu,
+    LaserScan,
+    LinkquestDvl,
+    LocalViewCell,
+    LocalViewCells,
+    NavSatFix,
+    NeocortexSdr,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+    RawMessage,
+    Sdr,
+    TFMessage,
+    TransformStamped,
+    key_type,
+)
 from missions.export.cli import main as export_main
 from missions.export.foxglove import export_foxglove
 from missions.export.rosbag import ExportError, export_rosbag
@@ -55,7 +78,7 @@ _REAL_BAGS = sorted(p.name for p in BAGS.glob("*.bag")) if BAGS.is_dir() else ["
 
 @needs_bags
 @pytest.mark.parametrize("name", _REAL_BAGS)
-def test_real_bag_every_message_and_raw_reexport_byte_identical(tmp_path, name):
+def test_real_bag_every_message_and_raw_reexport_byte_identical(tmp_path: Path, name: str) -> None:
     bag = BAGS / name
     own = {t: len(p) for t, p in _bag_payloads(bag).items()}
     # default import: every topic mapped, per topic equal to the bag's own count
@@ -89,12 +112,9 @@ def _vendor_bag(path: Path, ros2: bool, n: int = 5) -> list[bytes]:
     store.register(get_types_from_msg(_VENDOR_DEF, _VENDOR))
     store.register(get_types_from_msg("uint32 a\nbool b\n", "vendor_msgs/msg/NoHeader"))
     T = store.types
-    if ros2:
-        from rosbags.rosbag2 import Writer
-        writer = Writer(path, version=9)
-    else:
-        from rosbags.rosbag1 import Writer
-        writer = Writer(path)
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
+    writer: Writer1 | Writer2 = Writer2(path, version=9) if ros2 else Writer1(path)
     payloads = []
     with writer:
         c = writer.add_connection("/thrusters/status", _VENDOR, typestore=store)
@@ -114,14 +134,14 @@ def _vendor_bag(path: Path, ros2: bool, n: int = 5) -> list[bytes]:
 
 
 @pytest.mark.parametrize("ros2", [False, True], ids=["ros1", "ros2"])
-def test_vendor_types_carried_raw_and_written_back(tmp_path, ros2):
+def test_vendor_types_carried_raw_and_written_back(tmp_path: Path, ros2: bool) -> None:
     src = tmp_path / ("v2" if ros2 else "v.bag")
     payloads = _vendor_bag(src, ros2)
     s = import_sources([src], tmp_path / "run.mcap", progress=False)
     t = s["topics"]["/thrusters/status"]
     assert (t["raw"], t["mapped"], t["raw_key"], t["as"]) == (5, 0, "raw/thrusters/status", "raw")
     recs = [r for r in read_messages(tmp_path / "run.mcap") if r.key == "raw/thrusters/status"]
-    msgs = [r.message() for r in recs]
+    msgs: list[Any] = [r.message() for r in recs]
     assert all(isinstance(m, RawMessage) for m in msgs) and key_type("raw/thrusters/status") is RawMessage
     assert [m.data for m in msgs] == payloads
     # the ROS header stamp is the event time; a type without a header keeps the bag time
@@ -138,12 +158,12 @@ def test_vendor_types_carried_raw_and_written_back(tmp_path, ros2):
     from rosbags.highlevel import AnyReader
 
     with AnyReader([other]) as r:
-        got = [r.deserialize(raw, c.msgtype) for c, _t, raw in r.messages() if c.topic == "/thrusters/status"]
+        got: list[Any] = [r.deserialize(raw, c.msgtype) for c, _t, raw in r.messages() if c.topic == "/thrusters/status"]
     assert [list(m.rpm) for m in got] == [[100.0 * i, -50.0] for i in range(5)]
     assert [m.state for m in got] == [i % 3 for i in range(5)] and got[2].header.frame_id == "thr"
 
 
-def test_player_replays_and_recorder_records_raw_keys(tmp_path):
+def test_player_replays_and_recorder_records_raw_keys(tmp_path: Path) -> None:
     """A raw key goes through player -> bus -> recorder unchanged (no registration needed)."""
     from common.config import PoseidonConfig
     from launcher.run import run_embedded
@@ -167,7 +187,7 @@ def _h(i: int, frame: str = "", dt_ms: int = 100) -> Header:
 
 
 @pytest.fixture(scope="module")
-def small_run(tmp_path_factory) -> tuple[Path, dict[str, int]]:
+def small_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, int]]:
     """A run with every kind of stream: images, sonar, Odometry track, map, events, LVC ids, raw."""
     path = tmp_path_factory.mktemp("run") / "run.mcap"
     rng = np.random.default_rng(0)
@@ -241,14 +261,19 @@ _EXPECTED_SCHEMAS = {
 }
 
 
-def _decode_all(path: Path) -> dict[str, list]:
+def _messages(path: Path, keys: list[str] | None = None) -> list[Any]:
+    """The decoded messages of a recording (typed loosely: each test reads its type's fields)."""
+    return [r.message() for r in read_messages(path, keys=keys)]
+
+
+def _decode_all(path: Path) -> dict[str, list[tuple[str, Any]]]:
     """Every message of a Foxglove export decoded against the schema stored in the file."""
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
     from mcap.reader import make_reader
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    decoded: dict[str, list] = defaultdict(list)
-    classes: dict[int, object] = {}
+    decoded: defaultdict[str, list[tuple[str, Any]]] = defaultdict(list)
+    classes: dict[int, Callable[[bytes], Any]] = {}
     with open(path, "rb") as f:
         for schema, channel, msg in make_reader(f, validate_crcs=True).iter_messages():
             assert schema is not None, channel.topic
@@ -266,13 +291,16 @@ def _decode_all(path: Path) -> dict[str, list]:
                     assert (schema.encoding, channel.message_encoding) in (("ros2msg", "cdr"), ("ros1msg", "ros1"))
                     store = get_typestore(Stores.EMPTY)
                     store.register(get_types_from_msg(schema.data.decode(), schema.name))
-                    classes[schema.id] = (lambda b, s=store, n=schema.name, is2=is2:
-                                          s.deserialize_cdr(b, n) if is2 else s.deserialize_ros1(b, n))
+
+                    def ros_decode(b: bytes, s: Any = store, n: str = schema.name, is2: bool = is2) -> Any:
+                        return s.deserialize_cdr(b, n) if is2 else s.deserialize_ros1(b, n)
+
+                    classes[schema.id] = ros_decode
             decoded[channel.topic].append((schema.name, classes[schema.id](msg.data)))
     return dict(decoded)
 
 
-def test_foxglove_export_well_known_schemas_and_every_payload_decodes(small_run, tmp_path):
+def test_foxglove_export_well_known_schemas_and_every_payload_decodes(small_run: tuple[Path, dict[str, int]], tmp_path: Path) -> None:
     run, counts = small_run
     out = tmp_path / "fox.mcap"
     summary = export_foxglove(run, out)
@@ -283,7 +311,7 @@ def test_foxglove_export_well_known_schemas_and_every_payload_decodes(small_run,
         topic = {"raw/thrusters/status": "/thrusters/status", "raw/counter": "/counter"}.get(key, "/" + key)
         assert len(got[topic]) == n, topic
     # content survives
-    src = {k: [r.message() for r in read_messages(run) if r.key == k] for k in counts}
+    src: dict[str, list[Any]] = {k: [r.message() for r in read_messages(run) if r.key == k] for k in counts}
     img = got["/camera/image_raw"][1][1]
     assert (img.width, img.height, img.encoding, img.step) == (8, 6, "rgb8", 24)
     assert img.data == np.asarray(src["camera/image_raw"][1].data).tobytes()
@@ -309,7 +337,7 @@ def test_foxglove_export_well_known_schemas_and_every_payload_decodes(small_run,
     assert [m.state for _, m in got["/thrusters/status"]] == [0, 1, 2]
 
 
-def test_ros2_export_reads_back_with_same_counts(small_run, tmp_path):
+def test_ros2_export_reads_back_with_same_counts(small_run: tuple[Path, dict[str, int]], tmp_path: Path) -> None:
     from rosbags.highlevel import AnyReader
 
     run, counts = small_run
@@ -323,7 +351,7 @@ def test_ros2_export_reads_back_with_same_counts(small_run, tmp_path):
     assert types["/sonar_micron"] == "cirs_girona_cala_viuda/msg/RangeImageBeam"
     assert types["/dead_reckoning"] == "geometry_msgs/msg/PoseStamped" and types["/thrusters/status"] == _VENDOR
     with AnyReader([tmp_path / "bag2"]) as r:  # the reader knows poseidon_msgs from the bag's own definitions
-        msgs = defaultdict(list)
+        msgs: defaultdict[str, list[tuple[int, Any]]] = defaultdict(list)
         for c, t, raw in r.messages():
             msgs[c.topic].append((t, r.deserialize(raw, c.msgtype)))
     lvc = msgs["/local_view_cells"][3][1]
@@ -331,19 +359,19 @@ def test_ros2_export_reads_back_with_same_counts(small_run, tmp_path):
     m = msgs["/map"][2][1]
     assert len(m.nodes) == 4 and [k.loop_closure for k in m.links] == [False] * 3 + [True]
     img = msgs["/camera/image_raw"][2][1]
-    src = [r.message() for r in read_messages(run, keys=["camera/image_raw"])][2]
+    src = _messages(run, keys=["camera/image_raw"])[2]
     assert bytes(img.data) == np.asarray(src.data).tobytes() and img.step == 24
     t0, odo = msgs["/Odometry"][3]
     assert t0 == T0 + 3 * 500_000_000 and odo.pose.pose.position.x == 1.5 and odo.header.frame_id == "world"
 
 
-def test_ros1_export_of_the_run(small_run, tmp_path):
+def test_ros1_export_of_the_run(small_run: tuple[Path, dict[str, int]], tmp_path: Path) -> None:
     run, counts = small_run
     export_rosbag(run, tmp_path / "run.bag", ros2=False)
     assert sum(_bag_counts_decoded(tmp_path / "run.bag").values()) == sum(counts.values())
 
 
-def test_export_cli(small_run, tmp_path, capsys):
+def test_export_cli(small_run: tuple[Path, dict[str, int]], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run, counts = small_run
     rc = export_main([str(run), "--foxglove", str(tmp_path / "f.mcap"), "--ros2", str(tmp_path / "b2"), "--json"])
     assert rc == 0
@@ -359,7 +387,7 @@ def test_export_cli(small_run, tmp_path, capsys):
         export_foxglove(run, tmp_path / "f.mcap")
 
 
-def test_corrupt_chunk_rejected_with_offset_and_the_rest_imported(tmp_path, capsys):
+def test_corrupt_chunk_rejected_with_offset_and_the_rest_imported(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Only records the reader cannot read are rejected: with the reason and the chunk's byte offset."""
     from rosbags.rosbag1 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -394,11 +422,11 @@ def test_corrupt_chunk_rejected_with_offset_and_the_rest_imported(tmp_path, caps
     assert rej["offset"]["byte"] == bad.pos and rej["messages"] == {"/pressure": in_bad} and "ReaderError" in rej["reason"]
     t = s["topics"]["/pressure"]
     assert (t["mapped"], t["rejected"], t["in_source"]) == (60 - in_bad, in_bad, 60) and 0 < in_bad < 30
-    got = [m.message().fluid_pressure for m in read_messages(tmp_path / "out.mcap")]
+    got = [m.fluid_pressure for m in _messages(tmp_path / "out.mcap")]
     assert len(got) == 60 - in_bad and got[-1] == 1e5 + 59  # chunks after the damaged one are imported
 
 
-def test_topic_partly_mapped_partly_raw(tmp_path):
+def test_topic_partly_mapped_partly_raw(tmp_path: Path) -> None:
     """An image topic whose frames are mostly rgb8 but one is yuv422 (no model): the odd frame is
     carried raw on raw/<key>; every export keeps all of them."""
     from rosbags.rosbag1 import Writer
@@ -430,12 +458,12 @@ def test_topic_partly_mapped_partly_raw(tmp_path):
     assert _bag_payloads(tmp_path / "b1.bag")["/camera/image_raw"][2] == _bag_payloads(bag)["/camera/image_raw"][2]
 
 
-def test_import_cli_raw_option(tmp_path, capsys):
+def test_import_cli_raw_option(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--raw TOPIC carries a topic with a model raw (exact bytes), the others stay mapped."""
-    from missions.importers.cli import main as import_main
-
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
+
+    from missions.importers.cli import main as import_main
 
     st = get_typestore(Stores.ROS1_NOETIC)
     T = st.types
@@ -456,5 +484,5 @@ def test_import_cli_raw_option(tmp_path, capsys):
     s = json.loads(capsys.readouterr().out)
     assert s["written"] == {"raw/pressure": 3, "temp": 3}
     assert s["topics"]["/pressure"]["raw_reasons"] == {"carried raw on request (--raw)": 3}
-    temps = [r.message().temperature for r in read_messages(tmp_path / "o.mcap", keys=["temp"])]
+    temps = [m.temperature for m in _messages(tmp_path / "o.mcap", keys=["temp"])]
     assert temps == [12.5, 13.5, 14.5]

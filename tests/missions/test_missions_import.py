@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,8 +27,9 @@ def _bag_counts(path: Path) -> dict[str, tuple[str, int]]:
         return {c.topic: (c.msgtype, c.msgcount) for c in r.connections}
 
 
-def _recorded(path: Path) -> dict[str, list]:
-    out: dict[str, list] = {}
+def _recorded(path: Path) -> dict[str, list[Any]]:
+    """Every message by key (typed loosely: each test reads the fields of its key's type)."""
+    out: dict[str, list[Any]] = {}
     for r in read_messages(path):
         out.setdefault(r.key, []).append(r.message())
     return out
@@ -35,12 +37,12 @@ def _recorded(path: Path) -> dict[str, list]:
 
 @needs_bags
 @pytest.mark.parametrize("name", ["robot_localization_test1.bag", "robot_localization_test2.bag"])
-def test_real_ros1_bags_every_message(tmp_path, name):
+def test_real_ros1_bags_every_message(tmp_path: Path, name: str) -> None:
     bag = BAGS / name
     own = _bag_counts(bag)
     summary = import_sources([bag], tmp_path / "out.mcap", progress=False)
     rec = _recorded(tmp_path / "out.mcap")
-    for topic, (msgtype, count) in own.items():  # every message of every topic, mapped to a model
+    for topic, (_msgtype, count) in own.items():  # every message of every topic, mapped to a model
         assert summary["read"][topic] == count
         t = summary["topics"][topic]
         assert (t["in_source"], t["mapped"], t["raw"], t["as"]) == (count, count, 0, "mapped"), topic
@@ -59,21 +61,27 @@ def test_real_ros1_bags_every_message(tmp_path, name):
     assert odom_keys and all(isinstance(rec[k][0], Odometry) for k in odom_keys)
 
 
-def _header(store, seq: int, stamp_ns: int, frame: str, ros2: bool):
+def _header(store: Any, seq: int, stamp_ns: int, frame: str, ros2: bool) -> Any:
     Time = store.types["builtin_interfaces/msg/Time"]
     Header = store.types["std_msgs/msg/Header"]
     t = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
     return Header(stamp=t, frame_id=frame) if ros2 else Header(seq=seq, stamp=t, frame_id=frame)
 
 
-def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
+#: (topic, msgtype, stamp, message, expected fields)
+Row = tuple[str, str, int, Any, dict[str, Any]]
+
+
+def _cala_viuda_msgs(store: Any, ros2: bool, n: int = 3) -> list[Row]:
     """(topic, msgtype, stamp, message, expected dict) of every custom and a few standard types."""
     T = store.types
-    rows = []
+    rows: list[Row] = []
     for k in range(n):
         st = 1_372_687_208_000_000_000 + k * 100_000_000
-        h = lambda off, fr: _header(store, 10 + k, st + off, fr, ros2)  # noqa: E731
-        dvl = dict(errcode="ok", datagood=np.array([1, 0, 1, 1], np.int32), altitudebeam=np.array([2.0, 2.1, 2.2, 2.3]),
+        def h(off: int, fr: str, k: int = k, st: int = st) -> Any:
+            return _header(store, 10 + k, st + off, fr, ros2)
+
+        dvl: dict[str, Any] = dict(errcode="ok", datagood=np.array([1, 0, 1, 1], np.int32), altitudebeam=np.array([2.0, 2.1, 2.2, 2.3]),
                    bottomvelocitybeam=np.array([0.1, 0.2, 0.3, 0.4]) * k, watervelocitybeam=np.zeros(4),
                    watervelocitycredit=np.ones(4), velocityinst=np.array([0.25, -0.1, 0.01 * k]),
                    velocityinstflag=1, velocityearth=np.array([0.2, 0.1, 0.0]), velocityearthflag=1,
@@ -84,11 +92,11 @@ def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
                      T["cirs_girona_cala_viuda/msg/LinkquestDvl"](header=h(1, "dvl"), **dvl), dvl))
         rows.append(("/depth_sensor", "cirs_girona_cala_viuda/msg/Depth", st + 2,
                      T["cirs_girona_cala_viuda/msg/Depth"](header=h(2, "depth"), depth=12.5 + k), {"depth": 12.5 + k}))
-        imu = {f: float(i + k) / 7 for i, f in enumerate(
+        imu: dict[str, Any] = {f: float(i + k) / 7 for i, f in enumerate(
             "roll pitch yaw qx qy qz qw temp mx my mz ax ay az gx gy gz bx by bz".split())}
         rows.append(("/imu_adis", "cirs_girona_cala_viuda/msg/Imu", st + 3,
                      T["cirs_girona_cala_viuda/msg/Imu"](header=h(3, "imu"), **imu), imu))
-        beam = dict(angle_grad=10.0 * k, angle_rad=0.157 * k, nbins=5, max_range=20,
+        beam: dict[str, Any] = dict(angle_grad=10.0 * k, angle_rad=0.157 * k, nbins=5, max_range=20,
                     beam_data=np.array([0, 5, 100, 191, k], np.int32))
         rows.append(("/sonar_micron", "cirs_girona_cala_viuda/msg/RangeImageBeam", st + 4,
                      T["cirs_girona_cala_viuda/msg/RangeImageBeam"](header=h(4, "micron"), **beam), beam))
@@ -107,7 +115,7 @@ def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
                      T["sensor_msgs/msg/CompressedImage"](header=h(7, "camera"), format="png",
                                                           data=np.frombuffer(png.getvalue(), np.uint8)),
                      {"height": 4, "width": 6, "encoding": "rgb8", "data": img}))
-        scan = dict(angle_min=0.125 * k, angle_max=0.125 * k, angle_increment=0.03125, time_increment=0.0, scan_time=0.0625,  # float32-exact
+        scan: dict[str, Any] = dict(angle_min=0.125 * k, angle_max=0.125 * k, angle_increment=0.03125, time_increment=0.0, scan_time=0.0625,  # float32-exact
                     range_min=0.0, range_max=20.0, ranges=np.array([1.0, 2.0], np.float32),
                     intensities=np.array([10.0, 20.0], np.float32))
         rows.append(("/sonar_micron_ros", "sensor_msgs/msg/LaserScan", st + 6,
@@ -115,25 +123,22 @@ def _cala_viuda_msgs(store, ros2: bool, n: int = 3):
     return rows
 
 
-def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0, mcap: bool = False) -> list:
+def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0, mcap: bool = False) -> list[Row]:
     store = make_typestore(ros2=ros2)
     if extra_unknown:
         from rosbags.typesys import get_types_from_msg
 
         store.register(get_types_from_msg("float64 value\nstring note\n", "foo_msgs/msg/Bar"))
     rows = _cala_viuda_msgs(store, ros2)
-    if ros2:
-        from rosbags.rosbag2 import Writer
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
 
-        from rosbags.rosbag2 import StoragePlugin
-
-        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3)
-    else:
-        from rosbags.rosbag1 import Writer
-
-        writer = Writer(path)
+    writer: Writer1 | Writer2 = (
+        Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3) if ros2
+        else Writer1(path))
     with writer:
-        conns = {}
+        conns: dict[str, Any] = {}
         for topic, msgtype, *_ in rows:
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
@@ -150,10 +155,10 @@ def _write_bag(path: Path, ros2: bool, extra_unknown: int = 0, mcap: bool = Fals
     return rows
 
 
-def _check_field_by_field(out: Path, rows: list, ros2: bool) -> None:
+def _check_field_by_field(out: Path, rows: list[Row], ros2: bool) -> None:
     rec = _recorded(out)
-    by_key: dict[str, list] = {}
-    for topic, msgtype, stamp, msg, exp in rows:
+    by_key: dict[str, list[tuple[Any, dict[str, Any]]]] = {}
+    for topic, _msgtype, _stamp, msg, exp in rows:
         by_key.setdefault(topic.lstrip("/"), []).append((msg, exp))
     assert set(rec) == set(by_key)
     types = {"dvl_linkquest": LinkquestDvl, "depth_sensor": Depth, "imu_adis": Imu, "sonar_micron": RangeImageBeam,
@@ -175,14 +180,14 @@ def _check_field_by_field(out: Path, rows: list, ros2: bool) -> None:
                     assert gv == v, f"{key}.{f}: {gv!r} != {v!r}"
 
 
-def test_ros1_bag_with_cala_viuda_types_field_by_field(tmp_path):
+def test_ros1_bag_with_cala_viuda_types_field_by_field(tmp_path: Path) -> None:
     rows = _write_bag(tmp_path / "cv.bag", ros2=False)
     summary = import_sources([tmp_path / "cv.bag"], tmp_path / "out.mcap", progress=False)
     assert {t["as"] for t in summary["topics"].values()} == {"mapped"} and summary["rejected"] == []
     _check_field_by_field(tmp_path / "out.mcap", rows, ros2=False)
 
 
-def test_ros2_bag_with_cala_viuda_types_field_by_field(tmp_path):
+def test_ros2_bag_with_cala_viuda_types_field_by_field(tmp_path: Path) -> None:
     rows = _write_bag(tmp_path / "cv2", ros2=True)
     db3 = next((tmp_path / "cv2").glob("*.db3"))
     for src in (tmp_path / "cv2", db3):  # the bag folder or its .db3 file
@@ -191,7 +196,7 @@ def test_ros2_bag_with_cala_viuda_types_field_by_field(tmp_path):
         _check_field_by_field(tmp_path / "out.mcap", rows, ros2=True)
 
 
-def test_ros2_mcap_bag(tmp_path):
+def test_ros2_mcap_bag(tmp_path: Path) -> None:
     rows = _write_bag(tmp_path / "cv3", ros2=True, mcap=True)
     src = next((tmp_path / "cv3").glob("*.mcap"))
     summary = import_sources([src], tmp_path / "out.mcap", progress=False)
@@ -199,7 +204,7 @@ def test_ros2_mcap_bag(tmp_path):
     _check_field_by_field(tmp_path / "out.mcap", rows, ros2=True)
 
 
-def test_merge_bag_and_csv_chronologically(tmp_path):
+def test_merge_bag_and_csv_chronologically(tmp_path: Path) -> None:
     _write_bag(tmp_path / "cv.bag", ros2=False)
     csv = tmp_path / "depth.csv"
     csv.write_text("%time,field.header.seq,field.header.stamp,field.depth\n"
@@ -210,7 +215,7 @@ def test_merge_bag_and_csv_chronologically(tmp_path):
     assert stamps == sorted(stamps) and 1372687208050000000 in stamps
 
 
-def test_unknown_type_is_carried_raw_and_rest_imported(tmp_path, capsys):
+def test_unknown_type_is_carried_raw_and_rest_imported(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rows = _write_bag(tmp_path / "u.bag", ros2=False, extra_unknown=7)
     rc = main([str(tmp_path / "u.bag"), "--out", str(tmp_path / "out.mcap"), "--json", "--no-progress"])
     assert rc == 0
@@ -225,7 +230,7 @@ def test_unknown_type_is_carried_raw_and_rest_imported(tmp_path, capsys):
                and "float64 value" in m.definition for m in raw)
 
 
-def test_topic_map_renames_and_drops(tmp_path):
+def test_topic_map_renames_and_drops(tmp_path: Path) -> None:
     _write_bag(tmp_path / "cv.bag", ros2=False)
     tm = tmp_path / "map.yaml"
     tm.write_text("/imu_adis: imu_adis_ros\n/sonar_micron_ros: null\n")
@@ -239,7 +244,7 @@ def test_topic_map_renames_and_drops(tmp_path):
 
 
 @needs_bags
-def test_truncated_bag_clear_error(tmp_path, capsys):
+def test_truncated_bag_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     src = BAGS / "robot_localization_test2.bag"
     cut = tmp_path / "cut.bag"
     data = src.read_bytes()
@@ -251,7 +256,7 @@ def test_truncated_bag_clear_error(tmp_path, capsys):
     assert not list(tmp_path.glob("*.mcap*"))  # no partial recording left behind
 
 
-def test_frames_folder(tmp_path):
+def test_frames_folder(tmp_path: Path) -> None:
     from PIL import Image as PILImage
 
     d = tmp_path / "frames"
@@ -268,7 +273,7 @@ def test_frames_folder(tmp_path):
     assert int(np.asarray(imgs[2].data)[0, 0, 0]) == 80
 
 
-def test_empty_folder_and_missing_inputs(tmp_path):
+def test_empty_folder_and_missing_inputs(tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(InputFormatError, match=r"empty.*empty folder"):
@@ -284,7 +289,7 @@ def test_empty_folder_and_missing_inputs(tmp_path):
         import_sources([d], tmp_path / "out.mcap", progress=False)
 
 
-def test_csv_missing_column_via_import(tmp_path):
+def test_csv_missing_column_via_import(tmp_path: Path) -> None:
     p = tmp_path / "dvl.csv"
     shutil.copyfile(DATA / "girona_caves" / "dvl_linkquest.csv", p) if (DATA / "girona_caves").is_dir() else None
     if not p.exists():
@@ -298,7 +303,7 @@ def test_csv_missing_column_via_import(tmp_path):
         import_sources([p], tmp_path / "out.mcap", progress=False)
 
 
-def test_girona_csvs_and_frames_list_via_import(tmp_path):
+def test_girona_csvs_and_frames_list_via_import(tmp_path: Path) -> None:
     g = DATA / "girona_caves"
     if not g.is_dir():
         pytest.skip(f"Girona logs not present at {g}")
@@ -333,7 +338,7 @@ float64 soundSpeed
 """
 
 
-def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
+def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path: Path) -> None:
     """The 2013 bags spell the DVL fields in camelCase (as the rostopic CSV columns show) and
     have no errCode/rawData; a definition lacking a required field is carried raw with a reason."""
     from rosbags.rosbag1 import Writer
@@ -343,7 +348,7 @@ def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
     st.register(get_types_from_msg(_CAMEL_DVL, "cirs_girona_cala_viuda/msg/LinkquestDvl"))
     st.register(get_types_from_msg("std_msgs/Header header\nfloat64 pressure\n", "cirs_girona_cala_viuda/msg/Depth"))
     T = st.types
-    vals = dict(dataGood=np.array([0, 1, 1, 1], np.int32), altitudeBeam=np.array([0.0, 2.0, 2.0, 2.1]),
+    vals: dict[str, Any] = dict(dataGood=np.array([0, 1, 1, 1], np.int32), altitudeBeam=np.array([0.0, 2.0, 2.0, 2.1]),
                 bottomVelocityBeam=np.array([0.0, -0.0489, 0.0848, 0.0369]), waterVelocityBeam=np.zeros(4),
                 waterVelocityCredit=np.zeros(4), velocityInst=np.array([-0.2424, -0.1145, -0.0065]),
                 velocityInstFlag=1, velocityEarth=np.zeros(3), velocityEarthFlag=1, waterVelocityInst=np.zeros(3),
@@ -369,7 +374,7 @@ def test_ros1_camelcase_definitions_as_the_original_bags(tmp_path):
     assert m.errcode == "" and m.rawdata == ""
 
 
-def test_image_encodings():
+def test_image_encodings() -> None:
     from types import SimpleNamespace
 
     from common.messages import Header
@@ -380,10 +385,12 @@ def test_image_encodings():
     # padded rows (step > width * channels) are cropped
     raw = np.arange(2 * 10, dtype=np.uint8)
     m = conv(SimpleNamespace(encoding="8UC3", height=2, width=3, step=10, is_bigendian=0, data=raw), h)
+    assert isinstance(m, Image)
     assert m.encoding == "bgr8"
     np.testing.assert_array_equal(np.asarray(m.data), np.stack([raw[:9], raw[10:19]]).reshape(2, 3, 3))
     m = conv(SimpleNamespace(encoding="mono16", height=1, width=2, step=4, is_bigendian=1,
                              data=np.array([1, 2, 3, 4], np.uint8)), h)
+    assert isinstance(m, Image)
     np.testing.assert_array_equal(np.asarray(m.data), [[258, 772]])
     with pytest.raises(ConversionError, match="yuv422"):
         conv(SimpleNamespace(encoding="yuv422", height=1, width=2, step=4, is_bigendian=0,

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,17 +15,18 @@ from missions.sim.trajectory import footprint_centres, make_trajectory, revisits
 from missions.sim.world import build_world
 
 SEED = 3  # the seed of the conftest's fast_mission (0.5 min at 4.5 m/s)
-FAST = dict(minutes=0.5, seed=SEED, speed_m_s=4.5)
+FAST: dict[str, Any] = dict(minutes=0.5, seed=SEED, speed_m_s=4.5)
 
 
-def _by_key(path):
-    out: dict[str, list] = {}
+def _by_key(path: Path) -> dict[str, list[Any]]:
+    """Every message by key (typed loosely: each test reads the fields of its key's type)."""
+    out: dict[str, list[Any]] = {}
     for r in read_messages(path):
         out.setdefault(r.key, []).append(r.message())
     return out
 
 
-def test_same_seed_same_bytes(fast_mission, tmp_path):
+def test_same_seed_same_bytes(fast_mission: tuple[Path, dict[str, Any]], tmp_path: Path) -> None:
     path, summary = fast_mission
     assert (summary["seed"], summary["minutes"]) == (SEED, FAST["minutes"])
     # the second run rebuilds the world from scratch (not the per-process cache)
@@ -31,7 +34,7 @@ def test_same_seed_same_bytes(fast_mission, tmp_path):
     assert file_sha256(path) == file_sha256(tmp_path / "b.mcap")
 
 
-def test_streams_rates_and_formats(fast_mission):
+def test_streams_rates_and_formats(fast_mission: tuple[Path, dict[str, Any]]) -> None:
     path, summary = fast_mission
     recs = _by_key(path)
     dur = FAST["minutes"] * 60
@@ -47,7 +50,7 @@ def test_streams_rates_and_formats(fast_mission):
     assert summary["counts"] == {k: len(v) for k, v in recs.items()}
     img = recs["camera/image_raw"][10]
     a = np.asarray(img.data)
-    assert (img.width, img.height, img.encoding, a.shape, a.dtype) == (384, 288, "rgb8", (288, 384, 3), np.uint8)
+    assert (img.width, img.height, img.encoding, a.shape) == (384, 288, "rgb8", (288, 384, 3)) and a.dtype == np.uint8
     # blue-green cast and a lamp cone: centre brighter than the corners
     means = a.reshape(-1, 3).mean(axis=0)
     assert means[1] > 1.3 * means[0] and means[2] > 1.2 * means[0]
@@ -85,7 +88,7 @@ def test_streams_rates_and_formats(fast_mission):
     assert params["imu_yaw_drift_deg_per_min"] > 0 and params["dvl_noise_m_s"] > 0
 
 
-def test_recorded_revisits_against_truth(fast_mission):
+def test_recorded_revisits_against_truth(fast_mission: tuple[Path, dict[str, Any]]) -> None:
     path, summary = fast_mission
     recs = _by_key(path)
     truth = recs["truth/pose"]
@@ -108,7 +111,7 @@ def test_recorded_revisits_against_truth(fast_mission):
     assert not (called & (d > 5.0)).any()
 
 
-def test_revisit_definition_long_mission():
+def test_revisit_definition_long_mission() -> None:
     """25 minutes of trajectory (no rendering): the definition holds and loops produce revisits."""
     world = build_world(SEED)
     p = SimParams(minutes=25, seed=SEED)
@@ -137,7 +140,7 @@ def test_revisit_definition_long_mission():
         np.testing.assert_array_equal(np.sort(same[i]), expect)
 
 
-def test_cli_json_summary(tmp_path, capsys):
+def test_cli_json_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rc = sim_cli.main(["--minutes", "0.05", "--seed", str(SEED), "--out", str(tmp_path / "c.mcap"), "--json",
                        "--no-progress"])
     assert rc == 0
@@ -150,7 +153,7 @@ def test_cli_json_summary(tmp_path, capsys):
     assert sim_cli.main(["--minutes", "0.001", "--out", str(tmp_path / "e.mcap"), "--no-progress"]) == 0
 
 
-def test_lazy_tiles_independent_of_generation_order():
+def test_lazy_tiles_independent_of_generation_order() -> None:
     a = build_world.__wrapped__(SEED)
     b = build_world.__wrapped__(SEED)
     x0, y0 = a.route[0][0]  # the junction of area 1: guideline and tunnel floor

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,7 +16,7 @@ SEGS = "0:2,2:6,6:8,8:12,12:15"  # entry, area-1 loop, transition, area-2 loop, 
 
 
 @pytest.fixture(scope="module")
-def transformed(tmp_path_factory):
+def transformed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[str, Any]]:
     d = tmp_path_factory.mktemp("tr")
     src = d / "src.mcap"
     generate(src, SimParams(minutes=0.25, seed=3), progress=False)
@@ -23,14 +25,15 @@ def transformed(tmp_path_factory):
     return src, out, summary
 
 
-def _by_key(path):
-    out: dict[str, list] = {}
+def _by_key(path: Path) -> dict[str, list[Any]]:
+    """Every message by key (typed loosely: each test reads the fields of its key's type)."""
+    out: dict[str, list[Any]] = {}
     for r in read_messages(path):
         out.setdefault(r.key, []).append(r.message())
     return out
 
 
-def test_nine_segments_and_timeline(transformed):
+def test_nine_segments_and_timeline(transformed: tuple[Path, Path, dict[str, Any]]) -> None:
     src, out, summary = transformed
     segs = summary["segments"]
     assert [s["name"] for s in segs] == ["entry", "area1_loop1", "area1_loop2", "area1_loop3", "transition",
@@ -50,7 +53,7 @@ def test_nine_segments_and_timeline(transformed):
     # every stream replicated: counts = entry + 3 x loop1 + transition + 3 x loop2 + exit of the source
     t0 = min(m.header.stamp for v in srec.values() for m in v)
 
-    def n_in(key, a, b):
+    def n_in(key: str, a: float, b: float) -> int:
         return sum(1 for m in srec[key] if t0 + a * 1e9 <= m.header.stamp < t0 + b * 1e9)
 
     r = parse_segments(SEGS)
@@ -65,7 +68,7 @@ def test_nine_segments_and_timeline(transformed):
     assert out_depth[n_entry + len(d_loop1):n_entry + 2 * len(d_loop1)] == d_loop1
 
 
-def test_perturbed_loops(transformed):
+def test_perturbed_loops(transformed: tuple[Path, Path, dict[str, Any]]) -> None:
     src, out, summary = transformed
     rec = _by_key(out)
     srec = _by_key(src)
@@ -85,7 +88,7 @@ def test_perturbed_loops(transformed):
             # the best horizontal shift of the original onto the perturbed image is 5 % +- 3 % of the width
             errs = {s: np.abs(p[40:-40, 60:-60] - np.roll(o, s, axis=1)[40:-40, 60:-60]).mean()
                     for s in range(-int(0.1 * w), int(0.1 * w) + 1)}
-            best = min(errs, key=errs.get)
+            best = min(errs, key=lambda s: errs[s])
             assert 0.02 * w <= abs(best) <= 0.08 * w
     st = summary["perturbation_stats"]
     assert st["images"] == 4 * n
@@ -93,7 +96,7 @@ def test_perturbed_loops(transformed):
     assert st["rotation_deg_std"] < 1.0
 
 
-def test_revisits_point_to_loop1(transformed):
+def test_revisits_point_to_loop1(transformed: tuple[Path, Path, dict[str, Any]]) -> None:
     _, out, summary = transformed
     rec = _by_key(out)
     rev = rec["truth/revisits"]
@@ -102,7 +105,7 @@ def test_revisits_point_to_loop1(transformed):
     frames = rec["camera/image_raw"]
     t0 = min(m.header.stamp for v in rec.values() for m in v)  # the output timeline starts at the source's start
 
-    def seg_of(stamp):
+    def seg_of(stamp: int) -> int:
         s = (stamp - t0) / 1e9
         return next(i for i, g in enumerate(segs) if g["start_s"] - 1e-6 <= s <= g["end_s"] + 1e-6)
 
@@ -122,7 +125,7 @@ def test_revisits_point_to_loop1(transformed):
             assert same == set()
 
 
-def test_default_segments_and_cli_errors(tmp_path, transformed, capsys):
+def test_default_segments_and_cli_errors(tmp_path: Path, transformed: tuple[Path, Path, dict[str, Any]], capsys: pytest.CaptureFixture[str]) -> None:
     segs, how = default_segments({}, 100.0)
     assert segs == [(0.0, 10.0), (10.0, 40.0), (40.0, 50.0), (50.0, 80.0), (80.0, 100.0)] and "fractions" in how
     with pytest.raises(ValueError, match="5 ranges"):
@@ -141,7 +144,7 @@ def test_default_segments_and_cli_errors(tmp_path, transformed, capsys):
     assert not list(tmp_path.glob("*.part"))
 
 
-def test_extra_perturbations_change_image_deterministically():
+def test_extra_perturbations_change_image_deterministically() -> None:
     rng0 = np.random.default_rng(1)
     img = (rng0.random((288, 384, 3)) * 255).astype(np.uint8)
     p = Perturbation(illumination=0.25, particles=40, blur=1.5, occlusion=0.15, scale=0.05)
@@ -155,7 +158,7 @@ def test_extra_perturbations_change_image_deterministically():
     assert m.shape == mono.shape
 
 
-def test_default_segments_from_sim_route():
+def test_default_segments_from_sim_route() -> None:
     """A sim mission long enough for the whole route (35 min, trajectory only): the default
     source ranges are the approach, the first complete loop of each area and the transitions."""
     from missions.sim.mission import segments_of
@@ -175,7 +178,7 @@ def test_default_segments_from_sim_route():
     assert all(b > a for a, b in ranges) and ranges[4][0] > ranges[3][1]  # exit after the three area-2 loops
 
 
-def test_source_revisits_carried_to_every_copy(tmp_path, fast_mission):
+def test_source_revisits_carried_to_every_copy(tmp_path: Path, fast_mission: tuple[Path, dict[str, Any]]) -> None:
     """A source whose own truth/revisits has loop closures (the conftest's fast mission: the
     approach and more than a loop of area 1): each source pair appears between the copies."""
     src = fast_mission[0]
@@ -200,7 +203,7 @@ def test_source_revisits_carried_to_every_copy(tmp_path, fast_mission):
     assert carried > 0
 
 
-def test_one_area_five_segments_and_revisits(transformed, tmp_path):
+def test_one_area_five_segments_and_revisits(transformed: tuple[Path, Path, dict[str, Any]], tmp_path: Path) -> None:
     """--areas 1 (the demo's mission): entry | three copies of the area-1 loop | exit; frames of
     the perturbed copies revisit the same frames of the earlier copies."""
     src = transformed[0]

@@ -6,7 +6,7 @@ from missions.sim.trajectory import make_trajectory, rot_wb
 from missions.sim.world import build_world
 
 
-def test_no_yaw_spin_and_small_crab_on_a_mission_that_used_to_spin():
+def test_no_yaw_spin_and_small_crab_on_a_mission_that_used_to_spin() -> None:
     # seed 16, 10 minutes: generator_version 3 spun the truth yaw at up to 2119 deg/s around
     # t = 41-45 s (velocity reversals of the laterally offset path turned by np.unwrap into
     # whole turns); plain DVL integration was immune, the EKF was not

@@ -1,5 +1,6 @@
 """OdometryIntegrator and PoseCellsCore driven directly (no node, no messages, no transport)."""
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -9,13 +10,13 @@ from common.config import PoseidonConfig
 from services.posecells.core import OdometryIntegrator, PoseCellsCore, wrap_angle
 
 
-def test_wrap_angle():
+def test_wrap_angle() -> None:
     assert wrap_angle(math.pi) == pytest.approx(-math.pi)
     assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
     assert wrap_angle(-0.25) == pytest.approx(-0.25)
 
 
-def test_straight_motion_along_a_heading_is_forward():
+def test_straight_motion_along_a_heading_is_forward() -> None:
     odo = OdometryIntegrator(max_step=1.0)
     yaw = math.radians(30)
     assert odo.update([1.0, 2.0, -3.0], yaw) == "first"
@@ -27,7 +28,7 @@ def test_straight_motion_along_a_heading_is_forward():
     assert odo.take_step() == (0.0, 0.0, 0.0, 0.0)
 
 
-def test_increments_are_in_the_frame_of_the_yaw_at_the_last_step():
+def test_increments_are_in_the_frame_of_the_yaw_at_the_last_step() -> None:
     odo = OdometryIntegrator(max_step=1.0)
     odo.update([0.0, 0.0, 0.0], 0.0)
     odo.update([0.0, 0.2, 0.0], math.pi / 2)        # the vehicle turns while moving north (ENU y)
@@ -36,14 +37,14 @@ def test_increments_are_in_the_frame_of_the_yaw_at_the_last_step():
     assert odo.take_step() == pytest.approx((0.3, 0.0, 0.0, 0.0))
 
 
-def test_yaw_increment_wraps_across_pi():
+def test_yaw_increment_wraps_across_pi() -> None:
     odo = OdometryIntegrator(max_step=1.0)
     odo.update([0.0, 0.0, 0.0], math.pi - 0.05)
     odo.update([0.0, 0.0, 0.0], -math.pi + 0.05)
     assert odo.take_step()[3] == pytest.approx(0.1)
 
 
-def test_discontinuity_and_non_finite_poses_add_no_motion():
+def test_discontinuity_and_non_finite_poses_add_no_motion() -> None:
     odo = OdometryIntegrator(max_step=1.0)
     odo.update([0.0, 0.0, 0.0], 0.0)
     odo.update([0.02, 0.0, 0.0], 0.0)
@@ -60,11 +61,11 @@ def core() -> PoseCellsCore:
     return PoseCellsCore(cfg.posecells, cfg.vpr_guard)
 
 
-def cells(*id_rate):
+def cells(*id_rate: tuple[int, float]) -> list[SimpleNamespace]:
     return [SimpleNamespace(id=i, rate=r) for i, r in id_rate]
 
 
-def test_first_odometry_places_the_packet_and_lvc_before_odometry_makes_no_step():
+def test_first_odometry_places_the_packet_and_lvc_before_odometry_makes_no_step() -> None:
     c = core()
     assert c.on_lvc(3, cells((3, 0.6))).decision is None
     c.on_odometry([0.42, 0.31, 0.2], 0.5)
@@ -72,17 +73,17 @@ def test_first_odometry_places_the_packet_and_lvc_before_odometry_makes_no_step(
     assert (x, y, z, yaw) == pytest.approx((0.42, 0.31, 0.2, 0.5), abs=0.02)
 
 
-def test_a_step_moves_the_packet_by_the_odometry_and_the_gate_decides():
+def test_a_step_moves_the_packet_by_the_odometry_and_the_gate_decides() -> None:
     c = core()
     c.on_odometry([0.2, 0.2, 0.2], 0.0)
     c.on_odometry([0.5, 0.2, 0.2], 0.0)
     step = c.on_lvc(1, cells((1, 0.6)))
     assert step.decision is not None and step.decision.accepted and step.decision.gate == "off"
     assert step.position == [0.5, 0.2, 0.2] and step.yaw == 0.0
-    assert step.centroid[0] == pytest.approx(0.5, abs=0.02)
+    assert step.centroid is not None and step.centroid[0] == pytest.approx(0.5, abs=0.02)
 
 
-def test_save_load_round_trip_continues_identically(tmp_path):
+def test_save_load_round_trip_continues_identically(tmp_path: Path) -> None:
     a = core()
     rng = np.random.default_rng(1)
     p, yaw = np.zeros(3), 0.0
@@ -103,7 +104,7 @@ def test_save_load_round_trip_continues_identically(tmp_path):
     assert sa == sb and np.array_equal(b.net.P, a.net.P)
 
 
-def test_load_rejects_a_file_that_is_not_a_posecells_state(tmp_path):
+def test_load_rejects_a_file_that_is_not_a_posecells_state(tmp_path: Path) -> None:
     path = tmp_path / "x.npz"
     np.savez(path, a=np.zeros(2))
     with pytest.raises(ValueError, match="not a posecells state file"):

@@ -5,13 +5,13 @@ from common.config import VprGuardConfig
 from services.posecells.gates import EventGate, MotionGate, VprGuard
 
 
-def worked_example_history():
+def worked_example_history() -> list[int]:
     """26 emitted ids ending in [12, 12, 7, 12, 5, 9, 12]: 12 four times in the window."""
     older = list(range(20, 39))  # 19 ids, none of 12, 7, 4, 9, 6
     return older + [12, 12, 7, 12, 5, 9, 12]
 
 
-def test_worked_example_accepts_then_leaks_after_20_rejections_and_resets():
+def test_worked_example_accepts_then_leaks_after_20_rejections_and_resets() -> None:
     guard = VprGuard(window=26, min_rep=3, leak=20)
     history = worked_example_history()
     assert len(history) == 26
@@ -32,7 +32,7 @@ def test_worked_example_accepts_then_leaks_after_20_rejections_and_resets():
     assert again[-1].gate == "leak"
 
 
-def test_repetition_resets_the_rejection_run():
+def test_repetition_resets_the_rejection_run() -> None:
     guard = VprGuard(window=26, min_rep=3, leak=20)
     for i in range(15):
         assert not guard.step(100 + i).accepted
@@ -42,7 +42,7 @@ def test_repetition_resets_the_rejection_run():
     assert d.accepted and d.gate == "vpr" and guard.rejection_run == 0
 
 
-def test_window_forgets_ids_older_than_w():
+def test_window_forgets_ids_older_than_w() -> None:
     guard = VprGuard(window=4, min_rep=2, leak=0)
     assert not guard.step(1).accepted
     for i in (2, 3, 4):
@@ -51,12 +51,12 @@ def test_window_forgets_ids_older_than_w():
     assert guard.step(1).accepted
 
 
-def test_leak_zero_disables_forced_acceptance():
+def test_leak_zero_disables_forced_acceptance() -> None:
     guard = VprGuard(window=26, min_rep=3, leak=0)
     assert not any(guard.step(i).accepted for i in range(100))
 
 
-def test_off_passes_every_id():
+def test_off_passes_every_id() -> None:
     guard = VprGuard.from_config(VprGuardConfig(require_vpr_for_event=False))
     ids = [12, 12, 7, 12, 5, 9, 12] + list(range(100))
     decisions = [guard.step(i) for i in ids]
@@ -64,12 +64,12 @@ def test_off_passes_every_id():
     assert decisions[6].vpr_count == 4  # C_t still reported
 
 
-def test_bad_guard_parameters_are_refused():
+def test_bad_guard_parameters_are_refused() -> None:
     with pytest.raises(ValueError):
         VprGuard(window=0)
 
 
-def test_motion_gate_thresholds_in_xy_and_z():
+def test_motion_gate_thresholds_in_xy_and_z() -> None:
     gate = MotionGate(min_xy=0.12, min_dz=0.05)
     assert gate.passes([5.0, 5.0, -2.0])  # the first event always passes
     gate.mark([5.0, 5.0, -2.0])
@@ -82,7 +82,7 @@ def test_motion_gate_thresholds_in_xy_and_z():
     assert MotionGate(enabled=False).passes([0, 0, 0])
 
 
-def test_motion_gate_first_then_vpr_guard_and_the_leak_counts_candidates_only():
+def test_motion_gate_first_then_vpr_guard_and_the_leak_counts_candidates_only() -> None:
     gate = EventGate(VprGuardConfig(vpr_window=26, vpr_min_rep=3, vpr_leak_rate=3))
     p0 = [0.0, 0.0, -1.0]
     # before the first event the motion gate has no reference: every frame is a candidate

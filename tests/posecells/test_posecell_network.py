@@ -1,7 +1,10 @@
 """PoseCellNetwork: attractor stability, path integration, injection, centroid, persistence."""
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from common.config import PoseCellsConfig
@@ -10,7 +13,7 @@ from services.posecells.network import PoseCellNetwork, gaussian_kernel, wrapped
 DIMS = (15, 15, 15, 8)
 
 
-def settled(cell=(7, 7, 7, 0), updates=30, **cfg) -> PoseCellNetwork:
+def settled(cell: tuple[float, float, float, float] = (7, 7, 7, 0), updates: int = 30, **cfg: Any) -> PoseCellNetwork:
     net = PoseCellNetwork(PoseCellsConfig(**cfg))
     net.reset(cell)
     for _ in range(updates):
@@ -18,8 +21,12 @@ def settled(cell=(7, 7, 7, 0), updates=30, **cfg) -> PoseCellNetwork:
     return net
 
 
-def wrapped_diff(a, b, n=np.array(DIMS, dtype=float)):
-    return (np.asarray(a) - np.asarray(b) + n / 2) % n - n / 2
+_DIMS_F = np.array(DIMS, dtype=float)
+
+
+def wrapped_diff(a: npt.ArrayLike, b: npt.ArrayLike, n: np.ndarray = _DIMS_F) -> np.ndarray:
+    out: np.ndarray = (np.asarray(a) - np.asarray(b) + n / 2) % n - n / 2
+    return out
 
 
 def unimodal_along_every_axis(p: np.ndarray) -> bool:
@@ -35,7 +42,7 @@ def unimodal_along_every_axis(p: np.ndarray) -> bool:
     return True
 
 
-def test_gaussian_kernel_sums_to_one_and_never_wraps_onto_itself():
+def test_gaussian_kernel_sums_to_one_and_never_wraps_onto_itself() -> None:
     for sigma, n in ((1.0, 15), (1.0, 8), (3.0, 8), (0.5, 15)):
         off, w = gaussian_kernel(sigma, n)
         assert w.sum() == pytest.approx(1.0)
@@ -43,7 +50,7 @@ def test_gaussian_kernel_sums_to_one_and_never_wraps_onto_itself():
         assert np.all(w[: off.size // 2] < w[off.size // 2])
 
 
-def test_lone_packet_stays_one_packet_with_total_one_after_100_updates():
+def test_lone_packet_stays_one_packet_with_total_one_after_100_updates() -> None:
     net = PoseCellNetwork(PoseCellsConfig())
     net.reset((3, 11, 0, 7))  # on the z wrap edge and the last yaw bin
     for _ in range(100):
@@ -65,7 +72,7 @@ def test_lone_packet_stays_one_packet_with_total_one_after_100_updates():
     assert np.abs(net.P - before).sum() < 1e-9
 
 
-def test_global_inhibition_too_strong_is_a_clear_error():
+def test_global_inhibition_too_strong_is_a_clear_error() -> None:
     net = PoseCellNetwork(PoseCellsConfig(global_inhibition=0.5))
     with pytest.raises(RuntimeError, match="posecells.global_inhibition"):
         net.update()
@@ -77,7 +84,8 @@ def test_global_inhibition_too_strong_is_a_clear_error():
     ((0.0, 0.0, 0.1, 0.0), (0, 0, 1, 0)),   # up = +z
     ((0.0, 0.0, 0.0, 2 * math.pi / 8), (0, 0, 0, 1)),  # one yaw bin of turn
 ])
-def test_one_cell_of_motion_moves_the_centroid_by_one_cell(motion, expected):
+def test_one_cell_of_motion_moves_the_centroid_by_one_cell(motion: tuple[float, float, float, float],
+                                                           expected: tuple[int, int, int, int]) -> None:
     net = settled()
     c0 = net.centroid_cells()
     net.path_integrate(*motion)
@@ -86,7 +94,7 @@ def test_one_cell_of_motion_moves_the_centroid_by_one_cell(motion, expected):
     assert np.allclose(wrapped_diff(net.centroid_cells(), c0), expected, atol=1e-9)
 
 
-def test_forward_follows_the_packet_heading():
+def test_forward_follows_the_packet_heading() -> None:
     net = settled(cell=(7, 7, 7, 2))  # heading north (90 deg)
     c0 = net.centroid_cells()
     net.path_integrate(0.1, 0.0, 0.0, 0.0)
@@ -97,7 +105,7 @@ def test_forward_follows_the_packet_heading():
     assert np.allclose(wrapped_diff(net.centroid_cells(), c0), (-math.sqrt(0.5), math.sqrt(0.5), 0, 0), atol=1e-9)
 
 
-def test_whole_cell_moves_are_exact_rolls_of_the_activity():
+def test_whole_cell_moves_are_exact_rolls_of_the_activity() -> None:
     net = settled()
     p0 = net.P.copy()
     net.path_integrate(0.0, 0.0, 0.1, 0.0)
@@ -108,7 +116,7 @@ def test_whole_cell_moves_are_exact_rolls_of_the_activity():
 
 @pytest.mark.parametrize("half_move", [(0.05, 0.0, 0.0, 0.0), (0.0, 0.05, 0.0, 0.0), (0.0, 0.0, 0.05, 0.0),
                                        (0.0, 0.0, 0.0, math.pi / 8), (0.05, -0.05, 0.05, 0.0)])
-def test_two_moves_of_half_a_cell_equal_one_move_of_one_cell(half_move):
+def test_two_moves_of_half_a_cell_equal_one_move_of_one_cell(half_move: tuple[float, float, float, float]) -> None:
     half, whole = settled(), settled()
     for _ in range(2):
         half.path_integrate(*half_move)
@@ -122,7 +130,7 @@ def test_two_moves_of_half_a_cell_equal_one_move_of_one_cell(half_move):
     assert np.allclose(half.centroid_cells(), whole.centroid_cells(), atol=1e-9)
 
 
-def test_slow_motion_is_integrated_without_loss():
+def test_slow_motion_is_integrated_without_loss() -> None:
     """A 0.01 cell-per-step drift (a slow turn at 4 Hz) adds up: the attractor does not pin it."""
     net = settled()
     c0 = net.centroid_cells()
@@ -133,7 +141,7 @@ def test_slow_motion_is_integrated_without_loss():
     assert moved[3] == pytest.approx(3.0, abs=1e-9)
 
 
-def test_packet_tracks_a_long_odometry_path():
+def test_packet_tracks_a_long_odometry_path() -> None:
     """A lap of constant motion: the centroid's unwrapped advance equals the distance."""
     net = settled()
     prev = net.centroid_cells()
@@ -148,7 +156,7 @@ def test_packet_tracks_a_long_odometry_path():
     assert abs(travelled[1]) < 1e-6 and abs(travelled[3]) < 1e-6
 
 
-def test_centroid_is_right_across_the_wrap_boundary():
+def test_centroid_is_right_across_the_wrap_boundary() -> None:
     # a packet centred on the x = 0 / 14 seam and the yaw 7 / 0 seam
     net = settled(cell=(14.5, 7, 0, 7.5))
     c = net.centroid_cells()
@@ -161,7 +169,7 @@ def test_centroid_is_right_across_the_wrap_boundary():
     assert abs(float(m @ np.arange(15)) - 14.5) > 5
 
 
-def test_wrapped_centroid_of_a_marginal():
+def test_wrapped_centroid_of_a_marginal() -> None:
     m = np.zeros(10)
     m[[9, 0, 1]] = [1, 2, 1]
     assert wrapped_centroid_cells(m) == pytest.approx(0.0)
@@ -172,7 +180,7 @@ def test_wrapped_centroid_of_a_marginal():
         wrapped_centroid_cells(np.zeros(5))
 
 
-def test_associations_are_sparse_capped_and_mature_after_the_lvc_is_gone():
+def test_associations_are_sparse_capped_and_mature_after_the_lvc_is_gone() -> None:
     net = settled()
     for _ in range(40):  # LVCs 5 and 9 stay active while the packet moves 4 cells
         net.step(forward=0.01, active_lvcs=[5, 9])
@@ -192,19 +200,19 @@ def test_associations_are_sparse_capped_and_mature_after_the_lvc_is_gone():
     assert net.beta_cells() == 2 * b.cells.size + net.episode_beta[1].cells.size
 
 
-def test_an_lvc_held_over_consecutive_frames_does_not_drag_the_packet_back():
-    def run(maturity):
+def test_an_lvc_held_over_consecutive_frames_does_not_drag_the_packet_back() -> None:
+    def run(maturity: int) -> float:
         net = settled(lvc_maturity_steps=maturity)
         c0 = net.centroid_cells()
         for _ in range(12):  # one id for 12 frames while moving 0.5 cell per frame
             net.step(forward=0.05, active_lvcs=[4])
-        return wrapped_diff(net.centroid_cells(), c0)[0]
+        return float(wrapped_diff(net.centroid_cells(), c0)[0])
 
     assert run(10) == pytest.approx(6.0, abs=1e-9)
     assert run(0) < 5.5  # literal Eq. 4.19: the association of the previous frames pulls back
 
 
-def revisit_setup(**cfg):
+def revisit_setup(**cfg: Any) -> tuple[PoseCellNetwork, np.ndarray]:
     net = settled(**cfg)
     stored = net.centroid_cells()
     for _ in range(5):
@@ -214,7 +222,7 @@ def revisit_setup(**cfg):
     return net, stored
 
 
-def test_injection_of_a_learned_lvc_pulls_the_packet_back_to_the_stored_pose():
+def test_injection_of_a_learned_lvc_pulls_the_packet_back_to_the_stored_pose() -> None:
     net, stored = revisit_setup()
     assert 7 in net.beta
     net.path_integrate(0.3, 0.0, 0.0, 0.0)  # drift: 3 cells away
@@ -237,8 +245,8 @@ def test_injection_of_a_learned_lvc_pulls_the_packet_back_to_the_stored_pose():
     assert abs(wrapped_diff(strong.centroid_cells(), stored)[0]) < 0.1
 
 
-def test_save_load_continue_equals_an_uninterrupted_run(tmp_path):
-    def drive(net, k0, k1):
+def test_save_load_continue_equals_an_uninterrupted_run(tmp_path: Path) -> None:
+    def drive(net: PoseCellNetwork, k0: int, k1: int) -> None:
         for k in range(k0, k1):
             net.step(forward=0.03 + 0.01 * (k % 3), left=0.01, up=0.002 * (k % 5 - 2), dyaw=0.05,
                      active_lvcs=[k // 4, 100 + k % 7])
@@ -257,7 +265,7 @@ def test_save_load_continue_equals_an_uninterrupted_run(tmp_path):
     assert a.steps == c.steps == 60
 
 
-def test_loading_a_state_of_another_lattice_names_the_file(tmp_path):
+def test_loading_a_state_of_another_lattice_names_the_file(tmp_path: Path) -> None:
     settled().save(tmp_path / "pc.npz")
     with pytest.raises(ValueError, match="pc.npz.*number_of_neurons"):
         PoseCellNetwork.load(tmp_path / "pc.npz", PoseCellsConfig(number_of_neurons=[11, 11, 11, 8]))
@@ -270,10 +278,11 @@ def dense_reference_update(p: np.ndarray, cfg: PoseCellsConfig) -> np.ndarray:
         offsets, weights = gaussian_kernel(s, n)
         p = sum(w * np.roll(p, int(o), axis=axis) for o, w in zip(offsets, weights))
     p = np.maximum(p - cfg.global_inhibition, 0.0)
-    return p / p.sum()
+    out: np.ndarray = p / p.sum()
+    return out
 
 
-def test_sparse_update_equals_the_dense_reference_after_moves_and_injections():
+def test_sparse_update_equals_the_dense_reference_after_moves_and_injections() -> None:
     net = settled(updates=10, lvc_maturity_steps=0)
     for k in range(12):
         net.mature()

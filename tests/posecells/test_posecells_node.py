@@ -1,11 +1,14 @@
 """PoseCellsNode through common.node.run_offline on hand-made Odometry + LocalViewCells streams."""
 import math
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from common.config import PoseidonConfig
-from common.messages import ExperienceEvent, Header, LocalViewCell, LocalViewCells, Odometry
+from common.messages import ExperienceEvent, Header, LocalViewCell, LocalViewCells, Message, Odometry
 from common.node import run_offline
 from services.posecells.node import PoseCellsNode, yaw_of_quaternion
 
@@ -14,18 +17,18 @@ T0 = 1_700_000_000 * NS
 LATTICE_M = 1.5
 
 
-def odom(seq, stamp, pos, yaw):
+def odom(seq: int, stamp: int, pos: Sequence[float], yaw: float) -> Odometry:
     return Odometry(header=Header(seq=seq, stamp=stamp, frame_id="odom_enu"), child_frame_id="base_link",
                     position=[float(v) for v in pos], orientation=[0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
 
 
-def lvc(seq, stamp, cell, extra=()):
+def lvc(seq: int, stamp: int, cell: int, extra: Iterable[tuple[int, float]] = ()) -> LocalViewCells:
     cells = [LocalViewCell(id=cell, rate=0.6)] + [LocalViewCell(id=i, rate=r) for i, r in extra]
     return LocalViewCells(header=Header(seq=seq, stamp=stamp, frame_id="camera"), most_active_cell=cell,
                           active_cells=cells, is_new=False, intersection=12)
 
 
-def trajectory(t):
+def trajectory(t: float) -> tuple[tuple[float, float, float], float]:
     """A descending turn: 0.2 m/s, yaw rate 0.05 rad/s, 2 cm/s down (ENU)."""
     yaw = 0.3 + 0.05 * t
     x = 2.0 + 4.0 * (math.sin(yaw) - math.sin(0.3))
@@ -33,8 +36,9 @@ def trajectory(t):
     return (x, y, -3.0 - 0.02 * t), yaw
 
 
-def stream(seconds=60.0, ids=lambda k: k // 4, odom_hz=10.0, frame_hz=4.0, odom_delay_s=0.0):
-    msgs = []
+def stream(seconds: float = 60.0, ids: Callable[[int], int] = lambda k: k // 4, odom_hz: float = 10.0,
+           frame_hz: float = 4.0, odom_delay_s: float = 0.0) -> list[tuple[str, Message]]:
+    msgs: list[tuple[str, Message]] = []
     n_odom = int(seconds * odom_hz)
     for k in range(n_odom):
         t = odom_delay_s + k / odom_hz
@@ -47,39 +51,48 @@ def stream(seconds=60.0, ids=lambda k: k // 4, odom_hz=10.0, frame_hz=4.0, odom_
     return msgs
 
 
-def config(**vpr):
+def config(**vpr: Any) -> PoseidonConfig:
     cfg = PoseidonConfig()
     for k, v in vpr.items():
         setattr(cfg.vpr_guard, k, v)
     return cfg
 
 
-def events(out):
-    return [m for k, m in out if k == "experience_event"]
+def events(out: list[tuple[str, Message]]) -> list[ExperienceEvent]:
+    evs: list[ExperienceEvent] = []
+    for k, m in out:
+        if k == "experience_event":
+            assert isinstance(m, ExperienceEvent)
+            evs.append(m)
+    return evs
 
 
-def latest_odom(msgs, stamp):
-    best = None
+def latest_odom(msgs: list[tuple[str, Message]], stamp: int) -> Odometry | None:
+    best: Odometry | None = None
     for k, m in msgs:
-        if k == "Odometry" and m.header.stamp <= stamp:
+        if k == "Odometry" and isinstance(m, Odometry) and m.header.stamp <= stamp:
             best = m
     return best
 
 
-def test_events_only_when_the_gates_pass_with_the_lvc_headers():
+def test_events_only_when_the_gates_pass_with_the_lvc_headers() -> None:
     msgs = stream()
     node = PoseCellsNode(config())
     out = run_offline(node, msgs)
     assert all(k == "experience_event" for k, _ in out)
     evs = events(out)
-    frames = {m.header.stamp: m for k, m in msgs if k == "local_view_cells"}
+    frames: dict[int, Any] = {m.header.stamp: m for k, m in msgs if k == "local_view_cells"}
     # the same decisions, recomputed from Eqs. 4.11-4.12 and the motion gate by hand
-    window, last, expected = [], None, []
+    window: list[int] = []
+    last: list[float] | None = None
+    expected: list[int] = []
     for stamp in sorted(frames):
         f = frames[stamp]
         window = (window + [f.most_active_cell])[-26:]
         count = window.count(f.most_active_cell)
-        p = latest_odom(msgs, stamp).position
+        odo = latest_odom(msgs, stamp)
+        assert odo is not None
+        p = odo.position
         moved = last is None or math.hypot(p[0] - last[0], p[1] - last[1]) >= 0.12 or abs(p[2] - last[2]) >= 0.05
         if moved and count >= 3:
             expected.append(stamp)
@@ -93,7 +106,7 @@ def test_events_only_when_the_gates_pass_with_the_lvc_headers():
         assert e.lvc_id == f.most_active_cell
         assert e.gate == "vpr" and e.vpr_count >= 3
         o = latest_odom(msgs, e.header.stamp)
-        assert e.odom_position == o.position
+        assert o is not None and e.odom_position == o.position
         assert e.odom_yaw == pytest.approx(yaw_of_quaternion(o.orientation))
     n_frames = len(frames)
     c = node.counters
@@ -102,7 +115,7 @@ def test_events_only_when_the_gates_pass_with_the_lvc_headers():
     assert c["rejected_motion"] > 0 and c["rejected_vpr"] > 0
 
 
-def test_guard_off_gives_more_events_than_on_and_leak_fires_on_unstable_ids():
+def test_guard_off_gives_more_events_than_on_and_leak_fires_on_unstable_ids() -> None:
     msgs = stream(ids=lambda k: k)  # every frame a different id: never 3 repetitions
     on = run_offline(PoseCellsNode(config(vpr_leak_rate=20)), msgs)
     off_node = PoseCellsNode(config(require_vpr_for_event=False))
@@ -120,11 +133,11 @@ def test_guard_off_gives_more_events_than_on_and_leak_fires_on_unstable_ids():
     assert off_node.counters.get("rejected_vpr", 0) == 0
 
 
-def msgs_of(msgs, key):
+def msgs_of(msgs: list[tuple[str, Message]], key: str) -> list[Any]:
     return [m for k, m in msgs if k == key]
 
 
-def test_pose_cell_centroid_follows_the_odometry_modulo_the_lattice():
+def test_pose_cell_centroid_follows_the_odometry_modulo_the_lattice() -> None:
     # distinct ids: no LVC is ever seen twice, so nothing is injected; guard off for many events
     msgs = stream(seconds=90.0, ids=lambda k: k)
     evs = events(run_offline(PoseCellsNode(config(require_vpr_for_event=False)), msgs))
@@ -138,7 +151,7 @@ def test_pose_cell_centroid_follows_the_odometry_modulo_the_lattice():
         assert 0.0 <= e.pc_centroid[0] < LATTICE_M and -math.pi <= e.pc_centroid[3] < math.pi
 
 
-def test_odometry_first_at_equal_stamps():
+def test_odometry_first_at_equal_stamps() -> None:
     stamp = T0 + 5 * NS
     msgs = [("local_view_cells", lvc(0, stamp, 3)), ("Odometry", odom(0, stamp, (1.0, 2.0, -3.0), 0.5))]
     out = run_offline(PoseCellsNode(config(require_vpr_for_event=False)), msgs)
@@ -148,7 +161,7 @@ def test_odometry_first_at_equal_stamps():
     assert e.pc_centroid == pytest.approx([1.0, 0.5, 0.0, 0.5], abs=1e-9)
 
 
-def test_frames_before_any_odometry_make_no_event_but_fill_the_window():
+def test_frames_before_any_odometry_make_no_event_but_fill_the_window() -> None:
     msgs = stream(seconds=10.0, ids=lambda k: 7, odom_delay_s=2.0)
     node = PoseCellsNode(config())
     evs = events(run_offline(node, msgs))
@@ -157,7 +170,7 @@ def test_frames_before_any_odometry_make_no_event_but_fill_the_window():
     assert evs[0].vpr_count == 9  # the 8 frames before the odometry counted in C_t
 
 
-def test_odometry_jump_is_a_discontinuity_not_motion():
+def test_odometry_jump_is_a_discontinuity_not_motion() -> None:
     msgs = [("Odometry", odom(0, T0, (0.0, 0.0, 0.0), 0.0)),
             ("Odometry", odom(1, T0 + NS // 10, (0.02, 0.0, 0.0), 0.0)),
             ("Odometry", odom(2, T0 + 2 * NS // 10, (100.0, 50.0, 0.0), 0.0)),
@@ -169,7 +182,7 @@ def test_odometry_jump_is_a_discontinuity_not_motion():
     assert e.pc_centroid[0] == pytest.approx(0.05, abs=1e-6)  # 2 cm + 3 cm, the jump ignored
 
 
-def test_multiple_active_lvcs_by_rate_and_top_k():
+def test_multiple_active_lvcs_by_rate_and_top_k() -> None:
     node = PoseCellsNode(config())
     msg = lvc(0, T0, 5, extra=[(9, 0.5), (2, 0.02), (4, 0.7), (8, 0.1), (6, 0.09)])
     core = node.core
@@ -178,7 +191,7 @@ def test_multiple_active_lvcs_by_rate_and_top_k():
     assert core.active_lvcs(msg.most_active_cell, msg.active_cells) == [5]
 
 
-def test_save_load_continue_equals_an_uninterrupted_run(tmp_path):
+def test_save_load_continue_equals_an_uninterrupted_run(tmp_path: Path) -> None:
     msgs = stream(seconds=40.0, ids=lambda k: (k // 3) % 9)  # revisits: injection and learning
     split = T0 + 17 * NS + NS // 3
     whole = run_offline(PoseCellsNode(config()), msgs)
@@ -192,11 +205,13 @@ def test_save_load_continue_equals_an_uninterrupted_run(tmp_path):
     joined = events(first) + events(second)
     ref = events(whole)
     assert len(ref) > 10 and len(events(first)) > 3 and len(events(second)) > 3
-    strip = lambda e: e.model_dump(exclude={"header": {"seq"}})  # noqa: E731 - seq restarts per run
+    def strip(e: ExperienceEvent) -> dict[str, Any]:
+        return e.model_dump(exclude={"header": {"seq"}})  # seq restarts per run
+
     assert [strip(e) for e in joined] == [strip(e) for e in ref]
 
 
-def test_state_file_of_another_kind_is_a_clear_error(tmp_path):
+def test_state_file_of_another_kind_is_a_clear_error(tmp_path: Path) -> None:
     bad = tmp_path / "other.npz"
     np.savez(bad, x=np.zeros(3))
     cfg = config()
@@ -205,7 +220,7 @@ def test_state_file_of_another_kind_is_a_clear_error(tmp_path):
         PoseCellsNode(cfg)
 
 
-def test_event_messages_validate_and_roundtrip_through_the_codec():
+def test_event_messages_validate_and_roundtrip_through_the_codec() -> None:
     from common.codec import decode, encode
 
     msgs = stream(seconds=8.0, ids=lambda k: k)

@@ -28,14 +28,14 @@ def _matcher(*overrides: str) -> LocalViewMatcher:
     return LocalViewMatcher(load_config(overrides=["ratslam_lv.image_crop_x_max=360", *overrides]).ratslam_lv)
 
 
-def test_defaults_are_the_dissertations():
+def test_defaults_are_the_dissertations() -> None:
     c = load_config().ratslam_lv
     assert (c.image_crop_y_min, c.vt_normalisation, c.vt_patch_normalise, c.vt_match_threshold) == (120, 0.4, 3, 0.018)
     with pytest.raises(ConfigError, match="ratslam_lv.vt_match_threshold"):
         load_config(overrides=["ratslam_lv.vt_match_threshold=-1"])
 
 
-def test_template_is_grey_cropped_downsampled_and_normalised():
+def test_template_is_grey_cropped_downsampled_and_normalised() -> None:
     m = _matcher()
     img = _view(_texture(1), 0)
     t = m.make_template(img)
@@ -51,7 +51,7 @@ def test_template_is_grey_cropped_downsampled_and_normalised():
     assert not np.array_equal(m.make_template(other), t)
 
 
-def test_building_blocks():
+def test_building_blocks() -> None:
     g = grey(np.array([[[255, 0, 0], [30, 60, 90]]], np.uint8))
     np.testing.assert_allclose(g, [[85 / 255, 60 / 255]], rtol=1e-6)
     src = np.arange(16, dtype=np.float32).reshape(4, 4)
@@ -66,7 +66,7 @@ def test_building_blocks():
     np.testing.assert_allclose(patch_normalise(edge * 0.2 + 0.7, 1), out, atol=1e-5)  # ... levels removed
 
 
-def test_first_frame_creates_view_cell_zero_and_exact_revisit_matches_it():
+def test_first_frame_creates_view_cell_zero_and_exact_revisit_matches_it() -> None:
     m = _matcher()
     a = _view(_texture(1), 0)
     r0 = m.step(a)
@@ -76,7 +76,7 @@ def test_first_frame_creates_view_cell_zero_and_exact_revisit_matches_it():
     assert len(m) == 1
 
 
-def test_shifted_revisit_is_matched_within_vt_shift_match():
+def test_shifted_revisit_is_matched_within_vt_shift_match() -> None:
     tex = _texture(2)
     m = _matcher()
     assert m.step(_view(tex, 24)).view_id == 0  # stored at x0 = 24 image px (4 template px)
@@ -90,7 +90,7 @@ def test_shifted_revisit_is_matched_within_vt_shift_match():
     assert m0.step(_view(tex, 42)).is_new
 
 
-def test_vertical_shift_is_matched_too():
+def test_vertical_shift_is_matched_too() -> None:
     tex = _texture(3, h=H + 64)
     m = _matcher()
     m.step(np.ascontiguousarray(tex[0:H, :W]))
@@ -99,7 +99,7 @@ def test_vertical_shift_is_matched_too():
     assert not res.is_new and res.view_id == 0 and res.shift == (0, 2)
 
 
-def test_shift_beyond_the_range_and_a_different_place_create_new_ids():
+def test_shift_beyond_the_range_and_a_different_place_create_new_ids() -> None:
     tex = _texture(4)
     m = _matcher()
     m.step(_view(tex, 0))
@@ -112,7 +112,7 @@ def test_shift_beyond_the_range_and_a_different_place_create_new_ids():
     assert [m.step(_view(tex, 0)).view_id, m.step(_view(_texture(5), 0)).view_id] == [0, 2]
 
 
-def test_global_normalisation_absorbs_illumination():
+def test_global_normalisation_absorbs_illumination() -> None:
     tex = _texture(6)
     m = _matcher("ratslam_lv.vt_patch_normalise=0")
     m.step(_view(tex, 0))
@@ -124,7 +124,7 @@ def test_global_normalisation_absorbs_illumination():
     assert raw.step(dim).is_new  # without it a darker pass is a new place
 
 
-def test_bad_crop_is_a_clear_error():
+def test_bad_crop_is_a_clear_error() -> None:
     m = _matcher("ratslam_lv.image_crop_y_min=300")
     with pytest.raises(ValueError, match="crop"):
         m.make_template(_view(_texture(1), 0))

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -32,12 +34,12 @@ def _frames(scenes: list[int], key: str = "camera/image_raw") -> list[tuple[str,
     return out
 
 
-def test_one_message_per_frame_with_the_frame_header():
+def test_one_message_per_frame_with_the_frame_header() -> None:
     node = RatSlamViewNode(load_config())
     frames = _frames([1, 2, 1, 3, 2])
     out = run_offline(node, frames)
     assert [k for k, _ in out] == ["local_view_cells"] * 5
-    msgs = [m for _, m in out]
+    msgs: list[Any] = [m for _, m in out]
     assert all(isinstance(m, LocalViewCells) for m in msgs)
     assert [m.most_active_cell for m in msgs] == [0, 1, 0, 2, 1]
     assert [m.is_new for m in msgs] == [True, True, False, True, False]
@@ -50,27 +52,28 @@ def test_one_message_per_frame_with_the_frame_header():
     assert node.counters == {"templates_created": 3, "templates_matched": 2}
 
 
-def test_unusable_frame_is_counted_and_skipped():
+def test_unusable_frame_is_counted_and_skipped() -> None:
     node = RatSlamViewNode(load_config())
     out = run_offline(node, _frames([1, -1, 1]))
-    assert [m.most_active_cell for _, m in out] == [0, 0]
+    lvcs: list[Any] = [m for _, m in out]
+    assert [m.most_active_cell for m in lvcs] == [0, 0]
     assert node.counters["frame_rejected"] == 1
 
 
-def test_image_topic_is_configurable():
+def test_image_topic_is_configurable() -> None:
     cfg = load_config(overrides=["ratslam_lv.image_topic=camera/left"])
     assert RatSlamViewNode.io_keys(cfg) == (("camera/left",), ("local_view_cells",))
     node = RatSlamViewNode(cfg)
     assert len(run_offline(node, _frames([1, 2], key="camera/left"))) == 2
 
 
-def test_registered_as_an_optional_front_end():
+def test_registered_as_an_optional_front_end() -> None:
     assert node_class("ratslam_lv") is RatSlamViewNode
     assert "ratslam_lv" not in available_services()  # never started beside htm by default
 
 
 @pytest.mark.timeout(300)
-def test_poseidon_run_with_services_ratslam_lv(tmp_path, capsys):
+def test_poseidon_run_with_services_ratslam_lv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``poseidon run --services ratslam_lv`` replaces the neocortical front-end end to end."""
     from launcher.cli import main
 
@@ -84,5 +87,5 @@ def test_poseidon_run_with_services_ratslam_lv(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert set(summary["services"]) == {"player", "recorder", "ratslam_lv"}  # no encoder, no htm
     assert summary["services"]["ratslam_lv"]["counters"] == {"templates_created": 3, "templates_matched": 2}
-    lvc = [r.message() for r in read_messages(out, keys=["local_view_cells"])]
+    lvc: list[Any] = [r.message() for r in read_messages(out, keys=["local_view_cells"])]
     assert [m.most_active_cell for m in lvc] == [0, 1, 0, 1, 2]
