@@ -1,5 +1,8 @@
 """One configuration for the whole system, with the defaults of Table 4.1 of the dissertation.
 
+(Over 500 lines because it holds every service's section: moving each section next to its
+service, assembled in one place, is issue 18's item 4, not done yet.)
+
 The file ``deploy/poseidon.yaml`` spells out every default; a user file only needs the keys
 it changes.  Loading validates everything with pydantic: a wrong type, a value out of range
 or an unknown key fails at start-up with the dotted name of the field

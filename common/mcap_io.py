@@ -1,5 +1,8 @@
 """MCAP recordings of PoseidonSLAM messages.
 
+(Over 500 lines because the writer, the fast reader and the recovery of a damaged file share
+one record layout, which is clearer in one place.)
+
 Layout of a recording (what :class:`RecordingWriter` writes and the recorder produces):
 
 - one channel per key; the topic is the namespace-relative key (``camera/image_raw``);

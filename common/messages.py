@@ -1,5 +1,8 @@
 """Typed messages of PoseidonSLAM (pydantic models, msgpack on the wire).
 
+(Over 500 lines because every wire message is here: the codec, the recorder's schemas and the
+ROS mapping see one registry, and no service depends on another's message module.)
+
 Every message carries a :class:`Header` (``seq`` per publisher, ``stamp`` event time in
 integer nanoseconds, ``frame_id``).  Numpy arrays are fields of type :data:`NDArray`; the
 codec (:mod:`common.codec`) carries them as raw bytes with dtype and shape.

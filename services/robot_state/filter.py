@@ -1,5 +1,8 @@
 """Dead-reckoning navigation filter of ``robot_state`` (dissertation Section 4.2.4).
 
+(Over 500 lines because the state, the process model and each sensor's measurement model
+with its Jacobian are one filter.)
+
 The back-end's only motion input is the fused ``/Odometry`` stream (Eq. 4.15 differences it),
 built from DVL velocity, IMU attitude/rates and pressure depth.  This is DolphinSLAM's 3D
 path integration (Eqs. 3.10-3.11: body velocity rotated to the world frame by
