@@ -1,7 +1,7 @@
 """Generate a synthetic cave mission into an MCAP recording.
 
 (Over 500 lines because every stream's generator shares the mission's one timeline and random
-stream; splitting them would change the order of the draws, so the missions.)
+stream; splitting them would change the order of the random draws, and so the missions.)
 
 Streams (keys as a real import of the Cala Viuda bags produces them) and their rates:
 
