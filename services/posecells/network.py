@@ -12,10 +12,8 @@ wrap-around on every axis.  One :meth:`PoseCellNetwork.step` is, in this order:
 5. Hebbian learning ``beta_l <- max(beta_l, lambda V_l P)`` for the active LVCs (Eq. 4.19, left).
 
 Global inhibition: the activity sums to 1 over 27 000 cells, so ``phi`` must be read against
-a uniform level of 3.7e-5.  RatSLAM's 0.00002 (our first default) let a lone packet spread
-to 7 400 cells with a uniform yaw marginal (no heading left); 0.0005 keeps a stable packet of
-569 cells whose yaw marginal has a mean resultant length of 0.68 (measured after 100-500
-updates from a single cell; sigma 1 cell on every axis).
+a uniform level of 3.7e-5 (the chosen value and its measurements: docs/DECISIONS.md, "Pose
+cells").
 
 Path integration (our formulation).  The motion is given in the vehicle's heading frame:
 ``forward``/``left`` (horizontal, metres), ``up`` (metres) and the yaw change ``dyaw`` (radians,
@@ -28,20 +26,15 @@ yaw, so without injection ``theta_bar`` equals the odometry yaw and the packet m
 odometry's world increment ``dp``; once an injection has turned the packet, translation
 follows the packet's heading belief, as in RatSLAM.  We do not move each yaw layer along its
 own ``theta_q`` (OpenRatSLAM's scheme): with 8 yaw bins of 45 deg the packet covers 3-5
-layers, the layers fan out and the attractor then re-centres on the peak layer.  Measured
-with linearly interpolated shifts (40 steps of constant forward motion, advance of the centroid / odometry distance, steps of
-0.1 / 0.25 / 0.5 / 1 / 1.5 cells): per-layer headings 0.67 / 0.70 / 0.76 / 0.84 / 0.85;
-per-layer headings with the length divided by the yaw marginal's mean resultant length
-0.98 / 1.03 / 1.10 / 1.13 / 1.14; one shift along ``theta_bar`` 0.92 / 0.96 / 1.00 / 1.00 / 1.00.
+layers, the layers fan out and the attractor then re-centres on the peak layer (docs/DECISIONS.md,
+"Pose cells").
 Sub-cell motion: the activity only ever moves by whole cells (exact rolls); the fraction is
 kept as a continuous offset ``offset`` (cells, per axis, in ``[-0.5, 0.5)``) that is carried to
 the next move and added to the read-out.  So two moves of 0.5 cell equal one of 1 cell
 exactly, activity included, and any motion, however slow, is integrated without loss.  We
 first shifted by linear interpolation of the fraction (OpenRatSLAM's scheme): the
 interpolation blurs the packet and the thresholded attractor then pulls it back toward a
-lattice-aligned shape, so slow motion was lost (measured on a 4 Hz frame stream: 8% of 0.1-cell
-steps, 11% of a 2 cm/s descent, 13% of a 0.05 rad/s turn; over 270 s the packet's yaw fell
-1.7 rad behind the odometry).  Excitation commutes with whole-cell rolls, so the offset is
+lattice-aligned shape, so slow motion was lost (docs/DECISIONS.md, "Pose cells").  Excitation commutes with whole-cell rolls, so the offset is
 exact for the attractor; an LVC injection acts on whole cells (its sub-cell part, at most
 half a cell, is not restored).
 
@@ -54,8 +47,7 @@ Maturity (DolphinSLAM's ``L_mat``, Section 4.2.4): what an LVC learns during an 
 activity (consecutive frames, gaps of at most ``lvc_maturity_steps`` frames) is injected only
 after the episode has ended.  The front-end keeps one id for several frames while the vehicle
 moves; injecting the association learned a few frames earlier dragged the packet back along
-the path (measured on a 2-minute simulated mission through the whole pipeline: median
-0.43 m between the pose-cell centroid and the odometry modulo the lattice, in x).  A revisit
+the path (docs/DECISIONS.md, "Pose cells").  A revisit
 (the id seen again after a gap) injects the earlier episodes' pose.  ``lvc_maturity_steps: 0``
 is the literal Eq. 4.19 (inject everything learned up to the previous frame).
 
