@@ -5,8 +5,11 @@ one step in the phases of the BAMI pseudocode -- ``punishPredictedColumn``,
 flat arrays; the class in :mod:`services.htm.temporal_memory` owns the arrays."""
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 SBLK = 32   # synapse slots per segment block
 PBLK = 16   # entries per presynaptic-index block
@@ -16,11 +19,23 @@ M_SEG_TOP, M_SEG_FREE, M_BLK_TOP, M_BLK_FREE, M_PB_TOP, M_PB_FREE = 0, 1, 2, 3, 
 M_ITER, M_NACT, M_NMATCH, M_NPREV_ACTIVE, M_NPREV_WINNER, M_NPRED = 6, 7, 8, 9, 10, 11
 M_LEN = 12
 
+# array types of the kernels (numba compiles from the values; these are for the type checker)
+I32: TypeAlias = NDArray[np.int32]
+I64: TypeAlias = NDArray[np.int64]
+F32: TypeAlias = NDArray[np.float32]
+Flags: TypeAlias = NDArray[np.bool_]
+RngState: TypeAlias = NDArray[np.uint64]
+SegArrays: TypeAlias = tuple[I32, I32, I32, I64, I32, I32, I64, I32, I32, I32]
+SynArrays: TypeAlias = tuple[I32, I32, I32, F32]
+PlArrays: TypeAlias = tuple[I32, I32, I32, I32, I32, I32]
+PrevArrays: TypeAlias = tuple[I32, I32, Flags, Flags]
+Params: TypeAlias = tuple[int, int, int, float, float, float, float, float, int, int, int]
+
 
 # --------------------------------------------------------------------------- random numbers
 @njit(cache=True)
-def _rand_u64(rs: np.ndarray) -> np.uint64:
-    x = rs[0]
+def _rand_u64(rs: RngState) -> np.uint64:
+    x: np.uint64 = rs[0]
     x ^= x >> np.uint64(12)
     x ^= x << np.uint64(25)
     x ^= x >> np.uint64(27)
@@ -29,13 +44,14 @@ def _rand_u64(rs: np.ndarray) -> np.uint64:
 
 
 @njit(cache=True)
-def _rand_below(rs: np.ndarray, n: int) -> int:
+def _rand_below(rs: RngState, n: int) -> int:
     return int((_rand_u64(rs) >> np.uint64(11)) % np.uint64(n))
 
 
 # --------------------------------------------------------------------------- presynaptic index
 @njit(cache=True)
-def _pl_append(p, ref, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
+def _pl_append(p: int, ref: int, pl_head: I32, pl_tail: I32, pl_count: I32, pb_ref: I32, pb_next: I32,
+               pb_free: I32, meta: I64) -> None:
     cnt = pl_count[p]
     if cnt % PBLK == 0:
         if meta[M_PB_FREE] > 0:
@@ -55,7 +71,8 @@ def _pl_append(p, ref, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, met
 
 
 @njit(cache=True)
-def _pl_remove(p, ref, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
+def _pl_remove(p: int, ref: int, pl_head: I32, pl_tail: I32, pl_count: I32, pb_ref: I32, pb_next: I32,
+               pb_free: I32, meta: I64) -> None:
     cnt = pl_count[p]
     b = pl_head[p]
     pos = -1
@@ -91,8 +108,8 @@ def _pl_remove(p, ref, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, met
 
 # --------------------------------------------------------------------------- synapses/segments
 @njit(cache=True)
-def _destroy_synapse(g, slot, seg_nsyn, syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next,
-                     pb_free, meta):
+def _destroy_synapse(g: int, slot: int, seg_nsyn: I32, syn_pre: I32, pl_head: I32, pl_tail: I32,
+                     pl_count: I32, pb_ref: I32, pb_next: I32, pb_free: I32, meta: I64) -> None:
     p = syn_pre[slot]
     _pl_remove(p, slot, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta)
     syn_pre[slot] = -1
@@ -100,13 +117,15 @@ def _destroy_synapse(g, slot, seg_nsyn, syn_pre, pl_head, pl_tail, pl_count, pb_
 
 
 @njit(cache=True)
-def _slot_id(seg_blk, g, j):
-    return seg_blk[g, j // SBLK] * SBLK + j % SBLK
+def _slot_id(seg_blk: I32, g: int, j: int) -> int:
+    b: int = seg_blk[g, j // SBLK]
+    return b * SBLK + j % SBLK
 
 
 @njit(cache=True)
-def _add_synapse(g, pre, perm0, seg_nsyn, seg_nslots, seg_blk, blk_seg, blk_free, syn_pre, syn_perm,
-                 pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
+def _add_synapse(g: int, pre: int, perm0: float, seg_nsyn: I32, seg_nslots: I32, seg_blk: I32, blk_seg: I32,
+                 blk_free: I32, syn_pre: I32, syn_perm: F32, pl_head: I32, pl_tail: I32, pl_count: I32,
+                 pb_ref: I32, pb_next: I32, pb_free: I32, meta: I64) -> None:
     n = seg_nslots[g]
     slot = -1
     if seg_nsyn[g] < n:
@@ -135,8 +154,9 @@ def _add_synapse(g, pre, perm0, seg_nsyn, seg_nslots, seg_blk, blk_seg, blk_free
 
 
 @njit(cache=True)
-def _destroy_segment(g, seg_cell, seg_nsyn, seg_nslots, seg_blk, blk_free, cell_nseg, seg_free,
-                     syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
+def _destroy_segment(g: int, seg_cell: I32, seg_nsyn: I32, seg_nslots: I32, seg_blk: I32, blk_free: I32,
+                     cell_nseg: I32, seg_free: I32, syn_pre: I32, pl_head: I32, pl_tail: I32, pl_count: I32,
+                     pb_ref: I32, pb_next: I32, pb_free: I32, meta: I64) -> None:
     n = seg_nslots[g]
     for j in range(n):
         s = _slot_id(seg_blk, g, j)
@@ -155,8 +175,9 @@ def _destroy_segment(g, seg_cell, seg_nsyn, seg_nslots, seg_blk, blk_free, cell_
 
 
 @njit(cache=True)
-def _adapt_segment(g, prev_flag, inc, dec, seg_nsyn, seg_nslots, seg_blk, syn_pre, syn_perm,
-                   pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
+def _adapt_segment(g: int, prev_flag: Flags, inc: float, dec: float, seg_nsyn: I32, seg_nslots: I32,
+                   seg_blk: I32, syn_pre: I32, syn_perm: F32, pl_head: I32, pl_tail: I32, pl_count: I32,
+                   pb_ref: I32, pb_next: I32, pb_free: I32, meta: I64) -> None:
     """BAMI adaptation: +inc on synapses from previously active cells, -dec on the others."""
     for j in range(seg_nslots[g]):
         s = _slot_id(seg_blk, g, j)
@@ -174,9 +195,10 @@ def _adapt_segment(g, prev_flag, inc, dec, seg_nsyn, seg_nslots, seg_blk, syn_pr
 
 
 @njit(cache=True)
-def _grow_synapses(g, n_desired, prev_winners, n_prev_winners, max_syn, perm0, mark, rs,
-                   seg_nsyn, seg_nslots, seg_blk, blk_seg, blk_free, syn_pre, syn_perm,
-                   pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
+def _grow_synapses(g: int, n_desired: int, prev_winners: I32, n_prev_winners: int, max_syn: int, perm0: float,
+                   mark: Flags, rs: RngState, seg_nsyn: I32, seg_nslots: I32, seg_blk: I32, blk_seg: I32,
+                   blk_free: I32, syn_pre: I32, syn_perm: F32, pl_head: I32, pl_tail: I32, pl_count: I32,
+                   pb_ref: I32, pb_next: I32, pb_free: I32, meta: I64) -> None:
     """Grow up to ``n_desired`` synapses from previous winners not yet on the segment."""
     if n_desired <= 0 or n_prev_winners == 0:
         return
@@ -231,13 +253,14 @@ def _grow_synapses(g, n_desired, prev_winners, n_prev_winners, max_syn, perm0, m
 #            max_seg_per_cell, max_syn)                   -- the configuration
 #   prev  = (prev_active, prev_winner, prev_flag, mark)   -- the previous step's cells
 @njit(cache=True)
-def _destroy(g, seg, syn, pl, meta):
+def _destroy(g: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, meta: I64) -> None:
     _destroy_segment(g, seg[0], seg[1], seg[2], seg[4], syn[1], seg[9], seg[5], syn[2],
                      pl[0], pl[1], pl[2], pl[3], pl[4], pl[5], meta)
 
 
 @njit(cache=True)
-def _learn_on_segment(g, n_new, it, seg, syn, pl, par, prev, n_prev_winner, rs, meta):
+def _learn_on_segment(g: int, n_new: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, par: Params,
+                      prev: PrevArrays, n_prev_winner: int, rs: RngState, meta: I64) -> None:
     """Reinforce segment g on the previous active cells, grow up to ``n_new`` synapses to the
     previous winners, mark it used at step ``it``; destroy it if it lost every synapse."""
     _adapt_segment(g, prev[2], par[5], par[6], seg[1], seg[2], seg[4], syn[2], syn[3],
@@ -251,7 +274,8 @@ def _learn_on_segment(g, n_new, it, seg, syn, pl, par, prev, n_prev_winner, rs, 
 
 
 @njit(cache=True)
-def _punish_inactive_columns(active_cols, match_list, nmatch, seg, syn, pl, par, prev, meta):
+def _punish_inactive_columns(active_cols: I32, match_list: I32, nmatch: int, seg: SegArrays, syn: SynArrays,
+                             pl: PlArrays, par: Params, prev: PrevArrays, meta: I64) -> None:
     """Phase 3 (BAMI ``punishPredictedColumn``): matching segments of inactive columns lose
     ``predictedSegmentDecrement`` on their synapses from the previous active cells."""
     ncols_act = active_cols.shape[0]
@@ -270,8 +294,10 @@ def _punish_inactive_columns(active_cols, match_list, nmatch, seg, syn, pl, par,
 
 
 @njit(cache=True)
-def _activate_predicted_column(act_list, a_lo, a_hi, learn, it, seg, syn, pl, par, prev,
-                               n_prev_winner, rs, meta, out_active, out_winner, n_act, n_win):
+def _activate_predicted_column(act_list: I32, a_lo: int, a_hi: int, learn: bool, it: int, seg: SegArrays,
+                               syn: SynArrays, pl: PlArrays, par: Params, prev: PrevArrays, n_prev_winner: int,
+                               rs: RngState, meta: I64, out_active: I32, out_winner: I32, n_act: int,
+                               n_win: int) -> tuple[int, int]:
     """Phase 1 (BAMI ``activatePredictedColumn``): the cells of the column's active segments
     become active and winners; learning reinforces those segments.  Returns the new counts."""
     last_cell = -1
@@ -290,7 +316,7 @@ def _activate_predicted_column(act_list, a_lo, a_hi, learn, it, seg, syn, pl, pa
 
 
 @njit(cache=True)
-def _least_used_cell(lo, hi, cell_nseg, rs):
+def _least_used_cell(lo: int, hi: int, cell_nseg: I32, rs: RngState) -> int:
     """The cell of [lo, hi) with the fewest segments, a random one among ties."""
     fewest = cell_nseg[lo]
     for cell in range(lo + 1, hi):
@@ -310,7 +336,8 @@ def _least_used_cell(lo, hi, cell_nseg, rs):
 
 
 @njit(cache=True)
-def _grow_new_segment(winner, it, seg, syn, pl, par, prev, n_prev_winner, rs, meta):
+def _grow_new_segment(winner: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, par: Params,
+                      prev: PrevArrays, n_prev_winner: int, rs: RngState, meta: I64) -> None:
     """A new segment on ``winner`` (evicting its least recently used one when the cell is full)
     with up to ``maxNewSynapseCount`` synapses to the previous winners."""
     seg_cell, seg_last, cell_nseg = seg[0], seg[3], seg[9]
@@ -338,8 +365,9 @@ def _grow_new_segment(winner, it, seg, syn, pl, par, prev, n_prev_winner, rs, me
 
 
 @njit(cache=True)
-def _burst_column(lo, hi, match_list, m_lo, m_hi, learn, it, seg, syn, pl, par, prev,
-                  n_prev_winner, rs, meta, out_active, n_act):
+def _burst_column(lo: int, hi: int, match_list: I32, m_lo: int, m_hi: int, learn: bool, it: int, seg: SegArrays,
+                  syn: SynArrays, pl: PlArrays, par: Params, prev: PrevArrays, n_prev_winner: int, rs: RngState,
+                  meta: I64, out_active: I32, n_act: int) -> tuple[int, int]:
     """Phase 2 (BAMI ``burstColumn``): every cell of [lo, hi) becomes active; the winner is the
     cell of the best matching segment (which learns) or the least used cell (which grows a new
     segment).  Returns (n_act, winner)."""
@@ -363,7 +391,7 @@ def _burst_column(lo, hi, match_list, m_lo, m_hi, learn, it, seg, syn, pl, par, 
 
 
 @njit(cache=True)
-def _segment_span(lst, n, start, bound, seg_cell):
+def _segment_span(lst: I32, n: int, start: int, bound: int, seg_cell: I32) -> int:
     """First index >= start of ``lst[:n]`` (sorted by cell) whose segment's cell is >= bound."""
     while start < n and seg_cell[lst[start]] < bound:
         start += 1
@@ -371,8 +399,8 @@ def _segment_span(lst, n, start, bound, seg_cell):
 
 
 @njit(cache=True)
-def _compute_activity(out_active, n_act, it, seg, syn, pl, par, touched, act_list, match_list,
-                      out_pred, meta):
+def _compute_activity(out_active: I32, n_act: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays,
+                      par: Params, touched: I32, act_list: I32, match_list: I32, out_pred: I32, meta: I64) -> int:
     """Phase 4 (BAMI ``activateDendrites``): count each segment's connected and potential
     synapses from the new active cells (presynaptic index walk); active segments (>=
     ``activationThreshold`` connected) and matching ones (>= ``minThreshold`` potential), sorted
@@ -434,8 +462,9 @@ def _compute_activity(out_active, n_act, it, seg, syn, pl, par, touched, act_lis
 
 
 @njit(cache=True)
-def _tm_step(active_cols, learn, par, seg, syn, pl, prev, meta, rs, touched, act_list, match_list,
-             out_active, out_winner, out_pred):
+def _tm_step(active_cols: I32, learn: bool, par: Params, seg: SegArrays, syn: SynArrays, pl: PlArrays,
+             prev: PrevArrays, meta: I64, rs: RngState, touched: I32, act_list: I32, match_list: I32,
+             out_active: I32, out_winner: I32, out_pred: I32) -> tuple[int, int, int]:
     """One Temporal Memory step (phases 3, 1/2 per active column, 4 of the module doc);
     returns (n_active_cells, n_winner_cells, n_predicted_cols)."""
     it = meta[M_ITER] + 1
