@@ -57,7 +57,7 @@ from services.htm.tm_kernels import (
 __all__ = ["TemporalMemory"]
 
 
-def _grown(a: np.ndarray, n: int, fill) -> np.ndarray:
+def _grown(a: np.ndarray, n: int, fill: float) -> np.ndarray:
     out = np.full((n,) + a.shape[1:], fill, dtype=a.dtype)
     out[: a.shape[0]] = a
     return out
