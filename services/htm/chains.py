@@ -26,9 +26,14 @@
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from common.config import HtmConfig
+
 __all__ = ["CHAINS", "chain_config"]
 
-CHAINS: dict[str, dict] = {
+CHAINS: dict[str, dict[str, Any]] = {
     "sdr_seqmem": {"sv_descriptor_source": "sdr", "sv_tm_decide": False, "sp_overlap_norm_steps": 0,
                    "tm_input_columns": 0, "sv_match_threshold": 0.72, "min_f1": 0.72,
                    "sv_seq_match_threshold": 0.68},
@@ -49,7 +54,7 @@ CHAINS: dict[str, dict] = {
 }
 
 
-def chain_config(htm_cfg, name: str):
+def chain_config(htm_cfg: HtmConfig, name: str) -> HtmConfig:
     """``htm_cfg`` (an ``HtmConfig``) with the overrides of chain ``name``."""
     if name not in CHAINS:
         raise ValueError(f"unknown front-end chain {name!r}; known: {sorted(CHAINS)}")

@@ -22,10 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 __all__ = ["LvcMatcher", "LvcResult", "overlap_scores"]
 
 PB = 64  # postings per block
+
+I32 = NDArray[np.int32]
+I64 = NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,7 @@ def overlap_scores(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
 
 
 @njit(cache=True)
-def _query(bits, head, count, pst, nxt, counts, touched):
+def _query(bits: I32, head: I32, count: I32, pst: I32, nxt: I32, counts: I32, touched: I32) -> int:
     """Count I for every prototype sharing a bit with the query; returns how many were touched."""
     nt = 0
     for q in range(bits.shape[0]):
@@ -100,7 +104,7 @@ def _query(bits, head, count, pst, nxt, counts, touched):
 
 
 @njit(cache=True)
-def _select(touched, nt, counts, proto_len, iou_tiebreak):
+def _select(touched: I32, nt: int, counts: I32, proto_len: I32, iou_tiebreak: bool) -> tuple[int, int]:
     """Best touched prototype by (I desc, |D_l| asc when IoU tie-break, id asc); resets counts."""
     best = -1
     best_i = 0
@@ -123,7 +127,7 @@ def _select(touched, nt, counts, proto_len, iou_tiebreak):
 
 
 @njit(cache=True)
-def _insert(bits, pid, head, tail, count, pst, nxt, top):
+def _insert(bits: I32, pid: int, head: I32, tail: I32, count: I32, pst: I32, nxt: I32, top: int) -> int:
     for q in range(bits.shape[0]):
         bit = bits[q]
         c = count[bit]
@@ -152,6 +156,10 @@ class LvcMatcher:
         self.f1_gate = bool(f1_gate)
         self.min_f1 = float(min_f1)
         self.iou_tiebreak = bool(iou_tiebreak)
+        self._clear()
+
+    def _clear(self) -> None:
+        """No prototypes: an empty inverted index with the initial capacities."""
         self._head = np.full(self.n_bits, -1, np.int32)
         self._tail = np.full(self.n_bits, -1, np.int32)
         self._count = np.zeros(self.n_bits, np.int32)
@@ -259,8 +267,7 @@ class LvcMatcher:
 
     def set_state(self, st: dict[str, np.ndarray]) -> None:
         """Rebuild the prototypes and the inverted index (ids and order preserved)."""
-        self.__init__(self.n_bits, self.min_intersection, self.tau_r, self.f1_gate, self.min_f1,
-                      self.iou_tiebreak)
+        self._clear()
         bits, start = st["bits"], st["start"]
-        for l in range(start.size - 1):
-            self.add(bits[start[l]:start[l + 1]])
+        for k in range(start.size - 1):
+            self.add(bits[start[k]:start[k + 1]])

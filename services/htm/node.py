@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 
 from common.config import PoseidonConfig
-from common.messages import LocalViewCell, LocalViewCells, NeocortexSdr
+from common.messages import LocalViewCell, LocalViewCells, Message, NeocortexSdr
 from common.node import ServiceNode
 from services.htm.pipeline import NeocortexHtm
 
@@ -42,7 +42,9 @@ class HtmNode(ServiceNode):
                 log.info("htm: no state at %s yet, starting fresh", self.state_path)
         self._dirty = False
 
-    def process(self, key: str, msg: NeocortexSdr) -> None:
+    def process(self, key: str, msg: Message) -> None:
+        if not isinstance(msg, NeocortexSdr):
+            raise TypeError(f"htm: {key!r} carries {type(msg).__name__}, expected NeocortexSdr")
         fused = msg.fused
         if fused.size != self.cfg.input_size:
             log.error("htm: %s seq %d skipped: fused.size %d differs from htm.input_size %d", key,

@@ -65,8 +65,10 @@ continues exactly as the saved one would have.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -192,6 +194,28 @@ class NeocortexHtm:
         self.last_descriptor = np.zeros(0, np.int64)
         self.last_anomaly = 0.0
 
+    # ---- the optional parts, for the code paths that need them ----------------------
+    def _need_sp(self) -> SpatialPooler:
+        if self.sp is None:
+            raise RuntimeError("NeocortexHtm: this configuration runs no spatial pooler (htm.sp_enable)")
+        return self.sp
+
+    def _need_tm(self) -> TemporalMemory:
+        if self.tm is None:
+            raise RuntimeError("NeocortexHtm: this configuration runs no temporal memory "
+                               "(htm.sv_descriptor_source / htm.sv_tm_decide)")
+        return self.tm
+
+    def _need_tm_index(self) -> TmFrameIndex:
+        if self.tm_index is None:
+            raise RuntimeError("NeocortexHtm: this configuration keeps no TM frame index (htm.sv_tm_decide)")
+        return self.tm_index
+
+    def _need_seqmem(self) -> SequenceMatcher:
+        if self.seqmem is None:
+            raise RuntimeError("NeocortexHtm: this configuration has no sequence memory (htm.sv_seqmem_length)")
+        return self.seqmem
+
     @property
     def n_bits(self) -> int:
         """Size of the descriptor bit space (cells, columns or SDR bits)."""
@@ -226,25 +250,27 @@ class NeocortexHtm:
         self.last_columns = cols
         if self.mode in ("sp", "sdr"):
             if self.tm_decides:
-                predicted = self.tm.predictive_cells
+                tm = self._need_tm()
+                predicted = tm.predictive_cells
                 tm_cols = self._tm_input(cols)
                 self.last_tm_columns = tm_cols.size
-                self.tm.compute(tm_cols, learn)
-                self.last_anomaly = float(self.tm.anomaly)
-                self.last_tm_hits = np.intersect1d(self.tm.active_cells, predicted, assume_unique=True).astype(np.int64)
+                tm.compute(tm_cols, learn)
+                self.last_anomaly = float(tm.anomaly)
+                self.last_tm_hits = np.intersect1d(tm.active_cells, predicted, assume_unique=True).astype(np.int64)
             return (a if self.mode == "sdr" else cols.astype(np.int64)), self.last_anomaly
-        winners = self.tm.compute(cols, learn).astype(np.int64)
-        self.last_anomaly = float(self.tm.anomaly)
+        tm = self._need_tm()
+        winners = tm.compute(cols, learn).astype(np.int64)
+        self.last_anomaly = float(tm.anomaly)
         if self.tm_columns:
-            winners = np.unique(winners // self.tm.cpc)
-        return winners, float(self.tm.anomaly)
+            winners = np.unique(winners // tm.cpc)
+        return winners, float(tm.anomaly)
 
     def _tm_input(self, cols: np.ndarray) -> np.ndarray:
         """The ``tm_input_columns`` most strongly driven active columns (all when 0), sorted."""
         k = self.cfg.tm_input_columns
         if k <= 0 or cols.size <= k:
             return cols
-        sp = self.sp
+        sp = self._need_sp()
         if sp.overlap_norm_steps > 0:
             drive = (sp.overlaps[cols] - sp.ov_mean[cols]) * sp.ov_isd[cols]
         else:
@@ -289,7 +315,7 @@ class NeocortexHtm:
                     self.lvc_birth.append(self.seqmem.size)
                 self.seqmem.add(d, res.lvc_id)
             if self.tm_index is not None:
-                self.tm_index.add(self.tm.winner_cells)
+                self.tm_index.add(self._need_tm().winner_cells)
                 self.frame_ids.append(res.lvc_id)
         self.last_id = res.lvc_id
         return replace(res, anomaly=anomaly)
@@ -297,20 +323,20 @@ class NeocortexHtm:
     def _tm_vote(self) -> tuple[int, float]:
         """(stored frame j*, share) the TM's correctly predicted cells point at (:mod:`services.htm.tm_match`);
         candidates are the stored frames but the last ``sv_seqmem_exclude`` of the current traversal."""
-        idx = self.tm_index
+        idx = self._need_tm_index()
         nc = max(min(self.tm_traversal_start, idx.size), idx.size - self.cfg.sv_seqmem_exclude, 0)
         j, votes = idx.vote(self.last_tm_hits, nc)
         n_cols = max(self.last_tm_columns, 1)
         return j, votes / n_cols
 
-    def _decide(self, d: np.ndarray, veto, seq: SequenceScore | None, store: bool,
+    def _decide(self, d: np.ndarray, veto: Callable[[int], bool] | None, seq: SequenceScore | None, store: bool,
                 tmv: tuple[int, float] | None = None) -> LvcResult:
         """Eq. 4.9 on l*, then the TM decision, then the sequence match, then the place-sequence
         prior, then Eq. 4.10 (``store``) or no id (-1)."""
         best, i = self.lvc.best(d)
         n = d.size
         rate = i / n if n else 0.0
-        extra = {} if seq is None else {"frame": seq.frame, "seq_score": seq.score,
+        extra: dict[str, Any] = {} if seq is None else {"frame": seq.frame, "seq_score": seq.score,
                                          "seq_margin": seq.score - seq.second}
         if tmv is not None:
             extra.update(tm_frame=tmv[0], tm_share=tmv[1])
@@ -343,7 +369,7 @@ class NeocortexHtm:
             return False
         return self.lvc_birth[lvc_id] >= self.seqmem.candidates()
 
-    def _sequence_match(self, d: np.ndarray, seq: SequenceScore | None, veto) -> tuple[int, float, int] | None:
+    def _sequence_match(self, d: np.ndarray, seq: SequenceScore | None, veto: Callable[[int], bool] | None) -> tuple[int, float, int] | None:
         """(id, R, I) of the sequence match when S* and its margin pass the gates, else None."""
         cfg = self.cfg
         if seq is None or seq.frame < 0 or seq.score < cfg.sv_seqmem_threshold \
@@ -356,7 +382,7 @@ class NeocortexHtm:
                     return None
             elif seq.f1 < q:
                 return None
-        lid = int(self.seqmem.ids[seq.frame])
+        lid = int(self._need_seqmem().ids[seq.frame])
         if lid < 0 or (veto and veto(lid)):
             return None
         i = int(np.intersect1d(d, self.lvc.prototype(lid), assume_unique=True).size)
@@ -366,13 +392,14 @@ class NeocortexHtm:
         """LVC ids 1 .. ``sv_seq_hops`` successor steps ahead of the previous frame's id (sorted)."""
         if self.last_id < 0:
             return []
-        frontier, seen = {self.last_id}, set()
+        frontier: set[int] = {self.last_id}
+        seen: set[int] = set()
         for _ in range(self.cfg.sv_seq_hops):
             frontier = {b for a in frontier for b in self.successors.get(a, ())} - seen - {self.last_id}
             seen |= frontier
         return sorted(seen)
 
-    def _predicted_match(self, d: np.ndarray, veto) -> tuple[int, float, int] | None:
+    def _predicted_match(self, d: np.ndarray, veto: Callable[[int], bool] | None) -> tuple[int, float, int] | None:
         """(id, R, I) of the best predicted prototype passing the sequence gate, or None."""
         n = d.size
         g = self.cfg.sv_seq_match_threshold
@@ -420,7 +447,8 @@ class NeocortexHtm:
         arrays["meta_json"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, **arrays)
+        savez_arrays: dict[str, Any] = arrays   # numpy's stub types **kwds against allow_pickle too
+        np.savez(tmp, **savez_arrays)
         tmp.replace(path)
 
     @classmethod

@@ -36,14 +36,19 @@ from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from services.htm._bits import popcount64
 
 __all__ = ["SequenceMatcher", "SequenceScore"]
 
+I64 = NDArray[np.int64]
+U64 = NDArray[np.uint64]
+F64 = NDArray[np.float64]
+
 
 @njit(cache=True)
-def _f1_row(q, q_size, mem, sizes, n, out):
+def _f1_row(q: U64, q_size: int | np.int64, mem: U64, sizes: I64, n: int, out: F64) -> None:
     """out[j] = 2 |q & mem_j| / (|q| + |mem_j|) for j < n (packed uint64 rows)."""
     w = q.shape[0]
     for j in range(n):
@@ -55,7 +60,7 @@ def _f1_row(q, q_size, mem, sizes, n, out):
 
 
 @njit(cache=True)
-def _pack(d, words):
+def _pack(d: I64, words: int) -> U64:
     """Sorted bit indices -> little-endian uint64 words (bit i in word i // 64, position i % 64)."""
     out = np.zeros(words, np.uint64)
     for b in d:
@@ -64,7 +69,8 @@ def _pack(d, words):
 
 
 @njit(cache=True)
-def _normalise(s, nc, cnt, s1, s2, use_column, prior, update, z):
+def _normalise(s: F64, nc: int, cnt: F64, s1: F64, s2: F64, use_column: bool, prior: float, update: bool,
+               z: F64) -> None:
     """z[:nc] = z-score of s over the candidates, then (``use_column``) standardised per stored
     frame by its running mean / variance over the traversal, shrunk towards (0, 1) by ``prior``
     pseudo-frames; updates those per-frame statistics when ``update``."""
@@ -97,7 +103,8 @@ def _normalise(s, nc, cnt, s1, s2, use_column, prior, update, z):
 
 
 @njit(cache=True)
-def _diagonals(hist, hist_len, head, n_hist, nc, length, offsets, acc, out):
+def _diagonals(hist: F64, hist_len: I64, head: int, n_hist: int, nc: int, length: int, offsets: I64, acc: F64,
+               out: F64) -> None:
     """out[j] = max over velocities of (1/K) sum_k hist[t-k][j - offsets[v, k]] (missing points: 0)."""
     h = hist.shape[0]
     for j in range(nc):

@@ -38,7 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.htm.tm_kernels import (
+from services.htm.tm_kernels import _tm_step
+from services.htm.tm_storage import (
     M_BLK_TOP,
     M_LEN,
     M_NACT,
@@ -51,13 +52,12 @@ from services.htm.tm_kernels import (
     M_SEG_TOP,
     PBLK,
     SBLK,
-    _tm_step,
 )
 
 __all__ = ["TemporalMemory"]
 
 
-def _grown(a: np.ndarray, n: int, fill) -> np.ndarray:
+def _grown(a: np.ndarray, n: int, fill: float) -> np.ndarray:
     out = np.full((n,) + a.shape[1:], fill, dtype=a.dtype)
     out[: a.shape[0]] = a
     return out

@@ -1,225 +1,37 @@
-"""Numba kernels of the Temporal Memory (:mod:`services.htm.temporal_memory` states the
-algorithm and the data layout): the presynaptic index, synapse and segment bookkeeping, and
-one step in the phases of the BAMI pseudocode -- ``punishPredictedColumn``,
-``activatePredictedColumn``, ``burstColumn``, ``activateDendrites``.  Plain functions over
-flat arrays; the class in :mod:`services.htm.temporal_memory` owns the arrays."""
+"""Step kernels of the Temporal Memory (:mod:`services.htm.temporal_memory` states the
+algorithm and the data layout): one step in the phases of the BAMI pseudocode --
+``punishPredictedColumn``, ``activatePredictedColumn``, ``burstColumn``,
+``activateDendrites`` -- over the storage kernels of :mod:`services.htm.tm_storage`.  Plain
+functions over flat arrays; the class in :mod:`services.htm.temporal_memory` owns the arrays."""
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-SBLK = 32   # synapse slots per segment block
-PBLK = 16   # entries per presynaptic-index block
-
-# indices into the int64 ``meta`` array
-M_SEG_TOP, M_SEG_FREE, M_BLK_TOP, M_BLK_FREE, M_PB_TOP, M_PB_FREE = 0, 1, 2, 3, 4, 5
-M_ITER, M_NACT, M_NMATCH, M_NPREV_ACTIVE, M_NPREV_WINNER, M_NPRED = 6, 7, 8, 9, 10, 11
-M_LEN = 12
-
-
-# --------------------------------------------------------------------------- random numbers
-@njit(cache=True)
-def _rand_u64(rs: np.ndarray) -> np.uint64:
-    x = rs[0]
-    x ^= x >> np.uint64(12)
-    x ^= x << np.uint64(25)
-    x ^= x >> np.uint64(27)
-    rs[0] = x
-    return x * np.uint64(2685821657736338717)
-
-
-@njit(cache=True)
-def _rand_below(rs: np.ndarray, n: int) -> int:
-    return int((_rand_u64(rs) >> np.uint64(11)) % np.uint64(n))
-
-
-# --------------------------------------------------------------------------- presynaptic index
-@njit(cache=True)
-def _pl_append(p, ref, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
-    cnt = pl_count[p]
-    if cnt % PBLK == 0:
-        if meta[M_PB_FREE] > 0:
-            meta[M_PB_FREE] -= 1
-            b = pb_free[meta[M_PB_FREE]]
-        else:
-            b = meta[M_PB_TOP]
-            meta[M_PB_TOP] += 1
-        pb_next[b] = -1
-        if pl_head[p] == -1:
-            pl_head[p] = b
-        else:
-            pb_next[pl_tail[p]] = b
-        pl_tail[p] = b
-    pb_ref[pl_tail[p] * PBLK + cnt % PBLK] = ref
-    pl_count[p] = cnt + 1
-
-
-@njit(cache=True)
-def _pl_remove(p, ref, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
-    cnt = pl_count[p]
-    b = pl_head[p]
-    pos = -1
-    k = 0
-    while b != -1 and pos < 0:
-        lim = min(PBLK, cnt - k)
-        for j in range(lim):
-            if pb_ref[b * PBLK + j] == ref:
-                pos = b * PBLK + j
-                break
-        k += PBLK
-        b = pb_next[b]
-    if pos < 0:
-        raise RuntimeError("temporal memory: presynaptic index lost a synapse")
-    last = pl_tail[p] * PBLK + (cnt - 1) % PBLK
-    pb_ref[pos] = pb_ref[last]
-    cnt -= 1
-    pl_count[p] = cnt
-    if cnt % PBLK == 0:
-        # the tail block is empty now: free it and find the new tail
-        pb_free[meta[M_PB_FREE]] = pl_tail[p]
-        meta[M_PB_FREE] += 1
-        if cnt == 0:
-            pl_head[p] = -1
-            pl_tail[p] = -1
-        else:
-            b = pl_head[p]
-            for _ in range(cnt // PBLK - 1):
-                b = pb_next[b]
-            pb_next[b] = -1
-            pl_tail[p] = b
-
-
-# --------------------------------------------------------------------------- synapses/segments
-@njit(cache=True)
-def _destroy_synapse(g, slot, seg_nsyn, syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next,
-                     pb_free, meta):
-    p = syn_pre[slot]
-    _pl_remove(p, slot, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta)
-    syn_pre[slot] = -1
-    seg_nsyn[g] -= 1
-
-
-@njit(cache=True)
-def _slot_id(seg_blk, g, j):
-    return seg_blk[g, j // SBLK] * SBLK + j % SBLK
-
-
-@njit(cache=True)
-def _add_synapse(g, pre, perm0, seg_nsyn, seg_nslots, seg_blk, blk_seg, blk_free, syn_pre, syn_perm,
-                 pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
-    n = seg_nslots[g]
-    slot = -1
-    if seg_nsyn[g] < n:
-        for j in range(n):
-            s = _slot_id(seg_blk, g, j)
-            if syn_pre[s] == -1:
-                slot = s
-                break
-    if slot == -1:
-        if n % SBLK == 0:
-            if meta[M_BLK_FREE] > 0:
-                meta[M_BLK_FREE] -= 1
-                b = blk_free[meta[M_BLK_FREE]]
-            else:
-                b = meta[M_BLK_TOP]
-                meta[M_BLK_TOP] += 1
-            blk_seg[b] = g
-            syn_pre[b * SBLK:(b + 1) * SBLK] = -1
-            seg_blk[g, n // SBLK] = b
-        slot = _slot_id(seg_blk, g, n)
-        seg_nslots[g] = n + 1
-    syn_pre[slot] = pre
-    syn_perm[slot] = perm0
-    seg_nsyn[g] += 1
-    _pl_append(pre, slot, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta)
-
-
-@njit(cache=True)
-def _destroy_segment(g, seg_cell, seg_nsyn, seg_nslots, seg_blk, blk_free, cell_nseg, seg_free,
-                     syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
-    n = seg_nslots[g]
-    for j in range(n):
-        s = _slot_id(seg_blk, g, j)
-        if syn_pre[s] != -1:
-            _destroy_synapse(g, s, seg_nsyn, syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next,
-                             pb_free, meta)
-    for bi in range((n + SBLK - 1) // SBLK):
-        blk_free[meta[M_BLK_FREE]] = seg_blk[g, bi]
-        meta[M_BLK_FREE] += 1
-        seg_blk[g, bi] = -1
-    seg_nslots[g] = 0
-    cell_nseg[seg_cell[g]] -= 1
-    seg_cell[g] = -1
-    seg_free[meta[M_SEG_FREE]] = g
-    meta[M_SEG_FREE] += 1
-
-
-@njit(cache=True)
-def _adapt_segment(g, prev_flag, inc, dec, seg_nsyn, seg_nslots, seg_blk, syn_pre, syn_perm,
-                   pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
-    """BAMI adaptation: +inc on synapses from previously active cells, -dec on the others."""
-    for j in range(seg_nslots[g]):
-        s = _slot_id(seg_blk, g, j)
-        p = syn_pre[s]
-        if p == -1:
-            continue
-        v = syn_perm[s] + (inc if prev_flag[p] else -dec)
-        if v > 1.0:
-            v = 1.0
-        if v < 1e-6:
-            _destroy_synapse(g, s, seg_nsyn, syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next,
-                             pb_free, meta)
-        else:
-            syn_perm[s] = v
-
-
-@njit(cache=True)
-def _grow_synapses(g, n_desired, prev_winners, n_prev_winners, max_syn, perm0, mark, rs,
-                   seg_nsyn, seg_nslots, seg_blk, blk_seg, blk_free, syn_pre, syn_perm,
-                   pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta):
-    """Grow up to ``n_desired`` synapses from previous winners not yet on the segment."""
-    if n_desired <= 0 or n_prev_winners == 0:
-        return
-    ns = seg_nslots[g]
-    for j in range(ns):
-        s = _slot_id(seg_blk, g, j)
-        if syn_pre[s] != -1:
-            mark[syn_pre[s]] = True
-    cand = np.empty(n_prev_winners, np.int32)
-    nc = 0
-    for i in range(n_prev_winners):
-        c = prev_winners[i]
-        if not mark[c]:
-            cand[nc] = c
-            nc += 1
-    for j in range(ns):
-        s = _slot_id(seg_blk, g, j)
-        if syn_pre[s] != -1:
-            mark[syn_pre[s]] = False
-    n = min(n_desired, nc)
-    if n <= 0:
-        return
-    # make room: destroy the weakest synapses beyond maxSynapsesPerSegment
-    overflow = seg_nsyn[g] + n - max_syn
-    while overflow > 0:
-        worst = -1
-        wv = 2.0
-        for j in range(seg_nslots[g]):
-            s = _slot_id(seg_blk, g, j)
-            if syn_pre[s] != -1 and syn_perm[s] < wv:
-                wv = syn_perm[s]
-                worst = s
-        _destroy_synapse(g, worst, seg_nsyn, syn_pre, pl_head, pl_tail, pl_count, pb_ref, pb_next,
-                         pb_free, meta)
-        overflow -= 1
-    # sample n candidates without replacement (partial Fisher-Yates)
-    for i in range(n):
-        r = i + _rand_below(rs, nc - i)
-        tmp = cand[i]
-        cand[i] = cand[r]
-        cand[r] = tmp
-        _add_synapse(g, cand[i], perm0, seg_nsyn, seg_nslots, seg_blk, blk_seg, blk_free, syn_pre,
-                     syn_perm, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta)
+from services.htm.tm_storage import (
+    I32,
+    I64,
+    M_ITER,
+    M_NACT,
+    M_NMATCH,
+    M_NPRED,
+    M_NPREV_ACTIVE,
+    M_NPREV_WINNER,
+    M_SEG_FREE,
+    M_SEG_TOP,
+    PBLK,
+    SBLK,
+    Params,
+    PlArrays,
+    PrevArrays,
+    RngState,
+    SegArrays,
+    SynArrays,
+    _adapt_segment,
+    _destroy_segment,
+    _grow_synapses,
+    _rand_below,
+)
 
 
 # Bundles passed to the phases (numba tuples of arrays; every phase reads what it needs):
@@ -231,13 +43,14 @@ def _grow_synapses(g, n_desired, prev_winners, n_prev_winners, max_syn, perm0, m
 #            max_seg_per_cell, max_syn)                   -- the configuration
 #   prev  = (prev_active, prev_winner, prev_flag, mark)   -- the previous step's cells
 @njit(cache=True)
-def _destroy(g, seg, syn, pl, meta):
+def _destroy(g: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, meta: I64) -> None:
     _destroy_segment(g, seg[0], seg[1], seg[2], seg[4], syn[1], seg[9], seg[5], syn[2],
                      pl[0], pl[1], pl[2], pl[3], pl[4], pl[5], meta)
 
 
 @njit(cache=True)
-def _learn_on_segment(g, n_new, it, seg, syn, pl, par, prev, n_prev_winner, rs, meta):
+def _learn_on_segment(g: int, n_new: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, par: Params,
+                      prev: PrevArrays, n_prev_winner: int, rs: RngState, meta: I64) -> None:
     """Reinforce segment g on the previous active cells, grow up to ``n_new`` synapses to the
     previous winners, mark it used at step ``it``; destroy it if it lost every synapse."""
     _adapt_segment(g, prev[2], par[5], par[6], seg[1], seg[2], seg[4], syn[2], syn[3],
@@ -251,7 +64,8 @@ def _learn_on_segment(g, n_new, it, seg, syn, pl, par, prev, n_prev_winner, rs, 
 
 
 @njit(cache=True)
-def _punish_inactive_columns(active_cols, match_list, nmatch, seg, syn, pl, par, prev, meta):
+def _punish_inactive_columns(active_cols: I32, match_list: I32, nmatch: int, seg: SegArrays, syn: SynArrays,
+                             pl: PlArrays, par: Params, prev: PrevArrays, meta: I64) -> None:
     """Phase 3 (BAMI ``punishPredictedColumn``): matching segments of inactive columns lose
     ``predictedSegmentDecrement`` on their synapses from the previous active cells."""
     ncols_act = active_cols.shape[0]
@@ -270,8 +84,10 @@ def _punish_inactive_columns(active_cols, match_list, nmatch, seg, syn, pl, par,
 
 
 @njit(cache=True)
-def _activate_predicted_column(act_list, a_lo, a_hi, learn, it, seg, syn, pl, par, prev,
-                               n_prev_winner, rs, meta, out_active, out_winner, n_act, n_win):
+def _activate_predicted_column(act_list: I32, a_lo: int, a_hi: int, learn: bool, it: int, seg: SegArrays,
+                               syn: SynArrays, pl: PlArrays, par: Params, prev: PrevArrays, n_prev_winner: int,
+                               rs: RngState, meta: I64, out_active: I32, out_winner: I32, n_act: int,
+                               n_win: int) -> tuple[int, int]:
     """Phase 1 (BAMI ``activatePredictedColumn``): the cells of the column's active segments
     become active and winners; learning reinforces those segments.  Returns the new counts."""
     last_cell = -1
@@ -290,7 +106,7 @@ def _activate_predicted_column(act_list, a_lo, a_hi, learn, it, seg, syn, pl, pa
 
 
 @njit(cache=True)
-def _least_used_cell(lo, hi, cell_nseg, rs):
+def _least_used_cell(lo: int, hi: int, cell_nseg: I32, rs: RngState) -> int:
     """The cell of [lo, hi) with the fewest segments, a random one among ties."""
     fewest = cell_nseg[lo]
     for cell in range(lo + 1, hi):
@@ -310,7 +126,8 @@ def _least_used_cell(lo, hi, cell_nseg, rs):
 
 
 @njit(cache=True)
-def _grow_new_segment(winner, it, seg, syn, pl, par, prev, n_prev_winner, rs, meta):
+def _grow_new_segment(winner: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, par: Params,
+                      prev: PrevArrays, n_prev_winner: int, rs: RngState, meta: I64) -> None:
     """A new segment on ``winner`` (evicting its least recently used one when the cell is full)
     with up to ``maxNewSynapseCount`` synapses to the previous winners."""
     seg_cell, seg_last, cell_nseg = seg[0], seg[3], seg[9]
@@ -338,8 +155,9 @@ def _grow_new_segment(winner, it, seg, syn, pl, par, prev, n_prev_winner, rs, me
 
 
 @njit(cache=True)
-def _burst_column(lo, hi, match_list, m_lo, m_hi, learn, it, seg, syn, pl, par, prev,
-                  n_prev_winner, rs, meta, out_active, n_act):
+def _burst_column(lo: int, hi: int, match_list: I32, m_lo: int, m_hi: int, learn: bool, it: int, seg: SegArrays,
+                  syn: SynArrays, pl: PlArrays, par: Params, prev: PrevArrays, n_prev_winner: int, rs: RngState,
+                  meta: I64, out_active: I32, n_act: int) -> tuple[int, int]:
     """Phase 2 (BAMI ``burstColumn``): every cell of [lo, hi) becomes active; the winner is the
     cell of the best matching segment (which learns) or the least used cell (which grows a new
     segment).  Returns (n_act, winner)."""
@@ -363,7 +181,7 @@ def _burst_column(lo, hi, match_list, m_lo, m_hi, learn, it, seg, syn, pl, par, 
 
 
 @njit(cache=True)
-def _segment_span(lst, n, start, bound, seg_cell):
+def _segment_span(lst: I32, n: int, start: int, bound: int, seg_cell: I32) -> int:
     """First index >= start of ``lst[:n]`` (sorted by cell) whose segment's cell is >= bound."""
     while start < n and seg_cell[lst[start]] < bound:
         start += 1
@@ -371,8 +189,8 @@ def _segment_span(lst, n, start, bound, seg_cell):
 
 
 @njit(cache=True)
-def _compute_activity(out_active, n_act, it, seg, syn, pl, par, touched, act_list, match_list,
-                      out_pred, meta):
+def _compute_activity(out_active: I32, n_act: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays,
+                      par: Params, touched: I32, act_list: I32, match_list: I32, out_pred: I32, meta: I64) -> int:
     """Phase 4 (BAMI ``activateDendrites``): count each segment's connected and potential
     synapses from the new active cells (presynaptic index walk); active segments (>=
     ``activationThreshold`` connected) and matching ones (>= ``minThreshold`` potential), sorted
@@ -434,8 +252,9 @@ def _compute_activity(out_active, n_act, it, seg, syn, pl, par, touched, act_lis
 
 
 @njit(cache=True)
-def _tm_step(active_cols, learn, par, seg, syn, pl, prev, meta, rs, touched, act_list, match_list,
-             out_active, out_winner, out_pred):
+def _tm_step(active_cols: I32, learn: bool, par: Params, seg: SegArrays, syn: SynArrays, pl: PlArrays,
+             prev: PrevArrays, meta: I64, rs: RngState, touched: I32, act_list: I32, match_list: I32,
+             out_active: I32, out_winner: I32, out_pred: I32) -> tuple[int, int, int]:
     """One Temporal Memory step (phases 3, 1/2 per active column, 4 of the module doc);
     returns (n_active_cells, n_winner_cells, n_predicted_cols)."""
     it = meta[M_ITER] + 1

@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 __all__ = ["TmFrameIndex"]
 
+I64 = NDArray[np.int64]
+
 
 @njit(cache=True)
-def _append(cells, frame, head, nxt, frm, top):
+def _append(cells: I64, frame: int, head: I64, nxt: I64, frm: I64, top: int) -> int:
     for c in cells:
         e = top
         frm[e] = frame
@@ -36,7 +39,7 @@ def _append(cells, frame, head, nxt, frm, top):
 
 
 @njit(cache=True)
-def _vote(hits, nc, head, nxt, frm, votes, touched):
+def _vote(hits: I64, nc: int, head: I64, nxt: I64, frm: I64, votes: I64, touched: I64) -> tuple[int, int]:
     """votes[j] += 1 for every hit cell that was a winner at frame j < nc; returns (best, count)
     (the latest frame among ties) and the number of touched frames (then cleared)."""
     nt = 0

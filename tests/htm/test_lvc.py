@@ -109,7 +109,7 @@ def test_matches_brute_force_on_random_sets():
     rng = np.random.default_rng(0)
     m = matcher(i_min=3, tau=0.2, f1=True, min_f1=0.3)
     protos = []
-    for step in range(400):
+    for _ in range(400):
         if protos and rng.random() < 0.5:
             base = protos[rng.integers(len(protos))]
             keep = base[rng.random(base.size) < 0.7]

@@ -50,7 +50,6 @@ def test_overlap_standardised_sp_keeps_similarity_better_than_random():
 
 
 def test_tm_decides_a_revisit_of_a_learned_sequence():
-    rng = np.random.default_rng(2)
     places = _places(40, seed=3)
     cfg = HtmConfig(input_size=L, sv_descriptor_source="sp", sv_tm_decide=True, sp_potentialRadius=L,
                     sp_numActiveColumns=200, sp_overlap_norm_steps=40, sp_boostStrength=0.0,
