@@ -307,7 +307,7 @@ def render_report(runs: list[RunView], tables: dict[str, dict], out_dir: str | P
     path.write_text(page, encoding="utf-8")
     figures = {s.id: ("shown" if (s.figure is not None or s.html) else "not shown: " + "; ".join(s.notes))
                for s in specs}
-    log.info("report: %s (%.1f MB, %d plots)", path, path.stat().st_size / 1e6, len(scripts))
+    log.debug("report: %s (%.1f MB, %d plots)", path, path.stat().st_size / 1e6, len(scripts))
     return {"out": str(path), "bytes": path.stat().st_size, "figures": figures, "tables": list(all_tables),
             "unavailable": unavailable, "precision_recall": _jsonable(pr_summary)}
 
