@@ -57,7 +57,6 @@ max_correction_step), ``experience_images``, ``events_without_image``,
 from __future__ import annotations
 
 import logging
-import math
 from pathlib import Path
 from typing import Any
 
@@ -81,8 +80,7 @@ from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
 from services.expmap.association import Association, EventImageAssociator
 from services.expmap.graph import ExperienceMap
-from services.expmap.laser_match import scan_points, transform_points
-from services.expmap.pose_graph import relative_pose
+from services.expmap.laser_input import LaserScans
 from services.expmap.scan_graph import ScanGraph
 from services.expmap.scans import SweepBuffer, echo_range
 
@@ -144,8 +142,8 @@ class ExpMapNode(ServiceNode):
         self._since_map = 0
         self._dirty = False
         self.scan_key = cfg.scan_topic if (cfg.loop_scan_matching or self.scan_graph) else None
-        self._odom_pose: np.ndarray | None = None       # latest Odometry (x, y, yaw)
-        self._scan_odom: np.ndarray | None = None       # latest range scan's points in the odometry frame
+        sg = cfg.scan_graph
+        self.laser = LaserScans(sg.min_range_m, sg.max_range_m, sg.sensor_offset)
         if self.scan_key is not None and config.robot_state.axis_remap[2] != "z":
             raise ConfigError(f"expmap.loop_scan_matching needs a vertical published z axis, but "
                               f"robot_state.axis_remap={config.robot_state.axis_remap!r}; set "
@@ -169,10 +167,7 @@ class ExpMapNode(ServiceNode):
     def _on_event(self, ev: ExperienceEvent) -> None:
         try:
             if self.scan_graph:
-                sweep = None
-                if self._scan_odom is not None:
-                    sweep = transform_points(self._scan_odom, relative_pose(
-                        np.array([ev.odom_position[0], ev.odom_position[1], ev.odom_yaw]), np.zeros(3)))
+                sweep = self.laser.sweep_for(ev.odom_position[0], ev.odom_position[1], ev.odom_yaw)
             else:
                 sweep = self.sweeps.sweep(ev.odom_position[:2]) if self.scan_key is not None else None
             res = self.graph.add_event(ev.header.stamp, ev.lvc_id, ev.pc_centroid, ev.odom_position, ev.odom_yaw,
@@ -224,7 +219,7 @@ class ExpMapNode(ServiceNode):
     def _on_odometry(self, od: Odometry) -> None:
         if self.scan_graph:
             if np.all(np.isfinite(od.position)) and any(od.orientation):
-                self._odom_pose = np.array([od.position[0], od.position[1], yaw_of_quaternion(od.orientation)])
+                self.laser.set_pose(od.position[0], od.position[1], yaw_of_quaternion(od.orientation))
         elif self.scan_key is not None:
             try:
                 self.sweeps.add_pose(od.position, quaternion_to_matrix(od.orientation))
@@ -253,16 +248,10 @@ class ExpMapNode(ServiceNode):
         """Keep the scan's returns in the odometry frame (latest pose at or before its stamp)."""
         if not self.scan_graph:
             raise ConfigError(f"expmap: {self.scan_key} carries LaserScan; range scans need expmap.graph=scan_graph")
-        if self._odom_pose is None:
+        if not self.laser.add_scan(scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min,
+                                   scan.range_max):
             self.count("scans_before_odometry")
             return
-        c = self.cfg.scan_graph
-        pts = scan_points(scan.ranges, scan.angle_min, scan.angle_increment, max(c.min_range_m, scan.range_min),
-                          min(c.max_range_m, scan.range_max * 0.999) if scan.range_max > 0 else c.max_range_m)
-        off = c.sensor_offset or (0.0, 0.0, 0.0)
-        if any(off):   # sensor frame -> robot frame
-            pts = transform_points(pts, (off[0], off[1], math.radians(off[2])))
-        self._scan_odom = transform_points(pts, self._odom_pose)
         self.count("scans")
 
     def _on_image(self, img: Image) -> None:
