@@ -32,6 +32,7 @@ import logging
 import queue
 import threading
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,13 +65,14 @@ SUPERVISED_DRAIN_S = 5.0
 
 
 @dataclass(kw_only=True)
-class WorkerStats:
+class WorkerStats(ABC):
     """Counters every worker reports; ``aborted`` is why the run stopped early ("" if it did not)."""
 
     aborted: str = ""
 
+    @abstractmethod
     def as_dict(self) -> dict[str, Any]:
-        raise NotImplementedError
+        """The counters as JSON-ready values (each kind of worker names its own)."""
 
 
 @dataclass(kw_only=True)
@@ -83,7 +85,7 @@ class SinkStats(WorkerStats):
     checkpoint_ms: float = 0.0
 
 
-class Worker:
+class Worker(ABC):
     """One participant of a run: name, bus, stats, stop and abort, supervision."""
 
     def __init__(self, name: str, bus: Bus, stats: WorkerStats, supervision: Supervision | None = None,
@@ -96,9 +98,9 @@ class Worker:
         self.stop_event = threading.Event()
         bus.on_abort(self._on_abort)
 
+    @abstractmethod
     def run(self) -> Any:
         """Work until the end (or a stop, or an abort); returns :attr:`stats`."""
-        raise NotImplementedError
 
     def stop(self) -> None:
         """Ask :meth:`run` to stop (thread-safe; a signal handler may call it)."""
@@ -145,13 +147,13 @@ class Sink(Worker):
         self.queue.put_nowait((WAKE, b""))
 
     # ---- the receive loop -------------------------------------------------------------
+    @abstractmethod
     def finished(self) -> bool:
         """True once every input the sink waits for has ended."""
-        raise NotImplementedError
 
+    @abstractmethod
     def on_frame(self, key: str, data: bytes) -> None:
         """Handle one received frame (any kind: data, watermark, end-of-stream, replay)."""
-        raise NotImplementedError
 
     def tick(self) -> None:
         """Once per loop turn: ask (again) for the replays a restarted sink still needs."""

@@ -6,22 +6,12 @@ import time
 
 import pytest
 
-from common.bus import Bus, open_local_session
 from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header
 from launcher.services import WorkerSpec, build_worker
 
 pytestmark = pytest.mark.timeout(60)
-
-
-@pytest.fixture
-def bus():
-    session = open_local_session()
-    b = Bus(session=session)
-    yield b
-    b.close()
-    session.close()
 
 
 def _slow_recording(path, n=50):

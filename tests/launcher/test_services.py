@@ -1,7 +1,6 @@
 """The one factory of a run's workers (launcher.services.build_worker), used by both launchers."""
 import pytest
 
-from common.bus import Bus, open_local_session
 from common.config import PoseidonConfig
 from common.runtime import NodeRunner
 from common.worker import Sink, Source, Worker
@@ -11,15 +10,6 @@ from services.recorder.recorder import Recorder
 from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(60)
-
-
-@pytest.fixture
-def bus():
-    session = open_local_session()
-    b = Bus(session=session)
-    yield b
-    b.close()
-    session.close()
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ import time
 
 import pytest
 
-from common.bus import Bus, open_local_session
 from common.codec import decode_frame
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header
@@ -24,15 +23,6 @@ def _depth_recording(path, n=16):
         for i in range(n):
             w.write("depth_sensor", Depth(header=Header(seq=i, stamp=T0 + i * STEP_NS), depth=float(i)))
     return path
-
-
-@pytest.fixture
-def bus():
-    session = open_local_session()
-    b = Bus(session=session)
-    yield b
-    b.close()
-    session.close()
 
 
 @pytest.mark.parametrize("rate", [1.0, 4.0])

@@ -15,7 +15,7 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from common.bus import Bus, open_hub, open_local_session
+from common.bus import Bus, open_hub
 from common.codec import encode_frame
 from common.mcap_io import read_messages
 from common.messages import Depth, Header
@@ -28,15 +28,6 @@ from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(180)
 CLI = [sys.executable, "-m", "launcher.cli"]
-
-
-@pytest.fixture
-def bus():
-    session = open_local_session()
-    b = Bus(session=session)
-    yield b
-    b.close()
-    session.close()
 
 
 def _free_endpoint():
