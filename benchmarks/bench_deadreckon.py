@@ -34,11 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-from common.config import load_config
 from common.mcap_io import read_messages
 from common.node import run_offline
 from eval.deadreckon import PlainIntegrator, run_deadreckon
-from services.robot_state.node import RobotStateNode
+from launcher.config import load_config
+from launcher.services import build_node
 
 
 def _mission(cache: Path, minutes: float, seed: int) -> Path:
@@ -64,12 +64,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     args.cache_dir.mkdir(parents=True, exist_ok=True)
     config = load_config(args.config, args.overrides)
-    keys = list(RobotStateNode(config).inputs) + ["truth/pose"]
+    keys = list(build_node("robot_state", config).inputs) + ["truth/pose"]
     rows = []
     for seed in args.seeds:
         path = _mission(args.cache_dir, args.minutes, seed)
         msgs = [(r.key, r.message()) for r in read_messages(path, keys=keys)]
-        node = RobotStateNode(config)
+        node = build_node("robot_state", config)
         n_in = sum(1 for k, _ in msgs if k in node.inputs)
         t0 = time.perf_counter()
         run_offline(node, msgs)

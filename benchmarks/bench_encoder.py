@@ -38,7 +38,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.config import EncoderConfig
+from services.encoder.config import EncoderConfig
 from services.encoder.encoder import MultimodalEncoder
 
 

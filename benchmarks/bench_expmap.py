@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from common.config import ExpMapConfig
+from services.expmap.config import ExpMapConfig
 from services.expmap.graph import ExperienceMap
 
 SEC = 1_000_000_000

@@ -27,7 +27,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from common.config import HtmConfig
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 
 HTM_CORE_MS = 0.41

@@ -23,9 +23,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from common.config import load_config
 from eval.run_eval import evaluate_run
 from launcher.cli import isolate_stdout
+from launcher.config import load_config
 from launcher.run import run_distributed
 from missions.importers.cli import main as import_main
 

@@ -24,7 +24,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from common.config import HtmConfig
+from services.htm.config import HtmConfig
 from services.htm.lvc import LvcMatcher
 from services.htm.sequence import SequenceMatcher
 

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from common.config import PoseCellsConfig
+from services.posecells.config import PoseCellsConfig
 from services.posecells.network import PoseCellNetwork, gaussian_kernel
 
 

@@ -38,9 +38,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.config import load_config
 from common.mcap_io import recording_summary
 from launcher.cli import isolate_stdout
+from launcher.config import load_config
 from launcher.run import run_distributed
 
 SIXTHS = 6

@@ -13,27 +13,36 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, TypeVar
 
-from common.config import PoseidonConfig
+from pydantic import BaseModel
+
 from common.messages import Header, Message
 from common.ordering import EventTimeMerger
 
 __all__ = ["ServiceNode", "run_offline"]
 
+#: a service's own configuration section (``services/<name>/config.py``)
+ConfigT = TypeVar("ConfigT", bound=BaseModel)
+
 log = logging.getLogger(__name__)
 
 
-class ServiceNode:
-    """Base of every service.  Subclasses set ``name``, ``inputs`` and ``outputs``."""
+class ServiceNode(Generic[ConfigT]):
+    """Base of every service.  Subclasses set ``name``, ``inputs`` and ``outputs``.
+
+    A node is built from its own configuration section; what it needs from another
+    service's section comes as explicit constructor arguments (the launcher's factory,
+    ``launcher/services.py::build_node``, passes them).
+    """
 
     name: ClassVar[str] = ""
     inputs: tuple[str, ...] = ()    # class default of io_keys; the instance's own after __init__
     outputs: tuple[str, ...] = ()
 
     @classmethod
-    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """Input keys (priority order) and output keys of this service under ``config``.
+    def io_keys(cls, config: ConfigT) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """Input keys (priority order) and output keys of this service under its section ``config``.
 
         The one declaration of a service's wiring: the launcher plans the run with it and
         the instance takes ``self.inputs``/``self.outputs`` from it.  Default: the class
@@ -41,7 +50,7 @@ class ServiceNode:
         """
         return tuple(cls.inputs), tuple(cls.outputs)
 
-    def __init__(self, config: PoseidonConfig):
+    def __init__(self, config: ConfigT):
         self.config = config
         self.inputs, self.outputs = type(self).io_keys(config)
         self._outbox: list[tuple[str, Message]] = []
@@ -110,7 +119,7 @@ class ServiceNode:
         return out
 
 
-def run_offline(node: ServiceNode, messages: Iterable[tuple[str, Message]]) -> list[tuple[str, Message]]:
+def run_offline(node: ServiceNode[Any], messages: Iterable[tuple[str, Message]]) -> list[tuple[str, Message]]:
     """Drive ``node`` with ``(key, message)`` pairs without any transport.
 
     Messages are merged by event time exactly as the bus runtime does (each input key is

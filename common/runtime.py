@@ -88,7 +88,7 @@ class NodeRunner(Sink, Source):
 
     stats: RunnerStats
 
-    def __init__(self, node: ServiceNode, bus: Bus, heartbeat_ms: int = 100, drain_timeout_s: float = 0.0,
+    def __init__(self, node: ServiceNode[Any], bus: Bus, heartbeat_ms: int = 100, drain_timeout_s: float = 0.0,
                  supervision: Supervision | None = None):
         self.node = node
         declared = type(node).io_keys(node.config)

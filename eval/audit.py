@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from common.config import PoseidonConfig
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
+from launcher.config import PoseidonConfig
 
 __all__ = ["audit_run", "association", "sequence_gaps", "format_audit", "main"]
 

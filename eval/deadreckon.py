@@ -52,13 +52,15 @@ import numpy as np
 from tqdm import tqdm
 
 from common.codec import DecodeError
-from common.config import ConfigError, PoseidonConfig, RobotStateConfig, load_config
+from common.config import ConfigError
 from common.geometry import OutputFrame, euler_to_matrix, matrix_to_euler, quaternion_to_matrix, rot_z
 from common.mcap_io import RecordingError, read_messages
 from common.messages import Depth, LinkquestDvl, Message, Odometry
 from common.node import run_offline
 from eval.trajectory import NS, Trajectory, anchored_errors
-from services.robot_state.node import RobotStateNode
+from launcher.config import PoseidonConfig, load_config
+from launcher.services import build_node
+from services.robot_state.config import RobotStateConfig
 
 __all__ = ["main", "PlainIntegrator", "Trajectory", "read_cone_passes", "cone_scores", "truth_scores",
            "run_deadreckon"]
@@ -182,7 +184,7 @@ def truth_scores(traj: Trajectory, truth: Trajectory) -> dict[str, float]:
 def run_deadreckon(messages: list[tuple[str, Message]], config: PoseidonConfig,
                    cones: list[dict[str, Any]] | None = None, recording: str = "") -> dict[str, Any]:
     """Run the node and the plain baseline over ``messages``; the summary documented above."""
-    node = RobotStateNode(config)
+    node = build_node("robot_state", config)
     frame = node.frame
     plain = PlainIntegrator(config.robot_state)
     counts: dict[str, int] = {}
@@ -294,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_config(args.config, args.overrides)
         cones = read_cone_passes(args.cones) if args.cones is not None else None
-        node_inputs = list(RobotStateNode(config).inputs)
+        node_inputs = list(build_node("robot_state", config).inputs)
         messages = _load(args.recording, node_inputs + ["truth/pose"])
         summary = run_deadreckon(messages, config, cones, recording=str(args.recording))
     except (ConfigError, RecordingError) as exc:

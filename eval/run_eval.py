@@ -84,12 +84,12 @@ from typing import Any
 
 import numpy as np
 
-from common.config import PoseidonConfig
 from eval.corrected import map_corrected
 from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
 from eval.relations import read_relations, relation_summary
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 from eval.trajectory import PoseSeries, Trajectory, anchored_errors, ate, drift_pct, rpe
+from launcher.config import PoseidonConfig
 
 __all__ = ["evaluate_run", "format_eval", "main", "map_trajectory", "loop_closure_table", "front_end_metrics",
            "stability_proxies", "relations_block", "RPE_DELTA_S"]

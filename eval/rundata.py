@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from common.codec import DecodeError, decode
-from common.config import ConfigError, PoseidonConfig, load_config
+from common.config import ConfigError
 from common.geometry import published_to_ned
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.messages import (
@@ -47,6 +47,7 @@ from common.messages import (
     message_type,
 )
 from eval.trajectory import PoseSeries, Trajectory, pose_series
+from launcher.config import PoseidonConfig, load_config
 
 __all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "config_of_recording",
            "metadata_of_recording", "add_config_args", "config_from_args", "report_cli"]

@@ -25,10 +25,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from common.config import PoseidonConfig
 from eval.audit import audit_run
 from eval.run_eval import evaluate_run
 from eval.rundata import load_run
+from launcher.config import PoseidonConfig
 
 __all__ = ["summarize_run", "format_summary"]
 

@@ -169,7 +169,8 @@ from eval.vpr_mission import (
 )
 
 if TYPE_CHECKING:
-    from common.config import EncoderConfig, PoseidonConfig
+    from launcher.config import PoseidonConfig
+    from services.encoder.config import EncoderConfig
     from services.encoder.encoder import MultimodalEncoder
     from services.encoder.standardize import EmbeddingStandardizer
 
@@ -241,7 +242,7 @@ def _errors() -> tuple[type[Exception], ...]:
 
 def _load_configs(args: argparse.Namespace) -> tuple[PoseidonConfig, EncoderConfig]:
     """The run configuration and its encoder section with the command line's overrides."""
-    from common.config import load_config
+    from launcher.config import load_config
 
     cfg = load_config(args.config, args.overrides)
     enc_cfg = cfg.encoder

@@ -17,6 +17,7 @@ from tqdm import tqdm
 from eval.baselines import SEQ_LENGTH, patch_normalise, sad_similarity, sequence_similarity
 from eval.vpr_htm import DECISION_KINDS, _htm_row, decision_kind, run_length_stats
 from eval.vpr_metrics import VprInputError, cosine_similarity, overlap_similarity, overlap_stats, vpr_metrics
+from launcher.services import build_node
 
 
 def _travelled(stamps: np.ndarray, pose_stamps: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -162,13 +163,12 @@ def _read_mission(path: Path, node: Any, sonar_key: str) -> _MissionRead:
 
 def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | None) -> MissionStreams:
     """Camera and sonar of one MCAP mission through :class:`EncoderNode`, in event order."""
-    from services.encoder.node import EncoderNode
 
     path = Path(path)
     min_gap_m = _revisit_gap(path, min_gap_m)
     run_cfg = cfg.model_copy(update={"encoder": enc_cfg})
     encoder = _camera_recorder(enc_cfg)
-    node = EncoderNode(run_cfg, encoder)
+    node = build_node("encoder", run_cfg, encoder=encoder)
     t0 = time.perf_counter()
     rd = _read_mission(path, node, enc_cfg.sonar_topic)
     node.finish()

@@ -93,9 +93,9 @@ def identities(config=None) -> dict[str, str]:
 
 def identity_grants(config=None) -> dict[str, list[Grant]]:
     """What each identity may do under ``config`` (default configuration if None)."""
-    from common.config import PoseidonConfig
     from common.resume import REPLAY
-    from launcher.services import node_class
+    from launcher.config import PoseidonConfig
+    from launcher.services import node_io
     from services.player.player import SOURCE_KEYS
     config = config if config is not None else PoseidonConfig()
     ns = config.bus.namespace.strip("/")
@@ -107,7 +107,7 @@ def identity_grants(config=None) -> dict[str, list[Grant]]:
         elif role == "recorder":
             data = [Grant("subscribe", "**"), Grant("put", f"{REPLAY}/**")]
         else:
-            ins, outs = node_class(name, config).io_keys(config)
+            ins, outs = node_io(name, config)
             data = ([Grant("put", k) for k in outs] + [Grant("subscribe", k) for k in ins]
                     + [Grant("subscribe", f"{REPLAY}/{k}") for k in outs] + [Grant("put", f"{REPLAY}/{k}") for k in ins])
         control = [Grant(verb, key.format(name=name)) for verb, key, roles in CONTROL_GRANTS if role in roles]
@@ -122,7 +122,7 @@ def _intersects(a: str, b: str) -> bool:
 
 def access_control(config=None) -> dict:
     """The ``access_control`` section of the secured router (a JSON-able dict)."""
-    from common.config import PoseidonConfig
+    from launcher.config import PoseidonConfig
     config = config if config is not None else PoseidonConfig()
     ns = config.bus.namespace.strip("/")
     grants = identity_grants(config)
@@ -190,7 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--write", metavar="ROUTER.json5", help="replace the generated block of this router config")
     group.add_argument("--check", metavar="ROUTER.json5", help="exit 1 if its generated block is out of date")
     args = ap.parse_args(argv)
-    from common.config import ConfigError, load_config
+    from common.config import ConfigError
+    from launcher.config import load_config
     try:
         config = load_config(args.config, overrides=args.set)
         block = render_block(config)

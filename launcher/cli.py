@@ -56,8 +56,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the commands import what they use when they run (a fast start for every command)
-    from common.config import PoseidonConfig
     from common.resume import Supervision
+    from launcher.config import PoseidonConfig
     from launcher.services import WorkerSpec
 
 __all__ = ["main"]
@@ -96,7 +96,7 @@ def _setup_logging(level: str) -> None:
 
 
 def _load_config(args: argparse.Namespace) -> Any:
-    from common.config import load_config
+    from launcher.config import load_config
     return load_config(args.config, args.set)
 
 

@@ -41,7 +41,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.config import PoseidonConfig, apply_overrides
+from common.config import apply_overrides
+from launcher.config import PoseidonConfig
 
 __all__ = ["run_demo", "SIM_MINUTES", "ensure_mission"]
 

@@ -54,11 +54,11 @@ from typing import Any
 import yaml
 
 from common.bus import Bus, open_hub, open_local_session
-from common.config import PoseidonConfig
 from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
-from launcher.services import WorkerSpec, available_services, build_worker, node_class
+from launcher.config import PoseidonConfig
+from launcher.services import WorkerSpec, available_services, build_node, build_worker, node_io
 from services.player.player import SOURCE_KEYS
 
 __all__ = ["RunFailed", "ServiceStartError", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
@@ -82,7 +82,7 @@ class ServiceStartError(ValueError):
 def build_checked(name: str, config: PoseidonConfig) -> Any:
     """Build service ``name``'s node; any failure becomes a ServiceStartError naming it."""
     try:
-        return node_class(name, config)(config)
+        return build_node(name, config)
     except KeyError:
         raise
     except Exception as exc:
@@ -110,12 +110,6 @@ def output_paths(input_path: str | Path, out: str | Path) -> tuple[Path, Path]:
 def _publish_output(partial: Path, out: Path) -> None:
     """Move the finished recording into place (atomic within the folder)."""
     os.replace(partial, out)
-
-
-def node_io(name: str, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Input and output keys of a service under ``config``."""
-    ins, outs = node_class(name, config).io_keys(config)
-    return tuple(ins), tuple(outs)
 
 
 @dataclass

@@ -16,22 +16,25 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel
+
 from common.bus import Bus
-from common.config import PoseidonConfig
 from common.node import ServiceNode
 from common.resume import Supervision
 from common.runtime import NodeRunner
 from common.worker import Worker
+from launcher.config import PoseidonConfig
 from services.player.player import Player
 from services.recorder.recorder import Recorder
 
 __all__ = ["ALGORITHM_SERVICES", "OPTIONAL_SERVICES", "available_services", "node_class", "build_node",
-           "PIPELINE_ORDER", "PLAYER", "RECORDER", "UnknownService", "WorkerSpec", "build_worker"]
+           "PIPELINE_ORDER", "PLAYER", "RECORDER", "UnknownService", "WorkerSpec", "build_worker", "WIRING",
+           "node_section", "node_io"]
 
 #: the names of the two workers that are not algorithm services
 PLAYER, RECORDER = "player", "recorder"
@@ -68,7 +71,7 @@ def available_services(config: PoseidonConfig | None = None) -> list[str]:
     return names
 
 
-def node_class(name: str, config: PoseidonConfig | None = None) -> type[ServiceNode]:
+def node_class(name: str, config: PoseidonConfig | None = None) -> type[ServiceNode[Any]]:
     """The node class of service ``name``; ``config.service_classes`` may swap or add one."""
     target = ((config.service_classes.get(name) if config is not None else None) or ALGORITHM_SERVICES.get(name)
               or OPTIONAL_SERVICES.get(name))
@@ -94,9 +97,52 @@ class UnknownService(KeyError):
         return str(self.args[0]) if self.args else "unknown service"
 
 
-def build_node(name: str, config: PoseidonConfig) -> ServiceNode:
-    """The node of algorithm service ``name`` built from ``config``."""
-    return node_class(name, config)(config)
+@dataclass(frozen=True)
+class _Wiring:
+    """How the launcher builds one of our services: its own section, and the values it
+    needs from other sections, passed as explicit keyword arguments."""
+
+    section: Callable[[PoseidonConfig], BaseModel]
+    links: Callable[[PoseidonConfig], dict[str, Any]] = lambda config: {}
+
+
+#: every algorithm service of this tree: the one place where a value crosses sections
+WIRING: dict[str, _Wiring] = {
+    "encoder": _Wiring(lambda c: c.encoder, lambda c: {
+        "sync_stale_sec": c.sync.sync_stale_sec, "lvc_map_persisted": bool(c.htm.state_path)}),
+    "htm": _Wiring(lambda c: c.htm),
+    "robot_state": _Wiring(lambda c: c.robot_state),
+    "posecells": _Wiring(lambda c: c.posecells, lambda c: {"guard": c.vpr_guard}),
+    "expmap": _Wiring(lambda c: c.expmap, lambda c: {
+        "sync_stale_sec": c.sync.sync_stale_sec,
+        "pose_cell_shape": list(c.posecells.number_of_neurons),
+        "pose_cell_spacing": list(c.posecells.distance_between_neurons),
+        "odometry_axis_remap": c.robot_state.axis_remap, "odometry_axis_sign_z": c.robot_state.axis_sign_z}),
+    "ratslam_lv": _Wiring(lambda c: c.ratslam_lv),
+}
+
+
+def node_section(name: str, config: PoseidonConfig) -> BaseModel:
+    """The configuration a node of service ``name`` is built from: its own section for a
+    service of this tree (or a class swapped in for one, ``service_classes``), the whole
+    configuration for a service added under a new name (it has no section of its own)."""
+    wiring = WIRING.get(name)
+    return wiring.section(config) if wiring is not None else config
+
+
+def node_io(name: str, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Input and output keys of service ``name`` under ``config`` (its class's ``io_keys``)."""
+    ins, outs = node_class(name, config).io_keys(node_section(name, config))
+    return tuple(ins), tuple(outs)
+
+
+def build_node(name: str, config: PoseidonConfig, **extra: Any) -> ServiceNode[Any]:
+    """The node of algorithm service ``name`` built from ``config``: its own section plus,
+    explicitly, what it needs of the others (:data:`WIRING`); ``extra`` keyword arguments
+    go to the node's constructor too (tests: a stand-in encoder)."""
+    wiring = WIRING.get(name)
+    links = wiring.links(config) if wiring is not None else {}
+    return node_class(name, config)(node_section(name, config), **links, **extra)
 
 
 @dataclass
@@ -122,7 +168,7 @@ class WorkerSpec:
     out: str | Path | None = None
     expect: Sequence[str] | None = None
     metadata: dict[str, Any] | None = None
-    node: ServiceNode | None = None
+    node: ServiceNode[Any] | None = None
 
 
 def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec | None = None) -> Worker:

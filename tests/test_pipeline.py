@@ -1,7 +1,7 @@
 """The whole pipeline on a short simulated cave mission: every service, both modes."""
 import pytest
 
-from common.config import load_config
+from launcher.config import load_config
 from launcher.run import run_distributed, run_embedded
 from launcher.services import available_services
 from missions.sim.cli import main as sim_main

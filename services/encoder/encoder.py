@@ -25,8 +25,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from common.config import EncoderConfig
 from common.messages import Image
+from services.encoder.config import EncoderConfig
 
 from .backbones import LoadedBackbone, fold_batchnorm, load_backbone
 from .fusion import fuse as fuse_sdrs

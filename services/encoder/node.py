@@ -44,9 +44,9 @@ from typing import Any
 
 import numpy as np
 
-from common.config import PoseidonConfig
 from common.messages import Header, Image, LaserScan, Message, NeocortexSdr, RangeImageBeam, Sdr
 from common.node import ServiceNode
+from services.encoder.config import EncoderConfig
 
 from .clock import EncoderCore, SonarClock
 from .encoder import MultimodalEncoder
@@ -59,29 +59,33 @@ log = logging.getLogger(__name__)
 OUT = "neocortex/sdr"
 
 
-class EncoderNode(ServiceNode):
+class EncoderNode(ServiceNode[EncoderConfig]):
     """Transport wrapper around :class:`EncoderCore` (a :class:`MultimodalEncoder` and a :class:`SonarClock`)."""
 
     name = "encoder"
     outputs = (OUT,)
 
     @classmethod
-    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        return ("camera/image_raw", config.encoder.sonar_topic), (OUT,)
+    def io_keys(cls, config: EncoderConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return ("camera/image_raw", config.sonar_topic), (OUT,)
 
-    def __init__(self, config: PoseidonConfig, encoder: MultimodalEncoder | None = None):
+    def __init__(self, config: EncoderConfig, *, sync_stale_sec: float, lvc_map_persisted: bool = False,
+                 encoder: MultimodalEncoder | None = None):
+        """``config``: the ``encoder`` section.  From other sections, explicitly: ``sync_stale_sec``
+        (``sync``: how long a sonar raster stays fresh for a camera frame, s) and
+        ``lvc_map_persisted`` (``htm.state_path`` set: the LVC map outlives the run)."""
         super().__init__(config)
-        cfg = config.encoder
+        cfg = config
         self.sonar_key = cfg.sonar_topic
         self.encoder = encoder if encoder is not None else MultimodalEncoder(cfg)
         self.mode = cfg.fusion_mode
-        if config.htm.state_path and cfg.embedding_norm == "running" and not cfg.embedding_norm_path:
+        if lvc_map_persisted and cfg.embedding_norm == "running" and not cfg.embedding_norm_path:
             log.warning("encoder: htm.state_path keeps the LVC map across runs but encoder.embedding_norm_path is "
                         "empty: the running embedding statistics restart every run, so the SDRs of known places "
                         "change; set encoder.embedding_norm_path (e.g. state/embnorm_{backbone}_{modality}.npz)")
             self.count("embedding_norm_not_persisted")
         raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax, cfg.sonar_use_intensities)
-        clock = SonarClock(raster, self.mode, int(round(config.sync.sync_stale_sec * 1e9)),
+        clock = SonarClock(raster, self.mode, int(round(sync_stale_sec * 1e9)),
                            math.radians(cfg.sonar_encode_sweep_deg))
         self.core = EncoderCore(self.encoder, clock)
         self.length = cfg.sp_columns

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-from common.config import ExpMapConfig
+from services.expmap.config import ExpMapConfig
 
 __all__ = ["lattice_geometry", "pc_distance_cells", "candidate_nodes", "match_scores", "choose_match"]
 

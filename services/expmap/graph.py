@@ -83,8 +83,8 @@ from typing import Any
 
 import numpy as np
 
-from common.config import ExpMapConfig
 from services.expmap.candidates import candidate_nodes, choose_match, lattice_geometry, match_scores, pc_distance_cells
+from services.expmap.config import ExpMapConfig
 from services.expmap.loop_policy import LoopEdges, loop_displacement
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-from common.config import ExpMapConfig
+from services.expmap.config import ExpMapConfig
 from services.expmap.scans import Registration, register_sweeps
 
 __all__ = ["LoopEdges", "loop_displacement"]

@@ -57,12 +57,13 @@ max_correction_step), ``experience_images``, ``events_without_image``,
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from common.config import ConfigError, PoseidonConfig
+from common.config import ConfigError
 from common.geometry import quaternion_to_matrix, yaw_of_quaternion
 from common.messages import (
     ExperienceEvent,
@@ -79,6 +80,7 @@ from common.messages import (
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
 from services.expmap.association import Association, EventImageAssociator
+from services.expmap.config import ExpMapConfig
 from services.expmap.graph import ExperienceMap
 from services.expmap.laser_input import LaserScans
 from services.expmap.scan_graph import ScanGraph
@@ -101,7 +103,7 @@ def map_message(em: ExperienceMap | ScanGraph, header: Header) -> ExperienceMapM
                             corrections=em.corrections)
 
 
-class ExpMapNode(ServiceNode):
+class ExpMapNode(ServiceNode[ExpMapConfig]):
     """Transport wrapper of :class:`ExperienceMap` (or :class:`ScanGraph`) and :class:`EventImageAssociator`."""
 
     name = "expmap"
@@ -109,21 +111,29 @@ class ExpMapNode(ServiceNode):
     outputs = ("map", "dead_reckoning", "experience_image")
 
     @classmethod
-    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    def io_keys(cls, config: ExpMapConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """Input keys under ``config`` (the camera key is configurable, and optional)."""
-        cfg = config.expmap
+        cfg = config
         ins = ((cfg.image_topic,) if cfg.publish_experience_image else ()) + ("experience_event", "Odometry")
         if cfg.loop_scan_matching or cfg.graph == "scan_graph":
             ins += (cfg.scan_topic,)
         return ins, cls.outputs
 
-    def __init__(self, config: PoseidonConfig):
+    def __init__(self, config: ExpMapConfig, *, sync_stale_sec: float, pose_cell_shape: Sequence[int],
+                 pose_cell_spacing: Sequence[float], odometry_axis_remap: str = "yxz",
+                 odometry_axis_sign_z: float = -1.0):
+        """``config``: the ``expmap`` section.  From other sections, explicitly:
+        ``sync_stale_sec`` (``sync``, s), the pose-cell lattice ``pose_cell_shape`` (x y z yaw
+        cells) and ``pose_cell_spacing`` (m; ``posecells.number_of_neurons`` and
+        ``distance_between_neurons``, which place experiences, Eq. 4.20), and the odometry's
+        frame (``robot_state.axis_remap``, ``axis_sign_z``: the laser sweeps need z vertical
+        and the heading's sign)."""
         super().__init__(config)
-        self.cfg = cfg = config.expmap
+        self.cfg = cfg = config
         self.image_key = cfg.image_topic
         self.images: EventImageAssociator[Header, Image] = EventImageAssociator(
-            int(round(min(config.sync.sync_stale_sec, cfg.image_sync_slop) * 1e9)), cfg.image_buffer_size)
-        shape, spacing = config.posecells.number_of_neurons, config.posecells.distance_between_neurons
+            int(round(min(sync_stale_sec, cfg.image_sync_slop) * 1e9)), cfg.image_buffer_size)
+        shape, spacing = list(pose_cell_shape), list(pose_cell_spacing)
         self.map_path = Path(cfg.map_path) if cfg.map_path else None
         self.scan_graph = cfg.graph == "scan_graph"
         self.graph: ExperienceMap | ScanGraph
@@ -144,11 +154,11 @@ class ExpMapNode(ServiceNode):
         self.scan_key = cfg.scan_topic if (cfg.loop_scan_matching or self.scan_graph) else None
         sg = cfg.scan_graph
         self.laser = LaserScans(sg.min_range_m, sg.max_range_m, sg.sensor_offset)
-        if self.scan_key is not None and config.robot_state.axis_remap[2] != "z":
+        if self.scan_key is not None and odometry_axis_remap[2] != "z":
             raise ConfigError(f"expmap.loop_scan_matching needs a vertical published z axis, but "
-                              f"robot_state.axis_remap={config.robot_state.axis_remap!r}; set "
+                              f"robot_state.axis_remap={odometry_axis_remap!r}; set "
                               "expmap.loop_scan_matching=false or keep z last")
-        self.sweeps = SweepBuffer(head_sign=config.robot_state.axis_sign_z, sweep_deg=cfg.scan_sweep_deg)
+        self.sweeps = SweepBuffer(head_sign=odometry_axis_sign_z, sweep_deg=cfg.scan_sweep_deg)
 
     # ---- inputs ---------------------------------------------------------------------
     def process(self, key: str, msg: Any) -> None:

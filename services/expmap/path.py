@@ -39,7 +39,7 @@ def load_map_links(path: Path) -> tuple[np.ndarray, list[tuple[int, int, float]]
         if ids != list(range(len(ids))):
             raise ValueError(f"{path}: map node ids are not 0..{len(ids) - 1}")
         return pos, [(ln.source, ln.target, ln.duration_s) for ln in msg.links]
-    from common.config import ExpMapConfig
+    from services.expmap.config import ExpMapConfig
     from services.expmap.graph import ExperienceMap
     z = np.load(path, allow_pickle=False)
     meta = json.loads(bytes(z["meta"]).decode())

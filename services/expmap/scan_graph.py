@@ -60,7 +60,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.config import ScanGraphConfig
+from services.expmap.config import ScanGraphConfig
 from services.expmap.graph import EventResult, read_map_file
 from services.expmap.laser_match import ScanMatch, free_space_fraction, match_scan, transform_points, voxel_filter
 from services.expmap.pose_graph import compose, relative_pose, relax_se2, wrap_angle

@@ -29,7 +29,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from common.config import HtmConfig
+    from services.htm.config import HtmConfig
 
 __all__ = ["CHAINS", "chain_config"]
 

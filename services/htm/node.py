@@ -12,9 +12,9 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from common.config import PoseidonConfig
 from common.messages import LocalViewCell, LocalViewCells, Message, NeocortexSdr
 from common.node import ServiceNode
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 
 __all__ = ["HtmNode"]
@@ -22,16 +22,16 @@ __all__ = ["HtmNode"]
 log = logging.getLogger(__name__)
 
 
-class HtmNode(ServiceNode):
+class HtmNode(ServiceNode[HtmConfig]):
     """Runs :class:`NeocortexHtm` on the fused SDR of every encoder frame."""
 
     name = "htm"
     inputs = ("neocortex/sdr",)
     outputs = ("local_view_cells",)
 
-    def __init__(self, config: PoseidonConfig):
+    def __init__(self, config: HtmConfig):
         super().__init__(config)
-        self.cfg = config.htm
+        self.cfg = config
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         if self.state_path is not None and self.state_path.exists():
             self.htm = NeocortexHtm.load(self.state_path, self.cfg)

@@ -72,8 +72,8 @@ from typing import Any
 
 import numpy as np
 
-from common.config import HtmConfig
 from services.htm.calibrate import RunningQuantile
+from services.htm.config import HtmConfig
 from services.htm.descriptor import DescriptorBuilder
 from services.htm.lvc import LvcMatcher, LvcResult, overlap_scores
 from services.htm.sequence import SequenceMatcher, SequenceScore

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from common.config import PoseCellsConfig, VprGuardConfig
+from services.posecells.config import PoseCellsConfig, VprGuardConfig
 from services.posecells.gates import EventGate, GateDecision
 from services.posecells.network import PoseCellNetwork
 

@@ -32,7 +32,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any
 
-from common.config import VprGuardConfig
+from services.posecells.config import VprGuardConfig
 
 __all__ = ["VprGuard", "MotionGate", "EventGate", "GateDecision"]
 

@@ -68,7 +68,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from common.config import PoseCellsConfig
+from services.posecells.config import PoseCellsConfig
 
 __all__ = ["PoseCellNetwork", "gaussian_kernel", "wrapped_centroid_cells"]
 

@@ -43,10 +43,10 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from common.config import PoseidonConfig
 from common.geometry import yaw_of_quaternion
 from common.messages import ExperienceEvent, LocalViewCells, Message, Odometry
 from common.node import ServiceNode
+from services.posecells.config import PoseCellsConfig, VprGuardConfig
 from services.posecells.core import PoseCellsCore
 from services.posecells.gates import EventGate
 from services.posecells.network import PoseCellNetwork
@@ -56,17 +56,18 @@ __all__ = ["PoseCellsNode", "yaw_of_quaternion"]
 log = logging.getLogger(__name__)
 
 
-class PoseCellsNode(ServiceNode):
+class PoseCellsNode(ServiceNode[PoseCellsConfig]):
     """Runs :class:`PoseCellsCore` on odometry and LVC frames."""
 
     name = "posecells"
     inputs = ("Odometry", "local_view_cells")
     outputs = ("experience_event",)
 
-    def __init__(self, config: PoseidonConfig):
+    def __init__(self, config: PoseCellsConfig, guard: VprGuardConfig):
+        """``config``: the ``posecells`` section; ``guard``: the ``vpr_guard`` section."""
         super().__init__(config)
-        self.cfg = config.posecells
-        self.core = PoseCellsCore(self.cfg, config.vpr_guard)
+        self.cfg = config
+        self.core = PoseCellsCore(self.cfg, guard)
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         self._dirty = False
         if self.state_path is not None:

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from common.config import RatSlamLvConfig
+from services.ratslam_lv.config import RatSlamLvConfig
 
 __all__ = ["LocalViewMatcher", "ViewMatch", "grey", "area_downsample", "patch_normalise"]
 

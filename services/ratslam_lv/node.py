@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import logging
 
-from common.config import PoseidonConfig
 from common.messages import Image, LocalViewCell, LocalViewCells, Message
 from common.node import ServiceNode
+from services.ratslam_lv.config import RatSlamLvConfig
 from services.ratslam_lv.matcher import LocalViewMatcher
 
 __all__ = ["RatSlamViewNode"]
@@ -40,7 +40,7 @@ __all__ = ["RatSlamViewNode"]
 log = logging.getLogger(__name__)
 
 
-class RatSlamViewNode(ServiceNode):
+class RatSlamViewNode(ServiceNode[RatSlamLvConfig]):
     """Runs :class:`LocalViewMatcher` on every camera frame."""
 
     name = "ratslam_lv"
@@ -48,13 +48,13 @@ class RatSlamViewNode(ServiceNode):
     outputs = ("local_view_cells",)
 
     @classmethod
-    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    def io_keys(cls, config: RatSlamLvConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """Input and output keys under ``config`` (the launcher plans the run with them)."""
-        return (config.ratslam_lv.image_topic,), cls.outputs
+        return (config.image_topic,), cls.outputs
 
-    def __init__(self, config: PoseidonConfig):
+    def __init__(self, config: RatSlamLvConfig):
         super().__init__(config)
-        self.cfg = config.ratslam_lv
+        self.cfg = config
         self.matcher = LocalViewMatcher(self.cfg)
 
     def process(self, key: str, msg: Message) -> None:

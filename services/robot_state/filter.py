@@ -100,9 +100,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.config import RobotStateConfig
 from common.geometry import euler_to_matrix, matrix_to_euler, wrap_angle
 from common.messages import Depth, Imu, LinkquestDvl
+from services.robot_state.config import RobotStateConfig
 
 __all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
 

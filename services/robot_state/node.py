@@ -45,10 +45,10 @@ import logging
 
 import numpy as np
 
-from common.config import PoseidonConfig
 from common.geometry import OutputFrame, euler_to_matrix, matrix_to_quaternion
 from common.messages import Depth, Header, Imu, LinkquestDvl, Message, Odometry
 from common.node import ServiceNode
+from services.robot_state.config import RobotStateConfig
 from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot
 
 __all__ = ["RobotStateNode", "odometry_from_snapshot"]
@@ -82,7 +82,7 @@ def odometry_from_snapshot(snap: FilterSnapshot, frame: OutputFrame, header: Hea
     )
 
 
-class RobotStateNode(ServiceNode):
+class RobotStateNode(ServiceNode[RobotStateConfig]):
     """Dead reckoning from DVL, IMU and depth; relays the reference odometry."""
 
     name = "robot_state"
@@ -90,17 +90,17 @@ class RobotStateNode(ServiceNode):
     outputs = ("Odometry", "ground_truth")
 
     @classmethod
-    def io_keys(cls, config: PoseidonConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    def io_keys(cls, config: RobotStateConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """Inputs under ``config``: the configured IMU key (none with ``use_imu`` false) first."""
-        cfg = config.robot_state
+        cfg = config
         if cfg.source == "wheel_odometry":
             return ("wheel_odometry", "odometry"), cls.outputs
         imu = (cfg.imu_topic,) if cfg.use_imu else ()
         return imu + ("dvl_linkquest", "depth_sensor", "odometry"), cls.outputs
 
-    def __init__(self, config: PoseidonConfig):
+    def __init__(self, config: RobotStateConfig):
         super().__init__(config)
-        cfg = config.robot_state
+        cfg = config
         self.cfg = cfg
         self.imu_key = cfg.imu_topic
         self.frame = OutputFrame(cfg.axis_remap, cfg.axis_sign_z)

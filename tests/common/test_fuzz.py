@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from common.bus import Bus, open_local_session
 from common.codec import DecodeError, decode, decode_frame, encode, encode_frame
-from common.config import PoseidonConfig
 from common.messages import (
     MESSAGE_TYPES,
     Depth,
@@ -44,6 +43,7 @@ from common.messages import (
 )
 from common.ordering import EventTimeMerger
 from common.runtime import NodeRunner
+from launcher.config import PoseidonConfig
 from launcher.services import available_services
 from tests.common.recordings import dvl
 
@@ -265,7 +265,7 @@ def weird_valid(draw, cls):
         return base
 
 def _service_config(tmp_path_factory) -> PoseidonConfig:
-    from common.config import EncoderConfig
+    from services.encoder.config import EncoderConfig
     tmp = tmp_path_factory.mktemp("fuzzsvc")
     enc = {"lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256,
            "pool_grid": 2, "sonar_polar_width": 32, "sonar_polar_height": 32, "torch_threads": 1}

@@ -1,9 +1,9 @@
 import random
 
-from common.config import PoseidonConfig
 from common.messages import Depth, Header
 from common.node import ServiceNode, run_offline
 from common.ordering import EventTimeMerger
+from launcher.config import PoseidonConfig
 
 
 def _streams():

@@ -117,7 +117,7 @@ def test_numbered_and_replay_frames_decode_and_malformed_ones_are_rejected():
 
 
 def test_supervision_file_round_trip_carries_both_checkpoint_intervals(tmp_path):
-    from common.config import load_config
+    from launcher.config import load_config
     from launcher.run import plan_run, supervision_plan
     from missions.sim.cli import main as sim_main
     assert sim_main(["--minutes", "0.05", "--seed", "1", "--out", str(tmp_path / "m.mcap")]) == 0

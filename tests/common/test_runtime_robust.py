@@ -11,10 +11,10 @@ import pytest
 
 from common.bus import Bus, open_hub, open_local_session
 from common.codec import DecodeError, decode, decode_frame, encode, encode_frame
-from common.config import PoseidonConfig
 from common.mcap_io import read_messages
 from common.messages import Depth, Header, Image, LaserScan, NeocortexSdr, RangeImageBeam, RevisitTruth, Sdr
 from common.runtime import NodeRunner
+from launcher.config import PoseidonConfig
 from launcher.run import run_embedded
 from tests.common.nodes import SlowEcho
 from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording, with_inconsistent_image

@@ -6,9 +6,9 @@ import time
 
 import pytest
 
-from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header
+from launcher.config import PoseidonConfig
 from launcher.services import WorkerSpec, build_worker
 
 pytestmark = pytest.mark.timeout(60)

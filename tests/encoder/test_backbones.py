@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import torch
 
-from common.config import EncoderConfig
 from services.encoder.backbones import (
     AlexNetConv3,
     EfficientNetLite0,
@@ -18,6 +17,7 @@ from services.encoder.backbones import (
     hub_checkpoint,
     load_backbone,
 )
+from services.encoder.config import EncoderConfig
 from services.encoder.encoder import MultimodalEncoder
 
 # a few names of torchvision's shufflenet_v2_x1_0 / alexnet state dicts

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from common.config import EncoderConfig
 from services.encoder.backbones import EfficientNetLite0, load_backbone, load_state_dict_file, packaged_weights
+from services.encoder.config import EncoderConfig
 from services.encoder.encoder import MultimodalEncoder
 
 NORDLAND = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "nordland_trimmed"

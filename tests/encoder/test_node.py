@@ -8,9 +8,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.config import PoseidonConfig
 from common.messages import Header, Image, Message, NeocortexSdr, RangeImageBeam
 from common.node import run_offline
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
 from services.encoder.encoder import MultimodalEncoder
 from services.encoder.node import EncoderNode
 
@@ -71,7 +72,7 @@ def run(config: PoseidonConfig, encoder: MultimodalEncoder, mode: str = "union",
         **kw: Any) -> tuple[EncoderNode, list[NeocortexSdr]]:
     cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"fusion_mode": mode})})
     # a fresh encoder per run (the running embedding statistics are state), sharing the backbone
-    node = EncoderNode(cfg, encoder=MultimodalEncoder(cfg.encoder, backbone=encoder.backbone))
+    node = build_node("encoder", cfg, encoder=MultimodalEncoder(cfg.encoder, backbone=encoder.backbone))
     out = run_offline(node, stream(**kw))
     sdrs: list[NeocortexSdr] = []
     for k, m in out:
@@ -151,7 +152,7 @@ def test_single_modality_and_and_modes(config: PoseidonConfig, encoder: Multimod
 
 def test_sonar_topic_from_config(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_topic": "sonar_seaking"})})
-    node = EncoderNode(cfg, encoder=encoder)
+    node = build_node("encoder", cfg, encoder=encoder)
     assert node.inputs == ("camera/image_raw", "sonar_seaking")
     out = run_offline(node, [("sonar_seaking", ping(0.0, 0)), ("camera/image_raw", frame(0.1, 0))])
     first = out[0][1]
@@ -175,9 +176,9 @@ def test_image_to_rgb_encodings() -> None:
 def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config: PoseidonConfig, encoder: MultimodalEncoder, caplog: pytest.LogCaptureFixture) -> None:
     cfg = config.model_copy(update={"htm": config.htm.model_copy(update={"state_path": "state/htm.npz"})})
     with caplog.at_level("WARNING", logger="services.encoder.node"):
-        node = EncoderNode(cfg, encoder=encoder)
+        node = build_node("encoder", cfg, encoder=encoder)
     assert node.counters["embedding_norm_not_persisted"] == 1 and "embedding_norm_path" in caplog.text
-    assert "embedding_norm_not_persisted" not in EncoderNode(config, encoder=encoder).counters
+    assert "embedding_norm_not_persisted" not in build_node("encoder", config, encoder=encoder).counters
 
 
 def test_sonar_is_re_encoded_after_enough_sweep(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:

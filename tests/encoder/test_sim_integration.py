@@ -7,11 +7,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.config import PoseidonConfig
 from common.mcap_io import read_messages
 from common.node import run_offline
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
 from services.encoder.encoder import MultimodalEncoder
-from services.encoder.node import EncoderNode
 
 sim = pytest.importorskip("missions.sim.mission")
 
@@ -33,7 +33,7 @@ def test_sim_mission_every_frame_encoded_and_ros_form_identical(recording: Path,
         encoder = MultimodalEncoder(cfg.encoder, backbone=encoder.backbone if encoder else None)
         msgs = [(m.key, m.message()) for m in read_messages(recording, keys=["camera/image_raw", topic])]
         frames = [m for k, m in msgs if k == "camera/image_raw"]
-        out: list[Any] = [m for _, m in run_offline(EncoderNode(cfg, encoder=encoder), msgs)]
+        out: list[Any] = [m for _, m in run_offline(build_node("encoder", cfg, encoder=encoder), msgs)]
         assert [o.header.stamp for o in out] == [f.header.stamp for f in frames]
         # after the first beams, every frame carries both modalities
         assert sum(len(o.modalities) == 2 for o in out) >= len(out) - 1

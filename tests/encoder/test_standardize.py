@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.config import EncoderConfig
+from launcher.services import build_node
+from services.encoder.config import EncoderConfig
 from services.encoder.lsbh import LsbhEncoder, make_projection
 from services.encoder.standardize import EmbeddingStandardizer, StandardizerError, norm_path
 
@@ -119,11 +120,10 @@ def test_statistics_persist_and_reload(tmp_path: Path) -> None:
 
 
 def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
-    from common.config import PoseidonConfig
     from common.messages import Header, Image
     from common.node import run_offline
+    from launcher.config import PoseidonConfig
     from services.encoder.encoder import MultimodalEncoder
-    from services.encoder.node import EncoderNode
 
     enc = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 1,
            "torch_threads": 1, "embedding_norm_warmup": 100,
@@ -134,7 +134,7 @@ def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
                                        width=16, encoding="rgb8",
                                        data=rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)))
             for i in range(4)]
-    out = run_offline(EncoderNode(cfg, MultimodalEncoder(cfg.encoder)), msgs)
+    out = run_offline(build_node("encoder", cfg, encoder=MultimodalEncoder(cfg.encoder)), msgs)
     assert len(out) == 4
     st = EmbeddingStandardizer(112, "running", warmup=100, path=tmp_path / "n_efficientnet_lite0_camera.npz")
     assert st.count == 4 and not st.frozen  # mid warm-up state saved at the end, continued next time

@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 
-from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import (
     ExperienceEvent,
@@ -41,6 +40,7 @@ from common.messages import (
     Odometry,
     RevisitTruth,
 )
+from launcher.config import PoseidonConfig
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS

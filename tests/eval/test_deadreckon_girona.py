@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from common.config import load_config
 from eval.deadreckon import read_cone_passes, run_deadreckon
+from launcher.config import load_config
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "girona_caves"
 PRESET = Path(__file__).resolve().parents[2] / "services" / "robot_state" / "presets" / "girona_linkquest.yaml"

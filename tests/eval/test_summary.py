@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import Header, LocalViewCells, Odometry, RevisitTruth
 from eval.summary import format_summary, summarize_run
+from launcher.config import PoseidonConfig
 
 
 def _pose(i, x):

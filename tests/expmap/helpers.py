@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from common.config import ExpMapConfig
+from services.expmap.config import ExpMapConfig
 from services.expmap.graph import EventResult, ExperienceMap
 
 SEC = 1_000_000_000

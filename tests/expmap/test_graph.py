@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.config import ExpMapConfig
+from services.expmap.config import ExpMapConfig
 from services.expmap.graph import ExperienceMap, pc_distance_cells, quickest_path
 from tests.expmap.helpers import SEC, feed, line_lap, loop_laps, pc_of, revisit, small_cfg
 

@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from common.config import ExpMapConfig
 from services.expmap.candidates import candidate_nodes, choose_match, lattice_geometry, match_scores
+from services.expmap.config import ExpMapConfig
 from services.expmap.loop_policy import LoopEdges, loop_displacement
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.storage import ColumnStore

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from common.codec import decode, encode
-from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import (
     ExperienceEvent,
@@ -24,6 +23,8 @@ from common.messages import (
     PoseStamped,
 )
 from common.node import run_offline
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
 from services.expmap.graph import ExperienceMap as Graph
 from services.expmap.node import ExpMapNode
 from services.expmap.path import main as path_main
@@ -62,7 +63,7 @@ def test_every_experience_image_carries_its_event_header() -> None:
               event(3, 3000 * MS),         # nearest frames 2.0 and 4.0 s: beyond 0.75 s -> no image
               event(4, 3300 * MS),         # 4.0 is 0.7 s later: within the window
               event(5, 4500 * MS)]         # after the last frame: decided at the end of the inputs
-    node = ExpMapNode(PoseidonConfig())
+    node = build_node("expmap", PoseidonConfig())
     out = run_offline(node, [("camera/image_raw", f) for f in frames] + [("experience_event", e) for e in events])
     imgs = outputs(out, "experience_image")
     by_seq = {m.header.seq: m for m in imgs}
@@ -81,7 +82,7 @@ def test_every_experience_image_carries_its_event_header() -> None:
 
 
 def test_watermark_is_held_until_the_image_is_decided() -> None:
-    node = ExpMapNode(PoseidonConfig())
+    node = build_node("expmap", PoseidonConfig())
     node.process("camera/image_raw", frame(0, 0))
     node.process("experience_event", event(0, 100 * MS))
     assert node.take_outbox() == []
@@ -95,7 +96,7 @@ def test_watermark_is_held_until_the_image_is_decided() -> None:
 def test_event_without_camera_when_images_are_off() -> None:
     cfg = PoseidonConfig()
     cfg.expmap.publish_experience_image = False
-    node = ExpMapNode(cfg)
+    node = build_node("expmap", cfg)
     assert "camera/image_raw" not in node.inputs
     out = run_offline(node, [("camera/image_raw", frame(0, 0)), ("experience_event", event(0, 0))])
     assert outputs(out, "experience_image") == [] and node.counters["events"] == 1
@@ -115,7 +116,7 @@ def test_map_cadence_and_final_map_equal_the_core() -> None:
     events, _ = loop_laps(3)
     cfg = PoseidonConfig()
     cfg.expmap.map_publish_every = 200
-    node = ExpMapNode(cfg)
+    node = build_node("expmap", cfg)
     out = run_offline(node, stream(events))
     core = Graph(cfg.expmap)
     for t, lvc, pc, odom in events:
@@ -145,12 +146,12 @@ def test_dead_reckoning_decimation() -> None:
     cfg = PoseidonConfig()
     cfg.expmap.dead_reckoning_period_sec = 0.5
     msgs = [("Odometry", odometry(i, i * 100 * MS, (i, 0, 0), 0.0)) for i in range(20)]
-    out = run_offline(ExpMapNode(cfg), msgs)
+    out = run_offline(build_node("expmap", cfg), msgs)
     assert [m.header.stamp for _k, m in out] == [0, 500 * MS, 1000 * MS, 1500 * MS]
 
 
 def test_invalid_event_is_counted_and_skipped() -> None:
-    node = ExpMapNode(PoseidonConfig())
+    node = build_node("expmap", PoseidonConfig())
     run_offline(node, [("experience_event", event(0, 0)),
                        ("experience_event", event(1, SEC, odom=(float("nan"), 0.0, 0.0))),
                        ("experience_event", event(2, 2 * SEC, odom=(1.0, 0.0, 0.0)))])
@@ -161,7 +162,7 @@ def test_invalid_event_is_counted_and_skipped() -> None:
 def test_two_sessions_with_map_path_equal_one_run(tmp_path: Path) -> None:
     events, _ = loop_laps(3)
     cfg = PoseidonConfig()
-    one = ExpMapNode(cfg)
+    one = build_node("expmap", cfg)
     final_one = outputs(run_offline(one, stream(events, with_odometry=False)), "map")[-1]
     # split where no correction is pending (the end of a session settles it)
     probe = Graph(cfg.expmap)
@@ -173,8 +174,8 @@ def test_two_sessions_with_map_path_equal_one_run(tmp_path: Path) -> None:
             break
     assert split is not None
     cfg.expmap.map_path = str(tmp_path / "cave.npz")
-    run_offline(ExpMapNode(cfg), stream(events[:split], with_odometry=False))
-    second = ExpMapNode(cfg)
+    run_offline(build_node("expmap", cfg), stream(events[:split], with_odometry=False))
+    second = build_node("expmap", cfg)
     assert second.graph.n_nodes == split
     msgs = [(k, m) for k, m in stream(events, with_odometry=False)][split:]
     final_two = outputs(run_offline(second, msgs), "map")[-1]
@@ -185,7 +186,7 @@ def test_poseidon_path_on_a_map_file_and_a_recording(tmp_path: Path, capsys: pyt
     events, _ = loop_laps(2)
     cfg = PoseidonConfig()
     cfg.expmap.map_path = str(tmp_path / "m.npz")
-    out = run_offline(ExpMapNode(cfg), stream(events, with_odometry=False))
+    out = run_offline(build_node("expmap", cfg), stream(events, with_odometry=False))
     assert path_main([cfg.expmap.map_path, "--from", "5", "--to", "310", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     # back to node 1, the loop edge 1 <-> 301 (0 s), then forward: 4 + 9 edges of 0.5 s
@@ -231,8 +232,8 @@ def test_laser_scans_make_a_scan_graph_map() -> None:
                              odom_position=[float(o[0]), float(o[1]), 0.0], odom_yaw=float(o[2]), gate="off",
                              vpr_count=1)
         msgs.append(("experience_event", ev))
-    node = ExpMapNode(cfg)
-    assert "scan" in ExpMapNode.io_keys(cfg)[0]
+    node = build_node("expmap", cfg)
+    assert "scan" in ExpMapNode.io_keys(cfg.expmap)[0]
     out = run_offline(node, msgs)
     assert isinstance(node.graph, ScanGraph)
     final = outputs(out, "map")[-1]
@@ -250,7 +251,7 @@ def test_laser_scan_without_scan_graph_is_a_configuration_error() -> None:
 
     cfg = PoseidonConfig().model_copy(deep=True)
     cfg.expmap.scan_topic = "scan"
-    node = ExpMapNode(cfg)
+    node = build_node("expmap", cfg)
     node.process("Odometry", odometry(0, 1, (0.0, 0.0, 0.0), 0.0))
     scan = LaserScan(header=Header(seq=0, stamp=2, frame_id="laser"), angle_min=-1.0, angle_max=1.0,
                      angle_increment=1.0, range_min=0.0, range_max=10.0, ranges=np.ones(3, np.float32),
@@ -272,7 +273,7 @@ def test_laser_sensor_offset_places_returns_in_the_robot_frame() -> None:
     cfg.expmap.publish_experience_image = False
     cfg.expmap.scan_graph.sensor_offset = [0.5, 0.0, 90.0]
     cfg.expmap.scan_graph.min_points = 3
-    node = ExpMapNode(cfg)
+    node = build_node("expmap", cfg)
     node.process("Odometry", odometry(0, 10, (2.0, 3.0, 0.0), math.pi / 2))
     scan = LaserScan(header=Header(seq=0, stamp=20, frame_id="laser"), angle_min=0.0, angle_max=0.0,
                      angle_increment=0.0, range_min=0.0, range_max=10.0, ranges=np.array([1.0], np.float32),

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.config import ExpMapConfig
+from services.expmap.config import ExpMapConfig
 from services.expmap.graph import EventResult, ExperienceMap
 from services.expmap.scans import SweepBuffer, echo_range, register_sweeps
 from tests.expmap.helpers import SEC, pc_of, small_cfg

@@ -1,8 +1,8 @@
 """Self-calibrated gates (issue 17): RunningQuantile, the sequence match's F1 checks, the override."""
 import numpy as np
 
-from common.config import HtmConfig
 from services.htm.calibrate import RunningQuantile
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 
 L = 2048

@@ -1,10 +1,11 @@
 """sv_require_multimodal (Table 4.1): per-modality validation of an accepted LVC match."""
 import numpy as np
 
-from common.config import HtmConfig, PoseidonConfig
 from common.messages import Header, NeocortexSdr, Sdr
 from common.node import run_offline
-from services.htm.node import HtmNode
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 
 L = 2048
@@ -59,7 +60,7 @@ def test_node_counts_multimodal_rejections():
                 Sdr(header=h, modality="sonar", size=L, active=sonar.astype(np.uint32))]
         fused = Sdr(header=h, modality="fused", size=L, active=np.union1d(cam_a, sonar).astype(np.uint32))
         msgs.append(("neocortex/sdr", NeocortexSdr(header=h, modalities=mods, fused=fused, fusion_mode="union")))
-    node = HtmNode(PoseidonConfig(htm=_cfg(True)))
+    node = build_node("htm", PoseidonConfig(htm=_cfg(True)))
     out = run_offline(node, msgs)
     assert [m.most_active_cell for _, m in out] == [0, 1]
     assert node.counters == {"lvc_created": 2, "multimodal_rejections": 1}

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from common.config import HtmConfig
 from services.htm.chains import CHAINS, chain_config
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 from services.htm.spatial_pooler import SpatialPooler
 from services.htm.tm_match import TmFrameIndex
@@ -97,7 +97,7 @@ def test_chains_and_state_round_trip(tmp_path):
 
 
 def test_the_sp_tm_preset_is_the_sp_tm_chain():
-    from common.config import load_config
+    from launcher.config import load_config
     from tests.conftest import REPO
     cfg = load_config(REPO / "services" / "htm" / "presets" / "sp_tm.yaml")
     want = chain_config(load_config(None).htm, "sp_tm")

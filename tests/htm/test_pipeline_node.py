@@ -1,10 +1,11 @@
 import numpy as np
 import pytest
 
-from common.config import HtmConfig, PoseidonConfig
 from common.messages import Header, NeocortexSdr, Sdr
 from common.node import run_offline
-from services.htm.node import HtmNode
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm, descriptor_similarity
 
 L = 2048
@@ -135,7 +136,7 @@ def test_node_publishes_every_frame_with_its_header_and_persists(tmp_path):
             frames.append(noisy(rng, fused.astype(np.uint32), 0.02))
     msgs = _messages(frames)
     cfg = PoseidonConfig(htm=TmConfig())
-    out = run_offline(HtmNode(cfg), msgs)
+    out = run_offline(build_node("htm", cfg), msgs)
     assert [k for k, _ in out] == ["local_view_cells"] * len(frames)
     for i, ((_, m), (_, src)) in enumerate(zip(out, msgs)):
         assert m.header.seq == i and m.header.stamp == src.header.stamp and m.header.frame_id == "base_link"
@@ -145,9 +146,9 @@ def test_node_publishes_every_frame_with_its_header_and_persists(tmp_path):
     # state_path: two runs over halves equal one run over everything
     state = tmp_path / "htm.npz"
     cfg_state = PoseidonConfig(htm=TmConfig(state_path=str(state)))
-    first = run_offline(HtmNode(cfg_state), msgs[:10])
+    first = run_offline(build_node("htm", cfg_state), msgs[:10])
     assert state.exists()
-    second = run_offline(HtmNode(cfg_state), msgs[10:])
+    second = run_offline(build_node("htm", cfg_state), msgs[10:])
     strip = [(m.most_active_cell, m.is_new, m.intersection, m.active_cells[0].rate) for _, m in first + second]
     assert strip == [(m.most_active_cell, m.is_new, m.intersection, m.active_cells[0].rate) for _, m in out]
 
@@ -158,7 +159,7 @@ def test_node_skips_counts_and_logs_wrong_sdr_size(caplog):
     msg = NeocortexSdr(header=h, modalities=[bad], fused=bad, fusion_mode="union")
     good = _messages([np.arange(0, 1000, 2, dtype=np.uint32)])[0][1]
     good = good.model_copy(update={"header": Header(seq=8, stamp=2, frame_id="")})
-    node = HtmNode(PoseidonConfig())
+    node = build_node("htm", PoseidonConfig())
     out = run_offline(node, [("neocortex/sdr", msg), ("neocortex/sdr", good)])
     assert len(out) == 1 and out[0][1].header.stamp == 2
     assert node.counters["sdr_wrong_size"] == 1

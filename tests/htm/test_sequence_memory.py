@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.config import HtmConfig
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 from services.htm.sequence import SequenceMatcher
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.config import HtmConfig
+from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 
 L = 2048

@@ -8,9 +8,9 @@ message type has a key expression that *includes* the message's key expression.
 import pytest
 import zenoh
 
-from common.config import load_config
 from launcher import acl
 from launcher.certs import USERS
+from launcher.config import load_config
 from launcher.run import node_io
 from services.player.player import SOURCE_KEYS
 from tests.conftest import REPO

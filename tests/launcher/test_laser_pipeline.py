@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.config import load_config
 from eval.corrected import read_tum
 from eval.run_eval import evaluate_run
+from launcher.config import load_config
 from launcher.run import run_embedded
 from missions.export.cli import main as export_main
 from missions.importers.cli import main as import_main

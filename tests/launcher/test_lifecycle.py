@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from common.config import load_config
 from common.node import ServiceNode
+from launcher.config import load_config
 from launcher.run import node_io, plan_run
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO

@@ -101,7 +101,7 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     intruders' subscriptions would see a leak.
     """
     pytest.importorskip("cryptography")
-    from common.config import load_config
+    from launcher.config import load_config
     from launcher.run import plan_run, run_embedded
     from tests.common.recordings import payloads_by_key
 

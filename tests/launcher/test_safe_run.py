@@ -8,8 +8,9 @@ import time
 
 import pytest
 
-from common.config import ConfigError, PoseidonConfig, load_config
+from common.config import ConfigError
 from common.mcap_io import read_messages
+from launcher.config import PoseidonConfig, load_config
 from launcher.run import RunFailed, ServiceStartError, run_embedded
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO

@@ -1,9 +1,9 @@
 """The one factory of a run's workers (launcher.services.build_worker), used by both launchers."""
 import pytest
 
-from common.config import PoseidonConfig
 from common.runtime import NodeRunner
 from common.worker import Sink, Source, Worker
+from launcher.config import PoseidonConfig
 from launcher.services import UnknownService, WorkerSpec, build_node, build_worker
 from services.player.player import Player
 from services.recorder.recorder import Recorder
@@ -61,3 +61,24 @@ def test_player_and_recorder_need_their_files(bus, config):
         build_worker("player", config, bus)
     with pytest.raises(ValueError, match="output file"):
         build_worker("recorder", config, bus)
+
+
+def test_each_node_is_built_from_its_own_section_and_explicit_cross_section_values():
+    """Item 4 of the architecture: a node sees its own section; what it needs from another
+    section arrives as a named argument filled in by the launcher's wiring."""
+    from launcher.config import load_config
+    from launcher.services import WIRING
+
+    cfg = load_config(overrides=["posecells.distance_between_neurons=[0.5,0.25,0.2]", "sync.sync_stale_sec=0.4",
+                                 "robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1", "encoder.cnn_backbone=efficientnet_lite0",
+                                 "encoder.untrained=true"])
+    for name, wiring in WIRING.items():
+        node = build_node(name, cfg)
+        assert node.config is wiring.section(cfg), name
+        assert not isinstance(node.config, PoseidonConfig), name
+    expmap = build_node("expmap", cfg)
+    assert expmap.graph.lattice_spacing == (0.5, 0.25, 0.2)        # from posecells, explicitly
+    assert expmap.images.slop_ns == round(min(0.4, cfg.expmap.image_sync_slop) * 1e9)  # from sync, explicitly
+    assert expmap.sweeps.head_sign == 1.0                          # from robot_state, explicitly
+    encoder = build_node("encoder", cfg)
+    assert encoder.core.clock.stale_ns == 400_000_000              # from sync, explicitly

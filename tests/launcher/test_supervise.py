@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 
 from common.codec import encode
-from common.config import load_config
 from common.mcap_io import read_messages
 from common.ordering import EventTimeMerger
 from common.resume import load_checkpoint, save_checkpoint
+from launcher.config import load_config
 from launcher.services import build_node
 from missions.sim.cli import main as sim_main
 from tests.common.recordings import payloads_by_key

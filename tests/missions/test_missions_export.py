@@ -165,7 +165,7 @@ def test_vendor_types_carried_raw_and_written_back(tmp_path: Path, ros2: bool) -
 
 def test_player_replays_and_recorder_records_raw_keys(tmp_path: Path) -> None:
     """A raw key goes through player -> bus -> recorder unchanged (no registration needed)."""
-    from common.config import PoseidonConfig
+    from launcher.config import PoseidonConfig
     from launcher.run import run_embedded
 
     src = tmp_path / "v.bag"

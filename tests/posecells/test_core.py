@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from common.config import PoseidonConfig
+from launcher.config import PoseidonConfig
 from services.posecells.core import OdometryIntegrator, PoseCellsCore, wrap_angle
 
 

@@ -1,7 +1,7 @@
 """VPR Guard (Eqs. 4.11-4.14, worked example of Section 4.2.3) and the motion gate."""
 import pytest
 
-from common.config import VprGuardConfig
+from services.posecells.config import VprGuardConfig
 from services.posecells.gates import EventGate, MotionGate, VprGuard
 
 

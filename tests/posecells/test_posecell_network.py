@@ -7,7 +7,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from common.config import PoseCellsConfig
+from services.posecells.config import PoseCellsConfig
 from services.posecells.network import PoseCellNetwork, gaussian_kernel, wrapped_centroid_cells
 
 DIMS = (15, 15, 15, 8)

@@ -7,10 +7,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.config import PoseidonConfig
 from common.messages import ExperienceEvent, Header, LocalViewCell, LocalViewCells, Message, Odometry
 from common.node import run_offline
-from services.posecells.node import PoseCellsNode, yaw_of_quaternion
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
+from services.posecells.node import yaw_of_quaternion
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS
@@ -77,7 +78,7 @@ def latest_odom(msgs: list[tuple[str, Message]], stamp: int) -> Odometry | None:
 
 def test_events_only_when_the_gates_pass_with_the_lvc_headers() -> None:
     msgs = stream()
-    node = PoseCellsNode(config())
+    node = build_node("posecells", config())
     out = run_offline(node, msgs)
     assert all(k == "experience_event" for k, _ in out)
     evs = events(out)
@@ -117,8 +118,8 @@ def test_events_only_when_the_gates_pass_with_the_lvc_headers() -> None:
 
 def test_guard_off_gives_more_events_than_on_and_leak_fires_on_unstable_ids() -> None:
     msgs = stream(ids=lambda k: k)  # every frame a different id: never 3 repetitions
-    on = run_offline(PoseCellsNode(config(vpr_leak_rate=20)), msgs)
-    off_node = PoseCellsNode(config(require_vpr_for_event=False))
+    on = run_offline(build_node("posecells", config(vpr_leak_rate=20)), msgs)
+    off_node = build_node("posecells", config(require_vpr_for_event=False))
     off = run_offline(off_node, msgs)
     ev_on, ev_off = events(on), events(off)
     assert ev_on and all(e.gate == "leak" and e.vpr_count == 1 for e in ev_on)
@@ -140,7 +141,7 @@ def msgs_of(msgs: list[tuple[str, Message]], key: str) -> list[Any]:
 def test_pose_cell_centroid_follows_the_odometry_modulo_the_lattice() -> None:
     # distinct ids: no LVC is ever seen twice, so nothing is injected; guard off for many events
     msgs = stream(seconds=90.0, ids=lambda k: k)
-    evs = events(run_offline(PoseCellsNode(config(require_vpr_for_event=False)), msgs))
+    evs = events(run_offline(build_node("posecells", config(require_vpr_for_event=False)), msgs))
     assert len(evs) > 50
     for e in evs:
         for axis in range(3):
@@ -154,7 +155,7 @@ def test_pose_cell_centroid_follows_the_odometry_modulo_the_lattice() -> None:
 def test_odometry_first_at_equal_stamps() -> None:
     stamp = T0 + 5 * NS
     msgs = [("local_view_cells", lvc(0, stamp, 3)), ("Odometry", odom(0, stamp, (1.0, 2.0, -3.0), 0.5))]
-    out = run_offline(PoseCellsNode(config(require_vpr_for_event=False)), msgs)
+    out = run_offline(build_node("posecells", config(require_vpr_for_event=False)), msgs)
     (e,) = events(out)
     assert e.odom_position == [1.0, 2.0, -3.0] and e.header.stamp == stamp
     # the packet starts at the odometry pose modulo the 1.5 m lattice
@@ -163,7 +164,7 @@ def test_odometry_first_at_equal_stamps() -> None:
 
 def test_frames_before_any_odometry_make_no_event_but_fill_the_window() -> None:
     msgs = stream(seconds=10.0, ids=lambda k: 7, odom_delay_s=2.0)
-    node = PoseCellsNode(config())
+    node = build_node("posecells", config())
     evs = events(run_offline(node, msgs))
     assert node.counters["lvc_before_odometry"] == 8
     assert evs and evs[0].header.stamp >= T0 + 2 * NS
@@ -176,14 +177,14 @@ def test_odometry_jump_is_a_discontinuity_not_motion() -> None:
             ("Odometry", odom(2, T0 + 2 * NS // 10, (100.0, 50.0, 0.0), 0.0)),
             ("Odometry", odom(3, T0 + 3 * NS // 10, (100.03, 50.0, 0.0), 0.0)),
             ("local_view_cells", lvc(0, T0 + 4 * NS // 10, 1))]
-    node = PoseCellsNode(config(require_vpr_for_event=False))
+    node = build_node("posecells", config(require_vpr_for_event=False))
     (e,) = events(run_offline(node, msgs))
     assert node.counters["odometry_discontinuities"] == 1
     assert e.pc_centroid[0] == pytest.approx(0.05, abs=1e-6)  # 2 cm + 3 cm, the jump ignored
 
 
 def test_multiple_active_lvcs_by_rate_and_top_k() -> None:
-    node = PoseCellsNode(config())
+    node = build_node("posecells", config())
     msg = lvc(0, T0, 5, extra=[(9, 0.5), (2, 0.02), (4, 0.7), (8, 0.1), (6, 0.09)])
     core = node.core
     assert core.active_lvcs(msg.most_active_cell, msg.active_cells) == [5, 4, 9, 8]  # top_k 4, rate >= 0.03
@@ -194,12 +195,12 @@ def test_multiple_active_lvcs_by_rate_and_top_k() -> None:
 def test_save_load_continue_equals_an_uninterrupted_run(tmp_path: Path) -> None:
     msgs = stream(seconds=40.0, ids=lambda k: (k // 3) % 9)  # revisits: injection and learning
     split = T0 + 17 * NS + NS // 3
-    whole = run_offline(PoseCellsNode(config()), msgs)
+    whole = run_offline(build_node("posecells", config()), msgs)
     cfg = config()
     cfg.posecells.state_path = str(tmp_path / "pc" / "state.npz")
-    first = run_offline(PoseCellsNode(cfg), [m for m in msgs if m[1].header.stamp < split])
+    first = run_offline(build_node("posecells", cfg), [m for m in msgs if m[1].header.stamp < split])
     assert (tmp_path / "pc" / "state.npz").exists()
-    second_node = PoseCellsNode(cfg)
+    second_node = build_node("posecells", cfg)
     assert len(second_node.net.beta) > 0
     second = run_offline(second_node, [m for m in msgs if m[1].header.stamp >= split])
     joined = events(first) + events(second)
@@ -217,14 +218,14 @@ def test_state_file_of_another_kind_is_a_clear_error(tmp_path: Path) -> None:
     cfg = config()
     cfg.posecells.state_path = str(bad)
     with pytest.raises(ValueError, match="other.npz"):
-        PoseCellsNode(cfg)
+        build_node("posecells", cfg)
 
 
 def test_event_messages_validate_and_roundtrip_through_the_codec() -> None:
     from common.codec import decode, encode
 
     msgs = stream(seconds=8.0, ids=lambda k: k)
-    evs = events(run_offline(PoseCellsNode(config(require_vpr_for_event=False)), msgs))
+    evs = events(run_offline(build_node("posecells", config(require_vpr_for_event=False)), msgs))
     assert evs
     for e in evs:
         assert isinstance(e, ExperienceEvent)

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.config import ConfigError, load_config
+from common.config import ConfigError
+from launcher.config import load_config
 from services.ratslam_lv.matcher import LocalViewMatcher, area_downsample, grey, patch_normalise
 
 H, W = 288, 384

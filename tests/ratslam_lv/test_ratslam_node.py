@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.config import load_config
 from common.mcap_io import RecordingWriter, read_messages
 from common.messages import Header, Image, LocalViewCells
 from common.node import run_offline
-from launcher.services import available_services, node_class
+from launcher.config import load_config
+from launcher.services import available_services, build_node, node_class
 from services.ratslam_lv.node import RatSlamViewNode
 
 T0 = 1_700_000_000_000_000_000
@@ -35,7 +35,7 @@ def _frames(scenes: list[int], key: str = "camera/image_raw") -> list[tuple[str,
 
 
 def test_one_message_per_frame_with_the_frame_header() -> None:
-    node = RatSlamViewNode(load_config())
+    node = build_node("ratslam_lv", load_config())
     frames = _frames([1, 2, 1, 3, 2])
     out = run_offline(node, frames)
     assert [k for k, _ in out] == ["local_view_cells"] * 5
@@ -53,7 +53,7 @@ def test_one_message_per_frame_with_the_frame_header() -> None:
 
 
 def test_unusable_frame_is_counted_and_skipped() -> None:
-    node = RatSlamViewNode(load_config())
+    node = build_node("ratslam_lv", load_config())
     out = run_offline(node, _frames([1, -1, 1]))
     lvcs: list[Any] = [m for _, m in out]
     assert [m.most_active_cell for m in lvcs] == [0, 0]
@@ -62,8 +62,8 @@ def test_unusable_frame_is_counted_and_skipped() -> None:
 
 def test_image_topic_is_configurable() -> None:
     cfg = load_config(overrides=["ratslam_lv.image_topic=camera/left"])
-    assert RatSlamViewNode.io_keys(cfg) == (("camera/left",), ("local_view_cells",))
-    node = RatSlamViewNode(cfg)
+    assert RatSlamViewNode.io_keys(cfg.ratslam_lv) == (("camera/left",), ("local_view_cells",))
+    node = build_node("ratslam_lv", cfg)
     assert len(run_offline(node, _frames([1, 2], key="camera/left"))) == 2
 
 

@@ -7,9 +7,9 @@ import math
 import numpy as np
 from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
-from common.config import load_config
 from common.node import run_offline
-from services.robot_state.node import RobotStateNode
+from launcher.config import load_config
+from launcher.services import build_node
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 U = 0.5  # m/s forward, heading 0 -> north
@@ -45,7 +45,7 @@ def test_nan_and_inf_are_rejected_and_counted():
     msgs = _replace(msgs, "depth_sensor", 51, depth(T0 + int(5.1 * NS), 51, -math.inf))
     msgs = _replace(msgs, "imu_adis_ros", 120, imu(T0 + 6 * NS, 120, (0.0, 0.0, math.nan), (0.0, 0.0, 0.0)))
     msgs = _replace(msgs, "imu_adis_ros", 121, imu(T0 + int(6.05 * NS), 121, (0.0, 0.0, 0.0), (math.inf, 0.0, 0.0)))
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     assert node.counters["dvl_nonfinite"] == 2
     assert node.counters["depth_nonfinite"] == 2
@@ -63,7 +63,7 @@ def test_invalid_flag_few_beams_and_too_fast_are_rejected():
     msgs = _replace(msgs, "dvl_linkquest", 30, dvl(T0 + 6 * NS, 30, [9.0, 9.0, 0.0], flag=0))
     msgs = _replace(msgs, "dvl_linkquest", 31, dvl(T0 + int(6.2 * NS), 31, [9.0, 0.0, 0.0], good=(1, 1, 0, 0)))
     msgs = _replace(msgs, "dvl_linkquest", 32, dvl(T0 + int(6.4 * NS), 32, [3.5, 0.0, 0.0]))
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     assert node.counters["dvl_invalid_flag"] == 1
     assert node.counters["dvl_few_beams"] == 1
@@ -75,7 +75,7 @@ def test_invalid_flag_few_beams_and_too_fast_are_rejected():
 
 def test_three_good_beams_are_enough_by_default():
     msgs = _replace(_straight(10), "dvl_linkquest", 10, dvl(T0 + 2 * NS, 10, [U, 0.0, 0.0], good=(0, 1, 1, 1)))
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     run_offline(node, msgs)
     assert "dvl_few_beams" not in node.counters
 
@@ -84,7 +84,7 @@ def test_timestamp_backwards_offline_is_rejected():
     """A DVL record stamped 1.5 s too early: the event-time merge moves it, the seq betrays it."""
     msgs = _straight()
     msgs = _replace(msgs, "dvl_linkquest", 50, dvl(T0 + int(8.5 * NS), 50, [U, 0.0, 0.0]))
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     assert node.counters["timestamp_backwards"] >= 1
     assert node.counters["dvl_timestamp_backwards"] == node.counters["timestamp_backwards"]
@@ -96,7 +96,7 @@ def test_timestamp_backwards_offline_is_rejected():
 def test_timestamp_backwards_and_late_live():
     """Records delivered out of order by a live transport: backwards on its own stream is rejected,
     older than the state but in order on its stream is applied now and counted as late."""
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     node.process("imu_adis_ros", imu(T0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
     node.process("dvl_linkquest", dvl(T0, 0, [U, 0.0, 0.0]))
     node.process("depth_sensor", depth(T0, 0, 5.0))
@@ -123,7 +123,7 @@ def test_gap_of_30s_is_bridged_flagged_and_bounded():
     cfg = load_config(overrides=NED)
     rs = cfg.robot_state
     msgs = _with_gap(_straight(90.0), 30.0, 60.0)  # every sensor silent for 30 s
-    node = RobotStateNode(cfg)
+    node = build_node("robot_state", cfg)
     out = run_offline(node, msgs)
     assert node.counters["gap"] == 1
     odo = _odometry(out)
@@ -148,7 +148,7 @@ def test_long_silence_does_not_flood_the_output():
     msgs = _with_gap(_straight(40.0), 5.0, 3605.0)
     msgs += [(k, m.model_copy(update={"header": m.header.model_copy(update={"stamp": m.header.stamp + 3600 * NS})}))
              for k, m in _straight(40.0) if m.header.stamp > T0 + 3605 * NS - 3600 * NS]
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     assert node.counters["gap"] == 1
     assert len(_odometry(out)) < 50 + 300 + 400 + 10
@@ -158,7 +158,7 @@ def test_dvl_dropout_is_flagged_and_velocity_decays():
     cfg = load_config(overrides=NED)
     msgs = [(k, m) for k, m in _straight(60.0)
             if not (k == "dvl_linkquest" and T0 + 20 * NS < m.header.stamp < T0 + 40 * NS)]
-    node = RobotStateNode(cfg)
+    node = build_node("robot_state", cfg)
     out = run_offline(node, msgs)
     odo = _odometry(out)
     t, p = odometry_positions(out)
@@ -175,7 +175,7 @@ def test_imu_dropout_falls_back_to_dvl_attitude():
     msgs = mission(30, lambda t: (U, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0),
                    lambda t: 5.0, dvl_attitude=True)
     msgs = [(k, m) for k, m in msgs if not (k == "imu_adis_ros" and m.header.stamp > T0 + 10 * NS)]
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     first = [m.status for m in _odometry(out)]
     assert "attitude_imu" in first[50] and "imu_absent" not in first[50]
@@ -188,7 +188,7 @@ def test_innovation_gate_rejects_spikes_and_reinitialises_on_a_real_step():
     cfg = load_config(overrides=NED + ["robot_state.dvl_gate_chi2=16.27"])
     msgs = _straight(30.0)
     msgs = _replace(msgs, "dvl_linkquest", 40, dvl(T0 + 8 * NS, 40, [1.9, 0.0, 0.0]))  # one spike
-    node = RobotStateNode(cfg)
+    node = build_node("robot_state", cfg)
     out = run_offline(node, msgs)
     assert node.counters["dvl_outlier"] == 1 and "dvl_reinit" not in node.counters
     assert "dvl_outlier" in _statuses(out)
@@ -197,7 +197,7 @@ def test_innovation_gate_rejects_spikes_and_reinitialises_on_a_real_step():
     # a genuine, lasting change of speed: two rejections, then the third re-initialises
     step = mission(30, lambda t: (U if t < 10 else 1.5, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0),
                    lambda t: (0.0, 0.0, 0.0), lambda t: 5.0)
-    node = RobotStateNode(cfg)
+    node = build_node("robot_state", cfg)
     out = run_offline(node, step)
     assert node.counters["dvl_outlier"] == 2 and node.counters["dvl_reinit"] == 1
     t, p = odometry_positions(out)
@@ -208,8 +208,8 @@ def test_innovation_gate_rejects_spikes_and_reinitialises_on_a_real_step():
 def test_enu_covariance_is_the_ned_one_remapped():
     msgs = mission(20, lambda t: (0.5, 0.0, 0.0), lambda t: (0.0, 0.0, math.radians(60)),
                    lambda t: (0.0, 0.0, 0.0), lambda t: 5.0)
-    ned = _odometry(run_offline(RobotStateNode(load_config(overrides=NED)), msgs))[-1]
-    enu = _odometry(run_offline(RobotStateNode(load_config()), msgs))[-1]
+    ned = _odometry(run_offline(build_node("robot_state", load_config(overrides=NED)), msgs))[-1]
+    enu = _odometry(run_offline(build_node("robot_state", load_config()), msgs))[-1]
     a = np.array(ned.pose_covariance).reshape(6, 6)
     b = np.array(enu.pose_covariance).reshape(6, 6)
     perm = [1, 0, 2]
@@ -225,7 +225,7 @@ def test_output_watermark_is_a_promise():
     from common.ordering import EventTimeMerger
 
     msgs = _straight(10.0) + [("odometry", odom(T0 + k * NS // 4, k, [0.0, 0.0, 0.0])) for k in range(40)]
-    node = RobotStateNode(load_config())
+    node = build_node("robot_state", load_config())
     merger = EventTimeMerger(list(node.inputs))
     promised = -1
     for key, m in sorted(msgs, key=lambda km: km[1].header.stamp):

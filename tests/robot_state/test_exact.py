@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from synth import mission, odometry_positions
 
-from common.config import load_config
 from common.geometry import OutputFrame, matrix_to_euler, quaternion_to_matrix
 from common.node import run_offline
-from services.robot_state.node import RobotStateNode
+from launcher.config import load_config
+from launcher.services import build_node
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 
@@ -26,7 +26,7 @@ def test_straight_run_constant_heading(heading_deg):
     u, v = 0.5, 0.1
     msgs = mission(60, lambda t: (u, v, 0.0), lambda t: (0.0, 0.0, psi), lambda t: (0.0, 0.0, 0.0),
                    lambda t: 5.0)
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     t, p = odometry_positions(out)
     assert len(t) == 601 and t[0] == 0.0 and t[-1] == pytest.approx(60.0)
@@ -49,7 +49,7 @@ def test_pure_rotation_with_lever_arm():
     msgs = mission(40, lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, math.remainder(w * t, 2 * math.pi)),
                    lambda t: (0.0, 0.0, w), lambda t: 5.0,
                    dvl_velocity=lambda t: tuple(np.cross([0.0, 0.0, w], r)))
-    node = RobotStateNode(load_config(overrides=NED + ["robot_state.dvl_translation_m=[0.4,0.1,0.2]"]))
+    node = build_node("robot_state", load_config(overrides=NED + ["robot_state.dvl_translation_m=[0.4,0.1,0.2]"]))
     out = run_offline(node, msgs)
     t, p = odometry_positions(out)
     assert np.abs(p - [0.0, 0.0, 5.0]).max() < 1e-9
@@ -63,7 +63,7 @@ def test_dive_default_enu_output():
     u, w = 0.3, 0.2
     msgs = mission(30, lambda t: (u, 0.0, w), lambda t: (0.0, 0.0, psi), lambda t: (0.0, 0.0, 0.0),
                    lambda t: 2.0 + w * t)
-    node = RobotStateNode(load_config())
+    node = build_node("robot_state", load_config())
     out = run_offline(node, msgs)
     t, p = odometry_positions(out)
     north = east = u * t * math.sqrt(0.5)
@@ -81,7 +81,7 @@ def test_pitched_dive_uses_full_rotation():
     u = 0.5
     msgs = mission(30, lambda t: (u, 0.0, 0.0), lambda t: (0.0, th, 0.0), lambda t: (0.0, 0.0, 0.0),
                    lambda t: 3.0 - u * math.sin(th) * t)
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     t, p = odometry_positions(run_offline(node, msgs))
     expected = np.column_stack([u * math.cos(th) * t, np.zeros_like(t), 3.0 - u * math.sin(th) * t])
     assert np.abs(p - expected).max() < 1e-9
@@ -91,7 +91,7 @@ def test_dvl_attitude_fallback_without_imu():
     """No IMU stream: the DVL's heading (deg) rotates its velocity (heading 90 deg -> east)."""
     msgs = mission(20, lambda t: (0.4, 0.0, 0.0), lambda t: (0.0, 0.0, math.pi / 2), lambda t: (0.0, 0.0, 0.0),
                    lambda t: 4.0, with_imu=False, dvl_attitude=True)
-    node = RobotStateNode(load_config(overrides=NED))
+    node = build_node("robot_state", load_config(overrides=NED))
     out = run_offline(node, msgs)
     t, p = odometry_positions(out)
     assert np.abs(p - np.column_stack([np.zeros_like(t), 0.4 * t, np.full_like(t, 4.0)])).max() < 1e-9
@@ -100,9 +100,9 @@ def test_dvl_attitude_fallback_without_imu():
 
 
 def test_use_imu_false_drops_the_imu_input():
-    node = RobotStateNode(load_config(overrides=["robot_state.use_imu=false"]))
+    node = build_node("robot_state", load_config(overrides=["robot_state.use_imu=false"]))
     assert node.inputs == ("dvl_linkquest", "depth_sensor", "odometry")
-    node = RobotStateNode(load_config(overrides=["robot_state.imu_topic=imu_adis"]))
+    node = build_node("robot_state", load_config(overrides=["robot_state.imu_topic=imu_adis"]))
     assert node.inputs[0] == "imu_adis"
 
 
@@ -111,7 +111,7 @@ def test_ground_truth_relay_keeps_everything_but_seq():
     msgs = mission(2, lambda t: (0.1, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0),
                    lambda t: 1.0)
     refs = [odom(T0 + k * 250_000_000, 100 + 7 * k, [float(k), 2.0, 3.0]) for k in range(8)]
-    out = run_offline(RobotStateNode(load_config()), msgs + [("odometry", m) for m in refs])
+    out = run_offline(build_node("robot_state", load_config()), msgs + [("odometry", m) for m in refs])
     gt = [m for k, m in out if k == "ground_truth"]
     assert [m.header.seq for m in gt] == list(range(8))
     for a, b in zip(gt, refs):
@@ -122,15 +122,15 @@ def test_ground_truth_relay_keeps_everything_but_seq():
 def test_deterministic_outputs():
     msgs = mission(10, lambda t: (0.3, 0.05, 0.01), lambda t: (0.01, 0.02, 0.1 * t), lambda t: (0.0, 0.0, 0.1),
                    lambda t: 3.0 + 0.01 * t)
-    a = run_offline(RobotStateNode(load_config()), msgs)
-    b = run_offline(RobotStateNode(load_config()), list(reversed(msgs)))
+    a = run_offline(build_node("robot_state", load_config()), msgs)
+    b = run_offline(build_node("robot_state", load_config()), list(reversed(msgs)))
     assert [(k, m.model_dump()) for k, m in a] == [(k, m.model_dump()) for k, m in b]
 
 
 def test_reflection_remap_is_rejected():
     from common.config import ConfigError
     with pytest.raises(ConfigError, match="axis_remap"):
-        RobotStateNode(load_config(overrides=["robot_state.axis_remap=yxz", "robot_state.axis_sign_z=1"]))
+        build_node("robot_state", load_config(overrides=["robot_state.axis_remap=yxz", "robot_state.axis_sign_z=1"]))
 
 
 @pytest.mark.parametrize("fusion", [True, False])
@@ -147,7 +147,7 @@ def test_dvl_compass_bounds_imu_yaw_drift(fusion):
         msgs.append(("dvl_linkquest", dvl(T0 + k * NS // 2, k, [0.3, 0.0, 0.0], rpy_deg=(0.0, 0.0, 2.0))))
     for k in range(600 + 1):
         msgs.append(("depth_sensor", depth(T0 + k * NS, k, 5.0)))
-    node = RobotStateNode(load_config(overrides=NED + [f"robot_state.dvl_heading_fusion={str(fusion).lower()}"]))
+    node = build_node("robot_state", load_config(overrides=NED + [f"robot_state.dvl_heading_fusion={str(fusion).lower()}"]))
     out = run_offline(node, msgs)
     yaw_end = math.degrees(_yaws(out, OutputFrame("xyz", 1.0))[-1])
     if fusion:
@@ -163,7 +163,7 @@ def test_gyro_bias_is_estimated():
     bias = math.radians(0.05)
     msgs = mission(300, lambda t: (0.3, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, bias),
                    lambda t: 5.0, dvl_hz=2.0, depth_hz=2.0)
-    node = RobotStateNode(load_config(overrides=NED + ["robot_state.dvl_heading_fusion=false"]))
+    node = build_node("robot_state", load_config(overrides=NED + ["robot_state.dvl_heading_fusion=false"]))
     out = run_offline(node, msgs)
     assert abs(node.filter.x[13] - bias) < 0.05 * bias
     assert abs(math.degrees(_yaws(out, OutputFrame("xyz", 1.0))[-1])) < 0.01

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
-from common.config import load_config
 from common.node import run_offline
+from launcher.config import load_config
+from launcher.services import build_node
 from services.robot_state.filter import B_DVL, D_IMU
-from services.robot_state.node import RobotStateNode
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 
@@ -53,7 +53,7 @@ def _drifting_imu_with_compass(minutes: float, drift_deg_min: float, offset_deg:
 
 
 def _run(msgs, *overrides):
-    node = RobotStateNode(load_config(overrides=NED + list(overrides)))
+    node = build_node("robot_state", load_config(overrides=NED + list(overrides)))
     out = run_offline(node, msgs)
     return node, out
 

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import math
 
-from common.config import PoseidonConfig
 from common.messages import Header, Odometry
 from common.node import run_offline
+from launcher.config import PoseidonConfig
+from launcher.services import build_node
 from services.robot_state.node import RobotStateNode
 
 
@@ -22,13 +23,13 @@ def config() -> PoseidonConfig:
 
 
 def test_inputs_are_the_wheel_odometry_only():
-    ins, outs = RobotStateNode.io_keys(config())
+    ins, outs = RobotStateNode.io_keys(config().robot_state)
     assert ins == ("wheel_odometry", "odometry") and "Odometry" in outs
 
 
 def test_each_wheel_pose_is_published_with_its_stamp():
     msgs = [("wheel_odometry", wheel(k, 1_000 + 200_000_000 * k, 0.1 * k, 0.02 * k, 0.05 * k)) for k in range(5)]
-    out = run_offline(RobotStateNode(config()), msgs)
+    out = run_offline(build_node("robot_state", config()), msgs)
     odo = [m for k, m in out if k == "Odometry"]
     assert [m.header.stamp for m in odo] == [m.header.stamp for _k, m in msgs]
     assert [m.header.seq for m in odo] == list(range(5))
@@ -39,7 +40,7 @@ def test_each_wheel_pose_is_published_with_its_stamp():
 
 
 def test_a_zero_quaternion_is_counted_and_skipped():
-    node = RobotStateNode(config())
+    node = build_node("robot_state", config())
     msgs = [("wheel_odometry", wheel(0, 10, 0.0, 0.0, 0.0)),
             ("wheel_odometry", wheel(1, 20, 0.1, 0.0, 0.0, q=[0.0, 0.0, 0.0, 0.0])),
             ("wheel_odometry", wheel(2, 30, 0.2, 0.0, 0.0))]

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from common.config import PoseidonConfig
 from common.mcap_io import RecordingWriter
 from common.messages import (
     ExperienceEvent,
@@ -33,6 +32,7 @@ from common.messages import (
     RevisitTruth,
     Sdr,
 )
+from launcher.config import PoseidonConfig
 
 SIDE_M = 20.0
 PLACE_M = 2.0

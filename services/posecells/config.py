@@ -1,0 +1,70 @@
+"""The pose cells' configuration sections: the attractor (``posecells:``, Eqs. 4.15-4.19) and the VPR Guard (``vpr_guard:``, Eqs. 4.11-4.14), both run by this service.
+
+Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+wrong value fails naming its dotted field.
+"""
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import Field, model_validator
+
+from common.config import ConfigSection, check
+
+__all__ = ["PoseCellsConfig", "VprGuardConfig"]
+
+
+class PoseCellsConfig(ConfigSection):
+    number_of_neurons: list[Annotated[int, Field(ge=1, le=512)]] = Field(
+        default_factory=lambda: [15, 15, 15, 8], min_length=4, max_length=4,
+        description="x y z yaw cells (each 1..512)")
+    distance_between_neurons: list[Annotated[float, Field(gt=0, allow_inf_nan=False)]] = Field(
+        default_factory=lambda: [0.1, 0.1, 0.1], min_length=3, max_length=3, description="m, each > 0")
+    top_k: int = Field(4, ge=1, description="at most this many LVCs of a local_view_cells message are active "
+                       "(V_l = 1 in Eq. 4.19), by rate; the most active one always")
+    min_exc: float = Field(0.03, ge=0, description="an LVC other than the most active needs rate >= this to be active")
+    excitation_sigma_cells: float = Field(1.0, gt=0)
+    excitation_sigma_yaw_cells: float = Field(1.0, gt=0)
+    global_inhibition: float = Field(0.0005, ge=0, description="phi of Eq. 4.17 (activity sums to 1 over the "
+                                     "lattice; RatSLAM's 0.00002 left the yaw axis uniform, see services/posecells)")
+    lvc_learning_rate: float = Field(1.0, ge=0, description="lambda of Eq. 4.19")
+    lvc_injection_gain: float = Field(0.1, ge=0, description="delta of Eq. 4.19")
+    multiple_local_view_active: bool = True
+    # --- added for the pose-cell service (issue 9); see services/posecells/
+    beta_min_fraction: float = Field(0.25, gt=0, le=1, description="Eq. 4.19 beta is stored on the cells with "
+                                     "activity >= this fraction of the packet peak (sparse association)")
+    beta_max_cells: int = Field(64, ge=1, description="at most this many associated cells per LVC (the strongest)")
+    lvc_maturity_steps: int = Field(10, ge=0, description="an LVC's association is injected only after the LVC has "
+                                    "been absent this many frames (DolphinSLAM's L_mat; 0: literal Eq. 4.19)")
+    max_odometry_step: float = Field(2.0, gt=0, description="an Odometry increment longer than this (m) is a "
+                                     "discontinuity (restarted odometry, later mission), not motion")
+    state_path: str = Field("", description="load pose cells, associations and gates from this .npz at start "
+                            "and save at end (empty: off)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PoseCellsConfig:
+        cells = 1
+        for n in self.number_of_neurons:
+            cells *= n
+        check(cells <= 50_000_000, f"posecells.number_of_neurons {self.number_of_neurons} is {cells} cells "
+               "(at most 50 million)")
+        check(self.top_k <= cells, f"posecells.top_k ({self.top_k}) must be <= the number of cells ({cells})")
+        return self
+
+
+class VprGuardConfig(ConfigSection):
+    require_vpr_for_event: bool = True
+    vpr_window: int = Field(26, ge=1)
+    vpr_min_rep: int = Field(3, ge=1)
+    vpr_leak_rate: int = Field(20, ge=0)
+    motion_gate_enable: bool = True
+    min_event_trans_xy: float = Field(0.12, ge=0)
+    min_event_dz: float = Field(0.05, ge=0)
+    min_event_dyaw_deg: float = Field(0.0, ge=0, description="a turn of this many degrees since the last event also "
+                                      "passes the motion gate (ours; 0: off, the dissertation's gate)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> VprGuardConfig:
+        check(self.vpr_min_rep <= self.vpr_window,
+               f"vpr_guard.vpr_min_rep ({self.vpr_min_rep}) must be <= vpr_guard.vpr_window ({self.vpr_window})")
+        return self

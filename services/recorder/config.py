@@ -1,0 +1,19 @@
+"""The recorder's configuration section (``recorder:``).
+
+Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+wrong value fails naming its dotted field.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from common.config import ConfigSection
+
+__all__ = ["RecorderConfig"]
+
+
+class RecorderConfig(ConfigSection):
+    chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size (bytes)")
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
