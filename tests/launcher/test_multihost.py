@@ -103,10 +103,8 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     pytest.importorskip("cryptography")
     from launcher.config import load_config
     from launcher.run import plan_run, run_embedded
-    from tests.common.recordings import payloads_by_key
 
     host_a, host_b = two_hosts
-    ip = {host_a: "10.77.0.1", host_b: "10.77.0.2"}
     py = [sys.executable, "-m", "launcher.cli"]
     tls, rogue = tmp_path / "tls", tmp_path / "rogue"
     for out, hosts in ((tls, "10.77.0.1,10.77.0.2"), (rogue, "10.77.0.2")):
@@ -118,35 +116,10 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     baseline = run_embedded(config, short_mission, tmp_path / "unsecured.mcap", progress=False, timeout_s=300)
     t_baseline = time.monotonic() - t0
 
-    endpoint = {host_a: "tls/10.77.0.1:7447", host_b: "tls/10.77.0.2:7447"}  # each host's own hub
-    router_a = REPO / "deploy" / "zenoh" / "secured-router.json5"
-    router_b = tmp_path / "secured-router-b.json5"  # B's hub connects to A's
-    text = router_a.read_text()
-    assert text.count("endpoints: [],  // the other computers' routers") == 1
-    router_b.write_text(text.replace("endpoints: [],  // the other computers' routers",
-                                     f'endpoints: ["{endpoint[host_a]}"],  // A'))
-    service = str(REPO / "deploy" / "zenoh" / "secured-service.json5")
+    hosts = _SecuredHosts(host_a, host_b, tmp_path, tls, sets)
+    router_a, router_b = hosts.routers()
     out = tmp_path / "secured.mcap"
-
-    def in_ns(ns, *cmd):
-        return ["ip", "netns", "exec", ns, *cmd]
-
-    def hub(ns, config):
-        return subprocess.Popen(in_ns(ns, *py, "hub", "--listen", endpoint[ns], "--zenoh-config", str(config),
-                                      "--tls-dir", str(tls), "--tls-host", f"hub.{ip[ns]}", "--zenoh-user", "router",
-                                      "--zenoh-password-file", str(tls / "router.password")), cwd=REPO)
-
-    def run_service(ns, name, *extra):
-        cmd = in_ns(ns, *py, "service", name, "--connect", endpoint[ns], "--zenoh-config", service, "--tls-dir",
-                    str(tls), "--tls-host", ip[ns], "--zenoh-user", name, "--zenoh-password-file",
-                    str(tls / f"{name}.password"), *[a for s in sets for a in ("--set", s)],
-                    "--stats", str(tmp_path / f"{name}.json"), *extra)
-        return subprocess.Popen(cmd, cwd=REPO)
-
-    def intruder(ns, tls_dir, user, *args):
-        cred = ["--user", user, "--password-file", str(tls / f"{user}.password")] if user else []
-        return subprocess.Popen(in_ns(ns, sys.executable, "-m", "tests.launcher.intruder", endpoint[ns],
-                                      str(tls_dir), ip[ns], *cred, *args), cwd=REPO, stdout=subprocess.PIPE, text=True)
+    hub, run_service, intruder = hosts.hub, hosts.service, hosts.intruder
 
     procs: dict[str, subprocess.Popen] = {}
     intruders: dict[str, subprocess.Popen] = {}
@@ -188,6 +161,61 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     print(f"\n[secured] {sum(recorded['recorded'].values())} messages recorded in {t_secured:.0f} s over TLS with "
           f"access control (unsecured embedded baseline: {sum(baseline.recording['counts'].values())} in "
           f"{t_baseline:.0f} s); intruders: {reports}")
+    _check_secured_run(recorded, baseline, out, tmp_path, reports)
+
+
+class _SecuredHosts:
+    """Commands of the secured two-host run: each host's hub, a service joining its own
+    host's hub with its own credentials, and intruders (tests/launcher/intruder.py)."""
+
+    PY = [sys.executable, "-m", "launcher.cli"]
+
+    def __init__(self, host_a, host_b, tmp_path, tls, sets):
+        self.host_a = host_a
+        self.IP = {host_a: "10.77.0.1", host_b: "10.77.0.2"}
+        self.ENDPOINT = {host_a: "tls/10.77.0.1:7447", host_b: "tls/10.77.0.2:7447"}  # each host's own hub
+        self.tmp_path, self.tls, self.sets = tmp_path, tls, sets
+
+    def routers(self):
+        """A's hub configuration, and B's: the same, connecting to A's hub."""
+        router_a = REPO / "deploy" / "zenoh" / "secured-router.json5"
+        router_b = self.tmp_path / "secured-router-b.json5"
+        text = router_a.read_text()
+        assert text.count("endpoints: [],  // the other computers' routers") == 1
+        router_b.write_text(text.replace("endpoints: [],  // the other computers' routers",
+                                         f'endpoints: ["{self.ENDPOINT[self.host_a]}"],  // A'))
+        return router_a, router_b
+
+    @staticmethod
+    def in_ns(ns, *cmd):
+        return ["ip", "netns", "exec", ns, *cmd]
+
+    def hub(self, ns, config):
+        tls = self.tls
+        return subprocess.Popen(self.in_ns(ns, *self.PY, "hub", "--listen", self.ENDPOINT[ns], "--zenoh-config",
+                                           str(config), "--tls-dir", str(tls), "--tls-host", f"hub.{self.IP[ns]}",
+                                           "--zenoh-user", "router", "--zenoh-password-file",
+                                           str(tls / "router.password")), cwd=REPO)
+
+    def service(self, ns, name, *extra):
+        tls = self.tls
+        cmd = self.in_ns(ns, *self.PY, "service", name, "--connect", self.ENDPOINT[ns], "--zenoh-config",
+                         str(REPO / "deploy" / "zenoh" / "secured-service.json5"), "--tls-dir", str(tls),
+                         "--tls-host", self.IP[ns], "--zenoh-user", name, "--zenoh-password-file",
+                         str(tls / f"{name}.password"), *[a for s in self.sets for a in ("--set", s)],
+                         "--stats", str(self.tmp_path / f"{name}.json"), *extra)
+        return subprocess.Popen(cmd, cwd=REPO)
+
+    def intruder(self, ns, tls_dir, user, *args):
+        cred = ["--user", user, "--password-file", str(self.tls / f"{user}.password")] if user else []
+        return subprocess.Popen(self.in_ns(ns, sys.executable, "-m", "tests.launcher.intruder", self.ENDPOINT[ns],
+                                           str(tls_dir), self.IP[ns], *cred, *args), cwd=REPO,
+                                stdout=subprocess.PIPE, text=True)
+
+
+def _check_secured_run(recorded, baseline, out, tmp_path, reports):
+    from tests.common.recordings import payloads_by_key
+
     # every service with its own credentials: the whole pipeline flowed, exactly as without security
     assert recorded["recorded"] == baseline.recording["counts"] and recorded["invalid"] == {}
     assert payloads_by_key(out) == payloads_by_key(tmp_path / "unsecured.mcap")  # nothing forged got in
