@@ -29,7 +29,12 @@ the speed: ShuffleNetV2 runs untrained (no weights file needed), EfficientNet-Li
 packaged weights.  BLAS runs on one thread (``OPENBLAS_NUM_THREADS`` 1 unless set), as in
 ``poseidon run``.
 
-    .venv/bin/python benchmarks/bench_encoder.py [--repeats N] [--threads T]
+``--mission REC.mcap`` adds the whole-run figure: the recording's camera frames and sonar
+beams through the encoder node (:class:`EncoderNode`, the default configuration, no
+transport) once per runtime, the process CPU seconds of each run (rounds interleaved by
+runtime, median) and whether its fused and per-modality SDRs equal torch's, frame by frame.
+
+    .venv/bin/python benchmarks/bench_encoder.py [--repeats N] [--threads T] [--mission REC.mcap [--rounds R]]
 """
 from __future__ import annotations
 
@@ -98,8 +103,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runtimes", default=",".join(RUNTIMES), help="encoder.runtime values to time")
     ap.add_argument("--backbones", default="efficientnet_lite0,shufflenetv2,alexnet_conv3",
                     help="backbones of the per-runtime table")
+    ap.add_argument("--mission", default="", help="a recording: also time the whole run through the encoder node")
+    ap.add_argument("--rounds", type=int, default=1, help="--mission: rounds per runtime")
+    ap.add_argument("--mission-only", action="store_true", help="skip the per-frame tables")
     args = ap.parse_args(argv)
     runtimes = [r for r in args.runtimes.split(",") if r]
+    if args.mission_only:
+        _mission(args, runtimes)
+        return 0
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (288, 384, 3), dtype=np.uint8) for _ in range(40)]
     sonar = np.repeat(rng.random((224, 224, 1), dtype=np.float32), 3, axis=2)
@@ -143,7 +154,45 @@ def main(argv: list[str] | None = None) -> int:
     for rt, why in missing.items():
         print(f"{rt}: not timed ({why})")
     _per_runtime(args, runtimes, frames, base)
+    if args.mission:
+        _mission(args, runtimes)
     return 0
+
+
+def _mission(args: argparse.Namespace, runtimes: list[str]) -> None:
+    """Whole recording through the encoder node per runtime: CPU seconds and SDR equality with torch."""
+    from common.mcap_io import read_messages
+    from common.node import run_offline
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+
+    base = PoseidonConfig.model_validate({"encoder": {"lsbh_matrix_path": "", "torch_threads": args.threads}})
+    keys = ["camera/image_raw", base.encoder.sonar_topic]
+    msgs = [(m.key, m.message()) for m in read_messages(args.mission, keys=keys)]
+    n_cam = sum(k == "camera/image_raw" for k, _ in msgs)
+    cpu: dict[str, list[float]] = {rt: [] for rt in runtimes}
+    outs: dict[str, list[Any]] = {}
+    for _ in range(args.rounds):
+        for rt in runtimes:
+            cfg = PoseidonConfig.model_validate({"encoder": {**base.encoder.model_dump(), "runtime": rt}})
+            node = build_node("encoder", cfg)  # start-up (export, compile) outside the timing
+            t = time.process_time()
+            outs[rt] = [m for _, m in run_offline(node, msgs)]
+            cpu[rt].append(time.process_time() - t)
+    print(f"\nwhole run through the encoder node: {args.mission} ({n_cam} camera frames, "
+          f"{len(msgs) - n_cam} sonar messages), process CPU s, median of {args.rounds} round(s)")
+    print(f"{'runtime':12s} {'CPU s':>8s} {'ms/frame':>9s} {'vs torch':>9s} {'SDRs equal torch':>17s}")
+    ref = outs.get("torch")
+    for rt in runtimes:
+        c = statistics.median(cpu[rt])
+        same = "-"
+        if ref is not None:
+            eq = sum(np.array_equal(a.fused.active, b.fused.active)
+                     and all(np.array_equal(x.active, y.active) for x, y in zip(a.modalities, b.modalities))
+                     for a, b in zip(outs[rt], ref))
+            same = f"{eq}/{len(ref)}" + ("" if len(outs[rt]) == len(ref) else f" ({len(outs[rt])} outputs)")
+        ratio = f"{c / statistics.median(cpu['torch']):8.2f}x" if "torch" in cpu else "-"
+        print(f"{rt:12s} {c:8.1f} {c / max(n_cam, 1) * 1000:9.2f} {ratio:>9s} {same:>17s}")
 
 
 def _per_runtime(args: argparse.Namespace, runtimes: list[str], frames: list[np.ndarray], base: dict[str, Any]) -> None:

@@ -63,7 +63,7 @@ class EncoderConfig(ConfigSection):
                                           "beam); in between the last sonar SDR is reused")
     # --- added for the encoder's cost (issue 21); see services/encoder/runtime.py
     runtime: Literal["torch", "onnxruntime", "openvino"] = Field(
-        "torch", description="where the backbone runs: torch (the reference), or the same module exported to "
-        "ONNX at start-up (~1 s, in memory) and run by onnxruntime or openvino (f32, encoder.torch_threads "
-        "threads, one image at a time); same embedding to ~2e-6 relative, ms per image in "
-        "benchmarks/bench_encoder.py")
+        "openvino", description="where the backbone runs: torch (the reference), or the same module exported "
+        "to ONNX at start-up (~1-2 s, in memory) and run by onnxruntime or openvino (f32, encoder.torch_threads "
+        "threads, one image at a time). openvino: same SDRs as torch on every frame of a sim mission, "
+        "~0.5x torch's backbone CPU per image, ~0.6x the encoder's whole-run CPU (docs/DECISIONS.md)")

@@ -76,6 +76,9 @@ def export_onnx(backbone: LoadedBackbone, input_size: int) -> bytes:
     with warnings.catch_warnings(), torch.inference_mode(False), torch.no_grad():
         warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
         warnings.filterwarnings("ignore", message="Constant folding", category=UserWarning)
+        # torch >= 2.9 calls the TorchScript exporter legacy; it is the one that needs no onnxscript
+        warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"torch\.onnx")
+        warnings.filterwarnings("ignore", message=".*legacy TorchScript-based ONNX export", category=DeprecationWarning)
         torch.onnx.export(module, (x,), buf,  # type: ignore[arg-type]  # a file-like target works; the stubs say path
                           dynamo=False, input_names=["x"], output_names=["y"], opset_version=ONNX_OPSET,
                           do_constant_folding=True)
