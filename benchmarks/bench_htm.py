@@ -21,7 +21,9 @@ Third part (``--seqmem-sizes``, default 1000,5000,20000; empty skips it): one
 active bits) with that many frames stored, the running diagonal sums (``incremental``, the
 default) beside the K-term sums recomputed every frame (the computation before issue 21),
 rounds interleaved, median ms per frame; and whether both gave the same ending frames.
-``--seqmem-only`` runs only this part.
+``--seqmem-only`` runs only this part.  ``--mission RUN.mcap`` (with ``--seqmem-only``) also
+replays a run's ``neocortex/sdr`` through the htm node (default configuration, no transport)
+with each computation: process CPU seconds and whether the ``local_view_cells`` are the same.
 
     NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_htm.py
 """
@@ -71,10 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pipeline-places", type=int, default=1000, help="places of the stream in that part")
     ap.add_argument("--seqmem-sizes", default="1000,5000,20000", help="stored frames of the sequence-memory timing")
     ap.add_argument("--seqmem-only", action="store_true", help="only the sequence-memory timing")
+    ap.add_argument("--mission", default="", help="a run recording: its neocortex/sdr through the htm node")
     args = ap.parse_args(argv)
     sizes = [int(x) for x in args.seqmem_sizes.split(",") if x]
     if args.seqmem_only:
         seqmem_cost(sizes, args.seed)
+        if args.mission:
+            seqmem_mission(args.mission)
         return 0
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
@@ -131,6 +136,31 @@ def main(argv: list[str] | None = None) -> int:
     if sizes:
         seqmem_cost(sizes, args.seed)
     return 0
+
+
+def seqmem_mission(path: str) -> None:
+    """A run's fused SDRs through the htm node with the running sums and with the K-term sums."""
+    from common.mcap_io import read_messages
+    from common.node import run_offline
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+    from services.htm.sequence import SequenceMatcher
+
+    msgs = [(m.key, m.message()) for m in read_messages(path, keys=["neocortex/sdr"])]
+    cfg = PoseidonConfig.model_validate({"htm": {"state_path": ""}})
+    cpu, ids = {}, {}
+    for incremental in (False, True):
+        node = build_node("htm", cfg)
+        old = node.htm.seqmem  # type: ignore[attr-defined]
+        node.htm.seqmem = SequenceMatcher(old.n_bits, old.length, old.velocities, old.exclude,  # type: ignore[attr-defined]
+                                          old.column_norm, old.column_prior, incremental=incremental)
+        t0 = time.process_time()
+        out = run_offline(node, msgs)
+        cpu[incremental] = time.process_time() - t0
+        ids[incremental] = [m.most_active_cell for k, m in out if k == "local_view_cells"]  # type: ignore[attr-defined]
+    same = sum(a == b for a, b in zip(ids[False], ids[True]))
+    print(f"\nhtm node over {path} ({len(msgs)} frames): K-term sums {cpu[False]:.1f} s CPU, running sums "
+          f"{cpu[True]:.1f} s ({cpu[True] / cpu[False]:.2f}x); LVC ids equal on {same}/{len(ids[False])} frames")
 
 
 def seqmem_cost(sizes: list[int], seed: int, rounds: int = 7, queries: int = 20) -> None:
