@@ -65,5 +65,6 @@ class EncoderConfig(ConfigSection):
     runtime: Literal["torch", "onnxruntime", "openvino"] = Field(
         "openvino", description="where the backbone runs: torch (the reference), or the same module exported "
         "to ONNX at start-up (~1-2 s, in memory) and run by onnxruntime or openvino (f32, encoder.torch_threads "
-        "threads, one image at a time). openvino: same SDRs as torch on every frame of a sim mission, "
-        "~0.5x torch's backbone CPU per image, ~0.6x the encoder's whole-run CPU (docs/DECISIONS.md)")
+        "threads, one image at a time). openvino: embeddings within ~1e-6 of torch's, so the same SDRs but for "
+        "rare one-bit LSBH ties (8 of 5999 frames of a 20-min sim mission); ~0.5x torch's backbone CPU per "
+        "image, ~0.6x the encoder's whole-run CPU (docs/DECISIONS.md)")
