@@ -16,6 +16,15 @@ for the default configuration, each named chain of ``services/htm/chains.py`` (`
 fused SDR + sequence memory, no SP/TM; ``sp_tm``: SP + TM + sequence memory) and
 ``sdr_seqmem`` without the sequence memory, all in the same run.
 
+Third part (``--seqmem-sizes``, default 1000,5000,20000; empty skips it): one
+:meth:`SequenceMatcher.score` (the default configuration: K 40, velocity 1, exclude 50, 900
+active bits) with that many frames stored, the running diagonal sums (``incremental``, the
+default) beside the K-term sums recomputed every frame (the computation before issue 21),
+rounds interleaved, median ms per frame; and whether both gave the same ending frames.
+``--seqmem-only`` runs only this part.  ``--mission RUN.mcap`` (with ``--seqmem-only``) also
+replays a run's ``neocortex/sdr`` through the htm node (default configuration, no transport)
+with each computation: process CPU seconds and whether the ``local_view_cells`` are the same.
+
     NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_htm.py
 """
 from __future__ import annotations
@@ -23,9 +32,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout, not another install
 
 from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
@@ -59,7 +71,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="frames for the default-chain timing (6000 = a 20-min mission at 5 Hz; 0: skip)")
     ap.add_argument("--pipeline-bits", type=int, default=900, help="active bits of the fused SDR in that part")
     ap.add_argument("--pipeline-places", type=int, default=1000, help="places of the stream in that part")
+    ap.add_argument("--seqmem-sizes", default="1000,5000,20000", help="stored frames of the sequence-memory timing")
+    ap.add_argument("--seqmem-only", action="store_true", help="only the sequence-memory timing")
+    ap.add_argument("--mission", default="", help="a run recording: its neocortex/sdr through the htm node")
     args = ap.parse_args(argv)
+    sizes = [int(x) for x in args.seqmem_sizes.split(",") if x]
+    if args.seqmem_only:
+        seqmem_cost(sizes, args.seed)
+        if args.mission:
+            seqmem_mission(args.mission)
+        return 0
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
     # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
@@ -112,7 +133,69 @@ def main(argv: list[str] | None = None) -> int:
           f"mean anomaly last 500 steps {anomalies[-500:].mean():.2f}")
     if args.pipeline_frames > 0:
         pipeline_cost(args)
+    if sizes:
+        seqmem_cost(sizes, args.seed)
     return 0
+
+
+def seqmem_mission(path: str) -> None:
+    """A run's fused SDRs through the htm node with the running sums and with the K-term sums."""
+    from common.mcap_io import read_messages
+    from common.node import run_offline
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+    from services.htm.sequence import SequenceMatcher
+
+    msgs = [(m.key, m.message()) for m in read_messages(path, keys=["neocortex/sdr"])]
+    cfg = PoseidonConfig.model_validate({"htm": {"state_path": ""}})
+    cpu, ids = {}, {}
+    for incremental in (False, True):
+        node = build_node("htm", cfg)
+        old = node.htm.seqmem  # type: ignore[attr-defined]
+        node.htm.seqmem = SequenceMatcher(old.n_bits, old.length, old.velocities, old.exclude,  # type: ignore[attr-defined]
+                                          old.column_norm, old.column_prior, incremental=incremental)
+        t0 = time.process_time()
+        out = run_offline(node, msgs)
+        cpu[incremental] = time.process_time() - t0
+        ids[incremental] = [m.most_active_cell for k, m in out if k == "local_view_cells"]  # type: ignore[attr-defined]
+    same = sum(a == b for a, b in zip(ids[False], ids[True]))
+    print(f"\nhtm node over {path} ({len(msgs)} frames): K-term sums {cpu[False]:.1f} s CPU, running sums "
+          f"{cpu[True]:.1f} s ({cpu[True] / cpu[False]:.2f}x); LVC ids equal on {same}/{len(ids[False])} frames")
+
+
+def seqmem_cost(sizes: list[int], seed: int, rounds: int = 7, queries: int = 20) -> None:
+    """Sequence-memory score per frame at N stored frames: running diagonal sums vs K-term sums."""
+    from services.htm.sequence import SequenceMatcher
+
+    cfg = HtmConfig()
+    print(f"\nsequence memory, one score per frame (K {cfg.sv_seqmem_length}, velocities {cfg.sv_seqmem_velocities}, "
+          f"exclude {cfg.sv_seqmem_exclude}, 900 active bits), median of {rounds} interleaved rounds of {queries} frames")
+    print(f"{'stored frames':>13s} {'K-term sums':>12s} {'running sums':>13s} {'ratio':>6s} {'same ends':>10s}")
+    for n in sizes:
+        frames = make_stream(n + cfg.sv_seqmem_length + queries, max(n // 3, 1), 3, 900, 0.05, seed + 2)
+
+        def make(incremental: bool) -> SequenceMatcher:
+            return SequenceMatcher(2048, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
+                                   cfg.sv_seqmem_column_norm, incremental=incremental)
+
+        full = make(False)
+        for i, f in enumerate(frames[:n]):
+            full.add(f.astype(np.int64), i)
+        for f in frames[n:n + cfg.sv_seqmem_length]:  # fill the history with rows of n candidates
+            full.score(f.astype(np.int64))
+        start = full.state()
+        queries_ = [f.astype(np.int64) for f in frames[n + cfg.sv_seqmem_length:]]
+        times: dict[bool, list[float]] = {False: [], True: []}
+        ends: dict[bool, list[int]] = {}
+        for _ in range(rounds):
+            for inc in (False, True):
+                m = make(inc)
+                m.set_state(start)  # the running sums are rebuilt from the history
+                t0 = time.perf_counter()
+                ends[inc] = [m.score(q).frame for q in queries_]
+                times[inc].append((time.perf_counter() - t0) / len(queries_))
+        a, b = (1e3 * float(np.median(times[k])) for k in (False, True))
+        print(f"{n:13d} {a:9.3f} ms {b:10.3f} ms {b / a:5.2f}x {str(ends[False] == ends[True]):>10s}")
 
 
 def pipeline_cost(args: argparse.Namespace) -> None:

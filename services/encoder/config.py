@@ -28,8 +28,8 @@ class EncoderConfig(ConfigSection):
     sp_columns: int = Field(2048, ge=16, description="SDR length L")
     pool_grid: int = Field(4, ge=1, description="embedding pooled to a grid x grid map before LSBH")
     batch_max: int = Field(8, ge=1)
-    torch_threads: int = Field(1, ge=1, description="torch intra-op threads (1: measured fastest when other "
-                               "services share the cores)")
+    torch_threads: int = Field(1, ge=1, description="intra-op threads of torch and of encoder.runtime (1: "
+                               "measured fastest when other services share the cores)")
     sonar_polar_width: int = Field(224, ge=8)
     sonar_polar_height: int = Field(224, ge=8)
     sonar_rmax: float = Field(30.0, gt=0, description="m")
@@ -61,3 +61,10 @@ class EncoderConfig(ConfigSection):
     sonar_encode_sweep_deg: float = Field(45.0, ge=0, description="the sonar raster is re-encoded once the beams "
                                           "have swept this many degrees since its last encoding (0: every new "
                                           "beam); in between the last sonar SDR is reused")
+    # --- added for the encoder's cost (issue 21); see services/encoder/runtime.py
+    runtime: Literal["torch", "onnxruntime", "openvino"] = Field(
+        "openvino", description="where the backbone runs: torch (the reference), or the same module exported "
+        "to ONNX at start-up (~1-2 s, in memory) and run by onnxruntime or openvino (f32, encoder.torch_threads "
+        "threads, one image at a time). openvino: embeddings within ~1e-6 of torch's, so the same SDRs but for "
+        "rare one-bit LSBH ties (8 of 5999 frames of a 20-min sim mission); ~0.5x torch's backbone CPU per "
+        "image, ~0.6x the encoder's whole-run CPU (docs/DECISIONS.md)")

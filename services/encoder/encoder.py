@@ -13,6 +13,8 @@ Pre-processing: RGB in [0, 1], resized to ``input_size`` x ``input_size`` with b
 :func:`torch.nn.functional.interpolate` (antialiased when shrinking), ImageNet mean/std
 normalisation.  Inference: CPU, ``torch.set_num_threads(encoder.torch_threads)``,
 batch norms folded into their convolutions (``encoder.fold_batchnorm``), channels_last, :func:`torch.inference_mode`, batches of up to ``encoder.batch_max`` frames.
+The backbone runs on ``encoder.runtime`` (:mod:`services.encoder.runtime`: torch, or the same
+module exported to ONNX Runtime / OpenVINO at start-up); pooling and everything after it in torch/numpy.
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from services.encoder.config import EncoderConfig
 from .backbones import LoadedBackbone, fold_batchnorm, load_backbone
 from .fusion import fuse as fuse_sdrs
 from .lsbh import LsbhEncoder, load_or_create_projection, projection_path
+from .runtime import make_features
 from .standardize import EmbeddingStandardizer, norm_path
 
 __all__ = ["MultimodalEncoder", "image_to_rgb", "INPUT_SIZE", "IMAGENET_MEAN", "IMAGENET_STD"]
@@ -70,14 +73,20 @@ class MultimodalEncoder:
 
     ``images`` passed to :meth:`embed` are (H, W, 3) RGB (uint8 0-255, or float in [0, 1]) or
     (H, W) grey arrays of any size.  ``channels_last`` False is only for benchmarking.
+    ``runtime`` (default ``cfg.runtime``) picks where the backbone runs; :attr:`model` is always
+    the torch module (the reference).
     """
 
-    def __init__(self, cfg: EncoderConfig, backbone: LoadedBackbone | None = None, channels_last: bool = True):
+    def __init__(self, cfg: EncoderConfig, backbone: LoadedBackbone | None = None, channels_last: bool = True,
+                 runtime: str | None = None):
         self.cfg = cfg
         torch.set_num_threads(cfg.torch_threads)
         self.backbone = backbone if backbone is not None else load_backbone(
             cfg.cnn_backbone, cfg.weights_path, seed=cfg.lsbh_seed, untrained=cfg.untrained, tap_block=cfg.tap_block)
         self.input_size = int(cfg.input_size)
+        self.runtime = runtime or cfg.runtime
+        # the exported runtimes take plain NCHW arrays; channels_last only helps torch's kernels
+        channels_last = channels_last and self.runtime == "torch"
         self.channels_last = channels_last
         self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
         if cfg.fold_batchnorm:
@@ -85,6 +94,7 @@ class MultimodalEncoder:
         # torch's Module.to stubs omit the memory_format keyword the method accepts
         self.model = self.backbone.model.eval().to(memory_format=self.memory_format)  # type: ignore[call-overload]
         self.dim = self.backbone.embedding_channels * cfg.pool_grid ** 2
+        self._features = make_features(self.backbone, self.runtime, self.input_size, cfg.torch_threads)
         self._mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1)
         self._std = torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1)
         self._lsbh: dict[str, LsbhEncoder] = {}
@@ -132,7 +142,7 @@ class MultimodalEncoder:
         for i in range(0, len(images), self.cfg.batch_max):
             x = self.preprocess(images[i:i + self.cfg.batch_max])
             with torch.inference_mode():
-                f = self.backbone.features(x)
+                f = self._features(x)
                 f = F.adaptive_avg_pool2d(f, g).reshape(f.shape[0], -1)
             out.extend(np.ascontiguousarray(r, dtype=np.float32) for r in f.numpy())
         return out

@@ -125,6 +125,51 @@ def _diagonals(hist: F64, hist_len: I64, head: int, n_hist: int, nc: int, length
         out[j] /= length
 
 
+@njit(cache=True)
+def _diag_sums(hist: F64, hist_len: I64, head: int, length: int, steps: I64, hi: int, diag: F64) -> None:
+    """diag[v, j] = sum_k hist[t-k][j - k steps[v]] over the valid points (j < hi), in the order of
+    :func:`_diagonals` (k = 0 first): the incremental sums rebuilt from the history rows."""
+    h = hist.shape[0]
+    for v in range(steps.shape[0]):
+        for j in range(hi):
+            diag[v, j] = 0.0
+        for k in range(length):
+            r = (head - k) % h
+            off = k * steps[v]
+            top = min(hi, hist_len[r] + off)
+            for j in range(off, top):
+                diag[v, j] += hist[r, j - off]
+
+
+@njit(cache=True)
+def _diag_advance(diag: F64, steps: I64, length: int, old: F64, old_len: int, hi: int) -> None:
+    """One frame on: diag[v, j] <- diag[v, j - step] - old[j - K step] for j < hi (in place, j
+    descending; points outside the previous sums or the expiring row ``old`` count 0)."""
+    for v in range(steps.shape[0]):
+        st = steps[v]
+        drop = length * st
+        for j in range(hi - 1, -1, -1):
+            x = diag[v, j - st] if j - st >= 0 else 0.0
+            i = j - drop
+            if 0 <= i < old_len:
+                x -= old[i]
+            diag[v, j] = x
+
+
+@njit(cache=True)
+def _diag_add_max(diag: F64, row: F64, nc: int, length: int, out: F64) -> None:
+    """diag[v, j] += row[j] (the new frame's points, j < nc); out[j] = max_v diag[v, j] / K."""
+    for j in range(nc):
+        out[j] = -1e300
+    for v in range(diag.shape[0]):
+        for j in range(nc):
+            diag[v, j] += row[j]
+            if diag[v, j] > out[j]:
+                out[j] = diag[v, j]
+    for j in range(nc):
+        out[j] /= length
+
+
 class SequenceScore:
     """Outcome of :meth:`SequenceMatcher.score`: best ending frame, its score, the runner-up."""
 
@@ -147,7 +192,7 @@ class SequenceMatcher:
     """Frame memory + online SeqSLAM-style sequence scores (see the module doc)."""
 
     def __init__(self, n_bits: int, length: int, velocities: Sequence[float], exclude: int,
-                 column_norm: bool = True, column_prior: float = 10.0):
+                 column_norm: bool = True, column_prior: float = 10.0, incremental: bool = True):
         if length < 1:
             raise ValueError(f"sequence length must be >= 1, got {length}")
         if not velocities or any(v <= 0 for v in velocities):
@@ -161,6 +206,12 @@ class SequenceMatcher:
         self.words = (self.n_bits + 63) // 64
         self._offsets = np.array([[int(np.floor(v * k + 0.5)) for k in range(self.length)]
                                   for v in self.velocities], np.int64)
+        # incremental diagonal sums when every velocity's offsets are k x an integer step (v = 1: step 1)
+        steps = self._offsets[:, 1] if self.length > 1 else np.zeros(len(self.velocities), np.int64)
+        arithmetic = bool(np.array_equal(self._offsets, np.arange(self.length)[None, :] * steps[:, None]))
+        self.incremental = bool(incremental) and arithmetic
+        self._steps = np.ascontiguousarray(steps, np.int64)
+        self._diag_hi = 0          # diag[:, j] is exactly 0 for j >= _diag_hi (never touched since reset)
         self._alloc(256)
         self.size = 0
         self.traversal_start = 0   # memory frames before this index were stored before the last reset()
@@ -177,18 +228,22 @@ class SequenceMatcher:
         self.s2 = np.zeros(cap, np.float64)
         self.hist = np.zeros((self.length, cap), np.float64)
         self.hist_len = np.zeros(self.length, np.int64)
+        # a diagonal can end up to (K - 1) x step past the last candidate: room for those ends
+        reach = int(self._steps.max()) * (self.length - 1) if self.incremental else 0
+        self.diag = np.zeros((len(self.velocities) if self.incremental else 0, cap + reach), np.float64)
 
     def _grow(self, need: int) -> None:
         cap = self.mem.shape[0]
         if need <= cap:
             return
         new = max(2 * cap, need)
-        old = (self.mem, self.sizes, self.ids, self.cnt, self.s1, self.s2, self.hist)
+        old = (self.mem, self.sizes, self.ids, self.cnt, self.s1, self.s2, self.hist, self.diag)
         hist_len = self.hist_len
         self._alloc(new)
         for dst, src in zip((self.mem, self.sizes, self.ids, self.cnt, self.s1, self.s2), old[:6]):
             dst[:cap] = src
         self.hist[:, :cap] = old[6]
+        self.diag[:, :old[7].shape[1]] = old[7]
         self.hist_len = hist_len
 
     def __len__(self) -> int:
@@ -219,14 +274,22 @@ class SequenceMatcher:
         _f1_row(q, np.int64(np.asarray(d).size), self.mem, self.sizes, nc, s)
         self._head = (self._head + 1) % self.length
         row = self.hist[self._head]
+        if self.incremental:
+            # the slot's row (frame t - K) leaves every diagonal before the new row overwrites it
+            self.hist_len[self._head], old_len = 0, int(self.hist_len[self._head])
+            self._diag_hi = min(self.diag.shape[1], max(self._diag_hi, nc + int(self._steps.max()) * (self.length - 1)))
+            _diag_advance(self.diag, self._steps, self.length, row, old_len, self._diag_hi)
         _normalise(s, nc, self.cnt, self.s1, self.s2, self.column_norm, self.column_prior, update, row)
         self.hist_len[self._head] = nc
         self.steps += 1
         if nc == 0:
             return SequenceScore(-1, 0.0, 0.0)
         out = np.empty(nc, np.float64)
-        _diagonals(self.hist, self.hist_len, self._head, self.steps, nc, self.length, self._offsets,
-                   np.empty(nc, np.float64), out)
+        if self.incremental:
+            _diag_add_max(self.diag, row, nc, self.length, out)
+        else:
+            _diagonals(self.hist, self.hist_len, self._head, self.steps, nc, self.length, self._offsets,
+                       np.empty(nc, np.float64), out)
         j = int(np.argmax(out))
         lo, hi = max(0, j - self.length), min(nc, j + self.length + 1)
         best = float(out[j])
@@ -252,6 +315,8 @@ class SequenceMatcher:
         """A new traversal: forget the history rows and the per-frame statistics (they describe
         how the stored frames look from the current traversal); every stored frame becomes a candidate."""
         self.hist_len[:] = 0
+        self.diag[:] = 0.0
+        self._diag_hi = 0
         self.cnt[:] = 0.0
         self.s1[:] = 0.0
         self.s2[:] = 0.0
@@ -265,6 +330,7 @@ class SequenceMatcher:
         return {"mem": self.mem[:n].copy(), "sizes": self.sizes[:n].copy(), "ids": self.ids[:n].copy(),
                 "cnt": self.cnt[:n].copy(), "s1": self.s1[:n].copy(), "s2": self.s2[:n].copy(),
                 "hist": self.hist[:, :n].copy(), "hist_len": self.hist_len.copy(),
+                "diag": self.diag[:, :self._diag_hi].copy(),
                 "counters": np.array([self.traversal_start, self.steps, self._head], np.int64)}
 
     def set_state(self, st: dict[str, np.ndarray]) -> None:
@@ -281,3 +347,13 @@ class SequenceMatcher:
         self.hist_len = st["hist_len"].astype(np.int64).copy()
         self.traversal_start, self.steps, self._head = (int(x) for x in st["counters"])
         self.size = n
+        if self.incremental:
+            diag = st.get("diag")
+            if diag is not None and diag.shape[0] == self.diag.shape[0] and diag.shape[1] <= self.diag.shape[1]:
+                self._diag_hi = diag.shape[1]
+                self.diag[:, :self._diag_hi] = diag
+            else:  # saved by the full computation (or another velocity set): rebuilt from the history
+                self._diag_hi = min(self.diag.shape[1],
+                                    int(self.hist_len.max()) + int(self._steps.max()) * (self.length - 1))
+                _diag_sums(self.hist, self.hist_len, max(self._head, 0), self.length, self._steps, self._diag_hi,
+                           self.diag)

@@ -122,3 +122,64 @@ def test_query_only_steps_leave_the_memory_unchanged():
 def test_bad_configuration_is_named():
     with pytest.raises(ValueError, match="sv_seqmem_velocities"):
         HtmConfig(sv_seqmem_velocities=[1.0, 0.0])
+
+
+def _stream(seed: int, n: int, places: int = 60, bits: int = 300, noise: float = 0.2) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    route = [_place(rng, bits) for _ in range(places)]
+    out = []
+    for t in range(n):
+        p = route[(t // 2) % places]
+        keep = rng.random(p.size) >= noise
+        out.append(np.unique(np.concatenate([p[keep], rng.choice(L, int((~keep).sum()), replace=False)])))
+    return out
+
+
+@pytest.mark.parametrize("velocities,exclude,length", [([1.0], 50, 40), ([1.0, 2.0], 5, 10), ([1.0], 0, 5)])
+def test_incremental_diagonals_give_the_full_computations_scores(velocities, exclude, length):
+    """The running diagonal sums (one add and one subtract per stored frame and frame) score
+    like the K-term sums: same ending frame, runner-up and F1s, S* to float rounding, through
+    resets, query-only steps, a state round trip and the memory's growth."""
+    inc = SequenceMatcher(L, length, velocities, exclude)
+    full = SequenceMatcher(L, length, velocities, exclude, incremental=False)
+    assert inc.incremental and not full.incremental
+    for t, d in enumerate(_stream(1, 700)):
+        if t in (250, 520):
+            inc.reset()
+            full.reset()
+        if t == 400:  # a restored checkpoint carries the sums on
+            restored = SequenceMatcher(L, length, velocities, exclude)
+            restored.set_state(inc.state())
+            inc = restored
+        a, b = inc.score(d, update=t % 7 != 0), full.score(d, update=t % 7 != 0)
+        assert (a.frame, a.f1, a.f1_second) == (b.frame, b.f1, b.f1_second), t
+        assert a.score == pytest.approx(b.score, abs=1e-9) and a.second == pytest.approx(b.second, abs=1e-9), t
+        assert a.last == b.last
+        if t % 3:
+            inc.add(d, t)
+            full.add(d, t)
+    assert len(inc) > 256  # grew past the first allocation
+
+
+def test_incremental_sums_rebuilt_from_a_state_without_them():
+    """A checkpoint written by the full computation (no running sums) restores into the
+    incremental matcher, which then scores like the full one."""
+    full = SequenceMatcher(L, 10, [1.0], 5, incremental=False)
+    stream = _stream(2, 300)
+    for t, d in enumerate(stream[:200]):
+        full.score(d)
+        full.add(d, t)
+    inc = SequenceMatcher(L, 10, [1.0], 5)
+    st = full.state()
+    assert st["diag"].shape[0] == 0
+    inc.set_state(st)
+    for t, d in enumerate(stream[200:]):
+        a, b = inc.score(d), full.score(d)
+        assert a.frame == b.frame and a.score == pytest.approx(b.score, abs=1e-9), t
+        inc.add(d, t)
+        full.add(d, t)
+
+
+def test_velocities_without_a_constant_step_use_the_full_computation():
+    assert not SequenceMatcher(L, 8, [0.8, 1.25], 0).incremental
+    assert SequenceMatcher(L, 8, [1.0, 2.0], 0).incremental

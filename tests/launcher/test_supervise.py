@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+import services.encoder.node  # noqa: F401  (see below)
 from common.codec import encode
 from common.mcap_io import read_messages
 from common.ordering import EventTimeMerger
@@ -26,6 +27,9 @@ from tests.common.recordings import payloads_by_key
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(900)
+# services.encoder.node is imported up front: a kill test unpickles the service's first checkpoint
+# mid-run, and the encoder's pulls in torch (~1.5 s on first import), about as long as what is left
+# of the run after that checkpoint once the encoder is fast (encoder.runtime openvino)
 
 CHECKPOINT_S = 3.0  # event time between checkpoints: several per run of the 24-s mission
 SLAM_KEYS = ("neocortex/sdr", "local_view_cells", "Odometry", "ground_truth", "experience_event", "map",
