@@ -73,7 +73,8 @@ events (kidnapped) begins a new *session* (:meth:`ExperienceMap.begin_session`):
 node sits at its own odometry position (its own frame, unlinked to the earlier nodes), the
 chain edge from the previous node is kept with weight :data:`SESSION_BREAK_WEIGHT` (a
 resistance of 1e6: it carries the chain's bookkeeping, not a measurement) and every node
-carries its session id.  A confirmed match (``loop_confirmations`` consecutive events, as a
+carries its session id.  Every node of an earlier session is a loop candidate, whatever
+``min_experience_age`` (another mission is never "the place just passed").  A confirmed match (``loop_confirmations`` consecutive events, as a
 loop closure) between sessions not yet linked is a *link candidate*: it becomes a link only
 when the two experiences' sonar sweeps register trusted along both axes with at least
 ``session_link_min_inliers`` inliers (:func:`services.expmap.loop_policy.link_displacement`,
@@ -194,6 +195,7 @@ class ExperienceMap:
         self.last_registration: Registration | None = None
         self.session = 0                      # the session of the newest node
         self._session_pending = False
+        self._session_first = 0               # first node of the newest session
         self._session_root: dict[int, int] = {0: 0}
         self.session_links: list[SessionLink] = []
         self.link_rejections = {"no_sweep": 0, "untrusted": 0, "ambiguous": 0, "inliers": 0}
@@ -304,6 +306,7 @@ class ExperienceMap:
             self.session = int(self._a("session").max()) + 1
             self._session_root[self.session] = self.session
             self._session_pending = False
+            self._session_first = n
             delta = odom - self._position(n - 1)
             A["pos"][n] = odom                # its own odometry frame
             A["delta"][n] = delta
@@ -350,7 +353,7 @@ class ExperienceMap:
         """Score the candidates of node n and update the confirmation chain (:mod:`.candidates`)."""
         cfg = self.cfg
         lvc_n = int(self._a("lvc")[n])
-        cand = candidate_nodes(n, cfg, self._lvc_index, lvc_n)
+        cand = candidate_nodes(n, cfg, self._lvc_index, lvc_n, self._session_first)
         if cand.size == 0:
             self.last_match, self.confirmations = -1, 0
             return

@@ -133,6 +133,7 @@ def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     em.solves = int(meta["solves"])
     em.session = int(meta.get("session", 0))
     em._session_pending = bool(meta.get("session_pending", False))
+    em._session_first = int(np.argmax(em.sessions == em.session)) if n else 0
     em._session_root = {int(k): int(v) for k, v in meta.get("session_root", {"0": 0}).items()}
     em.session_links = [SessionLink(session=int(d["session"]), to_session=int(d["to_session"]), m=int(d["m"]),
                                     n=int(d["n"]), stamp=int(d["stamp"]), delta=np.asarray(d["delta"], np.float64),

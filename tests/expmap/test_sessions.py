@@ -159,3 +159,16 @@ def test_kidnapped_vehicle_recovers_by_a_verified_link(jump_m: float) -> None:
     else:
         assert em.n_sessions == 1 and not em.session_links
         assert err > 5.0
+
+
+def test_an_earlier_session_is_a_candidate_whatever_its_age() -> None:
+    """A prior map smaller than min_experience_age events: its places are still candidates."""
+    c = cfg(min_experience_age=200)
+    em = session_a(c)
+    em.begin_session()
+    res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
+    assert any(r.match >= 0 for r in res) and len(em.session_links) == 1
+    # within one session the age rule holds: a second lap of the same session matches nothing
+    one = ExperienceMap(c)
+    lap(one, 0, range(40), np.zeros(3))
+    assert all(r.match < 0 for r in lap(one, 100, range(40), np.zeros(3), OFF_TRUE))
