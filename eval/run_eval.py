@@ -75,7 +75,7 @@ truth of an experience" = ``truth/pose`` interpolated at the node's stamp.
 - ``sessions``: the map's sessions (a map continued over missions with ``poseidon run
   --map-dir``, or a kidnapped vehicle): ``count``, ``loaded_nodes``, ``unlinked_nodes``,
   ``links``, ``false_links``, ``time_to_link_s``, ``link_error_m``, ``ate_prior_frame_m``,
-  ``ate_prior_frame_n`` and a ``table`` per link; every key defined in :mod:`eval.sessions`.
+  ``ate_prior_frame_n``, ``cross_loop_closures`` and a ``table`` per link; every key defined in :mod:`eval.sessions`.
   With ``--prior PRIOR_RUN.mcap`` (the run that saved the map) the loaded nodes get their
   truth.  Nodes loaded from an earlier mission's map carry that mission's stamps: every other
   block here (``nodes`` excepted) uses this run's nodes only, and loop closures with a loaded
@@ -382,7 +382,7 @@ def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: Poseido
     out["dead_reckoning"] = None
     if run.has_truth and run.odometry is not None and len(run.odometry) > 1:
         out["dead_reckoning"] = {k: _r(v, 4) for k, v in anchored_errors(run.odometry, run.truth).items()}  # type: ignore[arg-type]
-    out["sessions"] = sessions_block(run, prior_run)
+    out["sessions"] = sessions_block(run, prior_run, far_m)
     if relations is not None:
         out.update(relations_block(run, relations))
     return out

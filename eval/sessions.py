@@ -27,6 +27,10 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   true position of an older node (first entering a mapped place) to the link's event; negative
   when the link came before (the sonar registers up to ``expmap.scan_search_radius_m`` apart);
 - ``link_error_m``: mean ``error_m`` over the links with truth at both ends;
+- ``cross_loop_closures``: ``{accepted, true, false, unlabelled}`` of the loop closures of
+  the final map with one end loaded from the map directory, session links excepted (they are
+  left out of ``loop_closures``, whose truth is this run's only); true when the two ends'
+  truths are within ``far_m`` (5 m), as there;
 - ``ate_prior_frame_m``: RMSE (m) of this run's nodes linked to session 0 against truth
   after the rigid alignment of session 0's nodes only (no re-alignment: the error of the
   map in the prior map's frame); ``ate_prior_frame_n``: nodes used.
@@ -74,12 +78,14 @@ def _r(v: float | None, nd: int = 4) -> float | None:
     return None if v is None or not math.isfinite(v) else round(float(v), nd)
 
 
-def sessions_block(run: RunData, prior: RunData | None = None) -> dict[str, Any]:
+def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.0) -> dict[str, Any]:
     """The ``sessions`` block (module docstring)."""
     m = run.final_map
     out: dict[str, Any] = {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
                            "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
-                           "ate_prior_frame_n": 0, "table": []}
+                           "ate_prior_frame_n": 0,
+                           "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
+                           "table": []}
     if m is None or not m.nodes:
         return out
     nodes = sorted(m.nodes, key=lambda n: n.id)
@@ -153,6 +159,17 @@ def sessions_block(run: RunData, prior: RunData | None = None) -> dict[str, Any]
     if mine_links:
         out["time_to_link_s"] = mine_links[0]["time_to_link_s"]
     out["link_error_m"] = _r(float(np.mean(errors))) if errors else None
+    links = {(lk.source, lk.target) for lk in ms.links}
+    cross = out["cross_loop_closures"]
+    for e in m.links:
+        a, b = min(e.source, e.target), max(e.source, e.target)
+        if not e.loop_closure or a >= loaded or (a, b) in links or not (0 <= a < n_nodes and 0 <= b < n_nodes):
+            continue
+        cross["accepted"] += 1
+        if np.all(np.isfinite(g[[a, b]])):
+            cross["true" if float(np.linalg.norm(g[a] - g[b])) <= far_m else "false"] += 1
+        else:
+            cross["unlabelled"] += 1
     use = mine & linked0 & np.all(np.isfinite(g), axis=1)
     if rot is not None and trans is not None and use.any():
         e = pos_ned[use] @ rot.T + trans - g[use]

@@ -80,3 +80,17 @@ def test_a_single_session_map() -> None:
     run.final_sessions = None
     s = sessions_block(run)
     assert (s["count"], s["links"], s["time_to_link_s"]) == (1, 0, None)
+
+
+def test_loop_closures_with_a_loaded_end_are_judged_here() -> None:
+    from common.messages import ExperienceLink
+    run, prior = two_missions()
+    assert run.final_map is not None
+    run.final_map.links = [ExperienceLink(source=3, target=13, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True),                     # the session link itself
+                           ExperienceLink(source=5, target=15, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True),                     # 0.5 m apart: true
+                           ExperienceLink(source=0, target=19, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True)]                     # 9 m apart: false
+    s = sessions_block(run, prior)
+    assert s["cross_loop_closures"] == {"accepted": 2, "true": 1, "false": 1, "unlabelled": 0}
