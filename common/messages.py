@@ -366,6 +366,31 @@ class ExperienceMap(Message):
     corrections: int = 0
 
 
+class SessionLinkInfo(BaseModel):
+    """One link between two sessions of the map (see ``MapSessions``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    session: int = Field(ge=0, description="the session of target (the newer component)")
+    to_session: int = Field(ge=0, description="the session of source")
+    source: int = Field(ge=0, description="node id of the older experience")
+    target: int = Field(ge=0, description="node id of the newer experience")
+    stamp: int = Field(description="event stamp of the link (ns)")
+    delta: list[float] = Field(min_length=3, max_length=3, description="p_target - p_source asked (m)")
+    shift: list[float] = Field(min_length=3, max_length=3, description="how far the newer component moved (m)")
+    rotation_deg: float = Field(description="heading disagreement of the two sweeps (recorded, not applied)")
+    inlier_fraction: float
+
+
+class MapSessions(Message):
+    """``map_sessions``: the sessions of the ``map`` published with the same stamp (issue 20);
+    published only by a map with more than one session."""
+
+    node_session: list[int] = Field(description="session id per node of that map")
+    loaded_nodes: int = Field(ge=0, description="nodes loaded from the map file at start (earlier missions)")
+    links: list[SessionLinkInfo]
+    rejections: dict[str, int] = Field(default_factory=dict, description="link candidates refused, per reason")
+
+
 class ExperienceImage(Image):
     """``experience_image``: the camera frame closest to an event, header = event header."""
 
@@ -533,6 +558,7 @@ KEYS: dict[str, type[Message]] = {
     "map": ExperienceMap,
     "dead_reckoning": PoseStamped,
     "experience_image": ExperienceImage,
+    "map_sessions": MapSessions,
     "truth/pose": Odometry,
     "truth/revisits": RevisitTruth,
 }
@@ -540,7 +566,7 @@ KEYS: dict[str, type[Message]] = {
 MESSAGE_TYPES: dict[str, type[Message]] = {
     t.type_name: t
     for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
-              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, RevisitTruth,
+              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, MapSessions, RevisitTruth,
               NavSatFix, FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
               TFMessage, DiagnosticArray, RawMessage)
 }

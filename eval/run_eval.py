@@ -1,4 +1,4 @@
-"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10] [--relations FILE] [--config FILE] [--set K=V]``.
+"""``poseidon eval RUN.mcap [--json] [--far-m 5] [--min-gap-m 10] [--relations FILE] [--prior PRIOR_RUN.mcap] [--config FILE] [--set K=V]``.
 
 A run judged against ground truth.  :func:`evaluate_run` reads a run recording once
 (:func:`eval.rundata.load_run`; the configuration recorded in the run's metadata, defaults
@@ -72,6 +72,15 @@ truth of an experience" = ``truth/pose`` interpolated at the node's stamp.
   the recording has it, e.g. a CARMEN import) | ``Odometry`` (the dead reckoning).  Works
   on an imported log alone (no run): ``relations`` null, ``relations_odometry`` filled.
 
+- ``sessions``: the map's sessions (a map continued over missions with ``poseidon run
+  --map-dir``, or a kidnapped vehicle): ``count``, ``loaded_nodes``, ``unlinked_nodes``,
+  ``links``, ``false_links``, ``time_to_link_s``, ``link_error_m``, ``ate_prior_frame_m``,
+  ``ate_prior_frame_n``, ``cross_loop_closures`` and a ``table`` per link; every key defined in :mod:`eval.sessions`.
+  With ``--prior PRIOR_RUN.mcap`` (the run that saved the map) the loaded nodes get their
+  truth.  Nodes loaded from an earlier mission's map carry that mission's stamps: every other
+  block here (``nodes`` excepted) uses this run's nodes only, and loop closures with a loaded
+  end are judged in ``sessions``, not in ``loop_closures``.
+
 Exit status: 0, or 2 when the recording or its configuration cannot be read.
 """
 from __future__ import annotations
@@ -88,6 +97,7 @@ from eval.corrected import map_corrected
 from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
 from eval.relations import read_relations, relation_summary
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
+from eval.sessions import sessions_block
 from eval.trajectory import PoseSeries, Trajectory, anchored_errors, ate, drift_pct, rpe
 from launcher.config import PoseidonConfig
 
@@ -109,7 +119,9 @@ def map_trajectory(run: RunData) -> tuple[Trajectory | None, list[int]]:
     m = run.final_map
     if m is None or not m.nodes:
         return None, []
-    nodes = sorted(m.nodes, key=lambda n: n.id)
+    nodes = sorted((n for n in m.nodes if n.id >= run.loaded_nodes), key=lambda n: n.id)
+    if not nodes:
+        return None, []
     pos = run.to_ned(np.array([n.position for n in nodes], dtype=float))
     traj = Trajectory([n.stamp for n in nodes], pos, [0.0] * len(nodes))
     return traj, [n.id for n in nodes]
@@ -136,13 +148,15 @@ def loop_closure_table(run: RunData, far_m: float = 5.0) -> dict[str, Any]:
     m = run.final_map
     if m is None:
         return out
-    nodes = {n.id: n for n in m.nodes}
+    nodes = {n.id: n for n in m.nodes if n.id >= run.loaded_nodes}   # loaded nodes: eval.sessions
     seq_of_stamp = {e.header.stamp: e.header.seq for e in run.events}
     rows = []
     for link in m.links:
         if not link.loop_closure:
             continue
         cur, mat = max(link.source, link.target), min(link.source, link.target)
+        if mat < run.loaded_nodes:
+            continue
         if cur not in nodes or mat not in nodes:
             raise ValueError(f"{run.path}: map loop-closure link {link.source}->{link.target} names a missing node")
         g = _truth_at(run, [nodes[cur].stamp, nodes[mat].stamp])
@@ -322,10 +336,13 @@ def relations_block(run: RunData, relations: str | Path) -> dict[str, Any]:
 
 
 def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: PoseidonConfig | None = None,
-                 min_gap_m: float = 10.0, relations: str | Path | None = None) -> dict[str, Any]:
+                 min_gap_m: float = 10.0, relations: str | Path | None = None,
+                 prior: str | Path | None = None) -> dict[str, Any]:
     """Judge a run recording (``path`` or an already loaded :class:`RunData`); keys in the module docstring.
-    ``relations``: a Freiburg relations file to score the map and the odometry against."""
+    ``relations``: a Freiburg relations file to score the map and the odometry against; ``prior``: the
+    recording of the run that saved the map this run continued (truth of the loaded nodes)."""
     run = path if isinstance(path, RunData) else load_run(path, config)
+    prior_run = load_run(prior, keys=["truth/pose"]) if prior is not None else None
     mp, _ = map_trajectory(run)
     m = run.final_map
     nodes = len(m.nodes) if m is not None else 0
@@ -365,6 +382,7 @@ def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: Poseido
     out["dead_reckoning"] = None
     if run.has_truth and run.odometry is not None and len(run.odometry) > 1:
         out["dead_reckoning"] = {k: _r(v, 4) for k, v in anchored_errors(run.odometry, run.truth).items()}  # type: ignore[arg-type]
+    out["sessions"] = sessions_block(run, prior_run, far_m)
     if relations is not None:
         out.update(relations_block(run, relations))
     return out
@@ -401,6 +419,12 @@ def format_eval(r: dict[str, Any]) -> list[str]:
         lines.append(f"proxies MAP/GT     span {_f(q['span_norm_map_gt'])}, volume {_f(q['volume_map_gt'])}, "
                      f"end displacement {_f(q['end_displacement_map_gt'])}")
     lines.append(f"VPR window ok_ratio {_f(r['vpr_ok_ratio'])}")
+    se = r.get("sessions")
+    if se and se["count"] > 1:
+        lines.append(f"sessions           {se['count']} ({se['loaded_nodes']} nodes loaded, {se['unlinked_nodes']} of "
+                     f"this run unlinked); {se['links']} links, {se['false_links']} false; time to link "
+                     f"{_f(se['time_to_link_s'], '.1f')} s; link error {_f(se['link_error_m'])} m; ATE in the "
+                     f"prior map's frame {_f(se['ate_prior_frame_m'])} m over {se['ate_prior_frame_n']} nodes")
     if "relations_file" in r:
         lines.append(f"relations          {r['relations_in_file']} in {r['relations_file']} "
                      "(error: mean +- std over the relations used)")
@@ -428,10 +452,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--relations", type=Path, default=None, metavar="FILE",
                     help="Freiburg benchmark relations (t_i t_j dx dy dz roll pitch dyaw): score the map-corrected "
                          "trajectory and the raw odometry (eval/relations.py)")
+    ap.add_argument("--prior", type=Path, default=None, metavar="PRIOR_RUN.mcap",
+                    help="the run that saved the map this run continued (--map-dir): truth of the loaded nodes, "
+                         "for the sessions block (eval/sessions.py)")
     add_config_args(ap)
     args = ap.parse_args(argv)
     return report_cli("eval", lambda: evaluate_run(args.recording, far_m=args.far_m, min_gap_m=args.min_gap_m,
-                                                   config=config_from_args(args), relations=args.relations),
+                                                   config=config_from_args(args), relations=args.relations,
+                                                   prior=args.prior),
                       format_eval, args.json)
 
 

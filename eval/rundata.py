@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -32,13 +33,14 @@ from pydantic import ValidationError
 
 from common.codec import DecodeError, decode
 from common.config import ConfigError
-from common.geometry import published_to_ned
+from common.geometry import published_to_ned, yaw_of_quaternion
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.messages import (
     ExperienceEvent,
     ExperienceImage,
     ExperienceMap,
     LocalViewCells,
+    MapSessions,
     Message,
     NeocortexSdr,
     Odometry,
@@ -53,7 +55,7 @@ __all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "con
            "metadata_of_recording", "add_config_args", "config_from_args", "report_cli"]
 
 #: keys decoded into messages (every other key is only counted and its header seq kept; ``map`` is
-#: decoded for its last message only, ``experience_image`` without keeping its pixels)
+#: decoded for its last message only, like ``map_sessions``; ``experience_image`` without keeping its pixels)
 DECODED = ("truth/pose", "truth/revisits", "local_view_cells", "Odometry", "experience_event", "wheel_odometry",
            "dead_reckoning", "neocortex/sdr")
 
@@ -103,6 +105,13 @@ class RunData:
     sdrs: list[SdrRecord] = field(default_factory=list)
     final_map: ExperienceMap | None = None
     map_messages: int = 0
+    final_sessions: MapSessions | None = None  # the last map_sessions (a map of several sessions, issue 20)
+    truth_yaw: np.ndarray | None = None  # truth/pose yaw (NED, rad) at ``truth`` stamps
+
+    @property
+    def loaded_nodes(self) -> int:
+        """Map nodes loaded from an earlier mission's map (their stamps are that mission's)."""
+        return self.final_sessions.loaded_nodes if self.final_sessions is not None else 0
 
     @property
     def duration_s(self) -> float:
@@ -177,6 +186,7 @@ class _Reader:
         self.dead_reckoning: list[Odometry | PoseStamped] = []
         self.wheel: list[Odometry] = []
         self.last_map: RecordedMessage | None = None
+        self.last_sessions: RecordedMessage | None = None
 
     def add(self, rec: RecordedMessage) -> None:
         run, p = self.run, self.run.path
@@ -189,6 +199,8 @@ class _Reader:
         elif rec.key == "map":
             self.last_map = rec
             run.map_messages += 1
+        elif rec.key == "map_sessions":
+            self.last_sessions = rec
         elif rec.key == "experience_image":
             m = _decode(rec, p)
             assert isinstance(m, ExperienceImage)
@@ -229,6 +241,8 @@ class _Reader:
             # truth/pose is NED already (missions/sim: "world NED")
             run.truth = Trajectory([m.header.stamp for m in self.truth], [m.position for m in self.truth],
                                    source="truth/pose")
+            run.truth_yaw = np.array([yaw_of_quaternion(m.orientation) if isinstance(m, Odometry) else math.nan
+                                      for m in self.truth])
         if self.odom:
             run.odometry = self._published(self.odom, "Odometry")
             run.odometry_poses = _poses(self.odom, p, "Odometry")
@@ -240,6 +254,10 @@ class _Reader:
             m = _decode(self.last_map, p)
             assert isinstance(m, ExperienceMap)
             run.final_map = m
+        if self.last_sessions is not None:
+            s = _decode(self.last_sessions, p)
+            assert isinstance(s, MapSessions)
+            run.final_sessions = s
         return run
 
 

@@ -2,7 +2,7 @@
 
 Subcommands:
 
-- ``run --input REC.mcap --out RUN.mcap [--config FILE] [--set key=value ...] [--embedded]
+- ``run --input REC.mcap --out RUN.mcap [--map-dir DIR] [--config FILE] [--set key=value ...] [--embedded]
   [--services a,b] [--rate R] [--timeout S] [--json]``: replay a recording through every
   built service and record the run (:mod:`launcher.run`).  Exit code 0 on success, 2 on
   bad configuration/input, 3 when a service failed (its name is printed).
@@ -142,6 +142,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         config = _load_config(args)
         if args.rate is not None:
             config.player.rate = args.rate
+        if args.map_dir:
+            from launcher.run import use_map_dir
+            use_map_dir(config, args.map_dir)
         services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
         runner = run_embedded if args.embedded else run_distributed
         result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
@@ -346,6 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, help="replay speed: 1 real time, N x, 0 as fast as possible")
     p.add_argument("--timeout", type=float, help="fail if the run takes longer (s)")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
+    p.add_argument("--map-dir", help="load the map (LVC/HTM state, pose cells, experience map, embedding "
+                   "statistics) from this folder when there, begin a new session in it, save the merged map "
+                   "there at the end")
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
 

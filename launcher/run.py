@@ -61,9 +61,36 @@ from launcher.config import PoseidonConfig
 from launcher.services import WorkerSpec, available_services, build_node, build_worker, node_io
 from services.player.player import SOURCE_KEYS
 
-__all__ = ["RunFailed", "ServiceStartError", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
+__all__ = ["RunFailed", "ServiceStartError", "MAP_DIR_FILES", "use_map_dir", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
 
 log = logging.getLogger(__name__)
+
+
+#: the files of a map directory (``poseidon run --map-dir DIR``) and the setting each one is
+MAP_DIR_FILES = {
+    "htm.state_path": "htm_state.npz",                               # SP/TM/LVC prototypes, sequence memory
+    "posecells.state_path": "posecells.npz",                         # pose cells, LVC associations, gates
+    "expmap.map_path": "expmap.npz",                                 # the experience map with its sessions
+    "encoder.embedding_norm_path": "embnorm_{backbone}_{modality}.npz",  # embedding statistics per modality
+}
+
+
+def use_map_dir(config: PoseidonConfig, map_dir: str | Path) -> dict[str, str]:
+    """Point every persisted state of ``config`` into ``map_dir`` (created if missing) and make
+    a loaded experience map begin a new session (``expmap.map_sessions``): a run loads what
+    is there at start and saves the merged state there at the end.  Returns the settings made."""
+    d = Path(map_dir)
+    if d.exists() and not d.is_dir():
+        raise ValueError(f"--map-dir {d}: exists and is not a directory")
+    d.mkdir(parents=True, exist_ok=True)
+    made = {}
+    for dotted, name in MAP_DIR_FILES.items():
+        section, field_name = dotted.split(".")
+        setattr(getattr(config, section), field_name, str(d / name))
+        made[dotted] = str(d / name)
+    config.expmap.map_sessions = True
+    made["expmap.map_sessions"] = "true"
+    return made
 
 
 class RunFailed(RuntimeError):

@@ -1,4 +1,5 @@
-"""``poseidon sim --minutes M --seed S --out FILE.mcap [--json]``: a synthetic cave mission.
+"""``poseidon sim --minutes M --seed S [--world-seed W] [--start area1|area2] --out FILE.mcap [--json]``:
+a synthetic cave mission.
 
 Writes every stream of :mod:`missions.sim.mission` plus ground truth (``truth/pose``,
 ``truth/revisits``) and a ``poseidon`` metadata record (tool, seed, minutes, all sensor
@@ -7,7 +8,9 @@ same seed and minutes give the same bytes.
 
 ``--json`` prints a summary object to stdout:
 
-- ``out``: the recording path; ``seed``; ``minutes``; ``duration_s`` (s);
+- ``out``: the recording path; ``seed`` (route, motion and noise); ``world_seed`` (the cave;
+  ``--world-seed``, default the seed); ``start`` (``area1`` or ``area2``); ``minutes``;
+  ``duration_s`` (s);
 - ``distance_m``: path length flown (m);
 - ``counts``: messages written per key;
 - ``frames``: camera frames; ``frames_with_revisits``: frames with >= 1 earlier frame of
@@ -32,7 +35,13 @@ __all__ = ["main"]
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="poseidon sim", description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=10.0, help="mission duration in minutes (default 10)")
-    ap.add_argument("--seed", type=int, default=0, help="world and noise seed (default 0)")
+    ap.add_argument("--seed", type=int, default=0, help="route, motion and noise seed; also the world's unless "
+                    "--world-seed is given (default 0)")
+    ap.add_argument("--world-seed", type=int, default=None,
+                    help="the cave's seed (default: --seed); two missions with the same world seed fly the same "
+                         "cave, their truth in one world frame")
+    ap.add_argument("--start", choices=("area1", "area2"), default="area1",
+                    help="where the route starts: area1 (default) or area2, the second area of the same cave")
     ap.add_argument("--out", required=True, help="output MCAP recording")
     ap.add_argument("--speed", type=float, default=0.3, help="mean vehicle speed, m/s (default 0.3)")
     ap.add_argument("--camera-hz", type=float, default=None, help="camera rate, Hz (default 5)")
@@ -43,7 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--minutes must be > 0, got {args.minutes}")
     if args.speed <= 0:
         ap.error(f"--speed must be > 0 m/s, got {args.speed}")
-    params = SimParams(minutes=args.minutes, seed=args.seed, speed_m_s=args.speed)
+    params = SimParams(minutes=args.minutes, seed=args.seed, speed_m_s=args.speed, world_seed=args.world_seed,
+                       start=args.start)
     if args.camera_hz is not None:
         if args.camera_hz <= 0:
             ap.error(f"--camera-hz must be > 0, got {args.camera_hz}")

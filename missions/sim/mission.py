@@ -48,7 +48,15 @@ from common.geometry import wrap_angle
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
-from missions.sim.trajectory import VehicleMotion, _smooth_noise, footprint_centres, make_trajectory, revisits, rot_wb
+from missions.sim.trajectory import (
+    START_AREAS,
+    VehicleMotion,
+    _smooth_noise,
+    footprint_centres,
+    make_trajectory,
+    revisits,
+    rot_wb,
+)
 from missions.sim.world import World, build_world
 
 __all__ = ["GENERATOR_VERSION", "SimParams", "CameraModel", "generate", "T0_NS", "KEY_ORDER", "quat_from_rpy"]
@@ -93,7 +101,9 @@ class SimParams:
     """Every parameter of a mission; stored in the recording's ``poseidon`` metadata."""
 
     minutes: float = 10.0
-    seed: int = 0
+    seed: int = 0                   # route, motion and sensor-noise seed
+    world_seed: int | None = None   # the cave's seed (None: ``seed``, the missions before issue 20)
+    start: str = "area1"            # where the route starts: "area1" (the default) or "area2" (see trajectory.py)
     speed_m_s: float = 0.3
     camera: CameraModel = field(default_factory=CameraModel)
     micron_rate_hz: float = 23.3
@@ -296,12 +306,22 @@ def _all_stamps(p: SimParams, duration: float, rng: np.random.Generator) -> _Str
 
 def _metadata(p: SimParams, duration: float, world: World, segs: list[dict[str, Any]], dvl_heading_off: float,
               gyro_bias: np.ndarray) -> dict[str, Any]:
-    """The recording's ``poseidon`` metadata record."""
+    """The recording's ``poseidon`` metadata record (``world_seed`` and ``start`` only when they
+    differ from the defaults, so a default mission's bytes are those of generator version 4)."""
+    params = asdict(p)
+    extra: dict[str, Any] = {}
+    for k, default in (("world_seed", None), ("start", "area1")):
+        if params[k] == default:
+            del params[k]
+        else:
+            extra[k] = params[k]
+    if "world_seed" in extra:
+        extra["world_seed"] = world.seed
     return {
         # no wall clock and no git revision (a dirty tree would change the bytes): the generator
         # version is bumped whenever the output for a given seed changes
         "tool": "poseidon sim", "generator_version": GENERATOR_VERSION, "seed": p.seed, "minutes": p.minutes,
-        "params": asdict(p), "t0_ns": T0_NS, "duration_s": duration,
+        **extra, "params": params, "t0_ns": T0_NS, "duration_s": duration,
         "frames": "world NED (x north, y east, z down); body x forward, y right, z down; quaternion xyzw body->world",
         "revisit_definition": (f"camera footprint centres (optical axis meets floor) within {p.revisit_radius_m} m, "
                                f"vehicle positions within {p.revisit_max_vehicle_m} m, and >= {p.revisit_min_gap_m} m "
@@ -320,8 +340,13 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     duration = p.minutes * 60.0
     if duration <= 0:
         raise ValueError(f"minutes must be > 0, got {p.minutes}")
-    world = world if world is not None else build_world(p.seed)
-    traj = make_trajectory(world, duration, p.seed, p.speed_m_s)
+    if p.start not in START_AREAS:
+        raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {p.start!r}")
+    world_seed = p.seed if p.world_seed is None else int(p.world_seed)
+    world = world if world is not None else build_world(world_seed)
+    if world.seed != world_seed:
+        raise ValueError(f"the world given was built for seed {world.seed}, the mission asks for world_seed {world_seed}")
+    traj = make_trajectory(world, duration, p.seed, p.speed_m_s, start=p.start)
     rng = np.random.default_rng([p.seed, 303])
     st = _all_stamps(p, duration, rng)
     # slow processes on the 50 Hz grid: turbidity, IMU yaw error, odometry drift, gyro bias
@@ -386,7 +411,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
         if s["complete"] and s["name"].startswith("area"):
             loops[s["name"]] = loops.get(s["name"], 0) + 1
     return {
-        "out": str(out_path), "seed": p.seed, "minutes": p.minutes, "duration_s": duration,
+        "out": str(out_path), "seed": p.seed, "world_seed": world.seed, "start": p.start, "minutes": p.minutes, "duration_s": duration,
         "distance_m": round(float(np.interp(duration, traj.t, traj.dist)), 3),
         "counts": dict(sorted(writer.counts.items())), "frames": len(st.cam),
         "frames_with_revisits": int(sum(len(s) > 0 for s in same)), "loops": loops, "segments": segs,

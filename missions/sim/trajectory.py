@@ -18,10 +18,15 @@ import numpy as np
 
 from missions.sim.world import World
 
-__all__ = ["VehicleMotion", "make_trajectory", "rot_wb", "footprint_centres", "revisits", "LOOPS_PER_AREA"]
+__all__ = ["START_AREAS", "VehicleMotion", "make_trajectory", "rot_wb", "footprint_centres", "revisits", "LOOPS_PER_AREA"]
 
 BASE_HZ = 50.0
 LOOPS_PER_AREA = 3
+#: where a mission may start: "area1" enters area 1 from the tunnel of area 2 and flies the
+#: cycle from there (every mission before issue 20); "area2" enters area 2 through the last 15 m
+#: of the transition from area 1 and flies the same cycle from area 2 (its loops, the transition
+#: back, area 1, the transition): the same cave, the same world frame
+START_AREAS = ("area1", "area2")
 
 
 def rot_wb(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -94,8 +99,12 @@ class VehicleMotion:
         return out
 
 
-def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3) -> VehicleMotion:
-    """The vehicle's path for ``duration_s`` seconds at a mean ``speed`` (m/s)."""
+def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3,
+                    start: str = "area1") -> VehicleMotion:
+    """The vehicle's path for ``duration_s`` seconds at a mean ``speed`` (m/s), starting in
+    ``start`` (one of :data:`START_AREAS`)."""
+    if start not in START_AREAS:
+        raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {start!r}")
     rng = np.random.default_rng([seed, 202])
     t = np.arange(0.0, duration_s + 1.0 / BASE_HZ + 2.0, 1.0 / BASE_HZ)
     v = speed * (1.0 + _smooth_noise(rng, t, 20.0, 0.12))
@@ -108,8 +117,13 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
     cycle = [(a1, 0, k) for k in range(LOOPS_PER_AREA)] + [(tr, 1, 0)] + \
             [(a2, 2, k) for k in range(LOOPS_PER_AREA)] + [(back, 3, 0)]
     # the mission starts with an approach: the last 15 m of the tunnel from area 2 into area 1
+    # (from area 1 into area 2 when starting in area 2, and the cycle begins with area 2)
     entry = back[-150:]
-    plan.append((entry, 3, 0))
+    entry_seg = 3
+    if start == "area2":
+        entry, entry_seg = tr[-150:], 1
+        cycle = cycle[LOOPS_PER_AREA + 1:] + cycle[:LOOPS_PER_AREA + 1]
+    plan.append((entry, entry_seg, 0))
     total += float(np.sum(np.hypot(*np.diff(entry, axis=0).T)))
     while total < s[-1] + 10.0:
         for item in cycle:

@@ -64,9 +64,13 @@ def lattice_geometry(shape: Sequence[int], spacing: Sequence[float]) -> tuple[np
     return period, cell
 
 
-def candidate_nodes(n: int, cfg: ExpMapConfig, lvc_index: dict[int, list[int]], lvc_n: int) -> np.ndarray:
-    """Ids (int64, ascending) of the nodes the new node ``n`` of LVC ``lvc_n`` is compared with."""
-    cutoff = n - cfg.min_experience_age
+def candidate_nodes(n: int, cfg: ExpMapConfig, lvc_index: dict[int, list[int]], lvc_n: int,
+                    session_first: int = 0) -> np.ndarray:
+    """Ids (int64, ascending) of the nodes the new node ``n`` of LVC ``lvc_n`` is compared with:
+    those at least ``min_experience_age`` events older, and every node of an earlier session
+    (ids below ``session_first``, the first node of n's session: another mission, or before
+    an odometry jump, is never "the place just passed")."""
+    cutoff = max(n - cfg.min_experience_age, session_first - 1)
     if cutoff < 0:
         return np.zeros(0, np.int64)
     if cfg.pc_factor < cfg.match_threshold:

@@ -146,6 +146,19 @@ class ExpMapConfig(ConfigSection):
                                              "(0: one PoseStamped per Odometry)")
     map_path: str = Field("", description="load the experience map from here at start and save it at the end "
                           "(npz; empty: off)")
+    # --- added for sessions (issue 20); see services/expmap/graph.py, "Sessions"
+    map_sessions: bool = Field(False, description="a map loaded from map_path begins a new session: the run's "
+                               "experiences sit in its own odometry frame, unlinked to the loaded ones until a "
+                               "recognised place is verified by the sonar sweeps (poseidon run --map-dir sets it; "
+                               "false: continue the loaded map in the same odometry frame)")
+    session_jump_m: float = Field(0.0, ge=0, description="an odometry jump between consecutive events longer than "
+                                  "this (m) begins a new session (a kidnapped vehicle, recovered by a verified link); "
+                                  "0: never (the default: maps fed by hand take long steps; a hovering vehicle's "
+                                  "events are < 1 m apart, so e.g. 5 suits the sim)")
+    session_link_min_inliers: float = Field(0.75, ge=0, le=1, description="a session link needs a sweep "
+                                            "registration trusted along both axes with at least this inlier "
+                                            "fraction (above scan_min_inlier_fraction: a link moves a whole "
+                                            "session)")
     graph: Literal["experience_map", "scan_graph"] = Field(
         "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "

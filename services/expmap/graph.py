@@ -67,6 +67,27 @@ Save/load (:meth:`save`, :meth:`load`, npz) keeps everything needed to continue:
 odometry increments, loop edges, sonar sweeps, the confirmation chain, the pending correction
 and the last event's odometry (a continued mission must use the same odometry frame).
 
+Sessions (issue 20): a map continued by another mission (``map_sessions``, ``poseidon run
+--map-dir``) or a vehicle whose odometry jumps by more than ``session_jump_m`` between two
+events (kidnapped) begins a new *session* (:meth:`ExperienceMap.begin_session`): its first
+node sits at its own odometry position (its own frame, unlinked to the earlier nodes), the
+chain edge from the previous node is kept with weight :data:`SESSION_BREAK_WEIGHT` (a
+resistance of 1e6: it carries the chain's bookkeeping, not a measurement) and every node
+carries its session id.  Every node of an earlier session is a loop candidate, whatever
+``min_experience_age`` (another mission is never "the place just passed").  A confirmed match (``loop_confirmations`` consecutive events, as a
+loop closure) between sessions not yet linked is a *link candidate*: it becomes a link only
+when the two experiences' sonar sweeps register trusted along both axes with at least
+``session_link_min_inliers`` inliers (:func:`services.expmap.loop_policy.link_displacement`,
+searched around "the same place", since the separation of two unlinked frames means
+nothing); otherwise it is rejected (``rejected = "link"``, the reason counted in
+:attr:`ExperienceMap.link_rejections`).  A link moves the newer component (every session
+linked to the new one) rigidly so that the two experiences sit at the measured displacement,
+records the link as a loop edge (so relaxation treats it like one from then on; the interval
+and route rules do not apply to it) and joins the components: the older one's frame (session
+0's, the prior map's) is the frame of both.  The link is translation only: the sessions'
+frames share the heading of the AHRS/compass and the depth of the pressure sensor; the
+rotation the registration found is recorded with the link (:class:`SessionLink`).
+
 Code by concern: candidates and scores in :mod:`services.expmap.candidates`; loop edges,
 the route rule and the sweep verification in :mod:`services.expmap.loop_policy`; the
 Eq. 4.20 solver and the capped blend in :mod:`services.expmap.relaxation`; the node columns
@@ -85,14 +106,33 @@ import numpy as np
 
 from services.expmap.candidates import candidate_nodes, choose_match, lattice_geometry, match_scores, pc_distance_cells
 from services.expmap.config import ExpMapConfig
-from services.expmap.loop_policy import LoopEdges, loop_displacement
+from services.expmap.loop_policy import LoopEdges, link_displacement, loop_displacement
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
 from services.expmap.storage import FORMAT_VERSION, ColumnStore, load_map, read_map_file, save_map
 
-__all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
+__all__ = ["ExperienceMap", "EventResult", "SessionLink", "SESSION_BREAK_WEIGHT", "quickest_path", "quickest_path_links", "pc_distance_cells",
            "read_map_file", "FORMAT_VERSION"]
+
+
+#: weight of the chain edge into a session's first node (its displacement is not a measurement)
+SESSION_BREAK_WEIGHT = 1e-6
+
+
+@dataclass
+class SessionLink:
+    """A link between two sessions: p_n - p_m = ``delta`` (m), made at event ``stamp`` (ns)."""
+
+    session: int                # the session of n (the newer component's)
+    to_session: int             # the session of m
+    m: int
+    n: int
+    stamp: int
+    delta: np.ndarray           # (3,) m, map frame
+    shift: np.ndarray           # (3,) m: how far the newer component moved
+    rotation_deg: float         # heading disagreement of the two sweeps (recorded, not applied)
+    inlier_fraction: float
 
 
 @dataclass
@@ -111,6 +151,8 @@ class EventResult:
     iterations: int = 0             # relaxation iterations run during this event
     step_capped: bool = False       # max_correction_step limited an iteration
     settled: bool = False           # a pending correction finished during this event
+    session_started: bool = False   # this event's node is the first of a new session
+    linked: bool = False            # this event linked its session to an older one
 
 
 class ExperienceMap:
@@ -135,6 +177,8 @@ class ExperienceMap:
         g.add("pc", (4,), np.float64)
         g.add("stamp", (), np.int64)
         g.add("rem", (3,), np.float64)       # correction being applied (m): position = pos + phi * rem
+        g.add("session", (), np.int64)       # session id (0: the map's first)
+        g.add("odom", (3,), np.float64)      # the event's odometry position, in its session's frame
         self._g = g
         self._loop_edges = LoopEdges()
         self._lvc_index: dict[int, list[int]] = {}
@@ -149,6 +193,12 @@ class ExperienceMap:
         self._scans: list[np.ndarray | None] = []    # per node: sonar sweep around its odometry position
         self.scan_registrations = {"trusted": 0, "partial": 0, "untrusted": 0, "no_sweep": 0}
         self.last_registration: Registration | None = None
+        self.session = 0                      # the session of the newest node
+        self._session_pending = False
+        self._session_first = 0               # first node of the newest session
+        self._session_root: dict[int, int] = {0: 0}
+        self.session_links: list[SessionLink] = []
+        self.link_rejections = {"no_sweep": 0, "untrusted": 0, "ambiguous": 0, "inliers": 0}
 
     # ---- read access --------------------------------------------------------------
     @property
@@ -201,6 +251,24 @@ class ExperienceMap:
         return self._loop_edges.deltas
 
     @property
+    def sessions(self) -> np.ndarray:
+        """Session id per node."""
+        return self._a("session")
+
+    @property
+    def n_sessions(self) -> int:
+        return int(self._a("session").max()) + 1 if self.n_nodes else 0
+
+    def session_root(self, session: int) -> int:
+        """The oldest session of the component ``session`` is linked into (itself if unlinked)."""
+        return self._session_root[int(session)]
+
+    def begin_session(self) -> None:
+        """The next event's node begins a new session (a map continued by another mission)."""
+        if self.n_nodes:
+            self._session_pending = True
+
+    @property
     def pending(self) -> bool:
         """A correction is still being applied."""
         return self._peak > 0.0
@@ -231,7 +299,24 @@ class ExperienceMap:
         n = g.n
         g.reserve(n + 1)
         A = g.arrays
-        if n == 0:
+        res = EventResult(node=n)
+        jump = (n > 0 and cfg.session_jump_m > 0 and self.last_odom is not None
+                and float(np.linalg.norm(odom - self.last_odom)) > cfg.session_jump_m)
+        if n > 0 and (self._session_pending or jump):
+            self.session = int(self._a("session").max()) + 1
+            self._session_root[self.session] = self.session
+            self._session_pending = False
+            self._session_first = n
+            delta = odom - self._position(n - 1)
+            A["pos"][n] = odom                # its own odometry frame
+            A["delta"][n] = delta
+            A["cum"][n] = A["cum"][n - 1] + delta
+            A["weight"][n] = SESSION_BREAK_WEIGHT
+            A["cumres"][n] = A["cumres"][n - 1] + 1.0 / SESSION_BREAK_WEIGHT
+            A["rem"][n] = 0.0
+            self.last_match, self.confirmations = -1, 0
+            res.session_started = True
+        elif n == 0:
             A["pos"][0] = odom
             A["delta"][0] = 0.0
             A["cum"][0] = 0.0
@@ -251,12 +336,13 @@ class ExperienceMap:
         A["lvc"][n] = int(lvc_id)
         A["pc"][n] = pc
         A["stamp"][n] = int(stamp)
+        A["session"][n] = self.session
+        A["odom"][n] = odom
         g.n = n + 1
         self.last_odom = odom.copy()
         self._lvc_index.setdefault(int(lvc_id), []).append(n)
         self._scans.append(None if sweep is None or len(sweep) == 0 else np.asarray(sweep, np.float32).reshape(-1, 2))
 
-        res = EventResult(node=n)
         self._loop_search(n, res)
         if res.confirmations >= cfg.loop_confirmations:
             self._try_close(n, res)
@@ -267,7 +353,7 @@ class ExperienceMap:
         """Score the candidates of node n and update the confirmation chain (:mod:`.candidates`)."""
         cfg = self.cfg
         lvc_n = int(self._a("lvc")[n])
-        cand = candidate_nodes(n, cfg, self._lvc_index, lvc_n)
+        cand = candidate_nodes(n, cfg, self._lvc_index, lvc_n, self._session_first)
         if cand.size == 0:
             self.last_match, self.confirmations = -1, 0
             return
@@ -302,6 +388,10 @@ class ExperienceMap:
         cfg = self.cfg
         m = res.match
         stamp = int(self._a("stamp")[n])
+        sess = self._a("session")
+        if self.session_root(int(sess[m])) != self.session_root(int(sess[n])):
+            self._try_link(m, n, stamp, res)
+            return
         if self.last_correction_stamp >= 0 and (stamp - self.last_correction_stamp) < cfg.min_correction_interval_sec * 1e9:
             res.rejected = "interval"
             return
@@ -312,6 +402,42 @@ class ExperienceMap:
         if delta is None:
             res.rejected = "scan"
             return
+        self._close(m, n, stamp, delta, res)
+
+    def _try_link(self, m: int, n: int, stamp: int, res: EventResult) -> None:
+        """A confirmed match between unlinked sessions: a link if the sweeps verify it (see
+        "Sessions" in the module docstring), else rejected (``rejected = "link"``)."""
+        odom = self._a("odom")
+        delta, reg, reason = link_displacement(self.cfg, self._scans[m], self._scans[n],
+                                               float(odom[n, 2] - odom[m, 2]))
+        self.last_registration = reg
+        if delta is None or reg is None:
+            self.link_rejections[reason] += 1
+            res.rejected = "link"
+            return
+        self._apply_pending()
+        A, N = self._g.arrays, self.n_nodes
+        shift = A["pos"][m] + delta - A["pos"][n]
+        old_root, new_root = self.session_root(int(A["session"][n])), self.session_root(int(A["session"][m]))
+        moving = np.array([s for s, r in self._session_root.items() if r == old_root], np.int64)
+        mask = np.isin(A["session"][:N], moving)
+        A["pos"][:N][mask] += shift
+        # the chain's bookkeeping: the break edges into and out of the moved sessions absorb the shift
+        edge = np.nonzero(mask[1:] != mask[:-1])[0] + 1
+        A["delta"][edge] += np.where(mask[edge][:, None], shift, -shift)
+        A["cum"][:N] = np.cumsum(A["delta"][:N], axis=0)
+        for s in moving.tolist():
+            self._session_root[s] = new_root
+        self.session_links.append(SessionLink(
+            session=int(A["session"][n]), to_session=int(A["session"][m]), m=m, n=n, stamp=stamp,
+            delta=delta.copy(), shift=shift.copy(), rotation_deg=float(reg.rotation_deg),
+            inlier_fraction=float(reg.inlier_fraction)))
+        res.linked = True
+        self._close(m, n, stamp, delta, res)
+
+    def _close(self, m: int, n: int, stamp: int, delta: np.ndarray, res: EventResult) -> None:
+        """Add the loop edge m -> n asking ``delta`` and plan the relaxation toward the optimum."""
+        cfg = self.cfg
         self.add_loop_edge(m, n, float(cfg.loop_edge_weight), stamp, delta)
         self.corrections += 1
         self.last_correction_stamp = stamp

@@ -20,7 +20,7 @@ from numba import njit
 from services.expmap.config import ExpMapConfig
 from services.expmap.scans import Registration, register_sweeps
 
-__all__ = ["LoopEdges", "loop_displacement"]
+__all__ = ["LoopEdges", "loop_displacement", "link_displacement"]
 
 
 @njit(cache=True)
@@ -178,3 +178,32 @@ def loop_displacement(cfg: ExpMapConfig, d: np.ndarray, sweep_m: np.ndarray | No
         return np.zeros(3), reg
     norm = float(np.sqrt(np.sum(d * d)))
     return (d if norm <= r else d * (r / norm)), reg
+
+
+def link_displacement(cfg: ExpMapConfig, sweep_m: np.ndarray | None, sweep_n: np.ndarray | None,
+                      dz_odom: float) -> tuple[np.ndarray | None, Registration | None, str]:
+    """(Displacement p_n - p_m of a session link, the registration made, why not) for a
+    confirmed match between two unlinked sessions; the displacement None unless verified.
+
+    The frames of two unlinked sessions are unrelated, so the search is centred on "the same
+    place" (zero separation, grown by ``scan_search_radius_m``).  Verified: both sweeps, a
+    registration trusted along both axes (no ambiguous axis: a straight tunnel does not place
+    a session) with at least ``session_link_min_inliers`` inliers.  The reason when not:
+    ``no_sweep``, ``untrusted``, ``ambiguous`` or ``inliers``.  ``dz_odom``: the two
+    experiences' odometry height difference (m; pressure depth is absolute in every session).
+    """
+    if sweep_m is None or sweep_n is None:
+        return None, None, "no_sweep"
+    reg = register_sweeps(sweep_m, sweep_n, np.zeros(2), cell_m=cfg.scan_cell_m,
+                          search_radius_m=cfg.scan_search_radius_m, max_rotation_deg=cfg.scan_max_rotation_deg,
+                          rotation_step_deg=cfg.scan_rotation_step_deg, min_points=cfg.scan_min_points,
+                          min_inlier_fraction=cfg.scan_min_inlier_fraction,
+                          ambiguity_margin_m=cfg.scan_ambiguity_margin_m, max_ambiguity_m=cfg.scan_max_ambiguity_m)
+    if not reg.trusted:
+        return None, reg, "untrusted"
+    if reg.ambiguous_axis is not None:
+        return None, reg, "ambiguous"
+    if reg.inlier_fraction < cfg.session_link_min_inliers:
+        return None, reg, "inliers"
+    t = reg.translation
+    return np.array([float(t[0]), float(t[1]), dz_odom]), reg, ""

@@ -29,7 +29,14 @@ subscribed.
   the end a pending correction is completed first (each iteration still capped), so the
   final map is the clamped least-squares map.
 - ``map_path``: the map is loaded at start when the file exists and saved at the end (after
-  settling), to continue in a later mission with the same odometry frame.
+  settling), to continue in a later mission with the same odometry frame; with
+  ``map_sessions`` (``poseidon run --map-dir``) the run begins a new session instead, in its
+  own odometry frame, linked to the loaded map by a verified recognition
+  (:mod:`services.expmap.graph`, "Sessions").
+- ``map_sessions`` (key): a map of more than one session (a continued map, or a kidnapped
+  vehicle with ``session_jump_m``) publishes, with every ``map``, a ``MapSessions`` with the
+  same stamp: the session of every node, how many nodes were loaded, the links made and the
+  link candidates refused (per reason).
 
 - sonar (``expmap.scan_topic``, with ``loop_scan_matching``): every beam's wall echo becomes
   a point in the dead-reckoning frame with the latest ``Odometry`` pose; each experience
@@ -52,7 +59,8 @@ Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_int
 ``scan_beams_before_odometry`` (beams before the first pose, unused), ``odometry_without_attitude`` (a zero quaternion, not used for the sweep), ``corrections_clamped`` (a closure scaled to max_correction_norm),
 ``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
 max_correction_step), ``experience_images``, ``events_without_image``,
-``image_wait_overflow``, ``maps_published``.
+``image_wait_overflow``, ``maps_published``, ``sessions_started``, ``session_links``,
+``loop_rejected_link`` (a link candidate the sweeps did not verify).
 """
 from __future__ import annotations
 
@@ -73,9 +81,11 @@ from common.messages import (
     Header,
     Image,
     LaserScan,
+    MapSessions,
     Odometry,
     PoseStamped,
     RangeImageBeam,
+    SessionLinkInfo,
 )
 from common.messages import ExperienceMap as ExperienceMapMsg
 from common.node import ServiceNode
@@ -108,7 +118,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
 
     name = "expmap"
     inputs = ("camera/image_raw", "experience_event", "Odometry")
-    outputs = ("map", "dead_reckoning", "experience_image")
+    outputs = ("map", "dead_reckoning", "experience_image", "map_sessions")
 
     @classmethod
     def io_keys(cls, config: ExpMapConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -146,6 +156,11 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
                      len(self.graph.loops), self.map_path)
         else:
             self.graph = ExperienceMap(cfg, shape, spacing)
+        self.loaded_nodes = self.graph.n_nodes
+        if cfg.map_sessions and isinstance(self.graph, ExperienceMap) and self.graph.n_nodes:
+            self.graph.begin_session()
+            log.info("expmap: this run begins session %d, unlinked to the %d loaded experiences",
+                     int(self.graph.sessions.max()) + 1, self.graph.n_nodes)
         self._last_stamp = 0
         self._promised = 0
         self._last_dr_stamp: int | None = None
@@ -188,6 +203,14 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             return
         self._dirty = True
         self.count("events")
+        if res.session_started:
+            self.count("sessions_started")
+            log.info("expmap: session %d begins at experience %d", self.graph.session, res.node)  # type: ignore[union-attr]
+        if res.linked and isinstance(self.graph, ExperienceMap):
+            self.count("session_links")
+            lk = self.graph.session_links[-1]
+            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, inliers %.2f)", lk.session,
+                     lk.to_session, lk.m, lk.n, " ".join(f"{v:.2f}" for v in lk.shift), lk.inlier_fraction)
         if res.loop_closed and isinstance(self.graph, ScanGraph):
             self.count("loop_closures")
             log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m)", res.match, res.node,
@@ -298,6 +321,15 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self._since_map = 0
         self.count("maps_published")
         self.publish("map", map_message(self.graph, self.header("map", stamp)))
+        g = self.graph
+        if isinstance(g, ExperienceMap) and g.n_sessions > 1:
+            links = [SessionLinkInfo(session=lk.session, to_session=lk.to_session, source=lk.m, target=lk.n,
+                                     stamp=lk.stamp, delta=[float(v) for v in lk.delta],
+                                     shift=[float(v) for v in lk.shift], rotation_deg=lk.rotation_deg,
+                                     inlier_fraction=lk.inlier_fraction) for lk in g.session_links]
+            self.publish("map_sessions", MapSessions(
+                header=self.header("map_sessions", stamp), node_session=[int(v) for v in g.sessions],
+                loaded_nodes=self.loaded_nodes, links=links, rejections=dict(g.link_rejections)))
 
     def finish(self) -> None:
         if isinstance(self.graph, ScanGraph):

@@ -3,8 +3,9 @@
 :class:`ColumnStore` keeps one array per node attribute with amortised doubling.
 :func:`save_map` / :func:`load_map` write and read everything needed to continue a map
 (:class:`services.expmap.graph.ExperienceMap`): nodes, odometry increments, loop edges,
-sonar sweeps, the confirmation chain, the pending correction and the last event's odometry
-(a continued mission must use the same odometry frame).  :func:`read_map_file` opens a map
+sonar sweeps, the confirmation chain, the pending correction, the last event's odometry
+(a continued mission must use the same odometry frame, unless it begins a new session) and
+the sessions (id per node, links, which sessions are linked).  :func:`read_map_file` opens a map
 file of either kind (also :mod:`services.expmap.scan_graph`'s).
 """
 from __future__ import annotations
@@ -64,6 +65,13 @@ def save_map(em: ExperienceMap, path: str | Path) -> None:
         "confirmations": em.confirmations, "last_correction_stamp": em.last_correction_stamp,
         "corrections": em.corrections, "solves": em.solves,
         "phi": em._phi, "peak": em._peak,
+        "session": em.session, "session_pending": em._session_pending,
+        "session_root": {str(k): v for k, v in em._session_root.items()},
+        "session_links": [{"session": lk.session, "to_session": lk.to_session, "m": lk.m, "n": lk.n,
+                           "stamp": lk.stamp, "delta": lk.delta.tolist(), "shift": lk.shift.tolist(),
+                           "rotation_deg": lk.rotation_deg, "inlier_fraction": lk.inlier_fraction}
+                          for lk in em.session_links],
+        "link_rejections": em.link_rejections,
     }
     arrays = {k: em._a(k) for k in em._g.arrays}
     loops = np.array([(m, n, s) for m, n, _w, s in em.loops], np.int64).reshape(-1, 3)
@@ -96,15 +104,21 @@ def _check_header(path: Path, meta: dict[str, Any], lattice_shape: tuple[int, ..
 def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     """Fill the empty map ``em`` (built with the configuration and lattice of the run) from a
     file written by :func:`save_map`; the lattice must match the saved one."""
+    from services.expmap.graph import SessionLink
     path = Path(path)
     z, meta = read_map_file(path, "an experience map")
     _check_header(path, meta, em.lattice_shape, em.lattice_spacing)
     n = int(z["pos"].shape[0])
     em._g.reserve(max(n, 1))
     for k in em._g.arrays:
-        if k not in z:
+        if k in z:
+            em._g.arrays[k][:n] = z[k]
+        elif k == "session":              # maps saved before sessions (issue 20): one session
+            em._g.arrays[k][:n] = 0
+        elif k == "odom":                 # ... and their odometry is their positions' chain
+            em._g.arrays[k][:n] = z["cum"] + (z["pos"][0] if n else 0.0)
+        else:
             raise ValueError(f"{path}: missing array {k!r}")
-        em._g.arrays[k][:n] = z[k]
     em._g.n = n
     deltas = z["loop_delta"] if "loop_delta" in z else np.zeros((len(z["loops"]), 3))
     for (m, k, s), w, dl in zip(z["loops"], z["loop_weight"], deltas):
@@ -117,6 +131,16 @@ def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     em.last_correction_stamp = int(meta["last_correction_stamp"])
     em.corrections = int(meta["corrections"])
     em.solves = int(meta["solves"])
+    em.session = int(meta.get("session", 0))
+    em._session_pending = bool(meta.get("session_pending", False))
+    em._session_first = int(np.argmax(em.sessions == em.session)) if n else 0
+    em._session_root = {int(k): int(v) for k, v in meta.get("session_root", {"0": 0}).items()}
+    em.session_links = [SessionLink(session=int(d["session"]), to_session=int(d["to_session"]), m=int(d["m"]),
+                                    n=int(d["n"]), stamp=int(d["stamp"]), delta=np.asarray(d["delta"], np.float64),
+                                    shift=np.asarray(d["shift"], np.float64), rotation_deg=float(d["rotation_deg"]),
+                                    inlier_fraction=float(d["inlier_fraction"]))
+                        for d in meta.get("session_links", [])]
+    em.link_rejections.update({k: int(v) for k, v in meta.get("link_rejections", {}).items()})
     for i, lvc in enumerate(em.lvc_ids.tolist()):
         em._lvc_index.setdefault(int(lvc), []).append(i)
     if "sweep_ptr" in z:                      # maps saved before sonar sweeps existed have none

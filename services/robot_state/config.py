@@ -63,6 +63,13 @@ class RobotStateConfig(ConfigSection):
     heading_gate_chi2: float = Field(25.0, ge=0, description="chi2 gate (1 dof) on yaw innovations: a compass "
                                      "heading beyond it is rejected, an IMU yaw beyond it resets the yaw; 0: off")
 
+    # --- added for sessions (issue 20): fault injection, for tests and evaluation only
+    fault_jump_at_s: float = Field(0.0, ge=0, description="FAULT INJECTION (tests): from this many seconds after "
+                                   "the first published Odometry on, add fault_jump_m to every published position "
+                                   "(a kidnapped vehicle, an odometry reset); 0: off")
+    fault_jump_m: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                      description="the jump (m, published frame) of fault_jump_at_s")
+
     @model_validator(mode="after")
     def _consistent(self) -> RobotStateConfig:
         check(sorted(self.axis_remap) == ["x", "y", "z"],

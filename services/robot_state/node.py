@@ -32,6 +32,11 @@ event counted since the previous output (``dvl_invalid_flag``, ``dvl_nonfinite``
 
 ``ground_truth`` relays each ``odometry`` message unchanged except its header seq.
 
+Fault injection (tests and evaluation only, issue 20): with ``fault_jump_at_s`` > 0, every
+``Odometry`` published that many seconds or more after the first one has ``fault_jump_m``
+(m, published frame) added to its position and ``fault_jump`` in its status (counted once,
+``fault_jump``, and logged as a warning): a kidnapped vehicle, or a navigation reset.
+
 Ground robots (``robot_state.source: wheel_odometry``, the laser preset): the only input
 besides ``odometry`` is ``wheel_odometry`` (e.g. a CARMEN log's ODOM records) and each of
 its messages is republished as ``Odometry`` with the same stamp, pose and velocities (frame
@@ -113,6 +118,8 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
         self._gap_from = 0  # outputs stamped strictly between these are bridged
         self._gap_until: int | None = None
         self._gyro_sigma = float(np.radians(cfg.gyro_sigma_deg_s))
+        self._first_pub: int | None = None   # stamp of the first published Odometry (fault injection clock)
+        self._jumped = False
 
     # ------------------------------------------------------------------ publishing
     def _publish_until(self, t: int, inclusive: bool) -> None:
@@ -131,8 +138,19 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
             self.filter.propagate(g)
             snap = self.filter.snapshot()
             status = snap.flags + (["gap_bridged"] if bridged else []) + self.filter.take_pending()
-            self.publish("Odometry", odometry_from_snapshot(
-                snap, self.frame, self.header("Odometry", g, self.frame_id), status, self._gyro_sigma))
+            out = odometry_from_snapshot(snap, self.frame, self.header("Odometry", g, self.frame_id), status,
+                                         self._gyro_sigma)
+            if self._first_pub is None:
+                self._first_pub = g
+            if self.cfg.fault_jump_at_s > 0 and g - self._first_pub >= self.cfg.fault_jump_at_s * NS:
+                if not self._jumped:
+                    log.warning("robot_state: FAULT INJECTION: published position jumps by %s m from stamp %d "
+                                "(robot_state.fault_jump_at_s)", self.cfg.fault_jump_m, g)
+                    self._jumped = True
+                    self.count("fault_jump")
+                out.position = [p + d for p, d in zip(out.position, self.cfg.fault_jump_m)]
+                out.status = out.status + ["fault_jump"]
+            self.publish("Odometry", out)
             self._next_pub = g + self.period
 
     # ------------------------------------------------------------------ ServiceNode

@@ -1,0 +1,178 @@
+"""The ``sessions`` block of ``poseidon eval`` (issue 20): a map built over several missions
+(``poseidon run --map-dir``) or a mission whose odometry jumped (kidnapped vehicle), judged
+against ground truth.
+
+The run's last ``map_sessions`` message (:class:`common.messages.MapSessions`) gives the
+session of every node of the final ``map``, how many nodes were loaded from the map of
+earlier missions (their stamps are those missions', so their truth comes from ``prior``: the
+recording of the run that saved the map, ``poseidon eval --prior PRIOR_RUN.mcap``) and the
+links made.  Truth of a node = ``truth/pose`` of its own mission at its stamp.
+
+Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``):
+
+- ``count``: sessions in the final map (1 for a map without ``map_sessions``, 0 without map);
+- ``loaded_nodes``: nodes that came from the map directory; ``unlinked_nodes``: nodes of this
+  run whose session is not linked to session 0 at the end;
+- ``links``: session links in the final map; ``false_links``: links whose transform is off
+  by more than ``link_far_m`` (2 m) or ``link_far_deg`` (10 degrees) against truth;
+- ``table``: per link ``{session, to_session, source, target, stamp_s (mission s of this
+  run), error_m, rotation_error_deg, false, time_to_link_s, inlier_fraction}``.  ``error_m``
+  = |R delta - (g_target - g_source)| with delta the displacement the link asks for (taken to
+  NED) and R the rotation of the rigid alignment of session 0's nodes to their truth (the
+  map's frame in the world); ``rotation_error_deg`` = the truth heading difference of the two
+  sessions' odometry frames at the link (a link is translation only: it takes the frames'
+  headings as equal);
+- ``time_to_link_s``: for the first link of this run, the mission seconds from the first
+  ``truth/pose`` sample of the linked session within ``place_m`` (2 m, horizontally) of the
+  true position of an older node (first entering a mapped place) to the link's event; negative
+  when the link came before (the sonar registers up to ``expmap.scan_search_radius_m`` apart);
+- ``link_error_m``: mean ``error_m`` over the links with truth at both ends;
+- ``cross_loop_closures``: ``{accepted, true, false, unlabelled}`` of the loop closures of
+  the final map with one end loaded from the map directory, session links excepted (they are
+  left out of ``loop_closures``, whose truth is this run's only); true when the two ends'
+  truths are within ``far_m`` (5 m), as there;
+- ``ate_prior_frame_m``: RMSE (m) of this run's nodes linked to session 0 against truth
+  after the rigid alignment of session 0's nodes only (no re-alignment: the error of the
+  map in the prior map's frame); ``ate_prior_frame_n``: nodes used.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from eval.rundata import RunData
+from eval.trajectory import align_rigid
+
+__all__ = ["sessions_block", "LINK_FAR_M", "LINK_FAR_DEG", "PLACE_M"]
+
+LINK_FAR_M = 2.0
+LINK_FAR_DEG = 10.0
+PLACE_M = 2.0
+
+
+def _truth(run: RunData | None, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 3) NED, yaw (n,) rad) of ``run``'s truth at ``stamps``; NaN outside it."""
+    pos = np.full((len(stamps), 3), np.nan)
+    yaw = np.full(len(stamps), np.nan)
+    if run is None or not run.has_truth or not len(stamps):
+        return pos, yaw
+    tr = run.truth
+    assert tr is not None
+    ok = tr.covered(stamps)
+    if ok.any():
+        pos[ok] = tr.positions_at(stamps[ok])
+        if run.truth_yaw is not None:
+            t = np.asarray(tr.t, np.float64)
+            yu = np.unwrap(run.truth_yaw)
+            yaw[ok] = np.interp(stamps[ok].astype(np.float64), t, yu)
+    return pos, yaw
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def _r(v: float | None, nd: int = 4) -> float | None:
+    return None if v is None or not math.isfinite(v) else round(float(v), nd)
+
+
+def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.0) -> dict[str, Any]:
+    """The ``sessions`` block (module docstring)."""
+    m = run.final_map
+    out: dict[str, Any] = {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
+                           "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
+                           "ate_prior_frame_n": 0,
+                           "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
+                           "table": []}
+    if m is None or not m.nodes:
+        return out
+    nodes = sorted(m.nodes, key=lambda n: n.id)
+    n_nodes = len(nodes)
+    ms = run.final_sessions
+    if ms is None:
+        out["count"] = 1
+        return out
+    if len(ms.node_session) != n_nodes:
+        raise ValueError(f"{run.path}: map_sessions names {len(ms.node_session)} nodes, the final map has {n_nodes}")
+    sess = np.asarray(ms.node_session, np.int64)
+    loaded = int(ms.loaded_nodes)
+    out.update(count=int(sess.max()) + 1, loaded_nodes=loaded, links=len(ms.links))
+    stamps = np.array([n.stamp for n in nodes], np.int64)
+    pos_ned = run.to_ned(np.array([n.position for n in nodes], np.float64))
+    # the nodes' odometry heading in NED: the published heading vector taken to NED
+    yaw_pub = np.array([n.yaw for n in nodes])
+    hv = run.to_ned(np.stack([np.cos(yaw_pub), np.sin(yaw_pub), np.zeros(n_nodes)], axis=1))
+    yaw_ned = np.arctan2(hv[:, 1], hv[:, 0])
+    g = np.full((n_nodes, 3), np.nan)
+    gy = np.full(n_nodes, np.nan)
+    g[:loaded], gy[:loaded] = _truth(prior, stamps[:loaded])
+    g[loaded:], gy[loaded:] = _truth(run, stamps[loaded:])
+    # the map's frame in the world: session 0's nodes aligned to their truth
+    ref = (sess == 0) & np.all(np.isfinite(g), axis=1)
+    rot = trans = None
+    if ref.sum() >= 3:
+        rot, trans = align_rigid(pos_ned[ref], g[ref])
+    # sessions linked to session 0 at the end
+    root = {s: s for s in range(out["count"])}
+    for lk in ms.links:
+        a, b = root[lk.session], root[lk.to_session]
+        for s, r in root.items():
+            if r == a:
+                root[s] = b
+    mine = np.arange(n_nodes) >= loaded
+    linked0 = np.array([root[int(s)] == 0 for s in sess])
+    out["unlinked_nodes"] = int((mine & ~linked0).sum())
+    t0 = run.start_ns if run.start_ns is not None else 0
+    errors = []
+    for lk in ms.links:
+        i, j = lk.source, lk.target
+        row: dict[str, Any] = {"session": lk.session, "to_session": lk.to_session, "source": i, "target": j,
+                               "stamp_s": _r((lk.stamp - t0) * 1e-9, 3), "error_m": None,
+                               "rotation_error_deg": None, "false": None, "time_to_link_s": None,
+                               "inlier_fraction": _r(lk.inlier_fraction)}
+        if rot is not None and np.all(np.isfinite(g[[i, j]])):
+            d_ned = run.to_ned(np.asarray(lk.delta, np.float64)[None, :])[0]
+            err = float(np.linalg.norm(rot @ d_ned - (g[j] - g[i])))
+            row["error_m"] = _r(err)
+            errors.append(err)
+            if math.isfinite(gy[i]) and math.isfinite(gy[j]):
+                e_i, e_j = _wrap(yaw_ned[i] - gy[i]), _wrap(yaw_ned[j] - gy[j])
+                row["rotation_error_deg"] = _r(math.degrees(abs(_wrap(e_j - e_i))), 3)
+                row["false"] = bool(err > LINK_FAR_M or row["rotation_error_deg"] > LINK_FAR_DEG)
+        # first entering a mapped place: the linked session's truth near an older node's truth
+        first = int(np.flatnonzero(sess == lk.session)[0])
+        older = g[:first][np.all(np.isfinite(g[:first]), axis=1)]
+        if run.has_truth and len(older) and j >= loaded:
+            tr = run.truth
+            assert tr is not None
+            ts = np.asarray(tr.t, np.int64)
+            sel = ts >= stamps[first]
+            tp = tr.positions_at(ts[sel])
+            near = np.array([float(np.min(np.hypot(*(older[:, :2] - p[:2]).T))) <= PLACE_M for p in tp])
+            if near.any():
+                row["time_to_link_s"] = _r((lk.stamp - int(ts[sel][np.argmax(near)])) * 1e-9, 3)
+        out["table"].append(row)
+    out["false_links"] = sum(bool(r["false"]) for r in out["table"])
+    mine_links = [r for r in out["table"] if r["target"] >= loaded]
+    if mine_links:
+        out["time_to_link_s"] = mine_links[0]["time_to_link_s"]
+    out["link_error_m"] = _r(float(np.mean(errors))) if errors else None
+    links = {(lk.source, lk.target) for lk in ms.links}
+    cross = out["cross_loop_closures"]
+    for e in m.links:
+        a, b = min(e.source, e.target), max(e.source, e.target)
+        if not e.loop_closure or a >= loaded or (a, b) in links or not (0 <= a < n_nodes and 0 <= b < n_nodes):
+            continue
+        cross["accepted"] += 1
+        if np.all(np.isfinite(g[[a, b]])):
+            cross["true" if float(np.linalg.norm(g[a] - g[b])) <= far_m else "false"] += 1
+        else:
+            cross["unlabelled"] += 1
+    use = mine & linked0 & np.all(np.isfinite(g), axis=1)
+    if rot is not None and trans is not None and use.any():
+        e = pos_ned[use] @ rot.T + trans - g[use]
+        out["ate_prior_frame_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
+        out["ate_prior_frame_n"] = int(use.sum())
+    return out

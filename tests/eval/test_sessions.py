@@ -1,0 +1,96 @@
+"""``poseidon eval``'s sessions block (eval/sessions.py): link error, false links, time to
+link and the ATE in the prior map's frame, on a hand-made two-mission map."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from common.messages import ExperienceMap, ExperienceNode, Header, MapSessions, SessionLinkInfo
+from eval.rundata import RunData
+from eval.sessions import sessions_block
+from eval.trajectory import Trajectory
+from launcher.config import PoseidonConfig
+
+SEC = 1_000_000_000
+
+
+def enu(p: np.ndarray) -> list[float]:
+    return [float(p[1]), float(p[0]), float(-p[2])]
+
+
+def run_of(truth: np.ndarray, stamps: np.ndarray) -> RunData:
+    run = RunData(path=Path("hand.mcap"), config=PoseidonConfig(), config_source="defaults")
+    run.truth = Trajectory(stamps, truth, source="truth/pose")
+    run.truth_yaw = np.zeros(len(stamps))
+    run.start_ns = int(stamps[0])
+    return run
+
+
+def two_missions(delta_error_ned: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 map_offset_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[RunData, RunData]:
+    """Prior mission: 10 nodes along north at east 0; this mission: 10 nodes along north at
+    east 0.5, same stamps (both missions start at the same time), linked 3 -> 13."""
+    ts = np.arange(40) * SEC // 4
+    prior = run_of(np.c_[ts / SEC, np.zeros(40), np.full(40, 5.0)], ts)
+    run = run_of(np.c_[ts / SEC, np.full(40, 0.5), np.full(40, 5.0)], ts)
+    nodes = []
+    for i in range(20):
+        k = i % 10
+        g = np.array([float(k), 0.0 if i < 10 else 0.5, 5.0])
+        if i >= 10:
+            g = g + np.asarray(map_offset_ned)
+        nodes.append(ExperienceNode(id=i, lvc_id=i, position=enu(g), yaw=math.pi / 2, stamp=k * SEC))
+    run.final_map = ExperienceMap(header=Header(seq=0, stamp=9 * SEC, frame_id="map"), nodes=nodes, links=[])
+    d = np.array([0.0, 0.5, 0.0]) + np.asarray(delta_error_ned)
+    run.final_sessions = MapSessions(
+        header=Header(seq=0, stamp=9 * SEC, frame_id="map"), node_session=[0] * 10 + [1] * 10, loaded_nodes=10,
+        links=[SessionLinkInfo(session=1, to_session=0, source=3, target=13, stamp=3 * SEC, delta=enu(d),
+                               shift=[0.0, 0.0, 0.0], rotation_deg=0.0, inlier_fraction=0.9)])
+    return run, prior
+
+
+def test_a_correct_link_and_the_map_in_the_prior_frame() -> None:
+    run, prior = two_missions()
+    s = sessions_block(run, prior)
+    assert (s["count"], s["links"], s["false_links"], s["loaded_nodes"], s["unlinked_nodes"]) == (2, 1, 0, 10, 0)
+    assert s["link_error_m"] < 1e-6 and s["table"][0]["rotation_error_deg"] < 1e-6
+    assert s["ate_prior_frame_m"] < 1e-6 and s["ate_prior_frame_n"] == 10
+    # this mission is within 2 m of the prior nodes from its start: entered at 0 s, linked at 3 s
+    assert s["time_to_link_s"] == 3.0
+
+
+def test_a_link_off_by_more_than_2_m_is_false_and_the_offset_shows_in_the_prior_frame_ate() -> None:
+    run, prior = two_missions(delta_error_ned=(0.0, 2.5, 0.0), map_offset_ned=(0.0, 2.5, 0.0))
+    s = sessions_block(run, prior)
+    assert s["false_links"] == 1 and abs(s["link_error_m"] - 2.5) < 1e-6 and s["table"][0]["false"]
+    assert abs(s["ate_prior_frame_m"] - 2.5) < 1e-6
+
+
+def test_without_the_prior_recording_the_loaded_ends_have_no_truth() -> None:
+    run, _ = two_missions()
+    s = sessions_block(run, None)
+    assert s["links"] == 1 and s["link_error_m"] is None and s["table"][0]["false"] is None
+    assert s["ate_prior_frame_m"] is None
+
+
+def test_a_single_session_map() -> None:
+    run, _ = two_missions()
+    run.final_sessions = None
+    s = sessions_block(run)
+    assert (s["count"], s["links"], s["time_to_link_s"]) == (1, 0, None)
+
+
+def test_loop_closures_with_a_loaded_end_are_judged_here() -> None:
+    from common.messages import ExperienceLink
+    run, prior = two_missions()
+    assert run.final_map is not None
+    run.final_map.links = [ExperienceLink(source=3, target=13, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True),                     # the session link itself
+                           ExperienceLink(source=5, target=15, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True),                     # 0.5 m apart: true
+                           ExperienceLink(source=0, target=19, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True)]                     # 9 m apart: false
+    s = sessions_block(run, prior)
+    assert s["cross_loop_closures"] == {"accepted": 2, "true": 1, "false": 1, "unlabelled": 0}

@@ -1,0 +1,174 @@
+"""Sessions in the experience map (issue 20): a continued map begins a new session in its own
+odometry frame, linked to the old one only by a verified sonar registration; the same link
+recovers a kidnapped vehicle (an odometry jump within one mission)."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from services.expmap.config import ExpMapConfig
+from services.expmap.graph import SESSION_BREAK_WEIGHT, EventResult, ExperienceMap
+from tests.expmap.helpers import SEC, pc_of, small_cfg
+from tests.expmap.test_scans import CHAMBER, _sweep
+
+#: a hexagonal chamber: another place whose camera view (LVC) we pretend is the same
+OTHER = np.c_[2 + 5 * np.cos(np.linspace(0, 2 * np.pi, 7)[:-1] + 0.3),
+              4 + 4 * np.sin(np.linspace(0, 2 * np.pi, 7)[:-1] + 0.3)]
+FRAME_B = np.array([31.0, -12.0, 0.0])     # where session B's odometry frame puts the chamber (ENU m)
+OFF_TRUE = np.array([0.3, -0.2])           # session B flies 0.3 m N, 0.2 m W of session A's line (NED m)
+
+
+def cfg(**kw: float) -> ExpMapConfig:
+    base = dict(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0,
+                loop_edge_weight=1000.0)
+    base.update(kw)
+    return small_cfg(**base)
+
+
+def true_ned(k: int, offset: Sequence[float] = (0.0, 0.0)) -> np.ndarray:
+    a = 2 * math.pi * k / 40
+    return np.array([1.0, 3.0]) + np.array([2.5 * math.sin(a), 1.5 * (1 - math.cos(a))]) + np.asarray(offset)
+
+
+def enu(p_ned: np.ndarray) -> list[float]:
+    return [float(p_ned[1]), float(p_ned[0]), 0.0]
+
+
+def lap(em: ExperienceMap, t0: int, ks: range, odom_frame: np.ndarray, offset: Sequence[float] = (0.0, 0.0),
+        walls: Sequence[np.ndarray] = (CHAMBER,), sweeps: bool = True) -> list[EventResult]:
+    """Events k of a pass round the chamber; the odometry is exact in its own frame (its origin
+    at ``odom_frame`` ENU), the true pass offset by ``offset`` (NED) from session A's."""
+    out = []
+    for k in ks:
+        p = true_ned(k, offset)
+        odom = list(np.asarray(enu(p)) + odom_frame)
+        sw = _sweep(p, list(walls)) if sweeps else None
+        out.append(em.add_event((t0 + k) * SEC, k, pc_of(odom), odom, 0.0, sweep=sw))
+    return out
+
+
+def session_a(c: ExpMapConfig) -> ExperienceMap:
+    em = ExperienceMap(c)
+    lap(em, 0, range(40), np.zeros(3))
+    em.settle()
+    return em
+
+
+def test_a_new_session_starts_unlinked_in_its_own_frame_and_links_after_verification() -> None:
+    em = session_a(cfg())
+    em.begin_session()
+    res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
+    em.settle()
+    assert res[0].session_started and em.n_sessions == 2
+    assert em.edge_weights[40] == SESSION_BREAK_WEIGHT
+    linked = [i for i, r in enumerate(res) if r.linked]
+    assert len(linked) == 1 and len(em.session_links) == 1
+    # not from a single match: the events before the link matched but were not yet confirmed
+    first = linked[0]
+    assert res[first].confirmations >= em.cfg.loop_confirmations and any(r.match >= 0 for r in res[:first])
+    # before the link session B sat in its own frame
+    assert em.session_links[0].stamp == (100 + first) * SEC
+    link = em.session_links[0]
+    np.testing.assert_allclose(link.shift[:2], -FRAME_B[:2], atol=0.1)
+    np.testing.assert_allclose(link.delta[:2], OFF_TRUE[::-1], atol=0.08)   # the measured displacement
+    # after it, every node of B is where it truly is, in session A's frame
+    truth_b = np.array([enu(true_ned(k, OFF_TRUE)) for k in range(40)])
+    assert np.abs(em.positions[40:, :2] - truth_b[:, :2]).max() < 0.1
+    np.testing.assert_allclose(em.positions[:40, :2], [enu(true_ned(k))[:2] for k in range(40)], atol=0.1)
+    assert em.session_root(1) == 0 and (em.sessions == np.r_[np.zeros(40), np.ones(40)]).all()
+
+
+def test_no_link_without_sweeps() -> None:
+    em = session_a(cfg())
+    em.begin_session()
+    res = lap(em, 100, range(40), FRAME_B, OFF_TRUE, sweeps=False)
+    assert not em.session_links and any(r.rejected == "link" for r in res)
+    assert em.link_rejections["no_sweep"] >= 1
+    # unlinked: B stays where its own odometry puts it
+    odom_b = np.array([enu(true_ned(k, OFF_TRUE)) for k in range(40)]) + FRAME_B
+    np.testing.assert_allclose(em.positions[40:], odom_b, atol=1e-9)
+    assert em.session_root(1) == 1
+
+
+def test_a_wrong_candidate_is_rejected() -> None:
+    """The camera says "same place" (same LVC ids) but session B is in another chamber: the
+    sweeps do not fit, no link; session B stays in its own frame."""
+    em = session_a(cfg())
+    em.begin_session()
+    res = lap(em, 100, range(40), FRAME_B, walls=(OTHER,))
+    assert sum(r.confirmations >= 2 for r in res) >= 5          # plenty of confirmed candidates...
+    assert not em.session_links and not em.loops                 # ...none verified
+    assert em.link_rejections["untrusted"] + em.link_rejections["inliers"] >= 5
+    odom_b = np.array([enu(true_ned(k)) for k in range(40)]) + FRAME_B
+    np.testing.assert_allclose(em.positions[40:], odom_b, atol=1e-9)
+
+
+def test_saved_loaded_continued_equals_uninterrupted(tmp_path: Path) -> None:
+    c = cfg()
+    whole = session_a(c)
+    whole.begin_session()
+    lap(whole, 100, range(40), FRAME_B, OFF_TRUE)
+    whole.settle()
+    # the same, with the map saved after session A and after half of session B
+    a = session_a(c)
+    a.save(tmp_path / "a.npz")
+    b = ExperienceMap.load(tmp_path / "a.npz", c)
+    b.begin_session()
+    lap(b, 100, range(20), FRAME_B, OFF_TRUE)
+    b.save(tmp_path / "b.npz")
+    b2 = ExperienceMap.load(tmp_path / "b.npz", c)
+    lap(b2, 100, range(20, 40), FRAME_B, OFF_TRUE)
+    b2.settle()
+    np.testing.assert_array_equal(b2.positions, whole.positions)
+    np.testing.assert_array_equal(b2.sessions, whole.sessions)
+    assert b2.loops == whole.loops and len(b2.session_links) == len(whole.session_links) == 1
+    np.testing.assert_array_equal(b2.session_links[0].delta, whole.session_links[0].delta)
+    assert b2.session_root(1) == 0
+
+
+def test_a_map_saved_before_sessions_loads_as_one_session(tmp_path: Path) -> None:
+    em = session_a(cfg())
+    em.save(tmp_path / "m.npz")
+    z = dict(np.load(tmp_path / "m.npz"))
+    for k in ("session", "odom"):
+        z.pop(k)
+    np.savez(tmp_path / "old.npz", **z)
+    back = ExperienceMap.load(tmp_path / "old.npz", cfg())
+    assert back.n_sessions == 1 and (back.sessions == 0).all()
+    np.testing.assert_allclose(back._a("odom"), em._a("odom"), atol=1e-9)
+
+
+@pytest.mark.parametrize("jump_m", [0.0, 5.0])
+def test_kidnapped_vehicle_recovers_by_a_verified_link(jump_m: float) -> None:
+    """One mission: after a lap the odometry jumps by 33 m (the vehicle was moved, or the
+    navigation reset); with session_jump_m the jump begins a new session which the next
+    verified recognition links back; without, the jump is taken as motion and the map keeps it."""
+    em = ExperienceMap(cfg(session_jump_m=jump_m))
+    lap(em, 0, range(40), np.zeros(3))
+    res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
+    em.settle()
+    truth_b = np.array([enu(true_ned(k, OFF_TRUE)) for k in range(40)])
+    err = np.abs(em.positions[40:, :2] - truth_b[:, :2]).max()
+    if jump_m:
+        assert res[0].session_started and len(em.session_links) == 1
+        assert err < 0.1
+    else:
+        assert em.n_sessions == 1 and not em.session_links
+        assert err > 5.0
+
+
+def test_an_earlier_session_is_a_candidate_whatever_its_age() -> None:
+    """A prior map smaller than min_experience_age events: its places are still candidates."""
+    c = cfg(min_experience_age=200)
+    em = session_a(c)
+    em.begin_session()
+    res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
+    assert any(r.match >= 0 for r in res) and len(em.session_links) == 1
+    # within one session the age rule holds: a second lap of the same session matches nothing
+    one = ExperienceMap(c)
+    lap(one, 0, range(40), np.zeros(3))
+    assert all(r.match < 0 for r in lap(one, 100, range(40), np.zeros(3), OFF_TRUE))
