@@ -212,6 +212,18 @@ def _direct_h(idx: list[int]) -> np.ndarray:
     return H
 
 
+_OTHERS: dict[tuple[int, ...], np.ndarray] = {}
+
+
+def _others(idx: list[int]) -> np.ndarray:
+    """The states not in ``idx`` (cached)."""
+    key = tuple(idx)
+    out = _OTHERS.get(key)
+    if out is None:
+        out = _OTHERS[key] = np.array([i for i in range(N_STATE) if i not in key], dtype=np.intp)
+    return out
+
+
 class DeadReckoningFilter:
     """EKF dead reckoning from DVL, IMU and depth; see the module docstring."""
 
@@ -393,9 +405,8 @@ class DeadReckoningFilter:
         if H is None:
             H = _direct_h(idx)
         S = H @ self.P @ H.T + r
-        K_full = self.P @ H.T @ np.linalg.inv(S)
-        K = np.zeros_like(K_full)
-        K[idx, :] = K_full[idx, :]
+        K = self.P @ H.T @ np.linalg.inv(S)
+        K[_others(idx), :] = 0.0  # the gain restricted to idx, in place
         self.x += K @ y
         ikh = _EYE - K @ H
         self.P = _symmetrised(ikh @ self.P @ ikh.T + K @ r @ K.T)
