@@ -111,6 +111,7 @@ def decode(data: bytes | memoryview, cls: type[M]) -> M:
 
 
 _TAG_DATA, _TAG_WM, _TAG_EOS, _TAG_SEQ, _TAG_REPLAY = b"D", b"W", b"E", b"S", b"R"
+_PACK_Q = struct.Struct("<Q").pack
 ENCODED_EOS = _TAG_EOS
 
 
@@ -123,7 +124,8 @@ def encode_frame(msg: Message) -> bytes:
 def encode_sequenced(index: int, type_name: str | bytes, payload: bytes | memoryview) -> bytes:
     """Wire frame of a data message with its transport index (``S`` frame)."""
     name = type_name.encode() if isinstance(type_name, str) else type_name
-    return _TAG_SEQ + struct.pack("<Q", index) + bytes([len(name)]) + name + bytes(payload)
+    # one join: the payload (up to an image) is copied once, not once per concatenation
+    return b"".join((_TAG_SEQ, _PACK_Q(index), bytes([len(name)]), name, payload))
 
 
 def encode_replay_start(index: int) -> bytes:

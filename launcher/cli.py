@@ -48,6 +48,7 @@ import argparse
 import importlib
 import json
 import logging
+import resource
 import signal
 import sys
 import traceback
@@ -127,6 +128,8 @@ def _print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             extra.append(", ".join(f"{k} {v}" for k, v in sorted(st["counters"].items())))
         if "busy_s" in st:
             extra.append(f"busy {st['busy_s']:.2f} s")
+        if "cpu_s" in st:
+            extra.append(f"process CPU {st['cpu_s']:.2f} s")
         if st.get("real_time_factor"):
             extra.append(f"{st['real_time_factor']:.1f}x real time")
         print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
@@ -287,6 +290,10 @@ def cmd_service(args: argparse.Namespace) -> int:
         return 1
     finally:
         bus.close()
+    # the process's CPU seconds (user + system, every thread: Zenoh's included), for the
+    # per-service cost of a distributed run (issue 21)
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    stats["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 3)
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats))
     else:

@@ -119,6 +119,12 @@ BG_IDX = [11, 12, 13]  # gyro biases (rad/s): measured rate = true rate + b_g
 D_IMU = 14  # drift rate of the IMU yaw error (rad/s): d b_imu / dt = d_imu
 N_STATE = 15
 
+# constant blocks of every predict/update step (read-only: copied or only read, never written)
+_EYE = np.eye(N_STATE)
+_EYE.flags.writeable = False
+_ZERO3 = np.zeros(3)
+_ZERO3.flags.writeable = False
+
 
 @dataclass
 class FilterSnapshot:
@@ -181,6 +187,41 @@ def _rotation_jacobian_times(e: np.ndarray, v: np.ndarray) -> np.ndarray:
     # d/dyaw: dRz (b0, a1, b2)
     j_y = (-sy * b0 - cy * a1, cy * b0 - sy * a1, 0.0)
     return np.array([[j_r[0], j_p[0], j_y[0]], [j_r[1], j_p[1], j_y[1]], [j_r[2], j_p[2], j_y[2]]])
+
+
+def _symmetrised(p: np.ndarray) -> np.ndarray:
+    """``0.5 * (p + p.T)`` computed in ``p`` (a fresh product nobody else holds): the same
+    elementwise operations in the same order, without two temporaries."""
+    p += p.T  # numpy buffers the overlapping transpose: each entry is p[i, j] + p[j, i] of the input
+    p *= 0.5
+    return p
+
+
+_DIRECT_H: dict[tuple[int, ...], np.ndarray] = {}
+
+
+def _direct_h(idx: list[int]) -> np.ndarray:
+    """Measurement matrix of a direct measurement of the states ``idx`` (cached, read-only)."""
+    key = tuple(idx)
+    H = _DIRECT_H.get(key)
+    if H is None:
+        H = np.zeros((len(idx), N_STATE))
+        H[np.arange(len(idx)), idx] = 1.0
+        H.flags.writeable = False
+        _DIRECT_H[key] = H
+    return H
+
+
+_OTHERS: dict[tuple[int, ...], np.ndarray] = {}
+
+
+def _others(idx: list[int]) -> np.ndarray:
+    """The states not in ``idx`` (cached)."""
+    key = tuple(idx)
+    out = _OTHERS.get(key)
+    if out is None:
+        out = _OTHERS[key] = np.array([i for i in range(N_STATE) if i not in key], dtype=np.intp)
+    return out
 
 
 class DeadReckoningFilter:
@@ -299,7 +340,7 @@ class DeadReckoningFilter:
         e = self.x[6:9]
         v = self.x[3:6]
         gyro_on = self.imu_fresh(t0)
-        w = self.gyro - self.x[11:14] if gyro_on else np.zeros(3)
+        w = self.gyro - self.x[11:14] if gyro_on else _ZERO3
         if self.dvl_fresh(t0) or not self.have_velocity:
             a, g = 1.0, dt
             qv = cfg.process_accel_sigma ** 2 * dt
@@ -311,8 +352,8 @@ class DeadReckoningFilter:
         integrate = self.initialised
         z_moves = integrate and self.depth_fresh(t0)
         r = euler_to_matrix(*e)
-        F = np.eye(N_STATE)
-        dp = np.zeros(3)
+        F = _EYE.copy()
+        dp = _ZERO3
         if integrate:
             dp = r @ v * g
             F[0:3, 3:6] = r * g
@@ -320,31 +361,35 @@ class DeadReckoningFilter:
             if not z_moves:
                 dp[2] = 0.0
                 F[2, 3:9] = 0.0
-        F[3:6, 3:6] *= a
+        if a != 1.0:  # (x * 1.0 == x: the fresh-DVL step skips the no-op)
+            F[3:6, 3:6] *= a
         if gyro_on:
+            # E(roll, pitch) once: both uses below see the same roll and pitch (x[6:8] unchanged)
+            rate = _euler_rate_matrix(e[0], e[1])
             F[6:9, 6:9] += _euler_rate_jacobian(e[0], e[1], w) * dt
-            F[6:9, 11:14] = -_euler_rate_matrix(e[0], e[1]) * dt
+            F[6:9, 11:14] = -rate * dt
         F[B_IMU, D_IMU] = dt
-        Q = np.zeros(N_STATE)
-        Q[3:6] = qv
+        # the process noise's diagonal as a Python list (one array at np.diag, not one per block)
+        Q = [0.0] * N_STATE
+        Q[3] = Q[4] = Q[5] = qv
         if gyro_on:
-            Q[6:9] = math.radians(cfg.gyro_sigma_deg_s) ** 2 * dt
+            Q[6] = Q[7] = Q[8] = math.radians(cfg.gyro_sigma_deg_s) ** 2 * dt
         else:
-            Q[6:9] = math.radians(cfg.attitude_rw_sigma_deg_s) ** 2 * dt
+            Q[6] = Q[7] = Q[8] = math.radians(cfg.attitude_rw_sigma_deg_s) ** 2 * dt
         if integrate and not z_moves:
             Q[2] = cfg.dropout_speed_sigma ** 2 * dt * 1.0  # z held: random walk, 1 s correlation
         if cfg.dvl_heading_fusion:
             Q[B_IMU] = math.radians(cfg.imu_yaw_drift_sigma_deg_s) ** 2 * dt
             Q[D_IMU] = math.radians(cfg.imu_yaw_drift_rate_rw_deg_min_s / 60.0) ** 2 * dt
-        Q[11:14] = math.radians(cfg.gyro_bias_rw_deg_s) ** 2 * dt
+        Q[11] = Q[12] = Q[13] = math.radians(cfg.gyro_bias_rw_deg_s) ** 2 * dt
         self.x[0:3] += dp
-        self.x[3:6] = v * a
+        if a != 1.0:
+            self.x[3:6] = v * a
         self.x[B_IMU] += self.x[D_IMU] * dt
         if gyro_on:
-            self.x[6:9] = e + _euler_rate_matrix(e[0], e[1]) @ w * dt
+            self.x[6:9] = e + rate @ w * dt
             self.x[8] = wrap_angle(self.x[8])
-        self.P = F @ self.P @ F.T + np.diag(Q)
-        self.P = 0.5 * (self.P + self.P.T)
+        self.P = _symmetrised(F @ self.P @ F.T + np.diag(Q))
 
     # ------------------------------------------------------------------ updates
     def _init_block(self, idx: list[int], z: np.ndarray, r: np.ndarray) -> None:
@@ -357,18 +402,14 @@ class DeadReckoningFilter:
         """Kalman update with innovation ``y`` of a linear measurement ``H x`` (default: a
         direct measurement of states ``idx``); the gain is restricted to the states ``idx``
         (Joseph form keeps P consistent for any gain)."""
-        n = len(y)
         if H is None:
-            H = np.zeros((n, N_STATE))
-            H[np.arange(n), idx] = 1.0
+            H = _direct_h(idx)
         S = H @ self.P @ H.T + r
-        K_full = self.P @ H.T @ np.linalg.inv(S)
-        K = np.zeros_like(K_full)
-        K[idx, :] = K_full[idx, :]
+        K = self.P @ H.T @ np.linalg.inv(S)
+        K[_others(idx), :] = 0.0  # the gain restricted to idx, in place
         self.x += K @ y
-        ikh = np.eye(N_STATE) - K @ H
-        self.P = ikh @ self.P @ ikh.T + K @ r @ K.T
-        self.P = 0.5 * (self.P + self.P.T)
+        ikh = _EYE - K @ H
+        self.P = _symmetrised(ikh @ self.P @ ikh.T + K @ r @ K.T)
 
     def _yaw_gated(self, y: float, s: float) -> bool:
         """True when a yaw innovation ``y`` (variance ``s``) fails the ``heading_gate_chi2`` gate."""

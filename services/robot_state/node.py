@@ -61,17 +61,20 @@ __all__ = ["RobotStateNode", "odometry_from_snapshot"]
 log = logging.getLogger(__name__)
 
 
+#: the pose block (position, Euler) of the filter's covariance, as an index of P
+_POSE_IX = np.ix_([0, 1, 2, 6, 7, 8], [0, 1, 2, 6, 7, 8])
+
+
 def odometry_from_snapshot(snap: FilterSnapshot, frame: OutputFrame, header: Header, status: list[str],
                            gyro_sigma_rad_s: float) -> Odometry:
     """Odometry message of a filter snapshot in the published frame."""
     p = frame.position(snap.position)
     r_out = frame.rotation(euler_to_matrix(*snap.euler))
     P = snap.covariance
-    idx = [0, 1, 2, 6, 7, 8]
     J = np.zeros((6, 6))
     J[0:3, 0:3] = frame.m
     J[3:6, 3:6] = frame.euler_jacobian(*snap.euler)
-    pose_cov = J @ P[np.ix_(idx, idx)] @ J.T
+    pose_cov = J @ P[_POSE_IX] @ J.T
     twist_cov = np.zeros((6, 6))
     twist_cov[0:3, 0:3] = frame.b @ P[3:6, 3:6] @ frame.b
     twist_cov[3:6, 3:6] = np.eye(3) * gyro_sigma_rad_s ** 2
