@@ -14,6 +14,11 @@ Subcommands:
   builds them) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
   another service died (see :mod:`common.bus`).
+- ``bridge ros1 [--connect ENDPOINT] [--duration S] [--announce a,b] [--json]``: the ROS 1 bridge
+  (:mod:`services.bridge_ros1.bridge`) on a hub: sensor topics of the ROS master
+  (``ROS_MASTER_URI`` or ``bridge_ros1.master_uri``) onto the bus, our outputs back to ROS,
+  until SIGINT/SIGTERM or ``--duration``; prints its counters (``BridgeStats``).  Exit 2 when
+  rospy or the master is unavailable.
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json] [--recover FIXED.mcap]``: keys, message counts, time span and
@@ -228,6 +233,7 @@ def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: 
     from launcher.services import RECORDER, WorkerSpec
     spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
                       keys=args.keys.split(",") if args.keys else None,
+                      announce=[k for k in (args.announce or "").split(",") if k],
                       wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
                       out=args.out, expect=[k for k in (args.expect or "").split(",") if k] or None)
     if args.name == RECORDER:
@@ -291,6 +297,42 @@ def cmd_service(args: argparse.Namespace) -> int:
     if stats.get("aborted"):
         print(f"poseidon service {args.name}: run aborted: {stats['aborted']}", file=sys.stderr)
         return EXIT_ABORTED
+    return 0
+
+
+def cmd_bridge(args: argparse.Namespace) -> int:
+    """``poseidon bridge ros1``: the bridge in this process, on a hub, until a signal or ``--duration``."""
+    import threading
+
+    from common.bus import Bus
+    from common.config import ConfigError
+    from launcher.services import BRIDGE_ROS1, WorkerSpec, build_worker
+    from services.bridge_ros1.ros_io import RosUnavailable
+    try:
+        config = _load_config(args)
+    except ConfigError as exc:
+        print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
+        return 2
+    connect = [args.connect] if args.connect else config.bus.connect
+    bus = Bus(args.namespace or config.bus.namespace, connect=connect)
+    spec = WorkerSpec(announce=[k for k in (args.announce or "").split(",") if k], drain=False)
+    worker = build_worker(BRIDGE_ROS1, config, bus, spec)
+    signal.signal(signal.SIGTERM, lambda *_: worker.stop())
+    signal.signal(signal.SIGINT, lambda *_: worker.stop())
+    timer = threading.Timer(args.duration, worker.stop) if args.duration else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
+    try:
+        stats = worker.run().as_dict()
+    except RosUnavailable as exc:
+        print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if timer is not None:
+            timer.cancel()
+        bus.close()
+    print(json.dumps(stats, indent=2 if args.json else None))
     return 0
 
 
@@ -367,6 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, help="player: replay speed")
     p.add_argument("--keys", help="player: comma-separated keys to publish")
     p.add_argument("--wait-for", help="player: comma-separated services to wait for")
+    p.add_argument("--announce", help="bridge_ros1: comma-separated source keys kept alive while silent")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--out", help="recorder: output MCAP")
     p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")
@@ -378,6 +421,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_service)
+
+    p = sub.add_parser("bridge", help="bridge a robot middleware to the bus (ROS 1: sensor topics in, our outputs out)")
+    p.add_argument("kind", choices=["ros1"], help="the middleware")
+    p.add_argument("--connect", help="Zenoh endpoint of the hub/router (default: bus.connect)")
+    p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: at SIGINT/SIGTERM)")
+    p.add_argument("--announce", help="comma-separated source keys kept alive with watermarks even while silent")
+    p.add_argument("--json", action="store_true", help="print the counters indented")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_bridge)
 
     p = sub.add_parser("hub", help="run a hub (Zenoh router) for services on several hosts")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint to listen on")

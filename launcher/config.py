@@ -22,6 +22,7 @@ from common.config import (
     read_config_data,
     validate_config,
 )
+from services.bridge_ros1.config import BridgeRos1Config
 from services.encoder.config import EncoderConfig
 from services.expmap.config import ExpMapConfig, ScanGraphConfig
 from services.htm.config import HtmConfig
@@ -34,7 +35,7 @@ from services.robot_state.config import RobotStateConfig
 __all__ = ["PoseidonConfig", "ConfigError", "load_config", "DEFAULT_CONFIG_PATH",
            "SyncConfig", "BusConfig", "SuperviseConfig", "PlayerConfig", "RecorderConfig", "EncoderConfig",
            "HtmConfig", "RobotStateConfig", "RatSlamLvConfig", "PoseCellsConfig", "VprGuardConfig",
-           "ExpMapConfig", "ScanGraphConfig"]
+           "ExpMapConfig", "ScanGraphConfig", "BridgeRos1Config"]
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "deploy" / "poseidon.yaml"
 
@@ -54,6 +55,7 @@ class PoseidonConfig(ConfigSection):
     posecells: PoseCellsConfig = Field(default_factory=PoseCellsConfig)
     vpr_guard: VprGuardConfig = Field(default_factory=VprGuardConfig)
     expmap: ExpMapConfig = Field(default_factory=ExpMapConfig)
+    bridge_ros1: BridgeRos1Config = Field(default_factory=BridgeRos1Config)
     services: list[str] = Field(default_factory=list, description="services the launcher starts (empty: all built)")
     service_classes: dict[str, str] = Field(
         default_factory=dict,
