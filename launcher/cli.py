@@ -4,7 +4,9 @@ Subcommands:
 
 - ``run --input REC.mcap --out RUN.mcap [--config FILE] [--set key=value ...] [--embedded]
   [--services a,b] [--rate R] [--timeout S] [--json]``: replay a recording through every
-  built service and record the run (:mod:`launcher.run`).  Exit code 0 on success, 2 on
+  built service and record the run (:mod:`launcher.run`).  ``run --live ros1 --out RUN.mcap
+  [--services a,b] [--duration S]``: the same on a live source (:mod:`launcher.live`, which
+  documents the summary's live keys: ``dropped``, the bridge's ``latency``).  Exit code 0 on success, 2 on
   bad configuration/input, 3 when a service failed (its name is printed).
 - ``demo [--seed S] [--out DIR] [--baselines] [--embedded] [--timeout S] [--json]``: the main
   job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
@@ -134,15 +136,58 @@ def _print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             extra.append(f"busy {st['busy_s']:.2f} s")
         if st.get("real_time_factor"):
             extra.append(f"{st['real_time_factor']:.1f}x real time")
+        if st.get("dropped"):
+            extra.append(f"dropped (queue full, oldest first) {st['dropped']}")
+        if st.get("late"):
+            extra.append(f"late {st['late']}")
+        if st.get("raw"):
+            extra.append(f"carried raw {st['raw']}")
         print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
+        for stage, lat in (st.get("latency") or {}).items():
+            if lat.get("n"):
+                print(f"    latency arrival -> {stage:<9} p50 {lat['p50_ms']:8.1f} ms  p95 {lat['p95_ms']:8.1f} ms  "
+                      f"p99 {lat['p99_ms']:8.1f} ms  (n {lat['n']})")
     for line in format_summary(result["evaluation"]):
         print(line)
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    """``run --live SOURCE``: stop on SIGINT/SIGTERM or ``--duration`` (:mod:`launcher.live`)."""
+    import threading
+
+    from common.config import ConfigError
+    from launcher.live import run_live
+    from launcher.run import RunFailed
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        config = _load_config(args)
+        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop)
+    except (ConfigError, ValueError, KeyError, TimeoutError) as exc:
+        print(f"poseidon run: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+              file=sys.stderr)
+        return 3
+    _print_run(result.as_dict(), args.json, config)
+    return 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     from common.config import ConfigError
     from common.mcap_io import RecordingError
     from launcher.run import RunFailed, run_distributed, run_embedded
+    if (args.live is None) == (args.input is None):
+        print("poseidon run: give exactly one of --input REC.mcap and --live SOURCE", file=sys.stderr)
+        return 2
+    if args.live is not None:
+        if args.embedded or args.rate is not None:
+            print("poseidon run: --embedded and --rate do not apply to --live", file=sys.stderr)
+            return 2
+        return _run_live(args)
     try:
         config = _load_config(args)
         if args.rate is not None:
@@ -233,7 +278,7 @@ def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: 
     from launcher.services import RECORDER, WorkerSpec
     spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
                       keys=args.keys.split(",") if args.keys else None,
-                      announce=[k for k in (args.announce or "").split(",") if k],
+                      announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
                       wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
                       out=args.out, expect=[k for k in (args.expect or "").split(",") if k] or None)
     if args.name == RECORDER:
@@ -381,7 +426,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("run", help="replay a recording through the services and record the run")
-    p.add_argument("--input", required=True, help="input recording (MCAP)")
+    p.add_argument("--input", help="input recording (MCAP); or --live")
+    p.add_argument("--live", choices=["ros1"], help="a live source instead of --input: ros1 = the ROS 1 bridge "
+                   "on ROS_MASTER_URI (launcher/live.py); ends on Ctrl-C/SIGTERM or --duration")
+    p.add_argument("--duration", type=float, help="--live: stop after this many seconds")
     p.add_argument("--out", required=True, help="output recording of the run (MCAP)")
     p.add_argument("--embedded", action="store_true", help="all services in this process")
     p.add_argument("--services", help="comma-separated algorithm services (default: every built one)")
@@ -410,6 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keys", help="player: comma-separated keys to publish")
     p.add_argument("--wait-for", help="player: comma-separated services to wait for")
     p.add_argument("--announce", help="bridge_ros1: comma-separated source keys kept alive while silent")
+    p.add_argument("--live", action="store_true", help="a service of a live run: bounded input queue (live.*)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--out", help="recorder: output MCAP")
     p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")

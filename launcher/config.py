@@ -17,6 +17,7 @@ from common.config import (
     BusConfig,
     ConfigError,
     ConfigSection,
+    LiveConfig,
     SuperviseConfig,
     SyncConfig,
     read_config_data,
@@ -48,6 +49,7 @@ class PoseidonConfig(ConfigSection):
     player: PlayerConfig = Field(default_factory=PlayerConfig)
     recorder: RecorderConfig = Field(default_factory=RecorderConfig)
     supervise: SuperviseConfig = Field(default_factory=SuperviseConfig)
+    live: LiveConfig = Field(default_factory=LiveConfig)
     encoder: EncoderConfig = Field(default_factory=EncoderConfig)
     htm: HtmConfig = Field(default_factory=HtmConfig)
     robot_state: RobotStateConfig = Field(default_factory=RobotStateConfig)

@@ -155,7 +155,8 @@ class WorkerSpec:
     ``wait_for`` (services it waits for and watches), ``progress`` (bar on stderr).
     Recorder: ``out`` (required), ``expect`` (keys whose end-of-stream ends the recording),
     ``metadata`` (the ``poseidon`` metadata record).  ROS 1 bridge: ``announce`` (source keys
-    it keeps alive with wall-clock watermarks and ends at its stop).  Service: ``node`` already built (None:
+    it keeps alive with wall-clock watermarks and ends at its stop).  ``live``: a service of a
+    live run (bounded input queue ``live.queue_frames``; ``live.slow_service`` is slowed).  Service: ``node`` already built (None:
     built here).
     """
 
@@ -171,6 +172,7 @@ class WorkerSpec:
     metadata: dict[str, Any] | None = None
     node: ServiceNode[Any] | None = None
     announce: Sequence[str] = ()
+    live: bool = False
 
 
 def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec | None = None) -> Worker:
@@ -200,5 +202,7 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
         return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s)
     node = spec.node if spec.node is not None else build_node(name, config)
+    live = config.live
     return NodeRunner(node, bus, config.bus.heartbeat_interval_ms, drain_timeout_s=drain_s,
-                      supervision=spec.supervision)
+                      supervision=spec.supervision, max_queue=live.queue_frames if spec.live else 0,
+                      delay_s=live.slow_ms / 1000 if spec.live and live.slow_service == name else 0.0)
