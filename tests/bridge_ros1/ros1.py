@@ -74,3 +74,17 @@ class Roscore:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(5)
         self.log.close()
+
+
+def wait_subscribed(uri: str, topics: list[str], node: str = "/poseidon_bridge", timeout_s: float = 90.0) -> None:
+    """Wait until ``node`` subscribes to every one of ``topics`` on the master at ``uri``."""
+    import rosgraph
+    master = rosgraph.Master("/poseidon_test", master_uri=uri)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        _pubs, subs, _srvs = master.getSystemState()
+        have = {t for t, nodes in subs if node in nodes}
+        if set(topics) <= have:
+            return
+        time.sleep(0.2)
+    raise TimeoutError(f"{node} did not subscribe to {topics} within {timeout_s:.0f} s")
