@@ -32,11 +32,12 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.bus import Bus, BusPublisher
+from common.bus import Bus
 from common.codec import DecodeError, decode_frame
+from common.live import LiveSource
 from common.messages import ExperienceEvent, ExperienceMap, LocalViewCells, Message, Odometry, PoseStamped
 from common.worker import WAKE, Sink, SinkStats, Source
-from services.bridge_ros1.clock import LatencyTracker, LiveClock
+from services.bridge_ros1.clock import LatencyTracker
 from services.bridge_ros1.config import BridgeRos1Config
 from services.bridge_ros1.convert import Incoming, Outgoing
 from services.bridge_ros1.ros_io import RosLink
@@ -90,11 +91,9 @@ class Ros1Bridge(Sink, Source):
         self.announce = sorted(set(announce))
         self.incoming = Incoming(config.topics, config.discover)
         self.outgoing = Outgoing()
-        self.clock = LiveClock(config.lateness_ms * 1_000_000)
+        self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce)
         self.latency = LatencyTracker()
-        self._lock = threading.Lock()
-        self._pubs: dict[str, BusPublisher] = {}
-        self._ended = False
+        self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
         self._out_keys = {config.odometry_key: "odometry", config.dead_reckoning_key: "dead_reckoning",
                           config.map_key: "map", config.lvc_key: "lvc", config.event_key: "event"}
         self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
@@ -105,15 +104,9 @@ class Ros1Bridge(Sink, Source):
         self.subscribe(sorted(self._out_keys))
 
     # ---- ROS -> bus (rospy threads) -----------------------------------------------------------
-    def _publisher(self, key: str) -> BusPublisher:
-        pub = self._pubs.get(key)
-        if pub is None:
-            pub = self._pubs[key] = self.bus.publisher(key)
-        return pub
-
     def on_ros(self, topic: str, ros_type: str, md5: str, definition: str, data: bytes, arrival_ns: int) -> None:
         """One ROS message (any thread): convert, publish on the bus at once, note its arrival."""
-        if self._ended:
+        if self.source.ended:
             return
         try:
             out = self.incoming.convert(topic, ros_type, md5, definition, data, arrival_ns)
@@ -125,42 +118,13 @@ class Ros1Bridge(Sink, Source):
         if out is None:
             return
         key, msg, why = out
-        stamp = msg.header.stamp
         with self._lock:
-            if self._ended:
-                return
             _bump(self.stats.received, topic)
             if why:
                 _bump(self.stats.raw, key)
                 _bump(self.stats.raw_reasons, why.split(":")[0])
-            if self.clock.observe(key, stamp, arrival_ns):
-                _bump(self.stats.late, key)
-            self.latency.arrived(stamp, arrival_ns)
-            self._publisher(key).send(msg)
-            _bump(self.stats.published, key)
-
-    def send_watermarks(self, now_ns: int) -> int:
-        """Wall-clock watermarks on every source key (published or announced); returns how many."""
-        n = 0
-        with self._lock:
-            if self._ended:
-                return 0
-            for key in sorted(set(self._pubs) | set(self.announce)):
-                wm = self.clock.watermark(key, now_ns)
-                if wm is not None:
-                    self._publisher(key).send_watermark(wm)
-                    n += 1
-            self.stats.watermarks += n
-        return n
-
-    def end_streams(self) -> None:
-        """End-of-stream on every key published or announced (idempotent)."""
-        with self._lock:
-            if self._ended:
-                return
-            self._ended = True
-            for key in sorted(set(self._pubs) | set(self.announce)):
-                self._publisher(key).send_eos()
+            self.latency.arrived(msg.header.stamp, arrival_ns)
+        self.source.publish(key, msg, arrival_ns)
 
     # ---- bus -> ROS --------------------------------------------------------------------------
     def finished(self) -> bool:
@@ -261,17 +225,19 @@ class Ros1Bridge(Sink, Source):
                     self.on_frame(*item)
                 now = time.monotonic()
                 if now >= next_wm:
-                    self.send_watermarks(time.time_ns())
+                    self.source.send_watermarks(time.time_ns())
                     self.flush_map()
                     next_wm = now + wm_every
                 if c.discover and now >= next_discover:
                     self.discover(link)
                     next_discover = now + c.discover_interval_s
         finally:
-            self.end_streams()
+            self.source.end()
             self.flush_map(force=True)
             with self._lock:
                 self.stats.latency = self.latency.summary()
+            self.stats.published, self.stats.late = dict(self.source.published), dict(self.source.late)
+            self.stats.watermarks = self.source.watermarks
             link.close()
-            self.drain(self._pubs.values())
+            self.drain(self.source.publishers())
         return self.stats

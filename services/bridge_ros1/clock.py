@@ -1,4 +1,5 @@
-"""Live event time: watermarks for ROS streams from the wall clock, and latency percentiles.
+"""Live event time: watermarks for ROS streams from the wall clock (:class:`LiveClock`, in
+:mod:`common.live`, shared with every live source), and latency percentiles.
 
 The rule (also in README, "Live on the vehicle"): a ROS header stamp is mapped to the wall
 clock by tracking, per stream (our key), the offset ``arrival wall time - header stamp`` of
@@ -22,40 +23,9 @@ from collections import OrderedDict
 
 import numpy as np
 
+from common.live import LiveClock
+
 __all__ = ["LiveClock", "LatencyTracker"]
-
-
-class LiveClock:
-    """Per-stream offset between header stamps and arrival (ns), and the watermarks it allows."""
-
-    def __init__(self, lateness_ns: int):
-        if lateness_ns < 0:
-            raise ValueError(f"lateness must be >= 0 ns, got {lateness_ns}")
-        self.lateness_ns = lateness_ns
-        self._offset: dict[str, int] = {}
-        self._latest: int | None = None  # offset of the latest message of any stream
-        self._promised: dict[str, int] = {}  # key -> watermark sent
-        self._last_stamp: dict[str, int] = {}
-
-    def observe(self, key: str, stamp_ns: int, arrival_ns: int) -> bool:
-        """A message of ``key`` stamped ``stamp_ns`` arrived at ``arrival_ns``; True when it is
-        late (older than what the stream already promised, or than its previous message)."""
-        late = stamp_ns < self._promised.get(key, -1) or stamp_ns < self._last_stamp.get(key, -1)
-        self._offset[key] = self._latest = arrival_ns - stamp_ns
-        self._last_stamp[key] = max(stamp_ns, self._last_stamp.get(key, -1))
-        return late
-
-    def watermark(self, key: str, now_ns: int) -> int | None:
-        """The promise stream ``key`` can make at ``now_ns`` if it is newer than what it already
-        promised and than its last message's stamp (then it is recorded as promised); else None."""
-        offset = self._offset.get(key, self._latest)
-        if offset is None:
-            return None
-        wm = now_ns - offset - self.lateness_ns
-        if wm <= self._promised.get(key, -1) or wm <= self._last_stamp.get(key, -1):
-            return None
-        self._promised[key] = wm
-        return wm
 
 
 class LatencyTracker:
