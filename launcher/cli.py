@@ -447,7 +447,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("service", help="run one service connected to a hub/router")
-    p.add_argument("name", help="player, recorder, encoder, htm, robot_state, posecells, expmap, ratslam_lv (RatSLAM front-end)")
+    p.add_argument("name", help="player, recorder, bridge_ros1 (live ROS 1 source), encoder, htm, robot_state, posecells, "
+                   "expmap, ratslam_lv (RatSLAM front-end)")
     p.add_argument("--connect", help="Zenoh endpoint of the hub/router, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--mode", default="client", choices=["client", "peer"], help="Zenoh session mode")
     p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/*.json5)")

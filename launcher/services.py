@@ -77,7 +77,7 @@ def node_class(name: str, config: PoseidonConfig | None = None) -> type[ServiceN
               or OPTIONAL_SERVICES.get(name))
     if target is None:
         raise UnknownService(f"unknown service {name!r}; services: {PLAYER}, {RECORDER}, "
-                             f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES])}"
+                             f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES, BRIDGE_ROS1])}"
                              " (or add one with service_classes in the configuration)")
     if ":" not in target:
         raise KeyError(f"service {name!r}: {target!r} is not of the form 'module:Class'")
