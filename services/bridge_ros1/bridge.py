@@ -210,7 +210,7 @@ class Ros1Bridge(Sink, Source):
     def run(self) -> BridgeStats:
         """Connect to the master, bridge until stopped, then end every stream."""
         c = self.config
-        link = self.link = RosLink(c.master_uri, c.node_name, c.ros_python_path, self.on_ros)
+        link = self.link = RosLink(c.master_uri, c.node_name, c.ros_python_path, self.on_ros, c.ros_queue_size)
         self.stats.master_uri = link.master_uri
         try:
             link.connect(c.master_timeout_s)

@@ -38,6 +38,9 @@ class BridgeRos1Config(ConfigSection):
     master_timeout_s: float = Field(10.0, gt=0, description="wait this long for the ROS master at start (s)")
     topics: dict[str, TopicRoute] = Field(default_factory=_default_topics,
                                           description="ROS topic -> our key (default: the importer's mapping)")
+    ros_queue_size: int = Field(10000, ge=1, description="rospy's queue per subscribed topic: if the bridge "
+                                "falls this far behind a topic, rospy drops its oldest messages (a loaded machine at "
+                                "rosbag play -r 8 needs more than a few hundred)")
     discover: bool = Field(True, description="also bridge every other published topic (key: the topic "
                            "without its leading slash)")
     discover_interval_s: float = Field(1.0, gt=0, description="how often the master is asked for new topics (s)")

@@ -52,11 +52,13 @@ def import_rospy(path: str) -> Any:
 class RosLink:
     """One ROS node: AnyMsg subscriptions handed to ``on_message``, raw publishers."""
 
-    def __init__(self, master_uri: str, node_name: str, python_path: str, on_message: OnMessage):
+    def __init__(self, master_uri: str, node_name: str, python_path: str, on_message: OnMessage,
+                 queue_size: int = 10000):
         self.rospy = import_rospy(python_path)
         self.master_uri = master_uri or os.environ.get("ROS_MASTER_URI") or DEFAULT_MASTER_URI
         self.node_name = node_name
         self.on_message = on_message
+        self.queue_size = queue_size
         self._subs: dict[str, Any] = {}
         self._pubs: dict[str, Any] = {}
         self._classes: dict[str, type] = {}
@@ -79,7 +81,7 @@ class RosLink:
     def subscribe(self, topic: str) -> None:
         if topic not in self._subs:
             self._subs[topic] = self.rospy.Subscriber(topic, self.rospy.AnyMsg, self._callback, callback_args=topic,
-                                                      queue_size=1000, tcp_nodelay=True)
+                                                      queue_size=self.queue_size, tcp_nodelay=True)
 
     def subscribed(self) -> set[str]:
         return set(self._subs)

@@ -18,6 +18,8 @@ from services.recorder.recorder import Recorder
 from tests.bridge_ros1.ros1 import Roscore, require_bag, require_ros1
 
 pytestmark = [pytest.mark.timeout(240), pytest.mark.slow]
+#: -d 2: rosbag waits after advertising, so the subscribed bridge has connected before the first message
+PLAY = ["rosbag", "play", "-q", "-d", "2", "-r", "8"]
 
 IMU, ODOM = "imu/data", "jackal_velocity_controller/odom"
 
@@ -69,7 +71,7 @@ def test_a_played_bag_is_recorded_message_for_message_and_ros_sees_our_odometry(
         for t in threads:
             t.start()
         bus.wait_alive(["recorder", "bridge_ros1"], 30)  # the bridge has subscribed: play the bag now
-        play = subprocess.run(["rosbag", "play", "-q", "-r", "8", str(bag)], env=core.env, stdin=subprocess.DEVNULL,
+        play = subprocess.run(PLAY + [str(bag)], env=core.env, stdin=subprocess.DEVNULL,
                               capture_output=True, text=True, timeout=120)
         assert play.returncode == 0, play.stderr
 

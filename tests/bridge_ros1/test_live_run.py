@@ -15,6 +15,8 @@ from tests.bridge_ros1.ros1 import Roscore, require_bag, require_ros1, wait_subs
 from tests.conftest import REPO
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
+#: -d 2: rosbag waits after advertising, so the subscribed bridge has connected before the first message
+PLAY = ["rosbag", "play", "-q", "-d", "2", "-r", "8"]
 CLI = [sys.executable, "-m", "launcher.cli"]
 TOPICS = ["/imu/data", "/jackal_velocity_controller/odom"]
 CONFIG = """robot_state:
@@ -36,7 +38,7 @@ def _live_run(tmp_path, core, bag, *extra):
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_subscribed(core.uri, TOPICS)
-        play = subprocess.run(["rosbag", "play", "-q", "-r", "8", str(bag)], env=core.env,
+        play = subprocess.run(PLAY + [str(bag)], env=core.env,
                               stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
         assert play.returncode == 0, play.stderr
         run.send_signal(signal.SIGINT)  # Ctrl-C: the source ends its streams, the rest finishes
@@ -58,7 +60,8 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     finally:
         core.stop()
     assert result["mode"] == "live"
-    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060}
+    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060}, \
+        result["services"]["bridge_ros1"]["received"]
     bridge = result["services"]["bridge_ros1"]
     assert bridge["late"] == {} and bridge["to_ros"]["/poseidon/odom"] == 3060
     lat = bridge["latency"]["odometry"]
@@ -85,7 +88,8 @@ def test_a_service_slowed_on_purpose_drops_its_oldest_inputs_counted_and_the_rec
     finally:
         core.stop()
     counts = result["recording"]["counts"]
-    assert counts["imu_adis_ros"] == 3061 and counts["wheel_odometry"] == 3060  # the recorder keeps everything
+    assert counts["imu_adis_ros"] == 3061 and counts["wheel_odometry"] == 3060, (  # the recorder keeps everything
+        result["services"]["bridge_ros1"]["received"])
     dropped = result["services"]["robot_state"]["dropped"]
     assert dropped.get("wheel_odometry", 0) > 1000  # 400 msg/s offered, ~50/s taken
     assert counts["Odometry"] == 3060 - dropped["wheel_odometry"]  # what was not dropped was processed
