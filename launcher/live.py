@@ -89,6 +89,20 @@ def _metadata(config: PoseidonConfig, source: str, services: list[str]) -> dict[
             "config": config.model_dump(mode="json")}
 
 
+def _first_failure(procs: dict[str, subprocess.Popen[bytes]], first: str, wait_s: float = 10.0) -> tuple[str, str]:
+    """A process ended during the live phase.  A failing source still ends its streams, so the
+    others may end normally before it exits: wait (at most ``wait_s``) for a non-zero exit code
+    and name that process; else ``first``."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        bad = [(n, p.returncode) for n, p in procs.items() if p.poll() not in (None, 0)]
+        if bad:
+            return bad[0][0], f"exited with code {bad[0][1]} before the end of the live run"
+        if time.monotonic() > deadline or all(p.poll() is not None for p in procs.values()):
+            return first, f"exited with code {procs[first].returncode} before the end of the live run"
+        time.sleep(0.1)
+
+
 def run_live(config: PoseidonConfig, source: str, out: str | Path, services: list[str] | None = None,
              duration_s: float | None = None, stop: threading.Event | None = None) -> RunResult:
     """Run the services on the live ``source`` until ``stop`` is set or ``duration_s`` passed
@@ -137,13 +151,9 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
                      f" or after {duration_s:.0f} s" if duration_s else "")
             deadline = None if duration_s is None else time.monotonic() + duration_s
             while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                dead = sorted(((n, p.returncode) for n, p in procs.items() if p.poll() is not None),
-                              key=lambda d: d[1] == 0)  # the one that failed, not one that followed it
-                if dead:
-                    time.sleep(0.5)  # the others may still be showing who failed first
-                    dead = sorted(((n, p.returncode) for n, p in procs.items() if p.poll() is not None),
-                                  key=lambda d: d[1] == 0)
-                    failed = (dead[0][0], f"exited before the end of the live run with code {dead[0][1]}")
+                dead = [n for n, p in procs.items() if p.poll() is not None]
+                if dead:  # before its time: blame the one that failed, not those that ended after it
+                    failed = _first_failure(procs, dead[0])
                     break
                 stop.wait(0.2)
             if failed is None:

@@ -212,8 +212,8 @@ class Ros1Bridge(Sink, Source):
         c = self.config
         link = self.link = RosLink(c.master_uri, c.node_name, c.ros_python_path, self.on_ros, c.ros_queue_size)
         self.stats.master_uri = link.master_uri
+        link.connect(c.master_timeout_s)  # no master: RosUnavailable, nothing was published
         try:
-            link.connect(c.master_timeout_s)
             self._advertise(link)
             self.discover(link)
             self.bus.declare_alive(self.name)
