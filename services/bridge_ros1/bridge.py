@@ -19,9 +19,10 @@
 - Latency: the wall time from a sensor message's arrival to the LVC id, experience event and
   map it caused (matched by stamp) and to the Odometry, per stage p50/p95/p99
   (``BridgeStats.latency``, in the run summary).
-- End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge unsubscribes, sends
-  end-of-stream on every key it published or announced (the services then finish and the
-  recorder closes a complete file) and shuts its ROS node down.
+- End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge sends end-of-stream on
+  every key it published or announced (the services then finish and the recorder closes a
+  complete file), forwards to ROS what the services still publish until their outputs end
+  (or 2 s without any), then shuts its ROS node down.
 """
 from __future__ import annotations
 
@@ -98,6 +99,7 @@ class Ros1Bridge(Sink, Source):
                           config.map_key: "map", config.lvc_key: "lvc", config.event_key: "event"}
         self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
                             config.markers_topic, config.lvc_topic, config.event_topic}
+        self._outputs_ended: set[str] = set()
         self._pending_map: ExperienceMap | None = None
         self._last_map_wall = 0.0
         self.link: RosLink | None = None
@@ -133,6 +135,8 @@ class Ros1Bridge(Sink, Source):
     def on_frame(self, key: str, data: bytes) -> None:
         try:
             frame = decode_frame(data)
+            if frame.kind == "eos":
+                self._outputs_ended.add(key)
             if frame.kind != "data":
                 return
             msg = frame.message()
@@ -185,6 +189,21 @@ class Ros1Bridge(Sink, Source):
         _bump(self.stats.to_ros, self.config.path_topic)
         _bump(self.stats.to_ros, self.config.markers_topic)
 
+    def _forward_last_outputs(self, idle_s: float = 2.0, limit_s: float = 60.0) -> None:
+        """After the sources ended: the services still finish their inputs; forward what they
+        publish to ROS until every output key ended, or none came for ``idle_s`` (a key no
+        service produces never ends), at most ``limit_s``."""
+        deadline = time.monotonic() + limit_s
+        quiet_since = time.monotonic()
+        while time.monotonic() < deadline and not set(self._out_keys) <= self._outputs_ended:
+            item = self.next_frame(0.1)
+            if item is None or item[0] == WAKE:
+                if time.monotonic() - quiet_since > idle_s:
+                    return
+                continue
+            quiet_since = time.monotonic()
+            self.on_frame(*item)
+
     # ---- run --------------------------------------------------------------------------------
     def _advertise(self, link: RosLink) -> None:
         c, o = self.config, self.outgoing
@@ -233,6 +252,7 @@ class Ros1Bridge(Sink, Source):
                     next_discover = now + c.discover_interval_s
         finally:
             self.source.end()
+            self._forward_last_outputs()
             self.flush_map(force=True)
             with self._lock:
                 self.stats.latency = self.latency.summary()

@@ -19,9 +19,12 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
 PLAY = ["rosbag", "play", "-q", "-d", "2", "-r", "8"]
 CLI = [sys.executable, "-m", "launcher.cli"]
 TOPICS = ["/imu/data", "/jackal_velocity_controller/odom"]
+#: lateness 1 s: at -r 8 on a loaded machine a rospy thread can stall longer than the 200 ms default,
+#: and a message then late for robot_state would make the live outputs differ from the replay's
 CONFIG = """robot_state:
   source: wheel_odometry
 bridge_ros1:
+  lateness_ms: 1000
   discover: false
   topics:
     /imu/data: {key: imu_adis_ros, type: sensor_msgs/Imu}
@@ -60,8 +63,10 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     finally:
         core.stop()
     assert result["mode"] == "live"
-    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060}, \
-        result["services"]["bridge_ros1"]["received"]
+    rs = result["services"]["robot_state"]
+    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060}, (
+        result["services"]["bridge_ros1"]["received"], result["services"]["bridge_ros1"]["late"], rs["rejected"],
+        rs["dropped"])
     bridge = result["services"]["bridge_ros1"]
     assert bridge["late"] == {} and bridge["to_ros"]["/poseidon/odom"] == 3060
     lat = bridge["latency"]["odometry"]
