@@ -1,9 +1,10 @@
 """The bridge's connection to the hub is reset (every TCP connection of the relay between them
 dropped, new ones refused for 3 s) while a bag plays: the bridge keeps running, its Zenoh
-client reconnects by itself -- mostly at once to the hub's own address, which it learnt from the
-hub (around the relay), sometimes through the relay once it is back (3 s) -- only frames in
-flight at the reset are lost, and the run still ends with every stream's end-of-stream.  So
-this is a reset, not a controlled sustained outage.  Skips without ROS 1 or the bag."""
+client reconnects by itself and the run still ends with every stream's end-of-stream.  Two
+outcomes, both seen: the client reconnects at once to the hub's own address, which it learnt
+from the hub (around the relay: only the frames in flight are lost), or through the relay once
+it is back (a 3 s outage: what the bridge published meanwhile, ~200 IMU/s at -r 4, is lost --
+the recorder is on the other side of the link).  Skips without ROS 1 or the bag."""
 import json
 import signal
 import subprocess
@@ -83,4 +84,5 @@ def test_the_bridge_rides_out_a_reset_link_to_the_hub(tmp_path):
     print(f"link reset: {len(stamps)} of 3061 IMU recorded ({lost} lost), longest gap {max(gaps) / 1e9:.3f} s "
           f"of bag time; longest wall-clock silence at the hub side {silent:.2f} s")
     assert any(a > cut_at + 1.0 for a in arrivals)  # data came after the reset
-    assert silent < 3.0 + 3.0 and lost <= 20 and max(gaps) < 0.5e9  # back soon after the link, in-flight frames lost
+    assert silent < 3.0 + 3.0  # back within 3 s of the link
+    assert lost <= 20 + 200 * silent and max(gaps) <= 4 * (silent + 0.5) * 1e9  # lost: what was sent while cut off

@@ -70,6 +70,7 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     bridge = result["services"]["bridge_ros1"]
     assert bridge["late"] == {} and bridge["to_ros"]["/poseidon/odom"] == 3060
     lat = bridge["latency"]["odometry"]
+    print(f"live robot_state at -r 8: latency arrival -> Odometry {lat}")
     # < 5 s: the silent "odometry" input (announced, never published) did not stall robot_state; without
     # wall-clock watermarks nothing would come out before the end of the ~8 s bag
     assert lat["n"] == 3060 and 0 < lat["p50_ms"] <= lat["p95_ms"] <= lat["p99_ms"] <= lat["max_ms"] < 5000
@@ -98,5 +99,6 @@ def test_a_service_slowed_on_purpose_drops_its_oldest_inputs_counted_and_the_rec
     assert counts["imu_adis_ros"] == 3061 and counts["wheel_odometry"] == 3060, (  # the recorder keeps everything
         result["services"]["bridge_ros1"]["received"])
     dropped = result["services"]["robot_state"]["dropped"]
+    print(f"slowed robot_state (20 ms/input, queue 20): dropped {dropped}, Odometry {counts['Odometry']}")
     assert dropped.get("wheel_odometry", 0) > 1000  # 400 msg/s offered, ~50/s taken
     assert counts["Odometry"] == 3060 - dropped["wheel_odometry"]  # what was not dropped was processed

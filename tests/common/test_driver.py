@@ -79,7 +79,8 @@ def test_the_example_streams_a_folder_of_images_at_the_given_rate(bus, tmp_path)
     t.join(10)
     rec = list(read_messages(out, keys=["camera/image_raw"]))
     assert [int(m.message().data[0, 0, 0]) for m in rec] == [0, 40, 80, 120, 160]  # name order
-    gaps_ms = np.diff([m.stamp for m in rec]) / 1e6
-    assert np.all(gaps_ms > 35) and np.all(gaps_ms < 200), gaps_ms  # 20 frames/s: 50 ms apart
+    since_ms = (np.asarray([m.stamp for m in rec]) - rec[0].stamp) / 1e6
+    assert np.all(since_ms >= np.arange(5) * 50 - 5), since_ms  # 20 frames/s: never ahead of the schedule
+    assert since_ms[-1] < 2000, since_ms  # (a loaded machine may run late, then catches up)
     with pytest.raises(ValueError, match="rate"):
         mod.stream_folder(drv, folder, rate_hz=0)
