@@ -18,8 +18,8 @@ from services.recorder.recorder import Recorder
 from tests.bridge_ros1.ros1 import Roscore, require_bag, require_ros1
 
 pytestmark = [pytest.mark.timeout(240), pytest.mark.slow]
-#: -d 2: rosbag waits after advertising, so the subscribed bridge has connected before the first message
-PLAY = ["rosbag", "play", "-q", "-d", "2", "-r", "8"]
+#: -d 5: rosbag waits after advertising, so the subscribed bridge has connected before the first message
+PLAY = ["rosbag", "play", "-q", "-d", "5", "-r", "8"]
 
 IMU, ODOM = "imu/data", "jackal_velocity_controller/odom"
 
