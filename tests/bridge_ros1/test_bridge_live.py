@@ -18,8 +18,9 @@ from services.recorder.recorder import Recorder
 from tests.bridge_ros1.ros1 import Roscore, require_bag, require_ros1
 
 pytestmark = [pytest.mark.timeout(240), pytest.mark.slow]
-#: -d 5: rosbag waits after advertising, so the subscribed bridge has connected before the first message
-PLAY = ["rosbag", "play", "-q", "-d", "5", "-r", "8"]
+#: -d 5: rosbag waits after advertising, so the subscribed bridge has connected before the first message;
+#: --queue: rosbag keeps 100 messages per subscriber by default and drops older ones when a loaded bridge lags
+PLAY = ["rosbag", "play", "-q", "-d", "5", "--queue", "100000", "-r", "8"]
 
 IMU, ODOM = "imu/data", "jackal_velocity_controller/odom"
 

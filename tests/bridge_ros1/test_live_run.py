@@ -15,8 +15,9 @@ from tests.bridge_ros1.ros1 import Roscore, require_bag, require_ros1, wait_subs
 from tests.conftest import REPO
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
-#: -d 5: rosbag waits after advertising, so the subscribed bridge has connected before the first message
-PLAY = ["rosbag", "play", "-q", "-d", "5", "-r", "8"]
+#: -d 5: rosbag waits after advertising, so the subscribed bridge has connected before the first message;
+#: --queue: rosbag keeps 100 messages per subscriber by default and drops older ones when a loaded bridge lags
+PLAY = ["rosbag", "play", "-q", "-d", "5", "--queue", "100000", "-r", "8"]
 CLI = [sys.executable, "-m", "launcher.cli"]
 TOPICS = ["/imu/data", "/jackal_velocity_controller/odom"]
 #: lateness 1 s: at -r 8 on a loaded machine a rospy thread can stall longer than the 200 ms default,
