@@ -28,14 +28,13 @@ from __future__ import annotations
 
 import json
 import logging
-import queue
 import struct
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
@@ -112,6 +111,12 @@ def open_hub(listen: str, config_file: str | None = None, **secure: str | None) 
     """Open the hub: a router session listening on ``listen`` (e.g. ``tcp/127.0.0.1:7447``).
     ``secure``: ``tls_dir``, ``tls_host``, ``user``, ``password_file`` of :func:`zenoh_config`."""
     return zenoh.open(zenoh_config("router", connect=(), listen=[listen], config_file=config_file, **secure))
+
+
+class FrameSink(Protocol):
+    """Where :meth:`Bus.subscribe` puts ``(relative key, frame bytes)``: a queue that never blocks."""
+
+    def put_nowait(self, item: tuple[str, bytes]) -> None: ...
 
 
 class BusPublisher:
@@ -351,7 +356,7 @@ class Bus:
     def publisher(self, key: str, retain: bool = False) -> BusPublisher:
         return BusPublisher(self.session, self.full_key(key), retain=retain)
 
-    def subscribe(self, key: str, sink: queue.SimpleQueue[tuple[str, bytes]]) -> None:
+    def subscribe(self, key: str, sink: FrameSink) -> None:
         """Deliver ``(relative key, frame bytes)`` of ``key`` (wildcards allowed) into ``sink``.
 
         The callback never blocks (see the module notes on flow control).

@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-__all__ = ["ConfigSection", "check", "SyncConfig", "BusConfig", "SuperviseConfig", "ConfigError",
+__all__ = ["ConfigSection", "check", "SyncConfig", "BusConfig", "SuperviseConfig", "LiveConfig", "ConfigError",
            "apply_overrides", "read_config_data", "validate_config"]
 
 
@@ -66,6 +66,20 @@ class SuperviseConfig(ConfigSection):
                                   "after this long without an answer (s, wall)")
     state_dir: str = Field("", description="checkpoint folder; empty: <out stem>.state next to the run's output "
                            "(removed after a successful run)")
+
+
+class LiveConfig(ConfigSection):
+    """Live runs (``poseidon run --live``, launcher/live.py): what differs from a replay."""
+
+    queue_frames: int = Field(500, ge=1, description="a service's input queue holds at most this many data frames; "
+                              "beyond, the oldest is dropped and counted per key (run summary: dropped)")
+    slow_service: str = Field("", description="TEST SETTING: this service sleeps slow_ms before each input "
+                              "(shows the drop policy when a service falls behind); '' = none")
+    slow_ms: float = Field(0.0, ge=0, description="TEST SETTING: the delay of slow_service per input (ms)")
+    startup_timeout_s: float = Field(60.0, gt=0, description="wait this long for the services and the recorder "
+                                     "before the source starts")
+    stop_timeout_s: float = Field(120.0, gt=0, description="after the source stopped, wait this long for the "
+                                  "services and the recorder to finish their inputs")
 
 
 class ConfigError(ValueError):

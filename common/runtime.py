@@ -17,6 +17,11 @@ the key, seq and stamp of the input being processed.  On a normal end the runner
 progress ``END_OF_TIME`` (the service finished, see :mod:`common.bus`); an ``@abort`` on
 the bus stops it (``RunnerStats.aborted`` says why).
 
+Live runs: ``max_queue`` > 0 bounds the input queue (drop oldest, counted per key in
+``RunnerStats.dropped``; :class:`common.worker.DropOldestQueue`), and ``delay_s`` > 0 -- a *test
+setting* only (``live.slow_service``, ``live.slow_ms``) -- makes the runner sleep that long
+before each input it hands to the node, to show what happens when a service falls behind.
+
 Numbered frames (:mod:`common.codec`) already received are dropped (``RunnerStats.duplicates``).
 Supervised (``supervision``, :mod:`common.resume`): the runner checkpoints the node every
 ``checkpoint_interval`` of event time (``RunnerStats.checkpoints``, ``checkpoint_ms``,
@@ -71,7 +76,7 @@ class RunnerStats(SinkStats):
                 "busy_s": round(self.busy_s, 3), "counters": self.counters, "aborted": self.aborted,
                 "duplicates": self.duplicates, "checkpoints": self.checkpoints,
                 "checkpoint_ms": round(self.checkpoint_ms, 3), "checkpoint_bytes": self.checkpoint_bytes,
-                "replays_served": self.replays_served}
+                "replays_served": self.replays_served, "dropped": self.dropped}
 
 
 def _header_seq(payload: bytes | memoryview) -> str:
@@ -89,7 +94,7 @@ class NodeRunner(Sink, Source):
     stats: RunnerStats
 
     def __init__(self, node: ServiceNode[Any], bus: Bus, heartbeat_ms: int = 100, drain_timeout_s: float = 0.0,
-                 supervision: Supervision | None = None):
+                 supervision: Supervision | None = None, max_queue: int = 0, delay_s: float = 0.0):
         self.node = node
         declared = type(node).io_keys(node.config)
         if (tuple(node.inputs), tuple(node.outputs)) != (tuple(declared[0]), tuple(declared[1])):
@@ -98,7 +103,8 @@ class NodeRunner(Sink, Source):
                         type(node).__name__, *declared)
         self._publishers = {k: bus.publisher(k, retain=supervision is not None) for k in node.outputs}
         super().__init__(node.name, bus, RunnerStats(node.name), supervision, drain_timeout_s)
-        self.subscribe(node.inputs)
+        self.subscribe(node.inputs, max_queue)
+        self.delay_s = delay_s
         self._index_of: dict[int, tuple[str, int]] = {}  # id(message in the merger) -> (key, transport index)
         self._last_stamp: int | None = None  # stamp of the last processed input
         self.heartbeat_ns = heartbeat_ms * 1_000_000
@@ -179,6 +185,8 @@ class NodeRunner(Sink, Source):
         is the service's failure: re-raised naming the input that provoked it."""
         self._index_of.pop(id(msg), None)
         self._last_stamp = msg.header.stamp
+        if self.delay_s > 0:  # test setting: a service that falls behind (live.slow_service)
+            time.sleep(self.delay_s)
         try:
             self.node.process(key, msg)
         except Exception as exc:

@@ -24,6 +24,12 @@ supervised, until every consumer reported progress ``END_OF_TIME`` (answering re
 meanwhile); in its own process (``drain_timeout_s`` > 0), until no subscriber is left
 (:meth:`common.bus.Bus.drain`: closing a session earlier discards queued frames).
 
+Live runs (``poseidon run --live``) bound a sink's queue (:class:`DropOldestQueue`,
+``live.queue_frames``): when a service falls behind a live source, the oldest queued data
+frame is dropped, counted per key (``SinkStats.dropped``, in the run summary), so memory
+stays flat and the newest data flows; watermarks, end-of-stream and replay frames are never
+dropped.  Replays keep the unbounded queue: their flow control loses nothing.
+
 Durations: ``*_s`` wall-clock seconds, ``*_ns`` event-time nanoseconds.
 """
 from __future__ import annotations
@@ -33,8 +39,9 @@ import queue
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +58,7 @@ from common.resume import (
     save_checkpoint,
 )
 
-__all__ = ["Worker", "WorkerStats", "Sink", "SinkStats", "Source", "WAKE"]
+__all__ = ["Worker", "WorkerStats", "Sink", "SinkStats", "Source", "WAKE", "DropOldestQueue"]
 
 log = logging.getLogger(__name__)
 
@@ -78,11 +85,68 @@ class WorkerStats(ABC):
 @dataclass(kw_only=True)
 class SinkStats(WorkerStats):
     """A sink's counters: numbered frames dropped as already received, checkpoints written
-    and the wall time they took (ms, total)."""
+    and the wall time they took (ms, total); ``dropped``: data frames dropped per key by a
+    bounded (live) queue."""
 
     duplicates: int = 0
     checkpoints: int = 0
     checkpoint_ms: float = 0.0
+    dropped: dict[str, int] = field(default_factory=dict)
+
+
+#: first byte of a data frame (plain or numbered, :mod:`common.codec`)
+_DATA_TAGS = (ord("D"), ord("S"))
+
+
+class DropOldestQueue:
+    """A sink's receive queue holding at most ``max_data`` data frames: putting one more drops
+    the oldest queued data frame, counted per key in ``dropped``.  Control frames (watermark,
+    end-of-stream, replay, wake) are always kept.  The put never blocks (Zenoh callbacks)."""
+
+    def __init__(self, max_data: int, dropped: dict[str, int] | None = None):
+        if max_data < 1:
+            raise ValueError(f"a bounded queue needs max_data >= 1, got {max_data}")
+        self.max_data = max_data
+        self.dropped = dropped if dropped is not None else {}
+        self._items: deque[tuple[str, bytes]] = deque()
+        self._data = 0
+        self._cond = threading.Condition()
+
+    @staticmethod
+    def _is_data(item: tuple[str, bytes]) -> bool:
+        return bool(item[1]) and item[1][0] in _DATA_TAGS and item[0] != WAKE
+
+    def put_nowait(self, item: tuple[str, bytes]) -> None:
+        with self._cond:
+            if self._is_data(item):
+                if self._data >= self.max_data:
+                    for i, old in enumerate(self._items):
+                        if self._is_data(old):
+                            del self._items[i]
+                            self._data -= 1
+                            self.dropped[old[0]] = self.dropped.get(old[0], 0) + 1
+                            break
+                self._data += 1
+            self._items.append(item)
+            self._cond.notify()
+
+    def get(self, timeout: float | None = None) -> tuple[str, bytes]:
+        """The oldest item; :class:`queue.Empty` after ``timeout`` seconds without one."""
+        with self._cond:
+            if not self._items and not self._cond.wait_for(lambda: bool(self._items), timeout):
+                raise queue.Empty
+            item = self._items.popleft()
+            if self._is_data(item):
+                self._data -= 1
+            return item
+
+    def empty(self) -> bool:
+        with self._cond:
+            return not self._items
+
+    def qsize(self) -> int:
+        with self._cond:
+            return len(self._items)
 
 
 class Worker(ABC):
@@ -132,9 +196,11 @@ class Sink(Worker):
     #: on a stop, True: leave at once; False: first handle what has already arrived
     stop_at_once = True
 
-    def subscribe(self, keys: Iterable[str]) -> None:
-        """Subscribe to ``keys`` (key expressions) into the sink's queue; progress publisher, gate."""
-        self.queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    def subscribe(self, keys: Iterable[str], max_queue: int = 0) -> None:
+        """Subscribe to ``keys`` (key expressions) into the sink's queue; progress publisher, gate.
+        ``max_queue`` > 0: a :class:`DropOldestQueue` of that many data frames (live runs)."""
+        self.queue: queue.SimpleQueue[tuple[str, bytes]] | DropOldestQueue = (
+            DropOldestQueue(max_queue, self.stats.dropped) if max_queue > 0 else queue.SimpleQueue())
         self.progress = self.bus.progress_publisher(self.name)
         self.gate = SequenceGate(owner=self.name)
         self._asked: dict[str, float] = {}

@@ -4,7 +4,9 @@ Subcommands:
 
 - ``run --input REC.mcap --out RUN.mcap [--map-dir DIR] [--config FILE] [--set key=value ...] [--embedded]
   [--services a,b] [--rate R] [--timeout S] [--json]``: replay a recording through every
-  built service and record the run (:mod:`launcher.run`).  Exit code 0 on success, 2 on
+  built service and record the run (:mod:`launcher.run`).  ``run --live ros1 --out RUN.mcap
+  [--services a,b] [--duration S]``: the same on a live source (:mod:`launcher.live`, which
+  documents the summary's live keys: ``dropped``, the bridge's ``latency``).  Exit code 0 on success, 2 on
   bad configuration/input, 3 when a service failed (its name is printed).
 - ``demo [--seed S] [--out DIR] [--baselines] [--embedded] [--timeout S] [--json]``: the main
   job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
@@ -14,6 +16,11 @@ Subcommands:
   builds them) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
   another service died (see :mod:`common.bus`).
+- ``bridge ros1 [--connect ENDPOINT] [--duration S] [--announce a,b] [--json]``: the ROS 1 bridge
+  (:mod:`services.bridge_ros1.bridge`) on a hub: sensor topics of the ROS master
+  (``ROS_MASTER_URI`` or ``bridge_ros1.master_uri``) onto the bus, our outputs back to ROS,
+  until SIGINT/SIGTERM or ``--duration``; prints its counters (``BridgeStats``).  Exit 2 when
+  rospy or the master is unavailable.
 - ``hub [--listen ENDPOINT] [--zenoh-config FILE]``: a hub (Zenoh router) for services on
   several hosts.
 - ``info REC.mcap [--json] [--recover FIXED.mcap]``: keys, message counts, time span and
@@ -132,15 +139,58 @@ def _print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             extra.append(f"process CPU {st['cpu_s']:.2f} s")
         if st.get("real_time_factor"):
             extra.append(f"{st['real_time_factor']:.1f}x real time")
+        if st.get("dropped"):
+            extra.append(f"dropped (queue full, oldest first) {st['dropped']}")
+        if st.get("late"):
+            extra.append(f"late {st['late']}")
+        if st.get("raw"):
+            extra.append(f"carried raw {st['raw']}")
         print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
+        for stage, lat in (st.get("latency") or {}).items():
+            if lat.get("n"):
+                print(f"    latency arrival -> {stage:<9} p50 {lat['p50_ms']:8.1f} ms  p95 {lat['p95_ms']:8.1f} ms  "
+                      f"p99 {lat['p99_ms']:8.1f} ms  (n {lat['n']})")
     for line in format_summary(result["evaluation"]):
         print(line)
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    """``run --live SOURCE``: stop on SIGINT/SIGTERM or ``--duration`` (:mod:`launcher.live`)."""
+    import threading
+
+    from common.config import ConfigError
+    from launcher.live import run_live
+    from launcher.run import RunFailed
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        config = _load_config(args)
+        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop)
+    except (ConfigError, ValueError, KeyError, TimeoutError) as exc:
+        print(f"poseidon run: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+              file=sys.stderr)
+        return 3
+    _print_run(result.as_dict(), args.json, config)
+    return 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     from common.config import ConfigError
     from common.mcap_io import RecordingError
     from launcher.run import RunFailed, run_distributed, run_embedded
+    if (args.live is None) == (args.input is None):
+        print("poseidon run: give exactly one of --input REC.mcap and --live SOURCE", file=sys.stderr)
+        return 2
+    if args.live is not None:
+        if args.embedded or args.rate is not None:
+            print("poseidon run: --embedded and --rate do not apply to --live", file=sys.stderr)
+            return 2
+        return _run_live(args)
     try:
         config = _load_config(args)
         if args.rate is not None:
@@ -234,6 +284,7 @@ def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: 
     from launcher.services import RECORDER, WorkerSpec
     spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
                       keys=args.keys.split(",") if args.keys else None,
+                      announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
                       wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
                       out=args.out, expect=[k for k in (args.expect or "").split(",") if k] or None)
     if args.name == RECORDER:
@@ -304,6 +355,42 @@ def cmd_service(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bridge(args: argparse.Namespace) -> int:
+    """``poseidon bridge ros1``: the bridge in this process, on a hub, until a signal or ``--duration``."""
+    import threading
+
+    from common.bus import Bus
+    from common.config import ConfigError
+    from launcher.services import BRIDGE_ROS1, WorkerSpec, build_worker
+    from services.bridge_ros1.ros_io import RosUnavailable
+    try:
+        config = _load_config(args)
+    except ConfigError as exc:
+        print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
+        return 2
+    connect = [args.connect] if args.connect else config.bus.connect
+    bus = Bus(args.namespace or config.bus.namespace, connect=connect)
+    spec = WorkerSpec(announce=[k for k in (args.announce or "").split(",") if k], drain=False)
+    worker = build_worker(BRIDGE_ROS1, config, bus, spec)
+    signal.signal(signal.SIGTERM, lambda *_: worker.stop())
+    signal.signal(signal.SIGINT, lambda *_: worker.stop())
+    timer = threading.Timer(args.duration, worker.stop) if args.duration else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
+    try:
+        stats = worker.run().as_dict()
+    except RosUnavailable as exc:
+        print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if timer is not None:
+            timer.cancel()
+        bus.close()
+    print(json.dumps(stats, indent=2 if args.json else None))
+    return 0
+
+
 def cmd_hub(args: argparse.Namespace) -> int:
     """Run a hub (Zenoh router) until interrupted: the meeting point of services on other hosts."""
     import threading
@@ -349,7 +436,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("run", help="replay a recording through the services and record the run")
-    p.add_argument("--input", required=True, help="input recording (MCAP)")
+    p.add_argument("--input", help="input recording (MCAP); or --live")
+    p.add_argument("--live", choices=["ros1"], help="a live source instead of --input: ros1 = the ROS 1 bridge "
+                   "on ROS_MASTER_URI (launcher/live.py); ends on Ctrl-C/SIGTERM or --duration")
+    p.add_argument("--duration", type=float, help="--live: stop after this many seconds")
     p.add_argument("--out", required=True, help="output recording of the run (MCAP)")
     p.add_argument("--embedded", action="store_true", help="all services in this process")
     p.add_argument("--services", help="comma-separated algorithm services (default: every built one)")
@@ -370,7 +460,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("service", help="run one service connected to a hub/router")
-    p.add_argument("name", help="player, recorder, encoder, htm, robot_state, posecells, expmap, ratslam_lv (RatSLAM front-end)")
+    p.add_argument("name", help="player, recorder, bridge_ros1 (live ROS 1 source), encoder, htm, robot_state, posecells, "
+                   "expmap, ratslam_lv (RatSLAM front-end)")
     p.add_argument("--connect", help="Zenoh endpoint of the hub/router, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--mode", default="client", choices=["client", "peer"], help="Zenoh session mode")
     p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/*.json5)")
@@ -380,6 +471,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, help="player: replay speed")
     p.add_argument("--keys", help="player: comma-separated keys to publish")
     p.add_argument("--wait-for", help="player: comma-separated services to wait for")
+    p.add_argument("--announce", help="bridge_ros1: comma-separated source keys kept alive while silent")
+    p.add_argument("--live", action="store_true", help="a service of a live run: bounded input queue (live.*)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--out", help="recorder: output MCAP")
     p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")
@@ -391,6 +484,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_service)
+
+    p = sub.add_parser("bridge", help="bridge a robot middleware to the bus (ROS 1: sensor topics in, our outputs out)")
+    p.add_argument("kind", choices=["ros1"], help="the middleware")
+    p.add_argument("--connect", help="Zenoh endpoint of the hub/router (default: bus.connect)")
+    p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: at SIGINT/SIGTERM)")
+    p.add_argument("--announce", help="comma-separated source keys kept alive with watermarks even while silent")
+    p.add_argument("--json", action="store_true", help="print the counters indented")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_bridge)
 
     p = sub.add_parser("hub", help="run a hub (Zenoh router) for services on several hosts")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint to listen on")

@@ -17,11 +17,13 @@ from common.config import (
     BusConfig,
     ConfigError,
     ConfigSection,
+    LiveConfig,
     SuperviseConfig,
     SyncConfig,
     read_config_data,
     validate_config,
 )
+from services.bridge_ros1.config import BridgeRos1Config
 from services.encoder.config import EncoderConfig
 from services.expmap.config import ExpMapConfig, ScanGraphConfig
 from services.htm.config import HtmConfig
@@ -34,7 +36,7 @@ from services.robot_state.config import RobotStateConfig
 __all__ = ["PoseidonConfig", "ConfigError", "load_config", "DEFAULT_CONFIG_PATH",
            "SyncConfig", "BusConfig", "SuperviseConfig", "PlayerConfig", "RecorderConfig", "EncoderConfig",
            "HtmConfig", "RobotStateConfig", "RatSlamLvConfig", "PoseCellsConfig", "VprGuardConfig",
-           "ExpMapConfig", "ScanGraphConfig"]
+           "ExpMapConfig", "ScanGraphConfig", "BridgeRos1Config"]
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "deploy" / "poseidon.yaml"
 
@@ -47,6 +49,7 @@ class PoseidonConfig(ConfigSection):
     player: PlayerConfig = Field(default_factory=PlayerConfig)
     recorder: RecorderConfig = Field(default_factory=RecorderConfig)
     supervise: SuperviseConfig = Field(default_factory=SuperviseConfig)
+    live: LiveConfig = Field(default_factory=LiveConfig)
     encoder: EncoderConfig = Field(default_factory=EncoderConfig)
     htm: HtmConfig = Field(default_factory=HtmConfig)
     robot_state: RobotStateConfig = Field(default_factory=RobotStateConfig)
@@ -54,6 +57,7 @@ class PoseidonConfig(ConfigSection):
     posecells: PoseCellsConfig = Field(default_factory=PoseCellsConfig)
     vpr_guard: VprGuardConfig = Field(default_factory=VprGuardConfig)
     expmap: ExpMapConfig = Field(default_factory=ExpMapConfig)
+    bridge_ros1: BridgeRos1Config = Field(default_factory=BridgeRos1Config)
     services: list[str] = Field(default_factory=list, description="services the launcher starts (empty: all built)")
     service_classes: dict[str, str] = Field(
         default_factory=dict,

@@ -33,11 +33,11 @@ from services.player.player import Player
 from services.recorder.recorder import Recorder
 
 __all__ = ["ALGORITHM_SERVICES", "OPTIONAL_SERVICES", "available_services", "node_class", "build_node",
-           "PIPELINE_ORDER", "PLAYER", "RECORDER", "UnknownService", "WorkerSpec", "build_worker", "WIRING",
+           "PIPELINE_ORDER", "PLAYER", "RECORDER", "BRIDGE_ROS1", "UnknownService", "WorkerSpec", "build_worker", "WIRING",
            "node_section", "node_io"]
 
-#: the names of the two workers that are not algorithm services
-PLAYER, RECORDER = "player", "recorder"
+#: the names of the workers that are not algorithm services (the ROS 1 bridge: a live source)
+PLAYER, RECORDER, BRIDGE_ROS1 = "player", "recorder", "bridge_ros1"
 
 #: name -> "module:Class", in pipeline order
 ALGORITHM_SERVICES: dict[str, str] = {
@@ -77,7 +77,7 @@ def node_class(name: str, config: PoseidonConfig | None = None) -> type[ServiceN
               or OPTIONAL_SERVICES.get(name))
     if target is None:
         raise UnknownService(f"unknown service {name!r}; services: {PLAYER}, {RECORDER}, "
-                             f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES])}"
+                             f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES, BRIDGE_ROS1])}"
                              " (or add one with service_classes in the configuration)")
     if ":" not in target:
         raise KeyError(f"service {name!r}: {target!r} is not of the form 'module:Class'")
@@ -154,7 +154,9 @@ class WorkerSpec:
     ``player.keys``, else every key of the recording), ``rate`` (None: ``player.rate``),
     ``wait_for`` (services it waits for and watches), ``progress`` (bar on stderr).
     Recorder: ``out`` (required), ``expect`` (keys whose end-of-stream ends the recording),
-    ``metadata`` (the ``poseidon`` metadata record).  Service: ``node`` already built (None:
+    ``metadata`` (the ``poseidon`` metadata record).  ROS 1 bridge: ``announce`` (source keys
+    it keeps alive with wall-clock watermarks and ends at its stop).  ``live``: a service of a
+    live run (bounded input queue ``live.queue_frames``; ``live.slow_service`` is slowed).  Service: ``node`` already built (None:
     built here).
     """
 
@@ -169,10 +171,12 @@ class WorkerSpec:
     expect: Sequence[str] | None = None
     metadata: dict[str, Any] | None = None
     node: ServiceNode[Any] | None = None
+    announce: Sequence[str] = ()
+    live: bool = False
 
 
 def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec | None = None) -> Worker:
-    """The worker called ``name`` (player, recorder or an algorithm service) on ``bus``.
+    """The worker called ``name`` (player, recorder, ROS 1 bridge or an algorithm service) on ``bus``.
 
     ValueError when the spec lacks what the worker needs (the player's input, the
     recorder's output); :class:`UnknownService` (a KeyError) for a name that is none of them.
@@ -194,6 +198,11 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         return Recorder(bus, spec.out, expect=spec.expect, metadata=spec.metadata,
                         compression=config.recorder.compression, chunk_size=config.recorder.chunk_size,
                         supervision=spec.supervision)
+    if name == BRIDGE_ROS1:
+        from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
+        return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s)
     node = spec.node if spec.node is not None else build_node(name, config)
+    live = config.live
     return NodeRunner(node, bus, config.bus.heartbeat_interval_ms, drain_timeout_s=drain_s,
-                      supervision=spec.supervision)
+                      supervision=spec.supervision, max_queue=live.queue_frames if spec.live else 0,
+                      delay_s=live.slow_ms / 1000 if spec.live and live.slow_service == name else 0.0)

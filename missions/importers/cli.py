@@ -58,7 +58,8 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from common.mcap_io import RecordingWriter
-from common.messages import RAW_KEY_PREFIX, Header, Message, RawMessage
+from common.messages import RAW_KEY_PREFIX, Message
+from common.ros_convert import key_of, raw_message, stamped_header
 from missions.importers import frames as frames_mod
 from missions.importers.carmen import import_carmen, is_carmen_log
 from missions.importers.errors import InputFormatError
@@ -102,12 +103,6 @@ def load_topic_map(path: str | Path | None) -> dict[str, str | None]:
     return tm
 
 
-def _key_of(topic: str, tm: dict[str, str | None]) -> str | None:
-    if topic in tm:
-        return tm[topic]
-    return topic.lstrip("/")
-
-
 class _Stats:
     def __init__(self) -> None:
         self.inputs: list[dict[str, Any]] = []
@@ -127,21 +122,6 @@ class _Stats:
         return t
 
 
-def _raw_message(bm: Any, ros: Any, definition: tuple[str, str, str], is2: bool, seq: int) -> RawMessage:
-    """The bag message as it is (bytes + definition); header from the ROS header when decodable."""
-    h = getattr(ros, "header", None) if ros is not None else None
-    stamp, frame = bm.record_ns, ""
-    if h is not None and hasattr(h, "stamp"):
-        hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
-        stamp = hs if hs > 0 else bm.record_ns
-        frame = str(getattr(h, "frame_id", ""))
-        seq = int(getattr(h, "seq", seq))
-    text, fmt, digest = definition
-    return RawMessage(header=Header(seq=seq, stamp=stamp, frame_id=frame), topic=bm.topic,
-                      ros_type=bm.connection.msgtype, serialization="cdr" if is2 else "ros1", definition=text,
-                      definition_format=fmt, digest=digest, data=bytes(bm.raw))
-
-
 def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
                 raw_topics: set[str] | None) -> Iterator[tuple[int, int, str, Message]]:
     """Every message of the bags: converted to our model when a converter exists (and the topic
@@ -155,7 +135,7 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
     for c in reader.connections:
         t = topics.setdefault(c.topic, {"type": c.msgtype, "count": 0})
         t["count"] += c.msgcount
-        stats.topic(c.topic, normalise_type(c.msgtype), _key_of(c.topic, tm))["in_source"] += c.msgcount
+        stats.topic(c.topic, normalise_type(c.msgtype), key_of(c.topic, tm))["in_source"] += c.msgcount
     stats.inputs.append({"paths": info["paths"], "format": info["kind"], "topics": topics})
     seqs: dict[str, int] = {}
     definitions: dict[int, tuple[str, str, str]] = {}
@@ -186,7 +166,7 @@ def _bag_stream(paths: list[Path], tm: dict[str, str | None], stats: _Stats,
                                        "offset": {"byte": pos, "message_index": n, "bag_time_ns": last_ns},
                                        "messages": lost})
                 for topic, k in lost.items():
-                    stats.topic(topic, "", _key_of(topic, tm))["rejected"] += k
+                    stats.topic(topic, "", key_of(topic, tm))["rejected"] += k
                 log.error("import: %s: chunk at byte %d unreadable (%s); its messages up to bag time %d ns are "
                           "rejected (%s), reading on after it", path, pos, reason, end_ns, lost)
                 start = end_ns + 1
@@ -226,7 +206,7 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
                      definitions: dict[int, tuple[str, str, str]]) -> Iterator[tuple[int, int, str, Message]]:
     """The one recording entry of a bag message: mapped, carried raw, or none (dropped)."""
     stats.bump(stats.read, bm.topic)
-    key = _key_of(bm.topic, tm)
+    key = key_of(bm.topic, tm)
     ts = stats.topic(bm.topic, bm.msgtype, key)
     ts["read"] += 1
     if key is None:
@@ -244,20 +224,7 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
     except Exception as exc:
         conv, why = None, f"payload does not decode against its definition: {type(exc).__name__}: {exc}"
     if conv is not None:
-        h = getattr(ros, "header", None)
-        stamp = bm.record_ns
-        if h is not None:
-            hs = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
-            stamp = hs if hs > 0 else bm.record_ns
-        elif bm.msgtype in ("tf2_msgs/TFMessage", "tf/tfMessage") and ros.transforms:
-            t0 = ros.transforms[0].header.stamp
-            stamp = int(t0.sec) * 1_000_000_000 + int(t0.nanosec) or bm.record_ns
-        if h is not None and hasattr(h, "seq"):
-            seq = int(h.seq)
-        else:
-            seq = seqs.get(key, 0)
-            seqs[key] = seq + 1
-        header = Header(seq=seq, stamp=stamp, frame_id=str(getattr(h, "frame_id", "")) if h is not None else "")
+        header = stamped_header(ros, bm.msgtype, bm.record_ns, seqs, key)
         try:
             msg = conv(ros, header)
         except (ConversionError, ValidationError, TypeError, ValueError) as exc:
@@ -276,7 +243,8 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
     ts["raw"] += 1
     ts["raw_key"] = raw_key
     ts["raw_reasons"][why] = ts["raw_reasons"].get(why, 0) + 1
-    yield bm.record_ns, 0, raw_key, _raw_message(bm, ros, d, reader.is2, seq)
+    yield bm.record_ns, 0, raw_key, raw_message(bm.topic, bm.connection.msgtype, bm.raw, ros, d, reader.is2,
+                                                   bm.record_ns, seq)
 
 
 def _list_stream(items: list[tuple[str, Message]], order: int) -> Iterator[tuple[int, int, str, Message]]:
@@ -307,7 +275,7 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
         if p.is_file() and p.suffix.lower() == ".csv":
             recs = read_rostopic_csv(p)
             key0 = recs[0][0] if recs else p.stem
-            key = _key_of("/" + key0, tm) if ("/" + key0) in tm else key0
+            key = key_of("/" + key0, tm) if ("/" + key0) in tm else key0
             stats.inputs.append({"paths": [str(p)], "format": "rostopic_csv", "topics": {key0: {"type": key0, "count": len(recs)}}})
             stats.read[key0] = stats.read.get(key0, 0) + len(recs)
             if key is None:

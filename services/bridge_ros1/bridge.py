@@ -1,0 +1,263 @@
+"""The ROS 1 bridge: a live source of sensor streams from a ROS master, and our outputs back to ROS.
+
+``poseidon bridge ros1`` (one process on a hub) or the source of ``poseidon run --live ros1``.
+
+- In: every configured topic (``bridge_ros1.topics``, default the importer's mapping) and,
+  with ``discover``, every other topic published on the master (polled every
+  ``discover_interval_s``; ``ignore_topics`` and our own output topics excepted) is
+  subscribed; each message is converted as ``poseidon import`` converts a bag message
+  (:mod:`services.bridge_ros1.convert`) and published at once on our key with its ROS
+  header stamp.  A source never waits for its consumers: no flow control, no waiting for
+  services to be alive.
+- Event time: every ``watermark_interval_ms`` (wall) each source key (the keys published so
+  far and ``announce``: the sensor keys the services wait on) gets a watermark from the wall
+  clock (:mod:`services.bridge_ros1.clock`: the mapping rule and the lateness bound), so a
+  silent sensor does not stall the services' event-time merge.
+- Out: ``Odometry``, ``dead_reckoning``, ``map`` (Path + MarkerArray, latched, at most every
+  ``map_period_s``), ``local_view_cells`` and ``experience_event`` are published on ROS topics
+  (table in :mod:`services.bridge_ros1.convert`).
+- Latency: the wall time from a sensor message's arrival to the LVC id, experience event and
+  map it caused (matched by stamp) and to the Odometry, per stage p50/p95/p99
+  (``BridgeStats.latency``, in the run summary).
+- End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge sends end-of-stream on
+  every key it published or announced (the services then finish and the recorder closes a
+  complete file), forwards to ROS what the services still publish until their outputs end
+  (or 2 s without any), then shuts its ROS node down.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from common.bus import Bus
+from common.codec import DecodeError, decode_frame
+from common.live import LiveSource
+from common.messages import ExperienceEvent, ExperienceMap, LocalViewCells, Message, Odometry, PoseStamped
+from common.worker import WAKE, Sink, SinkStats, Source
+from services.bridge_ros1.clock import LatencyTracker
+from services.bridge_ros1.config import BridgeRos1Config
+from services.bridge_ros1.convert import Incoming, Outgoing
+from services.bridge_ros1.ros_io import RosLink
+
+__all__ = ["Ros1Bridge", "BridgeStats", "BRIDGE_NAME"]
+
+log = logging.getLogger(__name__)
+
+BRIDGE_NAME = "bridge_ros1"
+
+
+@dataclass
+class BridgeStats(SinkStats):
+    """``received``: ROS messages per topic; ``published``: bus messages per key; ``raw``: carried
+    raw per key with ``raw_reasons``; ``late``: messages older than their stream's promise, per
+    key; ``to_ros``: messages published on ROS per topic; ``watermarks``: wall-clock watermarks
+    sent; ``latency``: per stage (:meth:`LatencyTracker.summary`); ``errors``: conversion failures
+    per topic (logged with the reason)."""
+
+    received: dict[str, int] = field(default_factory=dict)
+    published: dict[str, int] = field(default_factory=dict)
+    raw: dict[str, int] = field(default_factory=dict)
+    raw_reasons: dict[str, int] = field(default_factory=dict)
+    late: dict[str, int] = field(default_factory=dict)
+    to_ros: dict[str, int] = field(default_factory=dict)
+    errors: dict[str, int] = field(default_factory=dict)
+    watermarks: int = 0
+    latency: dict[str, dict[str, float]] = field(default_factory=dict)
+    master_uri: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"service": BRIDGE_NAME, "master_uri": self.master_uri, "received": self.received,
+                "published": self.published, "raw": self.raw, "raw_reasons": self.raw_reasons, "late": self.late,
+                "to_ros": self.to_ros, "errors": self.errors, "watermarks": self.watermarks,
+                "latency": self.latency, "aborted": self.aborted}
+
+
+def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
+    d[k] = d.get(k, 0) + n
+
+
+class Ros1Bridge(Sink, Source):
+    """Bridge the ROS master of ``config`` and ``bus`` until stopped (see the module notes)."""
+
+    stats: BridgeStats
+
+    def __init__(self, bus: Bus, config: BridgeRos1Config, announce: Iterable[str] = (),
+                 drain_timeout_s: float = 0.0):
+        super().__init__(BRIDGE_NAME, bus, BridgeStats(), None, drain_timeout_s)
+        self.config = config
+        self.announce = sorted(set(announce))
+        self.incoming = Incoming(config.topics, config.discover)
+        self.outgoing = Outgoing()
+        self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce)
+        self.latency = LatencyTracker()
+        self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
+        self._out_keys = {config.odometry_key: "odometry", config.dead_reckoning_key: "dead_reckoning",
+                          config.map_key: "map", config.lvc_key: "lvc", config.event_key: "event"}
+        self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
+                            config.markers_topic, config.lvc_topic, config.event_topic}
+        self._outputs_ended: set[str] = set()
+        self._pending_map: ExperienceMap | None = None
+        self._last_map_wall = 0.0
+        self.link: RosLink | None = None
+        self.subscribe(sorted(self._out_keys))
+
+    # ---- ROS -> bus (rospy threads) -----------------------------------------------------------
+    def on_ros(self, topic: str, ros_type: str, md5: str, definition: str, data: bytes, arrival_ns: int) -> None:
+        """One ROS message (any thread): convert, publish on the bus at once, note its arrival."""
+        if self.source.ended:
+            return
+        try:
+            out = self.incoming.convert(topic, ros_type, md5, definition, data, arrival_ns)
+        except Exception as exc:  # never let one message stop the bridge: counted, logged with the topic
+            with self._lock:
+                _bump(self.stats.errors, topic)
+            log.error("bridge_ros1: message on %s (%s) skipped: %s: %s", topic, ros_type, type(exc).__name__, exc)
+            return
+        if out is None:
+            return
+        key, msg, why = out
+        with self._lock:
+            _bump(self.stats.received, topic)
+            if why:
+                _bump(self.stats.raw, key)
+                _bump(self.stats.raw_reasons, why.split(":")[0])
+            self.latency.arrived(msg.header.stamp, arrival_ns)
+        self.source.publish(key, msg, arrival_ns)
+
+    # ---- bus -> ROS --------------------------------------------------------------------------
+    def finished(self) -> bool:
+        return False  # a live source runs until stopped
+
+    def on_frame(self, key: str, data: bytes) -> None:
+        try:
+            frame = decode_frame(data)
+            if frame.kind == "eos":
+                self._outputs_ended.add(key)
+            if frame.kind != "data":
+                return
+            msg = frame.message()
+        except DecodeError as exc:
+            _bump(self.stats.errors, key)
+            log.error("bridge_ros1: frame on %s skipped: %s", key, exc)
+            return
+        stage = self._out_keys.get(key)
+        if stage is not None:
+            with self._lock:
+                self.latency.output(stage, msg.header.stamp, time.time_ns())
+        self.to_ros(key, msg)
+
+    def to_ros(self, key: str, msg: Message) -> None:
+        """Publish one of our outputs on its ROS topic(s) (the map at most every ``map_period_s``)."""
+        link, c = self.link, self.config
+        if link is None:
+            return
+        if key == c.map_key and isinstance(msg, ExperienceMap):
+            self._pending_map = msg
+            self.flush_map()
+            return
+        if key == c.odometry_key and isinstance(msg, Odometry):
+            topic, (_t, data) = c.odometry_topic, self.outgoing.standard(msg)
+        elif key == c.dead_reckoning_key and isinstance(msg, PoseStamped):
+            topic, (_t, data) = c.dead_reckoning_topic, self.outgoing.standard(msg)
+        elif key == c.lvc_key and isinstance(msg, LocalViewCells):
+            topic, data = c.lvc_topic, self.outgoing.lvc_id(msg)
+        elif key == c.event_key and isinstance(msg, ExperienceEvent):
+            topic, data = c.event_topic, self.outgoing.event(msg)
+        else:
+            _bump(self.stats.errors, key)
+            log.error("bridge_ros1: %s on %s has no ROS form here (expected types: see convert.py)",
+                      type(msg).__name__, key)
+            return
+        link.publish(topic, data)
+        _bump(self.stats.to_ros, topic)
+
+    def flush_map(self, force: bool = False) -> None:
+        """Publish the latest map (Path + markers) if ``map_period_s`` has passed (or ``force``)."""
+        m, link = self._pending_map, self.link
+        if m is None or link is None:
+            return
+        now = time.monotonic()
+        if not force and now - self._last_map_wall < self.config.map_period_s:
+            return
+        self._pending_map, self._last_map_wall = None, now
+        link.publish(self.config.path_topic, self.outgoing.path(m))
+        link.publish(self.config.markers_topic, self.outgoing.markers(m))
+        _bump(self.stats.to_ros, self.config.path_topic)
+        _bump(self.stats.to_ros, self.config.markers_topic)
+
+    def _forward_last_outputs(self, idle_s: float = 2.0, limit_s: float = 60.0) -> None:
+        """After the sources ended: the services still finish their inputs; forward what they
+        publish to ROS until every output key ended, or none came for ``idle_s`` (a key no
+        service produces never ends), at most ``limit_s``."""
+        deadline = time.monotonic() + limit_s
+        quiet_since = time.monotonic()
+        while time.monotonic() < deadline and not set(self._out_keys) <= self._outputs_ended:
+            item = self.next_frame(0.1)
+            if item is None or item[0] == WAKE:
+                if time.monotonic() - quiet_since > idle_s:
+                    return
+                continue
+            quiet_since = time.monotonic()
+            self.on_frame(*item)
+
+    # ---- run --------------------------------------------------------------------------------
+    def _advertise(self, link: RosLink) -> None:
+        c, o = self.config, self.outgoing
+        for topic, ros_type, latch in ((c.odometry_topic, "nav_msgs/Odometry", False),
+                                       (c.dead_reckoning_topic, "geometry_msgs/PoseStamped", False),
+                                       (c.path_topic, "nav_msgs/Path", True),
+                                       (c.markers_topic, "visualization_msgs/MarkerArray", True),
+                                       (c.lvc_topic, "std_msgs/Int32", False),
+                                       (c.event_topic, "std_msgs/String", True)):
+            link.advertise(topic, ros_type, *o.definition(ros_type), latch=latch)
+
+    def discover(self, link: RosLink) -> None:
+        """Subscribe to the configured topics, and with ``discover`` to every other published one."""
+        want = [t for t, r in self.config.topics.items() if r.key is not None]
+        if self.config.discover:
+            skip = set(self.config.ignore_topics) | self._own_topics
+            want += [t for t, _ty in link.published_topics() if t not in skip and self.incoming.key(t) is not None]
+        for t in want:
+            if t not in link.subscribed():
+                log.info("bridge_ros1: subscribing to %s", t)
+                link.subscribe(t)
+
+    def run(self) -> BridgeStats:
+        """Connect to the master, bridge until stopped, then end every stream."""
+        c = self.config
+        link = self.link = RosLink(c.master_uri, c.node_name, c.ros_python_path, self.on_ros, c.ros_queue_size)
+        self.stats.master_uri = link.master_uri
+        link.connect(c.master_timeout_s)  # no master: RosUnavailable, nothing was published
+        try:
+            self._advertise(link)
+            self.discover(link)
+            self.bus.declare_alive(self.name)
+            wm_every = c.watermark_interval_ms / 1000
+            next_wm = next_discover = time.monotonic()
+            while not self.stop_event.is_set():
+                item = self.next_frame(min(wm_every, 0.05))
+                if item is not None and item[0] != WAKE:
+                    self.on_frame(*item)
+                now = time.monotonic()
+                if now >= next_wm:
+                    self.source.send_watermarks(time.time_ns())
+                    self.flush_map()
+                    next_wm = now + wm_every
+                if c.discover and now >= next_discover:
+                    self.discover(link)
+                    next_discover = now + c.discover_interval_s
+        finally:
+            self.source.end()
+            self._forward_last_outputs()
+            self.flush_map(force=True)
+            with self._lock:
+                self.stats.latency = self.latency.summary()
+            self.stats.published, self.stats.late = dict(self.source.published), dict(self.source.late)
+            self.stats.watermarks = self.source.watermarks
+            link.close()
+            self.drain(self.source.publishers())
+        return self.stats

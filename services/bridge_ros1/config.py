@@ -1,0 +1,65 @@
+"""The ROS 1 bridge's configuration section (``bridge_ros1:`` in ``deploy/poseidon.yaml``).
+
+``topics`` maps a ROS topic to our key (and optionally the ROS type it must have); by default
+it is the importer's mapping (:data:`common.ros_convert.DEFAULT_TOPIC_MAP`), and with
+``discover`` every other published topic is bridged too, on the topic without its leading
+slash (the importer's rule).  Validated at start-up as part of the whole configuration
+(``launcher/config.py``); a wrong value fails naming its dotted field.
+"""
+from __future__ import annotations
+
+from pydantic import Field
+
+from common.config import ConfigSection
+from common.ros_convert import DEFAULT_TOPIC_MAP
+
+__all__ = ["BridgeRos1Config", "TopicRoute"]
+
+
+class TopicRoute(ConfigSection):
+    """Where one ROS topic goes."""
+
+    key: str | None = Field(description="our key (no leading slash); null: the topic is not bridged")
+    type: str = Field("", description="the ROS type the topic must have, e.g. sensor_msgs/Imu ('' any); "
+                      "another type is carried raw and counted as type_mismatch")
+    raw: bool = Field(False, description="carry the topic raw (raw/<key>) even when a model exists")
+
+
+def _default_topics() -> dict[str, TopicRoute]:
+    return {topic: TopicRoute(key=key) for topic, key in DEFAULT_TOPIC_MAP.items()}
+
+
+class BridgeRos1Config(ConfigSection):
+    master_uri: str = Field("", description="ROS master; '' = the ROS_MASTER_URI environment variable, "
+                            "else http://localhost:11311")
+    node_name: str = Field("poseidon_bridge", pattern=r"^[A-Za-z][A-Za-z0-9_]*$", description="ROS node name")
+    ros_python_path: str = Field("/usr/lib/python3/dist-packages",
+                                 description="where rospy is (appended to sys.path, never prepended)")
+    master_timeout_s: float = Field(10.0, gt=0, description="wait this long for the ROS master at start (s)")
+    topics: dict[str, TopicRoute] = Field(default_factory=_default_topics,
+                                          description="ROS topic -> our key (default: the importer's mapping)")
+    ros_queue_size: int = Field(10000, ge=1, description="rospy's queue per subscribed topic: if the bridge "
+                                "falls this far behind a topic, rospy drops its oldest messages (a loaded machine at "
+                                "rosbag play -r 8 needs more than a few hundred)")
+    discover: bool = Field(True, description="also bridge every other published topic (key: the topic "
+                           "without its leading slash)")
+    discover_interval_s: float = Field(1.0, gt=0, description="how often the master is asked for new topics (s)")
+    ignore_topics: list[str] = Field(default_factory=lambda: ["/rosout", "/rosout_agg", "/clock"],
+                                     description="never bridged in (our own output topics never are)")
+    lateness_ms: int = Field(200, ge=0, description="live watermarks: a stream promises nothing older than "
+                             "its wall-clock-mapped time minus this (ms); see bridge.py")
+    watermark_interval_ms: int = Field(100, ge=10, description="wall-clock watermarks on every source key this "
+                                       "often (ms)")
+    odometry_key: str = Field("Odometry", description="our key published as nav_msgs/Odometry")
+    odometry_topic: str = Field("/poseidon/odom")
+    dead_reckoning_key: str = Field("dead_reckoning", description="our key published as geometry_msgs/PoseStamped")
+    dead_reckoning_topic: str = Field("/poseidon/dead_reckoning")
+    map_key: str = Field("map", description="our key published as nav_msgs/Path + visualization_msgs/MarkerArray")
+    path_topic: str = Field("/poseidon/path", description="experience map as nav_msgs/Path (latched)")
+    markers_topic: str = Field("/poseidon/map_markers",
+                               description="experience map as visualization_msgs/MarkerArray (latched)")
+    map_period_s: float = Field(1.0, ge=0, description="publish the map to ROS at most this often (s, wall)")
+    lvc_key: str = Field("local_view_cells", description="our key published as std_msgs/Int32 (the LVC id)")
+    lvc_topic: str = Field("/poseidon/lvc_id")
+    event_key: str = Field("experience_event", description="our key published as std_msgs/String (JSON)")
+    event_topic: str = Field("/poseidon/experience_event")

@@ -1,0 +1,86 @@
+"""The driver API (common/driver.py): records of a non-ROS sensor reach the bus with their stamps,
+silent announced keys get wall-clock watermarks, close ends every stream; the folder example."""
+import importlib.util
+import queue
+import threading
+import time
+
+import numpy as np
+import pytest
+from PIL import Image as PILImage
+
+from common.codec import decode_frame
+from common.driver import SensorDriver
+from common.mcap_io import read_messages
+from common.messages import Image, Imu, LinkquestDvl, RangeImageBeam
+from services.recorder.recorder import Recorder
+from tests.conftest import REPO
+
+KEYS = ["camera/image_raw", "sonar_micron", "dvl_linkquest", "imu_adis_ros"]
+
+
+def _record(bus, path, expect):
+    rec = Recorder(bus, path, expect=expect)
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", rec.run()), daemon=True)
+    t.start()
+    bus.wait_alive(["recorder"], 10)
+    return t, result
+
+
+def test_each_kind_of_record_is_published_with_its_stamp_and_the_streams_end_at_close(bus, tmp_path):
+    out = tmp_path / "drv.mcap"
+    t, result = _record(bus, out, KEYS + ["depth_sensor"])
+    watch: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe("depth_sensor", watch)
+    with SensorDriver(bus, announce=["depth_sensor"], watermark_interval_ms=20) as drv:
+        drv.camera_frame(np.zeros((4, 6, 3), np.uint8), stamp_ns=1_000)
+        drv.camera_frame(np.full((4, 6), 7, np.uint8), stamp_ns=2_000)
+        drv.sonar_beam(0.5, [1, 2, 3], 20, stamp_ns=1_500)
+        drv.dvl([0.3, 0.0, 0.01], 2.5, stamp_ns=1_600, heading=90.0)
+        drv.dvl([0.0, 0.0, 0.0], 0.0, stamp_ns=1_700, valid=False)
+        drv.imu(0.0, 0.0, np.pi / 2, gyro=(0, 0, 0.1), stamp_ns=1_800)
+        time.sleep(0.3)
+        assert drv.published == {"camera/image_raw": 2, "sonar_micron": 1, "dvl_linkquest": 2, "imu_adis_ros": 1}
+        with pytest.raises(ValueError, match="camera frame on camera/image_raw"):
+            drv.camera_frame(np.zeros((2, 2, 2), np.uint8))
+    t.join(10)
+    assert not t.is_alive(), "the recorder did not see end-of-stream on every key"
+    kinds: list[str] = []
+    while "eos" not in kinds:
+        kinds.append(decode_frame(watch.get(timeout=5)[1]).kind)
+    assert "watermark" in kinds and kinds[-1] == "eos"  # the silent announced key was kept alive, then ended
+    msgs = {k: [(m.stamp, m.message()) for m in read_messages(out, keys=[k])] for k in KEYS}
+    (s0, im0), (s1, im1) = msgs["camera/image_raw"]
+    assert (s0, s1) == (1_000, 2_000) and isinstance(im0, Image) and im0.encoding == "rgb8"
+    assert im1.encoding == "mono8" and int(im1.data[0, 0]) == 7 and im1.header.seq == 1
+    beam = msgs["sonar_micron"][0][1]
+    assert isinstance(beam, RangeImageBeam) and list(beam.beam_data) == [1, 2, 3] and beam.max_range == 20
+    d_ok, d_bad = (m for _s, m in msgs["dvl_linkquest"])
+    assert isinstance(d_ok, LinkquestDvl) and d_ok.velocityinst == [0.3, 0.0, 0.01] and d_ok.heading == 90.0
+    assert d_ok.velocityinstflag == 1 and d_bad.velocityinstflag == 0 and d_bad.datagood == [0, 0, 0, 0]
+    imu = msgs["imu_adis_ros"][0][1]
+    assert isinstance(imu, Imu) and imu.gz == 0.1 and imu.qz == pytest.approx(np.sqrt(0.5))
+
+
+def test_the_example_streams_a_folder_of_images_at_the_given_rate(bus, tmp_path):
+    spec = importlib.util.spec_from_file_location("stream_images", REPO / "deploy" / "examples" / "stream_images.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(5):
+        PILImage.fromarray(np.full((8, 10, 3), 40 * i, np.uint8)).save(folder / f"f{i:03d}.png")
+    (folder / "notes.txt").write_text("not an image")
+    out = tmp_path / "frames.mcap"
+    t, _result = _record(bus, out, ["camera/image_raw"])
+    with SensorDriver(bus) as drv:
+        assert mod.stream_folder(drv, folder, rate_hz=20.0) == 5
+    t.join(10)
+    rec = list(read_messages(out, keys=["camera/image_raw"]))
+    assert [int(m.message().data[0, 0, 0]) for m in rec] == [0, 40, 80, 120, 160]  # name order
+    since_ms = (np.asarray([m.stamp for m in rec]) - rec[0].stamp) / 1e6
+    assert np.all(since_ms >= np.arange(5) * 50 - 5), since_ms  # 20 frames/s: never ahead of the schedule
+    assert since_ms[-1] < 2000, since_ms  # (a loaded machine may run late, then catches up)
+    with pytest.raises(ValueError, match="rate"):
+        mod.stream_folder(drv, folder, rate_hz=0)

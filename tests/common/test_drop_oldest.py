@@ -1,0 +1,43 @@
+"""The live runs' bounded queue: the oldest data frame goes first, counted per key; control frames stay."""
+import queue
+import threading
+
+import pytest
+
+from common.codec import ENCODED_EOS, encode_frame, encode_watermark
+from common.messages import Depth, Header
+from common.worker import WAKE, DropOldestQueue
+
+
+def _data(i):
+    return encode_frame(Depth(header=Header(seq=i, stamp=i, frame_id=""), depth=float(i)))
+
+
+def test_when_full_the_oldest_data_frame_is_dropped_and_counted_per_key():
+    q = DropOldestQueue(3)
+    q.put_nowait(("a", _data(0)))
+    q.put_nowait(("a", encode_watermark(5)))
+    q.put_nowait(("b", _data(1)))
+    q.put_nowait(("a", _data(2)))
+    q.put_nowait(("b", _data(3)))  # full: a/0 goes
+    q.put_nowait(("a", ENCODED_EOS))
+    q.put_nowait((WAKE, b""))
+    q.put_nowait(("b", _data(4)))  # full: b/1 goes
+    assert q.dropped == {"a": 1, "b": 1}
+    got = [q.get(0.1) for _ in range(q.qsize())]
+    assert got == [("a", encode_watermark(5)), ("a", _data(2)), ("b", _data(3)), ("a", ENCODED_EOS), (WAKE, b""),
+                   ("b", _data(4))]
+    assert q.empty()
+
+
+def test_get_waits_for_a_frame_and_times_out_empty():
+    q = DropOldestQueue(2)
+    with pytest.raises(queue.Empty):
+        q.get(0.05)
+    threading.Timer(0.05, q.put_nowait, args=(("k", _data(7)),)).start()
+    assert q.get(2.0) == ("k", _data(7))
+
+
+def test_a_queue_needs_room_for_one_frame():
+    with pytest.raises(ValueError, match="max_data"):
+        DropOldestQueue(0)
