@@ -166,6 +166,9 @@ class ExpMapConfig(ConfigSection):
                                                  "session link's registration (deg; the frames share the "
                                                  "AHRS heading, so a few degrees; loop closures keep "
                                                  "scan_max_rotation_deg)")
+    session_link_rotation_step_deg: float = Field(0.25, gt=0, description="rotation step of that search (deg): "
+                                                  "the link's rotation turns the whole session about the link "
+                                                  "point, so finer than scan_rotation_step_deg")
     graph: Literal["experience_map", "scan_graph"] = Field(
         "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "

@@ -194,7 +194,8 @@ def test_a_link_turns_the_new_session_by_the_registered_rotation(rotate: bool) -
     """Session B's frame is turned 20 degrees from A's: the link applies the registration's
     rotation too, so B (before and after the link point) lines up with A's frame; translation
     only leaves it visibly turned."""
-    em = session_a(cfg(session_link_max_rotation_deg=25.0, session_link_rotate=rotate))
+    em = session_a(cfg(session_link_max_rotation_deg=25.0, session_link_rotation_step_deg=1.0,
+                       session_link_rotate=rotate))
     em.begin_session()
     lap_b = _turned_lap(em, 100, range(40), -20.0)
     _turned_lap(em, 140, range(40), -20.0)     # a second pass: the odometry after the link turns too
