@@ -38,7 +38,9 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
 - ``dr_ate_at_link_m``: the same nodes' dead reckoning (this run's ``Odometry`` at their
   stamps) against truth after the rigid transform (yaw and translation) that puts the dead
   reckoning's pose at the first link's node on its true pose (the issue's comparison: the map
-  in the prior frame against dead reckoning aligned at the link); ``dr_ate_at_link_n``: nodes.
+  in the prior frame against dead reckoning aligned at the link); ``dr_ate_at_link_n``: nodes;
+- ``ate_prior_frame_after_link_m``, ``dr_ate_at_link_after_m``: the same two over the nodes
+  from the first link on (what the prior map does for the rest of the mission).
 """
 from __future__ import annotations
 
@@ -89,6 +91,7 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
     out: dict[str, Any] = {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
                            "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
                            "ate_prior_frame_n": 0, "dr_ate_at_link_m": None, "dr_ate_at_link_n": 0,
+                           "ate_prior_frame_after_link_m": None, "dr_ate_at_link_after_m": None,
                            "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
                            "table": []}
     if m is None or not m.nodes:
@@ -181,8 +184,13 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
         out["ate_prior_frame_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
         out["ate_prior_frame_n"] = int(use.sum())
     if mine_links and use.any():
-        out["dr_ate_at_link_m"], out["dr_ate_at_link_n"] = _dr_at_link(run, stamps, g, use,
-                                                                        int(mine_links[0]["target"]))
+        j = int(mine_links[0]["target"])
+        out["dr_ate_at_link_m"], out["dr_ate_at_link_n"] = _dr_at_link(run, stamps, g, use, j)
+        after = use & (stamps >= stamps[j])
+        if rot is not None and trans is not None and after.any():
+            e = pos_ned[after] @ rot.T + trans - g[after]
+            out["ate_prior_frame_after_link_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
+            out["dr_ate_at_link_after_m"] = _dr_at_link(run, stamps, g, after, j)[0]
     return out
 
 

@@ -123,5 +123,7 @@ def test_dead_reckoning_aligned_at_the_link() -> None:
     k = np.arange(10) - 3.0                          # metres along the track from the link node
     want = math.sqrt(float(np.mean((2 * np.abs(k) * math.sin(math.radians(2.5))) ** 2)))
     assert abs(s["dr_ate_at_link_m"] - want) < 1e-3
+    after = math.sqrt(float(np.mean((2 * np.abs(k[3:]) * math.sin(math.radians(2.5))) ** 2)))
+    assert abs(s["dr_ate_at_link_after_m"] - after) < 1e-3 and s["ate_prior_frame_after_link_m"] < 1e-6
     run, prior = two_missions()                      # no odometry recorded: not computable
     assert sessions_block(run, prior)["dr_ate_at_link_m"] is None
