@@ -377,8 +377,10 @@ class SessionLinkInfo(BaseModel):
     stamp: int = Field(description="event stamp of the link (ns)")
     delta: list[float] = Field(min_length=3, max_length=3, description="p_target - p_source asked (m)")
     shift: list[float] = Field(min_length=3, max_length=3, description="how far the newer component moved (m)")
-    rotation_deg: float = Field(description="heading disagreement of the two sweeps (recorded, not applied)")
+    rotation_deg: float = Field(description="heading disagreement of the two sweeps (the registration's, deg)")
     inlier_fraction: float
+    applied_deg: float = Field(0.0, description="rotation applied to the newer session (deg; 0: translation "
+                               "only, expmap.session_link_rotate off)")
 
 
 class MapSessions(Message):

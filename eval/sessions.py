@@ -19,9 +19,10 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   run), error_m, rotation_error_deg, false, time_to_link_s, inlier_fraction}``.  ``error_m``
   = |R delta - (g_target - g_source)| with delta the displacement the link asks for (taken to
   NED) and R the rotation of the rigid alignment of session 0's nodes to their truth (the
-  map's frame in the world); ``rotation_error_deg`` = the truth heading difference of the two
-  sessions' odometry frames at the link (a link is translation only: it takes the frames'
-  headings as equal);
+  map's frame in the world); ``rotation_error_deg`` = the heading error of the link's target
+  node in the final map relative to its source node's (their map headings against their true
+  headings: after a link that applies its rotation, the link's heading error; with
+  ``expmap.session_link_rotate`` off, the frames' heading difference);
 - ``time_to_link_s``: for the first link of this run, the mission seconds from the first
   ``truth/pose`` sample of the linked session within ``place_m`` (2 m, horizontally) of the
   true position of an older node (first entering a mapped place) to the link's event; negative
@@ -33,7 +34,13 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   truths are within ``far_m`` (5 m), as there;
 - ``ate_prior_frame_m``: RMSE (m) of this run's nodes linked to session 0 against truth
   after the rigid alignment of session 0's nodes only (no re-alignment: the error of the
-  map in the prior map's frame); ``ate_prior_frame_n``: nodes used.
+  map in the prior map's frame); ``ate_prior_frame_n``: nodes used;
+- ``dr_ate_at_link_m``: the same nodes' dead reckoning (this run's ``Odometry`` at their
+  stamps) against truth after the rigid transform (yaw and translation) that puts the dead
+  reckoning's pose at the first link's node on its true pose (the issue's comparison: the map
+  in the prior frame against dead reckoning aligned at the link); ``dr_ate_at_link_n``: nodes;
+- ``ate_prior_frame_after_link_m``, ``dr_ate_at_link_after_m``: the same two over the nodes
+  from the first link on (what the prior map does for the rest of the mission).
 """
 from __future__ import annotations
 
@@ -83,7 +90,8 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
     m = run.final_map
     out: dict[str, Any] = {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
                            "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
-                           "ate_prior_frame_n": 0,
+                           "ate_prior_frame_n": 0, "dr_ate_at_link_m": None, "dr_ate_at_link_n": 0,
+                           "ate_prior_frame_after_link_m": None, "dr_ate_at_link_after_m": None,
                            "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
                            "table": []}
     if m is None or not m.nodes:
@@ -175,4 +183,37 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
         e = pos_ned[use] @ rot.T + trans - g[use]
         out["ate_prior_frame_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
         out["ate_prior_frame_n"] = int(use.sum())
+    if mine_links and use.any():
+        j = int(mine_links[0]["target"])
+        out["dr_ate_at_link_m"], out["dr_ate_at_link_n"] = _dr_at_link(run, stamps, g, use, j)
+        after = use & (stamps >= stamps[j])
+        if rot is not None and trans is not None and after.any():
+            e = pos_ned[after] @ rot.T + trans - g[after]
+            out["ate_prior_frame_after_link_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
+            out["dr_ate_at_link_after_m"] = _dr_at_link(run, stamps, g, after, j)[0]
     return out
+
+
+def _dr_at_link(run: RunData, stamps: np.ndarray, g: np.ndarray, use: np.ndarray,
+                j: int) -> tuple[float | None, int]:
+    """RMSE (m) of this run's dead reckoning at the stamps of the nodes ``use`` against their
+    truth ``g``, after the rigid transform (yaw about the vertical and translation) that puts
+    the dead-reckoning pose at node ``j``'s stamp on its truth pose: the dead reckoning of a
+    vehicle told exactly where it was, and which way it faced, at the link."""
+    od = run.odometry_poses
+    if od is None or not len(od) or not run.has_truth or run.truth_yaw is None or not np.all(np.isfinite(g[j])):
+        return None, 0
+    at = od.interpolate(stamps[use])
+    p = run.to_ned(at.positions)
+    yv = run.to_ned(np.stack([np.cos(at.yaws), np.sin(at.yaws), np.zeros(len(at))], axis=1))
+    y = np.arctan2(yv[:, 1], yv[:, 0])
+    _gj, gyj = _truth(run, stamps[[j]])
+    k = int(np.flatnonzero(np.flatnonzero(use) == j)[0]) if use[j] else -1
+    if k < 0 or not math.isfinite(float(gyj[0])):
+        return None, 0
+    a = _wrap(float(gyj[0]) - float(y[k]))
+    c, s_ = math.cos(a), math.sin(a)
+    R = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    q = (p - p[k]) @ R.T + g[j]
+    e = q - g[use]
+    return _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1))))), int(use.sum())

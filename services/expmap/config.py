@@ -159,6 +159,16 @@ class ExpMapConfig(ConfigSection):
                                             "registration trusted along both axes with at least this inlier "
                                             "fraction (above scan_min_inlier_fraction: a link moves a whole "
                                             "session)")
+    session_link_rotate: bool = Field(True, description="a session link turns the newer session by the "
+                                      "registration's rotation as well as moving it (false: translation only, "
+                                      "the frames' headings taken as equal)")
+    session_link_max_rotation_deg: float = Field(2.0, ge=0, description="heading disagreement searched by a "
+                                                 "session link's registration (deg; the frames share the "
+                                                 "AHRS heading, so a few degrees; loop closures keep "
+                                                 "scan_max_rotation_deg)")
+    session_link_rotation_step_deg: float = Field(0.25, gt=0, description="rotation step of that search (deg): "
+                                                  "the link's rotation turns the whole session about the link "
+                                                  "point, so finer than scan_rotation_step_deg")
     graph: Literal["experience_map", "scan_graph"] = Field(
         "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "

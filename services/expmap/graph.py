@@ -84,9 +84,12 @@ nothing); otherwise it is rejected (``rejected = "link"``, the reason counted in
 linked to the new one) rigidly so that the two experiences sit at the measured displacement,
 records the link as a loop edge (so relaxation treats it like one from then on; the interval
 and route rules do not apply to it) and joins the components: the older one's frame (session
-0's, the prior map's) is the frame of both.  The link is translation only: the sessions'
-frames share the heading of the AHRS/compass and the depth of the pressure sensor; the
-rotation the registration found is recorded with the link (:class:`SessionLink`).
+0's, the prior map's) is the frame of both.  The move is a rigid transform about n: the
+registration's translation *and* rotation (``session_link_rotate``, searched within
+``session_link_max_rotation_deg``): the newer component's positions, headings, sweeps, chain
+deltas and loop deltas turn with it, and so does the odometry of the rest of the session
+(:attr:`ExperienceMap.frame_yaw`).  Depth is not rotated (pressure depth is absolute).  Both
+angles are recorded with the link (:class:`SessionLink`: measured and applied).
 
 Code by concern: candidates and scores in :mod:`services.expmap.candidates`; loop edges,
 the route rule and the sweep verification in :mod:`services.expmap.loop_policy`; the
@@ -120,6 +123,12 @@ __all__ = ["ExperienceMap", "EventResult", "SessionLink", "SESSION_BREAK_WEIGHT"
 SESSION_BREAK_WEIGHT = 1e-6
 
 
+def _rot2(theta: float) -> np.ndarray:
+    """2-D rotation matrix of ``theta`` rad (counter-clockwise in the map's x, y)."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
 @dataclass
 class SessionLink:
     """A link between two sessions: p_n - p_m = ``delta`` (m), made at event ``stamp`` (ns)."""
@@ -131,8 +140,9 @@ class SessionLink:
     stamp: int
     delta: np.ndarray           # (3,) m, map frame
     shift: np.ndarray           # (3,) m: how far the newer component moved
-    rotation_deg: float         # heading disagreement of the two sweeps (recorded, not applied)
+    rotation_deg: float         # heading disagreement of the two sweeps (deg, the registration's)
     inlier_fraction: float
+    applied_deg: float = 0.0    # the rotation applied to the newer component (deg; 0: translation only)
 
 
 @dataclass
@@ -197,6 +207,7 @@ class ExperienceMap:
         self._session_pending = False
         self._session_first = 0               # first node of the newest session
         self._session_root: dict[int, int] = {0: 0}
+        self.frame_yaw = 0.0                  # rad: the newest session's odometry frame turned into the map's
         self.session_links: list[SessionLink] = []
         self.link_rejections = {"no_sweep": 0, "untrusted": 0, "ambiguous": 0, "inliers": 0}
 
@@ -307,6 +318,7 @@ class ExperienceMap:
             self._session_root[self.session] = self.session
             self._session_pending = False
             self._session_first = n
+            self.frame_yaw = 0.0              # its own frame
             delta = odom - self._position(n - 1)
             A["pos"][n] = odom                # its own odometry frame
             A["delta"][n] = delta
@@ -326,13 +338,15 @@ class ExperienceMap:
             if self.last_odom is None:
                 raise RuntimeError("experience map holds nodes but no last odometry position")
             delta = odom - self.last_odom
+            if self.frame_yaw != 0.0:         # a session turned by a link: its odometry turns with it
+                delta[:2] = _rot2(self.frame_yaw) @ delta[:2]
             A["delta"][n] = delta
             A["pos"][n] = A["pos"][n - 1] + delta
             A["cum"][n] = A["cum"][n - 1] + delta
             A["weight"][n] = 1.0
             A["cumres"][n] = A["cumres"][n - 1] + 1.0
             A["rem"][n] = A["rem"][n - 1]    # a new node follows its predecessor's correction
-        A["yaw"][n] = float(odom_yaw)
+        A["yaw"][n] = float(odom_yaw) + self.frame_yaw
         A["lvc"][n] = int(lvc_id)
         A["pc"][n] = pc
         A["stamp"][n] = int(stamp)
@@ -341,7 +355,10 @@ class ExperienceMap:
         g.n = n + 1
         self.last_odom = odom.copy()
         self._lvc_index.setdefault(int(lvc_id), []).append(n)
-        self._scans.append(None if sweep is None or len(sweep) == 0 else np.asarray(sweep, np.float32).reshape(-1, 2))
+        sw = None if sweep is None or len(sweep) == 0 else np.asarray(sweep, np.float32).reshape(-1, 2)
+        if sw is not None and self.frame_yaw != 0.0:
+            sw = (sw.astype(np.float64) @ _rot2(self.frame_yaw).T).astype(np.float32)
+        self._scans.append(sw)
 
         self._loop_search(n, res)
         if res.confirmations >= cfg.loop_confirmations:
@@ -417,20 +434,45 @@ class ExperienceMap:
             return
         self._apply_pending()
         A, N = self._g.arrays, self.n_nodes
-        shift = A["pos"][m] + delta - A["pos"][n]
         old_root, new_root = self.session_root(int(A["session"][n])), self.session_root(int(A["session"][m]))
         moving = np.array([s for s, r in self._session_root.items() if r == old_root], np.int64)
         mask = np.isin(A["session"][:N], moving)
-        A["pos"][:N][mask] += shift
-        # the chain's bookkeeping: the break edges into and out of the moved sessions absorb the shift
+        # the rigid transform of the newer component about n: x -> R (x - p_n) + p_m + delta, with R
+        # the registration's rotation (it lays n's sweep onto m's; zero with session_link_rotate off)
+        theta = math.radians(float(reg.rotation_deg)) if self.cfg.session_link_rotate else 0.0
+        R = _rot2(theta)
+        before = A["pos"][:N].copy()
+        shift = A["pos"][m] + delta - A["pos"][n]
+        target_n = A["pos"][m] + delta
+        moved = before[mask]
+        moved[:, :2] = (moved[:, :2] - before[n, :2]) @ R.T
+        moved[:, 2] -= before[n, 2]
+        A["pos"][:N][mask] = moved + target_n
+        if theta != 0.0:
+            # what the moved sessions measured in their own frame turns with them: chain deltas
+            # inside them, their loop edges, headings and sweeps (relative to their node)
+            inner = np.nonzero(mask[1:] & mask[:-1])[0] + 1
+            A["delta"][inner, :2] = A["delta"][inner, :2] @ R.T
+            for k, (a, b, _w, _s) in enumerate(self._loop_edges.loops):
+                if mask[a] and mask[b]:
+                    d = self._loop_edges.deltas[k]
+                    d[:2] = R @ d[:2]
+            A["yaw"][:N][mask] += theta
+            for i in np.flatnonzero(mask).tolist():
+                sw = self._scans[i]
+                if sw is not None:
+                    self._scans[i] = (sw.astype(np.float64) @ R.T).astype(np.float32)
+            self.frame_yaw += theta
+        # the chain's bookkeeping: the break edges into and out of the moved sessions absorb the move
         edge = np.nonzero(mask[1:] != mask[:-1])[0] + 1
-        A["delta"][edge] += np.where(mask[edge][:, None], shift, -shift)
+        move = A["pos"][:N] - before
+        A["delta"][edge] += np.where(mask[edge][:, None], move[edge], -move[edge - 1])
         A["cum"][:N] = np.cumsum(A["delta"][:N], axis=0)
         for s in moving.tolist():
             self._session_root[s] = new_root
         self.session_links.append(SessionLink(
             session=int(A["session"][n]), to_session=int(A["session"][m]), m=m, n=n, stamp=stamp,
-            delta=delta.copy(), shift=shift.copy(), rotation_deg=float(reg.rotation_deg),
+            delta=delta.copy(), shift=shift.copy(), rotation_deg=float(reg.rotation_deg), applied_deg=math.degrees(theta),
             inlier_fraction=float(reg.inlier_fraction)))
         res.linked = True
         self._close(m, n, stamp, delta, res)

@@ -195,8 +195,8 @@ def link_displacement(cfg: ExpMapConfig, sweep_m: np.ndarray | None, sweep_n: np
     if sweep_m is None or sweep_n is None:
         return None, None, "no_sweep"
     reg = register_sweeps(sweep_m, sweep_n, np.zeros(2), cell_m=cfg.scan_cell_m,
-                          search_radius_m=cfg.scan_search_radius_m, max_rotation_deg=cfg.scan_max_rotation_deg,
-                          rotation_step_deg=cfg.scan_rotation_step_deg, min_points=cfg.scan_min_points,
+                          search_radius_m=cfg.scan_search_radius_m, max_rotation_deg=cfg.session_link_max_rotation_deg,
+                          rotation_step_deg=cfg.session_link_rotation_step_deg, min_points=cfg.scan_min_points,
                           min_inlier_fraction=cfg.scan_min_inlier_fraction,
                           ambiguity_margin_m=cfg.scan_ambiguity_margin_m, max_ambiguity_m=cfg.scan_max_ambiguity_m)
     if not reg.trusted:

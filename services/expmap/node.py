@@ -209,8 +209,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         if res.linked and isinstance(self.graph, ExperienceMap):
             self.count("session_links")
             lk = self.graph.session_links[-1]
-            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, inliers %.2f)", lk.session,
-                     lk.to_session, lk.m, lk.n, " ".join(f"{v:.2f}" for v in lk.shift), lk.inlier_fraction)
+            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, turned %.1f deg, inliers %.2f)",
+                     lk.session, lk.to_session, lk.m, lk.n, " ".join(f"{v:.2f}" for v in lk.shift), lk.applied_deg,
+                     lk.inlier_fraction)
         if res.loop_closed and isinstance(self.graph, ScanGraph):
             self.count("loop_closures")
             log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m)", res.match, res.node,
@@ -326,7 +327,8 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             links = [SessionLinkInfo(session=lk.session, to_session=lk.to_session, source=lk.m, target=lk.n,
                                      stamp=lk.stamp, delta=[float(v) for v in lk.delta],
                                      shift=[float(v) for v in lk.shift], rotation_deg=lk.rotation_deg,
-                                     inlier_fraction=lk.inlier_fraction) for lk in g.session_links]
+                                     inlier_fraction=lk.inlier_fraction, applied_deg=lk.applied_deg)
+                     for lk in g.session_links]
             self.publish("map_sessions", MapSessions(
                 header=self.header("map_sessions", stamp), node_session=[int(v) for v in g.sessions],
                 loaded_nodes=self.loaded_nodes, links=links, rejections=dict(g.link_rejections)))

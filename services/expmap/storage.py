@@ -69,9 +69,10 @@ def save_map(em: ExperienceMap, path: str | Path) -> None:
         "session_root": {str(k): v for k, v in em._session_root.items()},
         "session_links": [{"session": lk.session, "to_session": lk.to_session, "m": lk.m, "n": lk.n,
                            "stamp": lk.stamp, "delta": lk.delta.tolist(), "shift": lk.shift.tolist(),
-                           "rotation_deg": lk.rotation_deg, "inlier_fraction": lk.inlier_fraction}
+                           "rotation_deg": lk.rotation_deg, "inlier_fraction": lk.inlier_fraction,
+                           "applied_deg": lk.applied_deg}
                           for lk in em.session_links],
-        "link_rejections": em.link_rejections,
+        "link_rejections": em.link_rejections, "frame_yaw": em.frame_yaw,
     }
     arrays = {k: em._a(k) for k in em._g.arrays}
     loops = np.array([(m, n, s) for m, n, _w, s in em.loops], np.int64).reshape(-1, 3)
@@ -138,8 +139,10 @@ def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     em.session_links = [SessionLink(session=int(d["session"]), to_session=int(d["to_session"]), m=int(d["m"]),
                                     n=int(d["n"]), stamp=int(d["stamp"]), delta=np.asarray(d["delta"], np.float64),
                                     shift=np.asarray(d["shift"], np.float64), rotation_deg=float(d["rotation_deg"]),
-                                    inlier_fraction=float(d["inlier_fraction"]))
+                                    inlier_fraction=float(d["inlier_fraction"]),
+                                    applied_deg=float(d.get("applied_deg", 0.0)))
                         for d in meta.get("session_links", [])]
+    em.frame_yaw = float(meta.get("frame_yaw", 0.0))
     em.link_rejections.update({k: int(v) for k, v in meta.get("link_rejections", {}).items()})
     for i, lvc in enumerate(em.lvc_ids.tolist()):
         em._lvc_index.setdefault(int(lvc), []).append(i)

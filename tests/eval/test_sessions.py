@@ -94,3 +94,36 @@ def test_loop_closures_with_a_loaded_end_are_judged_here() -> None:
                                           loop_closure=True)]                     # 9 m apart: false
     s = sessions_block(run, prior)
     assert s["cross_loop_closures"] == {"accepted": 2, "true": 1, "false": 1, "unlabelled": 0}
+
+
+def _with_dr(run: RunData, turn_deg: float, yaw_bias_deg: float) -> RunData:
+    """This mission's dead reckoning: its truth turned by ``turn_deg`` about the start and
+    shifted, reporting a heading off by ``yaw_bias_deg`` from its own track (published ENU)."""
+    from common.geometry import quaternion_of_yaw
+    from eval.trajectory import PoseSeries
+    assert run.truth is not None
+    t = np.asarray(run.truth.t, np.int64)
+    a = math.radians(turn_deg)
+    R = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    p_ned = run.truth.positions_at(t) @ R.T + np.array([7.0, -3.0, 0.0])
+    psi = a + math.radians(yaw_bias_deg)            # NED heading (truth: north, 0)
+    run.odometry_poses = PoseSeries(t, np.array([enu(p) for p in p_ned]),
+                                    np.array([quaternion_of_yaw(math.pi / 2 - psi)] * len(t)))
+    return run
+
+
+def test_dead_reckoning_aligned_at_the_link() -> None:
+    """``dr_ate_at_link_m``: the dead reckoning's pose at the link put on the truth; a rigidly
+    displaced dead reckoning is then exact, a heading error at the link turns it about there."""
+    run, prior = two_missions()
+    s = sessions_block(_with_dr(run, 10.0, 0.0), prior)
+    assert s["dr_ate_at_link_n"] == 10 and s["dr_ate_at_link_m"] < 1e-6
+    run, prior = two_missions()
+    s = sessions_block(_with_dr(run, 10.0, 5.0), prior)
+    k = np.arange(10) - 3.0                          # metres along the track from the link node
+    want = math.sqrt(float(np.mean((2 * np.abs(k) * math.sin(math.radians(2.5))) ** 2)))
+    assert abs(s["dr_ate_at_link_m"] - want) < 1e-3
+    after = math.sqrt(float(np.mean((2 * np.abs(k[3:]) * math.sin(math.radians(2.5))) ** 2)))
+    assert abs(s["dr_ate_at_link_after_m"] - after) < 1e-3 and s["ate_prior_frame_after_link_m"] < 1e-6
+    run, prior = two_missions()                      # no odometry recorded: not computable
+    assert sessions_block(run, prior)["dr_ate_at_link_m"] is None

@@ -172,3 +172,43 @@ def test_an_earlier_session_is_a_candidate_whatever_its_age() -> None:
     one = ExperienceMap(c)
     lap(one, 0, range(40), np.zeros(3))
     assert all(r.match < 0 for r in lap(one, 100, range(40), np.zeros(3), OFF_TRUE))
+
+
+def _turned_lap(em: ExperienceMap, t0: int, ks: range, phi_deg: float) -> list[EventResult]:
+    """Session B's pass with its odometry frame turned by ``phi_deg`` (ENU, counter-clockwise)
+    about its origin at FRAME_B: positions, heading and sweeps all seen in that frame."""
+    a = math.radians(phi_deg)
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    out = []
+    for k in ks:
+        p = true_ned(k, OFF_TRUE)
+        e = np.asarray(enu(p))
+        odom = [*(rot @ e[:2] + FRAME_B[:2]), 0.0]
+        sw = _sweep(p, [CHAMBER]) @ rot.T
+        out.append(em.add_event((t0 + k) * SEC, k, pc_of(odom), odom, a, sweep=sw))
+    return out
+
+
+@pytest.mark.parametrize("rotate", [True, False])
+def test_a_link_turns_the_new_session_by_the_registered_rotation(rotate: bool) -> None:
+    """Session B's frame is turned 20 degrees from A's: the link applies the registration's
+    rotation too, so B (before and after the link point) lines up with A's frame; translation
+    only leaves it visibly turned."""
+    em = session_a(cfg(session_link_max_rotation_deg=25.0, session_link_rotation_step_deg=1.0,
+                       session_link_rotate=rotate))
+    em.begin_session()
+    lap_b = _turned_lap(em, 100, range(40), -20.0)
+    _turned_lap(em, 140, range(40), -20.0)     # a second pass: the odometry after the link turns too
+    em.settle()
+    assert sum(r.linked for r in lap_b) == 1 and len(em.session_links) == 1
+    link = em.session_links[0]
+    assert abs(link.rotation_deg - 20.0) <= 1.0
+    truth_b = np.array([enu(true_ned(k, OFF_TRUE)) for k in range(40)] * 2)
+    err = np.abs(em.positions[40:, :2] - truth_b[:, :2]).max()
+    if rotate:
+        assert link.applied_deg == pytest.approx(link.rotation_deg)
+        assert err < 0.25
+        np.testing.assert_allclose(em.yaws[40:], math.radians(link.rotation_deg - 20.0), atol=1e-9)
+    else:
+        assert link.applied_deg == 0.0
+        assert err > 0.5
