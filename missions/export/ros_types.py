@@ -1,34 +1,14 @@
 """Our messages -> ROS messages (rosbags typestores), for ROS 1/ROS 2 bags and Foxglove.
 
-The mapping itself (:func:`to_ros`, table below) is :mod:`common.ros_convert`, shared with the
+The mapping itself (:func:`to_ros`) is :mod:`common.ros_convert`, shared with the
 live ROS 1 bridge; this module adds the ``poseidon_msgs`` definitions and raw-carried messages.
 
-Standard types where ROS has one; the Cala Viuda types for the dataset's own sensors; our
-SLAM outputs as ``poseidon_msgs`` types registered from the ``.msg`` files in ``msg/``:
+The table of what maps to which ROS type, and what each loses, is in :mod:`common.ros_convert`.
+One row is this module's own:
 
 =========================== ====================================================== =====================
 key type (ours)             ROS type                                               loses
 =========================== ====================================================== =====================
-Image                       sensor_msgs/msg/Image                                  -
-ExperienceImage             poseidon_msgs/msg/ExperienceImage (Image + source)     -
-RangeImageBeam              cirs_girona_cala_viuda/msg/RangeImageBeam              -
-LaserScan                   sensor_msgs/msg/LaserScan                              -
-LinkquestDvl                cirs_girona_cala_viuda/msg/LinkquestDvl                -
-Depth                       cirs_girona_cala_viuda/msg/Depth                       -
-Imu                         sensor_msgs/msg/Imu                                    temp, mag, gyro bias
-Odometry                    nav_msgs/msg/Odometry                                  ``status`` flags
-PoseStamped                 geometry_msgs/msg/PoseStamped (yaw as quaternion)      -
-NavSatFix, FluidPressure,   sensor_msgs/msg/... (same name)                        -
-Temperature, MagneticField
-PoseWithCovarianceStamped,  geometry_msgs/msg/... (same name)                      -
-TwistStamped
-TFMessage                   tf2_msgs/msg/TFMessage                                 -
-DiagnosticArray             diagnostic_msgs/msg/DiagnosticArray                    -
-NeocortexSdr                poseidon_msgs/msg/NeocortexSdr (+ Sdr)                 -
-LocalViewCells              poseidon_msgs/msg/LocalViewCells (+ LocalViewCell)     -
-ExperienceEvent             poseidon_msgs/msg/ExperienceEvent                      -
-ExperienceMap               poseidon_msgs/msg/ExperienceMap (+ Node, Link)         -
-RevisitTruth                poseidon_msgs/msg/RevisitTruth                         -
 RawMessage                  its original type, bytes unchanged (converted         -
                             between ROS 1 and CDR only when the bag kind differs)
 =========================== ====================================================== =====================

@@ -1,18 +1,8 @@
 """Live event time: watermarks for ROS streams from the wall clock (:class:`LiveClock`, in
 :mod:`common.live`, shared with every live source), and latency percentiles.
 
-The rule (also in README, "Live on the vehicle"): a ROS header stamp is mapped to the wall
-clock by tracking, per stream (our key), the offset ``arrival wall time - header stamp`` of
-its latest message.  At wall time ``now`` a stream then promises (watermark) that nothing
-older than ``now - offset - lateness`` will still come: ``lateness`` (``bridge_ros1.lateness_ms``)
-bounds how much more than its predecessor a message may be delayed between its sensor and
-the bridge.  A stream that has never had a message uses the offset of the latest message of
-any stream (one vehicle, one clock), so a silent sensor does not stall the event-time merge
-of the services downstream; before any message at all there is no watermark.  Tracking the
-latest offset (not the smallest) follows a clock that runs at another rate than the wall
-(``rosbag play -r 8``: the offsets shrink, the watermarks follow).  A message older than what
-its stream already promised is *late*: it is still published (and recorded) but counted, and
-the services reject it as late (:mod:`common.runtime`).
+The watermark rule (a stream's offset ``arrival - stamp``, the lateness bound, silent
+streams, late messages) is stated once, in :mod:`common.live`.
 
 Everything here takes the wall time as an argument: the bridge reads the clock, these
 classes only compute (unit-tested without ROS or a clock).
