@@ -431,10 +431,8 @@ def _delegate(name: str) -> Callable[[list[str]], int]:
     return getattr(mod, func)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="poseidon", description="PoseidonSLAM: underwater SLAM services")
-    sub = parser.add_subparsers(dest="command", required=True)
-
+def _add_run_command(sub: Any) -> None:
+    """``poseidon run``: replay a recording (or a live source) through the services."""
     p = sub.add_parser("run", help="replay a recording through the services and record the run")
     p.add_argument("--input", help="input recording (MCAP); or --live")
     p.add_argument("--live", choices=["ros1"], help="a live source instead of --input: ros1 = the ROS 1 bridge "
@@ -452,6 +450,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
 
+
+def _add_demo_command(sub: Any) -> None:
+    """``poseidon demo``: the main job on a fresh machine (:mod:`launcher.demo`)."""
     p = sub.add_parser("demo", help="simulate and transform a cave mission, run it with the VPR Guard ON and OFF, "
                        "write the report")
     from launcher.demo import add_arguments as demo_arguments
@@ -459,6 +460,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.set_defaults(func=cmd_demo)
 
+
+def _add_service_command(sub: Any) -> None:
+    """``poseidon service NAME``: one service connected to a hub/router."""
     p = sub.add_parser("service", help="run one service connected to a hub/router")
     p.add_argument("name", help="player, recorder, bridge_ros1 (live ROS 1 source), encoder, htm, robot_state, posecells, "
                    "expmap, ratslam_lv (RatSLAM front-end)")
@@ -485,6 +489,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.set_defaults(func=cmd_service)
 
+
+def _add_bridge_command(sub: Any) -> None:
+    """``poseidon bridge ros1``: the ROS 1 bridge."""
     p = sub.add_parser("bridge", help="bridge a robot middleware to the bus (ROS 1: sensor topics in, our outputs out)")
     p.add_argument("kind", choices=["ros1"], help="the middleware")
     p.add_argument("--connect", help="Zenoh endpoint of the hub/router (default: bus.connect)")
@@ -495,6 +502,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.set_defaults(func=cmd_bridge)
 
+
+def _add_hub_command(sub: Any) -> None:
+    """``poseidon hub``: a hub (Zenoh router)."""
     p = sub.add_parser("hub", help="run a hub (Zenoh router) for services on several hosts")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint to listen on")
     p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/zenoh/*.json5)")
@@ -502,6 +512,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_secure_args(p)
     p.set_defaults(func=cmd_hub)
 
+
+def _add_info_command(sub: Any) -> None:
+    """``poseidon info``: the summary of a recording."""
     p = sub.add_parser("info", help="summarise a recording (exit 1 if damaged, 2 if unreadable)")
     p.add_argument("recording")
     p.add_argument("--json", action="store_true")
@@ -509,6 +522,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write every intact message of a damaged recording (e.g. a killed recorder's) to a complete file")
     p.add_argument("--log-level", default="WARNING")
     p.set_defaults(func=cmd_info)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="poseidon", description="PoseidonSLAM: underwater SLAM services")
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_run_command(sub)
+    _add_demo_command(sub)
+    _add_service_command(sub)
+    _add_bridge_command(sub)
+    _add_hub_command(sub)
+    _add_info_command(sub)
 
     for name in DELEGATED:
         sub.add_parser(name, help=f"see 'poseidon {name} --help'", add_help=False)
