@@ -45,6 +45,7 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -85,15 +86,118 @@ def _r(v: float | None, nd: int = 4) -> float | None:
     return None if v is None or not math.isfinite(v) else round(float(v), nd)
 
 
+def _empty_block() -> dict[str, Any]:
+    return {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
+            "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
+            "ate_prior_frame_n": 0, "dr_ate_at_link_m": None, "dr_ate_at_link_n": 0,
+            "ate_prior_frame_after_link_m": None, "dr_ate_at_link_after_m": None,
+            "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
+            "table": []}
+
+
+@dataclass
+class _MapNodes:
+    """The final map's nodes (in id order) with their truth: the loaded ones' from ``prior``."""
+
+    sess: np.ndarray        # (n,) session id
+    loaded: int             # nodes loaded from the map directory (the first ``loaded``)
+    stamps: np.ndarray      # (n,) ns
+    pos_ned: np.ndarray     # (n, 3) map positions taken to NED
+    yaw_ned: np.ndarray     # (n,) map headings in NED
+    g: np.ndarray           # (n, 3) true positions, NED (NaN: no truth)
+    gy: np.ndarray          # (n,) true headings (NaN: no truth)
+
+
+def _map_nodes(run: RunData, prior: RunData | None, nodes: list[Any], sess: np.ndarray, loaded: int) -> _MapNodes:
+    n_nodes = len(nodes)
+    stamps = np.array([n.stamp for n in nodes], np.int64)
+    pos_ned = run.to_ned(np.array([n.position for n in nodes], np.float64))
+    # the nodes' odometry heading in NED: the published heading vector taken to NED
+    yaw_pub = np.array([n.yaw for n in nodes])
+    hv = run.to_ned(np.stack([np.cos(yaw_pub), np.sin(yaw_pub), np.zeros(n_nodes)], axis=1))
+    yaw_ned = np.arctan2(hv[:, 1], hv[:, 0])
+    g = np.full((n_nodes, 3), np.nan)
+    gy = np.full(n_nodes, np.nan)
+    g[:loaded], gy[:loaded] = _truth(prior, stamps[:loaded])
+    g[loaded:], gy[loaded:] = _truth(run, stamps[loaded:])
+    return _MapNodes(sess, loaded, stamps, pos_ned, yaw_ned, g, gy)
+
+
+def _linked_to_first(count: int, links: list[Any], sess: np.ndarray) -> np.ndarray:
+    """Per node: its session is linked to session 0 at the end."""
+    root = {s: s for s in range(count)}
+    for lk in links:
+        a, b = root[lk.session], root[lk.to_session]
+        for s, r in root.items():
+            if r == a:
+                root[s] = b
+    return np.array([root[int(s)] == 0 for s in sess])
+
+
+def _time_to_link(run: RunData, lk: Any, nd: _MapNodes) -> float | None:
+    """Mission seconds from the linked session first entering a mapped place (its truth within
+    :data:`PLACE_M` of an older node's) to the link (module docstring)."""
+    first = int(np.flatnonzero(nd.sess == lk.session)[0])
+    older = nd.g[:first][np.all(np.isfinite(nd.g[:first]), axis=1)]
+    if not (run.has_truth and len(older) and lk.target >= nd.loaded):
+        return None
+    tr = run.truth
+    assert tr is not None
+    ts = np.asarray(tr.t, np.int64)
+    sel = ts >= nd.stamps[first]
+    tp = tr.positions_at(ts[sel])
+    near = np.array([float(np.min(np.hypot(*(older[:, :2] - p[:2]).T))) <= PLACE_M for p in tp])
+    if not near.any():
+        return None
+    return _r((lk.stamp - int(ts[sel][np.argmax(near)])) * 1e-9, 3)
+
+
+def _link_row(run: RunData, lk: Any, nd: _MapNodes, rot: np.ndarray | None, t0: int) -> tuple[dict[str, Any], float | None]:
+    """One link's row of the ``table`` and its position error (m; None without truth)."""
+    i, j = lk.source, lk.target
+    row: dict[str, Any] = {"session": lk.session, "to_session": lk.to_session, "source": i, "target": j,
+                           "stamp_s": _r((lk.stamp - t0) * 1e-9, 3), "error_m": None,
+                           "rotation_error_deg": None, "false": None, "time_to_link_s": None,
+                           "inlier_fraction": _r(lk.inlier_fraction)}
+    err = None
+    g, gy = nd.g, nd.gy
+    if rot is not None and np.all(np.isfinite(g[[i, j]])):
+        d_ned = run.to_ned(np.asarray(lk.delta, np.float64)[None, :])[0]
+        err = float(np.linalg.norm(rot @ d_ned - (g[j] - g[i])))
+        row["error_m"] = _r(err)
+        if math.isfinite(gy[i]) and math.isfinite(gy[j]):
+            e_i, e_j = _wrap(nd.yaw_ned[i] - gy[i]), _wrap(nd.yaw_ned[j] - gy[j])
+            row["rotation_error_deg"] = _r(math.degrees(abs(_wrap(e_j - e_i))), 3)
+            row["false"] = bool(err > LINK_FAR_M or row["rotation_error_deg"] > LINK_FAR_DEG)
+    row["time_to_link_s"] = _time_to_link(run, lk, nd)
+    return row, err
+
+
+def _count_cross_loop_closures(cross: dict[str, int], map_links: list[Any], session_links: set[tuple[int, int]],
+                               nd: _MapNodes, far_m: float) -> None:
+    """Loop closures with one end loaded from the map directory, session links excepted."""
+    n_nodes = len(nd.stamps)
+    for e in map_links:
+        a, b = min(e.source, e.target), max(e.source, e.target)
+        if not e.loop_closure or a >= nd.loaded or (a, b) in session_links or not (0 <= a < n_nodes and 0 <= b < n_nodes):
+            continue
+        cross["accepted"] += 1
+        if np.all(np.isfinite(nd.g[[a, b]])):
+            cross["true" if float(np.linalg.norm(nd.g[a] - nd.g[b])) <= far_m else "false"] += 1
+        else:
+            cross["unlabelled"] += 1
+
+
+def _ate_in_frame(nd: _MapNodes, use: np.ndarray, rot: np.ndarray, trans: np.ndarray) -> float | None:
+    """RMSE (m) of the nodes ``use`` against truth in the frame of session 0's alignment."""
+    e = nd.pos_ned[use] @ rot.T + trans - nd.g[use]
+    return _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
+
+
 def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.0) -> dict[str, Any]:
     """The ``sessions`` block (module docstring)."""
     m = run.final_map
-    out: dict[str, Any] = {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
-                           "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
-                           "ate_prior_frame_n": 0, "dr_ate_at_link_m": None, "dr_ate_at_link_n": 0,
-                           "ate_prior_frame_after_link_m": None, "dr_ate_at_link_after_m": None,
-                           "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
-                           "table": []}
+    out = _empty_block()
     if m is None or not m.nodes:
         return out
     nodes = sorted(m.nodes, key=lambda n: n.id)
@@ -107,89 +211,40 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
     sess = np.asarray(ms.node_session, np.int64)
     loaded = int(ms.loaded_nodes)
     out.update(count=int(sess.max()) + 1, loaded_nodes=loaded, links=len(ms.links))
-    stamps = np.array([n.stamp for n in nodes], np.int64)
-    pos_ned = run.to_ned(np.array([n.position for n in nodes], np.float64))
-    # the nodes' odometry heading in NED: the published heading vector taken to NED
-    yaw_pub = np.array([n.yaw for n in nodes])
-    hv = run.to_ned(np.stack([np.cos(yaw_pub), np.sin(yaw_pub), np.zeros(n_nodes)], axis=1))
-    yaw_ned = np.arctan2(hv[:, 1], hv[:, 0])
-    g = np.full((n_nodes, 3), np.nan)
-    gy = np.full(n_nodes, np.nan)
-    g[:loaded], gy[:loaded] = _truth(prior, stamps[:loaded])
-    g[loaded:], gy[loaded:] = _truth(run, stamps[loaded:])
+    nd = _map_nodes(run, prior, nodes, sess, loaded)
+    stamps, g = nd.stamps, nd.g
     # the map's frame in the world: session 0's nodes aligned to their truth
     ref = (sess == 0) & np.all(np.isfinite(g), axis=1)
     rot = trans = None
     if ref.sum() >= 3:
-        rot, trans = align_rigid(pos_ned[ref], g[ref])
-    # sessions linked to session 0 at the end
-    root = {s: s for s in range(out["count"])}
-    for lk in ms.links:
-        a, b = root[lk.session], root[lk.to_session]
-        for s, r in root.items():
-            if r == a:
-                root[s] = b
+        rot, trans = align_rigid(nd.pos_ned[ref], g[ref])
     mine = np.arange(n_nodes) >= loaded
-    linked0 = np.array([root[int(s)] == 0 for s in sess])
+    linked0 = _linked_to_first(out["count"], ms.links, sess)
     out["unlinked_nodes"] = int((mine & ~linked0).sum())
     t0 = run.start_ns if run.start_ns is not None else 0
     errors = []
     for lk in ms.links:
-        i, j = lk.source, lk.target
-        row: dict[str, Any] = {"session": lk.session, "to_session": lk.to_session, "source": i, "target": j,
-                               "stamp_s": _r((lk.stamp - t0) * 1e-9, 3), "error_m": None,
-                               "rotation_error_deg": None, "false": None, "time_to_link_s": None,
-                               "inlier_fraction": _r(lk.inlier_fraction)}
-        if rot is not None and np.all(np.isfinite(g[[i, j]])):
-            d_ned = run.to_ned(np.asarray(lk.delta, np.float64)[None, :])[0]
-            err = float(np.linalg.norm(rot @ d_ned - (g[j] - g[i])))
-            row["error_m"] = _r(err)
+        row, err = _link_row(run, lk, nd, rot, t0)
+        if err is not None:
             errors.append(err)
-            if math.isfinite(gy[i]) and math.isfinite(gy[j]):
-                e_i, e_j = _wrap(yaw_ned[i] - gy[i]), _wrap(yaw_ned[j] - gy[j])
-                row["rotation_error_deg"] = _r(math.degrees(abs(_wrap(e_j - e_i))), 3)
-                row["false"] = bool(err > LINK_FAR_M or row["rotation_error_deg"] > LINK_FAR_DEG)
-        # first entering a mapped place: the linked session's truth near an older node's truth
-        first = int(np.flatnonzero(sess == lk.session)[0])
-        older = g[:first][np.all(np.isfinite(g[:first]), axis=1)]
-        if run.has_truth and len(older) and j >= loaded:
-            tr = run.truth
-            assert tr is not None
-            ts = np.asarray(tr.t, np.int64)
-            sel = ts >= stamps[first]
-            tp = tr.positions_at(ts[sel])
-            near = np.array([float(np.min(np.hypot(*(older[:, :2] - p[:2]).T))) <= PLACE_M for p in tp])
-            if near.any():
-                row["time_to_link_s"] = _r((lk.stamp - int(ts[sel][np.argmax(near)])) * 1e-9, 3)
         out["table"].append(row)
     out["false_links"] = sum(bool(r["false"]) for r in out["table"])
     mine_links = [r for r in out["table"] if r["target"] >= loaded]
     if mine_links:
         out["time_to_link_s"] = mine_links[0]["time_to_link_s"]
     out["link_error_m"] = _r(float(np.mean(errors))) if errors else None
-    links = {(lk.source, lk.target) for lk in ms.links}
-    cross = out["cross_loop_closures"]
-    for e in m.links:
-        a, b = min(e.source, e.target), max(e.source, e.target)
-        if not e.loop_closure or a >= loaded or (a, b) in links or not (0 <= a < n_nodes and 0 <= b < n_nodes):
-            continue
-        cross["accepted"] += 1
-        if np.all(np.isfinite(g[[a, b]])):
-            cross["true" if float(np.linalg.norm(g[a] - g[b])) <= far_m else "false"] += 1
-        else:
-            cross["unlabelled"] += 1
+    _count_cross_loop_closures(out["cross_loop_closures"], m.links, {(lk.source, lk.target) for lk in ms.links},
+                               nd, far_m)
     use = mine & linked0 & np.all(np.isfinite(g), axis=1)
     if rot is not None and trans is not None and use.any():
-        e = pos_ned[use] @ rot.T + trans - g[use]
-        out["ate_prior_frame_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
+        out["ate_prior_frame_m"] = _ate_in_frame(nd, use, rot, trans)
         out["ate_prior_frame_n"] = int(use.sum())
     if mine_links and use.any():
         j = int(mine_links[0]["target"])
         out["dr_ate_at_link_m"], out["dr_ate_at_link_n"] = _dr_at_link(run, stamps, g, use, j)
         after = use & (stamps >= stamps[j])
         if rot is not None and trans is not None and after.any():
-            e = pos_ned[after] @ rot.T + trans - g[after]
-            out["ate_prior_frame_after_link_m"] = _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
+            out["ate_prior_frame_after_link_m"] = _ate_in_frame(nd, after, rot, trans)
             out["dr_ate_at_link_after_m"] = _dr_at_link(run, stamps, g, after, j)[0]
     return out
 

@@ -361,7 +361,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     return result
 
 
-#: exit code of a service stopped by the run's abort (``launcher.cli.EXIT_ABORTED``)
+#: exit code of a service stopped by the run's abort (``launcher.commands.EXIT_ABORTED``)
 _ABORTED = 4
 
 

@@ -57,7 +57,8 @@ from common.messages import (
     RangeImageBeam,
     RawMessage,
 )
-from missions.export.ros_types import make_export_typestore, to_ros
+from common.ros_encode import to_ros
+from missions.export.ros_types import make_export_typestore
 from missions.export.rosbag import ExportError
 
 __all__ = ["export_foxglove", "file_descriptor_set"]

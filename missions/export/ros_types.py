@@ -1,7 +1,7 @@
 """Our messages -> ROS messages (rosbags typestores), for ROS 1/ROS 2 bags and Foxglove.
 
-The mapping itself (:func:`to_ros`) is :mod:`common.ros_convert`, shared with the
-live ROS 1 bridge; this module adds the ``poseidon_msgs`` definitions and raw-carried messages.
+The mapping itself is :mod:`common.ros_encode` (:func:`~common.ros_encode.to_ros`), shared with
+the live ROS 1 bridge; this module adds the ``poseidon_msgs`` definitions and raw-carried messages.
 
 The table of what maps to which ROS type, and what each loses, is in :mod:`common.ros_convert`.
 One row is this module's own:
@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from common.messages import RawMessage
-from common.ros_convert import CALA_VIUDA_MSGS, ros_type_of, to_ros
+from common.ros_convert import CALA_VIUDA_MSGS
 
-__all__ = ["MSG_DIR", "POSEIDON_MSGS", "make_export_typestore", "ros_type_of", "to_ros", "RawConverter"]
+__all__ = ["MSG_DIR", "POSEIDON_MSGS", "make_export_typestore", "RawConverter"]
 
 #: the .msg files of poseidon_msgs
 MSG_DIR = Path(__file__).resolve().parent / "msg"

@@ -14,7 +14,8 @@ from typing import Any
 
 from common.mcap_io import read_messages
 from common.messages import RawMessage
-from missions.export.ros_types import RawConverter, make_export_typestore, to_ros
+from common.ros_encode import to_ros
+from missions.export.ros_types import RawConverter, make_export_typestore
 
 __all__ = ["ExportError", "export_rosbag"]
 

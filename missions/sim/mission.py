@@ -333,24 +333,20 @@ def _metadata(p: SimParams, duration: float, world: World, segs: list[dict[str, 
     }
 
 
-def generate(out_path: str | Path, params: SimParams, progress: bool = True,
-             world: World | None = None) -> dict[str, Any]:
-    """Write the mission to ``out_path``; returns the summary (see :mod:`missions.sim.cli`)."""
-    p = params
-    duration = p.minutes * 60.0
-    if duration <= 0:
-        raise ValueError(f"minutes must be > 0, got {p.minutes}")
-    if p.start not in START_AREAS:
-        raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {p.start!r}")
-    world_seed = p.seed if p.world_seed is None else int(p.world_seed)
-    world = world if world is not None else build_world(world_seed)
-    if world.seed != world_seed:
-        raise ValueError(f"the world given was built for seed {world.seed}, the mission asks for world_seed {world_seed}")
-    traj = make_trajectory(world, duration, p.seed, p.speed_m_s, start=p.start)
-    rng = np.random.default_rng([p.seed, 303])
-    st = _all_stamps(p, duration, rng)
-    # slow processes on the 50 Hz grid: turbidity, IMU yaw error, odometry drift, gyro bias
-    tt = traj.t
+@dataclass
+class _SlowErrors:
+    """The mission's slow processes on the 50 Hz grid of the trajectory."""
+
+    turbidity: np.ndarray       # (n,) water turbidity factor of the camera
+    yaw_err: np.ndarray         # (n,) rad: IMU yaw error (drift + random walk)
+    gyro_bias: np.ndarray       # (3,) rad/s
+    odom_err: np.ndarray        # (n, 3) m: reference odometry drift
+    dvl_heading_off: float      # deg: DVL heading offset
+
+
+def _slow_errors(p: SimParams, tt: np.ndarray, rng: np.random.Generator) -> _SlowErrors:
+    """Turbidity, IMU yaw error, gyro bias, odometry drift and the DVL heading offset (the
+    random draws in that order, after the sensor stamps)."""
     turb = np.clip(1.0 + _smooth_noise(rng, tt, 40.0, 0.3), 0.55, 1.6)
     yaw_err = np.deg2rad(p.imu_yaw_drift_deg_per_min / 60.0 * tt
                          + np.cumsum(rng.normal(0, p.imu_yaw_rw_deg_per_sqrt_s * math.sqrt(tt[1] - tt[0]), len(tt))))
@@ -359,62 +355,105 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     vel_err[:, 2] *= 0.2
     odom_err = np.cumsum(vel_err, axis=0) * (tt[1] - tt[0])
     dvl_heading_off = rng.normal(0, 3.0)
+    return _SlowErrors(turb, yaw_err, gyro_bias, odom_err, dvl_heading_off)
 
-    # camera frames: poses, footprints and revisit ground truth
-    cs = traj.at(st.cam)
+
+def _mission_world(p: SimParams, duration: float, world: World | None) -> World:
+    """The cave of the mission (``world`` when given, checked against the mission's world seed)."""
+    if duration <= 0:
+        raise ValueError(f"minutes must be > 0, got {p.minutes}")
+    if p.start not in START_AREAS:
+        raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {p.start!r}")
+    world_seed = p.seed if p.world_seed is None else int(p.world_seed)
+    world = world if world is not None else build_world(world_seed)
+    if world.seed != world_seed:
+        raise ValueError(f"the world given was built for seed {world.seed}, the mission asks for world_seed {world_seed}")
+    return world
+
+
+def _camera_frames(p: SimParams, world: World, traj: VehicleMotion,
+                   cam_times: np.ndarray) -> tuple[dict[str, np.ndarray], list[np.ndarray]]:
+    """The camera frames' vehicle states and their revisit ground truth (per frame: the earlier
+    frames of the same place)."""
+    cs = traj.at(cam_times)
     centres = footprint_centres(world, cs["pos"], cs["rpy"], np.asarray(p.camera.lever))
     same = revisits(centres, cs["pos"], cs["dist"], cs["rpy"][:, 2], p.revisit_radius_m, p.revisit_max_vehicle_m,
                     p.revisit_min_gap_m,
                     None if p.revisit_max_heading_deg is None else math.radians(p.revisit_max_heading_deg))
-    segs = segments_of(traj, duration)
+    return cs, same
 
-    cam_r = _CameraRenderer(world, p.camera)
-    writer = RecordingWriter(out_path)
-    out = _Out(writer)
-    writer.add_metadata("poseidon", _metadata(p, duration, world, segs, dvl_heading_off, gyro_bias))
 
-    nchunks = int(math.ceil(duration / p.chunk_s))
-    bar = tqdm(total=len(st.cam), desc="sim frames", unit="frame", disable=not progress, file=None)
-    cam_index = 0
-    try:
-        for ci in range(nchunks):
-            t0, t1 = ci * p.chunk_s, min((ci + 1) * p.chunk_s, duration)
-            crng = np.random.default_rng([p.seed, 404, ci])
+def _write_chunk(out: _Out, p: SimParams, traj: VehicleMotion, world: World, st: _Streams, slow: _SlowErrors,
+                 cam: tuple[_CameraRenderer, dict[str, np.ndarray], list[np.ndarray]], ci: int,
+                 t0: float, t1: float, bar: Any) -> None:
+    """Every stream's messages stamped in [t0, t1) s: chunk ``ci``, with its own random stream."""
+    cam_r, cs, same = cam
+    crng = np.random.default_rng([p.seed, 404, ci])
 
-            def sel(a: np.ndarray, t0: float = t0, t1: float = t1) -> np.ndarray:
-                return np.nonzero((a >= t0) & (a < t1))[0]
+    def sel(a: np.ndarray) -> np.ndarray:
+        return np.nonzero((a >= t0) & (a < t1))[0]
 
-            _truth(out, traj, st.truth[sel(st.truth)])
-            _imu(out, p, traj, st.imu[sel(st.imu)], yaw_err, gyro_bias, crng)
-            _depth(out, p, traj, st.depth[sel(st.depth)], crng)
-            _dvl(out, p, traj, world, st.dvl, sel(st.dvl), dvl_heading_off, np.random.default_rng([p.seed, 505]), crng)
-            _odom(out, p, traj, st.odom[sel(st.odom)], odom_err, yaw_err, crng)
-            _micron(out, p, traj, world, st.micron, sel(st.micron), crng)
-            _seaking(out, p, traj, world, st.seaking, sel(st.seaking), crng)
-            for k in sel(st.cam):
-                img = cam_r.render(cs["pos"][k], cs["rpy"][k], float(cs["altitude"][k]),
-                                   float(np.interp(st.cam[k], tt, turb)), crng, p.seed * 1_000_003 + int(k))
-                stamp = int(_ns(st.cam[k]))
-                out.add("camera/image_raw", stamp, lambda h, img=img: Image(header=h, height=img.shape[0],
-                                                                             width=img.shape[1], encoding="rgb8",
-                                                                             data=img))
-                out.add("truth/revisits", stamp, lambda h, k=k: RevisitTruth(header=h, frame_index=int(k),
-                                                                             same_place=same[k].astype(np.int32)))
-                cam_index += 1
-                bar.update(1)
-            out.flush()
-    finally:
-        bar.close()
-        writer.close()
+    _truth(out, traj, st.truth[sel(st.truth)])
+    _imu(out, p, traj, st.imu[sel(st.imu)], slow.yaw_err, slow.gyro_bias, crng)
+    _depth(out, p, traj, st.depth[sel(st.depth)], crng)
+    _dvl(out, p, traj, world, st.dvl, sel(st.dvl), slow.dvl_heading_off, np.random.default_rng([p.seed, 505]), crng)
+    _odom(out, p, traj, st.odom[sel(st.odom)], slow.odom_err, slow.yaw_err, crng)
+    _micron(out, p, traj, world, st.micron, sel(st.micron), crng)
+    _seaking(out, p, traj, world, st.seaking, sel(st.seaking), crng)
+    for k in sel(st.cam):
+        img = cam_r.render(cs["pos"][k], cs["rpy"][k], float(cs["altitude"][k]),
+                           float(np.interp(st.cam[k], traj.t, slow.turbidity)), crng, p.seed * 1_000_003 + int(k))
+        stamp = int(_ns(st.cam[k]))
+        out.add("camera/image_raw", stamp, lambda h, img=img: Image(header=h, height=img.shape[0],
+                                                                     width=img.shape[1], encoding="rgb8",
+                                                                     data=img))
+        out.add("truth/revisits", stamp, lambda h, k=k: RevisitTruth(header=h, frame_index=int(k),
+                                                                     same_place=same[k].astype(np.int32)))
+        bar.update(1)
+    out.flush()
+
+
+def _loops_flown(segs: list[dict[str, Any]]) -> dict[str, int]:
+    """Complete loops flown per area."""
     loops: dict[str, int] = {}
     for s in segs:
         if s["complete"] and s["name"].startswith("area"):
             loops[s["name"]] = loops.get(s["name"], 0) + 1
+    return loops
+
+
+def generate(out_path: str | Path, params: SimParams, progress: bool = True,
+             world: World | None = None) -> dict[str, Any]:
+    """Write the mission to ``out_path``; returns the summary (see :mod:`missions.sim.cli`)."""
+    p = params
+    duration = p.minutes * 60.0
+    world = _mission_world(p, duration, world)
+    traj = make_trajectory(world, duration, p.seed, p.speed_m_s, start=p.start)
+    rng = np.random.default_rng([p.seed, 303])
+    st = _all_stamps(p, duration, rng)
+    slow = _slow_errors(p, traj.t, rng)
+    cs, same = _camera_frames(p, world, traj, st.cam)
+    segs = segments_of(traj, duration)
+
+    cam = (_CameraRenderer(world, p.camera), cs, same)
+    writer = RecordingWriter(out_path)
+    out = _Out(writer)
+    writer.add_metadata("poseidon", _metadata(p, duration, world, segs, slow.dvl_heading_off, slow.gyro_bias))
+
+    nchunks = int(math.ceil(duration / p.chunk_s))
+    bar = tqdm(total=len(st.cam), desc="sim frames", unit="frame", disable=not progress, file=None)
+    try:
+        for ci in range(nchunks):
+            _write_chunk(out, p, traj, world, st, slow, cam, ci, ci * p.chunk_s, min((ci + 1) * p.chunk_s, duration),
+                         bar)
+    finally:
+        bar.close()
+        writer.close()
     return {
         "out": str(out_path), "seed": p.seed, "world_seed": world.seed, "start": p.start, "minutes": p.minutes, "duration_s": duration,
         "distance_m": round(float(np.interp(duration, traj.t, traj.dist)), 3),
         "counts": dict(sorted(writer.counts.items())), "frames": len(st.cam),
-        "frames_with_revisits": int(sum(len(s) > 0 for s in same)), "loops": loops, "segments": segs,
+        "frames_with_revisits": int(sum(len(s) > 0 for s in same)), "loops": _loops_flown(segs), "segments": segs,
     }
 
 

@@ -99,21 +99,23 @@ class VehicleMotion:
         return out
 
 
-def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3,
-                    start: str = "area1") -> VehicleMotion:
-    """The vehicle's path for ``duration_s`` seconds at a mean ``speed`` (m/s), starting in
-    ``start`` (one of :data:`START_AREAS`)."""
-    if start not in START_AREAS:
-        raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {start!r}")
-    rng = np.random.default_rng([seed, 202])
-    t = np.arange(0.0, duration_s + 1.0 / BASE_HZ + 2.0, 1.0 / BASE_HZ)
+def _speed_profile(rng: np.random.Generator, t: np.ndarray, speed: float) -> np.ndarray:
+    """Distance along the route (m) at every 50 Hz sample: a smoothly varying speed around
+    ``speed``, never below 30 % of it (the first of the trajectory's random draws)."""
     v = speed * (1.0 + _smooth_noise(rng, t, 20.0, 0.12))
     v = np.clip(v, 0.3 * speed, None)
-    s = np.concatenate([[0.0], np.cumsum(v[1:] * np.diff(t))])
-    # route pieces in flight order until the distance is covered
+    s: np.ndarray = np.concatenate([[0.0], np.cumsum(v[1:] * np.diff(t))])
+    return s
+
+
+def _piece_length(points: np.ndarray) -> float:
+    return float(np.sum(np.hypot(*np.diff(points, axis=0).T)))
+
+
+def _flight_plan(world: World, start: str, length_m: float) -> list[tuple[np.ndarray, int, int]]:
+    """Route pieces (points, segment id, loop) in flight order until ``length_m`` is covered."""
     a1, tr, a2, back = world.route
-    plan: list[tuple[np.ndarray, int, int]] = []  # (points, segment id, loop)
-    total = 0.0
+    plan: list[tuple[np.ndarray, int, int]] = []
     cycle = [(a1, 0, k) for k in range(LOOPS_PER_AREA)] + [(tr, 1, 0)] + \
             [(a2, 2, k) for k in range(LOOPS_PER_AREA)] + [(back, 3, 0)]
     # the mission starts with an approach: the last 15 m of the tunnel from area 2 into area 1
@@ -124,33 +126,80 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
         entry, entry_seg = tr[-150:], 1
         cycle = cycle[LOOPS_PER_AREA + 1:] + cycle[:LOOPS_PER_AREA + 1]
     plan.append((entry, entry_seg, 0))
-    total += float(np.sum(np.hypot(*np.diff(entry, axis=0).T)))
-    while total < s[-1] + 10.0:
+    total = 0.0 + _piece_length(entry)
+    while total < length_m:
         for item in cycle:
             plan.append(item)
-            total += float(np.sum(np.hypot(*np.diff(item[0], axis=0).T)))
+            total += _piece_length(item[0])
+    return plan
+
+
+def _centreline(plan: list[tuple[np.ndarray, int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The plan as one polyline with its corners smoothed (2 m moving average of the 0.1 m
+    polyline): (points, distance along it, segment id, loop) per point, repeated points dropped."""
     pts = np.concatenate([p for p, _, _ in plan])
     seg_id = np.concatenate([np.full(len(p), g) for p, g, _ in plan])
     loop_id = np.concatenate([np.full(len(p), k) for p, _, k in plan])
-    # smooth the corners (2 m moving average of the 0.1 m polyline)
     pts = _moving_average(pts, 21)
     d = np.r_[0.0, np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]
     keep = np.r_[True, np.diff(d) > 1e-9]
-    pts, d, seg_id, loop_id = pts[keep], d[keep], seg_id[keep], loop_id[keep]
-    cx = np.interp(s, d, pts[:, 0])
-    cy = np.interp(s, d, pts[:, 1])
-    k = np.clip(np.searchsorted(d, s), 0, len(d) - 1)
-    # tunnel direction, smoothed over 1 s: the raw tangent of the 0.1 m polyline is piecewise
-    # constant, and offsetting the path by up to 0.5 m along a normal that jumps at every vertex
-    # made the vehicle step backwards there on the inside of bends -- the velocity direction (the
-    # heading, until generator_version 3) then flipped by 180 deg, np.unwrap chose a side at
-    # random and the 1-s heading average turned the flips into yaw spins of up to ~2000 deg/s
-    # (issue 9)
+    return pts[keep], d[keep], seg_id[keep], loop_id[keep]
+
+
+def _tunnel_normals(cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
+    """Unit normals (n, 2) of the centreline, from its direction smoothed over 1 s.
+
+    The raw tangent of the 0.1 m polyline is piecewise constant, and offsetting the path by up
+    to 0.5 m along a normal that jumps at every vertex made the vehicle step backwards there on
+    the inside of bends -- the velocity direction (the heading, until generator_version 3) then
+    flipped by 180 deg, np.unwrap chose a side at random and the 1-s heading average turned the
+    flips into yaw spins of up to ~2000 deg/s (issue 9)."""
     tang = np.stack([np.gradient(cx), np.gradient(cy)], axis=1)
     tang /= np.linalg.norm(tang, axis=1, keepdims=True) + 1e-12
     tang = _moving_average(tang, int(BASE_HZ))
     tang /= np.linalg.norm(tang, axis=1, keepdims=True) + 1e-12
-    nrm = np.stack([-tang[:, 1], tang[:, 0]], axis=1)
+    return np.stack([-tang[:, 1], tang[:, 0]], axis=1)
+
+
+def _attitude(rng: np.random.Generator, t: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(roll, pitch, yaw) rad: yaw = the heading plus a small crab angle, then roll and pitch
+    wobble (random draws in that order).
+
+    The heading follows the velocity averaged over 1 s as a vector (not the angle of each
+    sample: where the path nearly stalls, at a hairpin where route pieces join, single samples
+    point anywhere and their unwrapped angles spun the same way)."""
+    vbar = _moving_average(vel[:, :2], int(1.0 * BASE_HZ))
+    heading = np.unwrap(np.arctan2(vbar[:, 1], vbar[:, 0]))
+    heading = _moving_average(heading, int(1.0 * BASE_HZ))
+    yaw = heading + np.deg2rad(_smooth_noise(rng, t, 8.0, 3.0))
+    roll = np.deg2rad(_smooth_noise(rng, t, 4.0, 1.5))
+    pitch = np.deg2rad(_smooth_noise(rng, t, 5.0, 2.0))
+    return roll, pitch, yaw
+
+
+def _body_rates(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, dt: float) -> np.ndarray:
+    """Body angular rates (n, 3) p, q, r (rad/s) of the ZYX Euler angles' time derivatives."""
+    dr, dp, dyw = (np.gradient(a, dt) for a in (roll, pitch, yaw))
+    p = dr - dyw * np.sin(pitch)
+    q = dp * np.cos(roll) + dyw * np.cos(pitch) * np.sin(roll)
+    r = -dp * np.sin(roll) + dyw * np.cos(pitch) * np.cos(roll)
+    return np.stack([p, q, r], axis=1)
+
+
+def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3,
+                    start: str = "area1") -> VehicleMotion:
+    """The vehicle's path for ``duration_s`` seconds at a mean ``speed`` (m/s), starting in
+    ``start`` (one of :data:`START_AREAS`)."""
+    if start not in START_AREAS:
+        raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {start!r}")
+    rng = np.random.default_rng([seed, 202])
+    t = np.arange(0.0, duration_s + 1.0 / BASE_HZ + 2.0, 1.0 / BASE_HZ)
+    s = _speed_profile(rng, t, speed)
+    pts, d, seg_id, loop_id = _centreline(_flight_plan(world, start, s[-1] + 10.0))
+    cx = np.interp(s, d, pts[:, 0])
+    cy = np.interp(s, d, pts[:, 1])
+    k = np.clip(np.searchsorted(d, s), 0, len(d) - 1)
+    nrm = _tunnel_normals(cx, cy)
     lateral = np.clip(_smooth_noise(rng, t, 15.0, 0.25), -0.5, 0.5)
     x = cx + nrm[:, 0] * lateral
     y = cy + nrm[:, 1] * lateral
@@ -161,24 +210,12 @@ def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0
     pos = np.stack([x, y, z], axis=1)
     dt = 1.0 / BASE_HZ
     vel = np.gradient(pos, dt, axis=0)
-    # heading along the velocity averaged over 1 s as a vector (not the angle of each sample:
-    # where the path nearly stalls, at a hairpin where route pieces join, single samples point
-    # anywhere and their unwrapped angles spun the same way)
-    vbar = _moving_average(vel[:, :2], int(1.0 * BASE_HZ))
-    heading = np.unwrap(np.arctan2(vbar[:, 1], vbar[:, 0]))
-    heading = _moving_average(heading, int(1.0 * BASE_HZ))
-    yaw = heading + np.deg2rad(_smooth_noise(rng, t, 8.0, 3.0))
-    roll = np.deg2rad(_smooth_noise(rng, t, 4.0, 1.5))
-    pitch = np.deg2rad(_smooth_noise(rng, t, 5.0, 2.0))
+    roll, pitch, yaw = _attitude(rng, t, vel)
     acc = np.gradient(vel, dt, axis=0)
-    dr, dp, dyw = (np.gradient(a, dt) for a in (roll, pitch, yaw))
-    p = dr - dyw * np.sin(pitch)
-    q = dp * np.cos(roll) + dyw * np.cos(pitch) * np.sin(roll)
-    r = -dp * np.sin(roll) + dyw * np.cos(pitch) * np.cos(roll)
     dist = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))]
     altitude = world.floor_at(x, y) - z
     return VehicleMotion(t=t, pos=pos, rpy=np.stack([roll, pitch, yaw], axis=1), vel_w=vel, acc_w=acc,
-                      omega_b=np.stack([p, q, r], axis=1), dist=dist, altitude=altitude, segment=seg_id[k],
+                      omega_b=_body_rates(roll, pitch, yaw, dt), dist=dist, altitude=altitude, segment=seg_id[k],
                       loop=loop_id[k], segment_names=list(world.route_names))
 
 

@@ -13,7 +13,7 @@ Out (:class:`Outgoing`), what ROS tools see of our outputs:
 =================== ============================== =====================================================
 our key (default)   ROS topic (default)            ROS type
 =================== ============================== =====================================================
-``Odometry``        ``/poseidon/odom``             nav_msgs/Odometry (:func:`common.ros_convert.to_ros`)
+``Odometry``        ``/poseidon/odom``             nav_msgs/Odometry (:func:`common.ros_encode.to_ros`)
 ``dead_reckoning``  ``/poseidon/dead_reckoning``   geometry_msgs/PoseStamped (same)
 ``map``             ``/poseidon/path``             nav_msgs/Path: the experiences in id order, latched
 ``map``             ``/poseidon/map_markers``      visualization_msgs/MarkerArray, latched: DELETEALL, then
@@ -51,8 +51,8 @@ from common.ros_convert import (
     raw_message,
     rosbags_type,
     stamped_header,
-    to_ros,
 )
+from common.ros_encode import to_ros
 from services.bridge_ros1.config import TopicRoute
 
 __all__ = ["Incoming", "Outgoing", "Converted"]

@@ -4,7 +4,7 @@ rospy comes from the system (Debian ``ros-core``, ``python3-*-msgs``): its folde
 *appended* to ``sys.path`` (our venv's numpy, yaml... stay first; ``site.addsitedir`` would run
 that folder's ``.pth`` files).  Subscriptions are ``rospy.AnyMsg`` (bytes + the publisher's
 type, md5 and definition from the connection header: nothing is deserialised by rospy);
-publications write bytes we serialised with rosbags (:mod:`common.ros_convert`) through a
+publications write bytes we serialised with rosbags (:mod:`common.ros_encode`) through a
 class per ROS type that carries the type's md5 and definition, so numpy never meets rospy's
 generated code (its ``serialize_numpy`` fails under NumPy 2).
 

@@ -146,7 +146,7 @@ class ExpMapConfig(ConfigSection):
                                              "(0: one PoseStamped per Odometry)")
     map_path: str = Field("", description="load the experience map from here at start and save it at the end "
                           "(npz; empty: off)")
-    # --- added for sessions (issue 20); see services/expmap/graph.py, "Sessions"
+    # --- added for sessions (issue 20); see services/expmap/session_link.py
     map_sessions: bool = Field(False, description="a map loaded from map_path begins a new session: the run's "
                                "experiences sit in its own odometry frame, unlinked to the loaded ones until a "
                                "recognised place is verified by the sonar sweeps (poseidon run --map-dir sets it; "

@@ -67,35 +67,16 @@ Save/load (:meth:`save`, :meth:`load`, npz) keeps everything needed to continue:
 odometry increments, loop edges, sonar sweeps, the confirmation chain, the pending correction
 and the last event's odometry (a continued mission must use the same odometry frame).
 
-Sessions (issue 20): a map continued by another mission (``map_sessions``, ``poseidon run
---map-dir``) or a vehicle whose odometry jumps by more than ``session_jump_m`` between two
-events (kidnapped) begins a new *session* (:meth:`ExperienceMap.begin_session`): its first
-node sits at its own odometry position (its own frame, unlinked to the earlier nodes), the
-chain edge from the previous node is kept with weight :data:`SESSION_BREAK_WEIGHT` (a
-resistance of 1e6: it carries the chain's bookkeeping, not a measurement) and every node
-carries its session id.  Every node of an earlier session is a loop candidate, whatever
-``min_experience_age`` (another mission is never "the place just passed").  A confirmed match (``loop_confirmations`` consecutive events, as a
-loop closure) between sessions not yet linked is a *link candidate*: it becomes a link only
-when the two experiences' sonar sweeps register trusted along both axes with at least
-``session_link_min_inliers`` inliers (:func:`services.expmap.loop_policy.link_displacement`,
-searched around "the same place", since the separation of two unlinked frames means
-nothing); otherwise it is rejected (``rejected = "link"``, the reason counted in
-:attr:`ExperienceMap.link_rejections`).  A link moves the newer component (every session
-linked to the new one) rigidly so that the two experiences sit at the measured displacement,
-records the link as a loop edge (so relaxation treats it like one from then on; the interval
-and route rules do not apply to it) and joins the components: the older one's frame (session
-0's, the prior map's) is the frame of both.  The move is a rigid transform about n: the
-registration's translation *and* rotation (``session_link_rotate``, searched within
-``session_link_max_rotation_deg``): the newer component's positions, headings, sweeps, chain
-deltas and loop deltas turn with it, and so does the odometry of the rest of the session
-(:attr:`ExperienceMap.frame_yaw`).  Depth is not rotated (pressure depth is absolute).  Both
-angles are recorded with the link (:class:`SessionLink`: measured and applied).
+Sessions (issue 20): a map continued by another mission (``poseidon run --map-dir``) or a
+vehicle whose odometry jumps by more than ``session_jump_m`` (kidnapped) begins a new session
+(:meth:`ExperienceMap.begin_session`), unlinked to the earlier ones until a link verified by
+the sonar joins them; the rules are in :mod:`services.expmap.session_link`.
 
 Code by concern: candidates and scores in :mod:`services.expmap.candidates`; loop edges,
 the route rule and the sweep verification in :mod:`services.expmap.loop_policy`; the
 Eq. 4.20 solver and the capped blend in :mod:`services.expmap.relaxation`; the node columns
 and the map file in :mod:`services.expmap.storage`; quickest paths in
-:mod:`services.expmap.routes`.  :class:`ExperienceMap` holds the state and applies the rules
+:mod:`services.expmap.routes`; session links in :mod:`services.expmap.session_link`.  :class:`ExperienceMap` holds the state and applies the rules
 in order for each event.
 """
 from __future__ import annotations
@@ -113,36 +94,11 @@ from services.expmap.loop_policy import LoopEdges, link_displacement, loop_displ
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
+from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, move_component, rot2
 from services.expmap.storage import FORMAT_VERSION, ColumnStore, load_map, read_map_file, save_map
 
-__all__ = ["ExperienceMap", "EventResult", "SessionLink", "SESSION_BREAK_WEIGHT", "quickest_path", "quickest_path_links", "pc_distance_cells",
+__all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
            "read_map_file", "FORMAT_VERSION"]
-
-
-#: weight of the chain edge into a session's first node (its displacement is not a measurement)
-SESSION_BREAK_WEIGHT = 1e-6
-
-
-def _rot2(theta: float) -> np.ndarray:
-    """2-D rotation matrix of ``theta`` rad (counter-clockwise in the map's x, y)."""
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s], [s, c]])
-
-
-@dataclass
-class SessionLink:
-    """A link between two sessions: p_n - p_m = ``delta`` (m), made at event ``stamp`` (ns)."""
-
-    session: int                # the session of n (the newer component's)
-    to_session: int             # the session of m
-    m: int
-    n: int
-    stamp: int
-    delta: np.ndarray           # (3,) m, map frame
-    shift: np.ndarray           # (3,) m: how far the newer component moved
-    rotation_deg: float         # heading disagreement of the two sweeps (deg, the registration's)
-    inlier_fraction: float
-    applied_deg: float = 0.0    # the rotation applied to the newer component (deg; 0: translation only)
 
 
 @dataclass
@@ -339,7 +295,7 @@ class ExperienceMap:
                 raise RuntimeError("experience map holds nodes but no last odometry position")
             delta = odom - self.last_odom
             if self.frame_yaw != 0.0:         # a session turned by a link: its odometry turns with it
-                delta[:2] = _rot2(self.frame_yaw) @ delta[:2]
+                delta[:2] = rot2(self.frame_yaw) @ delta[:2]
             A["delta"][n] = delta
             A["pos"][n] = A["pos"][n - 1] + delta
             A["cum"][n] = A["cum"][n - 1] + delta
@@ -357,7 +313,7 @@ class ExperienceMap:
         self._lvc_index.setdefault(int(lvc_id), []).append(n)
         sw = None if sweep is None or len(sweep) == 0 else np.asarray(sweep, np.float32).reshape(-1, 2)
         if sw is not None and self.frame_yaw != 0.0:
-            sw = (sw.astype(np.float64) @ _rot2(self.frame_yaw).T).astype(np.float32)
+            sw = (sw.astype(np.float64) @ rot2(self.frame_yaw).T).astype(np.float32)
         self._scans.append(sw)
 
         self._loop_search(n, res)
@@ -422,8 +378,8 @@ class ExperienceMap:
         self._close(m, n, stamp, delta, res)
 
     def _try_link(self, m: int, n: int, stamp: int, res: EventResult) -> None:
-        """A confirmed match between unlinked sessions: a link if the sweeps verify it (see
-        "Sessions" in the module docstring), else rejected (``rejected = "link"``)."""
+        """A confirmed match between unlinked sessions: a link if the sweeps verify it
+        (:mod:`services.expmap.session_link`), else rejected (``rejected = "link"``)."""
         odom = self._a("odom")
         delta, reg, reason = link_displacement(self.cfg, self._scans[m], self._scans[n],
                                                float(odom[n, 2] - odom[m, 2]))
@@ -437,37 +393,13 @@ class ExperienceMap:
         old_root, new_root = self.session_root(int(A["session"][n])), self.session_root(int(A["session"][m]))
         moving = np.array([s for s, r in self._session_root.items() if r == old_root], np.int64)
         mask = np.isin(A["session"][:N], moving)
-        # the rigid transform of the newer component about n: x -> R (x - p_n) + p_m + delta, with R
-        # the registration's rotation (it lays n's sweep onto m's; zero with session_link_rotate off)
+        # the rigid transform of the newer component about n, with the registration's rotation
+        # (zero with session_link_rotate off)
         theta = math.radians(float(reg.rotation_deg)) if self.cfg.session_link_rotate else 0.0
-        R = _rot2(theta)
-        before = A["pos"][:N].copy()
         shift = A["pos"][m] + delta - A["pos"][n]
-        target_n = A["pos"][m] + delta
-        moved = before[mask]
-        moved[:, :2] = (moved[:, :2] - before[n, :2]) @ R.T
-        moved[:, 2] -= before[n, 2]
-        A["pos"][:N][mask] = moved + target_n
+        move_component(A, N, mask, n, A["pos"][m] + delta, theta, self._loop_edges, self._scans)
         if theta != 0.0:
-            # what the moved sessions measured in their own frame turns with them: chain deltas
-            # inside them, their loop edges, headings and sweeps (relative to their node)
-            inner = np.nonzero(mask[1:] & mask[:-1])[0] + 1
-            A["delta"][inner, :2] = A["delta"][inner, :2] @ R.T
-            for k, (a, b, _w, _s) in enumerate(self._loop_edges.loops):
-                if mask[a] and mask[b]:
-                    d = self._loop_edges.deltas[k]
-                    d[:2] = R @ d[:2]
-            A["yaw"][:N][mask] += theta
-            for i in np.flatnonzero(mask).tolist():
-                sw = self._scans[i]
-                if sw is not None:
-                    self._scans[i] = (sw.astype(np.float64) @ R.T).astype(np.float32)
             self.frame_yaw += theta
-        # the chain's bookkeeping: the break edges into and out of the moved sessions absorb the move
-        edge = np.nonzero(mask[1:] != mask[:-1])[0] + 1
-        move = A["pos"][:N] - before
-        A["delta"][edge] += np.where(mask[edge][:, None], move[edge], -move[edge - 1])
-        A["cum"][:N] = np.cumsum(A["delta"][:N], axis=0)
         for s in moving.tolist():
             self._session_root[s] = new_root
         self.session_links.append(SessionLink(

@@ -32,7 +32,7 @@ subscribed.
   settling), to continue in a later mission with the same odometry frame; with
   ``map_sessions`` (``poseidon run --map-dir``) the run begins a new session instead, in its
   own odometry frame, linked to the loaded map by a verified recognition
-  (:mod:`services.expmap.graph`, "Sessions").
+  (:mod:`services.expmap.session_link`).
 - ``map_sessions`` (key): a map of more than one session (a continued map, or a kidnapped
   vehicle with ``session_jump_m``) publishes, with every ``map``, a ``MapSessions`` with the
   same stamp: the session of every node, how many nodes were loaded, the links made and the

@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from services.expmap.session_link import SessionLink
+
 if TYPE_CHECKING:
     from services.expmap.graph import ExperienceMap
 
@@ -105,7 +107,6 @@ def _check_header(path: Path, meta: dict[str, Any], lattice_shape: tuple[int, ..
 def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     """Fill the empty map ``em`` (built with the configuration and lattice of the run) from a
     file written by :func:`save_map`; the lattice must match the saved one."""
-    from services.expmap.graph import SessionLink
     path = Path(path)
     z, meta = read_map_file(path, "an experience map")
     _check_header(path, meta, em.lattice_shape, em.lattice_spacing)

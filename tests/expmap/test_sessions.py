@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from services.expmap.config import ExpMapConfig
-from services.expmap.graph import SESSION_BREAK_WEIGHT, EventResult, ExperienceMap
+from services.expmap.graph import EventResult, ExperienceMap
+from services.expmap.session_link import SESSION_BREAK_WEIGHT
 from tests.expmap.helpers import SEC, pc_of, small_cfg
 from tests.expmap.test_scans import CHAMBER, _sweep
 

@@ -1,0 +1,335 @@
+"""The built-in subcommands of ``poseidon`` (``run``, ``demo``, ``info``, ``service``,
+``bridge``, ``hub``): what each does with its parsed arguments, and its exit code.
+
+The commands, their flags and their exit codes are documented in :mod:`launcher.cli`, which
+parses the command line and calls them.  Everything heavy (numpy, Zenoh, the services) is
+imported inside the command that needs it: ``poseidon`` starts fast, and :mod:`launcher.cli`
+sets the BLAS thread counts before numpy is first imported.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import resource
+import signal
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from common.resume import Supervision
+    from launcher.config import PoseidonConfig
+    from launcher.services import WorkerSpec
+
+__all__ = ["cmd_run", "cmd_demo", "cmd_info", "cmd_service", "cmd_bridge", "cmd_hub", "print_run", "EXIT_ABORTED"]
+
+log = logging.getLogger("poseidon")
+
+#: exit code of ``poseidon service`` stopped by an abort of the run (another service failed)
+EXIT_ABORTED = 4
+
+
+def _load_config(args: argparse.Namespace) -> Any:
+    from launcher.config import load_config
+    return load_config(args.config, args.set)
+
+
+def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
+    """Print the result of ``run``/``demo`` with its ``evaluation`` (:mod:`eval.summary`) added:
+    the ``--json`` document (:mod:`launcher.cli`), or a readable summary."""
+    from eval.summary import format_summary, summarize_run
+    result["evaluation"] = summarize_run(result["output"], config)
+    if as_json:
+        print(json.dumps(result, indent=2))
+        return
+    rec = result["recording"]
+    print(f"run finished ({result['mode']}) in {result['wall_s']:.1f} s wall; "
+          f"{rec['duration_s']:.1f} s of mission -> {result['output']}")
+    print("recorded messages per key:")
+    for key, n in sorted(rec["counts"].items()):
+        print(f"  {key:<24} {n:>8}")
+    for name, st in result["services"].items():
+        extra = []
+        if st.get("invalid"):
+            extra.append(f"invalid {st['invalid']}")
+        if st.get("counters"):
+            extra.append(", ".join(f"{k} {v}" for k, v in sorted(st["counters"].items())))
+        if "busy_s" in st:
+            extra.append(f"busy {st['busy_s']:.2f} s")
+        if "cpu_s" in st:
+            extra.append(f"process CPU {st['cpu_s']:.2f} s")
+        if st.get("real_time_factor"):
+            extra.append(f"{st['real_time_factor']:.1f}x real time")
+        if st.get("dropped"):
+            extra.append(f"dropped (queue full, oldest first) {st['dropped']}")
+        if st.get("late"):
+            extra.append(f"late {st['late']}")
+        if st.get("raw"):
+            extra.append(f"carried raw {st['raw']}")
+        print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
+        for stage, lat in (st.get("latency") or {}).items():
+            if lat.get("n"):
+                print(f"    latency arrival -> {stage:<9} p50 {lat['p50_ms']:8.1f} ms  p95 {lat['p95_ms']:8.1f} ms  "
+                      f"p99 {lat['p99_ms']:8.1f} ms  (n {lat['n']})")
+    for line in format_summary(result["evaluation"]):
+        print(line)
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    """``run --live SOURCE``: stop on SIGINT/SIGTERM or ``--duration`` (:mod:`launcher.live`)."""
+    import threading
+
+    from common.config import ConfigError
+    from launcher.live import run_live
+    from launcher.run import RunFailed
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        config = _load_config(args)
+        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop)
+    except (ConfigError, ValueError, KeyError, TimeoutError) as exc:
+        print(f"poseidon run: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+              file=sys.stderr)
+        return 3
+    print_run(result.as_dict(), args.json, config)
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from common.config import ConfigError
+    from common.mcap_io import RecordingError
+    from launcher.run import RunFailed, run_distributed, run_embedded
+    if (args.live is None) == (args.input is None):
+        print("poseidon run: give exactly one of --input REC.mcap and --live SOURCE", file=sys.stderr)
+        return 2
+    if args.live is not None:
+        if args.embedded or args.rate is not None:
+            print("poseidon run: --embedded and --rate do not apply to --live", file=sys.stderr)
+            return 2
+        return _run_live(args)
+    try:
+        config = _load_config(args)
+        if args.rate is not None:
+            config.player.rate = args.rate
+        if args.map_dir:
+            from launcher.run import use_map_dir
+            use_map_dir(config, args.map_dir)
+        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        runner = run_embedded if args.embedded else run_distributed
+        result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
+                        progress=not args.json)
+    except (ConfigError, RecordingError, ValueError, KeyError, FileNotFoundError) as exc:
+        print(f"poseidon run: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+              file=sys.stderr)
+        return 3
+    print_run(result.as_dict(), args.json, config)
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from common.config import ConfigError
+    from launcher.demo import run_demo
+    from launcher.run import RunFailed
+    try:
+        config = _load_config(args)
+        return run_demo(config, Path(args.out), seed=args.seed, baselines=args.baselines, embedded=args.embedded,
+                        timeout_s=args.timeout, as_json=args.json)
+    except ConfigError as exc:
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon demo: {exc}; what was recorded so far is in {exc.partial}", file=sys.stderr)
+        return 3
+    except RuntimeError as exc:  # the simulation or the report failed; their own messages precede this
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 3
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    """Exit 0: a complete recording (or recovered with --recover); 1: damaged (what is readable
+    is listed, with how to recover it); 2: not a readable MCAP recording."""
+    from common.mcap_io import (
+        RecordingError,
+        read_metadata,
+        recording_keys,
+        recording_status,
+        recording_summary,
+        recover_recording,
+    )
+    try:
+        status = recording_status(args.recording)
+        summary = recording_summary(args.recording)
+        summary["types"] = recording_keys(args.recording)
+        meta = read_metadata(args.recording)
+        recovered = None
+        if args.recover:
+            recovered = recover_recording(args.recording, args.recover)
+    except RecordingError as exc:
+        print(f"poseidon info: {exc}", file=sys.stderr)
+        return 2
+    summary["metadata"] = {name: sorted(rec) for name, rec in meta.items()}
+    summary["complete"] = status["complete"]
+    summary["damage"] = status["error"]
+    if recovered is not None:
+        summary["recovered"] = {"path": args.recover, "messages": recovered}
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{args.recording}: {summary['duration_s']:.1f} s")
+        for k, n in sorted(summary["counts"].items()):
+            print(f"  {k:<24} {n:>8}  {summary['types'].get(k, '')}")
+        for name, fields in summary["metadata"].items():
+            print(f"  metadata {name}: {', '.join(fields)}")
+    if recovered is not None:
+        print(f"poseidon info: {recovered} messages written to {args.recover} (a complete recording)", file=sys.stderr)
+        return 0
+    if not status["complete"]:
+        print(f"poseidon info: damaged or unfinished recording: {status['error']}; the messages listed are intact; "
+              f"'poseidon info {args.recording} --recover FIXED.mcap' writes them to a complete file",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: Supervision | None) -> WorkerSpec:
+    """What ``poseidon service NAME``'s flags say about the worker (the recorder's
+    ``--metadata`` file is read here)."""
+    from launcher.services import RECORDER, WorkerSpec
+    spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
+                      keys=args.keys.split(",") if args.keys else None,
+                      announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
+                      wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
+                      out=args.out, expect=[k for k in (args.expect or "").split(",") if k] or None)
+    if args.name == RECORDER:
+        spec.metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
+            "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
+    return spec
+
+
+def cmd_service(args: argparse.Namespace) -> int:
+    from common.bus import Bus
+    from common.config import ConfigError
+    from launcher.services import PLAYER, RECORDER, build_worker
+    try:
+        config = _load_config(args)
+    except ConfigError as exc:
+        print(f"poseidon service {args.name}: {exc}", file=sys.stderr)
+        return 2
+    namespace = args.namespace or config.bus.namespace
+    connect = [args.connect] if args.connect else config.bus.connect
+    supervision = None
+    if args.supervise:
+        from common.resume import Supervision
+        try:
+            supervision = Supervision.from_file(args.supervise, resume=args.resume)
+        except ValueError as exc:
+            print(f"poseidon service {args.name}: {exc}", file=sys.stderr)
+            return 2
+    if args.name == PLAYER and not args.input:
+        print("poseidon service player: --input REC.mcap is required", file=sys.stderr)
+        return 2
+    if args.name == RECORDER and not args.out:
+        print("poseidon service recorder: --out RUN.mcap is required", file=sys.stderr)
+        return 2
+    try:
+        bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config, **_secure_args(args))
+    except (OSError, ValueError) as exc:
+        print(f"poseidon service {args.name}: cannot join the bus: {exc}", file=sys.stderr)
+        return 2
+    stoppable: list[Any] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        log.warning("%s: signal %d, stopping", args.name, signum)
+        for obj in stoppable:
+            obj.stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        worker = build_worker(args.name, config, bus, _worker_spec(args, config, supervision))
+        stoppable.append(worker)
+        stats = worker.run().as_dict()
+    except Exception:  # the service's own failure: logged with its traceback, exit 1
+        log.exception("service %s failed", args.name)
+        return 1
+    finally:
+        bus.close()
+    # the process's CPU seconds (user + system, every thread: Zenoh's included), for the
+    # per-service cost of a distributed run (issue 21)
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    stats["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 3)
+    if args.stats:
+        Path(args.stats).write_text(json.dumps(stats))
+    else:
+        print(json.dumps(stats))
+    if stats.get("aborted"):
+        print(f"poseidon service {args.name}: run aborted: {stats['aborted']}", file=sys.stderr)
+        return EXIT_ABORTED
+    return 0
+
+
+def cmd_bridge(args: argparse.Namespace) -> int:
+    """``poseidon bridge ros1``: the bridge in this process, on a hub, until a signal or ``--duration``."""
+    import threading
+
+    from common.bus import Bus
+    from common.config import ConfigError
+    from launcher.services import BRIDGE_ROS1, WorkerSpec, build_worker
+    from services.bridge_ros1.ros_io import RosUnavailable
+    try:
+        config = _load_config(args)
+    except ConfigError as exc:
+        print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
+        return 2
+    connect = [args.connect] if args.connect else config.bus.connect
+    bus = Bus(args.namespace or config.bus.namespace, connect=connect)
+    spec = WorkerSpec(announce=[k for k in (args.announce or "").split(",") if k], drain=False)
+    worker = build_worker(BRIDGE_ROS1, config, bus, spec)
+    signal.signal(signal.SIGTERM, lambda *_: worker.stop())
+    signal.signal(signal.SIGINT, lambda *_: worker.stop())
+    timer = threading.Timer(args.duration, worker.stop) if args.duration else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
+    try:
+        stats = worker.run().as_dict()
+    except RosUnavailable as exc:
+        print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if timer is not None:
+            timer.cancel()
+        bus.close()
+    print(json.dumps(stats, indent=2 if args.json else None))
+    return 0
+
+
+def cmd_hub(args: argparse.Namespace) -> int:
+    """Run a hub (Zenoh router) until interrupted: the meeting point of services on other hosts."""
+    import threading
+
+    from common.bus import open_hub
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    hub = open_hub(args.listen, config_file=args.zenoh_config, **_secure_args(args))
+    print(f"hub listening on {args.listen}", file=sys.stderr)
+    try:
+        stop.wait()
+    finally:
+        hub.close()
+    return 0
+
+
+def _secure_args(args: argparse.Namespace) -> dict[str, str | None]:
+    return {"tls_dir": args.tls_dir, "tls_host": args.tls_host, "user": args.zenoh_user,
+            "password_file": args.zenoh_password_file}

@@ -1,0 +1,101 @@
+"""Sessions of the experience map (issue 20) and the rigid move that links two of them.
+
+A map continued by another mission (``map_sessions``, ``poseidon run
+--map-dir``) or a vehicle whose odometry jumps by more than ``session_jump_m`` between two
+events (kidnapped) begins a new *session* (:meth:`~services.expmap.graph.ExperienceMap.begin_session`): its first
+node sits at its own odometry position (its own frame, unlinked to the earlier nodes), the
+chain edge from the previous node is kept with weight :data:`SESSION_BREAK_WEIGHT` (a
+resistance of 1e6: it carries the chain's bookkeeping, not a measurement) and every node
+carries its session id.  Every node of an earlier session is a loop candidate, whatever
+``min_experience_age`` (another mission is never "the place just passed").  A confirmed
+match (``loop_confirmations`` consecutive events, as a loop closure) between sessions not yet linked is a *link candidate*: it becomes a link only
+when the two experiences' sonar sweeps register trusted along both axes with at least
+``session_link_min_inliers`` inliers (:func:`services.expmap.loop_policy.link_displacement`,
+searched around "the same place", since the separation of two unlinked frames means
+nothing); otherwise it is rejected (``rejected = "link"``, the reason counted in
+:attr:`~services.expmap.graph.ExperienceMap.link_rejections`).  A link moves the newer component (every session
+linked to the new one) rigidly so that the two experiences sit at the measured displacement,
+records the link as a loop edge (so relaxation treats it like one from then on; the interval
+and route rules do not apply to it) and joins the components: the older one's frame (session
+0's, the prior map's) is the frame of both.  The move is a rigid transform about n: the
+registration's translation *and* rotation (``session_link_rotate``, searched within
+``session_link_max_rotation_deg``): the newer component's positions, headings, sweeps, chain
+deltas and loop deltas turn with it, and so does the odometry of the rest of the session
+(:attr:`~services.expmap.graph.ExperienceMap.frame_yaw`).  Depth is not rotated (pressure depth is absolute).  Both
+angles are recorded with the link (:class:`SessionLink`: measured and applied).
+
+:class:`~services.expmap.graph.ExperienceMap` applies these rules for each event; this module
+holds what a session link is (:class:`SessionLink`) and the move itself
+(:func:`move_component`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from services.expmap.loop_policy import LoopEdges
+
+__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component"]
+
+
+#: weight of the chain edge into a session's first node (its displacement is not a measurement)
+SESSION_BREAK_WEIGHT = 1e-6
+
+
+def rot2(theta: float) -> np.ndarray:
+    """2-D rotation matrix of ``theta`` rad (counter-clockwise in the map's x, y)."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+@dataclass
+class SessionLink:
+    """A link between two sessions: p_n - p_m = ``delta`` (m), made at event ``stamp`` (ns)."""
+
+    session: int                # the session of n (the newer component's)
+    to_session: int             # the session of m
+    m: int
+    n: int
+    stamp: int
+    delta: np.ndarray           # (3,) m, map frame
+    shift: np.ndarray           # (3,) m: how far the newer component moved
+    rotation_deg: float         # heading disagreement of the two sweeps (deg, the registration's)
+    inlier_fraction: float
+    applied_deg: float = 0.0    # the rotation applied to the newer component (deg; 0: translation only)
+
+
+def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, target_n: np.ndarray, theta: float,
+                   loop_edges: LoopEdges, scans: list[np.ndarray | None]) -> None:
+    """Move the nodes ``mask`` (the newer component, node n among them) of the node columns
+    ``A`` (first N rows) rigidly about n: x -> R (x - p_n) + ``target_n``, R the rotation of
+    ``theta`` rad about the vertical (the registration's: it lays n's sweep onto m's).
+
+    With a rotation, what the moved sessions measured in their own frame turns with them:
+    chain deltas inside them, their loop edges, headings and sweeps (relative to their node).
+    The chain's bookkeeping: the break edges into and out of the moved sessions absorb the move."""
+    R = rot2(theta)
+    before = A["pos"][:N].copy()
+    moved = before[mask]
+    moved[:, :2] = (moved[:, :2] - before[n, :2]) @ R.T
+    moved[:, 2] -= before[n, 2]
+    A["pos"][:N][mask] = moved + target_n
+    if theta != 0.0:
+        inner = np.nonzero(mask[1:] & mask[:-1])[0] + 1
+        A["delta"][inner, :2] = A["delta"][inner, :2] @ R.T
+        for k, (a, b, _w, _s) in enumerate(loop_edges.loops):
+            if mask[a] and mask[b]:
+                d = loop_edges.deltas[k]
+                d[:2] = R @ d[:2]
+        A["yaw"][:N][mask] += theta
+        for i in np.flatnonzero(mask).tolist():
+            sw = scans[i]
+            if sw is not None:
+                scans[i] = (sw.astype(np.float64) @ R.T).astype(np.float32)
+    edge = np.nonzero(mask[1:] != mask[:-1])[0] + 1
+    move = A["pos"][:N] - before
+    A["delta"][edge] += np.where(mask[edge][:, None], move[edge], -move[edge - 1])
+    A["cum"][:N] = np.cumsum(A["delta"][:N], axis=0)
