@@ -62,6 +62,7 @@ class RecorderStats(SinkStats):
     def as_dict(self) -> dict[str, Any]:
         return {"service": "recorder", "path": self.path, "recorded": self.recorded, "invalid": self.invalid,
                 "ended": sorted(self.ended), "aborted": self.aborted, "duplicates": self.duplicates,
+                "missing": self.missing,
                 "checkpoints": self.checkpoints, "checkpoint_ms": round(self.checkpoint_ms, 3),
                 "resumed_messages": self.resumed_messages}
 
