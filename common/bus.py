@@ -159,8 +159,7 @@ class BusPublisher:
         self.sent += 1
 
     def keep(self, msg: Message) -> None:
-        """Number and retain a data frame of ``msg`` without sending it (a live source holding
-        data through an outage, :mod:`common.live`); :meth:`replay` sends it later.  Needs ``retain``."""
+        """Number and retain ``msg``'s data frame without sending it (:mod:`common.live`, outages)."""
         frame = encode_sequenced(self.index, msg.type_name, encode(msg))
         with self._lock:
             self.retained.append((self.index, frame))
@@ -178,10 +177,6 @@ class BusPublisher:
                 self.retained_bytes -= len(f)
                 gone.append(i)
         return gone
-
-    def retained_indices(self) -> list[int]:
-        with self._lock:
-            return [i for i, _f in self.retained]
 
     def send_raw(self, frame: bytes) -> None:
         self._pub.put(frame)
@@ -252,8 +247,7 @@ class BusPublisher:
             self.retained_bytes = sum(len(f) for _i, f in self.retained)
 
     def on_matching(self, callback: Callable[[bool], None]) -> None:
-        """Call ``callback(matching)`` from a Zenoh thread whenever this publisher gains its first
-        subscriber or loses its last one (the callback must not block or publish)."""
+        """``callback(matching)`` (Zenoh thread; must not block) on the first/last subscriber."""
         self._listener = self._pub.declare_matching_listener(lambda st: callback(bool(st.matching)))
 
     def has_subscribers(self) -> bool:

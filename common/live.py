@@ -156,7 +156,7 @@ class LiveSource:
         if not matching:
             return False
         held_from = self._held_from.pop(key)
-        kept = pub.retained_indices()
+        kept = [i for i, _f in pub.retained]  # only this source (under its lock) changes them
         first = kept[0] if kept else pub.index
         pub.replay(first)
         late = sum(1 for i in kept if i >= held_from)

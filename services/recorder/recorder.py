@@ -17,7 +17,8 @@ its summary and ``RecorderStats.aborted`` says why.  On a normal end it reports 
 ``END_OF_TIME`` so the player knows it finished.
 
 Numbered frames it already has (a replay, a restarted publisher) are not recorded twice
-(:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``).  Supervised
+(:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``); frames whose numbers were
+skipped never arrived: counted ``missing`` per key (see :mod:`common.live`).  Supervised
 (``supervision``), every ``supervise.recorder_checkpoint_interval_s`` of event time it ends the MCAP
 chunk in progress, syncs the file and saves per key the messages recorded and the next
 transport index (``<state_dir>/recorder.ckpt``), then reports those positions on
