@@ -262,7 +262,11 @@ def _join_bus(what: str, signals: _Signals, timeout_s: float, namespace: str, co
     done = threading.Event()
     threading.Thread(target=opener, name="join-bus", daemon=True).start()
     deadline = time.monotonic() + timeout_s
+    said = False
     while not done.wait(0.1):
+        if not said and time.monotonic() > deadline - timeout_s + 1.0:
+            said = True
+            print(f"{what}: waiting for the hub {connect} (at most {timeout_s:.0f} s)", file=sys.stderr, flush=True)
         if signals.stopped.is_set():
             print(f"{what}: stopped by signal {signals.signum} before reaching the hub {connect}", file=sys.stderr)
             return None

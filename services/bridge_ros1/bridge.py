@@ -27,9 +27,10 @@
 - End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge sends end-of-stream on
   every key it published or announced (the services then finish and the recorder closes a
   complete file), forwards to ROS what the services still publish until their outputs end
-  (or 2 s without any), then shuts its ROS node down and, in its own process, waits for its
-  consumers to leave (``bus.drain_timeout_s`` at most; not at all once the hub is unreachable).
-  A second SIGTERM/SIGINT exits at once (``launcher/commands.py``); a bridge that never reaches
+  (or 2 s without any), then shuts its ROS node down.  It does not wait for its consumers to
+  leave (``bus.drain_timeout_s``): the services' outputs ending shows they got its end-of-stream,
+  and the services wait for the bridge's own subscription to their outputs to go (a cycle).  A
+  second SIGTERM/SIGINT exits at once (``launcher/commands.py``); a bridge that never reaches
   its hub gives up after ``bus.startup_timeout_s`` (exit 2).
 """
 from __future__ import annotations
@@ -279,24 +280,5 @@ class Ros1Bridge(Sink, Source):
             self.stats.dropped_outage, self.stats.outages = counters["dropped_outage"], counters["outages"]
             self.stats.watermarks = counters["watermarks"]
             link.close()
-            self.drain_consumers()
+            self.drain(self.source.publishers())  # a no-op after a stop: see the module notes
         return self.stats
-
-    def drain_consumers(self, poll_s: float = 0.1) -> bool:
-        """In its own process (``drain_timeout_s`` > 0), after the end-of-stream: stay until no
-        consumer of our keys is left (closing the session earlier discards frames still queued),
-        at most ``drain_timeout_s``, and not at all once the hub is unreachable (nothing more can
-        leave; a second signal exits at once anyway).  True when drained."""
-        if self.drain_timeout_s <= 0:
-            return False
-        pubs = self.source.publishers()
-        deadline = time.monotonic() + self.drain_timeout_s
-        while any(p.has_subscribers() for p in pubs):
-            if not self.bus.session.info.routers_zid():
-                log.warning("bridge_ros1: the hub is unreachable; leaving without waiting for the consumers")
-                return False
-            if time.monotonic() > deadline:
-                log.warning("bridge_ros1: consumers still present after %.0f s; leaving", self.drain_timeout_s)
-                return False
-            time.sleep(poll_s)
-        return True

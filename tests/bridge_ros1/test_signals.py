@@ -1,11 +1,12 @@
 """``poseidon service bridge_ros1`` and signals: a bridge that cannot reach its hub honours
 SIGTERM at once and gives up after ``bus.startup_timeout_s``; a bridge held up at its end (a
-consumer that never leaves: it would wait ``bus.drain_timeout_s``) exits at once on a second
-SIGTERM; one whose hub went away leaves on the first.  The first two need no ROS."""
+service whose outputs keep coming: it would forward them for up to 60 s) exits at once on a
+second SIGTERM; one whose hub went away leaves on the first.  The first two need no ROS."""
 import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -35,7 +36,9 @@ def _signal_and_wait(proc: subprocess.Popen, *gaps: float) -> tuple[float, str]:
 
 def test_a_bridge_that_never_reached_its_hub_honours_sigterm():
     proc = _start("--connect", f"tcp/127.0.0.1:{free_port()}")
-    took, err = _signal_and_wait(proc, 2.0)
+    first = proc.stderr.readline()  # its signal handlers are in place (a loaded machine imports slowly)
+    assert "waiting for the hub" in first, first
+    took, err = _signal_and_wait(proc, 0.5)
     assert took < 3.0 and proc.returncode == 0, err
     assert "stopped by signal 15 before reaching the hub" in err
 
@@ -61,18 +64,28 @@ def ros_and_hub(tmp_path):
         core.stop()
 
 
-def test_a_second_sigterm_ends_a_bridge_held_up_by_its_consumer(ros_and_hub):
+def test_a_second_sigterm_ends_a_bridge_held_up_by_a_service(ros_and_hub):
     core, _hub, endpoint = ros_and_hub
     bus = Bus("poseidon", connect=[endpoint])
+    stop = threading.Event()
+
+    def service_outputs():  # Odometry that never ends: the bridge forwards it until its 60 s limit
+        pub, stamp = bus.publisher("Odometry"), 1
+        while not stop.wait(0.3):
+            pub.send_watermark(stamp)
+            stamp += 1
+    ticker = threading.Thread(target=service_outputs, daemon=True)
     try:
-        bus.subscribe("imu/data", queue.SimpleQueue())  # a consumer that never leaves
         proc = _start("--connect", endpoint, "--announce", "imu/data", env=core.env)
         bus.wait_alive(["bridge_ros1"], 60)
+        ticker.start()
         proc.send_signal(signal.SIGTERM)
-        time.sleep(4.0)  # end-of-stream sent, ROS node shut; now waiting for the consumer to leave
+        time.sleep(4.0)  # end-of-stream sent; forwarding the service's last outputs
         assert proc.poll() is None, proc.communicate()[1]
         took, err = _signal_and_wait(proc, 0.0)
     finally:
+        stop.set()
+        ticker.join(5)
         bus.close()
     assert took < 2.0 and proc.returncode == 4, err
     assert "second signal 15: exiting now" in err
