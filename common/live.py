@@ -18,8 +18,8 @@ lose data silently when its consumers become unreachable (its own link to the hu
 hub's link to the computer of the consumers, is down).  Every key keeps its last
 ``outage_frames`` data frames (at most ``outage_bytes``), numbered by the bus
 (:class:`common.bus.BusPublisher` ``retain``).  A key that had a subscriber and has none left
-(Zenoh's matching status; a link cut is seen when Zenoh's lease expires, 10 s by default) is
-in an *outage*: its new messages are kept but not sent, and no watermark is sent for it.  When
+(Zenoh's matching status: a cut link is seen when Zenoh closes the transport, its queue
+blocked too long or its lease expired -- measured 6 to 9 s after the cut) is in an *outage*: its new messages are kept but not sent, and no watermark is sent for it.  When
 a subscriber matches again, every frame kept is sent again, oldest first, before anything
 newer: the frames held meanwhile are counted ``delivered_late``; those sent before the outage
 was noticed are counted ``resent`` (a consumer that already has them drops them as duplicates,
@@ -28,6 +28,9 @@ out of the bound (drop-oldest), or still held at :meth:`LiveSource.end`, is coun
 ``dropped_outage``: it never reached anyone.  Frames lost in flight before the outage was
 noticed and no longer kept are not known here; the consumer counts every frame it never
 received (``missing``, from the frame numbers), so recorded + missing == published, always.
+The rule is per key and per source: a key that still has a consumer somewhere (one on the
+source's side of the cut) is not in an outage, and what the consumers beyond the cut miss
+meanwhile is counted only by them (``missing``).
 Event time: the held frames are not late when they arrive (their stream sent no watermark
 past them; watermarks resume after them), so the services process them normally, in order, a
 little later in wall time; a service whose bounded live queue overflows with the burst drops
