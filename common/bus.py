@@ -158,6 +158,26 @@ class BusPublisher:
         self.index += 1
         self.sent += 1
 
+    def keep(self, msg: Message) -> None:
+        """Number and retain ``msg``'s data frame without sending it (:mod:`common.live`, outages)."""
+        frame = encode_sequenced(self.index, msg.type_name, encode(msg))
+        with self._lock:
+            self.retained.append((self.index, frame))
+            self.retained_bytes += len(frame)
+        self.index += 1
+        self.sent += 1
+
+    def bound(self, max_frames: int, max_bytes: int) -> list[int]:
+        """Forget the oldest retained frames beyond ``max_frames`` or ``max_bytes`` (the newest
+        frame is always kept); returns the indices forgotten."""
+        gone: list[int] = []
+        with self._lock:
+            while len(self.retained) > 1 and (len(self.retained) > max_frames or self.retained_bytes > max_bytes):
+                i, f = self.retained.popleft()
+                self.retained_bytes -= len(f)
+                gone.append(i)
+        return gone
+
     def send_raw(self, frame: bytes) -> None:
         self._pub.put(frame)
         self.sent += 1
@@ -225,6 +245,10 @@ class BusPublisher:
             self.index = int(state["index"])
             self.retained = deque(state["retained"])
             self.retained_bytes = sum(len(f) for _i, f in self.retained)
+
+    def on_matching(self, callback: Callable[[bool], None]) -> None:
+        """``callback(matching)`` (Zenoh thread; must not block) on the first/last subscriber."""
+        self._listener = self._pub.declare_matching_listener(lambda st: callback(bool(st.matching)))
 
     def has_subscribers(self) -> bool:
         # zenoh's stub types matching_status as bool; it is a MatchingStatus (.matching: bool)

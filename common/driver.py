@@ -16,7 +16,10 @@ consumers.  Keys default to the ones the services read (``key=`` overrides).  Wh
 is open, every key it published and every ``announce``-d key gets a wall-clock watermark every
 ``watermark_interval_ms`` (:mod:`common.live`: the rule and the ``lateness_ms`` bound), so a
 silent sensor does not stall the services; :meth:`SensorDriver.close` (or leaving the ``with``)
-sends end-of-stream on all of them.  Counters: ``published``, ``late`` (per key).
+sends end-of-stream on all of them.  Counters: ``published``, ``late`` (per key); a consumer
+lost mid-run is an outage (:mod:`common.live`: each key keeps its last ``outage_frames`` frames,
+at most ``outage_bytes``, and sends them again when a consumer is back; counters in
+``source.counters()``).
 
 Example: ``deploy/examples/stream_images.py`` streams a folder of images at a given rate.
 """
@@ -51,9 +54,9 @@ class SensorDriver:
     """A live source of sensor records for a vendor's driver (see the module notes)."""
 
     def __init__(self, bus: Bus, announce: Iterable[str] = (), lateness_ms: int = 200,
-                 watermark_interval_ms: int = 100):
+                 watermark_interval_ms: int = 100, outage_frames: int = 1000, outage_bytes: int = 64 << 20):
         self.bus = bus
-        self.source = LiveSource(bus, lateness_ms * 1_000_000, announce)
+        self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, outage_frames, outage_bytes)
         self.source.start_watermarks(watermark_interval_ms / 1000)
         self._seq: dict[str, int] = {}
 

@@ -13,19 +13,51 @@ latest offset (not the smallest) follows a clock that runs at another rate than 
 its stream already promised is *late*: it is still published (and recorded) but counted, and
 the services reject it as late (:mod:`common.runtime`).
 
+Outages (also in README, "Live on the vehicle"): a live source never waits, but it does not
+lose data silently when its consumers become unreachable (its own link to the hub, or the
+hub's link to the computer of the consumers, is down).  Every key keeps its last
+``outage_frames`` data frames (at most ``outage_bytes``), numbered by the bus
+(:class:`common.bus.BusPublisher` ``retain``).  A key that had a subscriber and has none left
+(Zenoh's matching status: a cut link is seen when Zenoh closes the transport, its queue
+blocked too long or its lease expired -- measured 6 to 9 s after the cut) is in an *outage*: its new messages are kept but not sent, and no watermark is sent for it.  When
+a subscriber matches again, every frame kept is sent again, oldest first, before anything
+newer: the frames held meanwhile are counted ``delivered_late``; those sent before the outage
+was noticed are counted ``resent`` (a consumer that already has them drops them as duplicates,
+:class:`common.resume.SequenceGate`, and keeps the ones lost in flight).  A held frame pushed
+out of the bound (drop-oldest), or still held at :meth:`LiveSource.end`, is counted
+``dropped_outage``: it never reached anyone.  Frames lost in flight before the outage was
+noticed and no longer kept are not known here; the consumer counts every frame it never
+received (``missing``, from the frame numbers), so recorded + missing == published, always.
+The rule is per key and per source: a key that still has a consumer somewhere (one on the
+source's side of the cut) is not in an outage, and what the consumers beyond the cut miss
+meanwhile is counted only by them (``missing``).
+Event time: the held frames are not late when they arrive (their stream sent no watermark
+past them; watermarks resume after them), so the services process them normally, in order, a
+little later in wall time; a service whose bounded live queue overflows with the burst drops
+its oldest inputs, counted ``dropped`` as any overflow.
+
 Everything here takes the wall time as an argument: the source reads the clock, :class:`LiveClock`
 only computes (unit-tested without a clock).
 """
 from __future__ import annotations
 
+import logging
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from common.bus import Bus, BusPublisher
 from common.messages import Message
 
 __all__ = ["LiveClock", "LiveSource"]
+
+log = logging.getLogger(__name__)
+
+
+def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
+    if n:
+        d[k] = d.get(k, 0) + n
 
 
 class LiveClock:
@@ -66,18 +98,31 @@ class LiveSource:
     """What every live source shares (the ROS 1 bridge, :class:`common.driver.SensorDriver`):
     publishing a message at once on its key (never waiting for consumers), the stream's
     watermarks from the wall clock (:class:`LiveClock`, on every key published or
-    ``announce``-d), end-of-stream on all of them at the end.  Thread-safe; counters
-    ``published``, ``late`` (per key) and ``watermarks``."""
+    ``announce``-d), end-of-stream on all of them at the end, and the outage rule of the module
+    notes (``outage_frames``/``outage_bytes`` per key).  Thread-safe; counters ``published``,
+    ``late``, ``delivered_late``, ``resent``, ``dropped_outage``, ``outages`` (per key) and
+    ``watermarks`` (:meth:`counters`)."""
 
-    def __init__(self, bus: Bus, lateness_ns: int, announce: Iterable[str] = ()):
+    def __init__(self, bus: Bus, lateness_ns: int, announce: Iterable[str] = (), outage_frames: int = 1000,
+                 outage_bytes: int = 64 << 20):
+        if outage_frames < 1 or outage_bytes < 1:
+            raise ValueError(f"the outage buffer needs >= 1 frame and byte, got {outage_frames}, {outage_bytes}")
         self.bus = bus
         self.clock = LiveClock(lateness_ns)
         self.announce = set(announce)
+        self.outage_frames, self.outage_bytes = outage_frames, outage_bytes
         self.published: dict[str, int] = {}
         self.late: dict[str, int] = {}
+        self.delivered_late: dict[str, int] = {}
+        self.resent: dict[str, int] = {}
+        self.dropped_outage: dict[str, int] = {}
+        self.outages: dict[str, int] = {}
         self.watermarks = 0
         self.ended = False
         self._pubs: dict[str, BusPublisher] = {}
+        self._matching: dict[str, bool] = {}  # set by Zenoh's matching listener
+        self._seen: set[str] = set()  # keys that have had a subscriber
+        self._held_from: dict[str, int] = {}  # key in outage -> index of its first held frame
         self._lock = threading.Lock()
         self._ticker: threading.Thread | None = None
         self._stop_ticker = threading.Event()
@@ -85,13 +130,56 @@ class LiveSource:
     def _publisher(self, key: str) -> BusPublisher:
         pub = self._pubs.get(key)
         if pub is None:
-            pub = self._pubs[key] = self.bus.publisher(key)
+            pub = self._pubs[key] = self.bus.publisher(key, retain=True)
+            self._matching[key] = pub.has_subscribers()
+            pub.on_matching(self._matching_callback(key))
         return pub
+
+    def _matching_callback(self, key: str) -> Callable[[bool], None]:
+        def on_matching(matching: bool) -> None:
+            self._matching[key] = matching
+        return on_matching
+
+    def _check_link(self, key: str) -> bool:
+        """Under the lock: follow ``key``'s matching status (outage starts / ends, see the module
+        notes); True when frames of ``key`` may be sent now."""
+        pub = self._publisher(key)
+        matching = self._matching.get(key, False)
+        if key not in self._held_from:
+            if matching:
+                self._seen.add(key)
+                return True
+            if key in self._seen:  # had a consumer, has none: hold from the next frame on
+                self._held_from[key] = pub.index
+                self.outages[key] = self.outages.get(key, 0) + 1
+                log.warning("live source: %s has lost its consumers; holding its frames (at most %d)",
+                            key, self.outage_frames)
+                return False
+            return True  # nobody ever listened: publish as always (a live source never waits)
+        if not matching:
+            return False
+        held_from = self._held_from.pop(key)
+        kept = [i for i, _f in pub.retained]  # only this source (under its lock) changes them
+        first = kept[0] if kept else pub.index
+        pub.replay(first)
+        late = sum(1 for i in kept if i >= held_from)
+        _bump(self.delivered_late, key, late)
+        _bump(self.resent, key, len(kept) - late)
+        log.warning("live source: %s reached again; %d held frames delivered late, %d sent again", key, late,
+                    len(kept) - late)
+        return True
+
+    def _bound(self, key: str) -> None:
+        pub = self._pubs[key]
+        gone = pub.bound(self.outage_frames, self.outage_bytes)
+        held_from = self._held_from.get(key)
+        if held_from is not None:
+            _bump(self.dropped_outage, key, sum(1 for i in gone if i >= held_from))
 
     def publish(self, key: str, msg: Message, arrival_ns: int | None = None) -> bool:
         """Publish ``msg`` on ``key`` now (``arrival_ns``: when it reached us, default now); True
         when it was late (older than its stream's promise: published all the same, counted).
-        Nothing is published after :meth:`end`."""
+        In an outage it is kept instead (module notes).  Nothing is published after :meth:`end`."""
         arrival = time.time_ns() if arrival_ns is None else arrival_ns
         with self._lock:
             if self.ended:
@@ -99,7 +187,11 @@ class LiveSource:
             late = self.clock.observe(key, msg.header.stamp, arrival)
             if late:
                 self.late[key] = self.late.get(key, 0) + 1
-            self._publisher(key).send(msg)
+            if self._check_link(key):
+                self._publisher(key).send(msg)
+            else:
+                self._publisher(key).keep(msg)
+            self._bound(key)
             self.published[key] = self.published.get(key, 0) + 1
             return late
 
@@ -111,6 +203,8 @@ class LiveSource:
             if self.ended:
                 return 0
             for key in sorted(set(self._pubs) | self.announce):
+                if not self._check_link(key):
+                    continue  # in an outage: no promise past the frames held
                 wm = self.clock.watermark(key, now)
                 if wm is not None:
                     self._publisher(key).send_watermark(wm)
@@ -136,7 +230,21 @@ class LiveSource:
                 return
             self.ended = True
             for key in sorted(set(self._pubs) | self.announce):
+                self._check_link(key)
+                held_from = self._held_from.get(key)
+                if held_from is not None:  # still cut off: what is held never reaches anyone
+                    n = self._pubs[key].index - held_from
+                    _bump(self.dropped_outage, key, n)
+                    log.error("live source: %s still has no consumer at the end; %d held frames dropped", key, n)
                 self._publisher(key).send_eos()
+
+    def counters(self) -> dict[str, Any]:
+        """The counters as JSON-ready values (per key; ``watermarks``: how many were sent)."""
+        with self._lock:
+            return {"published": dict(self.published), "late": dict(self.late),
+                    "delivered_late": dict(self.delivered_late), "resent": dict(self.resent),
+                    "dropped_outage": dict(self.dropped_outage), "outages": dict(self.outages),
+                    "watermarks": self.watermarks}
 
     def publishers(self) -> list[BusPublisher]:
         with self._lock:

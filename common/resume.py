@@ -135,13 +135,16 @@ class SequenceGate:
     restarted consumer) until the expected frame or a replay starting at or before it arrives.
     """
 
-    def __init__(self, positions: dict[str, int] | None = None, catch_up: Iterable[str] = (), owner: str = ""):
+    def __init__(self, positions: dict[str, int] | None = None, catch_up: Iterable[str] = (), owner: str = "",
+                 missing: dict[str, int] | None = None):
         self.expected: dict[str, int] = dict(positions or {})
         self.catch_up: set[str] = set(catch_up)
         self.owner = owner
         self.duplicates = 0
         self.skipped = 0  # frames of a key that is not in step yet
         self.gaps = 0
+        #: per key, how many numbered frames never arrived (the index jumped over them)
+        self.missing: dict[str, int] = missing if missing is not None else {}
 
     def in_step(self, key: str) -> bool:
         return key not in self.catch_up
@@ -162,6 +165,7 @@ class SequenceGate:
             return False
         elif exp is not None and index > exp:
             self.gaps += 1
+            self.missing[key] = self.missing.get(key, 0) + index - exp
             log.warning("%s: frames %d..%d of %s never arrived", self.owner, exp, index - 1, key)
         self.expected[key] = index + 1
         return True

@@ -86,12 +86,14 @@ class WorkerStats(ABC):
 class SinkStats(WorkerStats):
     """A sink's counters: numbered frames dropped as already received, checkpoints written
     and the wall time they took (ms, total); ``dropped``: data frames dropped per key by a
-    bounded (live) queue."""
+    bounded (live) queue; ``missing``: numbered frames per key that never arrived (the
+    publisher's frame numbers jumped over them: lost on the way, see :mod:`common.live`)."""
 
     duplicates: int = 0
     checkpoints: int = 0
     checkpoint_ms: float = 0.0
     dropped: dict[str, int] = field(default_factory=dict)
+    missing: dict[str, int] = field(default_factory=dict)
 
 
 #: first byte of a data frame (plain or numbered, :mod:`common.codec`)
@@ -202,7 +204,7 @@ class Sink(Worker):
         self.queue: queue.SimpleQueue[tuple[str, bytes]] | DropOldestQueue = (
             DropOldestQueue(max_queue, self.stats.dropped) if max_queue > 0 else queue.SimpleQueue())
         self.progress = self.bus.progress_publisher(self.name)
-        self.gate = SequenceGate(owner=self.name)
+        self.gate = SequenceGate(owner=self.name, missing=self.stats.missing)
         self._asked: dict[str, float] = {}
         self._ckpt_stamp: int | None = None
         for key in keys:
@@ -285,7 +287,7 @@ class Sink(Worker):
 
     def resume_gate(self, positions: dict[str, int], catch_up: Iterable[str]) -> None:
         """Restarted: expect ``positions`` next; ``catch_up`` keys wait for their replay."""
-        self.gate = SequenceGate(positions, catch_up=catch_up, owner=self.name)
+        self.gate = SequenceGate(positions, catch_up=catch_up, owner=self.name, missing=self.stats.missing)
 
 
 class Source(Worker):

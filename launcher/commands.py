@@ -14,6 +14,7 @@ import logging
 import resource
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -65,6 +66,12 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             extra.append(f"dropped (queue full, oldest first) {st['dropped']}")
         if st.get("late"):
             extra.append(f"late {st['late']}")
+        if st.get("outages"):
+            extra.append(f"link outages {st['outages']}: delivered late {st.get('delivered_late') or {}}, "
+                         f"sent again {st.get('resent') or {}}, dropped (outage buffer full) "
+                         f"{st.get('dropped_outage') or {}}")
+        if st.get("missing"):
+            extra.append(f"missing (never arrived) {st['missing']}")
         if st.get("raw"):
             extra.append(f"carried raw {st['raw']}")
         print(f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok")
@@ -200,6 +207,83 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Signals:
+    """SIGTERM/SIGINT for a service process: the first stops what is registered (:meth:`on_stop`;
+    the worker ends its streams and leaves); a second one exits at once, exit code
+    ``EXIT_ABORTED``, after flushing stdout/stderr (a process stuck on an unreachable hub does
+    not need SIGKILL)."""
+
+    def __init__(self, what: str):
+        import threading
+        self.what = what
+        self.stopped = threading.Event()
+        self.signum = 0
+        self._callbacks: list[Any] = []
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
+
+    def on_stop(self, callback: Any) -> None:
+        self._callbacks.append(callback)
+        if self.stopped.is_set():
+            callback()
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        if self.stopped.is_set():
+            print(f"{self.what}: second signal {signum}: exiting now", file=sys.stderr)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            import os
+            os._exit(EXIT_ABORTED)
+        log.warning("%s: signal %d, stopping (a second signal exits at once)", self.what, signum)
+        self.signum = signum
+        self.stopped.set()
+        for cb in self._callbacks:
+            cb()
+
+
+def _join_bus(what: str, signals: _Signals, timeout_s: float, namespace: str, connect: list[str],
+              **kwargs: Any) -> Any:
+    """Open the process's :class:`common.bus.Bus` (a client session waits for its hub) in a
+    helper thread: None, with the reason on stderr, when the hub was not reached within
+    ``timeout_s`` (``bus.startup_timeout_s``) or a signal came first.  Errors opening it are raised."""
+    import threading
+
+    from common.bus import Bus
+    box: dict[str, Any] = {}
+
+    def opener() -> None:
+        try:
+            box["bus"] = Bus(namespace, connect=connect, **kwargs)
+        except BaseException as exc:  # handed to the main thread
+            box["error"] = exc
+        finally:
+            done.set()
+
+    done = threading.Event()
+    threading.Thread(target=opener, name="join-bus", daemon=True).start()
+    deadline = time.monotonic() + timeout_s
+    said = False
+    while not done.wait(0.1):
+        if not said and time.monotonic() > deadline - timeout_s + 1.0:
+            said = True
+            print(f"{what}: waiting for the hub {connect} (at most {timeout_s:.0f} s)", file=sys.stderr, flush=True)
+        if signals.stopped.is_set():
+            print(f"{what}: stopped by signal {signals.signum} before reaching the hub {connect}", file=sys.stderr)
+            return None
+        if time.monotonic() > deadline:
+            print(f"{what}: hub {connect} not reached within {timeout_s:.0f} s (bus.startup_timeout_s); "
+                  "giving up", file=sys.stderr)
+            return None
+    if "error" in box:
+        raise box["error"]
+    return box["bus"]
+
+
+def zenoh_error() -> type[Exception]:
+    import zenoh
+    return zenoh.ZError  # type: ignore[no-any-return]
+
+
 def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: Supervision | None) -> WorkerSpec:
     """What ``poseidon service NAME``'s flags say about the worker (the recorder's
     ``--metadata`` file is read here)."""
@@ -216,7 +300,6 @@ def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: 
 
 
 def cmd_service(args: argparse.Namespace) -> int:
-    from common.bus import Bus
     from common.config import ConfigError
     from launcher.services import PLAYER, RECORDER, build_worker
     try:
@@ -240,23 +323,19 @@ def cmd_service(args: argparse.Namespace) -> int:
     if args.name == RECORDER and not args.out:
         print("poseidon service recorder: --out RUN.mcap is required", file=sys.stderr)
         return 2
+    what = f"poseidon service {args.name}"
+    signals = _Signals(what)
     try:
-        bus = Bus(namespace, connect=connect, mode=args.mode, config_file=args.zenoh_config, **_secure_args(args))
-    except (OSError, ValueError) as exc:
-        print(f"poseidon service {args.name}: cannot join the bus: {exc}", file=sys.stderr)
+        bus = _join_bus(what, signals, config.bus.startup_timeout_s, namespace, connect, mode=args.mode,
+                        config_file=args.zenoh_config, **_secure_args(args))
+    except (OSError, ValueError, zenoh_error()) as exc:
+        print(f"{what}: cannot join the bus: {exc}", file=sys.stderr)
         return 2
-    stoppable: list[Any] = []
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        log.warning("%s: signal %d, stopping", args.name, signum)
-        for obj in stoppable:
-            obj.stop()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    if bus is None:
+        return 0 if signals.stopped.is_set() else 2
     try:
         worker = build_worker(args.name, config, bus, _worker_spec(args, config, supervision))
-        stoppable.append(worker)
+        signals.on_stop(worker.stop)
         stats = worker.run().as_dict()
     except Exception:  # the service's own failure: logged with its traceback, exit 1
         log.exception("service %s failed", args.name)
@@ -281,7 +360,6 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     """``poseidon bridge ros1``: the bridge in this process, on a hub, until a signal or ``--duration``."""
     import threading
 
-    from common.bus import Bus
     from common.config import ConfigError
     from launcher.services import BRIDGE_ROS1, WorkerSpec, build_worker
     from services.bridge_ros1.ros_io import RosUnavailable
@@ -291,11 +369,14 @@ def cmd_bridge(args: argparse.Namespace) -> int:
         print(f"poseidon bridge {args.kind}: {exc}", file=sys.stderr)
         return 2
     connect = [args.connect] if args.connect else config.bus.connect
-    bus = Bus(args.namespace or config.bus.namespace, connect=connect)
+    what = f"poseidon bridge {args.kind}"
+    signals = _Signals(what)
+    bus = _join_bus(what, signals, config.bus.startup_timeout_s, args.namespace or config.bus.namespace, connect)
+    if bus is None:
+        return 0 if signals.stopped.is_set() else 2
     spec = WorkerSpec(announce=[k for k in (args.announce or "").split(",") if k], drain=False)
     worker = build_worker(BRIDGE_ROS1, config, bus, spec)
-    signal.signal(signal.SIGTERM, lambda *_: worker.stop())
-    signal.signal(signal.SIGINT, lambda *_: worker.stop())
+    signals.on_stop(worker.stop)
     timer = threading.Timer(args.duration, worker.stop) if args.duration else None
     if timer is not None:
         timer.daemon = True

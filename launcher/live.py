@@ -20,7 +20,9 @@ live source cannot replay what a restarted service missed): a process that fails
 
 The run summary (``--json``) is that of ``poseidon run`` (``mode``: ``"live"``), with per service
 ``dropped`` (data frames dropped per input key by the bounded queue) and the bridge's counters
-under ``services.bridge_ros1``: ``received``/``published``/``raw``/``late``/``to_ros`` and
+under ``services.bridge_ros1``: ``received``/``published``/``raw``/``late``/``to_ros``, the
+outage counters ``delivered_late``/``resent``/``dropped_outage``/``outages`` (per key, the rule in
+:mod:`common.live`; the recorder's ``missing``: frames per key that never arrived) and
 ``latency`` -- per stage (``lvc``, ``event``, ``map``, ``odometry``) ``n``, ``p50_ms``,
 ``p95_ms``, ``p99_ms``, ``max_ms``, ``unmatched``: the wall time from a sensor message's arrival
 at the bridge to the output it caused (matched by stamp) arriving back at the bridge.

@@ -16,13 +16,22 @@
 - Out: ``Odometry``, ``dead_reckoning``, ``map`` (Path + MarkerArray, latched, at most every
   ``map_period_s``), ``local_view_cells`` and ``experience_event`` are published on ROS topics
   (table in :mod:`services.bridge_ros1.convert`).
+- Outages: when no consumer of a key is reachable any more (its link to the hub, or the hub's
+  to the consumers' computer, is down) the bridge keeps that key's frames (at most
+  ``outage_buffer_frames`` / ``outage_buffer_mb``, drop-oldest) and sends them when a consumer
+  is back, before anything newer; counted ``delivered_late``, ``resent``, ``dropped_outage``
+  (the rule: :mod:`common.live`).
 - Latency: the wall time from a sensor message's arrival to the LVC id, experience event and
   map it caused (matched by stamp) and to the Odometry, per stage p50/p95/p99
   (``BridgeStats.latency``, in the run summary).
 - End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge sends end-of-stream on
   every key it published or announced (the services then finish and the recorder closes a
   complete file), forwards to ROS what the services still publish until their outputs end
-  (or 2 s without any), then shuts its ROS node down.
+  (or 2 s without any), then shuts its ROS node down.  It does not wait for its consumers to
+  leave (``bus.drain_timeout_s``): the services' outputs ending shows they got its end-of-stream,
+  and the services wait for the bridge's own subscription to their outputs to go (a cycle).  A
+  second SIGTERM/SIGINT exits at once (``launcher/commands.py``); a bridge that never reaches
+  its hub gives up after ``bus.startup_timeout_s`` (exit 2).
 """
 from __future__ import annotations
 
@@ -55,7 +64,10 @@ class BridgeStats(SinkStats):
     """``received``: ROS messages per topic; ``published``: bus messages per key; ``raw``: carried
     raw per key with ``raw_reasons``; ``late``: messages older than their stream's promise, per
     key; ``to_ros``: messages published on ROS per topic; ``watermarks``: wall-clock watermarks
-    sent; ``latency``: per stage (:meth:`LatencyTracker.summary`); ``errors``: conversion failures
+    sent; ``delivered_late``/``resent``/``dropped_outage``/``outages``: per key, the outage rule
+    of :mod:`common.live` (frames held while no consumer was reachable and sent after it came
+    back / frames sent again that a consumer may already have / held frames never delivered /
+    outages seen); ``latency``: per stage (:meth:`LatencyTracker.summary`); ``errors``: conversion failures
     per topic (logged with the reason)."""
 
     received: dict[str, int] = field(default_factory=dict)
@@ -65,6 +77,10 @@ class BridgeStats(SinkStats):
     late: dict[str, int] = field(default_factory=dict)
     to_ros: dict[str, int] = field(default_factory=dict)
     errors: dict[str, int] = field(default_factory=dict)
+    delivered_late: dict[str, int] = field(default_factory=dict)
+    resent: dict[str, int] = field(default_factory=dict)
+    dropped_outage: dict[str, int] = field(default_factory=dict)
+    outages: dict[str, int] = field(default_factory=dict)
     watermarks: int = 0
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
     master_uri: str = ""
@@ -73,7 +89,8 @@ class BridgeStats(SinkStats):
         return {"service": BRIDGE_NAME, "master_uri": self.master_uri, "received": self.received,
                 "published": self.published, "raw": self.raw, "raw_reasons": self.raw_reasons, "late": self.late,
                 "to_ros": self.to_ros, "errors": self.errors, "watermarks": self.watermarks,
-                "latency": self.latency, "aborted": self.aborted}
+                "delivered_late": self.delivered_late, "resent": self.resent, "dropped_outage": self.dropped_outage,
+                "outages": self.outages, "latency": self.latency, "aborted": self.aborted}
 
 
 def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
@@ -92,7 +109,8 @@ class Ros1Bridge(Sink, Source):
         self.announce = sorted(set(announce))
         self.incoming = Incoming(config.topics, config.discover)
         self.outgoing = Outgoing()
-        self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce)
+        self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce, config.outage_buffer_frames,
+                                 int(config.outage_buffer_mb * 1e6))
         self.latency = LatencyTracker()
         self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
         self._out_keys = {config.odometry_key: "odometry", config.dead_reckoning_key: "dead_reckoning",
@@ -256,8 +274,11 @@ class Ros1Bridge(Sink, Source):
             self.flush_map(force=True)
             with self._lock:
                 self.stats.latency = self.latency.summary()
-            self.stats.published, self.stats.late = dict(self.source.published), dict(self.source.late)
-            self.stats.watermarks = self.source.watermarks
+            counters = self.source.counters()
+            self.stats.published, self.stats.late = counters["published"], counters["late"]
+            self.stats.delivered_late, self.stats.resent = counters["delivered_late"], counters["resent"]
+            self.stats.dropped_outage, self.stats.outages = counters["dropped_outage"], counters["outages"]
+            self.stats.watermarks = counters["watermarks"]
             link.close()
-            self.drain(self.source.publishers())
+            self.drain(self.source.publishers())  # a no-op after a stop: see the module notes
         return self.stats

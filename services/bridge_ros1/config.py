@@ -48,6 +48,10 @@ class BridgeRos1Config(ConfigSection):
                                      description="never bridged in (our own output topics never are)")
     lateness_ms: int = Field(200, ge=0, description="live watermarks: a stream promises nothing older than "
                              "its wall-clock-mapped time minus this (ms); see bridge.py")
+    outage_buffer_frames: int = Field(1000, ge=1, description="per key, the last frames kept to send again "
+                                      "after its consumers were unreachable (common/live.py: the outage rule); "
+                                      "held frames beyond it are dropped oldest first, counted dropped_outage")
+    outage_buffer_mb: float = Field(64.0, gt=0, description="per key, at most this much kept for an outage (MB)")
     watermark_interval_ms: int = Field(100, ge=10, description="wall-clock watermarks on every source key this "
                                        "often (ms)")
     odometry_key: str = Field("Odometry", description="our key published as nav_msgs/Odometry")

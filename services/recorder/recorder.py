@@ -17,7 +17,8 @@ its summary and ``RecorderStats.aborted`` says why.  On a normal end it reports 
 ``END_OF_TIME`` so the player knows it finished.
 
 Numbered frames it already has (a replay, a restarted publisher) are not recorded twice
-(:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``).  Supervised
+(:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``); frames whose numbers were
+skipped never arrived: counted ``missing`` per key (see :mod:`common.live`).  Supervised
 (``supervision``), every ``supervise.recorder_checkpoint_interval_s`` of event time it ends the MCAP
 chunk in progress, syncs the file and saves per key the messages recorded and the next
 transport index (``<state_dir>/recorder.ckpt``), then reports those positions on
@@ -62,6 +63,7 @@ class RecorderStats(SinkStats):
     def as_dict(self) -> dict[str, Any]:
         return {"service": "recorder", "path": self.path, "recorded": self.recorded, "invalid": self.invalid,
                 "ended": sorted(self.ended), "aborted": self.aborted, "duplicates": self.duplicates,
+                "missing": self.missing,
                 "checkpoints": self.checkpoints, "checkpoint_ms": round(self.checkpoint_ms, 3),
                 "resumed_messages": self.resumed_messages}
 
