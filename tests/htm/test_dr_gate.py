@@ -120,3 +120,41 @@ def test_without_the_sequence_memory_the_gate_is_off():
     assert NeocortexHtm(cfg).dr_gate is None
     assert HtmNode.io_keys(cfg)[0] == ("neocortex/sdr",)
     assert HtmNode.io_keys(HtmConfig())[0] == ("Odometry", "neocortex/sdr")
+
+
+def _node_stream(repeat_y: float) -> list:
+    """Odometry + SDR messages: 40 places 2 m apart along x, then places 10..29 again in order
+    (another appearance) flown at lateral offset ``repeat_y``; Odometry just before each frame."""
+    from common.messages import Header, NeocortexSdr, Odometry, Sdr
+    route, repeat = _aliased_mission()
+    xs = [2.0 * k for k in range(40)] + [2.0 * k for k in range(10, 30)]
+    ys = [0.0] * 40 + [repeat_y] * 20
+    out = []
+    for i, (d, x, y) in enumerate(zip(route + repeat, xs, ys)):
+        t = 1_000_000_000 + i * 200_000_000
+        out.append(("Odometry", Odometry(header=Header(seq=i, stamp=t - 50_000_000, frame_id="odom"),
+                                          position=[x, y, -5.0], orientation=[0.0, 0.0, 0.0, 1.0])))
+        h = Header(seq=i, stamp=t, frame_id="base_link")
+        sdr = Sdr(header=h, modality="fused", size=L, active=d.astype(np.uint32))
+        out.append(("neocortex/sdr", NeocortexSdr(header=h, modalities=[], fused=sdr, fusion_mode="union")))
+    return out
+
+
+def test_the_node_gates_with_the_latest_odometry():
+    from common.node import run_offline
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+    cfg = PoseidonConfig().model_copy(update={"htm": HtmConfig(
+        input_size=L, sv_seqmem_length=K, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0, sv_tm_decide=False,
+        sv_dr_gate_jump_m=1000.0)})
+    results = {}
+    for y in (0.3, 40.0):
+        node = build_node("htm", cfg)
+        assert node.inputs == ("Odometry", "neocortex/sdr")
+        out = run_offline(node, _node_stream(y))
+        ids = [m.most_active_cell for _, m in out]
+        results[y] = (ids[40 + K:], node.counters)
+    back, counters = results[0.3]
+    assert back == list(range(10 + K, 30)) and "dr_gate_rejections" not in counters
+    far, counters = results[40.0]
+    assert not set(far) & set(range(40)) and counters["dr_gate_rejections"] > 0
