@@ -69,10 +69,9 @@ frame) must be one, and an l* (Eq. 4.9) or prior id only counts if one of its fr
 sequence match the gate checked (both frames have positions) needs only
 ``sv_dr_gate_seqmem_threshold`` / ``sv_dr_gate_seqmem_margin`` (1.0 / 0.75, against 1.5 / 1.75
 on appearance alone), because the far-off look-alikes the higher margin guarded against are
-gone.  The
-best diagonal is still chosen over every stored frame, so a far-off look-alike keeps the margin
-low (a veto, not a selector: selecting among plausible frames only made the margin test
-meaningless and cost precision, 0.963 -> 0.92 on seed 77).
+gone.  The best diagonal is still chosen over every stored frame, so a far-off look-alike keeps
+the margin low (a veto, not a selector: selecting among plausible frames only made the margin
+test meaningless and cost precision, 0.963 -> 0.92 on seed 77).
 """
 from __future__ import annotations
 
