@@ -88,10 +88,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
+    # the dissertation's SP + TM chain (services/htm/presets/dissertation.yaml: Table 4.1's SP and TM);
     # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
-    tm = dict(sv_descriptor_source="tm")  # the SP+TM chain is what this benchmark times
-    cfg = HtmConfig(sp_learn_steps=0, **tm) if args.boost is None else HtmConfig(sp_boostStrength=args.boost, **tm,
-                                                                           sp_learn_steps=0)
+    from launcher.config import load_config
+    preset = Path(__file__).resolve().parents[1] / "services/htm/presets/dissertation.yaml"
+    update: dict = {"sp_learn_steps": 0} if args.boost is None else {"sp_learn_steps": 0, "sp_boostStrength": args.boost}
+    cfg = load_config(preset).htm.model_copy(update=update)
     warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
     for f in stream[:5]:
         warm.step(f)
