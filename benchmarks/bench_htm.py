@@ -11,10 +11,15 @@ Second part (``--pipeline-frames`` N, 0 skips it): whole ``NeocortexHtm.step`` c
 frames of the same kind of stream (``--pipeline-bits`` active bits, default 900 = camera OR
 sonar; ``--pipeline-places`` places, default 1000 x 3 frames, so a 6000-frame stream is two laps
 of mostly new places: the TM's worst case, it grows segments while it bursts) storing LVCs as
-online; printed: ms per frame over the last 1000 frames (when the frame memory holds ~N frames)
-for the default configuration, each named chain of ``services/htm/chains.py`` (``sdr_seqmem``:
-fused SDR + sequence memory, no SP/TM; ``sp_tm``: SP + TM + sequence memory) and
-``sdr_seqmem`` without the sequence memory, all in the same run.
+online, each frame with a dead-reckoned position (place p on a loop of 2 m per place, so the
+dead-reckoning gate checks every claim); printed: ms per frame over the last 1000 frames (when
+the frame memory holds ~N frames)
+for the default configuration (fused-SDR descriptor, SP + TM deciding, sequence memory,
+dead-reckoning gate), each named chain of ``services/htm/chains.py`` (``sdr_seqmem``: the
+default before issue 17's last step, no SP/TM; ``no_tm``, ``no_dr_gate``, ``no_seqmem``: the
+default without one part; ``sp_tm``: SP columns as the descriptor) and ``sdr_seqmem`` without
+the sequence memory, all in the same run.  The issue-17 budget: the default <= 1 ms per frame
+at 6000 stored frames.
 
 Third part (``--seqmem-sizes``, default 1000,5000,20000; empty skips it): one
 :meth:`SequenceMatcher.score` (the default configuration: K 40, velocity 1, exclude 50, 900
@@ -83,10 +88,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
+    # the dissertation's SP + TM chain (services/htm/presets/dissertation.yaml: Table 4.1's SP and TM);
     # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
-    tm = dict(sv_descriptor_source="tm")  # the SP+TM chain is what this benchmark times
-    cfg = HtmConfig(sp_learn_steps=0, **tm) if args.boost is None else HtmConfig(sp_boostStrength=args.boost, **tm,
-                                                                           sp_learn_steps=0)
+    from launcher.config import load_config
+    preset = Path(__file__).resolve().parents[1] / "services/htm/presets/dissertation.yaml"
+    update: dict = {"sp_learn_steps": 0} if args.boost is None else {"sp_learn_steps": 0, "sp_boostStrength": args.boost}
+    cfg = load_config(preset).htm.model_copy(update=update)
     warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
     for f in stream[:5]:
         warm.step(f)
@@ -203,6 +210,12 @@ def pipeline_cost(args: argparse.Namespace) -> None:
     frames = make_stream(args.pipeline_frames, args.pipeline_places, args.hold, args.pipeline_bits, args.noise,
                          args.seed + 1)
     tail = min(1000, len(frames))
+    # dead-reckoned positions: place p sits on a loop of 2 m per place, so the second lap's
+    # revisits are plausible and the dead-reckoning gate's checks run as on a mission
+    place = (np.arange(len(frames)) // args.hold) % args.pipeline_places
+    angle = 2 * np.pi * place / args.pipeline_places
+    radius = 2.0 * args.pipeline_places / (2 * np.pi)
+    positions = np.stack([radius * np.cos(angle), radius * np.sin(angle), np.full(angle.shape, -5.0)], axis=1)
     res = {}
     from services.htm.chains import CHAINS, chain_config
     runs = [("default configuration", HtmConfig())]
@@ -217,7 +230,7 @@ def pipeline_cost(args: argparse.Namespace) -> None:
         t = np.empty(len(frames))
         for i, f in enumerate(tqdm(frames, desc=name, file=sys.stderr, mininterval=1.0, leave=False)):
             t0 = time.perf_counter()
-            h.step(f)
+            h.step(f, position=positions[i])
             t[i] = time.perf_counter() - t0
         res[name] = 1e3 * float(np.mean(t[-tail:]))
         extra = "" if h.tm is None else f", TM {h.tm.num_segments} segments / {h.tm.num_synapses} synapses"

@@ -64,18 +64,28 @@ argmax, correct iff it is in the query's ground truth):
   overlaps D_q most (Eq. 4.7) -- or, when the id is that of the stored frame j* where the
   sequence memory's best diagonal ended, j* itself; its score is the sequence margin
   S* - S_2 (z units) with the sequence memory on (``htm.sv_seqmem_length`` > 0), else R.
-  A rejected query predicts nothing (it only lowers recall).  On ``--mission`` the same
-  rule picks among the eligible earlier frames.
+  A query that no rule accepted predicts the frame j* where the sequence memory's best
+  diagonal ended, scored by its margin below the gate (issue 17): the precision-recall curve
+  sweeps the decision threshold, as every other matcher's curve sweeps its own score, and the
+  configured gates are one point on it (``htm_query_matched`` counts the accepted queries;
+  without the sequence memory a rejected query predicts nothing).  On ``--mission`` the same
+  rule picks among the eligible earlier frames (a rejected frame there gets a new id and
+  predicts nothing), and the frames' dead-reckoned positions for the dead-reckoning gate
+  (``htm.sv_dr_gate``, :mod:`services.htm.geometry`) come from the mission's own DVL, IMU and
+  depth through the ``robot_state`` node, as in a run.  Image sets have no positions: the
+  gate checks nothing there.
+* ``htm_lvc_accepted`` -- (image sets) ``htm_lvc`` with the accepted queries only: the
+  decisions at the configured gates, ranked by their confidence (the ``htm_lvc`` of before
+  issue 17's threshold sweep).
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
-* ``sdr_seqmem``, ``sp_tm`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains`
-  (the configured ``htm`` section with the chain's overrides), run on the same SDRs in the
-  same run, printed beside the default (``--no-chains`` skips them): ``sdr_seqmem`` is the
-  fused-SDR chain with the sequence memory (no SP, no TM), ``sp_tm`` the spatial pooler +
-  temporal memory chain (the TM's predictions decide revisits, :mod:`services.htm.tm_match`),
-  ``sdr_seqmem_f1`` / ``sdr_seqmem_cal`` the fused-SDR chain whose sequence match also checks
-  the frame's own F1 with the matched frame against a constant / a self-calibrated level
-  (:mod:`services.htm.calibrate`) and may override an Eq. 4.9 match to a recent id.
+* ``sdr_seqmem``, ``no_tm``, ``no_dr_gate``, ``no_seqmem``, ``sp_tm``, ``sdr_seqmem_f1``,
+  ``sdr_seqmem_cal`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains` (the
+  configured ``htm`` section with the chain's overrides; the module says what each changes),
+  run on the same SDRs in the same run, printed beside the default (``--no-chains`` skips
+  them): ``sdr_seqmem`` is the default before issue 17's SP + TM + dead-reckoning gate (fused
+  SDR, sequence memory, no SP, no TM), ``no_tm`` / ``no_dr_gate`` / ``no_seqmem`` the default
+  without one part, ``sp_tm`` the SP's columns as the descriptor.
 
 Decisions (``decisions``: counts per rule of how a frame got its id, :func:`decision_kind`):
 ``gate`` Eq. 4.9 on l*, ``tm`` the TM's predictions, ``seqmem`` the sequence memory,
@@ -92,14 +102,15 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
 
     {"matchers": {"cnn_cosine": {"auc": .., "recall_at_p100": .., "best_f1": .., "n_predicted": ..},
                   "seq_cosine": {...}, "patchnorm_sad": {...}, "lsbh_overlap": {...}, "cnn_cosine_standardized": {...} (embedding_norm not none),
-                  "htm_lvc": {...}, "htm_descriptor": {...}},
+                  "htm_lvc": {...}, "htm_lvc_accepted": {...}, "htm_descriptor": {...}},
      "n_ref": .., "n_query": .., "n_query_with_gt": .., "weights": "seeded" | "<path>",
      "backbone": "shufflenetv2", "embedding_dim": .., "embedding_norm": "none|running|fixed",
      "sdr_bits": .., "sdr_length": .., "ground_truth": "file name +-N" | "<gt file>",
      "sdr_overlap": {"same_place": .., "different_place": ..},   # mean |A_q & A_r| / 2k (random: s = 0.25)
      "n_lvc": .., "htm_query_matched": .., "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..},
-     "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "sp_tm": {...},
-                "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...}},
+     "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "no_tm": {...},
+                "no_dr_gate": {...}, "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...},
+                "sdr_seqmem_cal": {...}},
      "seconds": {"embed": .., "htm": ..}}   # htm: the default and the chains
 
 and with ``--mission``::
@@ -111,13 +122,15 @@ and with ``--mission``::
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
      "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
      "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
-     "chains": {"sdr_seqmem": {<the LVC figures above>}, "sp_tm": {...}, "sdr_seqmem_f1": {...},
-                "sdr_seqmem_cal": {...}},   # without --no-htm / --no-chains
+     "chains": {"sdr_seqmem": {<the LVC figures above>}, "no_tm": {...}, "no_dr_gate": {...},
+                "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...}},
+                # without --no-htm / --no-chains
+     "dr_positions": .., # frames with a dead-reckoned position (robot_state over the mission)
      "lvc_run_length": {"median": .., "mean": .., "frames_in_runs_ge3": ..},  # runs of identical consecutive ids
      "modalities": {"fused_<fusion_mode>": {...}, "camera": {...}, "sonar": {...}},  # without --no-htm
      "matchers": {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized", "lsbh_overlap",
-                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "sp_tm", "sdr_seqmem_f1",
-                  "sdr_seqmem_cal": {...}},
+                  "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "no_tm", "no_dr_gate",
+                  "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal": {...}},
      "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).
@@ -205,7 +218,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
     ap.add_argument("--no-chains", action="store_true",
-                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, sp_tm, sdr_seqmem_f1, "
+                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, no_tm, no_dr_gate, no_seqmem, sp_tm, sdr_seqmem_f1, "
                          "sdr_seqmem_cal) beside the default")
     ap.add_argument("--htm-query-learning", action="store_true",
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
@@ -379,6 +392,9 @@ def _image_set_htm(args: argparse.Namespace, cfg: PoseidonConfig, sets: _ImageSe
     returns their JSON figures (``n_lvc``, ``htm_query_matched``, ``decisions``, ``chains``)."""
     ref_out, q_out, htm = run_htm(cfg.htm, sets.s_ref, sets.s_q, length, args.htm_query_learning)
     sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
+    accepted = sims["htm_lvc"].copy()
+    accepted[[i for i, o in enumerate(q_out) if o[0] < 0]] = -np.inf
+    sims["htm_lvc_accepted"] = accepted
     result: dict[str, Any] = {}
     result["n_lvc"] = len(htm.lvc)
     result["htm_query_matched"] = sum(1 for o in q_out if o[0] >= 0)

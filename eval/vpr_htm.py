@@ -48,9 +48,12 @@ def match_confidence(htm, r) -> float:
 
 
 def _htm_row(htm, r) -> tuple[int, float, np.ndarray, int]:
-    """(LVC id, confidence, D_t, memory frame the id was read from or -1) of one step."""
-    frame = int(r.frame) if (htm.seqmem is not None and r.frame >= 0 and r.lvc_id >= 0
-                             and int(htm.seqmem.ids[r.frame]) == r.lvc_id) else -1
+    """(LVC id, confidence, D_t, memory frame the id was read from -- or, for a query without
+    an id, the sequence memory's candidate -- or -1) of one step."""
+    # a query no rule accepted (id -1) keeps the sequence memory's candidate j* and its margin: the
+    # PR curve sweeps the decision threshold (eval.vpr, htm_lvc)
+    frame = int(r.frame) if (htm.seqmem is not None and r.frame >= 0
+                             and (r.lvc_id < 0 or int(htm.seqmem.ids[r.frame]) == r.lvc_id)) else -1
     return int(r.lvc_id), match_confidence(htm, r), np.asarray(htm.last_descriptor, dtype=np.int64).copy(), frame
 
 

@@ -56,6 +56,7 @@ class MissionStreams:
     dim: int
     fusion_mode: str
     seconds_embed: float
+    dr_positions: list[np.ndarray | None] | None = None   # robot_state's position at each frame (m; None: none yet)
 
 
 def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool,
@@ -123,20 +124,31 @@ class _MissionRead:
     pose_t: list[Any] = field(default_factory=list)
     pose_p: list[Any] = field(default_factory=list)
     cam_stamps: list[int] = field(default_factory=list)
+    odom_t: list[int] = field(default_factory=list)     # the robot_state node's Odometry (dead reckoning)
+    odom_p: list[list[float]] = field(default_factory=list)
 
 
-def _read_mission(path: Path, node: Any, sonar_key: str) -> _MissionRead:
-    """Every camera, sonar and truth message of the recording, the sensors through ``node``."""
+def _read_mission(path: Path, node: Any, sonar_key: str, robot_state: Any = None) -> _MissionRead:
+    """Every camera, sonar and truth message of the recording, the sensors through ``node`` and
+    (when given) the navigation sensors through the ``robot_state`` node (its ``Odometry``)."""
     from common.codec import DecodeError
     from common.mcap_io import RecordingError, read_messages
     from services.encoder.encoder import image_to_rgb
 
     rd = _MissionRead()
-    wanted = ["camera/image_raw", sonar_key, "truth/revisits", "truth/pose"]
+    nav = set(robot_state.inputs) if robot_state is not None else set()
+    wanted = ["camera/image_raw", sonar_key, "truth/revisits", "truth/pose", *sorted(nav)]
     bar = tqdm(desc="mission frames", unit="frame", file=sys.stderr, leave=False)
     try:
         for rec in read_messages(path, keys=wanted):
             msg = rec.message()
+            if rec.key in nav:
+                robot_state.process(rec.key, msg)
+                for key, odo in robot_state.take_outbox():
+                    if key == "Odometry":
+                        rd.odom_t.append(odo.header.stamp)
+                        rd.odom_p.append(list(odo.position))
+                continue
             if rec.key == "truth/revisits":
                 rd.truth[int(msg.frame_index)] = np.asarray(msg.same_place, np.int64)
             elif rec.key == "truth/pose":
@@ -170,8 +182,14 @@ def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | 
     encoder = _camera_recorder(enc_cfg)
     node = build_node("encoder", run_cfg, encoder=encoder)
     t0 = time.perf_counter()
-    rd = _read_mission(path, node, enc_cfg.sonar_topic)
+    robot_state = build_node("robot_state", run_cfg)
+    rd = _read_mission(path, node, enc_cfg.sonar_topic, robot_state)
     node.finish()
+    robot_state.finish()
+    for key, odo in robot_state.take_outbox():
+        if key == "Odometry":
+            rd.odom_t.append(odo.header.stamp)
+            rd.odom_p.append(list(odo.position))
     t_embed = time.perf_counter() - t0
     n = len(rd.cam_stamps)
     if len(rd.frames) != n or len(encoder.camera) != n:
@@ -180,25 +198,32 @@ def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | 
     dist = _travelled(np.asarray(rd.cam_stamps), np.asarray(rd.pose_t), np.asarray(rd.pose_p, np.float64))
     idx = np.arange(n)
     eligible = (idx[None, :] < idx[:, None]) & (dist[:, None] - dist[None, :] >= min_gap_m)
+    dr = None
+    if rd.odom_t:   # the latest dead-reckoned position at or before each frame (the htm node's rule)
+        k = np.searchsorted(np.asarray(rd.odom_t), np.asarray(rd.cam_stamps), side="right") - 1
+        p = np.asarray(rd.odom_p, np.float64)
+        dr = [p[i] if i >= 0 else None for i in k]
 
     return MissionStreams(
         y=np.stack([c[0] for c in encoder.camera]), z=np.stack([c[1] for c in encoder.camera]),
         thumbs=np.stack(rd.thumbs), sdrs={**rd.mod_bits, "fused": [f[1] for f in rd.frames]}, gt=gt,
         eligible=eligible, min_gap_m=float(min_gap_m), counters=dict(node.counters), weights=encoder.weights,
-        dim=encoder.dim, fusion_mode=enc_cfg.fusion_mode, seconds_embed=t_embed)
+        dim=encoder.dim, fusion_mode=enc_cfg.fusion_mode, seconds_embed=t_embed, dr_positions=dr)
 
 
 def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[Sequence[int]],
-                eligible: np.ndarray) -> dict:
-    """One NeocortexHtm storing LVCs online over one SDR stream: LVC scores and similarity matrices."""
+                eligible: np.ndarray, positions: Sequence[np.ndarray | None] | None = None) -> dict:
+    """One NeocortexHtm storing LVCs online over one SDR stream: LVC scores and similarity matrices.
+
+    ``positions``: the dead-reckoned position of each frame, for ``htm.sv_dr_gate``."""
     from services.htm.pipeline import NeocortexHtm
 
     htm = NeocortexHtm(htm_cfg.model_copy(update={"input_size": length}))
     out = []
     cols_used: set[int] = set()
     kinds = {k: 0 for k in DECISION_KINDS}
-    for b in tqdm(bits, desc="htm", file=sys.stderr, leave=False):
-        r = htm.step(np.asarray(b, np.uint32))
+    for t, b in enumerate(tqdm(bits, desc="htm", file=sys.stderr, leave=False)):
+        r = htm.step(np.asarray(b, np.uint32), position=None if positions is None else positions[t])
         cols_used.update(htm.last_columns.tolist())
         out.append((*_htm_row(htm, r), float(r.anomaly)))
         kinds[decision_kind(r)] += 1
@@ -241,6 +266,7 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Seque
     if enc_cfg.embedding_norm != "none":
         sims["cnn_cosine_standardized"] = masked(cosine_similarity(st.z, st.z))
     result: dict = {"n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": st.min_gap_m,
+                    "dr_positions": sum(1 for p in (st.dr_positions or []) if p is not None),
                     "sdr_overlap": overlap_stats(lsbh_cam, gt, eligible),
                     "fused_bits_mean": round(float(np.mean([f.size for f in fused])), 1),
                     "encoder_counters": st.counters}
@@ -253,7 +279,7 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Seque
                 streams[m] = st.sdrs[m]
         per: dict[str, dict] = {}
         for name, bits in streams.items():
-            h = mission_htm(cfg.htm, enc_cfg.sp_columns, bits, gt, eligible)
+            h = mission_htm(cfg.htm, enc_cfg.sp_columns, bits, gt, eligible, st.dr_positions)
             per[name] = {**h["scores"], "htm_lvc": vpr_metrics(h["htm_lvc"], gt)}
             if name.startswith("fused"):
                 sims["htm_lvc"], sims["htm_descriptor"] = h["htm_lvc"], h["htm_descriptor"]
@@ -263,7 +289,7 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Seque
             from services.htm.chains import chain_config
             result["chains"] = {}
             for cname in chains:
-                h = mission_htm(chain_config(cfg.htm, cname), enc_cfg.sp_columns, fused, gt, eligible)
+                h = mission_htm(chain_config(cfg.htm, cname), enc_cfg.sp_columns, fused, gt, eligible, st.dr_positions)
                 sims[cname] = h["htm_lvc"]
                 result["chains"][cname] = h["scores"]
         t_htm = time.perf_counter() - t1

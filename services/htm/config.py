@@ -16,22 +16,22 @@ __all__ = ["HtmConfig"]
 
 class HtmConfig(ConfigSection):
     sp_enable: bool = True
-    sp_columns: int = Field(2048, ge=16)
-    sp_numActiveColumns: int = Field(20, ge=1)
-    sp_potentialRadius: int = Field(600, ge=1)
+    sp_columns: int = Field(4096, ge=16, description="Table 4.1: 2048; 4096 (ours, issue 17): the SP keeps the place")
+    sp_numActiveColumns: int = Field(800, ge=1, description="Table 4.1: 20; 800 (ours, issue 17)")
+    sp_potentialRadius: int = Field(2048, ge=1, description="Table 4.1: 600; 2048 (ours, issue 17): the whole input")
     sp_potentialPct: float = Field(0.5, gt=0, le=1)
     sp_synPermActiveInc: float = Field(0.006, ge=0)
     sp_synPermInactiveDec: float = Field(0.008, ge=0)
     sp_synPermConnected: float = Field(0.1, gt=0, lt=1)
-    sp_boostStrength: float = Field(2.0, ge=0, description="not given by the dissertation; 2 spreads the dense "
-                                    "union over the columns (0 disables boosting)")
+    sp_boostStrength: float = Field(0.0, ge=0, description="not given by the dissertation; 0 (issue 17): the "
+                                    "standardised overlaps replace boosting (2 spreads the dense union with BAMI)")
     sp_dutyCyclePeriod: int = Field(1000, ge=1)
-    tm_cellsPerColumn: int = Field(40, ge=1)
-    tm_activationThreshold: int = Field(5, ge=1)
+    tm_cellsPerColumn: int = Field(16, ge=1, description="Table 4.1: 40; 16 (ours, issue 17)")
+    tm_activationThreshold: int = Field(4, ge=1, description="Table 4.1: 5; 4 (ours, issue 17)")
     tm_minThreshold: int = Field(3, ge=1)
     tm_initialPermanence: float = Field(0.55, ge=0, le=1)
     tm_connectedPermanence: float = Field(0.5, ge=0, le=1)
-    tm_maxNewSynapseCount: int = Field(20, ge=1)
+    tm_maxNewSynapseCount: int = Field(16, ge=1, description="Table 4.1: 20; 16 (ours, issue 17)")
     tm_permanenceIncrement: float = Field(0.008, ge=0)
     tm_permanenceDecrement: float = Field(0.012, ge=0)
     tm_predictedSegmentDecrement: float = Field(0.0, ge=0)
@@ -81,15 +81,15 @@ class HtmConfig(ConfigSection):
     sv_seqmem_threshold: float = Field(1.5, description="sequence score S* (z units) a sequence match needs")
     sv_seqmem_margin: float = Field(1.75, ge=0, description="S* minus the best score ending more than K frames "
                                     "away (z units) a sequence match needs")
-    sv_tm_decide: bool = Field(False, description="run the TM over the SP columns (descriptor source sp) and "
+    sv_tm_decide: bool = Field(True, description="run the SP and a TM over its columns beside the descriptor and "
                                "let its predictions decide a revisit (services/htm/tm_match.py)")
-    sp_overlap_norm_steps: int = Field(0, ge=0, description="> 0: global inhibition ranks each column's overlap "
+    sp_overlap_norm_steps: int = Field(1000, ge=0, description="> 0: global inhibition ranks each column's overlap "
                                        "standardised by its own mean and deviation over the first N learning steps "
                                        "(then frozen), in place of BAMI boosting and permanence learning (0: BAMI)")
-    tm_input_columns: int = Field(0, ge=0, description="the TM sees the N most strongly driven of the SP's active "
+    tm_input_columns: int = Field(40, ge=0, description="the TM sees the N most strongly driven of the SP's active "
                                   "columns (boosted overlap, ties to the lower index; 0: all): its cost grows with "
                                   "the square of its active columns")
-    sv_tm_share: float = Field(0.2, ge=0, le=1, description="share of a frame's active columns the TM must have "
+    sv_tm_share: float = Field(0.15, ge=0, le=1, description="share of a frame's active columns the TM must have "
                                "predicted in the context of one stored frame for a TM decision")
     sv_seqmem_override: bool = Field(False, description="a sequence match (or TM decision) overrides an Eq. 4.9 "
                                      "match whose LVC was created by a recent frame of the current traversal "
@@ -105,6 +105,23 @@ class HtmConfig(ConfigSection):
                                         "before it replaces the confident margin")
     sv_seqmem_column_norm: bool = Field(True, description="normalise each stored frame's similarity by its running "
                                         "mean/std over the current traversal before the per-frame z-score")
+    # --- added for the dead-reckoning gate (issue 17); see services/htm/geometry.py
+    sv_dr_gate: bool = Field(True, description="a revisit claim must be a plausible earlier visit by dead "
+                             "reckoning (Eq. G.1): htm then also subscribes to Odometry; needs the sequence "
+                             "memory, which keeps the stored frames (off with sv_seqmem_length 0)")
+    sv_dr_gate_min_m: float = Field(2.0, ge=0, description="r_min of Eq. G.1 (m): the distance two frames of one "
+                                    "place may be apart at zero path between them")
+    sv_dr_gate_drift: float = Field(0.01, ge=0, description="drift of Eq. G.1: allowed dead-reckoning error per "
+                                    "metre of path flown between the two frames")
+    sv_dr_gate_min_path_m: float = Field(10.0, ge=0, description="s_min of Eq. G.1 (m): path flown since a stored "
+                                         "frame before it can be revisited (the sim's truth uses the same 10 m)")
+    sv_dr_gate_seqmem_threshold: float = Field(1.0, description="sv_seqmem_threshold for a sequence match the "
+                                               "dead-reckoning gate checked (both frames have positions)")
+    sv_dr_gate_seqmem_margin: float = Field(0.75, ge=0, description="sv_seqmem_margin for a sequence match the "
+                                            "dead-reckoning gate checked (both frames have positions)")
+    sv_dr_gate_jump_m: float = Field(2.0, gt=0, description="a position step between two camera frames longer "
+                                     "than this (m) is an odometry discontinuity: positions stored before it "
+                                     "are no longer compared")
 
     @model_validator(mode="after")
     def _consistent(self) -> HtmConfig:

@@ -6,13 +6,22 @@ and frame_id (never suppressed; gating happens downstream in the VPR Guard). Wit
 saved when the inputs end and when the node closes.  A frame whose fused SDR has the wrong
 size is logged with its key and seq, counted (``sdr_wrong_size``) and skipped.  With
 ``htm.sv_require_multimodal`` the per-modality SDRs of the frame validate each match.
+
+With ``htm.sv_dr_gate`` (the dead-reckoning gate, :mod:`services.htm.geometry`) the node also
+subscribes to ``Odometry``, first in priority, so a frame is checked against the latest
+dead-reckoned position at or before its stamp (the posecells rule); a frame before any
+``Odometry`` is not checked (``frames_without_odometry``), a non-finite position is logged,
+counted (``odometry_non_finite``) and skipped, and ``dr_gate_rejections`` counts the claims
+the gate turned down.
 """
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
-from common.messages import LocalViewCell, LocalViewCells, Message, NeocortexSdr
+import numpy as np
+
+from common.messages import LocalViewCell, LocalViewCells, Message, NeocortexSdr, Odometry
 from common.node import ServiceNode
 from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
@@ -29,8 +38,15 @@ class HtmNode(ServiceNode[HtmConfig]):
     inputs = ("neocortex/sdr",)
     outputs = ("local_view_cells",)
 
+    @classmethod
+    def io_keys(cls, config: HtmConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """``Odometry`` first (the dead-reckoning gate's positions) when ``sv_dr_gate``, then the SDRs."""
+        gate = config.sv_dr_gate and config.sv_seqmem_length > 0
+        return (("Odometry",) if gate else ()) + cls.inputs, cls.outputs
+
     def __init__(self, config: HtmConfig):
         super().__init__(config)
+        self.position: np.ndarray | None = None     # latest dead-reckoned position (sv_dr_gate)
         self.cfg = config
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         if self.state_path is not None and self.state_path.exists():
@@ -43,6 +59,14 @@ class HtmNode(ServiceNode[HtmConfig]):
         self._dirty = False
 
     def process(self, key: str, msg: Message) -> None:
+        if key == "Odometry" and isinstance(msg, Odometry):
+            p = np.asarray(msg.position, np.float64)
+            if not np.all(np.isfinite(p)):
+                log.error("htm: %s seq %d skipped: non-finite position %s", key, msg.header.seq, msg.position)
+                self.count("odometry_non_finite")
+                return
+            self.position = p
+            return
         if not isinstance(msg, NeocortexSdr):
             raise TypeError(f"htm: {key!r} carries {type(msg).__name__}, expected NeocortexSdr")
         fused = msg.fused
@@ -53,7 +77,12 @@ class HtmNode(ServiceNode[HtmConfig]):
             return
         modalities = {s.modality: s.active for s in msg.modalities} if self.htm.multimodal is not None else None
         before = self.htm.multimodal.rejections if self.htm.multimodal is not None else 0
-        res = self.htm.step(fused.active, modalities=modalities)
+        if self.htm.dr_gate is not None and self.position is None:
+            self.count("frames_without_odometry")
+        rejected = self.htm.dr_rejections
+        res = self.htm.step(fused.active, modalities=modalities, position=self.position)
+        if self.htm.dr_rejections > rejected:
+            self.count("dr_gate_rejections", self.htm.dr_rejections - rejected)
         self._dirty = True
         if res.is_new:
             self.count("lvc_created")

@@ -84,15 +84,19 @@ def test_main_synthetic_json(tmp_path, capsys):
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
+    chains = {"sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "lsbh_overlap", "htm_lvc",
-                                    "htm_descriptor", "sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
+                                    "htm_lvc_accepted", "htm_descriptor"} | chains
     # the named chains run beside the default, with how each query got its id
-    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
+    assert set(out["chains"]) == chains
     for c in list(out["chains"].values()) + [out]:
         assert set(c["decisions"]) == {"gate", "tm", "seqmem", "prior", "new"}
         assert sum(c["decisions"].values()) == 6
-    # the default is the sdr_seqmem chain: the same figures
-    assert out["matchers"]["sdr_seqmem"] == out["matchers"]["htm_lvc"]
+    # an image set has no dead-reckoned positions: the gate checks nothing, the default scores as no_dr_gate
+    assert out["matchers"]["no_dr_gate"] == out["matchers"]["htm_lvc"]
+    # the threshold sweep ranks every query; the accepted-only curve predicts the accepted ones
+    assert out["matchers"]["htm_lvc_accepted"]["n_predicted"] == out["htm_query_matched"]
+    assert out["matchers"]["htm_lvc"]["n_predicted"] >= out["htm_query_matched"]
     assert out["matchers"]["patchnorm_sad"]["auc"] == pytest.approx(1.0)  # identical images
     assert out["embedding_norm"] == "none"
     assert out["matchers"]["cnn_cosine"]["auc"] == pytest.approx(1.0)
@@ -158,16 +162,19 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
+    chains = {"sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized",
-                                    "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor",
-                                    "sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
+                                    "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor"} | chains
     # the named chains beside the default: the same LVC figures, SP columns and the TM's share of decisions
-    assert set(out["chains"]) == {"sdr_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
-    assert out["chains"]["sp_tm"]["sp_columns_used"] > 0 and out["chains"]["sdr_seqmem"]["sp_columns_used"] == 0
+    assert set(out["chains"]) == chains
+    # the default runs the SP and the TM; the chain of before issue 17's last step does not
+    assert out["sp_columns_used"] > 0 and out["chains"]["sp_tm"]["sp_columns_used"] > 0
+    assert out["chains"]["sdr_seqmem"]["sp_columns_used"] == 0 and out["chains"]["no_tm"]["sp_columns_used"] == 0
+    # the mission's own navigation gives every frame after the first Odometry a position
+    assert out["dr_positions"] >= 110
     for c in list(out["chains"].values()) + [out]:
         assert sum(c["decisions"].values()) == 119 and 0 <= c["tm_decision_share"] <= 1
         assert 0 <= c["lvc_pair_precision"] <= 1 and 0 <= c["lvc_pair_recall"] <= 1
-    assert out["chains"]["sdr_seqmem"]["lvc_recall"] == out["lvc_recall"]
     # the modality table: the fused code and each single modality through its own HTM, same run
     assert set(out["modalities"]) == {"fused_union", "camera", "sonar"}
     for m in out["modalities"].values():

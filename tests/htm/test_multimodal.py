@@ -63,4 +63,5 @@ def test_node_counts_multimodal_rejections():
     node = build_node("htm", PoseidonConfig(htm=_cfg(True)))
     out = run_offline(node, msgs)
     assert [m.most_active_cell for _, m in out] == [0, 1]
-    assert node.counters == {"lvc_created": 2, "multimodal_rejections": 1}
+    # no Odometry in this stream: the dead-reckoning gate checks nothing and says so
+    assert node.counters == {"lvc_created": 2, "multimodal_rejections": 1, "frames_without_odometry": 2}

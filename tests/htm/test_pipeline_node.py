@@ -11,9 +11,12 @@ from services.htm.pipeline import NeocortexHtm, descriptor_similarity
 L = 2048
 
 
-# the SP -> TM -> descriptor chain with Table 4.1's LVC gates (the default descriptor is the fused SDR, issue 8)
+# the SP -> TM -> descriptor chain with Table 4.1's SP, TM and LVC gates (the default descriptor is
+# the fused SDR, issue 8; the default SP/TM are issue 17's)
 _CHAIN = dict(sv_descriptor_source="tm", interval_mode=True, sv_match_threshold=0.38, min_f1=0.55,
-              sv_seq_match_threshold=0.0)
+              sv_seq_match_threshold=0.0, sv_tm_decide=False, sp_columns=2048, sp_numActiveColumns=20,
+              sp_potentialRadius=600, sp_boostStrength=2.0, sp_overlap_norm_steps=0, tm_input_columns=0,
+              tm_cellsPerColumn=40, tm_activationThreshold=5, tm_maxNewSynapseCount=20)
 
 
 def TmConfig(**kw) -> HtmConfig:  # noqa: N802 - reads like the config class it builds

@@ -136,7 +136,7 @@ def test_replay_requests_go_from_a_key_s_consumers_to_its_publisher(policy):
     ins, outs = node_io("htm", config)
     for k in ins:
         assert may_put(policy, "htm", f"@replay/{k}")
-    assert not may_put(policy, "htm", "@replay/Odometry")           # not an input of htm
+    assert not may_put(policy, "htm", "@replay/camera/image_raw")   # not an input of htm
     assert may_read(policy, "encoder", "@replay/neocortex/sdr") and not may_read(policy, "htm", "@replay/neocortex/sdr")
     assert may_read(policy, "player", "@replay/camera/image_raw") and may_put(policy, "recorder", "@replay/map")
     assert may_put(policy, "expmap", "@ckpt/expmap") and not may_put(policy, "expmap", "@ckpt/htm")
