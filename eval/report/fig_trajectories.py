@@ -28,6 +28,18 @@ from eval.trajectory import Trajectory
 __all__ = ["fig_overlay_3d", "fig_projections", "fig_topology", "fig_deviation_time", "fig_deviation_xy"]
 
 
+def _map_points(r: RunView, max_points: int) -> np.ndarray:
+    """The map's nodes (decimated, creation order) as one line; a map of several sessions gets a
+    gap (NaN row) where one session ends and the next begins (two odometry frames, no move)."""
+    k = decimate(len(r.node_ids), max_points)
+    p = r.node_ned[k]
+    if len(r.node_session) != len(r.node_ids):
+        return p
+    s = r.node_session[k]
+    breaks = np.flatnonzero(s[1:] != s[:-1]) + 1
+    return np.insert(p, breaks, np.nan, axis=0) if len(breaks) else p
+
+
 def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-overlay-3d", "3D overlay: ground truth, dead reckoning and map (cf. Fig. 5.19)",
@@ -55,8 +67,7 @@ def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
         if len(r.node_ids) == 0:
             spec.notes.append(f"{r.label}: no map message")
             continue
-        k = decimate(len(r.node_ids), max_points)
-        x, y, z = enu_columns(r.node_ned[k])
+        x, y, z = enu_columns(_map_points(r, max_points))
         fig.add_trace(go.Scatter3d(x=x, y=y, z=z, mode="lines+markers", line=dict(color=run_color(i), width=3),
                                    marker=dict(size=2, color=run_color(i)), name=f"map: {r.label}"))
     # true proportions horizontally; the vertical axis at least a quarter of the largest extent, so a
@@ -96,13 +107,14 @@ def fig_projections(runs: list[RunView], max_points: int) -> FigureSpec:
                         horizontal_spacing=0.07)
     series: list[tuple[str, str, np.ndarray, str]] = []
     truths, drs = distinct_tracks(runs, "truth"), distinct_tracks(runs, "dead_reckoning")
-    series += [(track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.p, "lines") for i, t in truths]
-    series += [(track_name("dead reckoning", runs, i, len(drs)), DR_COLOR, t.p, "lines") for i, t in drs]
-    series += [(f"map: {r.label}", run_color(i), r.node_ned, "lines+markers") for i, r in enumerate(runs)
-               if len(r.node_ids)]
+    series += [(track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.p[decimate(len(t), max_points)],
+                "lines") for i, t in truths]
+    series += [(track_name("dead reckoning", runs, i, len(drs)), DR_COLOR, t.p[decimate(len(t), max_points)],
+                "lines") for i, t in drs]
+    series += [(f"map: {r.label}", run_color(i), _map_points(r, max_points), "lines+markers")
+               for i, r in enumerate(runs) if len(r.node_ids)]
     for name, color, ned, mode in series:
-        k = decimate(len(ned), max_points)
-        e, n, u = enu_columns(ned[k])
+        e, n, u = enu_columns(ned)
         for col, (a, b) in enumerate(((e, n), (e, u), (n, u)), start=1):
             fig.add_trace(go.Scatter(x=a, y=b, mode=mode, name=name, legendgroup=name, showlegend=col == 1,
                                      line=dict(color=color, width=2), marker=dict(size=3, color=color)),

@@ -343,3 +343,17 @@ def test_sessions_drawn_in_their_own_colours(runs: tuple[Path, Path], tmp_path: 
     assert int(np.isfinite(np.asarray(loops.x, dtype=float)).sum()) // 2 == 3
     names1 = [tr.name for tr in topology(r1).data]
     assert not any(n.startswith("session") for n in names1) and f"nodes: {r1.label}" in names1
+
+
+def test_map_line_breaks_between_sessions(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    """The overlay and projections draw a map of two sessions with a gap at the session break;
+    one session: no gap (as before)."""
+    two = tmp_path / "two_sessions.mcap"
+    write_handmade_run(two, second_session=True)
+    for path, gaps in ((two, 1), (runs[0], 0)):
+        r = load_run(path)
+        specs, _ = build_figures([r])
+        for fid in ("fig-overlay-3d", "fig-projections"):
+            fig = next(s for s in specs if s.id == fid).figure
+            tr = next(t for t in fig.data if t.name == f"map: {r.label}")
+            assert int(np.isnan(np.asarray(tr.x, dtype=float)).sum()) == gaps
