@@ -14,6 +14,12 @@ Frames and units:
   node (by id) coincides with the translated dead reckoning at that node's stamp (the map is
   built from odometry deltas).
 - Times are event times in ns; figures show seconds since the first message of the run.
+
+Sessions (issue 20): the run's last ``map_sessions`` (:attr:`eval.rundata.RunData.final_sessions`,
+published by a map of several sessions) gives the session of each node and the session links;
+:func:`session_groups` splits the nodes by session, each with its own colour
+(:data:`eval.report.style.SESSION_COLORS`).  A run without ``map_sessions`` is one session,
+drawn in the run's colour as before.
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ from common.messages import ExperienceImage
 from eval.rundata import RunData
 from eval.trajectory import Trajectory
 
-__all__ = ["RunView", "run_view", "run_label"]
+__all__ = ["RunView", "SessionGroup", "run_view", "run_label", "session_groups"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +72,10 @@ class RunView:
     #: ``truth/revisits``: stamp of each camera frame index and its earlier same-place frames
     revisit_stamps: np.ndarray
     revisit_same: list[np.ndarray]
+    #: session of each node (node order; zeros without ``map_sessions``) and the session links
+    #: (k x 2 node ids: older experience, newer experience)
+    node_session: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    session_links: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     #: a few ``experience_image`` frames as JPEG data URIs: (stamp, lvc id or -1, uri, size)
     images: list[tuple[int, int, str, str]] = field(default_factory=list)
 
@@ -165,6 +175,48 @@ def _map_arrays(run: RunData, dr: Trajectory, truth: Trajectory) -> tuple[np.nda
             np.asarray([ln.loop_closure for ln in m.links], dtype=bool))
 
 
+def _session_arrays(run: RunData, node_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Session per node (``node_ids`` order) and the session links (node ids) of the final map."""
+    none = np.zeros(len(node_ids), dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
+    ms = run.final_sessions
+    if ms is None or not len(node_ids):
+        return none
+    sess = np.asarray(ms.node_session, dtype=np.int64)
+    if node_ids.min() < 0 or node_ids.max() >= len(sess):
+        log.warning("%s: map_sessions names %d nodes, the final map has node ids up to %d: drawn as one session",
+                    run.path, len(sess), int(node_ids.max()))
+        return none
+    links = _i64([[lk.source, lk.target] for lk in ms.links]).reshape(-1, 2)
+    return sess[node_ids], links
+
+
+@dataclass
+class SessionGroup:
+    """The nodes of one session of a run's map (indices into ``RunView.node_ids``) and its colour."""
+
+    session: int
+    color: str
+    index: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return f"session {self.session}"
+
+
+def session_groups(view: RunView, run_index: int = 0) -> list[SessionGroup]:
+    """The map's nodes by session, oldest first, each in its own colour; a map of one session is
+    one group in the run's colour (:func:`eval.report.style.run_color`, as before sessions)."""
+    from eval.report.style import run_color, session_color
+    if not len(view.node_ids):
+        return []
+    sess = view.node_session if len(view.node_session) == len(view.node_ids) else \
+        np.zeros(len(view.node_ids), dtype=np.int64)
+    ids = np.unique(sess).tolist()
+    if len(ids) == 1:
+        return [SessionGroup(int(ids[0]), run_color(run_index), np.arange(len(sess)))]
+    return [SessionGroup(int(s), session_color(int(s)), np.flatnonzero(sess == s)) for s in ids]
+
+
 def _revisit_arrays(run: RunData) -> tuple[np.ndarray, list[np.ndarray]]:
     frames = sorted(run.revisits)
     if frames and frames != list(range(len(frames))):
@@ -212,5 +264,6 @@ def run_view(run: RunData, label: str | None = None, max_images: int = 12) -> Ru
         sdr_stamps=_i64([s.stamp for s in run.sdrs]), sdr_active=[s.active for s in run.sdrs],
         sdr_size=max([s.size for s in run.sdrs], default=0),
         revisit_stamps=revisit_stamps, revisit_same=revisit_same)
+    view.node_session, view.session_links = _session_arrays(run, node_ids)
     _thumbnails(view, max_images)
     return view

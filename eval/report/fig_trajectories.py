@@ -9,9 +9,10 @@ import numpy as np
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from eval.report.data import RunView
+from eval.report.data import RunView, SessionGroup, session_groups
 from eval.report.style import (
     DR_COLOR,
+    SESSION_LINK_COLOR,
     TRUTH_COLOR,
     FigureSpec,
     apply_layout,
@@ -25,6 +26,18 @@ from eval.report.style import (
 from eval.trajectory import Trajectory
 
 __all__ = ["fig_overlay_3d", "fig_projections", "fig_topology", "fig_deviation_time", "fig_deviation_xy"]
+
+
+def _map_points(r: RunView, max_points: int) -> np.ndarray:
+    """The map's nodes (decimated, creation order) as one line; a map of several sessions gets a
+    gap (NaN row) where one session ends and the next begins (two odometry frames, no move)."""
+    k = decimate(len(r.node_ids), max_points)
+    p = r.node_ned[k]
+    if len(r.node_session) != len(r.node_ids):
+        return p
+    s = r.node_session[k]
+    breaks = np.flatnonzero(s[1:] != s[:-1]) + 1
+    return np.insert(p, breaks, np.nan, axis=0) if len(breaks) else p
 
 
 def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
@@ -54,8 +67,7 @@ def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
         if len(r.node_ids) == 0:
             spec.notes.append(f"{r.label}: no map message")
             continue
-        k = decimate(len(r.node_ids), max_points)
-        x, y, z = enu_columns(r.node_ned[k])
+        x, y, z = enu_columns(_map_points(r, max_points))
         fig.add_trace(go.Scatter3d(x=x, y=y, z=z, mode="lines+markers", line=dict(color=run_color(i), width=3),
                                    marker=dict(size=2, color=run_color(i)), name=f"map: {r.label}"))
     # true proportions horizontally; the vertical axis at least a quarter of the largest extent, so a
@@ -95,13 +107,14 @@ def fig_projections(runs: list[RunView], max_points: int) -> FigureSpec:
                         horizontal_spacing=0.07)
     series: list[tuple[str, str, np.ndarray, str]] = []
     truths, drs = distinct_tracks(runs, "truth"), distinct_tracks(runs, "dead_reckoning")
-    series += [(track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.p, "lines") for i, t in truths]
-    series += [(track_name("dead reckoning", runs, i, len(drs)), DR_COLOR, t.p, "lines") for i, t in drs]
-    series += [(f"map: {r.label}", run_color(i), r.node_ned, "lines+markers") for i, r in enumerate(runs)
-               if len(r.node_ids)]
+    series += [(track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.p[decimate(len(t), max_points)],
+                "lines") for i, t in truths]
+    series += [(track_name("dead reckoning", runs, i, len(drs)), DR_COLOR, t.p[decimate(len(t), max_points)],
+                "lines") for i, t in drs]
+    series += [(f"map: {r.label}", run_color(i), _map_points(r, max_points), "lines+markers")
+               for i, r in enumerate(runs) if len(r.node_ids)]
     for name, color, ned, mode in series:
-        k = decimate(len(ned), max_points)
-        e, n, u = enu_columns(ned[k])
+        e, n, u = enu_columns(ned)
         for col, (a, b) in enumerate(((e, n), (e, u), (n, u)), start=1):
             fig.add_trace(go.Scatter(x=a, y=b, mode=mode, name=name, legendgroup=name, showlegend=col == 1,
                                      line=dict(color=color, width=2), marker=dict(size=3, color=color)),
@@ -125,6 +138,70 @@ def _segments(ned: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return xs, ys
 
 
+def _draw_one_session(fig: go.Figure, r: RunView, i: int, odo: np.ndarray, max_points: int, first: bool,
+                      row: int, col: int) -> None:
+    """Odometry links (grey) and nodes (the run's colour) of a map of one session."""
+    if len(odo) > max_points:
+        odo = odo[decimate(len(odo), max_points)]
+    if len(odo):
+        xs, ys = _segments(r.node_ned, odo)
+        fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", name="odometry link", legendgroup="odometry link",
+                                 showlegend=first, hoverinfo="skip", line=dict(color="#888888", width=1)),
+                      row=row, col=col)
+    k = decimate(len(r.node_ids), max_points)
+    e, n, _ = enu_columns(r.node_ned[k])
+    fig.add_trace(go.Scatter(x=e, y=n, mode="markers", name=f"nodes: {r.label}",
+                             marker=dict(size=4, color=run_color(i)),
+                             customdata=np.stack([r.node_ids[k], r.node_lvc[k]], axis=1),
+                             hovertemplate="node %{customdata[0]} (LVC %{customdata[1]})<extra></extra>"),
+                  row=row, col=col)
+
+
+def _draw_sessions(fig: go.Figure, r: RunView, groups: list[SessionGroup], pairs: np.ndarray, loop: np.ndarray,
+                   max_points: int, row: int, col: int, several_runs: bool) -> np.ndarray:
+    """Nodes and odometry links of each session in its colour, the session links (black dashed);
+    returns the loop-closure mask of ``pairs`` without the session links (drawn here)."""
+    sess = np.zeros(len(r.node_ids), dtype=np.int64)
+    for g in groups:
+        sess[g.index] = g.session
+    index = {int(nid): j for j, nid in enumerate(r.node_ids)}
+    wanted = {frozenset((index[a], index[b])) for a, b in r.session_links.tolist() if a in index and b in index}
+    is_link = np.array([frozenset(p) in wanted for p in pairs.tolist()], dtype=bool)
+    budget = max(1, max_points // len(groups))
+    for g in groups:
+        name = g.name if not several_runs else f"{g.name}: {r.label}"
+        odo = pairs[~loop & (sess[pairs[:, 0]] == g.session) & (sess[pairs[:, 1]] == g.session)] \
+            if len(pairs) else pairs
+        if len(odo) > budget:
+            odo = odo[decimate(len(odo), budget)]
+        if len(odo):
+            xs, ys = _segments(r.node_ned, odo)
+            fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", name=f"{name} odometry link", legendgroup=name,
+                                     showlegend=False, hoverinfo="skip", opacity=0.6,
+                                     line=dict(color=g.color, width=1)), row=row, col=col)
+        k = g.index[decimate(len(g.index), budget)]
+        e, n, _ = enu_columns(r.node_ned[k])
+        fig.add_trace(go.Scatter(x=e, y=n, mode="markers", name=name, legendgroup=name,
+                                 marker=dict(size=4, color=g.color),
+                                 customdata=np.stack([r.node_ids[k], r.node_lvc[k], sess[k]], axis=1),
+                                 hovertemplate="node %{customdata[0]} (LVC %{customdata[1]}, session "
+                                               "%{customdata[2]})<extra></extra>"),
+                      row=row, col=col)
+    sl = pairs[is_link] if len(pairs) else pairs
+    if len(sl):
+        xs, ys = _segments(r.node_ned, sl)
+        text = [f"session link node {r.node_ids[a]} (session {sess[a]}) - node {r.node_ids[b]} (session {sess[b]})"
+                for a, b in sl.tolist()]
+        fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", name="session link", legendgroup="session link",
+                                 hoverinfo="skip", line=dict(color=SESSION_LINK_COLOR, width=4, dash="dash")),
+                      row=row, col=col)
+        fig.add_trace(go.Scatter(x=(xs[0::3] + xs[1::3]) / 2, y=(ys[0::3] + ys[1::3]) / 2, mode="markers",
+                                 name="session link (hover)", legendgroup="session link", showlegend=False,
+                                 text=text, hovertemplate="%{text}<extra></extra>",
+                                 marker=dict(size=11, color=SESSION_LINK_COLOR, symbol="star")), row=row, col=col)
+    return np.asarray(loop & ~is_link, dtype=bool) if len(pairs) else loop
+
+
 def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
     spec = FigureSpec(
         "fig-topology", "Final topology of each run (cf. Fig. 5.21)",
@@ -132,7 +209,11 @@ def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
         "two runs are given): nodes (dots), odometry links (grey) and loop-closure links (thick red; hover one "
         "for the true distance between the two places it joins: a loop closure between places more than 5 m "
         "apart is false, Tables 5.2-5.3). Ground truth (green) and dead reckoning (orange) are drawn faintly "
-        "for reference. A denser trace means more experiences (events) were created.")
+        "for reference. A denser trace means more experiences (events) were created. A map of several sessions "
+        "(missions continued with poseidon run --map-dir, issue 20) draws each session's nodes and odometry links "
+        "in its own colour (legend: session 0, session 1, ...; the chain edge between two sessions joins two "
+        "odometry frames and is not drawn) and its sonar-verified session links as thick black dashed lines "
+        "(hover one for the link).")
     mapped = [(i, r) for i, r in enumerate(runs) if len(r.node_ids)]
     for r in runs:
         if not len(r.node_ids):
@@ -143,8 +224,10 @@ def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
     rows = (len(mapped) + cols - 1) // cols
     titles = []
     for _, r in mapped:
+        n_sess = len(session_groups(r))
         titles.append(f"{r.label}: {len(r.node_ids)} nodes, {len(r.links)} links, "
-                      f"{int(r.link_loop.sum())} loop closures")
+                      f"{int(r.link_loop.sum())} loop closures"
+                      + (f", {n_sess} sessions, {len(r.session_links)} session links" if n_sess > 1 else ""))
     fig = make_subplots(rows=rows, cols=cols, subplot_titles=titles, horizontal_spacing=0.06, vertical_spacing=0.12)
     for slot, (i, r) in enumerate(mapped):
         row, col = slot // cols + 1, slot % cols + 1
@@ -161,21 +244,11 @@ def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
             spec.notes.append(f"{r.label}: {int((~known).sum())} links name nodes absent from the map, not drawn")
         pairs = np.array([[index[a], index[b]] for a, b in r.links[known].tolist()], dtype=np.int64).reshape(-1, 2)
         loop = r.link_loop[known]
-        odo = pairs[~loop]
-        if len(odo) > max_points:
-            odo = odo[decimate(len(odo), max_points)]
-        if len(odo):
-            xs, ys = _segments(r.node_ned, odo)
-            fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", name="odometry link", legendgroup="odometry link",
-                                     showlegend=first, hoverinfo="skip", line=dict(color="#888888", width=1)),
-                          row=row, col=col)
-        k = decimate(len(r.node_ids), max_points)
-        e, n, _ = enu_columns(r.node_ned[k])
-        fig.add_trace(go.Scatter(x=e, y=n, mode="markers", name=f"nodes: {r.label}",
-                                 marker=dict(size=4, color=run_color(i)),
-                                 customdata=np.stack([r.node_ids[k], r.node_lvc[k]], axis=1),
-                                 hovertemplate="node %{customdata[0]} (LVC %{customdata[1]})<extra></extra>"),
-                      row=row, col=col)
+        groups = session_groups(r, i)
+        if len(groups) > 1:
+            loop = _draw_sessions(fig, r, groups, pairs, loop, max_points, row, col, len(mapped) > 1)
+        else:
+            _draw_one_session(fig, r, i, pairs[~loop], max_points, first, row, col)
         lc = pairs[loop]
         if len(lc):
             xs, ys = _segments(r.node_ned, lc)

@@ -15,7 +15,8 @@ import plotly.graph_objects as go
 from eval.report.data import RunView
 from eval.trajectory import Trajectory
 
-__all__ = ["FigureSpec", "FIGURE_IDS", "TRUTH_COLOR", "DR_COLOR", "RUN_COLORS", "FONT", "run_color", "decimate",
+__all__ = ["FigureSpec", "FIGURE_IDS", "TRUTH_COLOR", "DR_COLOR", "RUN_COLORS", "SESSION_COLORS", "SESSION_LINK_COLOR",
+           "FONT", "run_color", "session_color", "decimate",
            "enu_columns", "distinct_tracks", "track_name", "apply_layout", "no_trajectories"]
 
 
@@ -26,6 +27,10 @@ FIGURE_IDS = ["fig-overlay-3d", "fig-projections", "fig-topology", "fig-deviatio
 TRUTH_COLOR = "#2ca02c"
 DR_COLOR = "#ff7f0e"
 RUN_COLORS = ["#1f77b4", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
+#: map sessions (issue 20), session 0 first: none is the truth's green, the dead reckoning's orange
+#: or the loop closures' red
+SESSION_COLORS = ["#1f77b4", "#9467bd", "#17becf", "#8c564b", "#e377c2", "#bcbd22", "#7f7f7f"]
+SESSION_LINK_COLOR = "#000000"
 FONT = dict(family="Helvetica, Arial, sans-serif", size=13)
 
 
@@ -43,6 +48,10 @@ class FigureSpec:
 
 def run_color(i: int) -> str:
     return RUN_COLORS[i % len(RUN_COLORS)]
+
+
+def session_color(s: int) -> str:
+    return SESSION_COLORS[s % len(SESSION_COLORS)]
 
 
 def decimate(n: int, max_points: int) -> np.ndarray:

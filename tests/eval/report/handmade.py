@@ -27,10 +27,12 @@ from common.messages import (
     Header,
     LocalViewCell,
     LocalViewCells,
+    MapSessions,
     NeocortexSdr,
     Odometry,
     RevisitTruth,
     Sdr,
+    SessionLinkInfo,
 )
 from launcher.config import PoseidonConfig
 
@@ -120,8 +122,10 @@ def _frames(out: Out, hdr: _Headers, duration: float, rng: np.random.Generator) 
 
 
 def _events(out: Out, hdr: _Headers, duration: float, guard_on: bool, event_every_m: float,
-            false_closure: bool) -> None:
-    """Events, evidence images and the growing map (loop closures a lap apart)."""
+            false_closure: bool, second_session: bool = False) -> None:
+    """Events, evidence images and the growing map (loop closures a lap apart).  ``second_session``:
+    the second lap is session 1 (a ``map_sessions`` with every map from then on), linked to session
+    0 by its first loop closure."""
     t_ev = np.arange(event_every_m / 2, duration, event_every_m)
     truth_ev = square_ned(t_ev)
     dr_ev = dead_reckoning_ned(t_ev, truth_ev)
@@ -154,10 +158,18 @@ def _events(out: Out, hdr: _Headers, duration: float, guard_on: bool, event_ever
         if i % 10 == 9 or i == len(t_ev) - 1:
             out.append((st, "map", ExperienceMap(header=hdr("map", st), nodes=list(nodes), links=list(links),
                                                  current=i)))
+            if second_session and i >= per_lap:
+                link = SessionLinkInfo(session=1, to_session=0, source=0, target=per_lap, stamp=nodes[per_lap].stamp,
+                                       delta=[0.0, 0.0, 0.0], shift=[0.0, 0.0, 0.0], rotation_deg=0.0,
+                                       inlier_fraction=0.9)
+                out.append((st, "map_sessions", MapSessions(
+                    header=hdr("map_sessions", st), node_session=[int(k >= per_lap) for k in range(i + 1)],
+                    loaded_nodes=0, links=[link])))
 
 
 def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float = 2.0, false_closure: bool = False,
-                       seed: int = 0, revision: str = "0123456789abcdef-test") -> dict[str, int]:
+                       seed: int = 0, revision: str = "0123456789abcdef-test",
+                       second_session: bool = False) -> dict[str, int]:
     """Write the run; returns message counts per key."""
     rng = np.random.default_rng(seed)
     hdr = _Headers()
@@ -165,7 +177,7 @@ def write_handmade_run(path: Path, guard_on: bool = True, event_every_m: float =
     duration = LAPS * 4 * SIDE_M  # s at 1 m/s
     _poses(out, hdr, duration)
     _frames(out, hdr, duration, rng)
-    _events(out, hdr, duration, guard_on, event_every_m, false_closure)
+    _events(out, hdr, duration, guard_on, event_every_m, false_closure, second_session)
     out.sort(key=lambda x: x[0])
     config = PoseidonConfig().model_dump(mode="json")
     config["vpr_guard"]["require_vpr_for_event"] = guard_on

@@ -310,3 +310,50 @@ def test_view_cells_separate_revisits_from_the_same_pass(runs: tuple[Path, Path]
     counts = {tr.name: len(tr.x) for tr in vc.data}
     assert counts == {"matched a cell of the same pass": lap - PLACES, "new view cell": PLACES,
                       "recognised a cell from >= 10 m of travel earlier": lap, "map loop closure": 4}
+
+
+def test_sessions_drawn_in_their_own_colours(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    """A map of two sessions (map_sessions, issue 20): two session groups, distinct colours, the
+    session link marked; a run of one session: one group in the run's colour, drawn as before."""
+    from eval.report.data import session_groups
+    from eval.report.style import SESSION_COLORS, run_color
+    two = tmp_path / "two_sessions.mcap"
+    write_handmade_run(two, second_session=True)
+    r2, r1 = load_run(two), load_run(runs[0])
+    g2, g1 = session_groups(r2), session_groups(r1)
+    assert [g.session for g in g2] == [0, 1] and g2[0].color != g2[1].color
+    assert [g.color for g in g2] == SESSION_COLORS[:2]
+    per_lap = len(r2.node_ids) // 2
+    assert g2[0].index.tolist() == list(range(per_lap)) and len(g2[1].index) == len(r2.node_ids) - per_lap
+    assert r2.session_links.tolist() == [[0, per_lap]]
+    assert len(g1) == 1 and g1[0].color == run_color(0) and len(g1[0].index) == len(r1.node_ids)
+    assert (r1.node_session == 0).all() and len(r1.session_links) == 0
+
+    def topology(r: RunView) -> Any:
+        specs, _ = build_figures([r])
+        return next(s for s in specs if s.id == "fig-topology").figure
+    names2 = [tr.name for tr in topology(r2).data if tr.showlegend is not False]
+    assert "session 0" in names2 and "session 1" in names2 and "session link" in names2
+    colours = {tr.name: tr.marker.color for tr in topology(r2).data if tr.name in ("session 0", "session 1")}
+    assert colours == {"session 0": SESSION_COLORS[0], "session 1": SESSION_COLORS[1]}
+    link = next(tr for tr in topology(r2).data if tr.name == "session link")
+    assert int(np.isfinite(np.asarray(link.x, dtype=float)).sum()) // 2 == 1
+    # the link is not counted again as a red loop closure; the other 3 closures are
+    loops = next(tr for tr in topology(r2).data if tr.name == "loop-closure link")
+    assert int(np.isfinite(np.asarray(loops.x, dtype=float)).sum()) // 2 == 3
+    names1 = [tr.name for tr in topology(r1).data]
+    assert not any(n.startswith("session") for n in names1) and f"nodes: {r1.label}" in names1
+
+
+def test_map_line_breaks_between_sessions(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    """The overlay and projections draw a map of two sessions with a gap at the session break;
+    one session: no gap (as before)."""
+    two = tmp_path / "two_sessions.mcap"
+    write_handmade_run(two, second_session=True)
+    for path, gaps in ((two, 1), (runs[0], 0)):
+        r = load_run(path)
+        specs, _ = build_figures([r])
+        for fid in ("fig-overlay-3d", "fig-projections"):
+            fig = next(s for s in specs if s.id == fid).figure
+            tr = next(t for t in fig.data if t.name == f"map: {r.label}")
+            assert int(np.isnan(np.asarray(tr.x, dtype=float)).sum()) == gaps
