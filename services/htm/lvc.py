@@ -11,9 +11,12 @@ The arg max is exact integer arithmetic: with a common |D_t|, a larger R is a la
 for equal I a larger IoU is a smaller |D_l|. The gates compare the float64 ratios R and F1
 with the thresholds, so R = 0.30 exactly passes tau_R = 0.30.
 
-Only prototypes sharing a bit with D_t can have I > 0, so the search walks an inverted
-index bit -> prototype ids (chains of 64-entry blocks): the cost is the sum of the
-posting lengths of the query's bits, not #LVCs x L.
+Two exact searches, the same l*: a sparse descriptor space (the TM's cells: L = 2048 x 40)
+walks an inverted index bit -> prototype ids (chains of 64-entry blocks), whose cost is the sum
+of the posting lengths of the query's bits; a space of at most ``PACKED_MAX_BITS`` bits (the
+fused SDR, the SP's columns) keeps every prototype bit-packed and counts I by popcount over
+L / 64 words per prototype.  The fused SDR has ~900 of 2048 bits on, so a query's postings
+sum to ~0.4 x #LVCs x 900: at 1000 LVCs the popcount is ~15x cheaper (issue 17's 1 ms budget).
 """
 from __future__ import annotations
 
@@ -24,12 +27,16 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from services.htm._bits import pack_bits, popcount64
+
 __all__ = ["LvcMatcher", "LvcResult", "overlap_scores"]
 
 PB = 64  # postings per block
+PACKED_MAX_BITS = 8192  # descriptor spaces up to this many bits are matched bit-packed
 
 I32 = NDArray[np.int32]
 I64 = NDArray[np.int64]
+U64 = NDArray[np.uint64]
 
 
 @dataclass(frozen=True)
@@ -127,6 +134,24 @@ def _select(touched: I32, nt: int, counts: I32, proto_len: I32, iou_tiebreak: bo
 
 
 @njit(cache=True)
+def _best_packed(q: U64, packed: U64, proto_len: I32, n: int, iou_tiebreak: bool) -> tuple[int, int]:
+    """Best prototype by (I desc, |D_l| asc when IoU tie-break, id asc) among those with I > 0."""
+    best = -1
+    best_i = 0
+    w = q.shape[0]
+    for pid in range(n):
+        i = 0
+        for k in range(w):
+            i += popcount64(q[k] & packed[pid, k])
+        if i == 0:
+            continue
+        if best == -1 or i > best_i or (i == best_i and iou_tiebreak and proto_len[pid] < proto_len[best]):
+            best = pid
+            best_i = i
+    return best, best_i
+
+
+@njit(cache=True)
 def _insert(bits: I32, pid: int, head: I32, tail: I32, count: I32, pst: I32, nxt: I32, top: int) -> int:
     for q in range(bits.shape[0]):
         bit = bits[q]
@@ -146,10 +171,17 @@ def _insert(bits: I32, pid: int, head: I32, tail: I32, count: I32, pst: I32, nxt
 
 
 class LvcMatcher:
-    """Eqs. 4.6-4.10 over an inverted index; ids are dense from 0."""
+    """Eqs. 4.6-4.10 over an inverted index or bit-packed prototypes (module doc); ids are dense from 0.
+
+    ``search``: ``auto`` (packed up to ``PACKED_MAX_BITS`` bits), ``inverted`` or ``packed``.
+    """
 
     def __init__(self, n_bits: int, min_intersection: int, tau_r: float, f1_gate: bool,
-                 min_f1: float, iou_tiebreak: bool):
+                 min_f1: float, iou_tiebreak: bool, search: str = "auto"):
+        if search not in ("auto", "inverted", "packed"):
+            raise ValueError(f"LVC search must be auto, inverted or packed, got {search!r}")
+        self.packed = search == "packed" or (search == "auto" and n_bits <= PACKED_MAX_BITS)
+        self.words = (int(n_bits) + 63) // 64
         self.n_bits = int(n_bits)
         self.min_intersection = int(min_intersection)
         self.tau_r = float(tau_r)
@@ -171,6 +203,7 @@ class LvcMatcher:
         self._touched = np.zeros(1024, np.int32)
         self._bits = np.zeros(4096, np.int32)      # prototypes, concatenated
         self._start = np.zeros(1025, np.int64)      # prototype l = _bits[_start[l]:_start[l+1]]
+        self._packed = np.zeros((1024 if self.packed else 0, self.words), np.uint64)
         self.size = 0
 
     def __len__(self) -> int:
@@ -185,6 +218,10 @@ class LvcMatcher:
             raise IndexError(f"LVC {lvc_id} does not exist ({self.size} stored)")
         return self._bits[self._start[lvc_id]:self._start[lvc_id + 1]].copy()
 
+    def _pack(self, d: np.ndarray) -> np.ndarray:
+        """Sorted bit indices -> uint64 words."""
+        return pack_bits(d.astype(np.int64), self.words)
+
     def _check(self, d: np.ndarray) -> np.ndarray:
         d = np.ascontiguousarray(d, dtype=np.int32)
         if d.ndim != 1 or (d.size and (d[0] < 0 or d[-1] >= self.n_bits or np.any(np.diff(d) <= 0))):
@@ -194,6 +231,9 @@ class LvcMatcher:
     def best(self, d: np.ndarray) -> tuple[int, int]:
         """(l*, I) of Eq. 4.8 with the tie-breaks, or (-1, 0) when no prototype shares a bit."""
         d = self._check(d)
+        if self.packed:
+            best, best_i = _best_packed(self._pack(d), self._packed, self._proto_len, self.size, self.iou_tiebreak)
+            return int(best), int(best_i)
         nt = _query(d, self._head, self._count, self._pst, self._nxt, self._counts, self._touched)
         best, best_i = _select(self._touched, nt, self._counts, self._proto_len, self.iou_tiebreak)
         return int(best), int(best_i)
@@ -226,7 +266,10 @@ class LvcMatcher:
         d = self._check(d)
         pid = self.size
         self._reserve(pid + 1, d.size)
-        self._top = _insert(d, pid, self._head, self._tail, self._count, self._pst, self._nxt, self._top)
+        if self.packed:
+            self._packed[pid] = self._pack(d)
+        else:
+            self._top = _insert(d, pid, self._head, self._tail, self._count, self._pst, self._nxt, self._top)
         self._proto_len[pid] = d.size
         s = self._start[pid]
         self._bits[s:s + d.size] = d
@@ -245,11 +288,17 @@ class LvcMatcher:
             start = np.zeros(new + 1, np.int64)
             start[:cap + 1] = self._start
             self._start = start
+            if self.packed:
+                packed = np.zeros((new, self.words), np.uint64)
+                packed[:cap] = self._packed
+                self._packed = packed
         need = int(self._start[n_protos - 1]) + n_bits
         if need > self._bits.shape[0]:
             arr = np.zeros(max(2 * self._bits.shape[0], need), np.int32)
             arr[:self._bits.shape[0]] = self._bits
             self._bits = arr
+        if self.packed:
+            return
         bneed = self._top + n_bits
         bcap = self._nxt.shape[0]
         if bneed > bcap:

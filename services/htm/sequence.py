@@ -38,7 +38,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from services.htm._bits import popcount64
+from services.htm._bits import pack_bits, popcount64
 
 __all__ = ["SequenceMatcher", "SequenceScore"]
 
@@ -57,15 +57,6 @@ def _f1_row(q: U64, q_size: int | np.int64, mem: U64, sizes: I64, n: int, out: F
             c += popcount64(q[k] & mem[j, k])
         den = q_size + sizes[j]
         out[j] = 2.0 * c / den if den > 0 else 0.0
-
-
-@njit(cache=True)
-def _pack(d: I64, words: int) -> U64:
-    """Sorted bit indices -> little-endian uint64 words (bit i in word i // 64, position i % 64)."""
-    out = np.zeros(words, np.uint64)
-    for b in d:
-        out[b >> 6] |= np.uint64(1) << np.uint64(b & 63)
-    return out
 
 
 @njit(cache=True)
@@ -254,7 +245,7 @@ class SequenceMatcher:
         d = np.ascontiguousarray(d, np.int64)
         if d.size and (d.min() < 0 or d.max() >= self.n_bits):
             raise ValueError(f"descriptor bit out of range [0, {self.n_bits})")
-        return _pack(d, self.words)
+        return pack_bits(d, self.words)
 
     def candidates(self) -> int:
         """Number of candidate frames (a prefix of the memory): all but the last ``exclude``

@@ -38,31 +38,29 @@ __all__ = ["SpatialPooler"]
 
 @njit(cache=True)
 def _top_k(scores: np.ndarray, k: int, out: np.ndarray) -> int:
-    """Indices of the k largest scores, ties to the lowest index; returned sorted by index."""
+    """Indices of the k largest scores, ties to the lowest index; returned sorted by index.
+
+    O(n): the k-th largest value v by partition, then one pass taking every score above v and
+    the lowest-index scores equal to v until k are taken."""
     n = scores.shape[0]
     if k > n:
         k = n
-    topv = np.empty(k, np.float64)
-    topi = np.empty(k, np.int32)
+    if k <= 0:
+        return 0
+    v = np.partition(scores, n - k)[n - k]
+    need = k
+    for c in range(n):
+        if scores[c] > v:
+            need -= 1
     m = 0
     for c in range(n):
         s = scores[c]
-        if m < k:
-            j = m
+        if s > v or (s == v and need > 0):
+            if s == v:
+                need -= 1
+            out[m] = c
             m += 1
-        elif s > topv[k - 1]:
-            j = k - 1
-        else:
-            continue
-        # shift down while the previous is strictly smaller (equal keeps the lower index first)
-        while j > 0 and topv[j - 1] < s:
-            topv[j] = topv[j - 1]
-            topi[j] = topi[j - 1]
-            j -= 1
-        topv[j] = s
-        topi[j] = c
-    out[:k] = np.sort(topi)
-    return k
+    return m
 
 
 @njit(cache=True)

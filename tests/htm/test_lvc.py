@@ -146,3 +146,29 @@ def test_state_roundtrip_and_validation():
         m.match(np.array([3, 1], np.int32))
     with pytest.raises(IndexError):
         m.prototype(10_000)
+
+
+@pytest.mark.parametrize("bits,n_bits", [(900, 2048), (40, 2048), (300, 8192)])
+def test_packed_and_inverted_searches_choose_the_same_lvc(bits, n_bits):
+    """The bit-packed search (dense spaces) and the inverted index give the same l*, I and ids,
+    ties included (prototypes of equal I and of equal size), through the stores' growth."""
+    rng = np.random.default_rng(bits)
+    kw = dict(min_intersection=12, tau_r=0.6, f1_gate=True, min_f1=0.6, iou_tiebreak=True)
+    packed = LvcMatcher(n_bits, search="packed", **kw)
+    inverted = LvcMatcher(n_bits, search="inverted", **kw)
+    assert packed.packed and not inverted.packed
+    assert LvcMatcher(n_bits, **kw).packed == (n_bits <= 8192)
+    places = [np.sort(rng.choice(n_bits, bits, replace=False)) for _ in range(40)]
+    for t in range(2600):
+        base = places[rng.integers(len(places))]
+        keep = rng.random(base.size) > rng.uniform(0.0, 0.9)
+        d = np.unique(np.concatenate([base[keep], rng.choice(n_bits, int((~keep).sum()), replace=False)]))
+        if t % 5 == 0:
+            d = d[: max(1, d.size - int(rng.integers(0, 3)))]   # sizes that differ: the IoU tie-break
+        assert packed.best(d) == inverted.best(d), t
+        a, b = packed.match(d), inverted.match(d)
+        assert (a.lvc_id, a.is_new, a.intersection) == (b.lvc_id, b.is_new, b.intersection), t
+    assert len(packed) == len(inverted) > 1024    # the stores grew past their first capacity
+    assert packed.best(np.array([], np.int32)) == inverted.best(np.array([], np.int32)) == (-1, 0)
+    with pytest.raises(ValueError, match="auto, inverted or packed"):
+        LvcMatcher(n_bits, search="dense", **kw)

@@ -127,3 +127,17 @@ def test_columns_starved_of_overlap_get_their_permanences_raised():
     fresh.perm = sp.perm.copy()
     fresh._rebuild_conn()
     assert np.array_equal(fresh.conn, sp.conn)
+
+
+def test_top_k_takes_the_largest_scores_ties_to_the_lowest_index():
+    import numpy as np
+
+    from services.htm.spatial_pooler import _top_k
+    rng = np.random.default_rng(3)
+    for n, k in ((4096, 800), (2048, 20), (100, 100), (50, 7)):
+        for levels in (5, 1000):     # few distinct values: many ties at the k-th
+            scores = rng.integers(0, levels, n).astype(np.float64)
+            out = np.zeros(n, np.int32)
+            m = _top_k(scores, k, out)
+            expected = np.sort(np.lexsort((np.arange(n), -scores))[:k])
+            assert m == k and np.array_equal(out[:m], expected)
