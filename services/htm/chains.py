@@ -2,7 +2,7 @@
 
 The default (``htm`` section as shipped): the fused SDR is the descriptor of the Eq. 4.9 gates
 (0.72) and the sequence memory; a spatial pooler (4096 columns, 800 active, potential pool over
-the whole input, inhibition on standardised overlaps, no boosting) feeds its 40 most strongly
+the whole input, inhibition on standardised overlaps, no boosting) feeds its 20 most strongly
 driven columns to a temporal memory whose correct predictions decide a revisit
 (:mod:`services.htm.tm_match`, share >= ``sv_tm_share``), before the sequence memory; every
 revisit claim must pass the dead-reckoning gate (:mod:`services.htm.geometry`), which lets the

@@ -86,7 +86,7 @@ class HtmConfig(ConfigSection):
     sp_overlap_norm_steps: int = Field(1000, ge=0, description="> 0: global inhibition ranks each column's overlap "
                                        "standardised by its own mean and deviation over the first N learning steps "
                                        "(then frozen), in place of BAMI boosting and permanence learning (0: BAMI)")
-    tm_input_columns: int = Field(40, ge=0, description="the TM sees the N most strongly driven of the SP's active "
+    tm_input_columns: int = Field(20, ge=0, description="the TM sees the N most strongly driven of the SP's active "
                                   "columns (boosted overlap, ties to the lower index; 0: all): its cost grows with "
                                   "the square of its active columns")
     sv_tm_share: float = Field(0.15, ge=0, le=1, description="share of a frame's active columns the TM must have "

@@ -68,10 +68,19 @@ class DescriptorBuilder:
 
     def update(self, source: np.ndarray) -> np.ndarray:
         """Push this step's source bits; returns D_t (sorted int64 bit indices)."""
-        src = np.unique(np.asarray(source, dtype=np.int64))
+        src = np.asarray(source, dtype=np.int64)
+        if src.size > 1 and not bool(np.all(src[1:] > src[:-1])):    # sorted unique already: as is
+            src = np.unique(src)
         if src.size and (src[0] < 0 or src[-1] >= self.n_bits):
             raise ValueError(f"descriptor source bit out of range [0, {self.n_bits})")
         self._hist.append(src)
+        if self.mode != "tm" and not self.interval_mode and not self.cap:
+            # window 1, no interval union, no cap: D_t is the source itself (what the general
+            # path below computes, without its three unique() passes)
+            self._runs.clear()
+            self._runs.append(src)
+            self.run_length = 1
+            return src
         pooled = np.concatenate(list(self._hist))
         bits, counts = np.unique(pooled, return_counts=True)
         if self.mode == "tm":

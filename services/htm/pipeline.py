@@ -62,16 +62,9 @@ with it.  The calibration sample restarts with ``reset_sequence()`` and is saved
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
 continues exactly as the saved one would have, but for the dead-reckoning gate's stored
 positions, which a loaded map forgets (they are in the earlier run's odometry frame).
-Dead-reckoning gate (``sv_dr_gate``, ours, issue 17; :mod:`services.htm.geometry`): with the
-frame's dead-reckoned position passed to ``step``, every claim of a revisit must be a plausible
-earlier visit by Eq. G.1: the frame where the sequence memory's best diagonal ends (or the TM's
-frame) must be one, and an l* (Eq. 4.9) or prior id only counts if one of its frames is; a
-sequence match the gate checked (both frames have positions) needs only
-``sv_dr_gate_seqmem_threshold`` / ``sv_dr_gate_seqmem_margin`` (1.0 / 0.75, against 1.5 / 1.75
-on appearance alone), because the far-off look-alikes the higher margin guarded against are
-gone.  The best diagonal is still chosen over every stored frame, so a far-off look-alike keeps
-the margin low (a veto, not a selector: selecting among plausible frames only made the margin
-test meaningless and cost precision, 0.963 -> 0.92 on seed 77).
+Dead-reckoning gate (``sv_dr_gate``, ours, issue 17): every revisit claim (l*, TM, sequence,
+prior) must pass Eq. G.1 with the frame's position passed to ``step``; a sequence match it
+checked decides at ``sv_dr_gate_seqmem_*``. How and why: :mod:`services.htm.geometry`.
 """
 from __future__ import annotations
 
@@ -150,6 +143,7 @@ class NeocortexHtm:
                                          cfg.sv_dr_gate_min_path_m) \
             if cfg.sv_dr_gate and self.seqmem is not None else None
         self.dr_rejections = 0               # claims the dead-reckoning gate turned down (gate / TM / prior)
+        self.id_last_frame: dict[int, int] = {}   # LVC id -> its latest frame in the sequence memory
         self.frame_ids: list[int] = []       # LVC id of every frame stored in the TM frame index
         self.tm_traversal_start = 0
         self.last_tm_hits = np.zeros(0, np.int64)
@@ -286,7 +280,7 @@ class NeocortexHtm:
             if self.seqmem is not None:
                 if res.is_new:
                     self.lvc_birth.append(self.seqmem.size)
-                self.seqmem.add(d, res.lvc_id)
+                self.id_last_frame[res.lvc_id] = self.seqmem.add(d, res.lvc_id)
                 if self.dr_gate is not None:
                     self.dr_gate.add()
             if self.tm_index is not None:
@@ -339,14 +333,19 @@ class NeocortexHtm:
         return LvcResult(-1, 0.0, False, 0, best, rate, i, n, **extra)
 
     def _plausible_id(self, lvc_id: int, revisit: bool = True) -> bool:
-        """Eq. G.1 for LVC ``lvc_id``: one of the stored frames that carry it is a plausible earlier
-        visit (``revisit`` False: the distance test only); always True without the dead-reckoning
-        gate or a known position."""
+        """Eq. G.1 for LVC ``lvc_id``: one of its stored frames passes (``revisit`` False: the distance
+        only); True without the gate or a known position."""
         if self.dr_gate is None or self.dr_gate.current is None:
+            return True
+        last = self.id_last_frame.get(lvc_id)
+        if last is None:
+            return True                  # no stored frame carries it
+        # the id's latest frame first (the id carried on from the last frames: nearly always it)
+        if self.dr_gate.plausible(last, revisit):
             return True
         mem = self._need_seqmem()
         frames = np.flatnonzero(mem.ids[:mem.size] == lvc_id)
-        ok = frames.size == 0 or self.dr_gate.any_plausible(frames, revisit)
+        ok = self.dr_gate.any_plausible(frames, revisit)
         self.dr_rejections += not ok
         return ok
 
@@ -354,7 +353,7 @@ class NeocortexHtm:
         """Eq. G.1 for one stored frame (always True without the gate or a known position)."""
         if self.dr_gate is None or self.dr_gate.current is None:
             return True
-        ok = self.dr_gate.any_plausible(np.array([frame], np.int64))
+        ok = self.dr_gate.plausible(frame)
         self.dr_rejections += not ok
         return ok
 
@@ -485,12 +484,14 @@ class NeocortexHtm:
         if self.dr_gate is not None:    # a state file is a map of an earlier run: another odometry frame
             self.dr_gate.forget_positions()
         self.lvc_birth = []
+        self.id_last_frame = {}
         if self.seqmem is not None:     # the creating frame of each id: its first frame in the memory
             seen: set[int] = set()
             for j, lid in enumerate(self.seqmem.ids[:self.seqmem.size].tolist()):
                 if lid >= 0 and lid not in seen:
                     seen.add(lid)
                     self.lvc_birth.append(j)
+                self.id_last_frame[lid] = j
         self.successors = {}
         for a, b in data.get("seq.pairs", np.zeros((0, 2), np.int64)).tolist():
             self.successors.setdefault(int(a), set()).add(int(b))
