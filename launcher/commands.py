@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from common.resume import Supervision
     from launcher.config import PoseidonConfig
+    from launcher.run import RunFailed
     from launcher.services import WorkerSpec
 
 __all__ = ["cmd_run", "cmd_demo", "cmd_info", "cmd_service", "cmd_bridge", "cmd_hub", "print_run", "EXIT_ABORTED"]
@@ -95,17 +96,27 @@ def _run_live(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         config = _load_config(args)
-        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        services = _services_arg(args)
         result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop)
     except (ConfigError, ValueError, KeyError, TimeoutError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
-        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
-              file=sys.stderr)
-        return 3
+        return _report_run_failed(args, exc)
     print_run(result.as_dict(), args.json, config)
     return 0
+
+
+def _services_arg(args: argparse.Namespace) -> list[str] | None:
+    """``--services a,b`` as a list (``none`` or empty: no services); None when not given (all)."""
+    return [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+
+
+def _report_run_failed(args: argparse.Namespace, exc: RunFailed) -> int:
+    """Exit 3 naming the failed service and where the partial recording is."""
+    print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
+          file=sys.stderr)
+    return 3
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -127,7 +138,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.map_dir:
             from launcher.run import use_map_dir
             use_map_dir(config, args.map_dir)
-        services = [s for s in args.services.split(",") if s and s != "none"] if args.services is not None else None
+        services = _services_arg(args)
         runner = run_embedded if args.embedded else run_distributed
         result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
                         progress=not args.json)
@@ -135,9 +146,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
-        print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
-              file=sys.stderr)
-        return 3
+        return _report_run_failed(args, exc)
     print_run(result.as_dict(), args.json, config)
     return 0
 

@@ -8,20 +8,11 @@ import pytest
 from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 from services.htm.sequence import SequenceMatcher
+from tests.htm.sdr_places import L
+from tests.htm.sdr_places import other_appearance as _other_appearance
+from tests.htm.sdr_places import place as _place
 
-L = 2048
 K = 8
-
-
-def _place(rng: np.random.Generator, bits: int = 300) -> np.ndarray:
-    return np.sort(rng.choice(L, bits, replace=False)).astype(np.int64)
-
-
-def _other_appearance(place: np.ndarray, keep: float, rng: np.random.Generator) -> np.ndarray:
-    """The same place seen differently: only ``keep`` of its bits, the rest random elsewhere."""
-    kept = rng.choice(place, int(round(place.size * keep)), replace=False)
-    others = rng.choice(np.setdiff1d(np.arange(L), place), place.size - kept.size, replace=False)
-    return np.sort(np.concatenate([kept, others])).astype(np.int64)
 
 
 def _route(seed: int = 3, n: int = 40):
