@@ -220,13 +220,14 @@ class _Signals:
     """SIGTERM/SIGINT for a service process: the first stops what is registered (:meth:`on_stop`;
     the worker ends its streams and leaves); a second one exits at once, exit code
     ``EXIT_ABORTED``, after flushing stdout/stderr (a process stuck on an unreachable hub does
-    not need SIGKILL)."""
+    not need SIGKILL); a repeat within ``DUPLICATE_S`` of the first is ignored."""
 
     def __init__(self, what: str):
         import threading
         self.what = what
         self.stopped = threading.Event()
         self.signum = 0
+        self._first_at = 0.0
         self._callbacks: list[Any] = []
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
@@ -236,7 +237,16 @@ class _Signals:
         if self.stopped.is_set():
             callback()
 
+    #: a repeat within this many seconds of the first signal is the same event delivered twice:
+    #: the kernel sends the parent-death signal (launcher/run.py) again each time the orphan is
+    #: re-parented, so a launcher killed by SIGKILL can deliver two SIGTERMs at once, and the
+    #: recorder must still close its file
+    DUPLICATE_S = 1.0
+
     def _on_signal(self, signum: int, _frame: Any) -> None:
+        if self.stopped.is_set() and time.monotonic() - self._first_at < self.DUPLICATE_S:
+            log.info("%s: signal %d again within %.1f s: the same stop", self.what, signum, self.DUPLICATE_S)
+            return
         if self.stopped.is_set():
             print(f"{self.what}: second signal {signum}: exiting now", file=sys.stderr)
             sys.stdout.flush()
@@ -244,6 +254,7 @@ class _Signals:
             import os
             os._exit(EXIT_ABORTED)
         log.warning("%s: signal %d, stopping (a second signal exits at once)", self.what, signum)
+        self._first_at = time.monotonic()
         self.signum = signum
         self.stopped.set()
         for cb in self._callbacks:

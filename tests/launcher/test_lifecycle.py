@@ -155,3 +155,22 @@ def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tm
     assert "service 'stall' failed: exited with code -9 (killed by signal 9)" in err
     partial = tmp_path / "run.partial.mcap"
     assert not out.exists() and _standard_reader_count(partial) > 0
+
+
+def test_a_signal_delivered_twice_at_once_is_one_stop_and_a_later_one_exits():
+    """The kernel delivers the parent-death SIGTERM again on each re-parenting of an orphan: two
+    SIGTERMs at once must stop a service once (the recorder still closes its file); a second
+    signal a while later exits at once with EXIT_ABORTED."""
+    code = (
+        "import os, signal, sys, time\n"
+        "from launcher.commands import _Signals, EXIT_ABORTED\n"
+        "s = _Signals('probe'); stops = []\n"
+        "s.on_stop(lambda: stops.append(1))\n"
+        "os.kill(os.getpid(), signal.SIGTERM); os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(0.2); print('alive after two at once, stops', len(stops), flush=True)\n"
+        "time.sleep(s.DUPLICATE_S + 0.2); os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(5); print('not reached', flush=True)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert "alive after two at once, stops 1" in proc.stdout
+    assert "not reached" not in proc.stdout
+    assert proc.returncode == 4, proc.stderr
