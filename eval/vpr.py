@@ -360,7 +360,7 @@ def _encode_image_sets(args: argparse.Namespace, enc_cfg: EncoderConfig) -> _Ima
     st = image_set_standardizer(enc_cfg, encoder.dim, y_ref)
     if st is not None:
         encoder.set_standardizer("camera", st)
-    z_ref = [encoder.standardize("camera", y) for y in y_ref]
+    z_ref = encoder.standardize_sequence("camera", y_ref)   # the reference as the encoder node sees it
     z_q = [encoder.standardize("camera", y, update=False) for y in y_q]
     s_ref = [encoder.lsbh("camera").encode(z) for z in z_ref]
     s_q = [encoder.lsbh("camera").encode(z) for z in z_q]

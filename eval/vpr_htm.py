@@ -82,8 +82,10 @@ def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
     """The camera standardiser of an image-set run, or None for ``embedding_norm`` none.
 
     ``running``: in memory (nothing read from or written to ``embedding_norm_path``),
-    estimated on the reference sequence in order exactly as the encoder node does (each frame
-    standardised with the frames before it until the warm-up ends); the queries are then
+    estimated on the reference sequence in order exactly as the encoder node does (the first
+    frames, held until ``embedding_norm_hold`` are in, standardised with those statistics, then
+    each frame with the frames before it until the warm-up ends:
+    :meth:`MultimodalEncoder.standardize_sequence`); the queries are then
     standardised with the statistics as they stand, without updating them (like the HTM
     query pass).  ``fixed``: fitted on the whole reference set.
     """

@@ -102,12 +102,19 @@ def _camera_recorder(enc_cfg: Any) -> Any:
         def __init__(self, c: Any) -> None:
             super().__init__(c)
             self.camera: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+            self._index: dict[int, int] = {}   # id of a camera embedding -> its row in ``camera``
 
         def sdr(self, modality: str, embedding: np.ndarray, update: bool = True) -> np.ndarray:
             z = self.standardize(modality, embedding, update)
             bits = self.lsbh(modality).encode(z)
             if modality == "camera":
-                self.camera.append((np.asarray(embedding, np.float32), z.astype(np.float32), bits))
+                row = (np.asarray(embedding, np.float32), z.astype(np.float32), bits)
+                i = self._index.get(id(embedding))
+                if not update and i is not None:   # a frame held by the warm-up hold, hashed anew
+                    self.camera[i] = row
+                else:
+                    self._index[id(embedding)] = len(self.camera)
+                    self.camera.append(row)
             return bits
 
     return _Recorder(enc_cfg)
@@ -160,17 +167,22 @@ def _read_mission(path: Path, node: Any, sonar_key: str, robot_state: Any = None
                     rd.thumbs.append(patch_normalise(image_to_rgb(msg)))
                     bar.update(1)
                 node.process(rec.key, msg)
-                for _, out in node.take_outbox():
-                    present = {m.modality: np.asarray(m.active, np.uint32) for m in out.modalities}
-                    if "camera" in present:
-                        rd.frames.append((out.header.stamp, np.asarray(out.fused.active, np.uint32)))
-                        for m in rd.mod_bits:
-                            rd.mod_bits[m].append(present.get(m, np.zeros(0, np.uint32)))
+                _take_sdrs(node, rd)
     except (RecordingError, DecodeError) as exc:
         raise VprInputError(f"{path}: {exc}") from None
     finally:
         bar.close()
     return rd
+
+
+def _take_sdrs(node: Any, rd: _MissionRead) -> None:
+    """The camera-clocked SDRs the encoder node released, into ``rd`` (frames, per-modality bits)."""
+    for _, out in node.take_outbox():
+        present = {m.modality: np.asarray(m.active, np.uint32) for m in out.modalities}
+        if "camera" in present:
+            rd.frames.append((out.header.stamp, np.asarray(out.fused.active, np.uint32)))
+            for m in rd.mod_bits:
+                rd.mod_bits[m].append(present.get(m, np.zeros(0, np.uint32)))
 
 
 def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | None) -> MissionStreams:
@@ -185,6 +197,7 @@ def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | 
     robot_state = build_node("robot_state", run_cfg)
     rd = _read_mission(path, node, enc_cfg.sonar_topic, robot_state)
     node.finish()
+    _take_sdrs(node, rd)      # what the warm-up hold still held at the end
     robot_state.finish()
     for key, odo in robot_state.take_outbox():
         if key == "Odometry":

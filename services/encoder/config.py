@@ -47,6 +47,11 @@ class EncoderConfig(ConfigSection):
     embedding_norm_path: str = Field("", description="persisted statistics per modality, e.g. "
                                      "state/embnorm_{backbone}_{modality}.npz next to htm.state_path "
                                      "(empty: in memory, every run warms up on its own data)")
+    embedding_norm_hold: int = Field(10, ge=0, description="running statistics: the encoder holds its outputs "
+                                     "until the camera (sonar mode: the sonar) has this many embeddings, then hashes "
+                                     "the held frames with those statistics (a start-up delay of hold camera "
+                                     "frames, services/encoder/clock.py; 0: each frame hashed at once with the "
+                                     "frames before it)")
     # --- added for the pretrained front-end (issue 8); see services/encoder/backbones.py
     untrained: bool = Field(False, description="true: seeded random initialisation instead of weights (ablation "
                             "and tests only; missing weights are otherwise an error)")

@@ -200,9 +200,34 @@ class MultimodalEncoder:
         """z of one embedding of ``modality``; ``running`` statistics take the frame in unless ``update`` False."""
         return self.standardizer(modality).transform(embedding, update)
 
+    def settled(self, modality: str, frames: int) -> bool:
+        """The statistics of ``modality`` hold ``frames`` embeddings or are not estimated online."""
+        return self.standardizer(modality).settled(frames)
+
     def sdr(self, modality: str, embedding: np.ndarray, update: bool = True) -> np.ndarray:
         """Sorted uint32 active bits (2k of L) of one embedding of ``modality`` (Eq. 4.2 on z)."""
         return self.lsbh(modality).encode(self.standardize(modality, embedding, update))
+
+    def standardize_sequence(self, modality: str, embeddings: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """z of each embedding of one modality's sequence, as the encoder node gives them: with
+        the warm-up hold (``embedding_norm_hold``, :mod:`services.encoder.clock`) the embeddings
+        before the statistics settle are standardised with the statistics at that point."""
+        c = self.cfg
+        hold = c.embedding_norm_hold if c.embedding_norm == "running" else 0
+        out: list[np.ndarray] = []
+        pending: list[np.ndarray] = []
+        holding = hold > 0 and not self.settled(modality, hold)
+        for y in embeddings:
+            if not holding:
+                out.append(self.standardize(modality, y))
+                continue
+            self.standardize(modality, y)
+            pending.append(y)
+            if self.settled(modality, hold) or len(pending) >= c.embedding_norm_warmup:
+                out.extend(self.standardize(modality, p, update=False) for p in pending)
+                pending, holding = [], False
+        out.extend(self.standardize(modality, p, update=False) for p in pending)
+        return out
 
     def sdr_batch(self, modality: str, embeddings: Sequence[np.ndarray], update: bool = True) -> list[np.ndarray]:
         """:meth:`sdr` of each embedding, in order (the running statistics advance frame by frame)."""

@@ -23,6 +23,10 @@ more than ``sync.sync_stale_sec`` between consecutive beams resets the ring (cou
 ``sonar_ring_reset``), so an image never mixes sweeps from before and after a dropout.
 Embeddings are standardised per modality before LSBH (``encoder.embedding_norm``, in
 event order; the statistics are saved at the end, see :mod:`services.encoder.standardize`).
+With running statistics the first outputs are held until the camera has
+``encoder.embedding_norm_hold`` embeddings, then hashed with them (the warm-up hold,
+:mod:`services.encoder.clock`); the output watermark stays at the oldest held stamp meanwhile,
+and the end of the inputs releases what is still held.  Counter ``outputs_held``.
 Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
 one batch of two).  Sonar encoding rule: the raster is re-encoded when the beams have swept
 at least ``encoder.sonar_encode_sweep_deg`` (45 deg: a fifth of a Micron turn, ~1 s at
@@ -48,7 +52,7 @@ from common.messages import Header, Image, LaserScan, Message, NeocortexSdr, Ran
 from common.node import ServiceNode
 from services.encoder.config import EncoderConfig
 
-from .clock import EncoderCore, SonarClock
+from .clock import EncoderCore, EncoderOutput, SonarClock
 from .encoder import MultimodalEncoder
 from .sonar import SonarRaster
 
@@ -87,7 +91,8 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax, cfg.sonar_use_intensities)
         clock = SonarClock(raster, self.mode, int(round(sync_stale_sec * 1e9)),
                            math.radians(cfg.sonar_encode_sweep_deg))
-        self.core = EncoderCore(self.encoder, clock)
+        hold = cfg.embedding_norm_hold if cfg.embedding_norm == "running" else 0
+        self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm_warmup, 1))
         self.length = cfg.sp_columns
 
     # ------------------------------------------------------------------ inputs
@@ -95,20 +100,26 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         if key == "camera/image_raw":
             if not isinstance(msg, Image):
                 raise TypeError(f"encoder: {key!r} carries {type(msg).__name__}, expected Image")
-            sdrs = self.core.on_camera(msg)
-            self._drain()
-            if sdrs is not None:
-                self._emit(msg.header.stamp, msg.header.frame_id, sdrs)
+            outs = self.core.on_camera(msg)
         elif key == self.sonar_key:
             if not isinstance(msg, (RangeImageBeam, LaserScan)):
                 raise TypeError(f"encoder: {key!r} carries {type(msg).__name__}, expected RangeImageBeam or LaserScan")
-            sdrs = self.core.on_sonar(msg)
-            self._drain()
-            if sdrs is not None:
-                self._emit(msg.header.stamp, msg.header.frame_id, sdrs)
-                self.count("sonar_clocked_outputs")
+            outs = self.core.on_sonar(msg)
         else:
             raise KeyError(f"encoder: unexpected input key {key!r}")
+        self._drain()
+        self._emit_all(outs)
+
+    def output_watermark(self, input_watermark: int) -> int:
+        """While the warm-up hold keeps outputs back, nothing newer than the oldest held stamp is promised."""
+        held = self.core.oldest_held_stamp
+        return input_watermark if held is None else min(input_watermark, held)
+
+    def _emit_all(self, outs: list[EncoderOutput]) -> None:
+        for o in outs:
+            self._emit(o.stamp, o.frame_id, o.sdrs)
+            if o.sonar_clocked:
+                self.count("sonar_clocked_outputs")
 
     def _drain(self) -> None:
         for what, n in self.core.take_events():
@@ -122,6 +133,7 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         of each LSBH projection (the projections are rebuilt from the seed or their file, then checked)."""
         state = super().checkpoint_state()
         state["_clock"] = self.core.clock
+        state["_hold"] = (self.core.holding, self.core.held, self.core.sonar_y)
         state["_standardizers"] = self.encoder.standardizers
         state["_lsbh_digest"] = self.encoder.lsbh_digests()
         return state
@@ -129,6 +141,7 @@ class EncoderNode(ServiceNode[EncoderConfig]):
     def restore_checkpoint(self, state: dict[str, Any]) -> None:
         state = dict(state)
         self.core.clock = state.pop("_clock")
+        self.core.holding, self.core.held, self.core.sonar_y = state.pop("_hold")
         for modality, st in state.pop("_standardizers").items():
             self.encoder.set_standardizer(modality, st)
         for modality, digest in state.pop("_lsbh_digest").items():
@@ -139,6 +152,9 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         super().restore_checkpoint(state)
 
     def finish(self) -> None:
+        """The inputs ended: outputs still held by the warm-up hold go out, hashed with what was seen."""
+        self._emit_all(self.core.flush())
+        self._drain()
         self.encoder.close()
 
     def close(self) -> None:

@@ -107,6 +107,11 @@ class EmbeddingStandardizer:
         floor = SIGMA_FLOOR * float(sd.mean()) if sd.mean() > 0 else 1.0
         return np.maximum(sd, floor)
 
+    def settled(self, frames: int) -> bool:
+        """The statistics hold at least ``frames`` embeddings, or are not estimated online
+        (``none``, ``fixed``, frozen): the encoder's warm-up hold may end (:mod:`services.encoder.clock`)."""
+        return self.mode != "running" or self.frozen or self.count >= frames
+
     def _apply(self, y: np.ndarray) -> np.ndarray:
         if self.count == 0:
             return y.copy()

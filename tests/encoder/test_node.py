@@ -194,3 +194,45 @@ def test_sonar_is_re_encoded_after_enough_sweep(config: PoseidonConfig, encoder:
     every = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_encode_sweep_deg": 0.0})})
     node0, out0 = run(every, encoder, duration=4.0)
     assert node0.counters["sonar_encodings"] == 19 and "sonar_sdr_reused" not in node0.counters
+
+
+def test_warm_up_hold_delays_the_first_outputs_then_matches_the_unheld_stream(
+        config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
+    def drive(hold: int) -> tuple[list[tuple[int, int, int]], list[NeocortexSdr], EncoderNode]:
+        cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"embedding_norm_hold": hold})})
+        node = build_node("encoder", cfg, encoder=MultimodalEncoder(cfg.encoder, backbone=encoder.backbone))
+        assert isinstance(node, EncoderNode)
+        msgs = sorted(stream(duration=4.0), key=lambda km: (km[1].header.stamp, km[0] != "camera/image_raw"))
+        trace, out = [], []
+        for k, m in msgs:
+            node.process(k, m)
+            got = [o for _, o in node.take_outbox()]
+            out += got
+            if k == "camera/image_raw":
+                trace.append((m.header.stamp, len(got), node.output_watermark(m.header.stamp)))
+        node.finish()
+        out += [o for _, o in node.take_outbox()]
+        return trace, out, node
+
+    trace, held, node = drive(10)
+    _, plain, _ = drive(0)
+    first = trace[0][0]
+    released = next(i for i, (_, n, _) in enumerate(trace) if n)
+    assert released == 9                                   # ten camera embeddings first
+    assert all(wm == first for _, _, wm in trace[:released])   # the watermark waits at the oldest held frame
+    assert trace[released][1] == released + 1 and trace[released][2] == trace[released][0]
+    assert [o.header.stamp for o in held] == [o.header.stamp for o in plain]
+    assert [o.header.seq for o in held] == list(range(len(held)))
+    n = released + 1
+    assert node.counters["outputs_held"] == n
+    assert not np.array_equal(held[0].fused.active, plain[0].fused.active)   # re-hashed with ten frames' mean
+    for a, b in zip(held[n:], plain[n:]):                  # afterwards the same statistics, the same SDRs
+        assert np.array_equal(a.fused.active, b.fused.active)
+    for o in held:
+        check_sdr(o, config)
+
+
+def test_the_end_of_the_inputs_releases_a_hold_that_never_filled(config: PoseidonConfig,
+                                                                   encoder: MultimodalEncoder) -> None:
+    node, out = run(config, encoder, duration=1.0)         # 5 frames < the hold of 10
+    assert len(out) == 5 and node.counters["outputs_held"] == 5

@@ -139,3 +139,22 @@ def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
     st = EmbeddingStandardizer(112, "running", warmup=100, path=tmp_path / "n_efficientnet_lite0_camera.npz")
     assert st.count == 4 and not st.frozen  # mid warm-up state saved at the end, continued next time
     assert EncoderConfig().embedding_norm == "running" and EncoderConfig().torch_threads == 1
+
+
+def test_standardize_sequence_gives_the_held_frames_the_statistics_of_the_hold(tmp_path: Path) -> None:
+    from services.encoder.encoder import MultimodalEncoder
+
+    base = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 1,
+            "torch_threads": 1, "embedding_norm_warmup": 20}
+    held = MultimodalEncoder(EncoderConfig.model_validate({**base, "embedding_norm_hold": 4}))
+    plain = MultimodalEncoder(EncoderConfig.model_validate({**base, "embedding_norm_hold": 0}),
+                              backbone=held.backbone)
+    y = np.random.default_rng(3).random((8, held.dim)) + 5.0
+    zh = held.standardize_sequence("camera", list(y))
+    zp = plain.standardize_sequence("camera", list(y))
+    for i in range(4):                     # held: centred by the mean of the four held frames
+        np.testing.assert_allclose(zh[i], y[i] - y[:4].mean(axis=0))
+    np.testing.assert_allclose(zp[0], y[0])   # unheld: the first frame has no statistics
+    for i in range(4, 8):                  # afterwards both centre by the frames before
+        np.testing.assert_allclose(zh[i], zp[i])
+        np.testing.assert_allclose(zh[i], y[i] - y[:i].mean(axis=0))
