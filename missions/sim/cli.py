@@ -1,4 +1,4 @@
-"""``poseidon sim --minutes M --seed S [--world-seed W] [--start area1|area2] --out FILE.mcap [--json]``:
+"""``poseidon sim --minutes M --seed S [--world-seed W] [--start area1|area2] [--first-loops N] --out FILE.mcap [--json]``:
 a synthetic cave mission.
 
 Writes every stream of :mod:`missions.sim.mission` plus ground truth (``truth/pose``,
@@ -9,7 +9,8 @@ same seed and minutes give the same bytes.
 ``--json`` prints a summary object to stdout:
 
 - ``out``: the recording path; ``seed`` (route, motion and noise); ``world_seed`` (the cave;
-  ``--world-seed``, default the seed); ``start`` (``area1`` or ``area2``); ``minutes``;
+  ``--world-seed``, default the seed); ``start`` (``area1`` or ``area2``); ``first_loops``
+  (loops of the start area before the first transition, ``--first-loops``, default 3); ``minutes``;
   ``duration_s`` (s);
 - ``distance_m``: path length flown (m);
 - ``counts``: messages written per key;
@@ -42,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
                          "cave, their truth in one world frame")
     ap.add_argument("--start", choices=("area1", "area2"), default="area1",
                     help="where the route starts: area1 (default) or area2, the second area of the same cave")
+    ap.add_argument("--first-loops", type=int, default=None, choices=(1, 2, 3),
+                    help="loops of the start area before the first transition (default 3, as every later pass); "
+                         "--start area2 --first-loops 1 reaches area 1 after one loop of area 2")
     ap.add_argument("--out", required=True, help="output MCAP recording")
     ap.add_argument("--speed", type=float, default=0.3, help="mean vehicle speed, m/s (default 0.3)")
     ap.add_argument("--camera-hz", type=float, default=None, help="camera rate, Hz (default 5)")
@@ -53,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.speed <= 0:
         ap.error(f"--speed must be > 0 m/s, got {args.speed}")
     params = SimParams(minutes=args.minutes, seed=args.seed, speed_m_s=args.speed, world_seed=args.world_seed,
-                       start=args.start)
+                       start=args.start, first_loops=args.first_loops)
     if args.camera_hz is not None:
         if args.camera_hz <= 0:
             ap.error(f"--camera-hz must be > 0, got {args.camera_hz}")

@@ -49,6 +49,7 @@ from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header, Image, Imu, LaserScan, LinkquestDvl, Odometry, RangeImageBeam, RevisitTruth
 from missions.sim import render
 from missions.sim.trajectory import (
+    LOOPS_PER_AREA,
     START_AREAS,
     VehicleMotion,
     _smooth_noise,
@@ -104,6 +105,7 @@ class SimParams:
     seed: int = 0                   # route, motion and sensor-noise seed
     world_seed: int | None = None   # the cave's seed (None: ``seed``, the missions before issue 20)
     start: str = "area1"            # where the route starts: "area1" (the default) or "area2" (see trajectory.py)
+    first_loops: int | None = None  # loops of the start area before the first transition (None: 3, every cycle's)
     speed_m_s: float = 0.3
     camera: CameraModel = field(default_factory=CameraModel)
     micron_rate_hz: float = 23.3
@@ -306,11 +308,11 @@ def _all_stamps(p: SimParams, duration: float, rng: np.random.Generator) -> _Str
 
 def _metadata(p: SimParams, duration: float, world: World, segs: list[dict[str, Any]], dvl_heading_off: float,
               gyro_bias: np.ndarray) -> dict[str, Any]:
-    """The recording's ``poseidon`` metadata record (``world_seed`` and ``start`` only when they
+    """The recording's ``poseidon`` metadata record (``world_seed``, ``start``, ``first_loops`` only when they
     differ from the defaults, so a default mission's bytes are those of generator version 4)."""
     params = asdict(p)
     extra: dict[str, Any] = {}
-    for k, default in (("world_seed", None), ("start", "area1")):
+    for k, default in (("world_seed", None), ("start", "area1"), ("first_loops", None)):
         if params[k] == default:
             del params[k]
         else:
@@ -364,6 +366,8 @@ def _mission_world(p: SimParams, duration: float, world: World | None) -> World:
         raise ValueError(f"minutes must be > 0, got {p.minutes}")
     if p.start not in START_AREAS:
         raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {p.start!r}")
+    if p.first_loops is not None and not 1 <= p.first_loops <= LOOPS_PER_AREA:
+        raise ValueError(f"first_loops must be in [1, {LOOPS_PER_AREA}], got {p.first_loops}")
     world_seed = p.seed if p.world_seed is None else int(p.world_seed)
     world = world if world is not None else build_world(world_seed)
     if world.seed != world_seed:
@@ -428,7 +432,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     p = params
     duration = p.minutes * 60.0
     world = _mission_world(p, duration, world)
-    traj = make_trajectory(world, duration, p.seed, p.speed_m_s, start=p.start)
+    traj = make_trajectory(world, duration, p.seed, p.speed_m_s, start=p.start, first_loops=p.first_loops)
     rng = np.random.default_rng([p.seed, 303])
     st = _all_stamps(p, duration, rng)
     slow = _slow_errors(p, traj.t, rng)
@@ -450,7 +454,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
         bar.close()
         writer.close()
     return {
-        "out": str(out_path), "seed": p.seed, "world_seed": world.seed, "start": p.start, "minutes": p.minutes, "duration_s": duration,
+        "out": str(out_path), "seed": p.seed, "world_seed": world.seed, "start": p.start, "first_loops": p.first_loops or LOOPS_PER_AREA, "minutes": p.minutes, "duration_s": duration,
         "distance_m": round(float(np.interp(duration, traj.t, traj.dist)), 3),
         "counts": dict(sorted(writer.counts.items())), "frames": len(st.cam),
         "frames_with_revisits": int(sum(len(s) > 0 for s in same)), "loops": _loops_flown(segs), "segments": segs,

@@ -112,8 +112,11 @@ def _piece_length(points: np.ndarray) -> float:
     return float(np.sum(np.hypot(*np.diff(points, axis=0).T)))
 
 
-def _flight_plan(world: World, start: str, length_m: float) -> list[tuple[np.ndarray, int, int]]:
-    """Route pieces (points, segment id, loop) in flight order until ``length_m`` is covered."""
+def _flight_plan(world: World, start: str, length_m: float,
+                 first_loops: int | None = None) -> list[tuple[np.ndarray, int, int]]:
+    """Route pieces (points, segment id, loop) in flight order until ``length_m`` is covered;
+    ``first_loops``: loops of the start area before the first transition (default
+    :data:`LOOPS_PER_AREA`; afterwards the cycle as always)."""
     a1, tr, a2, back = world.route
     plan: list[tuple[np.ndarray, int, int]] = []
     cycle = [(a1, 0, k) for k in range(LOOPS_PER_AREA)] + [(tr, 1, 0)] + \
@@ -127,6 +130,10 @@ def _flight_plan(world: World, start: str, length_m: float) -> list[tuple[np.nda
         cycle = cycle[LOOPS_PER_AREA + 1:] + cycle[:LOOPS_PER_AREA + 1]
     plan.append((entry, entry_seg, 0))
     total = 0.0 + _piece_length(entry)
+    if first_loops is not None and first_loops != LOOPS_PER_AREA:
+        for item in cycle[LOOPS_PER_AREA - first_loops:]:   # the first pass: fewer loops of the start area
+            plan.append(item)
+            total += _piece_length(item[0])
     while total < length_m:
         for item in cycle:
             plan.append(item)
@@ -187,15 +194,18 @@ def _body_rates(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, dt: float)
 
 
 def make_trajectory(world: World, duration_s: float, seed: int, speed: float = 0.3,
-                    start: str = "area1") -> VehicleMotion:
+                    start: str = "area1", first_loops: int | None = None) -> VehicleMotion:
     """The vehicle's path for ``duration_s`` seconds at a mean ``speed`` (m/s), starting in
-    ``start`` (one of :data:`START_AREAS`)."""
+    ``start`` (one of :data:`START_AREAS`) and flying ``first_loops`` loops there before the
+    first transition (default :data:`LOOPS_PER_AREA`)."""
     if start not in START_AREAS:
         raise ValueError(f"start must be one of {', '.join(START_AREAS)}, got {start!r}")
+    if first_loops is not None and not 1 <= first_loops <= LOOPS_PER_AREA:
+        raise ValueError(f"first_loops must be in [1, {LOOPS_PER_AREA}], got {first_loops}")
     rng = np.random.default_rng([seed, 202])
     t = np.arange(0.0, duration_s + 1.0 / BASE_HZ + 2.0, 1.0 / BASE_HZ)
     s = _speed_profile(rng, t, speed)
-    pts, d, seg_id, loop_id = _centreline(_flight_plan(world, start, s[-1] + 10.0))
+    pts, d, seg_id, loop_id = _centreline(_flight_plan(world, start, s[-1] + 10.0, first_loops))
     cx = np.interp(s, d, pts[:, 0])
     cy = np.interp(s, d, pts[:, 1])
     k = np.clip(np.searchsorted(d, s), 0, len(d) - 1)

@@ -54,3 +54,24 @@ def test_world_given_must_match_world_seed(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="world_seed 4"):
         generate(tmp_path / "x.mcap", SimParams(minutes=0.05, seed=3, world_seed=4), progress=False,
                  world=build_world(3))
+
+
+def test_first_loops_reaches_area1_after_one_loop_of_area2() -> None:
+    world = build_world(3)
+    dur = 900.0
+    full = make_trajectory(world, dur, 3, 0.3, start="area2")
+    short = make_trajectory(world, dur, 3, 0.3, start="area2", first_loops=1)
+
+    def first_in_area1(m: object) -> float:
+        names = m.segment_names  # type: ignore[attr-defined]
+        seg = np.asarray(m.segment)  # type: ignore[attr-defined]
+        hit = np.flatnonzero(seg == names.index("area1_ellipse"))
+        return float(m.t[hit[0]]) if hit.size else float("inf")  # type: ignore[attr-defined]
+
+    # one loop of area 2 (~90 m) and the transition (~45 m) at 0.3 m/s: area 1 within ~9 minutes;
+    # three loops of area 2 first: not within the 15 minutes
+    assert first_in_area1(short) < 540.0 and first_in_area1(full) == float("inf")
+    assert np.array_equal(short.pos[:100], full.pos[:100])      # the same start, the same seed
+    for bad in (0, 4):
+        with pytest.raises(ValueError, match="first_loops"):
+            make_trajectory(world, 10.0, 3, 0.3, start="area2", first_loops=bad)
