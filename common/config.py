@@ -43,7 +43,9 @@ class BusConfig(ConfigSection):
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     flow_window_ms: int = Field(3000, ge=100, description="replay keeps at most this much event time in flight (ms)")
     heartbeat_interval_ms: int = Field(100, ge=1, description="event-time heartbeat of silent streams (ms)")
-    startup_timeout_s: float = Field(60.0, gt=0, description="wait for subscribers/services to come alive")
+    startup_timeout_s: float = Field(180.0, gt=0, description="wait for subscribers/services to come alive (a "
+                                     "service warms up first: on a cold numba cache the htm compiles for ~50 s on 2 "
+                                     "loaded cores)")
     drain_timeout_s: float = Field(3600.0, gt=0, description="a finished publisher waits this long for consumers to finish")
 
 
@@ -76,8 +78,8 @@ class LiveConfig(ConfigSection):
     slow_service: str = Field("", description="TEST SETTING: this service sleeps slow_ms before each input "
                               "(shows the drop policy when a service falls behind); '' = none")
     slow_ms: float = Field(0.0, ge=0, description="TEST SETTING: the delay of slow_service per input (ms)")
-    startup_timeout_s: float = Field(60.0, gt=0, description="wait this long for the services and the recorder "
-                                     "before the source starts")
+    startup_timeout_s: float = Field(180.0, gt=0, description="wait this long for the services and the recorder "
+                                     "(each warmed up: numba kernels compiled) before the source starts")
     stop_timeout_s: float = Field(120.0, gt=0, description="after the source stopped, wait this long for the "
                                   "services and the recorder to finish their inputs")
 

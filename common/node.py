@@ -65,6 +65,11 @@ class ServiceNode(Generic[ConfigT]):
     def finish(self) -> None:
         """Every input ended: flush what is pending (default: nothing)."""
 
+    def warm_up(self) -> None:
+        """Do, before the service says it is alive, what would otherwise stall its first inputs
+        (compiling numba kernels: tens of seconds on a cold cache, long enough for a live
+        service's bounded queue to drop); must leave the node's state as it was.  Default: nothing."""
+
     def output_watermark(self, input_watermark: int) -> int:
         """Event-time promise for the outputs, given the inputs' watermark.
 

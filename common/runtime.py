@@ -279,6 +279,10 @@ class NodeRunner(Sink, Source):
         if finished_before:
             for key in node.inputs:
                 merger.end(key)
+        else:
+            t0 = time.perf_counter()
+            node.warm_up()
+            log.debug("%s: warmed up in %.2f s", node.name, time.perf_counter() - t0)
         self.bus.declare_alive(node.name)
         try:
             if not self.receive():

@@ -26,9 +26,23 @@ from common.node import ServiceNode
 from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
 
-__all__ = ["HtmNode"]
+__all__ = ["HtmNode", "warm_up_kernels"]
 
 log = logging.getLogger(__name__)
+
+
+def warm_up_kernels(cfg: HtmConfig, places: int = 40) -> None:
+    """Run a throwaway :class:`NeocortexHtm` of ``cfg`` (no state file) over two passes of
+    ``places`` synthetic places with positions, so the spatial pooler, the temporal memory, the
+    LVC search and the sequence memory (candidates only exist past ``sv_seqmem_exclude``
+    frames) have each run once and numba has compiled (or loaded) their kernels."""
+    core = NeocortexHtm(cfg.model_copy(update={"state_path": ""}))
+    rng = np.random.default_rng(0)
+    k = max(1, cfg.input_size // 20)
+    sdrs = [np.sort(rng.choice(cfg.input_size, k, replace=False)).astype(np.uint32) for _ in range(places)]
+    for i in range(2 * places):
+        j = i % places
+        core.step(sdrs[j], position=np.array([float(j), 0.0, 0.0]))
 
 
 class HtmNode(ServiceNode[HtmConfig]):
@@ -57,6 +71,10 @@ class HtmNode(ServiceNode[HtmConfig]):
             if self.state_path is not None:
                 log.info("htm: no state at %s yet, starting fresh", self.state_path)
         self._dirty = False
+
+    def warm_up(self) -> None:
+        """Compile the kernels on a throwaway core (:func:`warm_up_kernels`); the node's own is untouched."""
+        warm_up_kernels(self.cfg)
 
     def process(self, key: str, msg: Message) -> None:
         if key == "Odometry" and isinstance(msg, Odometry):

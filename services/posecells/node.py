@@ -44,7 +44,7 @@ import logging
 from pathlib import Path
 
 from common.geometry import yaw_of_quaternion
-from common.messages import ExperienceEvent, LocalViewCells, Message, Odometry
+from common.messages import ExperienceEvent, LocalViewCell, LocalViewCells, Message, Odometry
 from common.node import ServiceNode
 from services.posecells.config import PoseCellsConfig, VprGuardConfig
 from services.posecells.core import PoseCellsCore
@@ -67,6 +67,7 @@ class PoseCellsNode(ServiceNode[PoseCellsConfig]):
         """``config``: the ``posecells`` section; ``guard``: the ``vpr_guard`` section."""
         super().__init__(config)
         self.cfg = config
+        self.guard = guard
         self.core = PoseCellsCore(self.cfg, guard)
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         self._dirty = False
@@ -76,6 +77,15 @@ class PoseCellsNode(ServiceNode[PoseCellsConfig]):
                 log.info("posecells: loaded state from %s (%d LVC associations)", self.state_path, len(self.net.beta))
             else:
                 log.info("posecells: no state at %s yet, starting fresh", self.state_path)
+
+    def warm_up(self) -> None:
+        """Compile the network's kernels on a throwaway core: odometry along a line and LVC
+        frames, the first ones seen again (injection); the node's own core is untouched."""
+        core = PoseCellsCore(self.cfg, self.guard)
+        for i in range(30):
+            core.on_odometry([0.2 * i, 0.0, 0.0], 0.0)
+            lvc = i % 10
+            core.on_lvc(lvc, [LocalViewCell(id=lvc, rate=1.0)])
 
     @property
     def net(self) -> PoseCellNetwork:

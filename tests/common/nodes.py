@@ -86,3 +86,13 @@ class Chatty(ServiceNode):
     def process(self, key, msg):
         if msg.header.seq == 1:
             os.write(1, b"CHATTY SERVICE ON FD 1\n")
+
+
+class SlowWarmUp(SlowEcho):
+    """SlowEcho whose warm-up takes 0.5 s and records when it ended."""
+
+    name = "slow_warm_up"
+
+    def warm_up(self):
+        time.sleep(0.5)
+        self.warmed_at = time.monotonic()

@@ -206,3 +206,26 @@ def test_heartbeat_watermarks_only_keys_that_were_silent():
     assert depth_kinds.count("data") == 20 and depth_kinds.count("watermark") == 1
     assert frames["depth_sensor"][-1].kind == "watermark" and frames["depth_sensor"][-1].stamp == 1200 * ms
     assert [f.stamp for f in frames["dvl_linkquest"]] == [t * 100 * ms for t in range(10)]
+
+
+def test_a_service_says_it_is_alive_only_after_its_warm_up():
+    import threading
+    import time
+
+    from common.runtime import NodeRunner
+    from tests.common.nodes import SlowWarmUp
+
+    session = open_local_session()
+    bus = Bus(session=session)
+    node = SlowWarmUp(PoseidonConfig())
+    runner = NodeRunner(node, bus)
+    t = threading.Thread(target=runner.run)
+    t.start()
+    bus.wait_alive(["slow_warm_up"], 10)
+    alive_at = time.monotonic()
+    for key in ("depth_sensor", "camera/image_raw"):
+        bus.publisher(key).send_eos()
+    t.join(timeout=20)
+    bus.close()
+    session.close()
+    assert node.warmed_at <= alive_at

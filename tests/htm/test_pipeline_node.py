@@ -208,3 +208,14 @@ def test_sp_frozen_after_sp_learn_steps_keeps_columns():
         g.step(p)
     g.step(places[20])
     assert not np.array_equal(g.last_columns, before)
+
+
+def test_warm_up_compiles_on_a_throwaway_core_and_leaves_the_node_as_it_was() -> None:
+    from launcher.config import PoseidonConfig
+    from services.htm.node import HtmNode
+
+    cfg = PoseidonConfig().htm.model_copy(update={"input_size": 1024})
+    node = HtmNode(cfg)
+    node.warm_up()
+    assert len(node.htm.lvc) == 0 and node.htm.seqmem is not None and len(node.htm.seqmem) == 0
+    assert node.position is None and node.counters == {}

@@ -230,3 +230,16 @@ def test_event_messages_validate_and_roundtrip_through_the_codec() -> None:
     for e in evs:
         assert isinstance(e, ExperienceEvent)
         assert decode(encode(e), ExperienceEvent) == e
+
+
+def test_warm_up_leaves_the_network_as_it_was() -> None:
+    import numpy as np
+
+    from launcher.config import PoseidonConfig
+    from services.posecells.node import PoseCellsNode
+
+    cfg = PoseidonConfig()
+    node = PoseCellsNode(cfg.posecells, cfg.vpr_guard)
+    before = node.net.activity.copy()
+    node.warm_up()
+    assert np.array_equal(node.net.activity, before) and not node.core.placed and len(node.net.beta) == 0
