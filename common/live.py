@@ -6,8 +6,11 @@ its latest message.  At wall time ``now`` a stream then promises (watermark) tha
 older than ``now - offset - lateness`` will still come: ``lateness`` (``bridge_ros1.lateness_ms``)
 bounds how much more than its predecessor a message may be delayed between its sensor and
 the bridge.  A stream that has never had a message uses the offset of the latest message of
-any stream (one vehicle, one clock), so a silent sensor does not stall the event-time merge
-of the services downstream; before any message at all there is no watermark.  Tracking the
+any stream (one vehicle, one clock) and a wider bound, ``lateness`` + :data:`UNSEEN_GRACE_NS`
+(2 s), so a silent sensor does not stall the event-time merge of the services downstream
+(it delays them by 2.2 s) while a sensor whose first message is slow to come through (a ROS
+subscription still connecting when ``rosbag play`` starts: 4 keys' first messages were late
+by ~0.2 s in a 1x live run) is not late; before any message at all there is no watermark.  Tracking the
 latest offset (not the smallest) follows a clock that runs at another rate than the wall
 (``rosbag play -r 8``: the offsets shrink, the watermarks follow).  A message older than what
 its stream already promised is *late*: it is still published (and recorded) but counted, and
@@ -60,13 +63,18 @@ def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
         d[k] = d.get(k, 0) + n
 
 
+#: extra bound of a stream that has not had a message yet (ns; see the module doc)
+UNSEEN_GRACE_NS = 2_000_000_000
+
+
 class LiveClock:
     """Per-stream offset between header stamps and arrival (ns), and the watermarks it allows."""
 
-    def __init__(self, lateness_ns: int):
-        if lateness_ns < 0:
-            raise ValueError(f"lateness must be >= 0 ns, got {lateness_ns}")
+    def __init__(self, lateness_ns: int, unseen_grace_ns: int = UNSEEN_GRACE_NS):
+        if lateness_ns < 0 or unseen_grace_ns < 0:
+            raise ValueError(f"lateness and grace must be >= 0 ns, got {lateness_ns}, {unseen_grace_ns}")
         self.lateness_ns = lateness_ns
+        self.unseen_grace_ns = unseen_grace_ns
         self._offset: dict[str, int] = {}
         self._latest: int | None = None  # offset of the latest message of any stream
         self._promised: dict[str, int] = {}  # key -> watermark sent
@@ -83,10 +91,13 @@ class LiveClock:
     def watermark(self, key: str, now_ns: int) -> int | None:
         """The promise stream ``key`` can make at ``now_ns`` if it is newer than what it already
         promised and than its last message's stamp (then it is recorded as promised); else None."""
-        offset = self._offset.get(key, self._latest)
+        offset = self._offset.get(key)
+        bound = self.lateness_ns
+        if offset is None:
+            offset, bound = self._latest, self.lateness_ns + self.unseen_grace_ns
         if offset is None:
             return None
-        wm = now_ns - offset - self.lateness_ns
+        wm = now_ns - offset - bound
         if wm <= self._promised.get(key, -1) or wm <= self._last_stamp.get(key, -1):
             return None
         self._promised[key] = wm

@@ -14,10 +14,15 @@ def test_watermark_follows_the_wall_clock_minus_the_streams_offset_and_the_laten
     assert c.watermark("imu", 5_500 * MS) is None  # no newer promise at the same time
 
 
-def test_a_silent_stream_is_promised_with_the_latest_offset_of_any_stream():
+def test_a_silent_stream_is_promised_with_the_latest_offset_of_any_stream_and_a_grace():
     c = LiveClock(lateness_ns=100 * MS)
     c.observe("imu", 1_000 * MS, 3_000 * MS)
-    assert c.watermark("dvl", 4_000 * MS) == 1_900 * MS  # dvl never spoke: it does not stall the merge
+    # dvl never spoke: it does not stall the merge, but promises 2 s less (its first message may be slow)
+    assert c.watermark("dvl", 4_000 * MS) is None            # 4 s - 2 s - 0.1 s - 2 s < 0: nothing yet
+    assert c.watermark("dvl", 6_500 * MS) == 2_400 * MS
+    assert not c.observe("dvl", 2_450 * MS, 6_600 * MS)   # its first message, 0.25 s behind the imu's offset
+    assert c.watermark("dvl", 6_750 * MS) == 2_500 * MS   # from then on its own offset and the lateness
+    assert LiveClock(100 * MS, unseen_grace_ns=0).watermark("x", 0) is None
 
 
 def test_a_message_older_than_its_streams_promise_is_late():
