@@ -31,12 +31,13 @@ __all__ = ["HtmNode", "warm_up_kernels"]
 log = logging.getLogger(__name__)
 
 
-def warm_up_kernels(cfg: HtmConfig, places: int = 40) -> None:
-    """Run a throwaway :class:`NeocortexHtm` of ``cfg`` (no state file) over two passes of
+def warm_up_kernels(cfg: HtmConfig, places: int = 10) -> None:
+    """Run a throwaway :class:`NeocortexHtm` of ``cfg`` (no state file; the sequence memory's
+    exclusion window shortened to 2 frames so that it has candidates at once) over two passes of
     ``places`` synthetic places with positions, so the spatial pooler, the temporal memory, the
-    LVC search and the sequence memory (candidates only exist past ``sv_seqmem_exclude``
-    frames) have each run once and numba has compiled (or loaded) their kernels."""
-    core = NeocortexHtm(cfg.model_copy(update={"state_path": ""}))
+    LVC search and the sequence memory have each run and numba has compiled (or loaded) their
+    kernels (the same argument types as the real core's)."""
+    core = NeocortexHtm(cfg.model_copy(update={"state_path": "", "sv_seqmem_exclude": 2}))
     rng = np.random.default_rng(0)
     k = max(1, cfg.input_size // 20)
     sdrs = [np.sort(rng.choice(cfg.input_size, k, replace=False)).astype(np.uint32) for _ in range(places)]
