@@ -61,6 +61,8 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             extra.append(f"busy {st['busy_s']:.2f} s")
         if "cpu_s" in st:
             extra.append(f"process CPU {st['cpu_s']:.2f} s")
+        if "peak_rss_mb" in st:
+            extra.append(f"peak memory {st['peak_rss_mb']:.0f} MB")
         if st.get("real_time_factor"):
             extra.append(f"{st['real_time_factor']:.1f}x real time")
         if st.get("dropped"):
@@ -366,6 +368,7 @@ def cmd_service(args: argparse.Namespace) -> int:
     # per-service cost of a distributed run (issue 21)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     stats["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 3)
+    stats["peak_rss_mb"] = round(usage.ru_maxrss / 1024.0, 1)   # Linux: KiB; the process's peak resident memory
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats))
     else:

@@ -76,6 +76,7 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     # wall-clock watermarks nothing would come out before the end of the ~8 s bag
     assert lat["n"] == 3060 and 0 < lat["p50_ms"] <= lat["p95_ms"] <= lat["p99_ms"] <= lat["max_ms"] < 5000
     assert result["services"]["robot_state"]["dropped"] == {}
+    assert 0 < rs["cpu_s"] and 50 < rs["peak_rss_mb"] < 4000   # the process's own figures (MB)
 
     replay = tmp_path / "replay.mcap"
     proc = subprocess.run(CLI + ["run", "--input", str(out), "--out", str(replay), "--services", "robot_state",
