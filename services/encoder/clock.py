@@ -20,7 +20,10 @@ first frames of a mission are hashed with a mean of a handful of frames (the ver
 none) and do not match their own place seen later (corridor: the first 8 of 111 queries
 lost; issue 17).  So from the start the core *holds* its outputs (their embeddings, with the
 statistics still taking every embedding in) until the modality that clocks them (the camera;
-the sonar in ``sonar`` mode) has H embeddings, or ``hold_max`` outputs are held, and then
+the sonar in ``sonar`` mode) has H embeddings, ``hold_max`` outputs are held, or the inputs
+are ``hold_max_ns`` of event time past the oldest held output (2 s: a replay keeps only
+``bus.flow_window_ms`` of event time in flight, and the services downstream wait for the held
+outputs; a laser log's scan clock deadlocked the replay without this bound), and then
 hashes the held outputs with the statistics as they stand, in order (the sonar, embedded
 about once per 5 frames, joins with the embeddings it has by then).  The hold happens once,
 at the start; afterwards every output is hashed at once.  Its cost is a start-up delay of H
@@ -167,9 +170,12 @@ class EncoderCore:
     (camera first).  ``hold``/``hold_max``: the warm-up hold (module doc; 0: none).
     """
 
-    def __init__(self, encoder: SdrEncoder, clock: SonarClock, hold: int = 0, hold_max: int = 50):
-        if hold < 0 or hold_max < 1:
-            raise ValueError(f"hold must be >= 0 and hold_max >= 1, got {hold}, {hold_max}")
+    def __init__(self, encoder: SdrEncoder, clock: SonarClock, hold: int = 0, hold_max: int = 50,
+                 hold_max_ns: int = 2_000_000_000):
+        if hold < 0 or hold_max < 1 or hold_max_ns <= 0:
+            raise ValueError(f"hold must be >= 0, hold_max >= 1 and hold_max_ns > 0, got {hold}, {hold_max}, "
+                             f"{hold_max_ns}")
+        self.hold_max_ns = int(hold_max_ns)
         self.encoder = encoder
         self.clock = clock
         self.events: list[tuple[str, int]] = []
@@ -262,6 +268,14 @@ class EncoderCore:
         if len(self.held) < self.hold_max and not settled:
             return []
         return self.flush()
+
+    def expire(self, stamp: int) -> list[EncoderOutput]:
+        """The inputs reached event time ``stamp`` (ns): the hold ends (:meth:`flush`) once that is
+        ``hold_max_ns`` past the oldest held output, even if no output came since (a sonar sweep
+        clock outputs every few seconds; a replay's flow window must not wait on the hold)."""
+        if self.held and stamp - self.held[0].stamp >= self.hold_max_ns:
+            return self.flush()
+        return []
 
     def flush(self) -> list[EncoderOutput]:
         """End the hold: every held output hashed anew with the statistics as they stand

@@ -52,6 +52,11 @@ class EncoderConfig(ConfigSection):
                                      "the held frames with those statistics (a start-up delay of hold camera "
                                      "frames, services/encoder/clock.py; 0: each frame hashed at once with the "
                                      "frames before it)")
+    embedding_norm_hold_max_s: float = Field(2.0, gt=0, description="the warm-up hold ends at the latest when "
+                                             "the inputs are this many seconds of event time past the oldest held "
+                                             "output (must stay below bus.flow_window_ms: a replay keeps at most "
+                                             "that much event time in flight, and downstream services wait for "
+                                             "the held outputs)")
     # --- added for the pretrained front-end (issue 8); see services/encoder/backbones.py
     untrained: bool = Field(False, description="true: seeded random initialisation instead of weights (ablation "
                             "and tests only; missing weights are otherwise an error)")

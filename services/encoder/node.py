@@ -24,7 +24,8 @@ more than ``sync.sync_stale_sec`` between consecutive beams resets the ring (cou
 Embeddings are standardised per modality before LSBH (``encoder.embedding_norm``, in
 event order; the statistics are saved at the end, see :mod:`services.encoder.standardize`).
 With running statistics the first outputs are held until the camera has
-``encoder.embedding_norm_hold`` embeddings, then hashed with them (the warm-up hold,
+``encoder.embedding_norm_hold`` embeddings (at most ``embedding_norm_hold_max_s`` of event
+time), then hashed with them (the warm-up hold,
 :mod:`services.encoder.clock`); the output watermark stays at the oldest held stamp meanwhile,
 and the end of the inputs releases what is still held.  Counter ``outputs_held``.
 Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
@@ -92,7 +93,8 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         clock = SonarClock(raster, self.mode, int(round(sync_stale_sec * 1e9)),
                            math.radians(cfg.sonar_encode_sweep_deg))
         hold = cfg.embedding_norm_hold if cfg.embedding_norm == "running" else 0
-        self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm_warmup, 1))
+        self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm_warmup, 1),
+                                int(round(cfg.embedding_norm_hold_max_s * 1e9)))
         self.length = cfg.sp_columns
 
     # ------------------------------------------------------------------ inputs
@@ -107,6 +109,8 @@ class EncoderNode(ServiceNode[EncoderConfig]):
             outs = self.core.on_sonar(msg)
         else:
             raise KeyError(f"encoder: unexpected input key {key!r}")
+        if self.core.holding:
+            outs = outs + self.core.expire(msg.header.stamp)
         self._drain()
         self._emit_all(outs)
 

@@ -205,3 +205,14 @@ def test_no_hold_when_the_statistics_are_settled_and_the_end_flushes_what_is_hel
     assert [o.stamp for o in held.flush()] == [int(0.1 * S), int(0.2 * S)] and held.flush() == []
     with pytest.raises(ValueError, match="hold"):
         EncoderCore(StubEncoder(), clock(), hold=-1)
+
+
+def test_warm_up_hold_ends_by_event_time_even_without_new_outputs() -> None:
+    core = EncoderCore(CountingEncoder(), clock("sonar"), hold=10, hold_max=50, hold_max_ns=2 * S)
+    outs = [core.on_sonar(beam(k * 0.05, 9.0 * k)) for k in range(41)]   # one sweep: one sonar-clocked output
+    assert sum(len(o) for o in outs) == 0 and core.oldest_held_stamp == int(round(40 * 0.05 * S))
+    assert core.expire(int(round(3.9 * S))) == []                        # 1.9 s past it: still held
+    released = core.expire(4 * S)                                         # 2 s past it: released by event time
+    assert [o.stamp for o in released] == [int(round(40 * 0.05 * S))] and not core.holding
+    with pytest.raises(ValueError, match="hold_max_ns"):
+        EncoderCore(StubEncoder(), clock(), hold=1, hold_max_ns=0)

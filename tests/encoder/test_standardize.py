@@ -158,3 +158,11 @@ def test_standardize_sequence_gives_the_held_frames_the_statistics_of_the_hold(t
     for i in range(4, 8):                  # afterwards both centre by the frames before
         np.testing.assert_allclose(zh[i], zp[i])
         np.testing.assert_allclose(zh[i], y[i] - y[:i].mean(axis=0))
+
+
+def test_the_hold_must_end_inside_the_replay_flow_window() -> None:
+    from launcher.config import PoseidonConfig
+
+    with pytest.raises(ValueError, match="embedding_norm_hold_max_s"):
+        PoseidonConfig.model_validate({"encoder": {"embedding_norm_hold_max_s": 3.0}})
+    PoseidonConfig.model_validate({"encoder": {"embedding_norm_hold_max_s": 3.0, "embedding_norm_hold": 0}})

@@ -138,7 +138,10 @@ def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tm
         while stall is None and time.monotonic() < deadline:
             time.sleep(0.3)
             for k in _children(launcher.pid):
-                argv = Path(f"/proc/{k}/cmdline").read_bytes().decode(errors="replace").split("\0")
+                try:
+                    argv = Path(f"/proc/{k}/cmdline").read_bytes().decode(errors="replace").split("\0")
+                except FileNotFoundError:   # a child that ended between the listing and the read
+                    continue
                 if "service" in argv and argv[argv.index("service") + 1] == "stall":
                     stall = k
         assert stall is not None
