@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import Field, model_validator
+from pydantic import Field
 
 from common.config import (
     BusConfig,
@@ -62,16 +62,6 @@ class PoseidonConfig(ConfigSection):
     service_classes: dict[str, str] = Field(
         default_factory=dict,
         description="swap or add a service implementation: name -> 'module:Class' (a ServiceNode subclass)")
-
-    @model_validator(mode="after")
-    def _hold_inside_the_flow_window(self) -> PoseidonConfig:
-        """The encoder's warm-up hold must end before the replay's flow window is used up
-        (else the player waits for services that wait for the held outputs)."""
-        if self.encoder.embedding_norm_hold > 0 and self.encoder.embedding_norm_hold_max_s * 1000.0 >= \
-                self.bus.flow_window_ms:
-            raise ValueError(f"encoder.embedding_norm_hold_max_s ({self.encoder.embedding_norm_hold_max_s} s) must be "
-                             f"below bus.flow_window_ms ({self.bus.flow_window_ms} ms)")
-        return self
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> PoseidonConfig:

@@ -109,7 +109,8 @@ class _Wiring:
 #: every algorithm service of this tree: the one place where a value crosses sections
 WIRING: dict[str, _Wiring] = {
     "encoder": _Wiring(lambda c: c.encoder, lambda c: {
-        "sync_stale_sec": c.sync.sync_stale_sec, "lvc_map_persisted": bool(c.htm.state_path)}),
+        "sync_stale_sec": c.sync.sync_stale_sec, "lvc_map_persisted": bool(c.htm.state_path),
+        "flow_window_s": c.bus.flow_window_ms / 1000.0}),
     "htm": _Wiring(lambda c: c.htm),
     "robot_state": _Wiring(lambda c: c.robot_state),
     "posecells": _Wiring(lambda c: c.posecells, lambda c: {"guard": c.vpr_guard}),

@@ -54,9 +54,9 @@ class EncoderConfig(ConfigSection):
                                      "frames before it)")
     embedding_norm_hold_max_s: float = Field(2.0, gt=0, description="the warm-up hold ends at the latest when "
                                              "the inputs are this many seconds of event time past the oldest held "
-                                             "output (must stay below bus.flow_window_ms: a replay keeps at most "
-                                             "that much event time in flight, and downstream services wait for "
-                                             "the held outputs)")
+                                             "output; at most bus.flow_window_ms - 1 s (a replay keeps only that much "
+                                             "event time in flight, and downstream services wait for the held "
+                                             "outputs; a window under 1 s turns the hold off)")
     # --- added for the pretrained front-end (issue 8); see services/encoder/backbones.py
     untrained: bool = Field(False, description="true: seeded random initialisation instead of weights (ablation "
                             "and tests only; missing weights are otherwise an error)")

@@ -75,10 +75,12 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         return ("camera/image_raw", config.sonar_topic), (OUT,)
 
     def __init__(self, config: EncoderConfig, *, sync_stale_sec: float, lvc_map_persisted: bool = False,
-                 encoder: MultimodalEncoder | None = None):
+                 encoder: MultimodalEncoder | None = None, flow_window_s: float = 3.0):
         """``config``: the ``encoder`` section.  From other sections, explicitly: ``sync_stale_sec``
         (``sync``: how long a sonar raster stays fresh for a camera frame, s) and
-        ``lvc_map_persisted`` (``htm.state_path`` set: the LVC map outlives the run)."""
+        ``lvc_map_persisted`` (``htm.state_path`` set: the LVC map outlives the run) and
+        ``flow_window_s`` (``bus.flow_window_ms``: the warm-up hold ends at the latest 1 s of event
+        time before a replay's flow window is used up, and is off when the window is under 1 s)."""
         super().__init__(config)
         cfg = config
         self.sonar_key = cfg.sonar_topic
@@ -92,9 +94,10 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax, cfg.sonar_use_intensities)
         clock = SonarClock(raster, self.mode, int(round(sync_stale_sec * 1e9)),
                            math.radians(cfg.sonar_encode_sweep_deg))
-        hold = cfg.embedding_norm_hold if cfg.embedding_norm == "running" else 0
+        hold_max_s = min(cfg.embedding_norm_hold_max_s, flow_window_s - 1.0)
+        hold = cfg.embedding_norm_hold if cfg.embedding_norm == "running" and hold_max_s > 0 else 0
         self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm_warmup, 1),
-                                int(round(cfg.embedding_norm_hold_max_s * 1e9)))
+                                int(round(max(hold_max_s, 1e-3) * 1e9)))
         self.length = cfg.sp_columns
 
     # ------------------------------------------------------------------ inputs

@@ -160,9 +160,13 @@ def test_standardize_sequence_gives_the_held_frames_the_statistics_of_the_hold(t
         np.testing.assert_allclose(zh[i], y[i] - y[:i].mean(axis=0))
 
 
-def test_the_hold_must_end_inside_the_replay_flow_window() -> None:
+
+def test_the_hold_ends_inside_the_replay_flow_window() -> None:
     from launcher.config import PoseidonConfig
 
-    with pytest.raises(ValueError, match="embedding_norm_hold_max_s"):
-        PoseidonConfig.model_validate({"encoder": {"embedding_norm_hold_max_s": 3.0}})
-    PoseidonConfig.model_validate({"encoder": {"embedding_norm_hold_max_s": 3.0, "embedding_norm_hold": 0}})
+    cfg = PoseidonConfig.model_validate({"encoder": {"lsbh_matrix_path": "", "embedding_norm_hold_max_s": 5.0,
+                                                     "pool_grid": 1, "sp_columns": 256}})
+    node = build_node("encoder", cfg)
+    assert node.core.hold == 10 and node.core.hold_max_ns == 2_000_000_000   # 3 s window - 1 s
+    cfg.bus.flow_window_ms = 200
+    assert build_node("encoder", cfg).core.hold == 0                         # no room for a hold
