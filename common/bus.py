@@ -160,7 +160,11 @@ class BusPublisher:
 
     def keep(self, msg: Message) -> None:
         """Number and retain ``msg``'s data frame without sending it (:mod:`common.live`, outages)."""
-        frame = encode_sequenced(self.index, msg.type_name, encode(msg))
+        self.keep_data(msg.type_name, encode(msg))
+
+    def keep_data(self, type_name: str, payload: bytes | memoryview) -> None:
+        """:meth:`keep` of an encoded message."""
+        frame = encode_sequenced(self.index, type_name, payload)
         with self._lock:
             self.retained.append((self.index, frame))
             self.retained_bytes += len(frame)

@@ -78,6 +78,9 @@ class LiveConfig(ConfigSection):
     slow_service: str = Field("", description="TEST SETTING: this service sleeps slow_ms before each input "
                               "(shows the drop policy when a service falls behind); '' = none")
     slow_ms: float = Field(0.0, ge=0, description="TEST SETTING: the delay of slow_service per input (ms)")
+    lateness_ms: int = Field(200, ge=0, description="the live player's lateness bound (--live mcap; the rule: "
+                             "common/live.py); the ROS bridge has its own, bridge_ros1.lateness_ms")
+    watermark_interval_ms: int = Field(100, ge=1, description="the live player sends wall-clock watermarks this often")
     startup_timeout_s: float = Field(180.0, gt=0, description="wait this long for the services and the recorder "
                                      "(each warmed up: numba kernels compiled) before the source starts")
     stop_timeout_s: float = Field(120.0, gt=0, description="after the source stopped, wait this long for the "

@@ -47,13 +47,19 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from common.bus import Bus, BusPublisher
-from common.messages import Message
+import numpy as np
 
-__all__ = ["LiveClock", "LiveSource"]
+from common.bus import Bus, BusPublisher
+from common.codec import encode
+from common.messages import Header, LatencyReport, LatencyStage, Message
+from common.worker import WAKE, Sink
+
+__all__ = ["LiveClock", "LiveSource", "LatencyTracker", "LATENCY_KEY", "publish_latency",
+           "follow_outputs"]
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +68,9 @@ def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
     if n:
         d[k] = d.get(k, 0) + n
 
+
+#: the key of a live run's :class:`common.messages.LatencyReport`
+LATENCY_KEY = "live/latency"
 
 #: extra bound of a stream that has not had a message yet (ns; see the module doc)
 UNSEEN_GRACE_NS = 2_000_000_000
@@ -191,17 +200,23 @@ class LiveSource:
         """Publish ``msg`` on ``key`` now (``arrival_ns``: when it reached us, default now); True
         when it was late (older than its stream's promise: published all the same, counted).
         In an outage it is kept instead (module notes).  Nothing is published after :meth:`end`."""
+        return self.publish_data(key, msg.type_name, encode(msg), msg.header.stamp, arrival_ns)
+
+    def publish_data(self, key: str, type_name: str, payload: bytes | memoryview, stamp_ns: int,
+                     arrival_ns: int | None = None) -> bool:
+        """:meth:`publish` of an already encoded message (``stamp_ns``: its header stamp), e.g.
+        a recording's payload sent byte for byte."""
         arrival = time.time_ns() if arrival_ns is None else arrival_ns
         with self._lock:
             if self.ended:
                 return False
-            late = self.clock.observe(key, msg.header.stamp, arrival)
+            late = self.clock.observe(key, stamp_ns, arrival)
             if late:
                 self.late[key] = self.late.get(key, 0) + 1
             if self._check_link(key):
-                self._publisher(key).send(msg)
+                self._publisher(key).send_data(type_name, payload, stamp_ns)
             else:
-                self._publisher(key).keep(msg)
+                self._publisher(key).keep_data(type_name, payload)
             self._bound(key)
             self.published[key] = self.published.get(key, 0) + 1
             return late
@@ -260,3 +275,93 @@ class LiveSource:
     def publishers(self) -> list[BusPublisher]:
         with self._lock:
             return list(self._pubs.values())
+
+
+class LatencyTracker:
+    """Wall time from a sensor message's arrival to the outputs it caused, per stage.
+
+    Outputs carry the stamp of the input that caused them (:mod:`common.node`), so an output
+    is matched to the input of the same stamp (the earliest arrival when several streams share
+    it).  Each (stage, stamp) counts once (a map republished for the same event does not).
+    The last ``horizon`` input stamps are remembered."""
+
+    def __init__(self, horizon: int = 200_000):
+        self.horizon = horizon
+        self._arrival: OrderedDict[int, int] = OrderedDict()
+        self._seen: dict[str, set[int]] = {}
+        self.samples: dict[str, list[float]] = {}
+        self.unmatched: dict[str, int] = {}
+
+    def arrived(self, stamp_ns: int, wall_ns: int) -> None:
+        if stamp_ns in self._arrival:
+            return
+        self._arrival[stamp_ns] = wall_ns
+        if len(self._arrival) > self.horizon:
+            self._arrival.popitem(last=False)
+
+    def output(self, stage: str, stamp_ns: int, wall_ns: int) -> float | None:
+        """An output of ``stage`` stamped ``stamp_ns`` was seen at ``wall_ns``: its latency (ms),
+        or None (no input of that stamp, or already counted)."""
+        seen = self._seen.setdefault(stage, set())
+        if stamp_ns in seen:
+            return None
+        t0 = self._arrival.get(stamp_ns)
+        if t0 is None:
+            self.unmatched[stage] = self.unmatched.get(stage, 0) + 1
+            return None
+        seen.add(stamp_ns)
+        ms = (wall_ns - t0) / 1e6
+        self.samples.setdefault(stage, []).append(ms)
+        return ms
+
+    def last_stamp(self) -> int:
+        """The newest input stamp remembered (0 before any)."""
+        return max(self._arrival, default=0)
+
+    def report(self, source: str, rate: float = 0.0) -> LatencyReport:
+        """The :class:`common.messages.LatencyReport` of :meth:`summary`, stamped with the newest input."""
+        return LatencyReport(header=Header(seq=0, stamp=self.last_stamp()), source=source, rate=rate,
+                             stages={k: LatencyStage(**v) for k, v in self.summary().items()})
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        """Per stage: ``n``, ``p50_ms``, ``p95_ms``, ``p99_ms``, ``max_ms`` (and ``unmatched``)."""
+        out: dict[str, dict[str, float]] = {}
+        for stage in sorted(set(self.samples) | set(self.unmatched)):
+            a = np.asarray(self.samples.get(stage, []), dtype=np.float64)
+            row: dict[str, float] = {"n": int(a.size), "unmatched": self.unmatched.get(stage, 0)}
+            if a.size:
+                p50, p95, p99 = np.percentile(a, [50, 95, 99])
+                row.update(p50_ms=round(float(p50), 3), p95_ms=round(float(p95), 3), p99_ms=round(float(p99), 3),
+                           max_ms=round(float(a.max()), 3))
+            out[stage] = row
+        return out
+
+
+def publish_latency(bus: Bus, report: LatencyReport, wait_s: float = 10.0) -> bool:
+    """Publish a live run's ``report`` on :data:`LATENCY_KEY` and its end-of-stream, then wait
+    (at most ``wait_s``) until its consumers -- the run's recorder awaits that key
+    (:mod:`launcher.live`) -- have left: closing the session earlier could discard it.  True
+    when they left (or there were none)."""
+    pub = bus.publisher(LATENCY_KEY)
+    pub.send(report)
+    pub.send_eos()
+    return bus.drain([pub], wait_s)
+
+
+def follow_outputs(sink: Sink, keys: Iterable[str], ended: set[str], on_frame: Callable[[str, bytes], None],
+                   idle_s: float = 2.0, limit_s: float = 60.0) -> None:
+    """After a live source ended its streams the services still finish their inputs: pass what
+    ``sink`` receives to ``on_frame`` (which adds a key to ``ended`` at its end-of-stream) until
+    every one of ``keys`` ended, or none came for ``idle_s`` (a key no running service
+    produces never ends), at most ``limit_s``."""
+    want = set(keys)
+    deadline = time.monotonic() + limit_s
+    quiet_since = time.monotonic()
+    while time.monotonic() < deadline and not want <= ended:
+        item = sink.next_frame(0.1)
+        if item is None or item[0] == WAKE:
+            if time.monotonic() - quiet_since > idle_s:
+                return
+            continue
+        quiet_since = time.monotonic()
+        on_frame(*item)

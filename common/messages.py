@@ -35,7 +35,7 @@ __all__ = [
     "ExperienceEvent", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
     "PoseStamped", "RevisitTruth", "NavSatFix", "FluidPressure", "Temperature", "MagneticField",
     "PoseWithCovarianceStamped", "TwistStamped", "TransformStamped", "TFMessage", "KeyValue", "DiagnosticStatus",
-    "DiagnosticArray", "RawMessage", "RAW_KEY_PREFIX", "IMAGE_CHANNELS", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
+    "DiagnosticArray", "RawMessage", "LatencyReport", "LatencyStage", "RAW_KEY_PREFIX", "IMAGE_CHANNELS", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
 ]
 
 
@@ -518,6 +518,29 @@ class RawMessage(Message):
     data: bytes
 
 
+class LatencyStage(BaseModel):
+    """One stage of a :class:`LatencyReport`: wall time from a sensor message's arrival at the
+    live source to the output it caused arriving back there (ms)."""
+
+    model_config = ConfigDict(extra="forbid")
+    n: int = Field(ge=0, description="outputs matched to an input by stamp")
+    unmatched: int = Field(0, ge=0, description="outputs whose stamp no remembered input had")
+    p50_ms: float | None = None
+    p95_ms: float | None = None
+    p99_ms: float | None = None
+    max_ms: float | None = None
+
+
+class LatencyReport(Message):
+    """``live/latency``: a live run's latency per stage, published once by its source after the
+    services' outputs ended (recorded with the run; ``poseidon eval`` reads it).  Stages:
+    ``lvc``, ``event``, ``map``, ``odometry``, ``dead_reckoning`` (:mod:`common.live`)."""
+
+    source: str = Field(description="the live source that measured it: bridge_ros1 | live_player")
+    rate: float = Field(0.0, ge=0, description="the live player's pace (x real time); 0 for a sensor source")
+    stages: dict[str, LatencyStage]
+
+
 # --------------------------------------------------------------------------- ground truth
 
 
@@ -563,6 +586,7 @@ KEYS: dict[str, type[Message]] = {
     "map_sessions": MapSessions,
     "truth/pose": Odometry,
     "truth/revisits": RevisitTruth,
+    "live/latency": LatencyReport,
 }
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
@@ -570,7 +594,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
     for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
               NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, MapSessions, RevisitTruth,
               NavSatFix, FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
-              TFMessage, DiagnosticArray, RawMessage)
+              TFMessage, DiagnosticArray, RawMessage, LatencyReport)
 }
 
 

@@ -72,6 +72,13 @@ truth of an experience" = ``truth/pose`` interpolated at the node's stamp.
   the recording has it, e.g. a CARMEN import) | ``Odometry`` (the dead reckoning).  Works
   on an imported log alone (no run): ``relations`` null, ``relations_odometry`` filled.
 
+- ``latency``: a live run's latency (``poseidon run --live``), as its source measured and
+  recorded it on ``live/latency`` (:class:`common.messages.LatencyReport`); null for a replay:
+  ``source`` (``bridge_ros1`` | ``live_player``), ``rate`` (the live player's x real time, 0
+  for a sensor source), ``stages``: per stage (``lvc``, ``event``, ``map``, ``odometry``,
+  ``dead_reckoning``) ``n``, ``unmatched``, ``p50_ms``, ``p95_ms``, ``p99_ms``, ``max_ms`` --
+  the wall time from a sensor message's arrival at the source to the output it caused
+  (matched by stamp) arriving back there;
 - ``sessions``: the map's sessions (a map continued over missions with ``poseidon run
   --map-dir``, or a kidnapped vehicle): ``count``, ``loaded_nodes``, ``unlinked_nodes``,
   ``links``, ``false_links``, ``time_to_link_s``, ``link_error_m``, ``ate_prior_frame_m``,
@@ -383,9 +390,18 @@ def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: Poseido
     if run.has_truth and run.odometry is not None and len(run.odometry) > 1:
         out["dead_reckoning"] = {k: _r(v, 4) for k, v in anchored_errors(run.odometry, run.truth).items()}  # type: ignore[arg-type]
     out["sessions"] = sessions_block(run, prior_run, far_m)
+    out["latency"] = latency_block(run)
     if relations is not None:
         out.update(relations_block(run, relations))
     return out
+
+
+def latency_block(run: RunData) -> dict[str, Any] | None:
+    """The ``latency`` key: a live run's report as recorded (null for a replay)."""
+    r = run.latency
+    if r is None:
+        return None
+    return {"source": r.source, "rate": r.rate, "stages": {k: v.model_dump() for k, v in sorted(r.stages.items())}}
 
 
 def _f(v: Any, fmt: str = ".3f") -> str:
@@ -425,6 +441,14 @@ def format_eval(r: dict[str, Any]) -> list[str]:
                      f"this run unlinked); {se['links']} links, {se['false_links']} false; time to link "
                      f"{_f(se['time_to_link_s'], '.1f')} s; link error {_f(se['link_error_m'])} m; ATE in the "
                      f"prior map's frame {_f(se['ate_prior_frame_m'])} m over {se['ate_prior_frame_n']} nodes")
+    lat = r.get("latency")
+    if lat:
+        lines.append(f"live latency       measured by {lat['source']}" + (f" at {lat['rate']:g}x real time" if lat["rate"]
+                                                                          else "") + " (arrival -> output)")
+        for stage, v in lat["stages"].items():
+            if v["n"]:
+                lines.append(f"  {stage:<16} p50 {v['p50_ms']:.1f} ms, p95 {v['p95_ms']:.1f} ms, p99 {v['p99_ms']:.1f} ms, "
+                             f"max {v['max_ms']:.1f} ms (n {v['n']}, {v['unmatched']} unmatched)")
     if "relations_file" in r:
         lines.append(f"relations          {r['relations_in_file']} in {r['relations_file']} "
                      "(error: mean +- std over the relations used)")

@@ -4,7 +4,8 @@
 some of the keys below) and returns a :class:`RunData`.  Only the keys the metrics and
 figures use are decoded (:data:`DECODED`); the heavy ones are reduced on the way (camera
 frames to their stamps, ``experience_image`` to header + ``source_stamp``, ``map`` to its
-last message, ``neocortex/sdr`` to its fused active bits); every key is counted.
+last message, ``neocortex/sdr`` to its fused active bits); every key is counted.  A live
+run's ``live/latency`` report is kept as it is (``RunData.latency``).
 
 Frames and units: positions are NED metres (:mod:`common.geometry`).  ``truth/pose`` is NED
 already; ``Odometry`` and ``dead_reckoning`` are published in ``robot_state``'s frame and
@@ -34,11 +35,13 @@ from pydantic import ValidationError
 from common.codec import DecodeError, decode
 from common.config import ConfigError
 from common.geometry import published_to_ned, yaw_of_quaternion
+from common.live import LATENCY_KEY
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
 from common.messages import (
     ExperienceEvent,
     ExperienceImage,
     ExperienceMap,
+    LatencyReport,
     LocalViewCells,
     MapSessions,
     Message,
@@ -106,6 +109,7 @@ class RunData:
     final_map: ExperienceMap | None = None
     map_messages: int = 0
     final_sessions: MapSessions | None = None  # the last map_sessions (a map of several sessions, issue 20)
+    latency: LatencyReport | None = None  # live/latency: a live run's latency per stage (common.live)
     truth_yaw: np.ndarray | None = None  # truth/pose yaw (NED, rad) at ``truth`` stamps
 
     @property
@@ -201,6 +205,10 @@ class _Reader:
             run.map_messages += 1
         elif rec.key == "map_sessions":
             self.last_sessions = rec
+        elif rec.key == LATENCY_KEY:
+            m = _decode(rec, p)
+            assert isinstance(m, LatencyReport)
+            run.latency = m
         elif rec.key == "experience_image":
             m = _decode(rec, p)
             assert isinstance(m, ExperienceImage)

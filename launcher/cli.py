@@ -5,8 +5,9 @@ Subcommands:
 - ``run --input REC.mcap --out RUN.mcap [--map-dir DIR] [--config FILE] [--set key=value ...] [--embedded]
   [--services a,b] [--rate R] [--timeout S] [--json]``: replay a recording through every
   built service and record the run (:mod:`launcher.run`).  ``run --live ros1 --out RUN.mcap
-  [--services a,b] [--duration S]``: the same on a live source (:mod:`launcher.live`, which
-  documents the summary's live keys: ``dropped``, the bridge's ``latency``).  Exit code 0 on success, 2 on
+  [--services a,b] [--duration S]`` and ``run --live mcap --input REC.mcap [--rate R] ...``: the
+  same on a live source (:mod:`launcher.live`, which documents the summary's live keys:
+  ``dropped``, the source's ``latency``).  Exit code 0 on success, 2 on
   bad configuration/input, 3 when a service failed (its name is printed).
 - ``demo [--seed S] [--out DIR] [--baselines] [--embedded] [--timeout S] [--json]``: the main
   job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
@@ -124,8 +125,9 @@ def _add_run_command(sub: Any) -> None:
     """``poseidon run``: replay a recording (or a live source) through the services."""
     p = sub.add_parser("run", help="replay a recording through the services and record the run")
     p.add_argument("--input", help="input recording (MCAP); or --live")
-    p.add_argument("--live", choices=["ros1"], help="a live source instead of --input: ros1 = the ROS 1 bridge "
-                   "on ROS_MASTER_URI (launcher/live.py); ends on Ctrl-C/SIGTERM or --duration")
+    p.add_argument("--live", choices=["ros1", "mcap"], help="a live source: ros1 = the ROS 1 bridge on "
+                   "ROS_MASTER_URI; mcap = --input played by the wall clock at --rate (default 1) like live "
+                   "sensors (launcher/live.py); ends on Ctrl-C/SIGTERM, --duration or (mcap) the input's end")
     p.add_argument("--duration", type=float, help="--live: stop after this many seconds")
     p.add_argument("--out", required=True, help="output recording of the run (MCAP)")
     p.add_argument("--embedded", action="store_true", help="all services in this process")
@@ -153,16 +155,17 @@ def _add_demo_command(sub: Any) -> None:
 def _add_service_command(sub: Any) -> None:
     """``poseidon service NAME``: one service connected to a hub/router."""
     p = sub.add_parser("service", help="run one service connected to a hub/router")
-    p.add_argument("name", help="player, recorder, bridge_ros1 (live ROS 1 source), encoder, htm, robot_state, posecells, "
+    p.add_argument("name", help="player, recorder, bridge_ros1 (live ROS 1 source), live_player (a recording "
+                   "played live), encoder, htm, robot_state, posecells, "
                    "expmap, ratslam_lv (RatSLAM front-end)")
     p.add_argument("--connect", help="Zenoh endpoint of the hub/router, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--mode", default="client", choices=["client", "peer"], help="Zenoh session mode")
     p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/*.json5)")
     p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
     p.add_argument("--stats", help="write the service's final counters here (JSON) instead of stdout")
-    p.add_argument("--input", help="player: recording to publish")
-    p.add_argument("--rate", type=float, help="player: replay speed")
-    p.add_argument("--keys", help="player: comma-separated keys to publish")
+    p.add_argument("--input", help="player, live_player: recording to publish")
+    p.add_argument("--rate", type=float, help="player, live_player: replay speed")
+    p.add_argument("--keys", help="player, live_player: comma-separated keys to publish")
     p.add_argument("--wait-for", help="player: comma-separated services to wait for")
     p.add_argument("--announce", help="bridge_ros1: comma-separated source keys kept alive while silent")
     p.add_argument("--live", action="store_true", help="a service of a live run: bounded input queue (live.*)")

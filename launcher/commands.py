@@ -69,6 +69,9 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             extra.append(f"dropped (queue full, oldest first) {st['dropped']}")
         if st.get("late"):
             extra.append(f"late {st['late']}")
+        if st.get("behind_ms"):
+            extra.append(f"published behind its schedule by p99 {st['behind_ms']['p99']:.1f} ms, "
+                         f"max {st['behind_ms']['max']:.1f} ms" + ("" if st.get("complete") else " (stopped early)"))
         if st.get("outages"):
             extra.append(f"link outages {st['outages']}: delivered late {st.get('delivered_late') or {}}, "
                          f"sent again {st.get('resent') or {}}, dropped (outage buffer full) "
@@ -91,6 +94,7 @@ def _run_live(args: argparse.Namespace) -> int:
     import threading
 
     from common.config import ConfigError
+    from common.mcap_io import RecordingError
     from launcher.live import run_live
     from launcher.run import RunFailed
     stop = threading.Event()
@@ -99,8 +103,10 @@ def _run_live(args: argparse.Namespace) -> int:
     try:
         config = _load_config(args)
         services = _services_arg(args)
-        result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop)
-    except (ConfigError, ValueError, KeyError, TimeoutError) as exc:
+        result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop,
+                          input_path=args.input if args.live == "mcap" else None,
+                          rate=1.0 if args.rate is None else args.rate)
+    except (ConfigError, RecordingError, ValueError, KeyError, TimeoutError, FileNotFoundError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
@@ -125,12 +131,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from common.config import ConfigError
     from common.mcap_io import RecordingError
     from launcher.run import RunFailed, run_distributed, run_embedded
-    if (args.live is None) == (args.input is None):
-        print("poseidon run: give exactly one of --input REC.mcap and --live SOURCE", file=sys.stderr)
+    if (args.live in (None, "mcap")) != (args.input is not None):
+        print("poseidon run: give --input REC.mcap (a replay, or with --live mcap) or --live ros1", file=sys.stderr)
         return 2
     if args.live is not None:
-        if args.embedded or args.rate is not None:
-            print("poseidon run: --embedded and --rate do not apply to --live", file=sys.stderr)
+        if args.embedded or (args.rate is not None and args.live != "mcap"):
+            print(f"poseidon run: --embedded{'' if args.live == 'mcap' else ' and --rate'} do not apply to "
+                  f"--live {args.live}", file=sys.stderr)
             return 2
         return _run_live(args)
     try:

@@ -54,6 +54,7 @@ from typing import Any
 import yaml
 
 from common.bus import Bus, open_hub, open_local_session
+from common.live import LATENCY_KEY
 from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
@@ -176,7 +177,7 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     rec_keys = list(recording_keys(input_path))
     if not rec_keys:
         raise RecordingError(f"{input_path}: no readable messages (not an MCAP recording, or damaged from its start)")
-    player_keys = sorted(k for k in rec_keys if k not in produced)
+    player_keys = sorted(k for k in rec_keys if k not in produced and k != LATENCY_KEY)  # a live run's report: not an input
     if config.player.keys:
         player_keys = sorted(k for k in player_keys if k in config.player.keys)
     for n, (ins, _o) in io.items():

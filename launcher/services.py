@@ -33,11 +33,16 @@ from services.player.player import Player
 from services.recorder.recorder import Recorder
 
 __all__ = ["ALGORITHM_SERVICES", "OPTIONAL_SERVICES", "available_services", "node_class", "build_node",
-           "PIPELINE_ORDER", "PLAYER", "RECORDER", "BRIDGE_ROS1", "UnknownService", "WorkerSpec", "build_worker", "WIRING",
-           "node_section", "node_io"]
+           "PIPELINE_ORDER", "PLAYER", "RECORDER", "BRIDGE_ROS1", "LIVE_PLAYER", "latency_stages", "UnknownService",
+           "WorkerSpec", "build_worker", "WIRING", "node_section", "node_io"]
 
-#: the names of the workers that are not algorithm services (the ROS 1 bridge: a live source)
-PLAYER, RECORDER, BRIDGE_ROS1 = "player", "recorder", "bridge_ros1"
+#: the names of the workers that are not algorithm services (the ROS 1 bridge and the live player: live sources)
+PLAYER, RECORDER, BRIDGE_ROS1, LIVE_PLAYER = "player", "recorder", "bridge_ros1", "live_player"
+
+
+def latency_stages(config: PoseidonConfig) -> dict[str, str]:
+    """Output key -> latency stage of a live run (the keys the ROS bridge publishes back)."""
+    return config.bridge_ros1.output_stages()
 
 #: name -> "module:Class", in pipeline order
 ALGORITHM_SERVICES: dict[str, str] = {
@@ -77,7 +82,7 @@ def node_class(name: str, config: PoseidonConfig | None = None) -> type[ServiceN
               or OPTIONAL_SERVICES.get(name))
     if target is None:
         raise UnknownService(f"unknown service {name!r}; services: {PLAYER}, {RECORDER}, "
-                             f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES, BRIDGE_ROS1])}"
+                             f"{', '.join([*ALGORITHM_SERVICES, *OPTIONAL_SERVICES, BRIDGE_ROS1, LIVE_PLAYER])}"
                              " (or add one with service_classes in the configuration)")
     if ":" not in target:
         raise KeyError(f"service {name!r}: {target!r} is not of the form 'module:Class'")
@@ -199,6 +204,13 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         return Recorder(bus, spec.out, expect=spec.expect, metadata=spec.metadata,
                         compression=config.recorder.compression, chunk_size=config.recorder.chunk_size,
                         supervision=spec.supervision)
+    if name == LIVE_PLAYER:
+        if spec.input is None:
+            raise ValueError("the live player needs an input recording")
+        from services.player.live import LivePlayer
+        return LivePlayer(bus, spec.input, latency_stages(config), rate=1.0 if spec.rate is None else spec.rate,
+                          keys=spec.keys, lateness_ms=config.live.lateness_ms,
+                          watermark_interval_ms=config.live.watermark_interval_ms, announce=spec.announce)
     if name == BRIDGE_ROS1:
         from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
         return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s)

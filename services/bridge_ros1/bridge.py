@@ -11,7 +11,7 @@
   services to be alive.
 - Event time: every ``watermark_interval_ms`` (wall) each source key (the keys published so
   far and ``announce``: the sensor keys the services wait on) gets a watermark from the wall
-  clock (:mod:`services.bridge_ros1.clock`: the mapping rule and the lateness bound), so a
+  clock (:mod:`common.live`: the mapping rule and the lateness bound), so a
   silent sensor does not stall the services' event-time merge.
 - Out: ``Odometry``, ``dead_reckoning``, ``map`` (Path + MarkerArray, latched, at most every
   ``map_period_s``), ``local_view_cells`` and ``experience_event`` are published on ROS topics
@@ -23,7 +23,8 @@
   (the rule: :mod:`common.live`).
 - Latency: the wall time from a sensor message's arrival to the LVC id, experience event and
   map it caused (matched by stamp) and to the Odometry, per stage p50/p95/p99
-  (``BridgeStats.latency``, in the run summary).
+  (``BridgeStats.latency``, in the run summary); at the end it is published on ``live/latency``
+  (:func:`common.live.publish_latency`), so the run's recording holds it.
 - End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge sends end-of-stream on
   every key it published or announced (the services then finish and the recorder closes a
   complete file), forwards to ROS what the services still publish until their outputs end
@@ -44,10 +45,9 @@ from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_frame
-from common.live import LiveSource
+from common.live import LatencyTracker, LiveSource, follow_outputs, publish_latency
 from common.messages import ExperienceEvent, ExperienceMap, LocalViewCells, Message, Odometry, PoseStamped
 from common.worker import WAKE, Sink, SinkStats, Source
-from services.bridge_ros1.clock import LatencyTracker
 from services.bridge_ros1.config import BridgeRos1Config
 from services.bridge_ros1.convert import Incoming, Outgoing
 from services.bridge_ros1.ros_io import RosLink
@@ -113,8 +113,7 @@ class Ros1Bridge(Sink, Source):
                                  int(config.outage_buffer_mb * 1e6))
         self.latency = LatencyTracker()
         self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
-        self._out_keys = {config.odometry_key: "odometry", config.dead_reckoning_key: "dead_reckoning",
-                          config.map_key: "map", config.lvc_key: "lvc", config.event_key: "event"}
+        self._out_keys = config.output_stages()
         self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
                             config.markers_topic, config.lvc_topic, config.event_topic}
         self._outputs_ended: set[str] = set()
@@ -207,21 +206,6 @@ class Ros1Bridge(Sink, Source):
         _bump(self.stats.to_ros, self.config.path_topic)
         _bump(self.stats.to_ros, self.config.markers_topic)
 
-    def _forward_last_outputs(self, idle_s: float = 2.0, limit_s: float = 60.0) -> None:
-        """After the sources ended: the services still finish their inputs; forward what they
-        publish to ROS until every output key ended, or none came for ``idle_s`` (a key no
-        service produces never ends), at most ``limit_s``."""
-        deadline = time.monotonic() + limit_s
-        quiet_since = time.monotonic()
-        while time.monotonic() < deadline and not set(self._out_keys) <= self._outputs_ended:
-            item = self.next_frame(0.1)
-            if item is None or item[0] == WAKE:
-                if time.monotonic() - quiet_since > idle_s:
-                    return
-                continue
-            quiet_since = time.monotonic()
-            self.on_frame(*item)
-
     # ---- run --------------------------------------------------------------------------------
     def _advertise(self, link: RosLink) -> None:
         c, o = self.config, self.outgoing
@@ -270,10 +254,11 @@ class Ros1Bridge(Sink, Source):
                     next_discover = now + c.discover_interval_s
         finally:
             self.source.end()
-            self._forward_last_outputs()
+            follow_outputs(self, self._out_keys, self._outputs_ended, self.on_frame)  # forwarded to ROS
             self.flush_map(force=True)
             with self._lock:
                 self.stats.latency = self.latency.summary()
+                report = self.latency.report(BRIDGE_NAME)
             counters = self.source.counters()
             self.stats.published, self.stats.late = counters["published"], counters["late"]
             self.stats.delivered_late, self.stats.resent = counters["delivered_late"], counters["resent"]
@@ -281,4 +266,5 @@ class Ros1Bridge(Sink, Source):
             self.stats.watermarks = counters["watermarks"]
             link.close()
             self.drain(self.source.publishers())  # a no-op after a stop: see the module notes
+            publish_latency(self.bus, report)  # recorded with the run (poseidon eval reads it)
         return self.stats

@@ -67,3 +67,9 @@ class BridgeRos1Config(ConfigSection):
     lvc_topic: str = Field("/poseidon/lvc_id")
     event_key: str = Field("experience_event", description="our key published as std_msgs/String (JSON)")
     event_topic: str = Field("/poseidon/experience_event")
+
+    def output_stages(self) -> dict[str, str]:
+        """Our output key -> its latency stage (:class:`common.live.LatencyTracker`): the outputs
+        published back to ROS, also those the live player times (``launcher.services.latency_stages``)."""
+        return {self.odometry_key: "odometry", self.dead_reckoning_key: "dead_reckoning", self.map_key: "map",
+                self.lvc_key: "lvc", self.event_key: "event"}

@@ -11,6 +11,7 @@ import sys
 import pytest
 
 from common.mcap_io import read_messages
+from eval.run_eval import evaluate_run
 from tests.bridge_ros1.ros1 import Roscore, require_bag, require_ros1, wait_subscribed
 from tests.conftest import REPO
 
@@ -65,7 +66,8 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
         core.stop()
     assert result["mode"] == "live"
     rs = result["services"]["robot_state"]
-    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060}, (
+    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060,
+                                             "live/latency": 1}, (
         result["services"]["bridge_ros1"]["received"], result["services"]["bridge_ros1"]["late"], rs["rejected"],
         rs["dropped"])
     bridge = result["services"]["bridge_ros1"]
@@ -75,6 +77,8 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     # < 5 s: the silent "odometry" input (announced, never published) did not stall robot_state; without
     # wall-clock watermarks nothing would come out before the end of the ~8 s bag
     assert lat["n"] == 3060 and 0 < lat["p50_ms"] <= lat["p95_ms"] <= lat["p99_ms"] <= lat["max_ms"] < 5000
+    recorded = evaluate_run(out)["latency"]  # in the recording, for poseidon eval long after the run
+    assert recorded["source"] == "bridge_ros1" and recorded["stages"]["odometry"] == lat
     assert result["services"]["robot_state"]["dropped"] == {}
     assert 0 < rs["cpu_s"] and 50 < rs["peak_rss_mb"] < 4000   # the process's own figures (MB)
 
@@ -86,6 +90,7 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     live = [m.payload for m in read_messages(out, keys=["Odometry"])]
     again = [m.payload for m in read_messages(replay, keys=["Odometry"])]
     assert len(live) == 3060 and live == again  # byte for byte: live event time is replay event time
+    assert "live/latency" not in json.loads(proc.stdout)["recording"]["counts"]  # a replay has no live latency
 
 
 def test_a_service_slowed_on_purpose_drops_its_oldest_inputs_counted_and_the_recording_stays_complete(tmp_path):

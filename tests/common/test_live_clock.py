@@ -1,7 +1,7 @@
-"""Live watermarks from the wall clock (the rule of services/bridge_ros1/clock.py) and latency percentiles."""
+"""Live watermarks from the wall clock and latency percentiles (the rules of common/live.py)."""
 import pytest
 
-from services.bridge_ros1.clock import LatencyTracker, LiveClock
+from common.live import LatencyTracker, LiveClock
 
 MS = 1_000_000
 
