@@ -158,12 +158,8 @@ class BusPublisher:
         self.index += 1
         self.sent += 1
 
-    def keep(self, msg: Message) -> None:
-        """Number and retain ``msg``'s data frame without sending it (:mod:`common.live`, outages)."""
-        self.keep_data(msg.type_name, encode(msg))
-
     def keep_data(self, type_name: str, payload: bytes | memoryview) -> None:
-        """:meth:`keep` of an encoded message."""
+        """Number and retain an encoded message's data frame without sending it (:mod:`common.live`, outages)."""
         frame = encode_sequenced(self.index, type_name, payload)
         with self._lock:
             self.retained.append((self.index, frame))

@@ -127,6 +127,22 @@ def _first_failure(procs: dict[str, subprocess.Popen[bytes]], first: str, wait_s
         time.sleep(0.1)
 
 
+def _commands(plan: RunPlan, source: str, tmp: Path, endpoint: str, partial: Path, inp: Path | None,
+              rate: float) -> dict[str, list[str]]:
+    """The command line of every process of the run (its configuration and metadata in ``tmp``)."""
+    common = ["--connect", endpoint, "--config", str(tmp / "config.yaml"), "--log-level", _log_level()]
+    base = [sys.executable, "-m", "launcher.cli", "service"]
+    cmds = {RECORDER: base + [RECORDER, *common, "--out", str(partial), "--expect", ",".join(plan.expect),
+                              "--metadata", str(tmp / "metadata.json"), "--stats", str(_stats_file(tmp, RECORDER))]}
+    for name in plan.services:
+        cmds[name] = base + [name, *common, "--live", "--stats", str(_stats_file(tmp, name))]
+    cmds[source] = base + [source, *common, "--announce", ",".join(plan.player_keys),
+                           "--stats", str(_stats_file(tmp, source))]
+    if inp is not None:
+        cmds[source] += ["--input", str(inp), "--rate", repr(rate), "--keys", ",".join(plan.player_keys)]
+    return cmds
+
+
 def run_live(config: PoseidonConfig, source: str, out: str | Path, services: list[str] | None = None,
              duration_s: float | None = None, stop: threading.Event | None = None,
              input_path: str | Path | None = None, rate: float = 1.0) -> RunResult:
@@ -157,16 +173,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
         cfg_file = tmp / "config.yaml"
         cfg_file.write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
         (tmp / "metadata.json").write_text(json.dumps(_metadata(config, source, plan.services, inp, rate)))
-        common = ["--connect", endpoint, "--config", str(cfg_file), "--log-level", _log_level()]
-        base = [sys.executable, "-m", "launcher.cli", "service"]
-        cmds = {RECORDER: base + [RECORDER, *common, "--out", str(partial), "--expect", ",".join(plan.expect),
-                                  "--metadata", str(tmp / "metadata.json"), "--stats", str(_stats_file(tmp, RECORDER))]}
-        for name in plan.services:
-            cmds[name] = base + [name, *common, "--live", "--stats", str(_stats_file(tmp, name))]
-        cmds[bridge] = base + [bridge, *common, "--announce", ",".join(plan.player_keys),
-                               "--stats", str(_stats_file(tmp, bridge))]
-        if inp is not None:
-            cmds[bridge] += ["--input", str(inp), "--rate", repr(rate), "--keys", ",".join(plan.player_keys)]
+        cmds = _commands(plan, bridge, tmp, endpoint, partial, inp, rate)
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
 

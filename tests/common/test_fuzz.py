@@ -26,6 +26,7 @@ from common.messages import (
     Image,
     Imu,
     LaserScan,
+    LatencyReport,
     LocalViewCells,
     MagneticField,
     MapSessions,
@@ -91,6 +92,9 @@ def examples() -> dict[str, object]:
                                            "values": [{"key": "beams", "value": "4"}]}]),
         RawMessage(header=H, topic="/vendor/status", ros_type="vendor_msgs/msg/Status", serialization="ros1",
                    definition="uint8 code", data=b"\x01"),
+        LatencyReport(header=H, source="live_player", rate=4.0,
+                      stages={"lvc": {"n": 3, "unmatched": 0, "p50_ms": 60.0, "p95_ms": 90.0, "p99_ms": 99.0,
+                                      "max_ms": 120.0}, "map": {"n": 0, "unmatched": 1}}),
     ]
     out = {type(m).type_name: m for m in msgs}
     missing = set(MESSAGE_TYPES) - set(out)

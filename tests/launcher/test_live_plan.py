@@ -14,7 +14,7 @@ def test_the_bridge_announces_every_sensor_key_the_services_read_and_the_recorde
                                 "bridge_ros1.topics={/odom: {key: wheel_odometry}}"])
     plan = plan_live(config, ["robot_state"])
     assert plan.player_keys == ["odometry", "wheel_odometry"]  # routed + read (silent ones kept alive)
-    assert plan.expect == ["Odometry", "ground_truth", "odometry", "wheel_odometry"]
+    assert plan.expect == ["Odometry", "ground_truth", "live/latency", "odometry", "wheel_odometry"]
 
 
 def test_a_service_input_nobody_provides_is_named():
