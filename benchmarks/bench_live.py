@@ -43,6 +43,7 @@ from launcher.cli import isolate_stdout
 from launcher.config import PoseidonConfig, load_config
 from launcher.live import run_live
 from launcher.services import LIVE_PLAYER
+from missions.sim.cli import simulate_cached
 
 STAGES = ("lvc", "event", "map", "odometry", "dead_reckoning")
 
@@ -87,14 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     isolate_stdout()  # the in-process hub's native log lines go to stderr, not into --json
     cache = Path(args.cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
-    mission = cache / f"live_{args.minutes:g}min_seed{args.seed}.mcap"
-    if not mission.exists():
-        from missions.sim.cli import main as sim_main
-        print(f"simulating {args.minutes:g} minutes -> {mission}", file=sys.stderr)
-        if sim_main(["--minutes", str(args.minutes), "--seed", str(args.seed), "--out", str(mission),
-                     "--no-progress"]) != 0:
-            print("simulation failed", file=sys.stderr)
-            return 1
+    mission = simulate_cached(cache / f"live_{args.minutes:g}min_seed{args.seed}.mcap", args.minutes, args.seed,
+                              progress=False)
     cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
     out: dict[str, Any] = {"minutes": args.minutes, "mission": str(mission),
                            "floor_ms": {"lateness_ms": cfg.live.lateness_ms,

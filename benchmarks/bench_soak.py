@@ -42,6 +42,7 @@ from common.mcap_io import recording_summary
 from launcher.cli import isolate_stdout
 from launcher.config import load_config
 from launcher.run import run_distributed
+from missions.sim.cli import simulate_cached
 
 SIXTHS = 6
 
@@ -157,13 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     isolate_stdout()  # the in-process hub's native log lines go to stderr, not into --json
     cache = Path(args.cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
-    mission = cache / f"soak_{args.minutes:g}min_seed{args.seed}.mcap"
-    if not mission.exists():
-        from missions.sim.cli import main as sim_main
-        print(f"simulating {args.minutes:g} minutes -> {mission}", file=sys.stderr)
-        if sim_main(["--minutes", str(args.minutes), "--seed", str(args.seed), "--out", str(mission)]) != 0:
-            print("simulation failed", file=sys.stderr)
-            return 1
+    mission = simulate_cached(cache / f"soak_{args.minutes:g}min_seed{args.seed}.mcap", args.minutes, args.seed)
     inp = recording_summary(mission)
     cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
 

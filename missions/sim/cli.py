@@ -27,10 +27,11 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 from missions.sim.mission import SimParams, generate
 
-__all__ = ["main"]
+__all__ = ["main", "simulate_cached"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,3 +81,14 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def simulate_cached(out: Path, minutes: float, seed: int, progress: bool = True) -> Path:
+    """``out``, simulated first (``poseidon sim --minutes --seed``) unless it exists: the
+    benchmarks' cached missions.  RuntimeError when the simulation fails."""
+    if not out.exists():
+        print(f"simulating {minutes:g} minutes -> {out}", file=sys.stderr)
+        argv = ["--minutes", str(minutes), "--seed", str(seed), "--out", str(out)]
+        if main(argv + ([] if progress else ["--no-progress"])) != 0:
+            raise RuntimeError(f"poseidon sim {' '.join(argv)} failed")
+    return out

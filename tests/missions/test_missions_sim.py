@@ -164,3 +164,12 @@ def test_lazy_tiles_independent_of_generation_order() -> None:
     assert both.sum() > 4
     np.testing.assert_array_equal(a.tiles0[both], b.tiles0[both])
     np.testing.assert_array_equal(a.tiles1[both], b.tiles1[both])
+
+
+def test_a_cached_mission_is_simulated_once(tmp_path):
+    from missions.sim.cli import simulate_cached
+    out = tmp_path / "m.mcap"
+    assert simulate_cached(out, 0.05, 3, progress=False) == out and out.exists()
+    first = out.stat().st_mtime_ns
+    simulate_cached(out, 0.05, 3, progress=False)
+    assert out.stat().st_mtime_ns == first  # the cache is used, not simulated again
