@@ -39,6 +39,12 @@ past them; watermarks resume after them), so the services process them normally,
 little later in wall time; a service whose bounded live queue overflows with the burst drops
 its oldest inputs, counted ``dropped`` as any overflow.
 
+Latency (:class:`LatencyTracker`): a live source notes when each input stamp arrived and, for
+the services' outputs it subscribes to (each carries the stamp of the input that caused it),
+the wall time until the output of that stamp came back, per stage; once the outputs ended
+(:func:`follow_outputs`) it publishes the percentiles as a :class:`common.messages.LatencyReport`
+on :data:`LATENCY_KEY` (:func:`publish_latency`), which the run's recorder keeps.
+
 Everything here takes the wall time as an argument: the source reads the clock, :class:`LiveClock`
 only computes (unit-tested without a clock).
 """
