@@ -25,7 +25,11 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   ``expmap.session_link_rotate`` off, the frames' heading difference);
 - ``time_to_link_s``: for the first link of this run, the mission seconds from the first
   ``truth/pose`` sample of the linked session within ``place_m`` (2 m, horizontally) of the
-  true position of an older node (first entering a mapped place) to the link's event; negative
+  true position of an older node (first entering a mapped place) to the link's event.  An
+  older node is one loaded from another mission's map, or one of this mission made at least
+  ``expmap.min_experience_age`` experiences before the sample (the rule of a revisit
+  opportunity in ``loop_closures``: the place just passed is no revisit; for a kidnapped
+  vehicle the place of the jump, which it was mapping at that moment, is not one); negative
   when the link came before (the sonar registers up to ``expmap.scan_search_radius_m`` apart);
 - ``link_error_m``: mean ``error_m`` over the links with truth at both ends;
 - ``cross_loop_closures``: ``{accepted, true, false, unlabelled}`` of the loop closures of
@@ -136,20 +140,26 @@ def _linked_to_first(count: int, links: list[Any], sess: np.ndarray) -> np.ndarr
 
 def _time_to_link(run: RunData, lk: Any, nd: _MapNodes) -> float | None:
     """Mission seconds from the linked session first entering a mapped place (its truth within
-    :data:`PLACE_M` of an older node's) to the link (module docstring)."""
+    :data:`PLACE_M` of an older node's: one loaded from another mission, or one of this mission
+    made at least ``expmap.min_experience_age`` experiences before) to the link (module docstring)."""
     first = int(np.flatnonzero(nd.sess == lk.session)[0])
-    older = nd.g[:first][np.all(np.isfinite(nd.g[:first]), axis=1)]
-    if not (run.has_truth and len(older) and lk.target >= nd.loaded):
+    known = np.all(np.isfinite(nd.g[:first]), axis=1)
+    if not (run.has_truth and known.any() and lk.target >= nd.loaded):
         return None
     tr = run.truth
     assert tr is not None
     ts = np.asarray(tr.t, np.int64)
-    sel = ts >= nd.stamps[first]
-    tp = tr.positions_at(ts[sel])
-    near = np.array([float(np.min(np.hypot(*(older[:, :2] - p[:2]).T))) <= PLACE_M for p in tp])
-    if not near.any():
-        return None
-    return _r((lk.stamp - int(ts[sel][np.argmax(near)])) * 1e-9, 3)
+    ts = ts[ts >= nd.stamps[first]]
+    tp = tr.positions_at(ts)
+    ids = np.arange(first)
+    # the experience being made at each truth sample (this mission's nodes are in stamp order)
+    made = nd.loaded + np.searchsorted(nd.stamps[nd.loaded:], ts, side="right") - 1
+    age = run.config.expmap.min_experience_age
+    for i, p in enumerate(tp):
+        mapped = known & ((ids < nd.loaded) | (ids <= made[i] - age))
+        if mapped.any() and float(np.min(np.hypot(*(nd.g[:first][mapped, :2] - p[:2]).T))) <= PLACE_M:
+            return _r((lk.stamp - int(ts[i])) * 1e-9, 3)
+    return None
 
 
 def _link_row(run: RunData, lk: Any, nd: _MapNodes, rot: np.ndarray | None, t0: int) -> tuple[dict[str, Any], float | None]:

@@ -127,3 +127,28 @@ def test_dead_reckoning_aligned_at_the_link() -> None:
     assert abs(s["dr_ate_at_link_after_m"] - after) < 1e-3 and s["ate_prior_frame_after_link_m"] < 1e-6
     run, prior = two_missions()                      # no odometry recorded: not computable
     assert sessions_block(run, prior)["dr_ate_at_link_m"] is None
+
+
+def test_a_kidnapped_vehicle_enters_a_mapped_place_when_it_comes_back_not_where_it_jumped() -> None:
+    """One mission, no map loaded: 20 experiences north along east 0 (session 0), a jump begins
+    session 1 at experience 20, the vehicle goes on north to 29 m, then back south at 1.5 m/s and
+    is linked at 40 s.  The place of the jump (1 m from experience 19, just made) is no mapped
+    place; the first is 2 m from experience 19 on the way back (x = 21 m at 35.33 s, the next
+    truth sample 35.5 s), 19 experiences after it was made."""
+    ts = np.arange(200) * SEC // 4  # 0 .. 49.75 s
+    t = ts / SEC
+    x = np.where(t < 30, t, 29.0 - 1.5 * (t - 30))
+    run = run_of(np.c_[x, np.zeros(200), np.full(200, 5.0)], ts)
+    run.config.expmap.min_experience_age = 5
+    nodes = [ExperienceNode(id=i, lvc_id=i, position=enu(np.array([x[4 * i], 0.0, 5.0])), yaw=math.pi / 2,
+                            stamp=i * SEC) for i in range(50)]
+    run.final_map = ExperienceMap(header=Header(seq=0, stamp=49 * SEC, frame_id="map"), nodes=nodes, links=[])
+    run.final_sessions = MapSessions(
+        header=Header(seq=0, stamp=49 * SEC, frame_id="map"), node_session=[0] * 20 + [1] * 30, loaded_nodes=0,
+        links=[SessionLinkInfo(session=1, to_session=0, source=14, target=40, stamp=40 * SEC, delta=[0.0, 0.0, 0.0],
+                               shift=[0.0, 0.0, 0.0], rotation_deg=0.0, inlier_fraction=0.9)])
+    s = sessions_block(run)
+    assert (s["count"], s["links"], s["false_links"]) == (2, 1, 0)
+    assert s["time_to_link_s"] == 4.5  # 40 - 35.5; counted from the jump it would be 20 s
+    run.config.expmap.min_experience_age = 0  # every older experience counts: the jump itself is "entering"
+    assert sessions_block(run)["time_to_link_s"] == 20.0
