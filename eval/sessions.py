@@ -33,7 +33,8 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   when the link came before (the sonar registers up to ``expmap.scan_search_radius_m`` apart);
 - ``link_error_m``: mean ``error_m`` over the links with truth at both ends;
 - ``cross_loop_closures``: ``{accepted, true, false, unlabelled}`` of the loop closures of
-  the final map with one end loaded from the map directory, session links excepted (they are
+  the final map with one end loaded from the map directory and the other made by this run
+  (the loaded map's own closures are not counted), session links excepted (they are
   left out of ``loop_closures``, whose truth is this run's only); true when the two ends'
   truths are within ``far_m`` (5 m), as there;
 - ``ate_prior_frame_m``: RMSE (m) of this run's nodes linked to session 0 against truth
@@ -185,11 +186,13 @@ def _link_row(run: RunData, lk: Any, nd: _MapNodes, rot: np.ndarray | None, t0: 
 
 def _count_cross_loop_closures(cross: dict[str, int], map_links: list[Any], session_links: set[tuple[int, int]],
                                nd: _MapNodes, far_m: float) -> None:
-    """Loop closures with one end loaded from the map directory, session links excepted."""
+    """Loop closures with one end loaded from the map directory and the other made by this
+    run, session links excepted (the loaded map's own closures are the prior run's)."""
     n_nodes = len(nd.stamps)
     for e in map_links:
         a, b = min(e.source, e.target), max(e.source, e.target)
-        if not e.loop_closure or a >= nd.loaded or (a, b) in session_links or not (0 <= a < n_nodes and 0 <= b < n_nodes):
+        if (not e.loop_closure or a >= nd.loaded or b < nd.loaded or (a, b) in session_links
+                or not (0 <= a < n_nodes and 0 <= b < n_nodes)):
             continue
         cross["accepted"] += 1
         if np.all(np.isfinite(nd.g[[a, b]])):

@@ -91,7 +91,9 @@ def test_loop_closures_with_a_loaded_end_are_judged_here() -> None:
                            ExperienceLink(source=5, target=15, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
                                           loop_closure=True),                     # 0.5 m apart: true
                            ExperienceLink(source=0, target=19, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
-                                          loop_closure=True)]                     # 9 m apart: false
+                                          loop_closure=True),                     # 9 m apart: false
+                           ExperienceLink(source=1, target=8, delta=[0.0, 0.0, 0.0], duration_s=0.0, weight=1.0,
+                                          loop_closure=True)]                     # the prior map's own: not counted
     s = sessions_block(run, prior)
     assert s["cross_loop_closures"] == {"accepted": 2, "true": 1, "false": 1, "unlabelled": 0}
 
