@@ -169,11 +169,6 @@ class ExpMapConfig(ConfigSection):
     session_link_rotation_step_deg: float = Field(0.25, gt=0, description="rotation step of that search (deg): "
                                                   "the link's rotation turns the whole session about the link "
                                                   "point, so finer than scan_rotation_step_deg")
-    session_anchor: Literal["closures", "link"] = Field(
-        "closures", description="where the part of a session before its link sits: closures: moved by the "
-        "median of what every verified closure of the session with an older one (the link included) says "
-        "about it, the session's odometry carried along; link: hung from the link's node alone "
-        "(services/expmap/session_link.py)")
     graph: Literal["experience_map", "scan_graph"] = Field(
         "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "

@@ -94,7 +94,7 @@ from services.expmap.loop_policy import LoopEdges, link_displacement, loop_displ
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
-from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, move_component, prelink_shifts, rot2
+from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, move_component, rot2
 from services.expmap.storage import FORMAT_VERSION, ColumnStore, load_map, read_map_file, save_map
 
 __all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
@@ -447,18 +447,12 @@ class ExperienceMap:
             self._phi, self._peak = 0.0, 0.0
 
     def optimum(self) -> np.ndarray:
-        """Node positions minimising Eq. 4.20 with node 0 fixed (exact, by series reduction); each
-        linked session's part before its link then placed by ``session_anchor``
-        (:func:`services.expmap.session_link.prelink_shifts`)."""
+        """Node positions minimising Eq. 4.20 with node 0 fixed (exact, by series reduction)."""
         if self.n_nodes == 0:
             return np.zeros((0, 3))
         target, solved = solve_optimum(self._a("cum"), self._a("cumres"), self.loops, self.loop_deltas,
                                        self._position(0))
         self.solves += int(solved)
-        if self.cfg.session_anchor == "closures" and self.session_links:
-            for lo, hi, shift in prelink_shifts(target, self._a("cum"), self._a("session"), self.session_links,
-                                                self.loops, self.loop_deltas):
-                target[lo:hi] += shift
         return target
 
     def _relax(self, res: EventResult, iterations: int) -> None:

@@ -24,19 +24,6 @@ deltas and loop deltas turn with it, and so does the odometry of the rest of the
 (:attr:`~services.expmap.graph.ExperienceMap.frame_yaw`).  Depth is not rotated (pressure depth is absolute).  Both
 angles are recorded with the link (:class:`SessionLink`: measured and applied).
 
-The part of a session before its link (the nodes from its first to the link's node n) has no
-measurement but its own odometry: relaxation (Eq. 4.20) hangs it from n, so it inherits the
-error of the older map at the one place the link registered (worst where the older map is
-least revisited, e.g. near its own start).  With ``session_anchor`` ``closures`` (the default)
-every verified loop closure of the session with an older session from n on (the link
-included) also says where that part belongs: the displacement that would put the session's
-node k at the place the closure registered, the session's own odometry from n to k
-carried along, ``r = (p_m + delta) - (p_n + c_k - c_n)``, c the summed chain increments.
-:func:`prelink_shifts` moves the part rigidly by the component-wise median of those r (robust
-to the odometry drift from n and to one badly mapped place); with the link alone the median is
-the link's own, so nothing moves.  The chain edge into n then carries the difference, as the
-session break edge carries the frames' offset.  ``link``: the part stays hung from n.
-
 :class:`~services.expmap.graph.ExperienceMap` applies these rules for each event; this module
 holds what a session link is (:class:`SessionLink`) and the move itself
 (:func:`move_component`).
@@ -52,7 +39,7 @@ import numpy as np
 if TYPE_CHECKING:
     from services.expmap.loop_policy import LoopEdges
 
-__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "prelink_shifts"]
+__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component"]
 
 
 #: weight of the chain edge into a session's first node (its displacement is not a measurement)
@@ -112,34 +99,3 @@ def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, t
     move = A["pos"][:N] - before
     A["delta"][edge] += np.where(mask[edge][:, None], move[edge], -move[edge - 1])
     A["cum"][:N] = np.cumsum(A["delta"][:N], axis=0)
-
-
-def prelink_shifts(target: np.ndarray, cum: np.ndarray, sessions: np.ndarray, links: list[SessionLink],
-                   loops: list[tuple[int, int, float, int]], loop_deltas: list[np.ndarray]) -> list[tuple[int, int, np.ndarray]]:
-    """Per session link: (first, end, shift) moving the nodes first..end-1 (the linked session's
-    nodes before the link's node n) by ``shift`` (m): the median over the loop edges joining
-    the session from n on (node k) to another session (node o) of r = (p_o + delta) -
-    (p_n + c_k - c_n), p the relaxed ``target`` (N x 3, Eq. 4.20's optimum) and c = ``cum``
-    (summed chain increments).  Sessions' nodes are contiguous (events come in order)."""
-    out: list[tuple[int, int, np.ndarray]] = []
-    for lk in links:
-        s, n = lk.session, lk.n
-        own = np.flatnonzero(sessions == s)
-        if own.size == 0 or own[0] >= n:
-            continue
-        anchor = target[n] - cum[n]
-        rs = []
-        for (a, b, _w, _st), d in zip(loops, loop_deltas):
-            # orient the edge as (older end o, session end k): p_k - p_o = dd
-            if sessions[b] == s and b >= n and sessions[a] != s:
-                o, k, dd = a, b, d
-            elif sessions[a] == s and a >= n and sessions[b] != s:
-                o, k, dd = b, a, -d
-            else:
-                continue
-            rs.append(target[o] + dd - (anchor + cum[k]))
-        if not rs:
-            continue
-        shift = np.median(np.asarray(rs), axis=0)
-        out.append((int(own[0]), int(n), shift))
-    return out

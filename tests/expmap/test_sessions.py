@@ -12,7 +12,7 @@ import pytest
 
 from services.expmap.config import ExpMapConfig
 from services.expmap.graph import EventResult, ExperienceMap
-from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, prelink_shifts
+from services.expmap.session_link import SESSION_BREAK_WEIGHT
 from tests.expmap.helpers import SEC, pc_of, small_cfg
 from tests.expmap.test_scans import CHAMBER, _sweep
 
@@ -213,58 +213,3 @@ def test_a_link_turns_the_new_session_by_the_registered_rotation(rotate: bool) -
     else:
         assert link.applied_deg == 0.0
         assert err > 0.5
-
-
-def test_prelink_shift_is_the_median_of_what_the_sessions_closures_say() -> None:
-    """Session 1 (nodes 10-29) linked at node 20; its closures to session 0 from node 20 on say
-    it sits (0, 0), (0.3, 0) and (0.3, 0.1) m off: the part before the link (nodes 10-19)
-    moves by the median, (0.3, 0, 0).  Closures inside a session and before the link count nothing."""
-    n_nodes = 30
-    sessions = np.r_[np.zeros(10, np.int64), np.ones(20, np.int64)]
-    target = np.zeros((n_nodes, 3))
-    target[:, 0] = np.arange(n_nodes)
-    cum = target.copy() + np.array([0.0, 5.0, 0.0])      # the chain: 1 m per node along x
-    # the link 2 -> 20 asks p_20 - p_2 = (18, 0, 0): met exactly
-    loops = [(2, 20, 1.0, 0), (5, 24, 1.0, 0), (27, 7, 1.0, 0), (12, 18, 1.0, 0), (1, 8, 1.0, 0)]
-    deltas = [np.array([18.0, 0.0, 0.0]), np.array([19.3, 0.0, 0.0]), np.array([-20.3, -0.1, 0.0]),
-              np.array([6.0, 2.0, 0.0]), np.array([7.0, 2.0, 0.0])]
-    link = SessionLink(session=1, to_session=0, m=2, n=20, stamp=0, delta=deltas[0], shift=np.zeros(3),
-                       rotation_deg=0.0, inlier_fraction=0.9)
-    out = prelink_shifts(target, cum, sessions, [link], loops, deltas)
-    assert len(out) == 1
-    lo, hi, shift = out[0]
-    assert (lo, hi) == (10, 20)
-    np.testing.assert_allclose(shift, [0.3, 0.0, 0.0], atol=1e-12)
-    # the link alone: its own r, zero
-    _lo, _hi, alone = prelink_shifts(target, cum, sessions, [link], loops[:1], deltas[:1])[0]
-    np.testing.assert_allclose(alone, 0.0, atol=1e-12)
-
-
-@pytest.mark.parametrize("anchor", ["closures", "link"])
-def test_the_part_before_the_link_follows_the_sessions_closures(anchor: str) -> None:
-    """Two later closures of session B with session A (added by hand) both ask B 0.4 m further
-    east of A than the link put it.  Relaxation meets them half by B's odometry and half by A's
-    (both chains equally flexible here), so in the relaxed map they say B sits 0.2 m east of
-    where its odometry from the link puts it: with ``session_anchor`` closures the part of B
-    before the link moves 0.2 m east (the median of 0, 0.2 and 0.2), as B after the
-    closures did; with ``link`` it stays hung from the link."""
-    # no closures after the link but the hand-made ones (a link is not held by the interval)
-    em = session_a(cfg(session_anchor=anchor, min_correction_interval_sec=1e6))
-    em.begin_session()
-    res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
-    em.settle()
-    first = 40 + [i for i, r in enumerate(res) if r.linked][0]
-    assert sum(1 for a, b, _w, _s in em.loops if a < 40 <= b) == 1 and first + 15 < 80
-    before = em.optimum()
-    pos = em.positions
-    for n in (first + 5, first + 15):
-        m = n - 40                                          # B's event k is at A's event k's place
-        d = pos[n] - pos[m] + np.array([0.4, 0.0, 0.0])     # ENU east
-        em.add_loop_edge(m, n, em.cfg.loop_edge_weight, 0, d)
-    after = em.optimum()
-    moved = after[40:first] - before[40:first]
-    np.testing.assert_allclose(after[first + 15] - before[first + 15], [0.2, 0.0, 0.0], atol=0.01)
-    if anchor == "closures":
-        np.testing.assert_allclose(moved, np.tile([0.2, 0.0, 0.0], (first - 40, 1)), atol=0.01)
-    else:
-        assert np.abs(moved).max() < 0.01
