@@ -229,30 +229,59 @@ class _Signals:
     """SIGTERM/SIGINT for a service process: the first stops what is registered (:meth:`on_stop`;
     the worker ends its streams and leaves); a second one exits at once, exit code
     ``EXIT_ABORTED``, after flushing stdout/stderr (a process stuck on an unreachable hub does
-    not need SIGKILL); a repeat within ``DUPLICATE_S`` of the first is ignored."""
+    not need SIGKILL); a repeat within ``DUPLICATE_S`` of the first is ignored.
 
-    def __init__(self, what: str):
-        import threading
-        self.what = what
-        self.stopped = threading.Event()
-        self.signum = 0
-        self._first_at = 0.0
-        self._callbacks: list[Any] = []
-        signal.signal(signal.SIGTERM, self._on_signal)
-        signal.signal(signal.SIGINT, self._on_signal)
-
-    def on_stop(self, callback: Any) -> None:
-        self._callbacks.append(callback)
-        if self.stopped.is_set():
-            callback()
+    The signals are acted on by a watcher thread, not by a Python handler in the main thread: the
+    C-level handler writes each signal's number to a pipe (:func:`signal.set_wakeup_fd`) the watcher
+    reads, so a main thread held in native code (a Zenoh call on a hub that went away) cannot keep
+    a stop from being seen or the second signal from exiting.  ``SIGUSR1`` prints every thread's
+    Python stack to stderr (:mod:`faulthandler`); a process still running ``OVERRUN_S`` after
+    its first stop signal does so by itself, once, and keeps going."""
 
     #: a repeat within this many seconds of the first signal is the same event delivered twice:
     #: the kernel sends the parent-death signal (launcher/run.py) again each time the orphan is
     #: re-parented, so a launcher killed by SIGKILL can deliver two SIGTERMs at once, and the
     #: recorder must still close its file
     DUPLICATE_S = 1.0
+    #: seconds after the first stop signal after which the thread stacks are printed (diagnosis
+    #: of a stop that hangs: the longest legitimate one, a bridge forwarding the services' last
+    #: outputs, is bounded by 60 s)
+    OVERRUN_S = 75.0
 
-    def _on_signal(self, signum: int, _frame: Any) -> None:
+    def __init__(self, what: str):
+        import faulthandler
+        import os
+        import threading
+        self.what = what
+        self.stopped = threading.Event()
+        self.signum = 0
+        self._first_at = 0.0
+        self._callbacks: list[Any] = []
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, self._noop)  # a Python handler must exist for the wakeup fd to be written
+        threading.Thread(target=self._watch, args=(read_fd,), name="signals", daemon=True).start()
+
+    @staticmethod
+    def _noop(_signum: int, _frame: Any) -> None:
+        """The signal is handled by :meth:`_watch`."""
+
+    def _watch(self, read_fd: int) -> None:
+        import os
+        while True:
+            for signum in os.read(read_fd, 64):
+                if signum in (signal.SIGTERM, signal.SIGINT):
+                    self._on_signal(signum)
+
+    def on_stop(self, callback: Any) -> None:
+        self._callbacks.append(callback)
+        if self.stopped.is_set():
+            callback()
+
+    def _on_signal(self, signum: int) -> None:
         if self.stopped.is_set() and time.monotonic() - self._first_at < self.DUPLICATE_S:
             log.info("%s: signal %d again within %.1f s: the same stop", self.what, signum, self.DUPLICATE_S)
             return
@@ -262,10 +291,12 @@ class _Signals:
             sys.stderr.flush()
             import os
             os._exit(EXIT_ABORTED)
-        log.warning("%s: signal %d, stopping (a second signal exits at once)", self.what, signum)
+        import faulthandler
+        print(f"{self.what}: signal {signum}, stopping (a second signal exits at once)", file=sys.stderr, flush=True)
         self._first_at = time.monotonic()
         self.signum = signum
         self.stopped.set()
+        faulthandler.dump_traceback_later(self.OVERRUN_S, exit=False)
         for cb in self._callbacks:
             cb()
 

@@ -30,7 +30,13 @@ def _signal_and_wait(proc: subprocess.Popen, *gaps: float) -> tuple[float, str]:
         time.sleep(gap)
         proc.send_signal(signal.SIGTERM)
     t0 = time.monotonic()
-    _out, err = proc.communicate(timeout=30)
+    try:
+        _out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:  # show where it hangs: SIGUSR1 prints its threads' stacks
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(2.0)
+        proc.kill()
+        pytest.fail(f"the bridge did not exit within 30 s of the signal; its stderr:\n{proc.communicate()[1]}")
     return time.monotonic() - t0, err
 
 

@@ -177,3 +177,24 @@ def test_a_signal_delivered_twice_at_once_is_one_stop_and_a_later_one_exits():
     assert "alive after two at once, stops 1" in proc.stdout
     assert "not reached" not in proc.stdout
     assert proc.returncode == 4, proc.stderr
+
+
+def test_signals_are_seen_while_the_main_thread_is_held_in_native_code():
+    """A main thread blocked inside native code (here a pthread mutex it already holds, the way a
+    Zenoh call can hang on a hub that went away) never runs a Python signal handler: the stop must
+    still be seen, SIGUSR1 must print the stacks, and the second SIGTERM must exit."""
+    code = (
+        "import ctypes, os, signal, threading\n"
+        "from launcher.commands import _Signals\n"
+        "s = _Signals('probe'); s.on_stop(lambda: print('stop seen', flush=True))\n"
+        "libc = ctypes.CDLL(None); mutex = ctypes.create_string_buffer(64)\n"
+        "libc.pthread_mutex_lock(mutex)\n"
+        "for delay, sig in ((0.5, signal.SIGTERM), (1.5, signal.SIGUSR1), (2.5, signal.SIGTERM)):\n"
+        "    threading.Timer(delay, os.kill, (os.getpid(), sig)).start()\n"
+        "libc.pthread_mutex_lock(mutex)\n"
+        "print('not reached', flush=True)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert proc.stdout == "stop seen\n", (proc.stdout, proc.stderr)
+    assert proc.returncode == 4, proc.stderr
+    assert "signal 15, stopping" in proc.stderr and "second signal 15: exiting now" in proc.stderr
+    assert "Current thread" in proc.stderr and "<module>" in proc.stderr  # faulthandler's dump on SIGUSR1
