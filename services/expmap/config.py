@@ -169,6 +169,15 @@ class ExpMapConfig(ConfigSection):
     session_link_rotation_step_deg: float = Field(0.25, gt=0, description="rotation step of that search (deg): "
                                                   "the link's rotation turns the whole session about the link "
                                                   "point, so finer than scan_rotation_step_deg")
+    session_backfill_radius_m: float = Field(2.0, ge=0, description="after a session link, each experience the "
+                                             "linked component made before the link is tried against the nearest "
+                                             "experience of the older component within this horizontal distance "
+                                             "(m, in the linked frame): a loop edge when their sweeps register as "
+                                             "strictly as a link's (services/expmap/session_link.py); 0: off")
+    session_backfill_spacing_m: float = Field(1.0, gt=0, description="at most one such try per this much "
+                                              "horizontal distance along the linked component's path (m)")
+    session_backfill_search_m: float = Field(1.0, gt=0, description="registration search of a backfill try around "
+                                             "the two experiences' separation in the linked frame (m)")
     graph: Literal["experience_map", "scan_graph"] = Field(
         "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "

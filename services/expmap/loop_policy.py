@@ -181,7 +181,8 @@ def loop_displacement(cfg: ExpMapConfig, d: np.ndarray, sweep_m: np.ndarray | No
 
 
 def link_displacement(cfg: ExpMapConfig, sweep_m: np.ndarray | None, sweep_n: np.ndarray | None,
-                      dz_odom: float) -> tuple[np.ndarray | None, Registration | None, str]:
+                      dz_odom: float, separation: np.ndarray | None = None,
+                      search_radius_m: float | None = None) -> tuple[np.ndarray | None, Registration | None, str]:
     """(Displacement p_n - p_m of a session link, the registration made, why not) for a
     confirmed match between two unlinked sessions; the displacement None unless verified.
 
@@ -191,11 +192,16 @@ def link_displacement(cfg: ExpMapConfig, sweep_m: np.ndarray | None, sweep_n: np
     a session) with at least ``session_link_min_inliers`` inliers.  The reason when not:
     ``no_sweep``, ``untrusted``, ``ambiguous`` or ``inliers``.  ``dz_odom``: the two
     experiences' odometry height difference (m; pressure depth is absolute in every session).
+    The backfill of a made link (:mod:`services.expmap.session_link`) passes the two nodes'
+    ``separation`` p_n - p_m in the linked frame and its ``search_radius_m``: the search then
+    also covers the separation, and the same verification applies.
     """
     if sweep_m is None or sweep_n is None:
         return None, None, "no_sweep"
-    reg = register_sweeps(sweep_m, sweep_n, np.zeros(2), cell_m=cfg.scan_cell_m,
-                          search_radius_m=cfg.scan_search_radius_m, max_rotation_deg=cfg.session_link_max_rotation_deg,
+    around = np.zeros(2) if separation is None else np.asarray(separation, np.float64)[:2]
+    radius = cfg.scan_search_radius_m if search_radius_m is None else search_radius_m
+    reg = register_sweeps(sweep_m, sweep_n, around, cell_m=cfg.scan_cell_m,
+                          search_radius_m=radius, max_rotation_deg=cfg.session_link_max_rotation_deg,
                           rotation_step_deg=cfg.session_link_rotation_step_deg, min_points=cfg.scan_min_points,
                           min_inlier_fraction=cfg.scan_min_inlier_fraction,
                           ambiguity_margin_m=cfg.scan_ambiguity_margin_m, max_ambiguity_m=cfg.scan_max_ambiguity_m)

@@ -59,7 +59,7 @@ Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_int
 ``scan_beams_before_odometry`` (beams before the first pose, unused), ``odometry_without_attitude`` (a zero quaternion, not used for the sweep), ``corrections_clamped`` (a closure scaled to max_correction_norm),
 ``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
 max_correction_step), ``experience_images``, ``events_without_image``,
-``image_wait_overflow``, ``maps_published``, ``sessions_started``, ``session_links``,
+``image_wait_overflow``, ``maps_published``, ``sessions_started``, ``session_links``, ``session_backfill_edges``,
 ``loop_rejected_link`` (a link candidate the sweeps did not verify).
 """
 from __future__ import annotations
@@ -209,9 +209,10 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         if res.linked and isinstance(self.graph, ExperienceMap):
             self.count("session_links")
             lk = self.graph.session_links[-1]
-            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, turned %.1f deg, inliers %.2f)",
-                     lk.session, lk.to_session, lk.m, lk.n, " ".join(f"{v:.2f}" for v in lk.shift), lk.applied_deg,
-                     lk.inlier_fraction)
+            self.count("session_backfill_edges", lk.backfill_edges)
+            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, turned %.1f deg, inliers %.2f, "
+                     "%d backfill edges)", lk.session, lk.to_session, lk.m, lk.n, " ".join(f"{v:.2f}" for v in lk.shift),
+                     lk.applied_deg, lk.inlier_fraction, lk.backfill_edges)
         if res.loop_closed and isinstance(self.graph, ScanGraph):
             self.count("loop_closures")
             log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m)", res.match, res.node,

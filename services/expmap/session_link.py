@@ -24,6 +24,17 @@ deltas and loop deltas turn with it, and so does the odometry of the rest of the
 (:attr:`~services.expmap.graph.ExperienceMap.frame_yaw`).  Depth is not rotated (pressure depth is absolute).  Both
 angles are recorded with the link (:class:`SessionLink`: measured and applied).
 
+Backfill: the part of the newer component mapped before the link hangs from the link node
+through its odometry chain alone, so it carries the older map's error at that one place plus
+the odometry's drift away from it.  Right after the move, every experience i of the newer
+component (one per ``session_backfill_spacing_m`` of path) is paired with the nearest
+experience j of the older component within ``session_backfill_radius_m`` in the linked frame;
+their sweeps are registered around the separation p_i - p_j (``session_backfill_search_m``)
+and kept as a loop edge only when trusted along both axes with at least
+``session_link_min_inliers`` inliers (the link's rule).  The relaxation that follows the link
+then pins that part to the older map at every such place (:func:`backfill_pairs` chooses the
+pairs; the count is :attr:`SessionLink.backfill_edges`).
+
 :class:`~services.expmap.graph.ExperienceMap` applies these rules for each event; this module
 holds what a session link is (:class:`SessionLink`) and the move itself
 (:func:`move_component`).
@@ -39,7 +50,7 @@ import numpy as np
 if TYPE_CHECKING:
     from services.expmap.loop_policy import LoopEdges
 
-__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component"]
+__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs"]
 
 
 #: weight of the chain edge into a session's first node (its displacement is not a measurement)
@@ -66,6 +77,7 @@ class SessionLink:
     rotation_deg: float         # heading disagreement of the two sweeps (deg, the registration's)
     inlier_fraction: float
     applied_deg: float = 0.0    # the rotation applied to the newer component (deg; 0: translation only)
+    backfill_edges: int = 0     # loop edges the backfill added with the link (module notes)
 
 
 def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, target_n: np.ndarray, theta: float,
@@ -99,3 +111,27 @@ def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, t
     move = A["pos"][:N] - before
     A["delta"][edge] += np.where(mask[edge][:, None], move[edge], -move[edge - 1])
     A["cum"][:N] = np.cumsum(A["delta"][:N], axis=0)
+
+
+def backfill_pairs(pos: np.ndarray, newer: np.ndarray, older: np.ndarray, has_sweep: np.ndarray, radius_m: float,
+                   spacing_m: float) -> list[tuple[int, int]]:
+    """(j, i) pairs for the backfill of a link (module notes): i walks the ``newer`` nodes in
+    order, at most one per ``spacing_m`` of horizontal path, each with a sweep; j is the nearest
+    ``older`` node with a sweep within ``radius_m`` of i horizontally (ties: the oldest).
+    ``pos``: node positions (N x 3, m) in the linked frame; the masks are (N,) bool."""
+    ref = np.flatnonzero(older & has_sweep)
+    out: list[tuple[int, int]] = []
+    if ref.size == 0 or radius_m <= 0.0:
+        return out
+    ref_xy = pos[ref, :2]
+    last: np.ndarray | None = None
+    for i in np.flatnonzero(newer & has_sweep).tolist():
+        xy = pos[i, :2]
+        if last is not None and float(np.hypot(*(xy - last))) < spacing_m:
+            continue
+        d2 = np.sum((ref_xy - xy) ** 2, axis=1)
+        k = int(np.argmin(d2))
+        if d2[k] <= radius_m * radius_m:
+            out.append((int(ref[k]), i))
+            last = xy
+    return out

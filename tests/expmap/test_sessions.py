@@ -213,3 +213,54 @@ def test_a_link_turns_the_new_session_by_the_registered_rotation(rotate: bool) -
     else:
         assert link.applied_deg == 0.0
         assert err > 0.5
+
+
+def _drifting_session_b(em: ExperienceMap, unknown: int, drift: np.ndarray) -> list[EventResult]:
+    """Session B's pass: its first ``unknown`` events name places the camera never saw (no
+    candidate, so no link yet), and its odometry drifts by ``drift`` (ENU m) per event."""
+    out = []
+    for k in range(40):
+        p = true_ned(k, OFF_TRUE)
+        odom = list(np.asarray(enu(p)) + FRAME_B + drift * k)
+        lvc = 1000 + k if k < unknown else k
+        out.append(em.add_event((100 + k) * SEC, lvc, pc_of(odom), odom, 0.0, sweep=_sweep(p, [CHAMBER])))
+    return out
+
+
+@pytest.mark.parametrize("radius_m", [2.0, 0.0])
+def test_the_part_mapped_before_the_link_is_pinned_to_the_older_map(radius_m: float) -> None:
+    """Session B maps 15 events before it is recognised, its odometry drifting 3 cm per event:
+    that part hangs from the link node by odometry alone (0.45 m off at its start).  The backfill
+    registers it against session A's sweeps where they overlap and pins it to the older map;
+    with the backfill off (radius 0) the drift stays.  Measured against session A's nodes as the
+    map holds them (B's event k truly sits OFF_TRUE from A's event k): Eq. 4.20 spreads B's
+    drift over both chains, so the older map is not the truth any more either."""
+    em = session_a(cfg(session_backfill_radius_m=radius_m))
+    em.begin_session()
+    res = _drifting_session_b(em, 15, np.array([0.03, 0.0, 0.0]))
+    em.settle()
+    linked = [k for k, r in enumerate(res) if r.linked]
+    assert len(linked) == 1 and linked[0] >= 15
+    link = em.session_links[0]
+    off = np.asarray(enu(OFF_TRUE))[:2]
+    err = np.linalg.norm(em.positions[40:55, :2] - em.positions[:15, :2] - off, axis=1)
+    if radius_m:
+        assert link.backfill_edges >= 4
+        assert err.max() < 0.06, err
+    else:
+        assert link.backfill_edges == 0
+        assert err.max() > 0.4, err
+
+
+def test_backfill_rejects_a_part_that_does_not_fit() -> None:
+    """Session B's unrecognised first events were flown in another chamber whose sweeps do not
+    fit session A's walls nearby: no backfill edge, whatever the distance in the linked frame."""
+    em = session_a(cfg())
+    em.begin_session()
+    for k in range(15):
+        p = true_ned(k, OFF_TRUE)
+        odom = list(np.asarray(enu(p)) + FRAME_B)
+        em.add_event((100 + k) * SEC, 1000 + k, pc_of(odom), odom, 0.0, sweep=_sweep(p, [OTHER]))
+    lap(em, 100, range(15, 40), FRAME_B, OFF_TRUE)
+    em.settle()
+    assert len(em.session_links) == 1 and em.session_links[0].backfill_edges == 0
