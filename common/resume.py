@@ -10,7 +10,10 @@ restarted service continue so that every stream equals an uninterrupted run's:
   objects), per input key the transport index of the next frame it has not processed,
   the event time of the last processed input, and per output key the next transport index
   with the frames its consumers may still need.  Pickle is the format: a private file of
-  one run, written and read by the same code (never load one from elsewhere).
+  one run, written and read by the same code (never load one from elsewhere).  Checkpoints
+  are incremental: numpy arrays of 256 KiB or more are kept as content-addressed 1 MiB blocks in
+  ``<service>.ckpt.blocks/``, written only when new, so a state that grows by appending
+  writes its new tail, not its whole self, every interval (:func:`save_checkpoint`).
 - **Replay.**  Publishers number their data frames per key (transport index,
   :mod:`common.codec`) and keep what they sent (:class:`common.bus.BusPublisher` with
   ``retain``) until every consumer of the key has checkpointed past it: consumers report
@@ -46,16 +49,20 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
-__all__ = ["Supervision", "SequenceGate", "LostFrames", "save_checkpoint", "load_checkpoint", "ReplayServer",
+import numpy as np
+import xxhash
+
+__all__ = ["Supervision", "SequenceGate", "LostFrames", "save_checkpoint", "load_checkpoint", "CheckpointSize", "ReplayServer",
            "REPLAY", "CKPT", "checkpoint_path"]
 
 log = logging.getLogger(__name__)
 
 REPLAY = "@replay"
 CKPT = "@ckpt"
-_CKPT_VERSION = 1
+_CKPT_VERSION = 2
+_CKPT_READABLE = (1, 2)   # version 1: the same, every array inside the file
 
 
 class LostFrames(RuntimeError):
@@ -98,20 +105,106 @@ def checkpoint_path(state_dir: str | Path, service: str) -> Path:
     return Path(state_dir) / f"{service}.ckpt"
 
 
-def save_checkpoint(path: Path, state: dict[str, Any]) -> int:
-    """Write ``state`` to ``path`` atomically (temporary file, fsync, rename); returns its size in bytes.
+class CheckpointSize(NamedTuple):
+    """What a checkpoint takes: ``total`` bytes (its file and every array block it names) and
+    the bytes ``written`` to make it (the file and the blocks that were not on disk yet)."""
+
+    total: int
+    written: int
+
+
+#: arrays of at least this many bytes are kept as content-addressed blocks beside the checkpoint
+BLOCK_MIN_BYTES = 1 << 18
+#: the size of one block (bytes of the array's C-order buffer)
+BLOCK_BYTES = 1 << 20
+
+
+def blocks_dir(path: Path) -> Path:
+    """Where the array blocks of the checkpoint ``path`` live (``<service>.ckpt.blocks``)."""
+    return path.with_name(path.name + ".blocks")
+
+
+class _BlockPickler(pickle.Pickler):
+    """Pickles a checkpoint, keeping every large numpy array out of the file: its buffer is cut
+    into ``BLOCK_BYTES`` blocks named by their XXH3-128 digest, and a block already on disk is not
+    written again.  A state that grows by appending (the sequence memory's frames, the map's
+    nodes, the LVC templates) therefore writes only its new tail at each checkpoint."""
+
+    def __init__(self, file: Any, blocks: Path):
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.blocks = blocks
+        self.names: set[str] = set()
+        self.total = 0
+        self.written = 0
+
+    def persistent_id(self, obj: Any) -> Any:
+        if type(obj) is not np.ndarray or obj.nbytes < BLOCK_MIN_BYTES or obj.dtype.hasobject:
+            return None
+        buf = np.ascontiguousarray(obj).reshape(-1).view(np.uint8).data
+        names = []
+        for start in range(0, len(buf), BLOCK_BYTES):
+            piece = buf[start:start + BLOCK_BYTES]
+            name = xxhash.xxh3_128_hexdigest(piece)
+            names.append(name)
+            self.total += len(piece)
+            if name in self.names:
+                continue
+            self.names.add(name)
+            block = self.blocks / name
+            if not block.exists():
+                tmp = block.with_name(name + ".tmp")
+                with open(tmp, "wb") as f:
+                    f.write(piece)
+                    f.flush()
+                    os.fsync(f.fileno())
+                os.replace(tmp, block)
+                self.written += len(piece)
+        return ("ndarray", obj.dtype.str, obj.shape, names)
+
+
+class _BlockUnpickler(pickle.Unpickler):
+    def __init__(self, file: Any, path: Path):
+        super().__init__(file)
+        self.path = path
+
+    def persistent_load(self, pid: Any) -> Any:
+        kind, dtype, shape, names = pid
+        if kind != "ndarray":
+            raise pickle.UnpicklingError(f"unknown persistent id {kind!r}")
+        parts = []
+        for name in names:
+            block = blocks_dir(self.path) / name
+            if not block.is_file():
+                raise ValueError(f"{self.path}: array block {block.name} is missing from {block.parent}")
+            parts.append(block.read_bytes())
+        buf = bytearray(b"".join(parts))   # writable: the restored state is mutated in place
+        return np.frombuffer(buf, dtype=np.dtype(dtype)).reshape(shape)
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> CheckpointSize:
+    """Write ``state`` to ``path`` atomically (temporary file, fsync, rename); returns its size.
 
     Pickled straight into the file (no in-memory copy of the whole checkpoint: a service's
-    peak memory does not grow with its state at every checkpoint)."""
+    peak memory does not grow with its state at every checkpoint).  Incremental: large numpy
+    arrays go to content-addressed blocks in :func:`blocks_dir` (:class:`_BlockPickler`), so
+    what a checkpoint writes is what changed since the last one.  The blocks a new checkpoint
+    needs are on disk (fsync) before its file replaces the old one; blocks no checkpoint names
+    any more are deleted after.  A crash in between leaves extra blocks, never missing ones."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    blocks = blocks_dir(path)
+    blocks.mkdir(exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        pickle.dump({"version": _CKPT_VERSION, **state}, f, protocol=pickle.HIGHEST_PROTOCOL)
+        pickler = _BlockPickler(f, blocks)
+        pickler.dump({"version": _CKPT_VERSION, **state})
         f.flush()
         os.fsync(f.fileno())
         size = f.tell()
     os.replace(tmp, path)
-    return size
+    for old in blocks.iterdir():
+        if old.name not in pickler.names:
+            old.unlink()
+    return CheckpointSize(total=size + pickler.total, written=size + pickler.written)
 
 
 def load_checkpoint(path: Path) -> dict[str, Any] | None:
@@ -120,10 +213,12 @@ def load_checkpoint(path: Path) -> dict[str, Any] | None:
         return None
     try:
         with open(path, "rb") as f:
-            state = pickle.load(f)
+            state = _BlockUnpickler(f, path).load()
+    except ValueError:
+        raise
     except Exception as exc:  # noqa: BLE001 - any unpickling failure is a damaged checkpoint
         raise ValueError(f"{path}: unreadable checkpoint: {type(exc).__name__}: {exc}") from None
-    if not isinstance(state, dict) or state.get("version") != _CKPT_VERSION:
+    if not isinstance(state, dict) or state.get("version") not in _CKPT_READABLE:
         raise ValueError(f"{path}: not a checkpoint of version {_CKPT_VERSION}")
     return state
 

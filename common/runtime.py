@@ -25,7 +25,7 @@ before each input it hands to the node, to show what happens when a service fall
 Numbered frames (:mod:`common.codec`) already received are dropped (``RunnerStats.duplicates``).
 Supervised (``supervision``, :mod:`common.resume`): the runner checkpoints the node every
 ``checkpoint_interval`` of event time (``RunnerStats.checkpoints``, ``checkpoint_ms``,
-``checkpoint_bytes``), keeps its outputs for replay, answers replay requests, and when
+``checkpoint_bytes``, ``checkpoint_written_bytes``), keeps its outputs for replay, answers replay requests, and when
 ``supervision.resume`` restores the last checkpoint and asks its publishers for the inputs
 after it.  A node failure then does not abort the run: the launcher restarts the service.
 """
@@ -63,7 +63,8 @@ class RunnerStats(SinkStats):
     late: int = 0
     busy_s: float = 0.0
     counters: dict[str, int] = field(default_factory=dict)
-    checkpoint_bytes: int = 0  # size of the last checkpoint
+    checkpoint_bytes: int = 0  # size of the last checkpoint (its file and the array blocks it names)
+    checkpoint_written_bytes: int = 0  # bytes the last checkpoint wrote (the file and its new blocks)
     replays_served: int = 0
 
     def reject(self, key: str, reason: str) -> None:
@@ -76,6 +77,7 @@ class RunnerStats(SinkStats):
                 "busy_s": round(self.busy_s, 3), "counters": self.counters, "aborted": self.aborted,
                 "duplicates": self.duplicates, "checkpoints": self.checkpoints,
                 "checkpoint_ms": round(self.checkpoint_ms, 3), "checkpoint_bytes": self.checkpoint_bytes,
+                "checkpoint_written_bytes": self.checkpoint_written_bytes,
                 "replays_served": self.replays_served, "dropped": self.dropped}
 
 
@@ -236,7 +238,8 @@ class NodeRunner(Sink, Source):
         state = {"service": self.node.name, "node": self.node.checkpoint_state(), "positions": positions,
                  "stamp": self._last_stamp, "finished": finished,
                  "outputs": {k: p.retained_state() for k, p in self._publishers.items()}}
-        self.stats.checkpoint_bytes = self.save_state(state, positions, self._last_stamp, t0)
+        size = self.save_state(state, positions, self._last_stamp, t0)
+        self.stats.checkpoint_bytes, self.stats.checkpoint_written_bytes = size.total, size.written
 
     def _restore(self) -> bool:
         """Load the last checkpoint (resume); returns True if the service had already finished."""

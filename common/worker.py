@@ -48,6 +48,7 @@ from typing import Any
 from common.bus import Bus, BusPublisher, ProgressWatcher
 from common.ordering import END_OF_TIME
 from common.resume import (
+    CheckpointSize,
     ReplayServer,
     SequenceGate,
     Supervision,
@@ -263,17 +264,18 @@ class Sink(Worker):
         return stamp - self._ckpt_stamp >= interval_ns
 
     def save_state(self, state: dict[str, Any], positions: dict[str, int], stamp: int | None,
-                   started: float) -> int:
+                   started: float) -> CheckpointSize:
         """Write checkpoint ``state`` (atomically), tell the publishers ``positions`` (next
         transport index per key) and count it; ``started``: its ``perf_counter`` start.
-        Returns the checkpoint's size in bytes."""
+        Returns the checkpoint's size and the bytes written to make it."""
         size = save_checkpoint(self.state_path(), state)
         report_checkpoint(self.bus, self.name, positions)
         self._ckpt_stamp = stamp
         self.stats.checkpoints += 1
         ms = (time.perf_counter() - started) * 1e3
         self.stats.checkpoint_ms += ms
-        log.debug("%s: checkpoint at event time %s (%.1f ms, %.2f MB)", self.name, stamp, ms, size / 1e6)
+        log.debug("%s: checkpoint at event time %s (%.1f ms, %.2f MB, %.2f MB written)", self.name, stamp, ms,
+                  size.total / 1e6, size.written / 1e6)
         return size
 
     def state_path(self) -> Path:

@@ -4,12 +4,21 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from common.bus import Bus, open_local_session
 from common.codec import decode_frame
 from common.messages import Depth, Header
-from common.resume import LostFrames, SequenceGate, Supervision, load_checkpoint, save_checkpoint
+from common.resume import (
+    BLOCK_BYTES,
+    LostFrames,
+    SequenceGate,
+    Supervision,
+    blocks_dir,
+    load_checkpoint,
+    save_checkpoint,
+)
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO
 
@@ -77,7 +86,7 @@ def test_checkpoints_are_written_atomically(tmp_path):
     path = tmp_path / "svc.ckpt"
     assert load_checkpoint(path) is None
     size = save_checkpoint(path, {"node": {"x": [1, 2]}})
-    assert size == path.stat().st_size and load_checkpoint(path)["node"] == {"x": [1, 2]}
+    assert size.total == size.written == path.stat().st_size and load_checkpoint(path)["node"] == {"x": [1, 2]}
     assert not list(tmp_path.glob("*.tmp"))
     path.write_bytes(b"garbage")
     with pytest.raises(ValueError, match="svc.ckpt: unreadable checkpoint"):
@@ -132,3 +141,44 @@ def test_supervision_file_round_trip_carries_both_checkpoint_intervals(tmp_path)
     f.write_text('{"state_dir": "x"}')
     with pytest.raises(ValueError, match="not a supervision file"):
         Supervision.from_file(f)
+
+
+def test_a_growing_state_writes_only_what_changed(tmp_path):
+    """Checkpoints of a state that grows by appending (a sequence memory's frames in a
+    preallocated array) write its new tail, not the whole array; every checkpoint loads back
+    equal (values, dtype, shape, writable), and blocks no checkpoint names are removed."""
+    path = tmp_path / "htm.ckpt"
+    rng = np.random.default_rng(3)
+    frames = np.zeros((4000, 256), np.uint64)          # 8 MB: 8 blocks
+    frames[:1000] = rng.integers(0, 2**63, (1000, 256), dtype=np.uint64)
+    small = {"n": 1000, "ids": np.arange(10)}
+    first = save_checkpoint(path, {"node": {"frames": frames, "small": small}})
+    assert first.total > frames.nbytes and first.written < 0.6 * first.total   # the zero blocks are one block
+    frames[1000:1100] = rng.integers(0, 2**63, (100, 256), dtype=np.uint64)
+    second = save_checkpoint(path, {"node": {"frames": frames, "small": small}})
+    assert second.total == first.total
+    assert second.written < 2.5 * BLOCK_BYTES < frames.nbytes / 3   # the block holding rows 1000-1099, the file
+    back = load_checkpoint(path)["node"]
+    np.testing.assert_array_equal(back["frames"], frames)
+    assert back["frames"].dtype == frames.dtype and back["frames"].flags.writeable
+    np.testing.assert_array_equal(back["small"]["ids"], small["ids"])
+    # a later, smaller state: the blocks only the old one named are gone
+    save_checkpoint(path, {"node": {"frames": frames[:200].copy()}})   # 400 kB: one block
+    assert len(list(blocks_dir(path).iterdir())) == 1
+
+
+def test_a_checkpoint_missing_a_block_names_it(tmp_path):
+    path = tmp_path / "expmap.ckpt"
+    save_checkpoint(path, {"node": np.ones((1 << 16,), np.float64)})
+    block = next(blocks_dir(path).iterdir())
+    block.unlink()
+    with pytest.raises(ValueError, match=f"expmap.ckpt: array block {block.name} is missing"):
+        load_checkpoint(path)
+
+
+def test_a_version_1_checkpoint_still_loads(tmp_path):
+    """Before incremental checkpoints every array was inside the pickle."""
+    import pickle
+    path = tmp_path / "old.ckpt"
+    path.write_bytes(pickle.dumps({"version": 1, "node": np.arange(1 << 16)}))
+    np.testing.assert_array_equal(load_checkpoint(path)["node"], np.arange(1 << 16))

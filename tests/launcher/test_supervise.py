@@ -155,6 +155,6 @@ def test_checkpoint_round_trip_continues_like_an_uninterrupted_node(service, wor
     resumed = build_node(service, config)
     resumed.restore_checkpoint(load_checkpoint(tmp_path / "c.ckpt")["node"])
     after = drive(resumed, ordered[half:], True)
-    print(f"[checkpoint] {service}: {size / 1e6:.2f} MB, {ms:.1f} ms to save after {half} inputs")
+    print(f"[checkpoint] {service}: {size.total / 1e6:.2f} MB, {ms:.1f} ms to save after {half} inputs")
     assert before + after == reference
     assert resumed.counters == uninterrupted_node.counters
