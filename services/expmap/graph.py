@@ -94,7 +94,7 @@ from services.expmap.loop_policy import LoopEdges, link_displacement, loop_displ
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
-from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill_pairs, move_component, rot2
+from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, rot2
 from services.expmap.storage import FORMAT_VERSION, ColumnStore, load_map, read_map_file, save_map
 
 __all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
@@ -412,23 +412,13 @@ class ExperienceMap:
         self._close(m, n, stamp, delta, res)
 
     def _backfill(self, newer: np.ndarray, older: np.ndarray, stamp: int) -> int:
-        """Loop edges between the just-linked component's experiences ``newer`` and the older
-        component's ``older`` where their sweeps verify it (:mod:`services.expmap.session_link`,
-        backfill); returns how many were added (the link's relaxation then uses them)."""
-        cfg = self.cfg
-        A, N = self._g.arrays, self.n_nodes
-        has_sweep = np.array([sw is not None for sw in self._scans[:N]], bool)
-        odom = self._a("odom")
-        added = 0
-        for j, i in backfill_pairs(A["pos"][:N], newer, older, has_sweep, cfg.session_backfill_radius_m,
-                                   cfg.session_backfill_spacing_m):
-            sep = A["pos"][i] - A["pos"][j]
-            delta, _reg, _why = link_displacement(cfg, self._scans[j], self._scans[i], float(odom[i, 2] - odom[j, 2]),
-                                                  separation=sep, search_radius_m=cfg.session_backfill_search_m)
-            if delta is not None:
-                self.add_loop_edge(j, i, float(cfg.loop_edge_weight), stamp, delta)
-                added += 1
-        return added
+        """Loop edges between the just-linked component's nodes ``newer`` and the older one's
+        ``older`` where their sweeps verify it (:func:`~services.expmap.session_link.backfill`)."""
+        N = self.n_nodes
+        found = backfill(self.cfg, self._g.arrays["pos"][:N], self._a("odom"), self._scans[:N], newer, older)
+        for j, i, delta in found:
+            self.add_loop_edge(j, i, float(self.cfg.loop_edge_weight), stamp, delta)
+        return len(found)
 
     def _close(self, m: int, n: int, stamp: int, delta: np.ndarray, res: EventResult) -> None:
         """Add the loop edge m -> n asking ``delta`` and plan the relaxation toward the optimum."""

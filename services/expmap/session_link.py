@@ -47,10 +47,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from services.expmap.loop_policy import link_displacement
+
 if TYPE_CHECKING:
+    from services.expmap.config import ExpMapConfig
     from services.expmap.loop_policy import LoopEdges
 
-__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs"]
+__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs", "backfill"]
 
 
 #: weight of the chain edge into a session's first node (its displacement is not a measurement)
@@ -134,4 +137,21 @@ def backfill_pairs(pos: np.ndarray, newer: np.ndarray, older: np.ndarray, has_sw
         if d2[k] <= radius_m * radius_m:
             out.append((int(ref[k]), i))
             last = xy
+    return out
+
+
+def backfill(cfg: ExpMapConfig, pos: np.ndarray, odom: np.ndarray, scans: list[np.ndarray | None],
+             newer: np.ndarray, older: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """The backfill of a link just made (module notes): (j, i, delta) for every pair of
+    :func:`backfill_pairs` whose sweeps register as strictly as a link's around their separation
+    p_i - p_j (:func:`~services.expmap.loop_policy.link_displacement`), delta = p_i - p_j measured
+    (m; height from the odometry, pressure depth being absolute)."""
+    has_sweep = np.array([sw is not None for sw in scans], bool)
+    out = []
+    for j, i in backfill_pairs(pos, newer, older, has_sweep, cfg.session_backfill_radius_m,
+                               cfg.session_backfill_spacing_m):
+        delta, _reg, _why = link_displacement(cfg, scans[j], scans[i], float(odom[i, 2] - odom[j, 2]),
+                                              separation=pos[i] - pos[j], search_radius_m=cfg.session_backfill_search_m)
+        if delta is not None:
+            out.append((j, i, delta))
     return out
