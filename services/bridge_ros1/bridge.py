@@ -28,7 +28,8 @@
 - End: on :meth:`stop` (SIGINT/SIGTERM, ``--duration``) the bridge sends end-of-stream on
   every key it published or announced (the services then finish and the recorder closes a
   complete file), forwards to ROS what the services still publish until their outputs end
-  (or 2 s without any), shuts its ROS node down, and publishes its latency on ``live/latency``,
+  (or 2 s without any), shuts its ROS node down (waiting at most 5 s:
+  ``RosLink.CLOSE_TIMEOUT_S``, a stuck master does not hold the bridge), and publishes its latency on ``live/latency``,
   waiting (at most 10 s) until the recorder has taken it.  It does not wait for its consumers to
   leave (``bus.drain_timeout_s``): the services' outputs ending shows they got its end-of-stream,
   and the services wait for the bridge's own subscription to their outputs to go (a cycle).  A

@@ -19,6 +19,7 @@ import io
 import logging
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -122,11 +123,35 @@ class RosLink:
         msg._buff = data
         pub.publish(msg)
 
-    def close(self, reason: str = "bridge stopped") -> None:
-        for s in self._subs.values():
-            s.unregister()
-        for p, _cls in self._pubs.values():
-            p.unregister()
+    #: seconds :meth:`close` waits for the node's shutdown (unregistering at the master, joining
+    #: rospy's threads: each XML-RPC call and join can wait on a slow or stuck master)
+    CLOSE_TIMEOUT_S = 5.0
+
+    def close(self, reason: str = "bridge stopped") -> bool:
+        """Unregister every topic and shut the node down, waiting at most ``CLOSE_TIMEOUT_S``;
+        False (logged) when it did not finish in time: the bridge goes on ending its run and the
+        rest of rospy's shutdown is left to its daemon thread."""
+        subs, pubs = list(self._subs.values()), [pub for pub, _cls in self._pubs.values()]
         self._subs.clear()
         self._pubs.clear()
-        self.rospy.signal_shutdown(reason)
+
+        failed: list[BaseException] = []
+
+        def shut_down() -> None:
+            try:
+                for topic in (*subs, *pubs):
+                    topic.unregister()
+                self.rospy.signal_shutdown(reason)
+            except BaseException as exc:  # handed to the caller below
+                failed.append(exc)
+
+        worker = threading.Thread(target=shut_down, name="ros-shutdown", daemon=True)
+        worker.start()
+        worker.join(self.CLOSE_TIMEOUT_S)
+        if worker.is_alive():
+            log.warning("bridge_ros1: the ROS node's shutdown (master %s) did not finish within %.0f s; "
+                        "leaving it", self.master_uri, self.CLOSE_TIMEOUT_S)
+            return False
+        if failed:
+            raise failed[0]
+        return True

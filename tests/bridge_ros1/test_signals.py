@@ -109,3 +109,33 @@ def test_a_bridge_whose_hub_went_away_leaves_on_sigterm(ros_and_hub):
     hub.close()
     took, err = _signal_and_wait(proc, 1.0)
     assert took < 10.0 and proc.returncode == 0, err
+
+
+def test_a_stuck_master_does_not_hold_the_bridge_at_its_end(monkeypatch, caplog):
+    """Unregistering at a master that does not answer (rospy's XML-RPC calls and thread joins
+    have no bound of ours) is left behind after RosLink.CLOSE_TIMEOUT_S; a failure is raised."""
+    from services.bridge_ros1 import ros_io
+
+    class StuckRospy:
+        def __init__(self):
+            self.release = threading.Event()
+
+        def signal_shutdown(self, reason):
+            self.release.wait()
+
+    stuck = StuckRospy()
+    monkeypatch.setattr(ros_io, "import_rospy", lambda path: stuck)
+    link = ros_io.RosLink("http://127.0.0.1:1", "probe", "", lambda *a: None)
+    link.CLOSE_TIMEOUT_S = 0.5
+    t0 = time.monotonic()
+    assert link.close() is False and time.monotonic() - t0 < 2.0
+    assert "did not finish within" in caplog.text
+    stuck.release.set()
+
+    class FailingRospy:
+        def signal_shutdown(self, reason):
+            raise RuntimeError("master refused")
+
+    monkeypatch.setattr(ros_io, "import_rospy", lambda path: FailingRospy())
+    with pytest.raises(RuntimeError, match="master refused"):
+        ros_io.RosLink("http://127.0.0.1:1", "probe", "", lambda *a: None).close()
