@@ -403,11 +403,11 @@ class ExperienceMap:
         for s in moving.tolist():
             self._session_root[s] = new_root
         older = np.isin(A["session"][:N], [s for s, r in self._session_root.items() if r == new_root]) & ~mask
-        backfill = self._backfill(mask & (np.arange(N) != n), older, stamp)
+        n_backfill = self._backfill(mask & (np.arange(N) != n), older, stamp)
         self.session_links.append(SessionLink(
             session=int(A["session"][n]), to_session=int(A["session"][m]), m=m, n=n, stamp=stamp,
             delta=delta.copy(), shift=shift.copy(), rotation_deg=float(reg.rotation_deg), applied_deg=math.degrees(theta),
-            inlier_fraction=float(reg.inlier_fraction), backfill_edges=backfill))
+            inlier_fraction=float(reg.inlier_fraction), backfill_edges=n_backfill))
         res.linked = True
         self._close(m, n, stamp, delta, res)
 
