@@ -1,7 +1,8 @@
 """Dead-reckoning navigation filter of ``robot_state`` (dissertation Section 4.2.4).
 
 (Over 500 lines because the state, the process model and each sensor's measurement model
-with its Jacobian are one filter.)
+with its Jacobian are one filter; the arithmetic of the prediction and the update is in
+:mod:`services.robot_state.ekf_kernels`.)
 
 The back-end's only motion input is the fused ``/Odometry`` stream (Eq. 4.15 differences it),
 built from DVL velocity, IMU attitude/rates and pressure depth.  This is DolphinSLAM's 3D
@@ -103,6 +104,7 @@ import numpy as np
 from common.geometry import euler_to_matrix, matrix_to_euler, wrap_angle
 from common.messages import Depth, Imu, LinkquestDvl
 from services.robot_state.config import RobotStateConfig
+from services.robot_state.ekf_kernels import predict, restricted_update
 
 __all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
 
@@ -117,13 +119,7 @@ B_IMU = 9  # IMU yaw error (its reported yaw = yaw + b_imu)
 B_DVL = 10  # DVL compass offset (its reported heading = yaw + b_dvl)
 BG_IDX = [11, 12, 13]  # gyro biases (rad/s): measured rate = true rate + b_g
 D_IMU = 14  # drift rate of the IMU yaw error (rad/s): d b_imu / dt = d_imu
-N_STATE = 15
-
-# constant blocks of every predict/update step (read-only: copied or only read, never written)
-_EYE = np.eye(N_STATE)
-_EYE.flags.writeable = False
-_ZERO3 = np.zeros(3)
-_ZERO3.flags.writeable = False
+N_STATE = 15  # = ekf_kernels.N_STATE
 
 
 @dataclass
@@ -143,60 +139,6 @@ def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
-def _euler_rate_matrix(roll: float, pitch: float) -> np.ndarray:
-    """E(phi, theta): body rates -> ZYX Euler angle rates."""
-    sr, cr = math.sin(roll), math.cos(roll)
-    cp = math.cos(pitch)
-    cp = math.copysign(max(abs(cp), 1e-3), cp)
-    tp = math.sin(pitch) / cp
-    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
-
-
-def _euler_rate_jacobian(roll: float, pitch: float, w: np.ndarray) -> np.ndarray:
-    """d(E(e) w)/de (3x3; the yaw column is zero)."""
-    sr, cr = math.sin(roll), math.cos(roll)
-    sp, cp = math.sin(pitch), math.cos(pitch)
-    cp = math.copysign(max(abs(cp), 1e-3), cp)
-    tp = sp / cp
-    q, r = float(w[1]), float(w[2])
-    j = np.zeros((3, 3))
-    j[0, 0] = cr * tp * q - sr * tp * r
-    j[1, 0] = -sr * q - cr * r
-    j[2, 0] = (cr * q - sr * r) / cp
-    j[0, 1] = (sr * q + cr * r) / (cp * cp)
-    j[2, 1] = (sr * q + cr * r) * sp / (cp * cp)
-    return j
-
-
-def _rotation_jacobian_times(e: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """d(R(e) v)/de (3x3), closed form of dR/droll v, dR/dpitch v, dR/dyaw v."""
-    sr, cr = math.sin(e[0]), math.cos(e[0])
-    sp, cp = math.sin(e[1]), math.cos(e[1])
-    sy, cy = math.sin(e[2]), math.cos(e[2])
-    vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
-    # body velocity with roll applied, then with pitch applied (R = Rz Ry Rx)
-    a1, a2 = cr * vy - sr * vz, sr * vy + cr * vz  # Rx v (y, z)
-    dr1, dr2 = -sr * vy - cr * vz, cr * vy - sr * vz  # dRx/droll v (y, z)
-    b0 = cp * vx + sp * a2  # (Ry Rx v).x; y = a1
-    # d/droll: Rz Ry (0, dr1, dr2)
-    x0, y0, z0 = sp * dr2, dr1, cp * dr2
-    j_r = (cy * x0 - sy * y0, sy * x0 + cy * y0, z0)
-    # d/dpitch: Rz dRy (vx, a1, a2)
-    x1, z1 = -sp * vx + cp * a2, -cp * vx - sp * a2
-    j_p = (cy * x1, sy * x1, z1)
-    # d/dyaw: dRz (b0, a1, b2)
-    j_y = (-sy * b0 - cy * a1, cy * b0 - sy * a1, 0.0)
-    return np.array([[j_r[0], j_p[0], j_y[0]], [j_r[1], j_p[1], j_y[1]], [j_r[2], j_p[2], j_y[2]]])
-
-
-def _symmetrised(p: np.ndarray) -> np.ndarray:
-    """``0.5 * (p + p.T)`` computed in ``p`` (a fresh product nobody else holds): the same
-    elementwise operations in the same order, without two temporaries."""
-    p += p.T  # numpy buffers the overlapping transpose: each entry is p[i, j] + p[j, i] of the input
-    p *= 0.5
-    return p
-
-
 _DIRECT_H: dict[tuple[int, ...], np.ndarray] = {}
 
 
@@ -212,15 +154,18 @@ def _direct_h(idx: list[int]) -> np.ndarray:
     return H
 
 
-_OTHERS: dict[tuple[int, ...], np.ndarray] = {}
+_KEEP: dict[tuple[int, ...], np.ndarray] = {}
 
 
-def _others(idx: list[int]) -> np.ndarray:
-    """The states not in ``idx`` (cached)."""
+def _keep(idx: list[int]) -> np.ndarray:
+    """(N_STATE,) bool: the states ``idx`` a restricted gain may correct (cached, read-only)."""
     key = tuple(idx)
-    out = _OTHERS.get(key)
+    out = _KEEP.get(key)
     if out is None:
-        out = _OTHERS[key] = np.array([i for i in range(N_STATE) if i not in key], dtype=np.intp)
+        out = np.zeros(N_STATE, bool)
+        out[list(key)] = True
+        out.flags.writeable = False
+        _KEEP[key] = out
     return out
 
 
@@ -243,6 +188,13 @@ class DeadReckoningFilter:
                          + [math.radians(cfg.gyro_bias_sigma_deg_s) ** 2] * 3
                          + [math.radians(cfg.imu_yaw_drift_rate_sigma_deg_min / 60.0) ** 2 if fusion else 0.0])
         self.t: int | None = None  # state time (ns)
+        # process-noise variance rates (per s) of the prediction
+        self._q_rates = {"gyro": math.radians(cfg.gyro_sigma_deg_s) ** 2,
+                         "attitude_rw": math.radians(cfg.attitude_rw_sigma_deg_s) ** 2,
+                         "imu_yaw": math.radians(cfg.imu_yaw_drift_sigma_deg_s) ** 2 if fusion else 0.0,
+                         "imu_yaw_rate": math.radians(cfg.imu_yaw_drift_rate_rw_deg_min_s / 60.0) ** 2
+                         if fusion else 0.0,
+                         "gyro_bias": math.radians(cfg.gyro_bias_rw_deg_s) ** 2}
         self.gyro = np.zeros(3)
         self.have_velocity = False
         self.have_attitude = False
@@ -335,12 +287,11 @@ class DeadReckoningFilter:
             self.t = tk
 
     def _step(self, t0: int, t1: int) -> None:
+        """Predict from ``t0`` to ``t1`` (ns): the inputs' freshness decides the model
+        (:func:`~services.robot_state.ekf_kernels.predict` does the arithmetic)."""
         cfg = self.cfg
         dt = (t1 - t0) / NS
-        e = self.x[6:9]
-        v = self.x[3:6]
         gyro_on = self.imu_fresh(t0)
-        w = self.gyro - self.x[11:14] if gyro_on else _ZERO3
         if self.dvl_fresh(t0) or not self.have_velocity:
             a, g = 1.0, dt
             qv = cfg.process_accel_sigma ** 2 * dt
@@ -351,45 +302,11 @@ class DeadReckoningFilter:
             qv = cfg.dropout_speed_sigma ** 2 * (1.0 - a * a)
         integrate = self.initialised
         z_moves = integrate and self.depth_fresh(t0)
-        r = euler_to_matrix(*e)
-        F = _EYE.copy()
-        dp = _ZERO3
-        if integrate:
-            dp = r @ v * g
-            F[0:3, 3:6] = r * g
-            F[0:3, 6:9] = _rotation_jacobian_times(e, v) * g
-            if not z_moves:
-                dp[2] = 0.0
-                F[2, 3:9] = 0.0
-        if a != 1.0:  # (x * 1.0 == x: the fresh-DVL step skips the no-op)
-            F[3:6, 3:6] *= a
-        if gyro_on:
-            # E(roll, pitch) once: both uses below see the same roll and pitch (x[6:8] unchanged)
-            rate = _euler_rate_matrix(e[0], e[1])
-            F[6:9, 6:9] += _euler_rate_jacobian(e[0], e[1], w) * dt
-            F[6:9, 11:14] = -rate * dt
-        F[B_IMU, D_IMU] = dt
-        # the process noise's diagonal as a Python list (one array at np.diag, not one per block)
-        Q = [0.0] * N_STATE
-        Q[3] = Q[4] = Q[5] = qv
-        if gyro_on:
-            Q[6] = Q[7] = Q[8] = math.radians(cfg.gyro_sigma_deg_s) ** 2 * dt
-        else:
-            Q[6] = Q[7] = Q[8] = math.radians(cfg.attitude_rw_sigma_deg_s) ** 2 * dt
-        if integrate and not z_moves:
-            Q[2] = cfg.dropout_speed_sigma ** 2 * dt * 1.0  # z held: random walk, 1 s correlation
-        if cfg.dvl_heading_fusion:
-            Q[B_IMU] = math.radians(cfg.imu_yaw_drift_sigma_deg_s) ** 2 * dt
-            Q[D_IMU] = math.radians(cfg.imu_yaw_drift_rate_rw_deg_min_s / 60.0) ** 2 * dt
-        Q[11] = Q[12] = Q[13] = math.radians(cfg.gyro_bias_rw_deg_s) ** 2 * dt
-        self.x[0:3] += dp
-        if a != 1.0:
-            self.x[3:6] = v * a
-        self.x[B_IMU] += self.x[D_IMU] * dt
-        if gyro_on:
-            self.x[6:9] = e + rate @ w * dt
-            self.x[8] = wrap_angle(self.x[8])
-        self.P = _symmetrised(F @ self.P @ F.T + np.diag(Q))
+        q = self._q_rates
+        q_att = (q["gyro"] if gyro_on else q["attitude_rw"]) * dt
+        q_z = cfg.dropout_speed_sigma ** 2 * dt * 1.0 if integrate and not z_moves else 0.0  # z held: 1 s correlation
+        predict(self.x, self.P, self.gyro, dt, a, g, qv, gyro_on, integrate, z_moves, q_att, q_z,
+                q["imu_yaw"] * dt, q["imu_yaw_rate"] * dt, q["gyro_bias"] * dt)
 
     # ------------------------------------------------------------------ updates
     def _init_block(self, idx: list[int], z: np.ndarray, r: np.ndarray) -> None:
@@ -402,14 +319,8 @@ class DeadReckoningFilter:
         """Kalman update with innovation ``y`` of a linear measurement ``H x`` (default: a
         direct measurement of states ``idx``); the gain is restricted to the states ``idx``
         (Joseph form keeps P consistent for any gain)."""
-        if H is None:
-            H = _direct_h(idx)
-        S = H @ self.P @ H.T + r
-        K = self.P @ H.T @ np.linalg.inv(S)
-        K[_others(idx), :] = 0.0  # the gain restricted to idx, in place
-        self.x += K @ y
-        ikh = _EYE - K @ H
-        self.P = _symmetrised(ikh @ self.P @ ikh.T + K @ r @ K.T)
+        restricted_update(self.x, self.P, _direct_h(idx) if H is None else H, np.asarray(y, np.float64),
+                          np.asarray(r, np.float64), _keep(idx))
 
     def _yaw_gated(self, y: float, s: float) -> bool:
         """True when a yaw innovation ``y`` (variance ``s``) fails the ``heading_gate_chi2`` gate."""
