@@ -106,7 +106,7 @@ from common.messages import Depth, Imu, LinkquestDvl
 from services.robot_state.config import RobotStateConfig
 from services.robot_state.ekf_kernels import predict, restricted_update
 
-__all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS"]
+__all__ = ["DeadReckoningFilter", "FilterSnapshot", "NS", "warm_up_kernels"]
 
 NS = 1_000_000_000
 MAX_STEP_NS = NS // 2  # prediction sub-step bound (s): keeps the Euler integration of attitude fine
@@ -516,3 +516,14 @@ class DeadReckoningFilter:
         return FilterSnapshot(stamp=t, position=self.x[0:3].copy(), velocity_body=self.x[3:6].copy(),
                               euler=self.x[6:9].copy(), angular_velocity=w.copy(), covariance=self.P.copy(),
                               flags=self.flags(t))
+
+
+def warm_up_kernels(cfg: RobotStateConfig) -> None:
+    """Compile the EKF kernels (:mod:`services.robot_state.ekf_kernels`) for the argument types
+    the filter passes them, on a throwaway filter: a prediction, a direct and a general update."""
+    f = DeadReckoningFilter(cfg)
+    f._step(0, NS // 10)
+    f._update([2], np.zeros(1), np.eye(1))
+    H = np.zeros((1, N_STATE))
+    H[0, 8] = 1.0
+    f._update([8], np.zeros(1), np.eye(1), H)

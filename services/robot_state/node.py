@@ -54,7 +54,7 @@ from common.geometry import OutputFrame, euler_to_matrix, matrix_to_quaternion
 from common.messages import Depth, Header, Imu, LinkquestDvl, Message, Odometry
 from common.node import ServiceNode
 from services.robot_state.config import RobotStateConfig
-from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot
+from services.robot_state.filter import NS, DeadReckoningFilter, FilterSnapshot, warm_up_kernels
 
 __all__ = ["RobotStateNode", "odometry_from_snapshot"]
 
@@ -125,6 +125,11 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
         self._jumped = False
 
     # ------------------------------------------------------------------ publishing
+    def warm_up(self) -> None:
+        """Compile the EKF's numba kernels before the service says it is alive (a throwaway
+        filter; this node's is untouched)."""
+        warm_up_kernels(self.cfg)
+
     def _publish_until(self, t: int, inclusive: bool) -> None:
         """Publish every grid stamp g < t (or <= t) not yet published."""
         if self._next_pub is None:

@@ -75,3 +75,14 @@ def test_the_restricted_update_is_the_joseph_form_with_a_gain_only_on_its_states
     assert np.array_equal(x[~keep], x0[~keep])          # only the kept states move
     assert not np.allclose(x[keep], x0[keep])
     assert np.linalg.eigvalsh(P).min() > 0
+
+
+def test_warm_up_compiles_on_a_throwaway_filter() -> None:
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+    node = build_node("robot_state", PoseidonConfig())
+    f = node.filter   # type: ignore[attr-defined]
+    x, P, t, counters = f.x.copy(), f.P.copy(), f.t, dict(node.counters)
+    node.warm_up()
+    assert np.array_equal(f.x, x) and np.array_equal(f.P, P) and f.t == t and node.counters == counters
+    assert predict.signatures and restricted_update.signatures     # compiled
