@@ -16,13 +16,27 @@ import math
 import numpy as np
 from numba import njit
 
-from common.geometry import euler_to_matrix, wrap_angle
+from common.geometry import wrap_angle
 
-__all__ = ["euler_rate_matrix", "euler_rate_jacobian", "rotation_jacobian_times", "predict", "restricted_update"]
+__all__ = ["rotation", "euler_rate_matrix", "euler_rate_jacobian", "rotation_jacobian_times", "predict",
+           "restricted_update"]
 
 N_STATE = 15
-_rotation = njit(cache=True)(euler_to_matrix)     # Eq. 3.10, the same closed form as common.geometry's
 _wrap = njit(cache=True)(wrap_angle)
+# (3 x 3 results are filled entry by entry: numba compiles np.array of nested lists slowly, ~20 s)
+
+
+@njit(cache=True)
+def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Body->world rotation Rz(yaw) Ry(pitch) Rx(roll) (Eq. 3.10; common.geometry.euler_to_matrix)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sy, cy = math.sin(yaw), math.cos(yaw)
+    r = np.empty((3, 3))
+    r[0, 0], r[0, 1], r[0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    r[1, 0], r[1, 1], r[1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    r[2, 0], r[2, 1], r[2, 2] = -sp, cp * sr, cp * cr
+    return r
 
 
 @njit(cache=True)
@@ -32,7 +46,11 @@ def euler_rate_matrix(roll: float, pitch: float) -> np.ndarray:
     cp = math.cos(pitch)
     cp = math.copysign(max(abs(cp), 1e-3), cp)
     tp = math.sin(pitch) / cp
-    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+    e = np.empty((3, 3))
+    e[0, 0], e[0, 1], e[0, 2] = 1.0, sr * tp, cr * tp
+    e[1, 0], e[1, 1], e[1, 2] = 0.0, cr, -sr
+    e[2, 0], e[2, 1], e[2, 2] = 0.0, sr / cp, cr / cp
+    return e
 
 
 @njit(cache=True)
@@ -64,9 +82,11 @@ def rotation_jacobian_times(e: np.ndarray, v: np.ndarray) -> np.ndarray:
     b0 = cp * vx + sp * a2                              # (Ry Rx v).x; y = a1
     x0, y0, z0 = sp * dr2, dr1, cp * dr2                # d/droll: Rz Ry (0, dr1, dr2)
     x1, z1 = -sp * vx + cp * a2, -cp * vx - sp * a2     # d/dpitch: Rz dRy (vx, a1, a2)
-    return np.array([[cy * x0 - sy * y0, cy * x1, -sy * b0 - cy * a1],
-                     [sy * x0 + cy * y0, sy * x1, cy * b0 - sy * a1],
-                     [z0, z1, 0.0]])
+    j = np.empty((3, 3))
+    j[0, 0], j[0, 1], j[0, 2] = cy * x0 - sy * y0, cy * x1, -sy * b0 - cy * a1
+    j[1, 0], j[1, 1], j[1, 2] = sy * x0 + cy * y0, sy * x1, cy * b0 - sy * a1
+    j[2, 0], j[2, 1], j[2, 2] = z0, z1, 0.0
+    return j
 
 
 @njit(cache=True)
@@ -76,6 +96,36 @@ def _symmetrise_into(src: np.ndarray, dst: np.ndarray) -> None:
     for i in range(n):
         for j in range(n):
             dst[i, j] = (src[i, j] + src[j, i]) * 0.5
+
+
+@njit(cache=True)
+def _ff_t(F: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """F P F' (n x n) by loops: numba's BLAS matmul costs seconds of compilation per signature."""
+    n = P.shape[0]
+    fp = np.zeros((n, n))
+    for i in range(n):
+        for k in range(n):
+            f = F[i, k]
+            if f != 0.0:
+                for j in range(n):
+                    fp[i, j] += f * P[k, j]
+    out = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += fp[i, k] * F[j, k]
+            out[i, j] = acc
+    return out
+
+
+@njit(cache=True)
+def _mv(m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """m v (3 x 3 by 3)."""
+    out = np.zeros(3)
+    for i in range(3):
+        out[i] = m[i, 0] * v[0] + m[i, 1] * v[1] + m[i, 2] * v[2]
+    return out
 
 
 @njit(cache=True)
@@ -90,28 +140,44 @@ def predict(x: np.ndarray, P: np.ndarray, gyro: np.ndarray, dt: float, a: float,
     initialised (the position moves); ``z_moves``: depth is fresh (else z is held).  The
     process noise: ``qv`` on v, ``q_att`` on e, ``q_z`` on a held z, ``q_bimu``/``q_dimu`` on the
     IMU yaw error and its rate, ``q_bg`` on each gyro bias (variances over this step)."""
-    e = x[6:9].copy()
-    v = x[3:6].copy()
-    w = gyro - x[11:14] if gyro_on else np.zeros(3)
+    # (scalar loops throughout: numba compiles slice arithmetic on arrays several times slower)
+    e = np.empty(3)
+    v = np.empty(3)
+    w = np.zeros(3)
+    for i in range(3):
+        e[i] = x[6 + i]
+        v[i] = x[3 + i]
+        if gyro_on:
+            w[i] = gyro[i] - x[11 + i]
     F = np.eye(N_STATE)
     dp = np.zeros(3)
     if integrate:
-        r = _rotation(e[0], e[1], e[2])
-        dp = r @ v * g
-        F[0:3, 3:6] = r * g
-        F[0:3, 6:9] = rotation_jacobian_times(e, v) * g
+        r = rotation(e[0], e[1], e[2])
+        dp = _mv(r, v)
+        jr = rotation_jacobian_times(e, v)
+        for i in range(3):
+            dp[i] *= g
+            for j in range(3):
+                F[i, 3 + j] = r[i, j] * g
+                F[i, 6 + j] = jr[i, j] * g
         if not z_moves:
             dp[2] = 0.0
-            F[2, 3:9] = 0.0
+            for j in range(3, 9):
+                F[2, j] = 0.0
     if a != 1.0:
-        F[3:6, 3:6] *= a
+        for i in range(3, 6):
+            for j in range(3, 6):
+                F[i, j] *= a
     rate = np.zeros((3, 3))
     if gyro_on:
         rate = euler_rate_matrix(e[0], e[1])
-        F[6:9, 6:9] += euler_rate_jacobian(e[0], e[1], w) * dt
-        F[6:9, 11:14] = -rate * dt
+        je = euler_rate_jacobian(e[0], e[1], w)
+        for i in range(3):
+            for j in range(3):
+                F[6 + i, 6 + j] += je[i, j] * dt
+                F[6 + i, 11 + j] = -rate[i, j] * dt
     F[9, 14] = dt
-    out = F @ P @ F.T
+    out = _ff_t(F, P)
     for k in range(3, 6):
         out[k, k] += qv
     for k in range(6, 9):
@@ -121,12 +187,15 @@ def predict(x: np.ndarray, P: np.ndarray, gyro: np.ndarray, dt: float, a: float,
     out[14, 14] += q_dimu
     for k in range(11, 14):
         out[k, k] += q_bg
-    x[0:3] += dp
-    if a != 1.0:
-        x[3:6] = v * a
+    for i in range(3):
+        x[i] += dp[i]
+        if a != 1.0:
+            x[3 + i] = v[i] * a
     x[9] += x[14] * dt
     if gyro_on:
-        x[6:9] = e + rate @ w * dt
+        de = _mv(rate, w)
+        for i in range(3):
+            x[6 + i] = e[i] + de[i] * dt
         x[8] = _wrap(x[8])
     _symmetrise_into(out, P)
 
@@ -137,11 +206,49 @@ def restricted_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, y: np.ndarray
     """Kalman update with innovation ``y`` of the measurement ``H x`` (noise ``R``), the gain
     zeroed outside the states ``keep`` (bool, N_STATE), the Joseph form
     ``P = (I - K H) P (I - K H)' + K R K'`` (consistent for any gain); in place."""
-    S = H @ P @ H.T + R
-    K = P @ H.T @ np.linalg.inv(S)
-    for i in range(N_STATE):
-        if not keep[i]:
-            K[i, :] = 0.0
-    x += K @ y
-    ikh = np.eye(N_STATE) - K @ H
-    _symmetrise_into(ikh @ P @ ikh.T + K @ R @ K.T, P)
+    n, m = P.shape[0], H.shape[0]
+    pht = np.zeros((n, m))                 # P H' (loops: see _ff_t)
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for k in range(n):
+                acc += P[i, k] * H[j, k]
+            pht[i, j] = acc
+    S = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            acc = R[i, j]
+            for k in range(n):
+                acc += H[i, k] * pht[k, j]
+            S[i, j] = acc
+    s_inv = np.linalg.inv(S)
+    K = np.zeros((n, m))
+    for i in range(n):
+        if keep[i]:
+            for j in range(m):
+                acc = 0.0
+                for k in range(m):
+                    acc += pht[i, k] * s_inv[k, j]
+                K[i, j] = acc
+    ikh = np.eye(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(m):
+            acc += K[i, j] * y[j]
+        x[i] += acc
+        for j in range(n):
+            kh = 0.0
+            for k in range(m):
+                kh += K[i, k] * H[k, j]
+            ikh[i, j] -= kh
+    out = _ff_t(ikh, P)
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for a in range(m):
+                kr = 0.0
+                for b in range(m):
+                    kr += K[i, b] * R[b, a]
+                acc += kr * K[j, a]
+            out[i, j] += acc
+    _symmetrise_into(out, P)

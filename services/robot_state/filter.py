@@ -143,13 +143,13 @@ _DIRECT_H: dict[tuple[int, ...], np.ndarray] = {}
 
 
 def _direct_h(idx: list[int]) -> np.ndarray:
-    """Measurement matrix of a direct measurement of the states ``idx`` (cached, read-only)."""
+    """Measurement matrix of a direct measurement of the states ``idx`` (cached; never written: left
+    writable so the update kernel has one signature)."""
     key = tuple(idx)
     H = _DIRECT_H.get(key)
     if H is None:
         H = np.zeros((len(idx), N_STATE))
         H[np.arange(len(idx)), idx] = 1.0
-        H.flags.writeable = False
         _DIRECT_H[key] = H
     return H
 
@@ -158,13 +158,12 @@ _KEEP: dict[tuple[int, ...], np.ndarray] = {}
 
 
 def _keep(idx: list[int]) -> np.ndarray:
-    """(N_STATE,) bool: the states ``idx`` a restricted gain may correct (cached, read-only)."""
+    """(N_STATE,) bool: the states ``idx`` a restricted gain may correct (cached; never written)."""
     key = tuple(idx)
     out = _KEEP.get(key)
     if out is None:
         out = np.zeros(N_STATE, bool)
         out[list(key)] = True
-        out.flags.writeable = False
         _KEEP[key] = out
     return out
 
