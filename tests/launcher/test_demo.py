@@ -71,3 +71,34 @@ def test_failed_simulation_is_an_error(tmp_path, monkeypatch):
     monkeypatch.setattr(missions.sim.cli, "main", lambda argv: 2)
     with pytest.raises(RuntimeError, match="simulation failed"):
         demo.ensure_mission(tmp_path, seed=1)
+
+
+def test_compile_kernels_warms_up_only_the_services_that_have_kernels(monkeypatch):
+    """The background compilation builds a throwaway node of each service that overrides
+    warm_up and calls it; services without one (the encoder: seconds of model loading for
+    nothing) are not even built."""
+    import launcher.services as services
+    from common.node import ServiceNode
+
+    warmed, built = [], []
+
+    class WithKernels(ServiceNode):
+        def warm_up(self):
+            warmed.append(self.tag)
+
+    class Plain(ServiceNode):
+        pass
+
+    classes = {"htm": WithKernels, "encoder": Plain, "robot_state": WithKernels}
+
+    def fake_build(name, config):
+        built.append(name)
+        node = classes[name].__new__(classes[name])
+        node.tag = name
+        return node
+
+    monkeypatch.setattr(services, "available_services", lambda config: list(classes))
+    monkeypatch.setattr(services, "node_class", lambda name, config: classes[name])
+    monkeypatch.setattr(services, "build_node", fake_build)
+    demo.compile_kernels(demo.PoseidonConfig().model_dump_json())
+    assert warmed == ["htm", "robot_state"] and built == ["htm", "robot_state"]
