@@ -46,10 +46,13 @@ import multiprocessing.process
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from common.config import apply_overrides
 from launcher.config import PoseidonConfig
+
+if TYPE_CHECKING:
+    from eval.rundata import RunData
 
 __all__ = ["run_demo", "SIM_MINUTES", "ensure_mission", "compile_kernels"]
 
@@ -114,11 +117,10 @@ def _variant(config: PoseidonConfig, overrides: list[str]) -> PoseidonConfig:
     return PoseidonConfig.model_validate(apply_overrides(config.model_dump(mode="json"), overrides))
 
 
-def _run_figures(path: Path, wall_s: float, mission_s: float) -> dict[str, Any]:
+def _run_figures(run: RunData, wall_s: float, mission_s: float) -> dict[str, Any]:
     from eval.audit import audit_run
     from eval.run_eval import evaluate_run
-    from eval.rundata import load_run
-    run = load_run(path)
+    path = run.path
     ev = evaluate_run(run)
     au = audit_run(run)
     lc = ev.get("loop_closures") or {}
@@ -172,7 +174,8 @@ def print_summary(d: dict[str, Any]) -> None:
 def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bool = False,
              embedded: bool = False, timeout_s: float | None = None, as_json: bool = False) -> int:
     """Run the demo (see the module docstring); returns the exit code."""
-    from eval.report.cli import main as report_main
+    from eval.report.cli import views_of, write_report
+    from eval.rundata import load_run
     from launcher.run import run_distributed, run_embedded
     from launcher.services import available_services
 
@@ -196,6 +199,7 @@ def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bo
             slam = ["ratslam_lv", *slam]
         plan.append(("ratslam", "RatSLAM local view, VPR Guard ON", ["vpr_guard.require_vpr_for_event=true"], slam))
     runs: dict[str, dict[str, Any]] = {}
+    loaded: dict[str, RunData] = {}     # each run read once, for its figures and for the report
     for k, (label, title, overrides, services) in enumerate(plan, start=2):
         out = out_dir / f"run_{label}.mcap"
         _say(f"[{k}/{steps}] {title}: full pipeline ({'one process' if embedded else 'one process per service'})"
@@ -203,18 +207,16 @@ def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bo
         res = runner(_variant(config, overrides), mission, out, services=services, timeout_s=timeout_s,
                      progress=not as_json)
         mission_s = float(res.recording.get("duration_s") or 0.0)
-        runs[label] = _run_figures(out, res.wall_s, mission_s)
+        loaded[label] = load_run(out)
+        runs[label] = _run_figures(loaded[label], res.wall_s, mission_s)
         _say(f"      {res.wall_s:.0f} s wall for {mission_s:.0f} s of mission "
              f"({runs[label]['real_time_factor']}x real time)")
     report_dir = out_dir / "report"
     _say(f"[{steps}/{steps}] report -> {report_dir / 'index.html'}")
     labels = {"on": "VPR Guard ON", "off": "VPR Guard OFF", "ratslam": "RatSLAM front-end"}
-    argv = [r["path"] for r in runs.values()] + ["--out", str(report_dir)]
-    for label in runs:
-        argv += ["--label", labels[label]]
-    rc = report_main(argv)
-    if rc != 0:
-        raise RuntimeError(f"poseidon report failed (exit {rc})")
+    written, unavailable = write_report(views_of(list(loaded.values()), [labels[k] for k in loaded]), report_dir)
+    _say(f"      {written['out']} ({written['bytes'] / 1e6:.1f} MB)"
+         + "".join(f"\n      table unavailable: {name}: {why}" for name, why in unavailable.items()))
     d = {"mission": str(mission), "mission_cached": cached, "out": str(out_dir),
          "report": str(report_dir / "index.html"), "wall_s": round(time.monotonic() - t0, 1),
          "runs": runs, "checks": _checks(runs)}

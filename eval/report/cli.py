@@ -48,7 +48,7 @@ from eval.report.page import render_report
 from eval.run_eval import evaluate_run, relations_block
 from eval.rundata import RunData, load_run
 
-__all__ = ["main", "evaluation_tables", "load_views"]
+__all__ = ["main", "evaluation_tables", "load_views", "views_of", "write_report"]
 
 log = logging.getLogger("poseidon.report")
 
@@ -137,19 +137,46 @@ def load_views(paths: list[Path], labels: list[str]) -> list[RunView]:
 
     :raises RecordingError: a missing, unreadable or empty recording (named).
     """
-    views = []
-    for i, p in enumerate(paths):
+    runs = []
+    for p in paths:
         if not p.is_file():
             raise RecordingError(f"{p}: no such recording")
-        run = load_run(p)
+        runs.append(load_run(p))
+    return views_of(runs, labels)
+
+
+def views_of(runs: list[RunData], labels: list[str]) -> list[RunView]:
+    """The figures' views of runs already loaded (:func:`load_views` reads them; ``poseidon demo``
+    passes the runs it has just judged); labels made unique.
+
+    :raises RecordingError: an empty recording (named).
+    """
+    views = []
+    for i, run in enumerate(runs):
         if not run.counts:
-            raise RecordingError(f"{p}: no readable message (not an MCAP recording, or an empty one)")
+            raise RecordingError(f"{run.path}: no readable message (not an MCAP recording, or an empty one)")
         views.append(run_view(run, label=(labels[i] if labels else None)))
     names = [v.label for v in views]
     if len(set(names)) != len(names):  # labels name the series and table columns: make them unique
         for i, v in enumerate(views):
             v.label = f"{i + 1}: {v.label}"
     return views
+
+
+def write_report(runs: list[RunView], out: str | Path, relations: Path | None = None, max_points: int = 3000,
+                 max_frames: int = 500, min_gap_m: float = 10.0) -> tuple[dict[str, Any], dict[str, str]]:
+    """Evaluate ``runs`` and write the report into ``out``; returns (what was written, the
+    tables that were unavailable and why).
+
+    :raises RecordingError, DecodeError, ValueError: the relations file cannot be used (named).
+    """
+    tables, unavailable, details = evaluation_tables([r.run for r in runs], [r.label for r in runs], relations)
+    extra = [_benchmark_section(runs[0].run, relations, tables)] if relations is not None else []
+    result = render_report(runs, tables, out, unavailable=unavailable, folded=details, max_points=max_points,
+                           max_frames=max_frames, min_gap_m=min_gap_m, extra_sections=extra)
+    result["runs"] = [{"path": str(r.path), "label": r.label, "duration_s": round(r.duration_s, 3),
+                       "counts": r.counts} for r in runs]
+    return result, unavailable
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -183,19 +210,14 @@ def main(argv: list[str] | None = None) -> int:
     except (RecordingError, DecodeError, KeyError) as exc:
         print(f"poseidon report: {exc}", file=sys.stderr)
         return 2
-    tables, unavailable, details = evaluation_tables([r.run for r in runs], [r.label for r in runs], args.relations)
-    extra = []
-    if args.relations is not None:
-        try:
-            extra = [_benchmark_section(runs[0].run, args.relations, tables)]
-        except (RecordingError, DecodeError, ValueError) as exc:
-            print(f"poseidon report: {exc}", file=sys.stderr)
-            return 2
-    result = render_report(runs, tables, args.out, unavailable=unavailable, folded=details,
-                           max_points=args.max_points,
-                           max_frames=args.max_frames, min_gap_m=args.min_gap_m, extra_sections=extra)
-    result["runs"] = [{"path": str(r.path), "label": r.label, "duration_s": round(r.duration_s, 3),
-                       "counts": r.counts} for r in runs]
+    try:
+        result, unavailable = write_report(runs, args.out, args.relations, max_points=args.max_points,
+                                           max_frames=args.max_frames, min_gap_m=args.min_gap_m)
+    except (RecordingError, DecodeError, ValueError) as exc:
+        if args.relations is None:   # only the relations file is user input here; anything else is a bug
+            raise
+        print(f"poseidon report: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(result, indent=2))
     else:
