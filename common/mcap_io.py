@@ -345,7 +345,7 @@ def _chunk_messages(data: bytes, offset: int, channels: dict[int, tuple[str, str
 
 
 def _merge_chunks(f: IO[bytes], summary: Any, keys: list[str] | None, start_ns: int | None,
-                  validate_crc: bool) -> Iterator[RecordedMessage]:
+                  validate_crc: bool, end_ns: int | None = None) -> Iterator[RecordedMessage]:
     """The messages of the summary's chunks in mcap's log-time order -- (log time, chunk
     start offset, record index inside the chunk), what ``iter_messages(log_time_order=True)``
     yields -- reading each chunk once.  A chunk is opened in (message start time, offset)
@@ -360,7 +360,7 @@ def _merge_chunks(f: IO[bytes], summary: Any, keys: list[str] | None, start_ns: 
             channels[cid] = (ch.topic, "")
         elif ch.schema_id in summary.schemas:  # else a message on it is a KeyError, as with mcap's reader
             channels[cid] = (ch.topic, summary.schemas[ch.schema_id].name)
-    chunks = sorted(_chunks_matching_topics(summary, keys, start_ns, None),
+    chunks = sorted(_chunks_matching_topics(summary, keys, start_ns, end_ns),
                     key=lambda c: (c.message_start_time, c.chunk_start_offset))
     pending: list[tuple[int, int, int, str, str, int, bytes]] = []
     for i, ci in enumerate(chunks):
@@ -374,14 +374,17 @@ def _merge_chunks(f: IO[bytes], summary: Any, keys: list[str] | None, start_ns: 
         else:
             cut = len(pending)
         for stamp, _off, _idx, key, type_name, seq, payload in pending[:cut]:
+            if end_ns is not None and stamp >= end_ns:
+                return
             yield RecordedMessage(key, type_name, stamp, seq, payload)
         del pending[:cut]
 
 
 def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool = False,
-                  start_ns: int | None = None) -> Iterator[RecordedMessage]:
+                  start_ns: int | None = None, end_ns: int | None = None) -> Iterator[RecordedMessage]:
     """Yield the messages of a recording in event-time order (stamp, then file order);
-    ``start_ns``: only those stamped at or after it.
+    ``start_ns``: only those stamped at or after it; ``end_ns``: only those stamped before it
+    (an indexed file then reads only the chunks that can hold such messages).
 
     A complete file is streamed chunk by chunk, in exactly the order of mcap's
     ``iter_messages(log_time_order=True)``.  A file without a summary (killed writer)
@@ -399,9 +402,10 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
         if summary is not None:
             try:
                 if summary.chunk_indexes:
-                    yield from _merge_chunks(f, summary, keys, start_ns, validate_crc=True)
+                    yield from _merge_chunks(f, summary, keys, start_ns, validate_crc=True, end_ns=end_ns)
                     return
-                for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True, start_time=start_ns):
+                for schema, channel, m in reader.iter_messages(topics=keys, log_time_order=True, start_time=start_ns,
+                                                               ending_before=end_ns):
                     yield RecordedMessage(channel.topic, schema.name if schema else "", m.log_time, m.sequence,
                                           bytes(m.data))
                 return
@@ -409,7 +413,8 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
                 raise RecordingError(f"{p}: corrupt chunk at or after byte {f.tell()}: {type(exc).__name__}: {exc}") from None
     messages, _ = _sequential(p, wanted, strict)
     messages.sort(key=lambda r: r.stamp)
-    yield from (m for m in messages if start_ns is None or m.stamp >= start_ns)
+    yield from (m for m in messages if (start_ns is None or m.stamp >= start_ns)
+                and (end_ns is None or m.stamp < end_ns))
 
 
 def recording_keys(path: str | Path) -> dict[str, str]:

@@ -234,22 +234,22 @@ def default_segments(meta: dict[str, dict[str, str]], duration_s: float,
     return [(f[i] * duration_s, f[i + 1] * duration_s) for i in range(5)], "duration fractions 0-10-40-50-80-100 %"
 
 
-def _span(path: Path) -> tuple[int, int, bool]:
-    """(first, last) log time of the recording and whether it has an index (summary)."""
+def _span(path: Path) -> tuple[int, int]:
+    """(first, last) log time of the recording."""
     with open(path, "rb") as f:
         try:
             summary = make_reader(f).get_summary()
         except (McapError, ValueError, EOFError, KeyError, AssertionError, struct.error):
             summary = None  # no usable index (e.g. a killed recorder): read sequentially below
     if summary is not None and summary.statistics is not None and summary.statistics.message_count:
-        return summary.statistics.message_start_time, summary.statistics.message_end_time, True
+        return summary.statistics.message_start_time, summary.statistics.message_end_time
     first = last = None
     for r in read_messages(path):
         first = r.stamp if first is None else first
         last = r.stamp
     if first is None or last is None:
         raise RecordingError(f"{path}: no messages")
-    return first, last, False
+    return first, last
 
 
 def _keys(path: Path) -> set[str]:
@@ -263,17 +263,11 @@ def _keys(path: Path) -> set[str]:
     return {r.key for r in read_messages(path)}
 
 
-def _range_messages(path: Path, t0: int, t1: int, indexed: bool) -> Iterator[tuple[str, str, int, bytes]]:
-    """(key, type name, stamp, payload) of the messages with t0 <= stamp < t1, in time order."""
-    if indexed:
-        with open(path, "rb") as f:
-            reader = make_reader(f)
-            for schema, channel, m in reader.iter_messages(starting_at=t0, ending_before=t1, log_time_order=True):
-                yield channel.topic, schema.name if schema else "", m.log_time, bytes(m.data)
-    else:
-        for r in read_messages(path):
-            if t0 <= r.stamp < t1:
-                yield r.key, r.type_name, r.stamp, r.payload
+def _range_messages(path: Path, t0: int, t1: int) -> Iterator[tuple[str, str, int, bytes]]:
+    """(key, type name, stamp, payload) of the messages with t0 <= stamp < t1, in time order
+    (an indexed recording: only the chunks that can hold them are read)."""
+    for r in read_messages(path, start_ns=t0, end_ns=t1):
+        yield r.key, r.type_name, r.stamp, r.payload
 
 
 def _check_transform_args(src: Path, out: Path, areas: int, revisit_tolerance: int) -> None:
@@ -350,7 +344,7 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     _check_transform_args(src, out, areas, revisit_tolerance)
     plan, seg_names = (PLAN, SEGMENT_NAMES) if areas == 2 else (PLAN_ONE_AREA, SEGMENT_NAMES_ONE_AREA)
     pert = pert or Perturbation()
-    first, last, indexed = _span(src)
+    first, last = _span(src)
     duration_s = (last - first) / 1e9
     meta = read_metadata(src)
     segments, how = _source_segments(src, meta, segments, duration_s, areas)
@@ -376,7 +370,7 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
             seg_start = cursor
             seg_last = cursor
             n_seg = 0
-            for key, type_name, stamp, payload in _range_messages(src, t0, t1, indexed):
+            for key, type_name, stamp, payload in _range_messages(src, t0, t1):
                 if key == "truth/revisits":
                     continue  # rewritten below
                 new = cursor + (stamp - t0)

@@ -35,14 +35,16 @@ def _shuffled_recording(path, n=600, chunk_size=700, seed=3, fast=True):
     return dict(w.counts)
 
 
-def _mcap_order(path, keys=None, start_ns=None):
+def _mcap_order(path, keys=None, start_ns=None, end_ns=None):
     with open(path, "rb") as f:
         return [(c.topic, s.name, m.log_time, m.sequence, bytes(m.data))
-                for s, c, m in make_reader(f).iter_messages(topics=keys, starting_at=start_ns, log_time_order=True)]
+                for s, c, m in make_reader(f).iter_messages(topics=keys, starting_at=start_ns, ending_before=end_ns,
+                                                            log_time_order=True)]
 
 
-def _ours(path, keys=None, start_ns=None):
-    return [(r.key, r.type_name, r.stamp, r.seq, r.payload) for r in read_messages(path, keys=keys, start_ns=start_ns)]
+def _ours(path, keys=None, start_ns=None, end_ns=None):
+    return [(r.key, r.type_name, r.stamp, r.seq, r.payload)
+            for r in read_messages(path, keys=keys, start_ns=start_ns, end_ns=end_ns)]
 
 
 def test_read_messages_is_mcaps_log_time_order(tmp_path):
@@ -65,6 +67,11 @@ def test_read_messages_is_mcaps_log_time_order(tmp_path):
         assert _ours(path, start_ns=start) == _mcap_order(path, start_ns=start)
         assert _ours(path, keys=["odometry_depth", "depth_sensor"], start_ns=start) == \
             _mcap_order(path, keys=["odometry_depth", "depth_sensor"], start_ns=start)
+    for start, end in ((None, 1000), (1000, 40_000), (40_500, 40_501), (39_000, 79_000), (0, 10**9), (5000, 5000)):
+        ours = _ours(path, start_ns=start, end_ns=end)
+        assert ours == _mcap_order(path, start_ns=start, end_ns=end)
+        assert all((start is None or m[2] >= start) and m[2] < end for m in ours)
+    assert _ours(path, start_ns=39_000, end_ns=41_000)       # not empty: the window holds messages
 
 
 def test_fast_writer_writes_mcaps_bytes(tmp_path):
@@ -98,6 +105,9 @@ def test_recording_summary_of_a_file_without_summary(tmp_path):
     data = path.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) // 2])  # a writer killed half way: no summary section
+    kept = list(read_messages(cut))
+    assert [r.stamp for r in read_messages(cut, start_ns=20_000, end_ns=50_000)] == \
+        [r.stamp for r in kept if 20_000 <= r.stamp < 50_000]
     intact = list(read_messages(cut))
     got = recording_summary(cut)
     assert 0 < sum(got["counts"].values()) == len(intact) < 600
