@@ -81,6 +81,11 @@ class HtmConfig(ConfigSection):
     sv_seqmem_threshold: float = Field(1.5, description="sequence score S* (z units) a sequence match needs")
     sv_seqmem_margin: float = Field(1.75, ge=0, description="S* minus the best score ending more than K frames "
                                     "away (z units) a sequence match needs")
+    sv_seqmem_store: Literal["every_frame", "new_places"] = Field(
+        "every_frame", description="which frames the sequence memory (and the TM frame index) keeps: every_frame, or "
+        "new_places -- not a frame whose id is a revisit of a place created before the current traversal's last "
+        "sv_seqmem_exclude frames (the memory then grows with the places seen, not with the time spent; "
+        "services/htm/pipeline.py)")
     sv_tm_decide: bool = Field(True, description="run the SP and a TM over its columns beside the descriptor and "
                                "let its predictions decide a revisit (services/htm/tm_match.py)")
     sp_overlap_norm_steps: int = Field(1000, ge=0, description="> 0: global inhibition ranks each column's overlap "

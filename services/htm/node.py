@@ -98,8 +98,10 @@ class HtmNode(ServiceNode[HtmConfig]):
         before = self.htm.multimodal.rejections if self.htm.multimodal is not None else 0
         if self.htm.dr_gate is not None and self.position is None:
             self.count("frames_without_odometry")
-        rejected = self.htm.dr_rejections
+        rejected, kept_out = self.htm.dr_rejections, self.htm.frames_not_stored
         res = self.htm.step(fused.active, modalities=modalities, position=self.position)
+        if self.htm.frames_not_stored > kept_out:
+            self.count("frames_not_stored")
         if self.htm.dr_rejections > rejected:
             self.count("dr_gate_rejections", self.htm.dr_rejections - rejected)
         self._dirty = True

@@ -35,7 +35,9 @@ diagonal ends, when its score S* >= ``sv_seqmem_threshold`` and S* minus the bes
 ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frames each look
 different -- Nordland winter vs summer -- is recognised by their order); else the
 place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
-report it.
+report it.  ``sv_seqmem_store`` ``new_places`` keeps a revisit of a place older than the last
+``sv_seqmem_exclude`` frames out of the memory and the TM frame index (``frames_not_stored``):
+they grow with the places seen, not the time spent (issue 21).
 TM decision (``sv_tm_decide``, ours, issue 17; :mod:`services.htm.tm_match`): with
 ``sv_descriptor_source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm_input_columns`` most
 strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
@@ -72,7 +74,7 @@ import json
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -90,10 +92,18 @@ from services.htm.tm_match import TmFrameIndex
 __all__ = ["NeocortexHtm", "LvcResult", "descriptor_similarity"]
 
 STATE_VERSION = 1
+T = TypeVar("T")
 # configuration fields that change the shape or meaning of the saved state
 _STRUCTURAL = ("input_size", "sp_enable", "sv_tm_decide", "sp_columns", "sp_potentialRadius", "sp_potentialPct", "sp_overlap_norm_steps",
                "tm_cellsPerColumn", "tm_maxSynapsesPerSegment", "sv_descriptor_source",
                "sv_tm_window", "sv_tm_bits", "theta_rho", "seed")
+
+
+def _need(part: T | None, what: str) -> T:
+    """``part``, or a RuntimeError naming the setting that leaves it out."""
+    if part is None:
+        raise RuntimeError(f"NeocortexHtm: this configuration {what}")
+    return part
 
 
 def descriptor_similarity(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
@@ -143,6 +153,7 @@ class NeocortexHtm:
                                          cfg.sv_dr_gate_min_path_m) \
             if cfg.sv_dr_gate and self.seqmem is not None else None
         self.dr_rejections = 0               # claims the dead-reckoning gate turned down (gate / TM / prior)
+        self.frames_not_stored = 0           # revisit frames sv_seqmem_store new_places kept out of the memory
         self.id_last_frame: dict[int, int] = {}   # LVC id -> its latest frame in the sequence memory
         self.frame_ids: list[int] = []       # LVC id of every frame stored in the TM frame index
         self.tm_traversal_start = 0
@@ -159,25 +170,16 @@ class NeocortexHtm:
 
     # ---- the optional parts, for the code paths that need them ----------------------
     def _need_sp(self) -> SpatialPooler:
-        if self.sp is None:
-            raise RuntimeError("NeocortexHtm: this configuration runs no spatial pooler (htm.sp_enable)")
-        return self.sp
+        return _need(self.sp, "runs no spatial pooler (htm.sp_enable)")
 
     def _need_tm(self) -> TemporalMemory:
-        if self.tm is None:
-            raise RuntimeError("NeocortexHtm: this configuration runs no temporal memory "
-                               "(htm.sv_descriptor_source / htm.sv_tm_decide)")
-        return self.tm
+        return _need(self.tm, "runs no temporal memory (htm.sv_descriptor_source / htm.sv_tm_decide)")
 
     def _need_tm_index(self) -> TmFrameIndex:
-        if self.tm_index is None:
-            raise RuntimeError("NeocortexHtm: this configuration keeps no TM frame index (htm.sv_tm_decide)")
-        return self.tm_index
+        return _need(self.tm_index, "keeps no TM frame index (htm.sv_tm_decide)")
 
     def _need_seqmem(self) -> SequenceMatcher:
-        if self.seqmem is None:
-            raise RuntimeError("NeocortexHtm: this configuration has no sequence memory (htm.sv_seqmem_length)")
-        return self.seqmem
+        return _need(self.seqmem, "has no sequence memory (htm.sv_seqmem_length)")
 
     @property
     def n_bits(self) -> int:
@@ -251,13 +253,10 @@ class NeocortexHtm:
     def step(self, active: np.ndarray, learn: bool | None = None, store: bool = True,
              modalities: dict[str, np.ndarray] | None = None,
              position: np.ndarray | list[float] | None = None) -> LvcResult:
-        """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10).
-
-        ``store`` False only queries (for evaluation against a fixed reference map): the
-        result's id is the accepted l* or -1, and no prototype is created.  ``modalities``
-        (per-modality SDR indices) are used only with ``sv_require_multimodal``; ``position``
-        (the frame's dead-reckoned position, m; None: unknown) only with ``sv_dr_gate``.
-        """
+        """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10).  ``store`` False only
+        queries (evaluation against a fixed reference map): the id is the accepted l* or -1, no
+        prototype is created.  ``modalities`` (per-modality SDR indices): with ``sv_require_multimodal``
+        only; ``position`` (the frame's dead-reckoned position, m; None: unknown): ``sv_dr_gate`` only."""
         d = self.describe(active, learn)
         anomaly = self.last_anomaly if self.tm is not None else 0.0
         self.steps += 1
@@ -277,13 +276,15 @@ class NeocortexHtm:
                 mm.store(res.lvc_id, modalities)
             if self.last_id >= 0 and res.lvc_id != self.last_id:
                 self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
-            if self.seqmem is not None:
+            keep = self.cfg.sv_seqmem_store == "every_frame" or res.is_new or self._recent(res.lvc_id)
+            self.frames_not_stored += not keep
+            if self.seqmem is not None and keep:
                 if res.is_new:
                     self.lvc_birth.append(self.seqmem.size)
                 self.id_last_frame[res.lvc_id] = self.seqmem.add(d, res.lvc_id)
                 if self.dr_gate is not None:
                     self.dr_gate.add()
-            if self.tm_index is not None:
+            if self.tm_index is not None and keep:
                 self.tm_index.add(self._need_tm().winner_cells)
                 self.frame_ids.append(res.lvc_id)
         self.last_id = res.lvc_id
@@ -295,8 +296,7 @@ class NeocortexHtm:
         idx = self._need_tm_index()
         nc = max(min(self.tm_traversal_start, idx.size), idx.size - self.cfg.sv_seqmem_exclude, 0)
         j, votes = idx.vote(self.last_tm_hits, nc)
-        n_cols = max(self.last_tm_columns, 1)
-        return j, votes / n_cols
+        return j, votes / max(self.last_tm_columns, 1)
 
     def _decide(self, d: np.ndarray, veto: Callable[[int], bool] | None, seq: SequenceScore | None, store: bool,
                 tmv: tuple[int, float] | None = None) -> LvcResult:
@@ -333,8 +333,8 @@ class NeocortexHtm:
         return LvcResult(-1, 0.0, False, 0, best, rate, i, n, **extra)
 
     def _plausible_id(self, lvc_id: int, revisit: bool = True) -> bool:
-        """Eq. G.1 for LVC ``lvc_id``: one of its stored frames passes (``revisit`` False: the distance
-        only); True without the gate or a known position."""
+        """Eq. G.1 for LVC ``lvc_id``: one of its stored frames passes (``revisit`` False: the distance only;
+        True without the gate or a known position)."""
         if self.dr_gate is None or self.dr_gate.current is None:
             return True
         last = self.id_last_frame.get(lvc_id)
@@ -360,9 +360,8 @@ class NeocortexHtm:
     def _recent(self, lvc_id: int) -> bool:
         """True when LVC ``lvc_id`` was created by a frame that is no sequence candidate (stored in the
         last ``sv_seqmem_exclude`` steps of the current traversal): its match is no revisit."""
-        if self.seqmem is None or lvc_id >= len(self.lvc_birth):
-            return False
-        return self.lvc_birth[lvc_id] >= self.seqmem.candidates()
+        return self.seqmem is not None and 0 <= lvc_id < len(self.lvc_birth) \
+            and self.lvc_birth[lvc_id] >= self.seqmem.candidates()
 
     def _sequence_match(self, d: np.ndarray, seq: SequenceScore | None, veto: Callable[[int], bool] | None) -> tuple[int, float, int] | None:
         """(id, R, I) of the sequence match when S* and its margin pass the gates, else None."""
@@ -443,7 +442,7 @@ class NeocortexHtm:
         arrays["seq.last_id"] = np.array([self.last_id], np.int64)
         arrays["tmidx.frame_ids"] = np.array(self.frame_ids, np.int64)
         arrays["tmidx.traversal_start"] = np.array([self.tm_traversal_start], np.int64)
-        meta = {"version": STATE_VERSION, "steps": self.steps,
+        meta = {"version": STATE_VERSION, "steps": self.steps, "frames_not_stored": self.frames_not_stored,
                 "config": {k: getattr(self.cfg, k) for k in _STRUCTURAL}}
         arrays["meta_json"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -481,6 +480,7 @@ class NeocortexHtm:
                 pre = prefix + "."
                 part.set_state({k[len(pre):]: v for k, v in data.items() if k.startswith(pre)})
         self.steps = int(meta["steps"])
+        self.frames_not_stored = int(meta.get("frames_not_stored", 0))
         if self.dr_gate is not None:    # a state file is a map of an earlier run: another odometry frame
             self.dr_gate.forget_positions()
         self.lvc_birth = []

@@ -219,3 +219,42 @@ def test_warm_up_compiles_on_a_throwaway_core_and_leaves_the_node_as_it_was() ->
     node.warm_up()
     assert len(node.htm.lvc) == 0 and node.htm.seqmem is not None and len(node.htm.seqmem) == 0
     assert node.position is None and node.counters == {}
+
+
+def test_new_places_memory_grows_with_the_places_not_with_the_laps():
+    """A route of 60 places flown four times (the default chain, SP + TM deciding): with
+    sv_seqmem_store every_frame the sequence memory and the TM frame index keep every frame;
+    with new_places the laps after the first add nearly nothing, and the ids of those laps are
+    the ones every_frame gives (the places are recognised the same way)."""
+    rng = np.random.default_rng(7)
+    places = [np.sort(rng.choice(L, 900, replace=False)).astype(np.uint32) for _ in range(60)]
+    frames = [noisy(rng, p, 0.1) for _ in range(4) for p in places for _ in range(3)]
+    lap = len(frames) // 4
+    runs = {}
+    for store in ("every_frame", "new_places"):
+        h = NeocortexHtm(HtmConfig(sv_seqmem_store=store))
+        ids = [h.step(f).lvc_id for f in frames]
+        runs[store] = (h, ids)
+    full, ids_full = runs["every_frame"]
+    kept, ids_kept = runs["new_places"]
+    assert full.seqmem.size == len(frames) and full.tm_index.size == len(frames) and full.frames_not_stored == 0
+    assert kept.seqmem.size == kept.tm_index.size == len(frames) - kept.frames_not_stored
+    assert kept.seqmem.size < lap + 0.15 * 3 * lap          # laps 2-4 add under 15 % of a lap each
+    assert ids_kept[:lap] == ids_full[:lap]                 # the first lap stores every frame either way
+    same = np.mean(np.array(ids_kept[lap:]) == np.array(ids_full[lap:]))
+    assert same >= 0.95, same
+    assert len(set(ids_kept[lap:]) - set(ids_kept[:lap])) <= 0.05 * len(set(ids_kept[:lap]))   # revisits, not new ids
+
+
+def test_new_places_state_round_trips(tmp_path):
+    rng = np.random.default_rng(8)
+    places = route(n_places=60, seed=3)
+    frames = [noisy(rng, p) for _ in range(2) for p in places for _ in range(2)]
+    cfg = HtmConfig(sv_seqmem_store="new_places")
+    a = NeocortexHtm(cfg)
+    for f in frames[:180]:
+        a.step(f)
+    a.save(tmp_path / "htm.npz")
+    b = NeocortexHtm.load(tmp_path / "htm.npz", cfg)
+    assert b.frames_not_stored == a.frames_not_stored > 20
+    assert [a.step(f) for f in frames[180:]] == [b.step(f) for f in frames[180:]]
