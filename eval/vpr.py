@@ -80,12 +80,13 @@ argmax, correct iff it is in the query's ground truth):
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
 * ``sdr_seqmem``, ``no_tm``, ``no_dr_gate``, ``no_seqmem``, ``sp_tm``, ``sdr_seqmem_f1``,
-  ``sdr_seqmem_cal`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains` (the
+  ``sdr_seqmem_cal``, ``new_places`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains` (the
   configured ``htm`` section with the chain's overrides; the module says what each changes),
   run on the same SDRs in the same run, printed beside the default (``--no-chains`` skips
   them): ``sdr_seqmem`` is the default before issue 17's SP + TM + dead-reckoning gate (fused
   SDR, sequence memory, no SP, no TM), ``no_tm`` / ``no_dr_gate`` / ``no_seqmem`` the default
-  without one part, ``sp_tm`` the SP's columns as the descriptor.
+  without one part, ``sp_tm`` the SP's columns as the descriptor, ``new_places`` the default
+  keeping only the frames that are no revisit of an older place.
 
 Decisions (``decisions``: counts per rule of how a frame got its id, :func:`decision_kind`):
 ``gate`` Eq. 4.9 on l*, ``tm`` the TM's predictions, ``seqmem`` the sequence memory,
@@ -110,7 +111,7 @@ precision exactly 1 (0 if the best-scored query is wrong); ``best_f1`` = max 2PR
      "n_lvc": .., "htm_query_matched": .., "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..},
      "chains": {"sdr_seqmem": {"n_lvc": .., "htm_query_matched": .., "decisions": {..}}, "no_tm": {...},
                 "no_dr_gate": {...}, "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...},
-                "sdr_seqmem_cal": {...}},
+                "sdr_seqmem_cal": {...}, "new_places": {...}},
      "seconds": {"embed": .., "htm": ..}}   # htm: the default and the chains
 
 and with ``--mission``::
@@ -123,14 +124,14 @@ and with ``--mission``::
      "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
      "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
      "chains": {"sdr_seqmem": {<the LVC figures above>}, "no_tm": {...}, "no_dr_gate": {...},
-                "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...}},
-                # without --no-htm / --no-chains
+                "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...},
+                "new_places": {...}},   # without --no-htm / --no-chains
      "dr_positions": .., # frames with a dead-reckoned position (robot_state over the mission)
      "lvc_run_length": {"median": .., "mean": .., "frames_in_runs_ge3": ..},  # runs of identical consecutive ids
      "modalities": {"fused_<fusion_mode>": {...}, "camera": {...}, "sonar": {...}},  # without --no-htm
      "matchers": {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized", "lsbh_overlap",
                   "lsbh_fused_overlap", "htm_lvc", "htm_descriptor", "sdr_seqmem", "no_tm", "no_dr_gate",
-                  "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal": {...}},
+                  "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal", "new_places": {...}},
      "seconds": {"embed": .., "htm": ..}, "weights": .., "embedding_dim": ..}
 
 Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on stderr).
@@ -219,7 +220,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
     ap.add_argument("--no-chains", action="store_true",
                     help="do not run the named chains (services/htm/chains.py: sdr_seqmem, no_tm, no_dr_gate, no_seqmem, sp_tm, sdr_seqmem_f1, "
-                         "sdr_seqmem_cal) beside the default")
+                         "sdr_seqmem_cal, new_places) beside the default")
     ap.add_argument("--htm-query-learning", action="store_true",
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
     ap.add_argument("--save-norm", default=None, metavar="FILE.npz",

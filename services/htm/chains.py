@@ -21,6 +21,9 @@ part changed, so the rows say what each part adds:
   frame's own F1 with j*: a constant 0.68 (margin 1.25), or self-calibrated (0.2-quantile of the
   traversal's confident matches, margin 1.5; :mod:`services.htm.calibrate`); both let a sequence
   match override an Eq. 4.9 id the pass created in its last 50 frames.
+- ``new_places`` -- the default whose sequence memory and TM frame index keep only the frames that
+  are no revisit of an older place (``sv_seqmem_store``, issue 21): the cost per frame then
+  grows with the places seen, not with the mission's length.
 
 ``chain_config(htm_cfg, name)`` returns the configured ``HtmConfig`` with the chain's overrides.
 """
@@ -48,6 +51,7 @@ CHAINS: dict[str, dict[str, Any]] = {
     "sdr_seqmem_cal": {**_SDR_SEQMEM, "sv_seqmem_override": True, "sv_seqmem_margin": 1.5, "sv_seqmem_min_f1": 0.0,
                        "sv_seqmem_f1_quantile": 0.2, "sv_seqmem_confident_margin": 1.75,
                        "sv_seqmem_calib_warmup": 20},
+    "new_places": {"sv_seqmem_store": "new_places"},
 }
 
 

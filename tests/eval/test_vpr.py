@@ -84,7 +84,8 @@ def test_main_synthetic_json(tmp_path, capsys):
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
-    chains = {"sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
+    chains = {"sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal",
+              "new_places"}
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "lsbh_overlap", "htm_lvc",
                                     "htm_lvc_accepted", "htm_descriptor"} | chains
     # the named chains run beside the default, with how each query got its id
@@ -162,7 +163,8 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
-    chains = {"sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal"}
+    chains = {"sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem", "sp_tm", "sdr_seqmem_f1", "sdr_seqmem_cal",
+              "new_places"}
     assert set(out["matchers"]) == {"cnn_cosine", "seq_cosine", "patchnorm_sad", "cnn_cosine_standardized",
                                     "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor"} | chains
     # the named chains beside the default: the same LVC figures, SP columns and the TM's share of decisions
