@@ -30,7 +30,15 @@ rounds interleaved, median ms per frame; and whether both gave the same ending f
 replays a run's ``neocortex/sdr`` through the htm node (default configuration, no transport)
 with each computation: process CPU seconds and whether the ``local_view_cells`` are the same.
 
+Fourth part (``--revisits RUN.mcap``, only it runs): a run's ``neocortex/sdr`` and ``Odometry``
+replayed ``--loops`` times through the htm node (default configuration, stamps shifted per loop:
+a vehicle surveying the same cave again and again), once with ``htm.sv_seqmem_store``
+``every_frame`` (the baseline) and once with ``new_places``: process CPU ms per frame per loop,
+the ratio of the last loop's to the first's, the frames each memory holds, and on how many
+frames the two give the same LVC id.
+
     NUMBA_CACHE_DIR=/tmp/numba_cache .venv/bin/python benchmarks/bench_htm.py
+    .venv/bin/python benchmarks/bench_htm.py --revisits runs/demo/run_on.mcap --loops 8
 """
 from __future__ import annotations
 
@@ -79,7 +87,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seqmem-sizes", default="1000,5000,20000", help="stored frames of the sequence-memory timing")
     ap.add_argument("--seqmem-only", action="store_true", help="only the sequence-memory timing")
     ap.add_argument("--mission", default="", help="a run recording: its neocortex/sdr through the htm node")
+    ap.add_argument("--revisits", default="", metavar="RUN.mcap",
+                    help="a run recording replayed --loops times through the htm node, every_frame vs new_places")
+    ap.add_argument("--loops", type=int, default=8, help="replays of --revisits")
     args = ap.parse_args(argv)
+    if args.revisits:
+        revisit_cost(args.revisits, args.loops)
+        return 0
     sizes = [int(x) for x in args.seqmem_sizes.split(",") if x]
     if args.seqmem_only:
         seqmem_cost(sizes, args.seed)
@@ -168,6 +182,44 @@ def seqmem_mission(path: str) -> None:
     same = sum(a == b for a, b in zip(ids[False], ids[True]))
     print(f"\nhtm node over {path} ({len(msgs)} frames): K-term sums {cpu[False]:.1f} s CPU, running sums "
           f"{cpu[True]:.1f} s ({cpu[True] / cpu[False]:.2f}x); LVC ids equal on {same}/{len(ids[False])} frames")
+
+
+def revisit_cost(path: str, loops: int) -> None:
+    """The fourth part of the module doc: per-loop CPU of the htm node, every_frame vs new_places."""
+    from common.mcap_io import read_messages
+    from common.messages import LocalViewCells, Message
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+
+    recs = [(r.key, r.stamp, r.message()) for r in read_messages(path, keys=["neocortex/sdr", "Odometry"])]
+    if not recs:
+        raise SystemExit(f"bench_htm: {path} has no neocortex/sdr")
+    frames = sum(k == "neocortex/sdr" for k, _, _ in recs)
+    period = recs[-1][1] - recs[0][1] + 1_000_000_000
+    ids: dict[str, list[int]] = {}
+    for store in ("every_frame", "new_places"):
+        node = build_node("htm", PoseidonConfig.model_validate({"htm": {"state_path": "", "sv_seqmem_store": store}}))
+        node.warm_up()
+        out: list[int] = ids.setdefault(store, [])
+
+        def publish(key: str, msg: Message, out: list[int] = out) -> None:
+            if isinstance(msg, LocalViewCells):
+                out.append(msg.most_active_cell)
+        node.publish = publish  # type: ignore[method-assign]
+        per_loop = []
+        for loop in range(loops):
+            c = time.process_time()
+            for k, st, m in recs:
+                h = m.header.model_copy(update={"stamp": st + loop * period, "seq": m.header.seq + loop * 1_000_000})
+                node.process(k, m.model_copy(update={"header": h}))
+            per_loop.append(1e3 * (time.process_time() - c) / frames)
+        core = node.htm  # type: ignore[attr-defined]
+        print(f"{store:12s} ms per frame per loop: {' '.join(f'{v:.2f}' for v in per_loop)}; last / first "
+              f"{per_loop[-1] / per_loop[0]:.2f}; memory {len(core.seqmem)} frames of {frames * loops}, "
+              f"{len(core.lvc)} LVCs")
+    a, b = np.array(ids["every_frame"]), np.array(ids["new_places"])
+    print(f"{path}: {frames} frames x {loops} loops; same LVC id on {np.mean(a == b):.4f} of the frames "
+          f"(loops after the first: {np.mean(a[frames:] == b[frames:]):.4f})")
 
 
 def seqmem_cost(sizes: list[int], seed: int, rounds: int = 7, queries: int = 20) -> None:
