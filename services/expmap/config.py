@@ -178,18 +178,6 @@ class ExpMapConfig(ConfigSection):
                                               "horizontal distance along the linked component's path (m)")
     session_backfill_search_m: float = Field(1.0, gt=0, description="registration search of a backfill try around "
                                              "the two experiences' separation in the linked frame (m)")
-    session_link_submap_m: float = Field(8.0, ge=0, description="after a session link's move, the sweeps of "
-                                         "both components within this horizontal distance of the link point "
-                                         "(m) are stacked and registered again, for the link's heading over a "
-                                         "wider base than one sweep pair (services/expmap/session_link.py); "
-                                         "0: off")
-    session_link_submap_dz_m: float = Field(1.0, gt=0, description="only experiences within this height of the "
-                                            "link point (m) join those stacks (the sweeps are horizontal)")
-    session_link_submap_points: int = Field(6000, ge=100, description="each stack thinned evenly to at most "
-                                            "this many sweep points (the registration's cost is linear in them)")
-    session_link_refine_deg: float = Field(1.0, ge=0, description="rotation searched by that registration "
-                                           "about the one already applied (deg)")
-    session_link_refine_step_deg: float = Field(0.05, gt=0, description="its rotation step (deg)")
     graph: Literal["experience_map", "scan_graph"] = Field(
         "experience_map", description="experience_map: Eq. 4.20 over positions, loops from LVC matches "
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "

@@ -94,7 +94,7 @@ from services.expmap.loop_policy import LoopEdges, link_displacement, loop_displ
 from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
-from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, refine_link, rot2
+from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, rot2
 from services.expmap.storage import FORMAT_VERSION, ColumnStore, load_map, read_map_file, save_map
 
 __all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
@@ -393,31 +393,32 @@ class ExperienceMap:
         old_root, new_root = self.session_root(int(A["session"][n])), self.session_root(int(A["session"][m]))
         moving = np.array([s for s, r in self._session_root.items() if r == old_root], np.int64)
         mask = np.isin(A["session"][:N], moving)
-        # the rigid transform of the newer component about n, with the registration's rotation (0: rotate off)
+        # the rigid transform of the newer component about n, with the registration's rotation
+        # (zero with session_link_rotate off)
         theta = math.radians(float(reg.rotation_deg)) if self.cfg.session_link_rotate else 0.0
-        before_n = A["pos"][n].copy()
+        shift = A["pos"][m] + delta - A["pos"][n]
         move_component(A, N, mask, n, A["pos"][m] + delta, theta, self._loop_edges, self._scans)
+        if theta != 0.0:
+            self.frame_yaw += theta
         for s in moving.tolist():
             self._session_root[s] = new_root
         older = np.isin(A["session"][:N], [s for s, r in self._session_root.items() if r == new_root]) & ~mask
-        wide, n_wide = refine_link(self.cfg, A["pos"][:N], self._scans[:N], mask, older, n) \
-            if self.cfg.session_link_rotate else (None, 0)
-        extra = math.radians(wide.rotation_deg) if wide is not None else 0.0
-        if wide is not None:     # the refinement over a wider base (session_link.py's notes)
-            move_component(A, N, mask, n, A["pos"][n] + np.r_[wide.translation, 0.0], extra, self._loop_edges,
-                           self._scans)
-            delta = A["pos"][n] - A["pos"][m]
-        self.frame_yaw += theta + extra
-        found = backfill(self.cfg, A["pos"][:N], self._a("odom"), self._scans[:N], mask & (np.arange(N) != n), older)
-        for j, i, d in found:     # the backfill (session_link.py's notes)
-            self.add_loop_edge(j, i, float(self.cfg.loop_edge_weight), stamp, d)
+        n_backfill = self._backfill(mask & (np.arange(N) != n), older, stamp)
         self.session_links.append(SessionLink(
             session=int(A["session"][n]), to_session=int(A["session"][m]), m=m, n=n, stamp=stamp,
-            delta=delta.copy(), shift=A["pos"][n] - before_n, rotation_deg=float(reg.rotation_deg),
-            applied_deg=math.degrees(theta), inlier_fraction=float(reg.inlier_fraction), backfill_edges=len(found),
-            refined_deg=math.degrees(extra), refined_nodes=n_wide if wide is not None else 0))
+            delta=delta.copy(), shift=shift.copy(), rotation_deg=float(reg.rotation_deg), applied_deg=math.degrees(theta),
+            inlier_fraction=float(reg.inlier_fraction), backfill_edges=n_backfill))
         res.linked = True
         self._close(m, n, stamp, delta, res)
+
+    def _backfill(self, newer: np.ndarray, older: np.ndarray, stamp: int) -> int:
+        """Loop edges between the just-linked component's nodes ``newer`` and the older one's
+        ``older`` where their sweeps verify it (:func:`~services.expmap.session_link.backfill`)."""
+        N = self.n_nodes
+        found = backfill(self.cfg, self._g.arrays["pos"][:N], self._a("odom"), self._scans[:N], newer, older)
+        for j, i, delta in found:
+            self.add_loop_edge(j, i, float(self.cfg.loop_edge_weight), stamp, delta)
+        return len(found)
 
     def _close(self, m: int, n: int, stamp: int, delta: np.ndarray, res: EventResult) -> None:
         """Add the loop edge m -> n asking ``delta`` and plan the relaxation toward the optimum."""

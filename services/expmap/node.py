@@ -210,10 +210,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             self.count("session_links")
             lk = self.graph.session_links[-1]
             self.count("session_backfill_edges", lk.backfill_edges)
-            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, turned %.2f deg, inliers %.2f, "
-                     "refined over %d experiences by %.2f deg, %d backfill edges)", lk.session, lk.to_session, lk.m,
-                     lk.n, " ".join(f"{v:.2f}" for v in lk.shift), lk.applied_deg, lk.inlier_fraction, lk.refined_nodes,
-                     lk.refined_deg, lk.backfill_edges)
+            log.info("expmap: session %d linked to session %d at %d -> %d (shift %s m, turned %.1f deg, inliers %.2f, "
+                     "%d backfill edges)", lk.session, lk.to_session, lk.m, lk.n, " ".join(f"{v:.2f}" for v in lk.shift),
+                     lk.applied_deg, lk.inlier_fraction, lk.backfill_edges)
         if res.loop_closed and isinstance(self.graph, ScanGraph):
             self.count("loop_closures")
             log.debug("expmap: loop closure %d -> %d (score %.3f, correction %.2f m)", res.match, res.node,

@@ -38,17 +38,6 @@ pairs; the count is :attr:`SessionLink.backfill_edges`).
 :class:`~services.expmap.graph.ExperienceMap` applies these rules for each event; this module
 holds what a session link is (:class:`SessionLink`) and the move itself
 (:func:`move_component`).
-
-Refinement over a wider base: one sweep pair fixes the link's heading only as well as a few
-metres of wall allow (round 6: 0.06-0.65 deg), and every metre of the newer component away from
-the link point turns with that error.  Right after the move, the sweeps of the newer
-component's experiences within ``session_link_submap_m`` of n (and within
-``session_backfill_radius_m`` of an older experience: on mapped ground) are stacked about n,
-those of the older component within the same distance of n about n too, and the stack is
-registered against the older one with ``session_link_refine_deg`` of rotation at
-``session_link_refine_step_deg`` (:func:`refine_link`).  When it verifies as strictly as a link
-(trusted along both axes, ``session_link_min_inliers``), the newer component turns and moves
-again about n by what it found; otherwise the single pair's result stands.
 """
 from __future__ import annotations
 
@@ -59,14 +48,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from services.expmap.loop_policy import link_displacement
-from services.expmap.scans import Registration, register_sweeps
 
 if TYPE_CHECKING:
     from services.expmap.config import ExpMapConfig
     from services.expmap.loop_policy import LoopEdges
 
-__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs", "backfill",
-           "stack_sweeps", "refine_link"]
+__all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs", "backfill"]
 
 
 #: weight of the chain edge into a session's first node (its displacement is not a measurement)
@@ -94,8 +81,6 @@ class SessionLink:
     inlier_fraction: float
     applied_deg: float = 0.0    # the rotation applied to the newer component (deg; 0: translation only)
     backfill_edges: int = 0     # loop edges the backfill added with the link (module notes)
-    refined_deg: float = 0.0    # rotation added by the refinement over a wider base (deg; module notes)
-    refined_nodes: int = 0      # newer experiences whose sweeps that refinement stacked (0: not refined)
 
 
 def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, target_n: np.ndarray, theta: float,
@@ -170,53 +155,3 @@ def backfill(cfg: ExpMapConfig, pos: np.ndarray, odom: np.ndarray, scans: list[n
         if delta is not None:
             out.append((j, i, delta))
     return out
-
-
-def stack_sweeps(pos: np.ndarray, scans: list[np.ndarray | None], nodes: np.ndarray, centre: np.ndarray,
-                 max_points: int) -> np.ndarray:
-    """The sweeps of ``nodes`` (each relative to its node) as one point set relative to
-    ``centre`` (m, horizontal), thinned evenly to at most ``max_points`` points."""
-    parts = [np.asarray(scans[i], np.float64) + (pos[i, :2] - centre[:2]) for i in nodes.tolist()
-             if scans[i] is not None]
-    if not parts:
-        return np.zeros((0, 2))
-    pts = np.concatenate(parts)
-    if len(pts) > max_points:
-        pts = pts[np.linspace(0, len(pts) - 1, max_points).round().astype(np.int64)]
-    return pts
-
-
-def refine_link(cfg: ExpMapConfig, pos: np.ndarray, scans: list[np.ndarray | None], newer: np.ndarray,
-                older: np.ndarray, n: int) -> tuple[Registration | None, int]:
-    """(The registration of the newer component's stacked sweeps near the link node n onto the
-    older component's, the number of newer experiences stacked) right after a link's move
-    (module notes): its translation is how far n should move (m, about zero when the single pair
-    was right), its rotation how much more the newer component should turn about n (deg).  None
-    when there are fewer than three newer experiences with sweeps on mapped ground, or when the
-    registration does not verify as strictly as a link.  ``pos``: node positions in the linked
-    frame (N x 3, m); the masks are (N,) bool, ``newer`` including n."""
-    R = cfg.session_link_submap_m
-    if R <= 0.0:
-        return None, 0
-    has_sweep = np.array([sw is not None for sw in scans], bool)
-    near = np.hypot(*(pos[:, :2] - pos[n, :2]).T) <= R
-    level = np.abs(pos[:, 2] - pos[n, 2]) <= cfg.session_link_submap_dz_m
-    ref_nodes = np.flatnonzero(older & has_sweep & near & level)
-    cand = np.flatnonzero(newer & has_sweep & near & level)
-    if ref_nodes.size < 3 or cand.size < 3:
-        return None, 0
-    d2 = ((pos[cand, None, :2] - pos[None, ref_nodes, :2]) ** 2).sum(axis=2)
-    cur_nodes = cand[d2.min(axis=1) <= cfg.session_backfill_radius_m ** 2]
-    if cur_nodes.size < 3:
-        return None, 0
-    cap = cfg.session_link_submap_points
-    ref = stack_sweeps(pos, scans, ref_nodes, pos[n], cap)
-    cur = stack_sweeps(pos, scans, cur_nodes, pos[n], cap)
-    reg = register_sweeps(ref, cur, np.zeros(2), cell_m=cfg.scan_cell_m, search_radius_m=cfg.session_backfill_search_m,
-                          max_rotation_deg=cfg.session_link_refine_deg,
-                          rotation_step_deg=cfg.session_link_refine_step_deg, min_points=cfg.scan_min_points,
-                          min_inlier_fraction=cfg.scan_min_inlier_fraction,
-                          ambiguity_margin_m=cfg.scan_ambiguity_margin_m, max_ambiguity_m=cfg.scan_max_ambiguity_m)
-    if not reg.trusted or reg.ambiguous_axis is not None or reg.inlier_fraction < cfg.session_link_min_inliers:
-        return None, int(cur_nodes.size)
-    return reg, int(cur_nodes.size)

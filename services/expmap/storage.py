@@ -72,8 +72,7 @@ def save_map(em: ExperienceMap, path: str | Path) -> None:
         "session_links": [{"session": lk.session, "to_session": lk.to_session, "m": lk.m, "n": lk.n,
                            "stamp": lk.stamp, "delta": lk.delta.tolist(), "shift": lk.shift.tolist(),
                            "rotation_deg": lk.rotation_deg, "inlier_fraction": lk.inlier_fraction,
-                           "applied_deg": lk.applied_deg, "backfill_edges": lk.backfill_edges,
-                           "refined_deg": lk.refined_deg, "refined_nodes": lk.refined_nodes}
+                           "applied_deg": lk.applied_deg, "backfill_edges": lk.backfill_edges}
                           for lk in em.session_links],
         "link_rejections": em.link_rejections, "frame_yaw": em.frame_yaw,
     }
@@ -143,9 +142,7 @@ def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
                                     shift=np.asarray(d["shift"], np.float64), rotation_deg=float(d["rotation_deg"]),
                                     inlier_fraction=float(d["inlier_fraction"]),
                                     applied_deg=float(d.get("applied_deg", 0.0)),
-                                    backfill_edges=int(d.get("backfill_edges", 0)),
-                                    refined_deg=float(d.get("refined_deg", 0.0)),
-                                    refined_nodes=int(d.get("refined_nodes", 0)))
+                                    backfill_edges=int(d.get("backfill_edges", 0)))
                         for d in meta.get("session_links", [])]
     em.frame_yaw = float(meta.get("frame_yaw", 0.0))
     em.link_rejections.update({k: int(v) for k, v in meta.get("link_rejections", {}).items()})
