@@ -71,7 +71,7 @@ def make_stream(steps: int, places: int, hold: int, bits: int, noise: float, see
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--places", type=int, default=100)
@@ -90,7 +90,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--revisits", default="", metavar="RUN.mcap",
                     help="a run recording replayed --loops times through the htm node, every_frame vs new_places")
     ap.add_argument("--loops", type=int, default=8, help="replays of --revisits")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     if args.revisits:
         revisit_cost(args.revisits, args.loops)
         return 0
