@@ -111,12 +111,18 @@ def _ff_t(F: np.ndarray, P: np.ndarray) -> np.ndarray:
             if f != 0.0:
                 for j in range(n):
                     fp[i, j] += f * P[k, j]
-    out = np.zeros((n, n))
-    for i in range(n):
-        for j in range(n):
+    return _mul_bt(fp, F)
+
+
+@njit(cache=True)
+def _mul_bt(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A B' by loops (each entry summed from 0 in index order; see _ff_t)."""
+    out = np.empty((A.shape[0], B.shape[0]))
+    for i in range(A.shape[0]):
+        for j in range(B.shape[0]):
             acc = 0.0
-            for k in range(n):
-                acc += fp[i, k] * F[j, k]
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[j, k]
             out[i, j] = acc
     return out
 
@@ -209,13 +215,7 @@ def restricted_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, y: np.ndarray
     zeroed outside the states ``keep`` (bool, N_STATE), the Joseph form
     ``P = (I - K H) P (I - K H)' + K R K'`` (consistent for any gain); in place."""
     n, m = P.shape[0], H.shape[0]
-    pht = np.zeros((n, m))                 # P H' (loops: see _ff_t)
-    for i in range(n):
-        for j in range(m):
-            acc = 0.0
-            for k in range(n):
-                acc += P[i, k] * H[j, k]
-            pht[i, j] = acc
+    pht = _mul_bt(P, H)                    # P H' (loops: see _ff_t)
     S = np.empty((m, m))
     for i in range(m):
         for j in range(m):
@@ -244,13 +244,6 @@ def restricted_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, y: np.ndarray
                 kh += K[i, k] * H[k, j]
             ikh[i, j] -= kh
     out = _ff_t(ikh, P)
-    for i in range(n):
-        for j in range(n):
-            acc = 0.0
-            for a in range(m):
-                kr = 0.0
-                for b in range(m):
-                    kr += K[i, b] * R[b, a]
-                acc += kr * K[j, a]
-            out[i, j] += acc
+    kr = _mul_bt(K, R.T.copy())            # K R, once (not per entry of K R K')
+    out += _mul_bt(kr, K)
     _symmetrise_into(out, P)
