@@ -175,7 +175,7 @@ class _BlockUnpickler(pickle.Unpickler):
         for name in names:
             block = blocks_dir(self.path) / name
             if not block.is_file():
-                raise ValueError(f"{self.path}: array block {block.name} is missing from {block.parent}")
+                raise _MissingBlock(f"{self.path}: array block {block.name} is missing from {block.parent}")
             parts.append(block.read_bytes())
         buf = bytearray(b"".join(parts))   # writable: the restored state is mutated in place
         return np.frombuffer(buf, dtype=np.dtype(dtype)).reshape(shape)
@@ -207,20 +207,47 @@ def save_checkpoint(path: Path, state: dict[str, Any]) -> CheckpointSize:
     return CheckpointSize(total=size + pickler.total, written=size + pickler.written)
 
 
-def load_checkpoint(path: Path) -> dict[str, Any] | None:
-    """The checkpoint at ``path``, or None when there is none yet; ValueError naming the file if unreadable."""
+def load_checkpoint(path: Path, attempts: int = 5) -> dict[str, Any] | None:
+    """The checkpoint at ``path``, or None when there is none yet; ValueError naming the file if unreadable.
+
+    A reader may race a writer (a monitor, a test, a tool reading a live service's checkpoint):
+    the writer replaces the file and then deletes the blocks only the old one named, so a reader
+    still on the old file can find one of its blocks gone.  When a block is missing and the file
+    was replaced meanwhile (another inode or mtime), the load starts again on the new file, up to
+    ``attempts`` times; a block missing from an unchanged file is damage and raises at once."""
     if not path.exists():
         return None
+    for _ in range(max(1, attempts)):
+        before = path.stat()
+        try:
+            state = _load_once(path)
+        except _MissingBlock as exc:
+            try:
+                now = path.stat()
+            except FileNotFoundError:
+                raise ValueError(str(exc)) from None
+            if (now.st_ino, now.st_mtime_ns) == (before.st_ino, before.st_mtime_ns):
+                raise ValueError(str(exc)) from None
+            log.info("%s: replaced while being read; reading it again", path)
+            continue
+        if not isinstance(state, dict) or state.get("version") not in _CKPT_READABLE:
+            raise ValueError(f"{path}: not a checkpoint of version {_CKPT_VERSION}")
+        return state
+    raise ValueError(f"{path}: replaced by its writer during each of {attempts} reads")
+
+
+class _MissingBlock(Exception):
+    """An array block named by the checkpoint file is not on disk (message names both)."""
+
+
+def _load_once(path: Path) -> Any:
     try:
         with open(path, "rb") as f:
-            state = _BlockUnpickler(f, path).load()
-    except ValueError:
+            return _BlockUnpickler(f, path).load()
+    except (_MissingBlock, ValueError):
         raise
     except Exception as exc:  # noqa: BLE001 - any unpickling failure is a damaged checkpoint
         raise ValueError(f"{path}: unreadable checkpoint: {type(exc).__name__}: {exc}") from None
-    if not isinstance(state, dict) or state.get("version") not in _CKPT_READABLE:
-        raise ValueError(f"{path}: not a checkpoint of version {_CKPT_VERSION}")
-    return state
 
 
 class SequenceGate:

@@ -182,3 +182,25 @@ def test_a_version_1_checkpoint_still_loads(tmp_path):
     path = tmp_path / "old.ckpt"
     path.write_bytes(pickle.dumps({"version": 1, "node": np.arange(1 << 16)}))
     np.testing.assert_array_equal(load_checkpoint(path)["node"], np.arange(1 << 16))
+
+
+def test_a_reader_racing_the_writer_reads_the_new_checkpoint(tmp_path, monkeypatch):
+    """A reader that opened the old file while the writer replaced it and deleted the old
+    blocks (the race a monitoring read of a live service's checkpoint can hit) reads again
+    and gets the new checkpoint, not a 'block missing' error."""
+    import common.resume as resume
+
+    path = tmp_path / "htm.ckpt"
+    save_checkpoint(path, {"node": np.ones((1 << 16,), np.float64)})
+    real = resume._BlockUnpickler.persistent_load
+    raced = []
+
+    def load_while_the_writer_replaces(self, pid):
+        if not raced:
+            raced.append(True)
+            save_checkpoint(path, {"node": np.full((1 << 16,), 2.0)})   # old block deleted here
+        return real(self, pid)
+
+    monkeypatch.setattr(resume._BlockUnpickler, "persistent_load", load_while_the_writer_replaces)
+    back = load_checkpoint(path)
+    assert raced and np.all(back["node"] == 2.0)
