@@ -82,7 +82,8 @@ truth of an experience" = ``truth/pose`` interpolated at the node's stamp.
 - ``sessions``: the map's sessions (a map continued over missions with ``poseidon run
   --map-dir``, or a kidnapped vehicle): ``count``, ``loaded_nodes``, ``unlinked_nodes``,
   ``links``, ``false_links``, ``time_to_link_s``, ``link_error_m``, ``ate_prior_frame_m``,
-  ``ate_prior_frame_n``, ``cross_loop_closures`` and a ``table`` per link; every key defined in :mod:`eval.sessions`.
+  ``ate_prior_frame_n``, the dead reckoning's ATE in the same frame placed by the truth at the
+  link (``dr_ate_at_link_m``) and by the link (``dr_ate_by_link_m``), ``cross_loop_closures`` and a ``table`` per link; every key defined in :mod:`eval.sessions`.
   With ``--prior PRIOR_RUN.mcap`` (the run that saved the map) the loaded nodes get their
   truth.  Nodes loaded from an earlier mission's map carry that mission's stamps: every other
   block here (``nodes`` excepted) uses this run's nodes only, and loop closures with a loaded
@@ -440,7 +441,9 @@ def format_eval(r: dict[str, Any]) -> list[str]:
         lines.append(f"sessions           {se['count']} ({se['loaded_nodes']} nodes loaded, {se['unlinked_nodes']} of "
                      f"this run unlinked); {se['links']} links, {se['false_links']} false; time to link "
                      f"{_f(se['time_to_link_s'], '.1f')} s; link error {_f(se['link_error_m'])} m; ATE in the "
-                     f"prior map's frame {_f(se['ate_prior_frame_m'])} m over {se['ate_prior_frame_n']} nodes")
+                     f"prior map's frame {_f(se['ate_prior_frame_m'])} m over {se['ate_prior_frame_n']} nodes, "
+                     f"dead reckoning placed by the link {_f(se['dr_ate_by_link_m'])} m, by the truth at the link "
+                     f"{_f(se['dr_ate_at_link_m'])} m")
     lat = r.get("latency")
     if lat:
         lines.append(f"live latency       measured by {lat['source']}" + (f" at {lat['rate']:g}x real time" if lat["rate"]

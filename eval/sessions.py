@@ -45,7 +45,14 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   reckoning's pose at the first link's node on its true pose (the issue's comparison: the map
   in the prior frame against dead reckoning aligned at the link); ``dr_ate_at_link_n``: nodes;
 - ``ate_prior_frame_after_link_m``, ``dr_ate_at_link_after_m``: the same two over the nodes
-  from the first link on (what the prior map does for the rest of the mission).
+  from the first link on (what the prior map does for the rest of the mission);
+- ``dr_ate_by_link_m``, ``dr_ate_by_link_after_m``: the same dead reckoning put into the prior
+  frame by the link itself instead of the truth: its pose at the first link's node placed on
+  that node's pose in the final map (session 0's alignment to the world applied, as for
+  ``ate_prior_frame_m``).  This is what a vehicle has without the map's corrections: it knows
+  where it is in the prior frame only through the link, so it carries the prior map's error
+  at the link place, as the map does.  ``dr_ate_at_link_m`` (truth at the link) is the
+  stricter baseline: a vehicle told exactly where it was, which no vehicle is.
 """
 from __future__ import annotations
 
@@ -96,6 +103,7 @@ def _empty_block() -> dict[str, Any]:
             "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
             "ate_prior_frame_n": 0, "dr_ate_at_link_m": None, "dr_ate_at_link_n": 0,
             "ate_prior_frame_after_link_m": None, "dr_ate_at_link_after_m": None,
+            "dr_ate_by_link_m": None, "dr_ate_by_link_after_m": None,
             "cross_loop_closures": {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0},
             "table": []}
 
@@ -254,34 +262,40 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
         out["ate_prior_frame_n"] = int(use.sum())
     if mine_links and use.any():
         j = int(mine_links[0]["target"])
-        out["dr_ate_at_link_m"], out["dr_ate_at_link_n"] = _dr_at_link(run, stamps, g, use, j)
         after = use & (stamps >= stamps[j])
-        if rot is not None and trans is not None and after.any():
-            out["ate_prior_frame_after_link_m"] = _ate_in_frame(nd, after, rot, trans)
-            out["dr_ate_at_link_after_m"] = _dr_at_link(run, stamps, g, after, j)[0]
+        truth_anchor = (g[j], float(nd.gy[j]))
+        out["dr_ate_at_link_m"], out["dr_ate_at_link_n"] = _dr_anchored(run, stamps, g, use, j, truth_anchor)
+        if rot is not None and trans is not None:
+            map_anchor = (rot @ nd.pos_ned[j] + trans, float(nd.yaw_ned[j]) + math.atan2(rot[1, 0], rot[0, 0]))
+            out["dr_ate_by_link_m"] = _dr_anchored(run, stamps, g, use, j, map_anchor)[0]
+            if after.any():
+                out["ate_prior_frame_after_link_m"] = _ate_in_frame(nd, after, rot, trans)
+                out["dr_ate_at_link_after_m"] = _dr_anchored(run, stamps, g, after, j, truth_anchor)[0]
+                out["dr_ate_by_link_after_m"] = _dr_anchored(run, stamps, g, after, j, map_anchor)[0]
     return out
 
 
-def _dr_at_link(run: RunData, stamps: np.ndarray, g: np.ndarray, use: np.ndarray,
-                j: int) -> tuple[float | None, int]:
+def _dr_anchored(run: RunData, stamps: np.ndarray, g: np.ndarray, use: np.ndarray, j: int,
+                 anchor: tuple[np.ndarray, float]) -> tuple[float | None, int]:
     """RMSE (m) of this run's dead reckoning at the stamps of the nodes ``use`` against their
     truth ``g``, after the rigid transform (yaw about the vertical and translation) that puts
-    the dead-reckoning pose at node ``j``'s stamp on its truth pose: the dead reckoning of a
-    vehicle told exactly where it was, and which way it faced, at the link."""
+    the dead-reckoning pose at node ``j``'s stamp on ``anchor`` (position NED, heading rad, in
+    the world): the truth at ``j`` (a vehicle told exactly where it was, and which way it faced,
+    at the link) or node ``j``'s pose in the prior frame (what the link tells the vehicle)."""
     od = run.odometry_poses
-    if od is None or not len(od) or not run.has_truth or run.truth_yaw is None or not np.all(np.isfinite(g[j])):
+    where, heading = anchor
+    if od is None or not len(od) or not run.has_truth or not np.all(np.isfinite(where)) or not math.isfinite(heading):
         return None, 0
     at = od.interpolate(stamps[use])
     p = run.to_ned(at.positions)
     yv = run.to_ned(np.stack([np.cos(at.yaws), np.sin(at.yaws), np.zeros(len(at))], axis=1))
     y = np.arctan2(yv[:, 1], yv[:, 0])
-    _gj, gyj = _truth(run, stamps[[j]])
     k = int(np.flatnonzero(np.flatnonzero(use) == j)[0]) if use[j] else -1
-    if k < 0 or not math.isfinite(float(gyj[0])):
+    if k < 0:
         return None, 0
-    a = _wrap(float(gyj[0]) - float(y[k]))
+    a = _wrap(heading - float(y[k]))
     c, s_ = math.cos(a), math.sin(a)
     R = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-    q = (p - p[k]) @ R.T + g[j]
+    q = (p - p[k]) @ R.T + np.asarray(where, np.float64)
     e = q - g[use]
     return _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1))))), int(use.sum())

@@ -123,6 +123,7 @@ and with ``--mission``::
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
      "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
      "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
+     "frames_stored": ..,   # frames the sequence memory holds at the end (htm.sv_seqmem_store; 0 without it)
      "chains": {"sdr_seqmem": {<the LVC figures above>}, "no_tm": {...}, "no_dr_gate": {...},
                 "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...},
                 "new_places": {...}},   # without --no-htm / --no-chains

@@ -256,6 +256,7 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
     res.update({"n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
                 "tm_anomaly_mean": round(float(np.mean([o[4] for o in out])), 4) if out else 0.0,
                 "sp_columns_used": len(cols_used), "decisions": kinds,
+                "frames_stored": len(htm.seqmem) if htm.seqmem is not None else 0,
                 "tm_decision_share": round(kinds["tm"] / max(n - kinds["new"], 1), 4)})
     return {"scores": res, "htm_lvc": lvc, "htm_descriptor": np.where(eligible, desc, -np.inf), "ids": ids}
 

@@ -131,6 +131,23 @@ def test_dead_reckoning_aligned_at_the_link() -> None:
     assert sessions_block(run, prior)["dr_ate_at_link_m"] is None
 
 
+def test_dead_reckoning_placed_by_the_link_carries_the_maps_error_at_the_link() -> None:
+    """``dr_ate_by_link_m``: the dead reckoning's pose at the link put on the link node's pose in
+    the final map, not on the truth.  A map whose new session sits 0.4 m east of the truth moves
+    that dead reckoning 0.4 m too (the truth-anchored one stays exact); a heading error of the
+    dead reckoning turns it about the link node, as for ``dr_ate_at_link_m``."""
+    run, prior = two_missions(map_offset_ned=(0.0, 0.4, 0.0))
+    s = sessions_block(_with_dr(run, 10.0, 0.0), prior)
+    assert s["dr_ate_at_link_m"] < 1e-6
+    assert abs(s["dr_ate_by_link_m"] - 0.4) < 1e-6 and abs(s["dr_ate_by_link_after_m"] - 0.4) < 1e-6
+    assert abs(s["ate_prior_frame_m"] - 0.4) < 1e-6
+    run, prior = two_missions()
+    s = sessions_block(_with_dr(run, 10.0, 5.0), prior)
+    assert abs(s["dr_ate_by_link_m"] - s["dr_ate_at_link_m"]) < 1e-6 and s["dr_ate_by_link_m"] > 0.1
+    run, prior = two_missions()
+    assert sessions_block(_with_dr(run, 10.0, 0.0), None)["dr_ate_by_link_m"] is None   # no prior: no map frame
+
+
 def test_a_kidnapped_vehicle_enters_a_mapped_place_when_it_comes_back_not_where_it_jumped() -> None:
     """One mission, no map loaded: 20 experiences north along east 0 (session 0), a jump begins
     session 1 at experience 20, the vehicle goes on north to 29 m, then back south at 1.5 m/s and
