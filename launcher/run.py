@@ -405,7 +405,10 @@ def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
         time.sleep(0.1)
 
 
-def _stop_all(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None:
+def _stop_all(procs: dict[str, subprocess.Popen], grace_s: float = 10.0, recorder_grace_s: float = 60.0) -> None:
+    """SIGTERM to every process still running, then wait for each, ``grace_s`` (the recorder:
+    ``recorder_grace_s``, since it first writes what has arrived and then the file's summary,
+    which a kill would lose) before SIGKILL."""
     # the recorder last, so that it keeps what the others flushed
     order = [n for n in procs if n != "recorder"] + (["recorder"] if "recorder" in procs else [])
     for name in order:
@@ -414,10 +417,11 @@ def _stop_all(procs: dict[str, subprocess.Popen], grace_s: float = 10.0) -> None
             p.send_signal(signal.SIGTERM)
     for name in order:
         p = procs[name]
+        wait_s = recorder_grace_s if name == "recorder" else grace_s
         try:
-            p.wait(timeout=grace_s)
+            p.wait(timeout=wait_s)
         except subprocess.TimeoutExpired:
-            log.error("%s did not stop within %.0f s; killing it", name, grace_s)
+            log.error("%s did not stop within %.0f s; killing it", name, wait_s)
             p.kill()
             p.wait()
 
