@@ -12,6 +12,7 @@ recorder would record them if the router let them through.
 """
 import argparse
 import json
+import os
 import signal
 import threading
 import time
@@ -44,7 +45,6 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=300.0)
     args = ap.parse_args()
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     conf = zenoh_config("client", connect=[args.endpoint], config_file="deploy/zenoh/secured-service.json5",
                         tls_dir=args.tls_dir, tls_host=args.tls_host, user=args.user,
                         password_file=args.password_file)
@@ -52,14 +52,39 @@ def main() -> None:
     conf.insert_json5("connect/exit_on_failure", "true")
     report: dict = {"joined": False, "received": {k: 0 for k in args.subscribe},
                     "data": {k: 0 for k in args.subscribe}, "put": {k: 0 for k in args.put}}
+    lock = threading.Lock()
+    printed = threading.Event()
+
+    def print_report_and_exit() -> None:
+        """The report once, then exit without waiting for Zenoh's teardown: a session on a
+        router that refuses us can keep a put or close in native code for a long time."""
+        with lock:
+            if not printed.is_set():
+                printed.set()
+                print(json.dumps(report), flush=True)
+        os._exit(0)
+
+    # SIGTERM is seen by a watcher thread (the C handler writes to a pipe), so a main thread
+    # held in a Zenoh call cannot delay the report
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    signal.signal(signal.SIGTERM, lambda *_: None)
+
+    def watch() -> None:
+        os.read(read_fd, 1)
+        stop.set()
+        time.sleep(5.0)            # the main loop's own ending, when it is not stuck
+        print_report_and_exit()
+
+    threading.Thread(target=watch, daemon=True).start()
+
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
         report["error"] = str(exc)[:300]
-        print(json.dumps(report), flush=True)
-        return
+        print_report_and_exit()
     report["joined"] = True
-    lock = threading.Lock()
 
     def counter(key: str):
         def on_sample(sample: zenoh.Sample) -> None:
@@ -76,14 +101,16 @@ def main() -> None:
     while not stop.is_set() and time.monotonic() < t_end:
         for key, pub in pubs.items():
             pub.put(encode_frame(forged(key, seq)))
-            report["put"][key] += 1
+            with lock:
+                report["put"][key] += 1
         seq += 1
         stop.wait(0.05)
     for sub in subs:
         sub.undeclare()
-    session.close()
-    with lock:
-        print(json.dumps(report), flush=True)
+    closer = threading.Thread(target=session.close, daemon=True)
+    closer.start()
+    closer.join(5.0)
+    print_report_and_exit()
 
 
 if __name__ == "__main__":
