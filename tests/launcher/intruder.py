@@ -13,7 +13,6 @@ recorder would record them if the router let them through.
 import argparse
 import json
 import os
-import signal
 import threading
 import time
 
@@ -23,6 +22,7 @@ import zenoh
 from common.bus import zenoh_config
 from common.codec import decode_frame, encode_frame
 from common.messages import Header, Image, Odometry
+from launcher.commands import _Signals
 
 
 def forged(key: str, seq: int):
@@ -64,20 +64,17 @@ def main() -> None:
                 print(json.dumps(report), flush=True)
         os._exit(0)
 
-    # SIGTERM is seen by a watcher thread (the C handler writes to a pipe), so a main thread
-    # held in a Zenoh call cannot delay the report
-    read_fd, write_fd = os.pipe()
-    os.set_blocking(write_fd, False)
-    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-    signal.signal(signal.SIGTERM, lambda *_: None)
-
-    def watch() -> None:
-        os.read(read_fd, 1)
+    def on_stop() -> None:
+        """The first SIGTERM: end the loop; if the main thread is still held in a Zenoh call
+        5 s later, report and exit anyway."""
         stop.set()
-        time.sleep(5.0)            # the main loop's own ending, when it is not stuck
-        print_report_and_exit()
+        timer = threading.Timer(5.0, print_report_and_exit)
+        timer.daemon = True
+        timer.start()
 
-    threading.Thread(target=watch, daemon=True).start()
+    # the services' signal handling: SIGTERM is seen by a watcher thread, so a main thread held
+    # in a Zenoh call cannot delay the report
+    _Signals("intruder").on_stop(on_stop)
 
     try:
         session = zenoh.open(conf)
