@@ -13,7 +13,9 @@ standardisation and LSBH -- what :class:`EncoderNode` does per frame.  Variants:
 * ``... unfolded BN`` -- the default before ``encoder.fold_batchnorm`` (batch norm run as its own operator);
 * ``... batch 8`` -- eight camera frames per forward pass (what a replay backlog allows);
 * ``... onnxruntime`` / ``... openvino`` -- the default path with the backbone on another
-  ``encoder.runtime`` (:mod:`services.encoder.runtime`; f32, same threads).
+  ``encoder.runtime`` (:mod:`services.encoder.runtime`; f32, same threads); ``... openvino-bf16``
+  -- openvino with ``encoder.precision`` bf16 (``--mission`` also prints the share of torch's
+  fused SDR bits it keeps).
 
 A second table times the backbone alone per image on each runtime (one 160 px image per
 call, already pre-processed; torch channels_last as in the encoder) for each backbone, with
@@ -62,6 +64,18 @@ from services.encoder.config import EncoderConfig
 from services.encoder.encoder import MultimodalEncoder
 from services.encoder.runtime import RUNTIMES, RuntimeUnavailable
 
+#: extra --runtimes value: openvino with encoder.precision bf16
+BF16 = "openvino-bf16"
+
+
+def _fields(rt: str) -> dict[str, str]:
+    """The encoder fields of a --runtimes value (an encoder.runtime, or ``openvino-bf16``)."""
+    return {"runtime": "openvino", "precision": "bf16"} if rt == BF16 else {"runtime": rt}
+
+
+def _encoder(cfg: EncoderConfig, rt: str) -> MultimodalEncoder:
+    return MultimodalEncoder(cfg.model_copy(update=_fields(rt)))
+
 
 def _interleaved(fns: dict[str, Callable[[], None]], repeats: int) -> dict[str, float]:
     """Median seconds of each callable, timed in alternating rounds (fair under shared CPUs)."""
@@ -100,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--threads", type=int, default=EncoderConfig().torch_threads,
                     help="torch threads (default: encoder.torch_threads)")
-    ap.add_argument("--runtimes", default=",".join(RUNTIMES), help="encoder.runtime values to time")
+    ap.add_argument("--runtimes", default=",".join((*RUNTIMES, BF16)),
+                    help=f"encoder.runtime values to time ({BF16}: openvino with encoder.precision bf16)")
     ap.add_argument("--backbones", default="efficientnet_lite0,shufflenetv2,alexnet_conv3",
                     help="backbones of the per-runtime table")
     ap.add_argument("--mission", default="", help="a recording: also time the whole run through the encoder node")
@@ -129,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     for rt in runtimes:
         if rt != "torch":
             try:
-                MultimodalEncoder(EncoderConfig(input_size=32, **base), runtime=rt)
+                _encoder(EncoderConfig(input_size=32, **base), rt)
             except RuntimeUnavailable as exc:
                 missing[rt] = str(exc)
     runtimes = [r for r in runtimes if r not in missing]
@@ -139,9 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     for label, name, size, every, batch, fold, rt in specs:
         key = (name, size, fold, rt)
         if key not in encoders:
-            encoders[key] = MultimodalEncoder(EncoderConfig(cnn_backbone=name, input_size=size, batch_max=8,
-                                                            untrained=name != "efficientnet_lite0",
-                                                            fold_batchnorm=fold, **base), runtime=rt)
+            encoders[key] = _encoder(EncoderConfig(cnn_backbone=name, input_size=size, batch_max=8,
+                                                   untrained=name != "efficientnet_lite0", fold_batchnorm=fold,
+                                                   **base), rt)
         variants[label] = _variant(encoders[key], frames[:10] if batch == 1 else frames, sonar, every, batch)
     print(f"encoder benchmark: torch {torch.__version__}, {args.threads} thread(s), median of {args.repeats} "
           f"interleaved rounds; camera 384x288 RGB uint8, sonar raster 224x224; LSBH L=2048, s=0.25")
@@ -174,25 +189,30 @@ def _mission(args: argparse.Namespace, runtimes: list[str]) -> None:
     outs: dict[str, list[Any]] = {}
     for _ in range(args.rounds):
         for rt in runtimes:
-            cfg = PoseidonConfig.model_validate({"encoder": {**base.encoder.model_dump(), "runtime": rt}})
+            cfg = PoseidonConfig.model_validate({"encoder": {**base.encoder.model_dump(), **_fields(rt)}})
             node = build_node("encoder", cfg)  # start-up (export, compile) outside the timing
             t = time.process_time()
             outs[rt] = [m for _, m in run_offline(node, msgs)]
             cpu[rt].append(time.process_time() - t)
     print(f"\nwhole run through the encoder node: {args.mission} ({n_cam} camera frames, "
           f"{len(msgs) - n_cam} sonar messages), process CPU s, median of {args.rounds} round(s)")
-    print(f"{'runtime':12s} {'CPU s':>8s} {'ms/frame':>9s} {'vs torch':>9s} {'SDRs equal torch':>17s}")
+    print(f"{'runtime':14s} {'CPU s':>8s} {'ms/frame':>9s} {'vs torch':>9s} {'SDRs equal torch':>17s} "
+          f"{'fused bits kept':>16s}")
     ref = outs.get("torch")
     for rt in runtimes:
         c = statistics.median(cpu[rt])
-        same = "-"
+        same, kept = "-", "-"
         if ref is not None:
             eq = sum(np.array_equal(a.fused.active, b.fused.active)
                      and all(np.array_equal(x.active, y.active) for x, y in zip(a.modalities, b.modalities))
                      for a, b in zip(outs[rt], ref))
             same = f"{eq}/{len(ref)}" + ("" if len(outs[rt]) == len(ref) else f" ({len(outs[rt])} outputs)")
+            # share of torch's active fused bits this runtime also sets, mean over frames
+            share = [np.intersect1d(a.fused.active, b.fused.active).size / max(b.fused.active.size, 1)
+                     for a, b in zip(outs[rt], ref)]
+            kept = f"{np.mean(share):.4f}"
         ratio = f"{c / statistics.median(cpu['torch']):8.2f}x" if "torch" in cpu else "-"
-        print(f"{rt:12s} {c:8.1f} {c / max(n_cam, 1) * 1000:9.2f} {ratio:>9s} {same:>17s}")
+        print(f"{rt:14s} {c:8.1f} {c / max(n_cam, 1) * 1000:9.2f} {ratio:>9s} {same:>17s} {kept:>16s}")
 
 
 def _per_runtime(args: argparse.Namespace, runtimes: list[str], frames: list[np.ndarray], base: dict[str, Any]) -> None:
@@ -202,7 +222,7 @@ def _per_runtime(args: argparse.Namespace, runtimes: list[str], frames: list[np.
     print(f"{'backbone':20s} {'runtime':12s} {'ms/image':>10s} {'vs torch':>9s} {'max rel diff':>13s}")
     for name in [b for b in args.backbones.split(",") if b]:
         cfg = EncoderConfig(cnn_backbone=name, input_size=160, untrained=name != "efficientnet_lite0", **base)
-        encs = {rt: MultimodalEncoder(cfg, runtime=rt) for rt in runtimes}
+        encs = {rt: _encoder(cfg, rt) for rt in runtimes}
         xs = {rt: [e.preprocess([f]) for f in frames[:10]] for rt, e in encs.items()}
 
         def run(e: MultimodalEncoder, batches: list[torch.Tensor]) -> Callable[[], None]:

@@ -94,7 +94,10 @@ class MultimodalEncoder:
         # torch's Module.to stubs omit the memory_format keyword the method accepts
         self.model = self.backbone.model.eval().to(memory_format=self.memory_format)  # type: ignore[call-overload]
         self.dim = self.backbone.embedding_channels * cfg.pool_grid ** 2
-        self._features = make_features(self.backbone, self.runtime, self.input_size, cfg.torch_threads)
+        # encoder.precision applies to openvino only (a runtime override to torch/onnxruntime runs f32)
+        self.precision = cfg.precision if self.runtime == "openvino" else "f32"
+        self._features = make_features(self.backbone, self.runtime, self.input_size, cfg.torch_threads,
+                                       self.precision)
         self._mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1)
         self._std = torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1)
         self._lsbh: dict[str, LsbhEncoder] = {}

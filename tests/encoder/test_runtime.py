@@ -129,3 +129,33 @@ def test_runtime_field_is_validated(tmp_path: Path) -> None:
     assert load_config(overrides=["encoder.runtime=onnxruntime"]).encoder.runtime == "onnxruntime"
     with pytest.raises(ConfigError, match="encoder.runtime"):
         load_config(overrides=["encoder.runtime=tensorrt"])
+
+
+def test_precision_field_is_validated() -> None:
+    assert EncoderConfig().precision == "f32"
+    assert load_config(overrides=["encoder.precision=bf16"]).encoder.precision == "bf16"
+    with pytest.raises(ConfigError, match="encoder.precision"):
+        load_config(overrides=["encoder.precision=int8"])
+    with pytest.raises(ConfigError, match="encoder.precision bf16 needs encoder.runtime openvino"):
+        load_config(overrides=["encoder.precision=bf16", "encoder.runtime=onnxruntime"])
+
+
+def test_bf16_openvino_stays_close_to_torch(reference: MultimodalEncoder) -> None:
+    """encoder.precision bf16: the plugin computes in bfloat16 where the CPU has it (else f32);
+    either way the embedding stays within a few % of torch's and the SDR keeps most bits."""
+    _need("openvino")
+    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", precision="bf16"))
+    assert enc.runtime == "openvino" and enc.precision == "bf16"
+    torch_rt = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", precision="bf16"),
+                                 runtime="torch")
+    assert torch_rt.precision == "f32"  # a runtime override away from openvino runs f32
+    import openvino as ov
+
+    has_bf16 = "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+    imgs = _images()[3:]
+    for i, (a, b) in enumerate(zip(enc.embed(imgs), reference.embed(imgs))):
+        assert _rel(a, b) < 0.1, (i, _rel(a, b))
+        if has_bf16:  # bf16 really ran (f32 is within ~1e-6)
+            assert _rel(a, b) > 1e-3, (i, _rel(a, b))
+        sa, sb = enc.sdr("camera", a), reference.sdr("camera", b)
+        assert len(np.intersect1d(sa, sb)) >= 0.85 * len(sb), i
