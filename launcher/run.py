@@ -140,6 +140,10 @@ def _publish_output(partial: Path, out: Path) -> None:
     os.replace(partial, out)
 
 
+#: input keys a run replays for evaluation even when no service subscribes (``player.replay`` consumed)
+EVALUATION_KEYS = ("truth/pose", "truth/revisits")
+
+
 @dataclass
 class RunPlan:
     services: list[str]
@@ -180,6 +184,12 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     player_keys = sorted(k for k in rec_keys if k not in produced and k != LATENCY_KEY)  # a live run's report: not an input
     if config.player.keys:
         player_keys = sorted(k for k in player_keys if k in config.player.keys)
+    if config.player.replay == "consumed":
+        wanted = {k for ins, _o in io.values() for k in ins} | set(EVALUATION_KEYS)
+        left = [k for k in player_keys if k not in wanted]
+        player_keys = [k for k in player_keys if k in wanted]
+        if left:
+            log.info("player.replay consumed: not replayed (no service reads them): %s", ", ".join(left))
     for n, (ins, _o) in io.items():
         for k in ins:
             if k not in produced and k not in player_keys and k not in SOURCE_KEYS:

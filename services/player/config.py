@@ -5,6 +5,8 @@ wrong value fails naming its dotted field.
 """
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from common.config import ConfigSection
@@ -15,3 +17,9 @@ __all__ = ["PlayerConfig"]
 class PlayerConfig(ConfigSection):
     rate: float = Field(0.0, ge=0, description="replay speed: 1 = real time, N = N x, 0 = as fast as taken")
     keys: list[str] = Field(default_factory=list, description="keys to publish (empty: every key)")
+    replay: Literal["all", "consumed"] = Field(
+        "all", description="what a poseidon run replays from its input: all = every key of the recording (the "
+        "run's recording holds the whole input again); consumed = only the keys a started service subscribes to, "
+        "plus the ground truth evaluation reads (truth/pose, truth/revisits); the other sensor streams (e.g. the "
+        "sim's sonar_seaking, sonar_*_ros, imu_adis, 2/3 of its messages) stay in the input recording only. "
+        "player.keys still narrows either")

@@ -12,7 +12,7 @@ from common.config import ConfigError
 from launcher.config import load_config
 from services.encoder.config import EncoderConfig
 from services.encoder.encoder import MultimodalEncoder
-from services.encoder.runtime import RuntimeUnavailable, export_onnx
+from services.encoder.runtime import RuntimeUnavailable, export_onnx, make_features
 
 NORDLAND = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "nordland_trimmed"
 EXPORTED = ["onnxruntime", "openvino"]
@@ -53,7 +53,8 @@ def reference() -> MultimodalEncoder:
 @pytest.mark.parametrize("runtime", EXPORTED)
 def test_runtime_gives_torchs_embedding_and_sdr(runtime: str, reference: MultimodalEncoder) -> None:
     _need(runtime)
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime))
+    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime,
+                                          precision="f32"))
     assert enc.runtime == runtime and reference.runtime == "torch"
     imgs = _images()
     want, got = reference.embed(imgs), enc.embed(imgs)
@@ -83,7 +84,7 @@ def test_other_backbones_and_sizes(runtime: str, backbone: str, size: int) -> No
     _need(runtime)
     cfg = dict(cnn_backbone=backbone, input_size=size, untrained=True, lsbh_matrix_path="", embedding_norm="none")
     ref = MultimodalEncoder(EncoderConfig(**cfg, runtime="torch"))
-    enc = MultimodalEncoder(EncoderConfig(**cfg, runtime=runtime))
+    enc = MultimodalEncoder(EncoderConfig(**cfg, runtime=runtime, precision="f32"))
     imgs = _images()[::2]
     for a, b in zip(enc.embed(imgs), ref.embed(imgs)):
         assert a.shape == b.shape == (ref.dim,)
@@ -96,7 +97,8 @@ def test_runtime_on_real_images(runtime: str, reference: MultimodalEncoder) -> N
     from PIL import Image
 
     _need(runtime)
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime))
+    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime,
+                                          precision="f32"))
     names = sorted(p.name for p in (NORDLAND / "summer").glob("*.png"))[400:1000:60]
     imgs = [np.asarray(Image.open(NORDLAND / s / n).convert("RGB")) for n in names for s in ("summer", "winter")]
     for a, b in zip(enc.embed(imgs), reference.embed(imgs)):
@@ -131,13 +133,15 @@ def test_runtime_field_is_validated(tmp_path: Path) -> None:
         load_config(overrides=["encoder.runtime=tensorrt"])
 
 
-def test_precision_field_is_validated() -> None:
-    assert EncoderConfig().precision == "f32"
-    assert load_config(overrides=["encoder.precision=bf16"]).encoder.precision == "bf16"
+def test_precision_field_is_validated_and_applies_to_openvino_only() -> None:
+    assert EncoderConfig().precision == "bf16"  # the default: docs/DECISIONS.md, encoder.precision
+    assert load_config(overrides=["encoder.precision=f32"]).encoder.precision == "f32"
     with pytest.raises(ConfigError, match="encoder.precision"):
         load_config(overrides=["encoder.precision=int8"])
-    with pytest.raises(ConfigError, match="encoder.precision bf16 needs encoder.runtime openvino"):
-        load_config(overrides=["encoder.precision=bf16", "encoder.runtime=onnxruntime"])
+    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", input_size=32, runtime="onnxruntime"))
+    assert enc.precision == "f32"  # bf16 (the default) does not apply to onnxruntime
+    with pytest.raises(ValueError, match="bf16 runs on openvino only"):
+        make_features(enc.backbone, "onnxruntime", 32, 1, "bf16")
 
 
 def test_bf16_openvino_stays_close_to_torch(reference: MultimodalEncoder) -> None:

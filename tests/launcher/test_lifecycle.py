@@ -204,3 +204,28 @@ def test_signals_are_seen_while_the_main_thread_is_held_in_native_code():
     assert proc.returncode == 4, proc.stderr
     assert "signal 15, stopping" in proc.stderr and "second signal 15: exiting now" in proc.stderr
     assert "Current thread" in proc.stderr and "<module>" in proc.stderr  # faulthandler's dump on SIGUSR1
+
+
+def test_player_replay_consumed_replays_what_services_read_and_the_truth(tmp_path):
+    """player.replay consumed: only keys a started service subscribes to, plus truth/*; all: every key."""
+    import numpy as np
+
+    from common.mcap_io import RecordingWriter
+    from common.messages import Header, Image, RangeImageBeam
+    from common.messages import Odometry as Odom
+    rec = tmp_path / "m.mcap"
+    beam = dict(angle_grad=0, angle_rad=0, nbins=2, max_range=10, beam_data=np.zeros(2, np.int32))
+    with RecordingWriter(rec) as w:
+        w.write("camera/image_raw", Image(header=Header(seq=0, stamp=1), height=1, width=1, encoding="mono8",
+                                          data=np.zeros((1, 1), np.uint8)))
+        w.write("sonar_micron", RangeImageBeam(header=Header(seq=0, stamp=2), **beam))
+        w.write("sonar_seaking", RangeImageBeam(header=Header(seq=0, stamp=3), **beam))
+        w.write("truth/pose", Odom(header=Header(seq=0, stamp=4), position=[0, 0, 0], orientation=[0, 0, 0, 1]))
+    everything = plan_run(load_config(), rec, services=["encoder"])
+    assert everything.player_keys == ["camera/image_raw", "sonar_micron", "sonar_seaking", "truth/pose"]
+    consumed = plan_run(load_config(overrides=["player.replay=consumed"]), rec, services=["encoder"])
+    assert consumed.player_keys == ["camera/image_raw", "sonar_micron", "truth/pose"]
+    assert "sonar_seaking" not in consumed.expect  # the recorder does not wait for it
+    narrowed = plan_run(load_config(overrides=["player.replay=consumed", "player.keys=[camera/image_raw]"]), rec,
+                        services=["encoder"])
+    assert narrowed.player_keys == ["camera/image_raw"]
