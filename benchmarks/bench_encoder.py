@@ -69,8 +69,8 @@ BF16 = "openvino-bf16"
 
 
 def _fields(rt: str) -> dict[str, str]:
-    """The encoder fields of a --runtimes value (an encoder.runtime, or ``openvino-bf16``)."""
-    return {"runtime": "openvino", "precision": "bf16"} if rt == BF16 else {"runtime": rt}
+    """The encoder fields of a --runtimes value: an encoder.runtime in f32, or ``openvino-bf16``."""
+    return {"runtime": "openvino", "precision": "bf16"} if rt == BF16 else {"runtime": rt, "precision": "f32"}
 
 
 def _encoder(cfg: EncoderConfig, rt: str) -> MultimodalEncoder:
