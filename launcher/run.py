@@ -60,7 +60,7 @@ from common.resume import Supervision
 from common.worker import Worker
 from launcher.config import PoseidonConfig
 from launcher.services import WorkerSpec, available_services, build_node, build_worker, node_io
-from services.player.player import SOURCE_KEYS
+from services.player.player import SOURCE_KEYS, replayed_keys
 
 __all__ = ["RunFailed", "ServiceStartError", "MAP_DIR_FILES", "use_map_dir", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
 
@@ -140,10 +140,6 @@ def _publish_output(partial: Path, out: Path) -> None:
     os.replace(partial, out)
 
 
-#: input keys a run replays for evaluation even when no service subscribes (``player.replay`` consumed)
-EVALUATION_KEYS = ("truth/pose", "truth/revisits")
-
-
 @dataclass
 class RunPlan:
     services: list[str]
@@ -182,14 +178,7 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     if not rec_keys:
         raise RecordingError(f"{input_path}: no readable messages (not an MCAP recording, or damaged from its start)")
     player_keys = sorted(k for k in rec_keys if k not in produced and k != LATENCY_KEY)  # a live run's report: not an input
-    if config.player.keys:
-        player_keys = sorted(k for k in player_keys if k in config.player.keys)
-    if config.player.replay == "consumed":
-        wanted = {k for ins, _o in io.values() for k in ins} | set(EVALUATION_KEYS)
-        left = [k for k in player_keys if k not in wanted]
-        player_keys = [k for k in player_keys if k in wanted]
-        if left:
-            log.info("player.replay consumed: not replayed (no service reads them): %s", ", ".join(left))
+    player_keys = replayed_keys(config.player, player_keys, {k for ins, _o in io.values() for k in ins})
     for n, (ins, _o) in io.items():
         for k in ins:
             if k not in produced and k not in player_keys and k not in SOURCE_KEYS:

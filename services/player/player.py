@@ -47,8 +47,9 @@ from common.mcap_io import read_messages, recording_keys, recording_message_coun
 from common.ordering import END_OF_TIME
 from common.resume import Supervision
 from common.worker import Source, WorkerStats
+from services.player.config import PlayerConfig
 
-__all__ = ["Player", "PlayerStats", "SOURCE_KEYS"]
+__all__ = ["Player", "PlayerStats", "SOURCE_KEYS", "TRUTH_KEYS", "replayed_keys"]
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,23 @@ SOURCE_KEYS = (
     "camera/image_raw", "sonar_micron", "sonar_seaking", "sonar_micron_ros", "sonar_seaking_ros",
     "dvl_linkquest", "imu_adis", "imu_adis_ros", "depth_sensor", "odometry", "truth/pose", "truth/revisits",
 )
+
+
+#: input keys a run replays for evaluation even when no service reads them (``player.replay`` consumed)
+TRUTH_KEYS = ("truth/pose", "truth/revisits")
+
+
+def replayed_keys(cfg: PlayerConfig, keys: list[str], read: set[str]) -> list[str]:
+    """The keys of ``keys`` (sorted) a run's player publishes: narrowed to ``player.keys`` when
+    set, and with ``player.replay`` consumed to the keys some service ``read``s plus
+    :data:`TRUTH_KEYS` (the others are logged as left out)."""
+    out = sorted(k for k in keys if not cfg.keys or k in cfg.keys)
+    if cfg.replay == "consumed":
+        left = [k for k in out if k not in read and k not in TRUTH_KEYS]
+        out = [k for k in out if k not in left]
+        if left:
+            log.info("player.replay consumed: not replayed (no service reads them): %s", ", ".join(left))
+    return out
 
 
 @dataclass
