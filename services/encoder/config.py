@@ -74,8 +74,8 @@ class EncoderConfig(ConfigSection):
     # --- added for the encoder's cost (issue 21); see services/encoder/runtime.py
     runtime: Literal["torch", "onnxruntime", "openvino"] = Field(
         "openvino", description="where the backbone runs: torch (the reference), or the same module exported "
-        "to ONNX at start-up (~1-2 s, in memory) and run by onnxruntime or openvino (f32, encoder.torch_threads "
-        "threads, one image at a time). openvino: embeddings within ~1e-6 of torch's, so the same SDRs but for "
+        "to ONNX at start-up (~1-2 s, in memory) and run by onnxruntime or openvino (f32, openvino in encoder.precision; "
+        "encoder.torch_threads threads, one image at a time). openvino f32: embeddings within ~1e-6 of torch's, so the same SDRs but for "
         "rare one-bit LSBH ties (8 of 5999 frames of a 20-min sim mission); ~0.5x torch's backbone CPU per "
         "image, ~0.6x the encoder's whole-run CPU (docs/DECISIONS.md)")
     precision: Literal["f32", "bf16"] = Field(
@@ -84,4 +84,3 @@ class EncoderConfig(ConfigSection):
         "whole-run CPU on this machine, fused SDRs ~97 % the same bits as f32's, sim LVC recall / precision and "
         "Nordland AP within 0.01 of f32's on average (docs/DECISIONS.md, encoder.precision). Applies to "
         "openvino only: torch and onnxruntime always run f32")
-

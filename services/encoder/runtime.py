@@ -5,7 +5,8 @@ The torch module (:mod:`services.encoder.backbones`, batch norms folded when
 ``openvino`` its :meth:`~services.encoder.backbones.LoadedBackbone.features` (the tap block,
 un-pooled) is exported at start-up with :func:`torch.onnx.export` (the TorchScript exporter,
 in memory, ~1 s; nothing is written or downloaded) for one image of ``input_size`` x
-``input_size`` pixels, and run there in f32 on ``encoder.torch_threads`` intra-op threads:
+``input_size`` pixels, and run there in f32 (openvino: ``encoder.precision``) on
+``encoder.torch_threads`` intra-op threads:
 
 * ``onnxruntime`` -- :class:`onnxruntime.InferenceSession`, CPU provider, every graph
   optimisation, ``intra_op_num_threads`` = threads, no spinning;
@@ -17,7 +18,7 @@ in memory, ~1 s; nothing is written or downloaded) for one image of ``input_size
 
 Both take one image at a time (a static [1, 3, n, n] input: measured as fast as or faster
 per image than a dynamic batch); the pooling after the tap block stays in torch, so only the
-convolutions change runtime.  Same embedding as torch to ~2e-6 relative
+convolutions change runtime.  In f32 the same embedding as torch to ~2e-6 relative
 (tests/encoder/test_runtime.py); cost: docs/DECISIONS.md, ``encoder.runtime``.
 """
 from __future__ import annotations
