@@ -9,8 +9,10 @@ import numpy as np
 from numba import njit
 
 from services.htm.tm_storage import (
+    EVICT_SAMPLES,
     I32,
     I64,
+    M_EVICTED,
     M_ITER,
     M_NACT,
     M_NMATCH,
@@ -40,7 +42,7 @@ from services.htm.tm_storage import (
 #   syn   = (blk_seg, blk_free, syn_pre, syn_perm)        -- synapse blocks and slots
 #   pl    = (pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free)   -- presynaptic index
 #   par   = (cpc, act_thr, min_thr, perm0, connected, inc, dec, pred_dec, max_new,
-#            max_seg_per_cell, max_syn)                   -- the configuration
+#            max_seg_per_cell, max_syn, max_segments)     -- the configuration (max_segments 0: no budget)
 #   prev  = (prev_active, prev_winner, prev_flag, mark)   -- the previous step's cells
 @njit(cache=True)
 def _destroy(g: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, meta: I64) -> None:
@@ -126,10 +128,31 @@ def _least_used_cell(lo: int, hi: int, cell_nseg: I32, rs: RngState) -> int:
 
 
 @njit(cache=True)
+def _sampled_lru_segment(it: int, seg: SegArrays, meta: I64, rs: RngState) -> int:
+    """An approximately least recently used segment for the segment budget: the oldest
+    ``seg_last`` among ``EVICT_SAMPLES`` live segments drawn at random (O(1), the sampled LRU
+    of cache eviction), never one the current step may still touch -- learnt or grown in this
+    step, or reached by the previous step's active cells (its ``seg_stamp``: the active and
+    matching lists this step walks).  -1 when the draws found none."""
+    seg_cell, seg_last, seg_stamp = seg[0], seg[3], seg[6]
+    top = meta[M_SEG_TOP]
+    best = np.int64(-1)
+    for _ in range(EVICT_SAMPLES):
+        g = np.int64(_rand_below(rs, top))
+        if seg_cell[g] == -1 or seg_last[g] >= it or seg_stamp[g] >= it - 1:
+            continue
+        if best == -1 or seg_last[g] < seg_last[best]:
+            best = g
+    return best
+
+
+@njit(cache=True)
 def _grow_new_segment(winner: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, par: Params,
                       prev: PrevArrays, n_prev_winner: int, rs: RngState, meta: I64) -> None:
-    """A new segment on ``winner`` (evicting its least recently used one when the cell is full)
-    with up to ``maxNewSynapseCount`` synapses to the previous winners."""
+    """A new segment on ``winner`` (evicting its least recently used one when the cell is full,
+    and an approximately least recently used one of any cell when the memory holds
+    ``maxSegments``, :func:`_sampled_lru_segment`) with up to ``maxNewSynapseCount`` synapses
+    to the previous winners."""
     seg_cell, seg_last, cell_nseg = seg[0], seg[3], seg[9]
     if cell_nseg[winner] >= par[9]:
         lru = -1
@@ -137,6 +160,11 @@ def _grow_new_segment(winner: int, it: int, seg: SegArrays, syn: SynArrays, pl: 
             if seg_cell[g] == winner and (lru == -1 or seg_last[g] < seg_last[lru]):
                 lru = g
         _destroy(lru, seg, syn, pl, meta)
+    elif par[11] > 0 and meta[M_SEG_TOP] - meta[M_SEG_FREE] >= par[11]:
+        victim = _sampled_lru_segment(it, seg, meta, rs)
+        if victim >= 0:
+            _destroy(victim, seg, syn, pl, meta)
+            meta[M_EVICTED] += 1
     if meta[M_SEG_FREE] > 0:
         meta[M_SEG_FREE] -= 1
         g = seg[5][meta[M_SEG_FREE]]

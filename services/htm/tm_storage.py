@@ -17,7 +17,9 @@ PBLK = 16   # entries per presynaptic-index block
 # indices into the int64 ``meta`` array
 M_SEG_TOP, M_SEG_FREE, M_BLK_TOP, M_BLK_FREE, M_PB_TOP, M_PB_FREE = 0, 1, 2, 3, 4, 5
 M_ITER, M_NACT, M_NMATCH, M_NPREV_ACTIVE, M_NPREV_WINNER, M_NPRED = 6, 7, 8, 9, 10, 11
-M_LEN = 12
+M_EVICTED = 12   # segments the segment budget evicted
+M_LEN = 13
+EVICT_SAMPLES = 32   # live segments drawn per eviction of the segment budget
 
 # array types of the kernels (numba compiles from the values; these are for the type checker)
 I32: TypeAlias = NDArray[np.int32]
@@ -29,7 +31,7 @@ SegArrays: TypeAlias = tuple[I32, I32, I32, I64, I32, I32, I64, I32, I32, I32]
 SynArrays: TypeAlias = tuple[I32, I32, I32, F32]
 PlArrays: TypeAlias = tuple[I32, I32, I32, I32, I32, I32]
 PrevArrays: TypeAlias = tuple[I32, I32, Flags, Flags]
-Params: TypeAlias = tuple[int, int, int, float, float, float, float, float, int, int, int]
+Params: TypeAlias = tuple[int, int, int, float, float, float, float, float, int, int, int, int]
 
 
 # --------------------------------------------------------------------------- random numbers
