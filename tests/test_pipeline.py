@@ -38,3 +38,21 @@ def test_every_service_runs_and_modes_agree_byte_for_byte(mission, tmp_path):
     pa, pb = payloads_by_key(tmp_path / "dist.mcap"), payloads_by_key(tmp_path / "emb.mcap")
     for key in OUTPUT_KEYS:
         assert pa[key] == pb[key], f"{key} differs between distributed and embedded runs"
+
+
+def test_guard_off_on_the_on_runs_front_end_equals_the_full_pipeline(mission, tmp_path):
+    """`poseidon demo`'s Guard OFF run: only the services the guard changes, on the ON run's
+    recording, give the events and map a full Guard OFF pipeline gives."""
+    from launcher.demo import GUARDED_SERVICES
+    lsbh = f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"
+    on_cfg = load_config(overrides=[lsbh, "vpr_guard.require_vpr_for_event=true"])
+    off_cfg = load_config(overrides=[lsbh, "vpr_guard.require_vpr_for_event=false"])
+    run_embedded(on_cfg, mission, tmp_path / "on.mcap", progress=False, timeout_s=400)
+    run_embedded(off_cfg, mission, tmp_path / "off_full.mcap", progress=False, timeout_s=400)
+    res = run_embedded(off_cfg, tmp_path / "on.mcap", tmp_path / "off.mcap", services=list(GUARDED_SERVICES),
+                       progress=False, timeout_s=400)
+    assert set(GUARDED_SERVICES) <= set(res.services) and not {"encoder", "htm", "robot_state"} & set(res.services)
+    full, replay, on = (payloads_by_key(tmp_path / f"{n}.mcap") for n in ("off_full", "off", "on"))
+    for key in ("experience_event", "map", "experience_image", "dead_reckoning", "local_view_cells", "Odometry"):
+        assert replay[key] == full[key], f"{key} differs from the full Guard OFF pipeline"
+    assert len(full["experience_event"]) > len(on["experience_event"])   # the guard really was off
