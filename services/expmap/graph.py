@@ -95,7 +95,7 @@ from services.expmap.relaxation import plan_correction, relax_fraction, solve_op
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
 from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, rot2
-from services.expmap.storage import FORMAT_VERSION, ColumnStore, load_map, read_map_file, save_map
+from services.expmap.storage import FORMAT_VERSION, ColumnStore, SweepStore, load_map, read_map_file, save_map
 
 __all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
            "read_map_file", "FORMAT_VERSION"]
@@ -156,7 +156,7 @@ class ExperienceMap:
         self.last_correction_stamp = -1
         self.corrections = 0
         self.solves = 0
-        self._scans: list[np.ndarray | None] = []    # per node: sonar sweep around its odometry position
+        self._scans = SweepStore()                    # per node: sonar sweep around its odometry position
         self.scan_registrations = {"trusted": 0, "partial": 0, "untrusted": 0, "no_sweep": 0}
         self.last_registration: Registration | None = None
         self.session = 0                      # the session of the newest node

@@ -52,6 +52,7 @@ from services.expmap.loop_policy import link_displacement
 if TYPE_CHECKING:
     from services.expmap.config import ExpMapConfig
     from services.expmap.loop_policy import LoopEdges
+    from services.expmap.storage import SweepStore
 
 __all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs", "backfill"]
 
@@ -84,7 +85,7 @@ class SessionLink:
 
 
 def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, target_n: np.ndarray, theta: float,
-                   loop_edges: LoopEdges, scans: list[np.ndarray | None]) -> None:
+                   loop_edges: LoopEdges, scans: SweepStore) -> None:
     """Move the nodes ``mask`` (the newer component, node n among them) of the node columns
     ``A`` (first N rows) rigidly about n: x -> R (x - p_n) + ``target_n``, R the rotation of
     ``theta`` rad about the vertical (the registration's: it lays n's sweep onto m's).

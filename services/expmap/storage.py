@@ -1,6 +1,7 @@
 """Storage of the experience map: the append-only node columns and the map file (npz).
 
-:class:`ColumnStore` keeps one array per node attribute with amortised doubling.
+:class:`ColumnStore` keeps one array per node attribute with amortised doubling;
+:class:`SweepStore` keeps every node's sonar sweep in one growing point array.
 :func:`save_map` / :func:`load_map` write and read everything needed to continue a map
 (:class:`services.expmap.graph.ExperienceMap`): nodes, odometry increments, loop edges,
 sonar sweeps, the confirmation chain, the pending correction, the last event's odometry
@@ -11,9 +12,10 @@ file of either kind (also :mod:`services.expmap.scan_graph`'s).
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -22,7 +24,7 @@ from services.expmap.session_link import SessionLink
 if TYPE_CHECKING:
     from services.expmap.graph import ExperienceMap
 
-__all__ = ["ColumnStore", "read_map_file", "save_map", "load_map", "FORMAT_VERSION"]
+__all__ = ["ColumnStore", "SweepStore", "read_map_file", "save_map", "load_map", "FORMAT_VERSION"]
 
 FORMAT_VERSION = 1
 
@@ -47,6 +49,93 @@ class ColumnStore:
             b = np.zeros((cap,) + a.shape[1:], a.dtype)
             b[: self.n] = a[: self.n]
             self.arrays[k] = b
+
+
+class SweepStore:
+    """Per-node sonar sweeps ((k, 2) float32 points, or None), list-like, in one point array
+    with amortised doubling plus per-node (start, length) -- not a Python list of small arrays.
+
+    Why (issue 21): a checkpoint pickles the map every interval; a list of one small array per
+    node is written whole every time (31 MB at the end of a 3-hour mission), while one large
+    append-only array falls into the checkpoint's content-addressed blocks
+    (:func:`common.resume.save_checkpoint`), of which only the blocks appended to are new.
+    ``store[i] = sweep`` of the same length writes in place (a session link rotating its
+    sweeps); another length appends the points and moves the node's window there."""
+
+    def __init__(self, sweeps: Sequence[np.ndarray | None] = ()):
+        self._pts = np.zeros((1024, 2), np.float32)
+        self._start = np.zeros(64, np.int64)
+        self._len = np.zeros(64, np.int64)        # -1: no sweep (None)
+        self._n = 0
+        self._top = 0
+        for sw in sweeps:
+            self.append(sw)
+
+    def __len__(self) -> int:
+        return self._n
+
+    def _put(self, sw: np.ndarray) -> int:
+        k = len(sw)
+        if self._top + k > len(self._pts):
+            cap = len(self._pts)
+            while cap < self._top + k:
+                cap *= 2
+            pts = np.zeros((cap, 2), np.float32)
+            pts[:self._top] = self._pts[:self._top]
+            self._pts = pts
+        self._pts[self._top:self._top + k] = sw
+        self._top += k
+        return self._top - k
+
+    def append(self, sweep: np.ndarray | None) -> None:
+        if self._n == len(self._start):
+            self._start = np.concatenate([self._start, np.zeros(self._n, np.int64)])
+            self._len = np.concatenate([self._len, np.zeros(self._n, np.int64)])
+        i = self._n
+        self._n += 1
+        self._set(i, sweep)
+
+    def _set(self, i: int, sweep: np.ndarray | None) -> None:
+        if sweep is None:
+            self._start[i], self._len[i] = 0, -1
+            return
+        sw = np.asarray(sweep, np.float32).reshape(-1, 2)
+        if self._len[i] == len(sw):
+            self._pts[self._start[i]:self._start[i] + len(sw)] = sw
+        else:
+            self._start[i], self._len[i] = self._put(sw), len(sw)
+
+    def _get(self, i: int) -> np.ndarray | None:
+        k = int(self._len[i])
+        return None if k < 0 else self._pts[self._start[i]:self._start[i] + k].copy()
+
+    @overload
+    def __getitem__(self, i: int) -> np.ndarray | None: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[np.ndarray | None]: ...
+
+    def __getitem__(self, i: int | slice) -> np.ndarray | None | list[np.ndarray | None]:
+        if isinstance(i, slice):
+            return [self._get(j) for j in range(*i.indices(self._n))]
+        if not -self._n <= i < self._n:
+            raise IndexError(f"sweep {i} of {self._n}")
+        return self._get(i % self._n)
+
+    def __setitem__(self, i: int, sweep: np.ndarray | None) -> None:
+        if not -self._n <= i < self._n:
+            raise IndexError(f"sweep {i} of {self._n}")
+        self._set(i % self._n, sweep)
+
+    def __iter__(self) -> Iterator[np.ndarray | None]:
+        return (self._get(j) for j in range(self._n))
+
+    def __getstate__(self) -> dict[str, Any]:
+        # the capacity's unused tail is zeros: content-addressed blocks of it cost nothing
+        return {"pts": self._pts, "start": self._start, "len": self._len, "n": self._n, "top": self._top}
+
+    def __setstate__(self, st: dict[str, Any]) -> None:
+        self._pts, self._start, self._len = st["pts"], st["start"], st["len"]
+        self._n, self._top = int(st["n"]), int(st["top"])
 
 
 def read_map_file(path: Path, what: str) -> tuple[Any, dict[str, Any]]:
@@ -152,7 +241,7 @@ def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
         ptr, pts = z["sweep_ptr"], z["sweep_pts"]
         if len(ptr) != n + 1:
             raise ValueError(f"{path}: {len(ptr) - 1} sonar sweeps for {n} experiences")
-        em._scans = [pts[ptr[i]:ptr[i + 1]].copy() if ptr[i + 1] > ptr[i] else None for i in range(n)]
+        em._scans = SweepStore([pts[ptr[i]:ptr[i + 1]] if ptr[i + 1] > ptr[i] else None for i in range(n)])
     else:
-        em._scans = [None] * n
+        em._scans = SweepStore([None] * n)
     return em
