@@ -336,8 +336,10 @@ def _perturbation_stats(perturb_log: list[dict[str, float]]) -> dict[str, float]
 
 def transform(src: str | Path, out: str | Path, segments: list[tuple[float, float]] | None = None,
               seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
-              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY, areas: int = 2) -> dict[str, Any]:
-    """Write the transformed recording; returns a summary (per-key counts, segment table).
+              progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY, areas: int = 2,
+              compression: str = "zstd") -> dict[str, Any]:
+    """Write the transformed recording (MCAP chunks in ``compression``: zstd, lz4, none); returns
+    a summary (per-key counts, segment table).
     ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``;
     ``areas`` 2 is the dissertation's nine-segment protocol, 1 keeps area 1 only."""
     src, out = Path(src), Path(out)
@@ -352,7 +354,7 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
     frame_of_stamp, rel = _source_revisits(src, image_key)
 
     part = out.with_name(out.name + ".part")  # renamed on success, removed on failure
-    writer = RecordingWriter(part)
+    writer = RecordingWriter(part, compression=compression)
     ok = False
     seq: dict[str, int] = {}
     last_stamp: dict[str, int] = {}
@@ -455,6 +457,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--areas", type=int, choices=(1, 2), default=2,
                     help="2: the nine-segment protocol (default); 1: entry, three loops of area 1, exit")
     ap.add_argument("--seed", type=int, default=0, help="perturbation seed (default 0)")
+    ap.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                    help="MCAP chunk compression of the output (default zstd)")
     ap.add_argument("--revisit-tolerance", type=int, default=2, help="frames either side counted as the same place")
     ap.add_argument("--image-key", default=DEFAULT_IMAGE_KEY, help="camera key to perturb (default camera/image_raw)")
     ap.add_argument("--illumination", type=float, nargs="?", const=0.25, default=0.0, help="gain change +- G (0.25)")
@@ -476,7 +480,8 @@ def main(argv: list[str] | None = None) -> int:
                         occlusion=args.occlusion, scale=args.scale)
     try:
         summary = transform(args.input, args.out, segs, args.seed, pert, args.revisit_tolerance,
-                            progress=not args.no_progress, image_key=args.image_key, areas=args.areas)
+                            progress=not args.no_progress, image_key=args.image_key, areas=args.areas,
+                            compression=args.compression)
     except (RecordingError, ValueError) as exc:
         print(f"poseidon transform: error: {exc}", file=sys.stderr)
         return 2

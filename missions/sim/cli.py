@@ -50,6 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="output MCAP recording")
     ap.add_argument("--speed", type=float, default=0.3, help="mean vehicle speed, m/s (default 0.3)")
     ap.add_argument("--camera-hz", type=float, default=None, help="camera rate, Hz (default 5)")
+    ap.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                    help="MCAP chunk compression (default zstd: the smallest file; lz4 and none are faster to write "
+                    "and read: on the demo mission 1.24x and 1.41x zstd's size)")
     ap.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     args = ap.parse_args(argv)
@@ -64,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--camera-hz must be > 0, got {args.camera_hz}")
         params.camera.rate_hz = args.camera_hz
     t0 = time.perf_counter()
-    summary = generate(args.out, params, progress=not args.no_progress)
+    summary = generate(args.out, params, progress=not args.no_progress, compression=args.compression)
     wall = time.perf_counter() - t0
     summary["wall_s"] = round(wall, 3)
     summary["frames_per_s"] = round(summary["frames"] / wall, 2) if wall > 0 else None

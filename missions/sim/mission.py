@@ -427,8 +427,9 @@ def _loops_flown(segs: list[dict[str, Any]]) -> dict[str, int]:
 
 
 def generate(out_path: str | Path, params: SimParams, progress: bool = True,
-             world: World | None = None) -> dict[str, Any]:
-    """Write the mission to ``out_path``; returns the summary (see :mod:`missions.sim.cli`)."""
+             world: World | None = None, compression: str = "zstd") -> dict[str, Any]:
+    """Write the mission to ``out_path`` (MCAP chunks in ``compression``: zstd, lz4, none);
+    returns the summary (see :mod:`missions.sim.cli`)."""
     p = params
     duration = p.minutes * 60.0
     world = _mission_world(p, duration, world)
@@ -440,7 +441,7 @@ def generate(out_path: str | Path, params: SimParams, progress: bool = True,
     segs = segments_of(traj, duration)
 
     cam = (_CameraRenderer(world, p.camera), cs, same)
-    writer = RecordingWriter(out_path)
+    writer = RecordingWriter(out_path, compression=compression)
     out = _Out(writer)
     writer.add_metadata("poseidon", _metadata(p, duration, world, segs, slow.dvl_heading_off, slow.gyro_bias))
 

@@ -75,3 +75,16 @@ def test_first_loops_reaches_area1_after_one_loop_of_area2() -> None:
     for bad in (0, 4):
         with pytest.raises(ValueError, match="first_loops"):
             make_trajectory(world, 10.0, 3, 0.3, start="area2", first_loops=bad)
+
+
+def test_compression_changes_the_file_not_the_messages(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+    p = SimParams(seed=2, minutes=0.05, speed_m_s=1.0)
+    generate(tmp_path / "z.mcap", p, progress=False)
+    generate(tmp_path / "n.mcap", p, progress=False, compression="none")
+    with open(tmp_path / "n.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and {c.compression for c in summary.chunk_indexes} == {""}
+    msgs = {n: [(r.key, r.stamp, r.payload) for r in read_messages(tmp_path / n)] for n in ("z.mcap", "n.mcap")}
+    assert len(msgs["z.mcap"]) > 100 and msgs["z.mcap"] == msgs["n.mcap"]
+    assert (tmp_path / "n.mcap").stat().st_size > (tmp_path / "z.mcap").stat().st_size
