@@ -26,7 +26,11 @@ mission); the simulated mission stays cached (~5 GB per mission hour).
 {"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
 "peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second},
 "cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended)},
-"cpu_s_per_sixth": {service: [CPU s used in each sixth of the wall time]}}``.
+"cpu_s_per_sixth": {service: [CPU s used in each sixth of the wall time]},
+"per_mission_part": [{"mission_s": [from, to], "wall_s", "real_time_factor", "cpu_s": {service: CPU s}}]
+(``--parts`` equal parts of the mission time, default 3: the hours of a 3-hour mission; where
+the pipeline was is read from the recorder's checkpoint once a second), "last_vs_first":
+{"wall": last part's wall s / first's, "cpu_s": {service: last part's CPU s / first's}}}``.
 """
 from __future__ import annotations
 
@@ -39,10 +43,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from common.mcap_io import recording_summary
+from common.resume import load_checkpoint
 from launcher.cli import isolate_stdout
 from launcher.config import load_config
-from launcher.run import run_distributed
+from launcher.run import run_distributed, state_dir_of
 from missions.sim.cli import simulate_cached
 
 SIXTHS = 6
@@ -89,11 +96,23 @@ def _rss_mib(pid: int) -> float | None:
     return None
 
 
-class RssSampler:
-    """Samples the RSS of every service process every ``period_s`` while a run goes on."""
+def _recorder_seen_ns(ckpt: Path) -> int | None:
+    """The event time (ns) of the newest input the recorder had at its last checkpoint."""
+    try:
+        state = load_checkpoint(ckpt)
+    except ValueError:
+        return None   # replaced while read beyond its retries: the next sample reads it
+    return None if state is None else int(state["seen"])
 
-    def __init__(self, period_s: float = 1.0):
+
+class RssSampler:
+    """Samples the RSS and CPU of every service process every ``period_s`` while a run goes on,
+    and (``recorder_ckpt``) the mission time the recorder has reached."""
+
+    def __init__(self, period_s: float = 1.0, recorder_ckpt: Path | None = None):
         self.period_s = period_s
+        self.recorder_ckpt = recorder_ckpt
+        self.mission_samples: list[tuple[float, int]] = []   # (wall s from start, event time ns recorded)
         self.samples: list[tuple[float, str, float]] = []   # (wall s from start, service, MiB)
         self.cpu_samples: list[tuple[float, str, float]] = []  # (wall s from start, service, CPU s so far)
         self.cpu_s: dict[str, float] = {}                   # service -> CPU s used at its last sample
@@ -113,6 +132,9 @@ class RssSampler:
                 if cpu is not None:
                     self.cpu_s[name] = cpu
                     self.cpu_samples.append((t, name, cpu))
+            seen = _recorder_seen_ns(self.recorder_ckpt) if self.recorder_ckpt is not None else None
+            if seen is not None:
+                self.mission_samples.append((t, seen))
 
     def __enter__(self) -> RssSampler:
         self._t0 = time.monotonic()
@@ -147,11 +169,37 @@ class RssSampler:
         return out
 
 
+    def per_mission_part(self, parts: int, start_ns: int, mission_s: float, wall_s: float) -> list[dict[str, Any]]:
+        """Per ``parts`` equal parts of the mission time: the wall time the pipeline took for it
+        (from the recorder's progress, interpolated between samples; the last part ends with
+        the run), its real-time factor, and the CPU seconds each service used in it."""
+        ts = np.array([t for t, _ in self.mission_samples] + [wall_s])
+        ms = np.array([(s - start_ns) / 1e9 for _, s in self.mission_samples] + [mission_s])
+        ms = np.maximum.accumulate(ms)
+        bounds = [0.0] + [float(np.interp(mission_s * k / parts, ms, ts)) for k in range(1, parts)] + [wall_s]
+        cpu: dict[str, tuple[list[float], list[float]]] = {}
+        for t, name, c in self.cpu_samples:
+            cpu.setdefault(name, ([0.0], [0.0]))
+            cpu[name][0].append(t)
+            cpu[name][1].append(c)
+        out = []
+        for k in range(parts):
+            w = bounds[k + 1] - bounds[k]
+            out.append({"mission_s": [round(mission_s * k / parts, 1), round(mission_s * (k + 1) / parts, 1)],
+                        "wall_s": round(w, 1), "real_time_factor": round(mission_s / parts / w, 2) if w > 0 else None,
+                        "cpu_s": {n: round(float(np.interp(bounds[k + 1], t_, c_) - np.interp(bounds[k], t_, c_)), 1)
+                                  for n, (t_, c_) in sorted(cpu.items())}})
+        return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--cache-dir", default="/tmp/poseidon-soak")
+    ap.add_argument("--parts", type=int, default=3,
+                    help="split the mission into this many equal parts for the per-part speed and CPU (default 3: "
+                         "hours of a 3-hour mission)")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--keep-outputs", action="store_true",
                     help="keep the two run recordings (about 12 GB for 60 min) in --cache-dir")
@@ -168,8 +216,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args.keep_outputs:  # measured: its disk is free for the pipeline's (~19 GB for 3 hours)
         (cache / "soak_transport.mcap").unlink(missing_ok=True)
     print("full pipeline", file=sys.stderr)
-    with RssSampler() as sampler:
-        res = run_distributed(cfg, mission, cache / "soak_run.mcap", progress=True)
+    run_out = cache / "soak_run.mcap"
+    with RssSampler(recorder_ckpt=state_dir_of(cfg, run_out) / "recorder.ckpt") as sampler:
+        res = run_distributed(cfg, mission, run_out, progress=True)
     if not args.keep_outputs:  # measured; the mission itself stays cached
         (cache / "soak_run.mcap").unlink(missing_ok=True)
     counts = res.recording["counts"]
@@ -194,6 +243,12 @@ def main(argv: list[str] | None = None) -> int:
         "cpu_s": {n: round(v, 1) for n, v in sorted(sampler.cpu_s.items())},
         "cpu_s_per_sixth": sampler.cpu_per_sixth(res.wall_s),
     }
+    parts = sampler.per_mission_part(args.parts, int(inp["start_ns"]), mission_s, res.wall_s)
+    out["per_mission_part"] = parts
+    first, last = parts[0], parts[-1]
+    out["last_vs_first"] = {"wall": round(last["wall_s"] / first["wall_s"], 2) if first["wall_s"] > 0 else None,
+                            "cpu_s": {n: round(v / first["cpu_s"][n], 2) if first["cpu_s"].get(n) else None
+                                      for n, v in last["cpu_s"].items()}}
     if args.json:
         print(json.dumps(out, indent=1))
         return 0
@@ -207,6 +262,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"CPU seconds per service (sum {total:.0f} s over {p['wall_s']} s wall on {os.cpu_count()} cores): " +
           ", ".join(f"{n} {v:.0f} s ({100 * v / max(total, 1e-9):.0f} %)" for n, v in
                     sorted(out["cpu_s"].items(), key=lambda kv: -kv[1])))
+    print(f"per {args.parts}th of the mission: wall s (real-time factor) and CPU s per service; "
+          f"last / first: wall {out['last_vs_first']['wall']}x")
+    for part in parts:
+        print(f"  {part['mission_s'][0]:>7.0f}-{part['mission_s'][1]:<7.0f} s: {part['wall_s']:7.1f} s "
+              f"({part['real_time_factor']}x)  " + ", ".join(f"{n} {v:.1f}" for n, v in part["cpu_s"].items()))
+    print("  last / first CPU: " + ", ".join(f"{n} {v}x" for n, v in out["last_vs_first"]["cpu_s"].items()))
     print("CPU seconds per sixth of the run (the first includes start-up):")
     for name, row in sorted(out["cpu_s_per_sixth"].items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row))

@@ -41,3 +41,22 @@ def test_service_children_are_found_and_sampled():
         child.kill()
         child.wait()
     assert bench_soak._rss_mib(child.pid) is None and bench_soak._cpu_s(child.pid) is None
+
+
+def test_per_mission_part_follows_the_recorders_progress(tmp_path):
+    from common.resume import save_checkpoint
+    ckpt = tmp_path / "recorder.ckpt"
+    save_checkpoint(ckpt, {"service": "recorder", "seen": 5_000_000_000})
+    assert bench_soak._recorder_seen_ns(ckpt) == 5_000_000_000
+    assert bench_soak._recorder_seen_ns(tmp_path / "none.ckpt") is None
+    s = bench_soak.RssSampler()
+    start = 1_000_000_000_000
+    # mission 0-300 s: the first 100 s of mission took 10 s of wall, the last 100 s took 30 s
+    s.mission_samples = [(5.0, start + 50_000_000_000), (10.0, start + 100_000_000_000),
+                         (20.0, start + 200_000_000_000), (35.0, start + 250_000_000_000)]
+    s.cpu_samples = [(10.0, "htm", 4.0), (20.0, "htm", 9.0), (50.0, "htm", 30.0)]
+    parts = s.per_mission_part(3, start, 300.0, wall_s=50.0)
+    assert [p["wall_s"] for p in parts] == [10.0, 10.0, 30.0]
+    assert [p["real_time_factor"] for p in parts] == [10.0, 10.0, 3.33]
+    assert [p["cpu_s"]["htm"] for p in parts] == [4.0, 5.0, 21.0]
+    assert parts[2]["mission_s"] == [200.0, 300.0]
