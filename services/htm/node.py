@@ -12,7 +12,8 @@ subscribes to ``Odometry``, first in priority, so a frame is checked against the
 dead-reckoned position at or before its stamp (the posecells rule); a frame before any
 ``Odometry`` is not checked (``frames_without_odometry``), a non-finite position is logged,
 counted (``odometry_non_finite``) and skipped, and ``dr_gate_rejections`` counts the claims
-the gate turned down.
+the gate turned down.  ``tm_segments_evicted`` counts the segments the temporal memory's
+budget (``htm.tm_maxSegments``) evicted.
 """
 from __future__ import annotations
 
@@ -99,7 +100,10 @@ class HtmNode(ServiceNode[HtmConfig]):
         if self.htm.dr_gate is not None and self.position is None:
             self.count("frames_without_odometry")
         rejected, kept_out = self.htm.dr_rejections, self.htm.frames_not_stored
+        evicted = self.htm.tm.evicted if self.htm.tm is not None else 0
         res = self.htm.step(fused.active, modalities=modalities, position=self.position)
+        if self.htm.tm is not None and self.htm.tm.evicted > evicted:
+            self.count("tm_segments_evicted", self.htm.tm.evicted - evicted)
         if self.htm.frames_not_stored > kept_out:
             self.count("frames_not_stored")
         if self.htm.dr_rejections > rejected:
