@@ -37,9 +37,9 @@ class HtmConfig(ConfigSection):
     tm_predictedSegmentDecrement: float = Field(0.0, ge=0)
     tm_maxSegmentsPerCell: int = Field(255, ge=1)
     tm_maxSynapsesPerSegment: int = Field(255, ge=1)
-    tm_maxSegments: int = Field(0, ge=0, description="segment budget of the whole TM (ours, issue 21; 0: none, the "
-                                "dissertation's per-cell cap only): a new segment beyond it evicts an approximately "
-                                "least recently used one, so a step's cost stays flat over hours (services/htm/"
+    tm_maxSynapses: int = Field(0, ge=0, description="synapse budget of the whole TM (ours, issue 21; 0: none, the "
+                                "dissertation's per-cell and per-segment caps only): beyond it the least recently used "
+                                "segments are evicted, so a step's cost stays flat over hours (services/htm/"
                                 "temporal_memory.py)")
     learning: bool = True
     seed: int = 42

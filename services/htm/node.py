@@ -13,7 +13,7 @@ dead-reckoned position at or before its stamp (the posecells rule); a frame befo
 ``Odometry`` is not checked (``frames_without_odometry``), a non-finite position is logged,
 counted (``odometry_non_finite``) and skipped, and ``dr_gate_rejections`` counts the claims
 the gate turned down.  ``tm_segments_evicted`` counts the segments the temporal memory's
-budget (``htm.tm_maxSegments``) evicted.
+synapse budget (``htm.tm_maxSynapses``) evicted.
 """
 from __future__ import annotations
 

@@ -134,7 +134,7 @@ class NeocortexHtm:
             cfg.sp_columns, cfg.tm_cellsPerColumn, cfg.tm_activationThreshold, cfg.tm_minThreshold,
             cfg.tm_initialPermanence, cfg.tm_connectedPermanence, cfg.tm_permanenceIncrement,
             cfg.tm_permanenceDecrement, cfg.tm_predictedSegmentDecrement, cfg.tm_maxNewSynapseCount,
-            cfg.tm_maxSegmentsPerCell, cfg.tm_maxSynapsesPerSegment, cfg.seed + 1, cfg.tm_maxSegments) if run_tm else None
+            cfg.tm_maxSegmentsPerCell, cfg.tm_maxSynapsesPerSegment, cfg.seed + 1, cfg.tm_maxSynapses) if run_tm else None
         self.tm_columns = cfg.sv_tm_bits == "columns"
         n_tm_bits = cfg.sp_columns if self.tm_columns else cfg.sp_columns * cfg.tm_cellsPerColumn
         n_bits = {"tm": n_tm_bits, "sp": cfg.sp_columns, "sdr": cfg.input_size}[self.mode]

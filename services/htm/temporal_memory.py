@@ -11,15 +11,19 @@ Per step, with the active columns of the Spatial Pooler:
    cell of the best *matching* segment (most active potential synapses, ties to the lowest
    cell/segment) which learns as above, or else the least-used cell (fewest segments,
    random tie) on which a new segment grows ``min(maxNewSynapseCount, |prevWinners|)``
-   synapses with ``initialPermanence``; with a segment budget (``max_segments`` > 0, ours: the dissertation's TM has only the
-   per-cell cap) a new segment that would exceed it first evicts an approximately least
-   recently used segment of any cell (the oldest last-learnt of 32 random live segments,
-   O(1)), so the memory's size and the cost of a step stay bounded on a mission of any length;
+   synapses with ``initialPermanence``;
 3. matching segments in inactive columns are punished by ``predictedSegmentDecrement``;
 4. segment activity for the next step: a segment is *active* with
    ``>= activationThreshold`` connected (``>= connectedPermanence``) synapses from the
    active cells, *matching* with ``>= minThreshold`` potential synapses. Cells with an
    active segment are the predictive cells.
+
+With a synapse budget (``max_synapses`` > 0; ours, issue 21: the dissertation's TM has only
+the per-cell and per-segment caps), a learning step that leaves more synapses than the budget
+destroys approximately least recently used segments of any cell until it holds no more (the
+oldest last-learnt of 32 segments drawn at random, O(1) each; never one the step may still
+touch), before step 4.  Step 4 walks the presynaptic lists of the active cells, whose length
+grows with the synapses the memory holds, so the budget keeps a step's cost flat over hours.
 
 Anomaly = fraction of active columns that had no predictive cell.
 
@@ -45,6 +49,7 @@ from services.htm.tm_kernels import _tm_step
 from services.htm.tm_storage import (
     M_BLK_TOP,
     M_EVICTED,
+    M_NSYN,
     M_LEN,
     M_NACT,
     M_NMATCH,
@@ -80,7 +85,7 @@ class TemporalMemory:
                  min_threshold: int, initial_permanence: float, connected_permanence: float,
                  permanence_increment: float, permanence_decrement: float,
                  predicted_segment_decrement: float, max_new_synapse_count: int,
-                 max_segments_per_cell: int, max_synapses_per_segment: int, seed: int, max_segments: int = 0):
+                 max_segments_per_cell: int, max_synapses_per_segment: int, seed: int, max_synapses: int = 0):
         self.columns = int(columns)
         self.cpc = int(cells_per_column)
         self.num_cells = self.columns * self.cpc
@@ -94,9 +99,9 @@ class TemporalMemory:
         self.max_new = int(max_new_synapse_count)
         self.max_seg_per_cell = int(max_segments_per_cell)
         self.max_syn = int(max_synapses_per_segment)
-        self.max_segments = int(max_segments)
-        if self.max_segments < 0:
-            raise ValueError(f"TM max_segments must be >= 0 (0: no budget), got {max_segments}")
+        self.max_synapses = int(max_synapses)
+        if self.max_synapses < 0:
+            raise ValueError(f"TM max_synapses must be >= 0 (0: no budget), got {max_synapses}")
         self.max_blocks = (self.max_syn + SBLK - 1) // SBLK
         n = self.num_cells
         g0, b0, p0 = 1024, 2048, 4096
@@ -175,7 +180,7 @@ class TemporalMemory:
             raise ValueError(f"TM active columns must be sorted, unique and in [0, {self.columns})")
         self._ensure_capacity(cols.size)
         par = (self.cpc, self.act_thr, self.min_thr, self.perm0, self.connected, self.inc, self.dec,
-               self.pred_dec, self.max_new, self.max_seg_per_cell, self.max_syn, self.max_segments)
+               self.pred_dec, self.max_new, self.max_seg_per_cell, self.max_syn, self.max_synapses)
         seg = (self.seg_cell, self.seg_nsyn, self.seg_nslots, self.seg_last, self.seg_blk, self.seg_free,
                self.seg_stamp, self.seg_nconn, self.seg_npot, self.cell_nseg)
         syn = (self.blk_seg, self.blk_free, self.syn_pre, self.syn_perm)
@@ -200,12 +205,12 @@ class TemporalMemory:
 
     @property
     def evicted(self) -> int:
-        """Segments the segment budget (``max_segments``) has evicted so far."""
+        """Segments the synapse budget (``max_synapses``) has evicted so far."""
         return int(self.meta[M_EVICTED])
 
     @property
     def num_synapses(self) -> int:
-        return int(self.pl_count.sum())
+        return int(self.meta[M_NSYN])
 
     def reset(self) -> None:
         """Forget the sequence context (no previous active/winner cells, no predictions)."""
@@ -220,8 +225,9 @@ class TemporalMemory:
             raise ValueError("TM state does not match the configuration (cells or maxSynapsesPerSegment)")
         for name in self._STATE:
             setattr(self, name, np.array(st[name], dtype=getattr(self, name).dtype))
-        if self.meta.size < M_LEN:   # saved before the segment budget's counter existed
+        if self.meta.size < M_LEN:   # saved before the synapse budget's counters existed
             self.meta = np.concatenate([self.meta, np.zeros(M_LEN - self.meta.size, np.int64)])
+            self.meta[M_NSYN] = self.pl_count.sum()
         self._out_pred[: int(self.meta[M_NPRED])] = 0
         self._recompute_predictive()
 

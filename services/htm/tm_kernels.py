@@ -14,6 +14,7 @@ from services.htm.tm_storage import (
     I64,
     M_EVICTED,
     M_ITER,
+    M_NSYN,
     M_NACT,
     M_NMATCH,
     M_NPRED,
@@ -42,7 +43,7 @@ from services.htm.tm_storage import (
 #   syn   = (blk_seg, blk_free, syn_pre, syn_perm)        -- synapse blocks and slots
 #   pl    = (pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free)   -- presynaptic index
 #   par   = (cpc, act_thr, min_thr, perm0, connected, inc, dec, pred_dec, max_new,
-#            max_seg_per_cell, max_syn, max_segments)     -- the configuration (max_segments 0: no budget)
+#            max_seg_per_cell, max_syn, max_synapses)     -- the configuration (max_synapses 0: no budget)
 #   prev  = (prev_active, prev_winner, prev_flag, mark)   -- the previous step's cells
 @njit(cache=True)
 def _destroy(g: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, meta: I64) -> None:
@@ -129,11 +130,11 @@ def _least_used_cell(lo: int, hi: int, cell_nseg: I32, rs: RngState) -> int:
 
 @njit(cache=True)
 def _sampled_lru_segment(it: int, seg: SegArrays, meta: I64, rs: RngState) -> int:
-    """An approximately least recently used segment for the segment budget: the oldest
-    ``seg_last`` among ``EVICT_SAMPLES`` live segments drawn at random (O(1), the sampled LRU
-    of cache eviction), never one the current step may still touch -- learnt or grown in this
-    step, or reached by the previous step's active cells (its ``seg_stamp``: the active and
-    matching lists this step walks).  -1 when the draws found none."""
+    """An approximately least recently used segment: the oldest ``seg_last`` among
+    ``EVICT_SAMPLES`` segments drawn at random (O(1), the sampled LRU of cache eviction), never
+    one the step may still touch -- learnt or grown in it, or reached by the active cells of
+    this or the previous step (its ``seg_stamp``: the active and matching lists).  -1 when the
+    draws found none."""
     seg_cell, seg_last, seg_stamp = seg[0], seg[3], seg[6]
     top = meta[M_SEG_TOP]
     best = np.int64(-1)
@@ -147,12 +148,26 @@ def _sampled_lru_segment(it: int, seg: SegArrays, meta: I64, rs: RngState) -> in
 
 
 @njit(cache=True)
+def _enforce_synapse_budget(it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, meta: I64, rs: RngState,
+                            budget: int) -> None:
+    """While the memory holds more than ``budget`` synapses, destroy an approximately least
+    recently used segment (:func:`_sampled_lru_segment`); stops early when the draws find none
+    that may go (the next step tries again)."""
+    if budget <= 0:
+        return
+    while meta[M_NSYN] > budget and meta[M_SEG_TOP] - meta[M_SEG_FREE] > 0:
+        victim = _sampled_lru_segment(it, seg, meta, rs)
+        if victim < 0:
+            return
+        _destroy(victim, seg, syn, pl, meta)
+        meta[M_EVICTED] += 1
+
+
+@njit(cache=True)
 def _grow_new_segment(winner: int, it: int, seg: SegArrays, syn: SynArrays, pl: PlArrays, par: Params,
                       prev: PrevArrays, n_prev_winner: int, rs: RngState, meta: I64) -> None:
-    """A new segment on ``winner`` (evicting its least recently used one when the cell is full,
-    and an approximately least recently used one of any cell when the memory holds
-    ``maxSegments``, :func:`_sampled_lru_segment`) with up to ``maxNewSynapseCount`` synapses
-    to the previous winners."""
+    """A new segment on ``winner`` (evicting its least recently used one when the cell is full)
+    with up to ``maxNewSynapseCount`` synapses to the previous winners."""
     seg_cell, seg_last, cell_nseg = seg[0], seg[3], seg[9]
     if cell_nseg[winner] >= par[9]:
         lru = -1
@@ -160,11 +175,6 @@ def _grow_new_segment(winner: int, it: int, seg: SegArrays, syn: SynArrays, pl: 
             if seg_cell[g] == winner and (lru == -1 or seg_last[g] < seg_last[lru]):
                 lru = g
         _destroy(lru, seg, syn, pl, meta)
-    elif par[11] > 0 and meta[M_SEG_TOP] - meta[M_SEG_FREE] >= par[11]:
-        victim = _sampled_lru_segment(it, seg, meta, rs)
-        if victim >= 0:
-            _destroy(victim, seg, syn, pl, meta)
-            meta[M_EVICTED] += 1
     if meta[M_SEG_FREE] > 0:
         meta[M_SEG_FREE] -= 1
         g = seg[5][meta[M_SEG_FREE]]
@@ -324,6 +334,8 @@ def _tm_step(active_cols: I32, learn: bool, par: Params, seg: SegArrays, syn: Sy
         im = m_end
     for i in range(n_prev_active):
         prev_flag[prev_active[i]] = False
+    if learn:
+        _enforce_synapse_budget(it, seg, syn, pl, meta, rs, par[11])
     _compute_activity(out_active, n_act, it, seg, syn, pl, par, touched, act_list, match_list,
                       out_pred, meta)
     prev_active[:n_act] = out_active[:n_act]

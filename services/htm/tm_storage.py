@@ -17,9 +17,10 @@ PBLK = 16   # entries per presynaptic-index block
 # indices into the int64 ``meta`` array
 M_SEG_TOP, M_SEG_FREE, M_BLK_TOP, M_BLK_FREE, M_PB_TOP, M_PB_FREE = 0, 1, 2, 3, 4, 5
 M_ITER, M_NACT, M_NMATCH, M_NPREV_ACTIVE, M_NPREV_WINNER, M_NPRED = 6, 7, 8, 9, 10, 11
-M_EVICTED = 12   # segments the segment budget evicted
-M_LEN = 13
-EVICT_SAMPLES = 32   # live segments drawn per eviction of the segment budget
+M_EVICTED = 12   # segments the synapse budget evicted
+M_NSYN = 13      # live synapses
+M_LEN = 14
+EVICT_SAMPLES = 32   # segments drawn per eviction of the synapse budget
 
 # array types of the kernels (numba compiles from the values; these are for the type checker)
 I32: TypeAlias = NDArray[np.int32]
@@ -116,6 +117,7 @@ def _destroy_synapse(g: int, slot: int, seg_nsyn: I32, syn_pre: I32, pl_head: I3
     _pl_remove(p, slot, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta)
     syn_pre[slot] = -1
     seg_nsyn[g] -= 1
+    meta[M_NSYN] -= 1
 
 
 @njit(cache=True)
@@ -152,6 +154,7 @@ def _add_synapse(g: int, pre: int, perm0: float, seg_nsyn: I32, seg_nslots: I32,
     syn_pre[slot] = pre
     syn_perm[slot] = perm0
     seg_nsyn[g] += 1
+    meta[M_NSYN] += 1
     _pl_append(pre, slot, pl_head, pl_tail, pl_count, pb_ref, pb_next, pb_free, meta)
 
 

@@ -261,14 +261,14 @@ def test_new_places_state_round_trips(tmp_path):
 
 
 def test_node_counts_the_segments_the_tm_budget_evicted():
-    """htm.tm_maxSegments reaches the TM of the default chain; the node counts its evictions."""
+    """htm.tm_maxSynapses reaches the TM of the default chain; the node counts its evictions."""
     rng = np.random.default_rng(9)
     frames = [np.sort(rng.choice(L, 600, replace=False)).astype(np.uint32) for _ in range(120)]   # all new places
-    node = build_node("htm", PoseidonConfig(htm=HtmConfig(tm_maxSegments=300)))
+    node = build_node("htm", PoseidonConfig(htm=HtmConfig(tm_maxSynapses=3000)))
     run_offline(node, _messages(frames))
     tm = node.htm.tm
-    assert tm.max_segments == 300 and tm.num_segments <= 300
+    assert tm.max_synapses == 3000 and tm.num_synapses <= 3000
     assert node.counters["tm_segments_evicted"] == tm.evicted > 0
     free = build_node("htm", PoseidonConfig())
     run_offline(free, _messages(frames))
-    assert free.htm.tm.num_segments > 300 and "tm_segments_evicted" not in free.counters
+    assert free.htm.tm.num_synapses > 3000 and "tm_segments_evicted" not in free.counters

@@ -3,9 +3,9 @@ import numpy as np
 from services.htm.temporal_memory import TemporalMemory
 
 
-def make_tm(seed=42, pred_dec=0.0, cpc=40, max_syn=255, max_seg=255, max_segment_budget=0):
+def make_tm(seed=42, pred_dec=0.0, cpc=40, max_syn=255, max_seg=255, max_synapse_budget=0):
     return TemporalMemory(2048, cpc, 5, 3, 0.55, 0.5, 0.008, 0.012, pred_dec, 20, max_seg, max_syn, seed,
-                          max_segment_budget)
+                          max_synapse_budget)
 
 
 def patterns(rng, n, w=20):
@@ -157,30 +157,35 @@ def _sequence_among_novelty(tm, rounds, seed=7):
     return anomalies[1:]
 
 
-def test_segment_budget_bounds_the_memory_and_keeps_what_is_in_use():
+def _consistent(tm):
+    top = int(tm.meta[0])
+    live = tm.seg_cell[:top] >= 0
+    return tm.num_synapses == int(tm.seg_nsyn[:top][live].sum()) == int((tm.syn_pre >= 0).sum()) == int(tm.pl_count.sum())
+
+
+def test_synapse_budget_bounds_the_memory_and_keeps_what_is_in_use():
     free = make_tm(cpc=8)
     _sequence_among_novelty(free, 40)
-    budget = 1200
-    assert free.num_segments > 2 * budget      # without a budget novelty keeps adding segments
-    tm = make_tm(cpc=8, max_segment_budget=budget)
+    budget = 20_000
+    assert free.num_synapses > 2 * budget      # without a budget novelty keeps adding synapses
+    assert _consistent(free)
+    tm = make_tm(cpc=8, max_synapse_budget=budget)
     anomalies = _sequence_among_novelty(tm, 40)
-    assert tm.num_segments <= budget and tm.evicted > 0
+    assert tm.num_synapses <= budget and tm.evicted > 0 and _consistent(tm)
     # the evicted segments were the stale ones: the sequence flown every pass is still predicted
     assert all(a == 0.0 for a in anomalies)
-    live = tm.seg_cell[: int(tm.meta[0])] >= 0
-    assert tm.num_synapses == int(tm.seg_nsyn[: int(tm.meta[0])][live].sum()) == int((tm.syn_pre >= 0).sum())
 
 
-def test_segment_budget_not_reached_changes_nothing_and_state_continues():
-    free, roomy = make_tm(cpc=8), make_tm(cpc=8, max_segment_budget=100_000)
+def test_synapse_budget_not_reached_changes_nothing_and_state_continues():
+    free, roomy = make_tm(cpc=8), make_tm(cpc=8, max_synapse_budget=10_000_000)
     _sequence_among_novelty(free, 6)
     _sequence_among_novelty(roomy, 6)
     assert roomy.evicted == 0
     assert all(np.array_equal(free.state()[k], roomy.state()[k]) for k in free.state())
     # a memory at its budget, saved and reloaded, continues exactly (the sampler's draws are state)
-    a = make_tm(cpc=8, max_segment_budget=600)
+    a = make_tm(cpc=8, max_synapse_budget=10_000)
     _sequence_among_novelty(a, 12)
-    b = make_tm(cpc=8, max_segment_budget=600)
+    b = make_tm(cpc=8, max_synapse_budget=10_000)
     b.set_state({k: v.copy() for k, v in a.state().items()})
     _sequence_among_novelty(a, 4, seed=8)
     _sequence_among_novelty(b, 4, seed=8)
@@ -188,11 +193,11 @@ def test_segment_budget_not_reached_changes_nothing_and_state_continues():
     assert all(np.array_equal(a.state()[k], b.state()[k]) for k in a.state())
 
 
-def test_state_saved_before_the_budget_counter_loads():
+def test_state_saved_before_the_budget_counters_loads():
     tm = make_tm(cpc=8)
     _sequence_among_novelty(tm, 2)
     old = {k: v.copy() for k, v in tm.state().items()}
-    old["meta"] = old["meta"][:12]              # the meta array before the eviction counter
+    old["meta"] = old["meta"][:12]              # the meta array before the budget's counters
     again = make_tm(cpc=8)
     again.set_state(old)
-    assert again.evicted == 0 and again.num_segments == tm.num_segments
+    assert again.evicted == 0 and again.num_synapses == tm.num_synapses and again.num_segments == tm.num_segments
