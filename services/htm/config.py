@@ -90,6 +90,10 @@ class HtmConfig(ConfigSection):
         "new_places -- not a frame whose id is a revisit of a place created before the current traversal's last "
         "sv_seqmem_exclude frames (the memory then grows with the places seen, not with the time spent; "
         "services/htm/pipeline.py)")
+    sv_seqmem_every_frame_limit: int = Field(0, ge=0, description="every_frame keeps every frame until the memory "
+                                             "holds this many, then new places only (the new_places rule), so a "
+                                             "mission of hours costs per frame what its first ones did (0: no limit; "
+                                             "ours, issue 21)")
     sv_tm_decide: bool = Field(True, description="run the SP and a TM over its columns beside the descriptor and "
                                "let its predictions decide a revisit (services/htm/tm_match.py)")
     sp_overlap_norm_steps: int = Field(1000, ge=0, description="> 0: global inhibition ranks each column's overlap "

@@ -35,9 +35,9 @@ diagonal ends, when its score S* >= ``sv_seqmem_threshold`` and S* minus the bes
 ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frames each look
 different -- Nordland winter vs summer -- is recognised by their order); else the
 place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
-report it.  ``sv_seqmem_store`` ``new_places`` keeps a revisit of a place older than the last
-``sv_seqmem_exclude`` frames out of the memory and the TM frame index (``frames_not_stored``):
-they grow with the places seen, not the time spent (issue 21).
+report it.  ``sv_seqmem_store`` ``new_places`` (or ``every_frame`` once the memory holds
+``sv_seqmem_every_frame_limit`` frames) keeps a revisit of a place older than the last ``sv_seqmem_exclude``
+frames out of the memory and the TM frame index (``frames_not_stored``): they grow with the places seen (issue 21).
 TM decision (``sv_tm_decide``, ours, issue 17; :mod:`services.htm.tm_match`): with
 ``sv_descriptor_source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm_input_columns`` most
 strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
@@ -150,8 +150,7 @@ class NeocortexHtm:
                                       cfg.sv_seqmem_column_norm) if cfg.sv_seqmem_length > 0 else None
         self.tm_index = TmFrameIndex(cfg.sp_columns * cfg.tm_cellsPerColumn) if self.tm_decides else None
         self.dr_gate = DeadReckoningGate(cfg.sv_dr_gate_min_m, cfg.sv_dr_gate_drift, cfg.sv_dr_gate_jump_m,
-                                         cfg.sv_dr_gate_min_path_m) \
-            if cfg.sv_dr_gate and self.seqmem is not None else None
+                                         cfg.sv_dr_gate_min_path_m) if cfg.sv_dr_gate and self.seqmem is not None else None
         self.dr_rejections = 0               # claims the dead-reckoning gate turned down (gate / TM / prior)
         self.frames_not_stored = 0           # revisit frames sv_seqmem_store new_places kept out of the memory
         self.id_last_frame: dict[int, int] = {}   # LVC id -> its latest frame in the sequence memory
@@ -276,7 +275,8 @@ class NeocortexHtm:
                 mm.store(res.lvc_id, modalities)
             if self.last_id >= 0 and res.lvc_id != self.last_id:
                 self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
-            keep = self.cfg.sv_seqmem_store == "every_frame" or res.is_new or self._recent(res.lvc_id)
+            lim, held = self.cfg.sv_seqmem_every_frame_limit, len(self.frame_ids if self.seqmem is None else self.seqmem)
+            keep = (self.cfg.sv_seqmem_store == "every_frame" and not 0 < lim <= held) or res.is_new or self._recent(res.lvc_id)
             self.frames_not_stored += not keep
             if self.seqmem is not None and keep:
                 if res.is_new:

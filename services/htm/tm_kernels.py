@@ -14,12 +14,12 @@ from services.htm.tm_storage import (
     I64,
     M_EVICTED,
     M_ITER,
-    M_NSYN,
     M_NACT,
     M_NMATCH,
     M_NPRED,
     M_NPREV_ACTIVE,
     M_NPREV_WINNER,
+    M_NSYN,
     M_SEG_FREE,
     M_SEG_TOP,
     PBLK,
@@ -144,7 +144,7 @@ def _sampled_lru_segment(it: int, seg: SegArrays, meta: I64, rs: RngState) -> in
             continue
         if best == -1 or seg_last[g] < seg_last[best]:
             best = g
-    return best
+    return int(best)
 
 
 @njit(cache=True)

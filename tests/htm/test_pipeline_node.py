@@ -244,6 +244,15 @@ def test_new_places_memory_grows_with_the_places_not_with_the_laps():
     same = np.mean(np.array(ids_kept[lap:]) == np.array(ids_full[lap:]))
     assert same >= 0.95, same
     assert len(set(ids_kept[lap:]) - set(ids_kept[:lap])) <= 0.05 * len(set(ids_kept[:lap]))   # revisits, not new ids
+    # every_frame up to a limit: every frame until the memory holds it, then the new_places rule
+    limit = lap + lap // 2
+    capped = NeocortexHtm(HtmConfig(sv_seqmem_every_frame_limit=limit))
+    ids_capped = [capped.step(f).lvc_id for f in frames]
+    assert ids_capped[:limit] == ids_full[:limit]            # below the limit: every_frame exactly
+    assert limit <= capped.seqmem.size == capped.tm_index.size < limit + 0.15 * (len(frames) - limit)
+    assert capped.frames_not_stored == len(frames) - capped.seqmem.size
+    roomy = NeocortexHtm(HtmConfig(sv_seqmem_every_frame_limit=len(frames)))
+    assert [roomy.step(f).lvc_id for f in frames] == ids_full and roomy.frames_not_stored == 0
 
 
 def test_new_places_state_round_trips(tmp_path):
