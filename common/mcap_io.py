@@ -55,7 +55,7 @@ from common.messages import Message, message_type
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
     "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "code_revision",
-    "recording_status", "recover_recording", "read_file_order",
+    "recording_status", "recover_recording", "read_file_order", "iter_file_order",
 ]
 
 log = logging.getLogger(__name__)
@@ -262,10 +262,17 @@ def _has_summary(path: Path) -> bool:
 
 def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[RecordedMessage], list[Metadata]]:
     """Read every complete record; stop at the first unreadable one."""
+    metadata: list[Metadata] = []
+    return list(_iter_sequential(path, keys, strict, metadata)), metadata
+
+
+def _iter_sequential(path: Path, keys: set[str] | None, strict: bool,
+                     metadata: list[Metadata]) -> Iterator[RecordedMessage]:
+    """The messages of every complete record in file order, one at a time (the metadata
+    records are appended to ``metadata``); stop at the first unreadable one."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    out: list[RecordedMessage] = []
-    metadata: list[Metadata] = []
+    n = 0
     with _open(path) as raw:
         reader = StreamReader(raw, validate_crcs=True)
         good_offset = 0
@@ -279,8 +286,9 @@ def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[R
                 elif isinstance(record, McapMessage):
                     ch = channels[record.channel_id]
                     if keys is None or ch.topic in keys:
-                        out.append(RecordedMessage(ch.topic, schemas[ch.schema_id].name, record.log_time,
-                                                   record.sequence, bytes(record.data)))
+                        n += 1
+                        yield RecordedMessage(ch.topic, schemas[ch.schema_id].name, record.log_time, record.sequence,
+                                              bytes(record.data))
                 elif isinstance(record, Metadata):
                     metadata.append(record)
                 # bytes consumed by the reader: the end of the last complete top-level record
@@ -292,11 +300,10 @@ def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[R
                 raise RecordingError(f"{path}: not an MCAP recording ({path.stat().st_size} bytes, unreadable from "
                                      f"byte 0: {reason})") from None
             msg = (f"{path}: unreadable from about byte {good_offset} of {path.stat().st_size} "
-                   f"({type(exc).__name__}: {exc}); {len(out)} messages before that point are intact")
+                   f"({type(exc).__name__}: {exc}); {n} messages before that point are intact")
             if strict:
                 raise RecordingError(msg) from None
             log.warning("%s", msg)
-    return out, metadata
 
 
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
@@ -477,6 +484,12 @@ def read_file_order(path: str | Path) -> tuple[list[RecordedMessage], dict[str, 
     records; a damaged end is skipped (logged)."""
     messages, metadata = _sequential(Path(path), None, strict=False)
     return messages, {m.name: dict(m.metadata) for m in metadata}
+
+
+def iter_file_order(path: str | Path) -> Iterator[RecordedMessage]:
+    """The intact messages of a recording in file order, one at a time (a restarted recorder
+    copies a recording of hours without holding it in memory); a damaged end is skipped (logged)."""
+    return _iter_sequential(Path(path), None, False, [])
 
 
 def recover_recording(src: str | Path, dst: str | Path, compression: str = "zstd") -> int:

@@ -22,10 +22,12 @@ subscribed.
 - ``dead_reckoning``: one PoseStamped (position, yaw from the quaternion) per ``Odometry``
   message, or at most one per ``dead_reckoning_period_sec`` of event time; header stamp =
   the odometry stamp.
-- ``map``: the whole graph (nodes, odometry and loop links), published after every loop
-  closure, when a correction has settled, every ``map_publish_every`` events (or every
-  nodes/10 events once the map is larger, so the periodic maps add up to ~10x the final
-  map, not a quadratic recording) and always at the end.  At
+- ``map``: the whole graph (nodes, odometry and loop links), published after a loop closure
+  or when a correction has settled (once nodes/``map_correction_divisor`` events have passed
+  since the last map: a map costs O(nodes) to build, send and record, and closures come at a
+  steady rate, so without the wait the maps of a mission's third hour cost 2-3x its first's),
+  every ``map_publish_every`` events (or every nodes/10 events once the map is larger, so the
+  periodic maps add up to ~10x the final map, not a quadratic recording) and always at the end.  At
   the end a pending correction is completed first (each iteration still capped), so the
   final map is the clamped least-squares map.
 - ``map_path``: the map is loaded at start when the file exists and saved at the end (after
@@ -165,6 +167,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self._promised = 0
         self._last_dr_stamp: int | None = None
         self._since_map = 0
+        self._map_owed = False     # a loop closure or a settled correction not in a published map yet
         self._dirty = False
         self.scan_key = cfg.scan_topic if (cfg.loop_scan_matching or self.scan_graph) else None
         sg = cfg.scan_graph
@@ -246,7 +249,10 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         every = self.cfg.map_publish_every
         if every:
             every = max(every, self.graph.n_nodes // 10)
-        if res.loop_closed or res.settled or (every and self._since_map >= every):
+        self._map_owed |= res.loop_closed or res.settled
+        div = self.cfg.map_correction_divisor
+        gap = self.graph.n_nodes // div if div else 0
+        if (self._map_owed and self._since_map >= gap) or (every and self._since_map >= every):
             self._publish_map(ev.header.stamp)
         if self.cfg.publish_experience_image:
             self._publish_images(self.images.on_event(ev.header))
@@ -321,6 +327,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
     # ---- outputs ------------------------------------------------------------------------
     def _publish_map(self, stamp: int) -> None:
         self._since_map = 0
+        self._map_owed = False
         self.count("maps_published")
         self.publish("map", map_message(self.graph, self.header("map", stamp)))
         g = self.graph

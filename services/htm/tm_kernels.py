@@ -132,9 +132,8 @@ def _least_used_cell(lo: int, hi: int, cell_nseg: I32, rs: RngState) -> int:
 def _sampled_lru_segment(it: int, seg: SegArrays, meta: I64, rs: RngState) -> int:
     """An approximately least recently used segment: the oldest ``seg_last`` among
     ``EVICT_SAMPLES`` segments drawn at random (O(1), the sampled LRU of cache eviction), never
-    one the step may still touch -- learnt or grown in it, or reached by the active cells of
-    this or the previous step (its ``seg_stamp``: the active and matching lists).  -1 when the
-    draws found none."""
+    one the step uses -- learnt or grown in it, or reached by the previous step's active cells
+    (``seg_stamp``: the active and matching lists of this step).  -1 when the draws found none."""
     seg_cell, seg_last, seg_stamp = seg[0], seg[3], seg[6]
     top = meta[M_SEG_TOP]
     best = np.int64(-1)

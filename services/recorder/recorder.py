@@ -42,7 +42,7 @@ from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_dict, decode_frame
-from common.mcap_io import RecordingError, RecordingWriter, read_file_order
+from common.mcap_io import RecordingError, RecordingWriter, iter_file_order
 from common.ordering import END_OF_TIME
 from common.resume import Supervision
 from common.worker import Sink, SinkStats
@@ -126,32 +126,34 @@ class Recorder(Sink):
             self.resume_gate({}, expect)
             return
         counts: dict[str, int] = state["counts"]
-        messages, _meta = read_file_order(self.out) if self.out.exists() else ([], {})
-        kept = []
-        n: dict[str, int] = {}
-        for m in messages:
-            if n.get(m.key, 0) < counts.get(m.key, 0):
-                kept.append(m)
-                n[m.key] = n.get(m.key, 0) + 1
-        short = {k: (n.get(k, 0), c) for k, c in counts.items() if n.get(k, 0) < c}
-        if short:
-            raise RecordingError(f"{self.out}: the recorder checkpoint counts messages the file does not hold "
-                                 f"(key: (in file, checkpointed)) {short}")
+        # copied message by message: a recording of hours is never held in memory
         tmp = self.out.with_name(self.out.name + ".resume")
         writer = self._new_file(tmp)
-        for m in kept:
-            writer.write_encoded(m.key, m.type_name, m.payload, m.stamp, m.seq)
+        n: dict[str, int] = {}
+        intact = kept = 0
+        for m in iter_file_order(self.out) if self.out.exists() else ():
+            intact += 1
+            if n.get(m.key, 0) < counts.get(m.key, 0):
+                writer.write_encoded(m.key, m.type_name, m.payload, m.stamp, m.seq)
+                n[m.key] = n.get(m.key, 0) + 1
+                kept += 1
+        short = {k: (n.get(k, 0), c) for k, c in counts.items() if n.get(k, 0) < c}
+        if short:
+            writer.close()
+            tmp.unlink()
+            raise RecordingError(f"{self.out}: the recorder checkpoint counts messages the file does not hold "
+                                 f"(key: (in file, checkpointed)) {short}")
         writer.sync()
         os.replace(tmp, self.out)  # the open file is now the recording
         writer.path = self.out
         self._writer = writer
         for k, c in counts.items():
             self.stats.recorded[k] = c
-        self.stats.resumed_messages = len(kept)
+        self.stats.resumed_messages = kept
         self._seen = self._ckpt_stamp = int(state["seen"])
         self.resume_gate(state["positions"], sorted(set(expect) | set(state["positions"])))
         log.warning("recorder: resumed %s with %d messages (of %d intact in the file), positions %s", self.out,
-                    len(kept), len(messages), state["positions"])
+                    kept, intact, state["positions"])
 
     # ---- run ----------------------------------------------------------------------------
     def run(self) -> RecorderStats:

@@ -66,3 +66,18 @@ def test_channel_type_is_fixed_per_key(tmp_path):
         with pytest.raises(ValueError, match="carries poseidon_msgs/Depth"):
             w.write("k", Image(header=Header(seq=0, stamp=2), height=1, width=1, encoding="mono8",
                                data=np.zeros((1, 1), np.uint8)))
+
+
+def test_iter_file_order_streams_the_intact_messages_of_a_damaged_file(tmp_path):
+    from common.mcap_io import iter_file_order, read_file_order
+    path = tmp_path / "full.mcap"
+    six_stream_recording(path, 600, image_every=5)
+    cut = tmp_path / "cut.mcap"
+    data = path.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    listed, _meta = read_file_order(cut)
+    it = iter_file_order(cut)
+    first = next(it)          # a message before the file was read through: nothing is held but the one
+    streamed = [first, *it]
+    assert 0 < len(streamed) == len(listed)
+    assert [(m.key, m.stamp, m.payload) for m in streamed] == [(m.key, m.stamp, m.payload) for m in listed]

@@ -286,3 +286,29 @@ def test_laser_sensor_offset_places_returns_in_the_robot_frame() -> None:
     kept = node.graph.scan(0)
     assert kept is not None and kept.shape == (1, 2)
     np.testing.assert_allclose(kept[0], [0.5, 1.0], atol=1e-9)
+
+
+def test_a_correction_map_waits_for_nodes_over_divisor_events() -> None:
+    """expmap.map_correction_divisor: the map owed to a loop closure (or a settled correction)
+    comes once nodes/N events have passed since the last map; at once with 0.  The final map is
+    the same either way."""
+    events, _ = loop_laps(3)
+    D = 3                                        # waits long enough here to merge corrections
+    runs = {}
+    for div in (0, D):
+        cfg = PoseidonConfig()
+        cfg.expmap.map_publish_every = 0          # only the maps owed to corrections, and the end
+        cfg.expmap.map_correction_divisor = div
+        node = build_node("expmap", cfg)
+        runs[div] = (node, outputs(run_offline(node, stream(events)), "map"))
+    (node0, maps0), (node20, maps20) = runs[0], runs[D]
+    assert node0.counters["loop_closures"] == node20.counters["loop_closures"] >= 2
+    assert len(maps20) < len(maps0)
+    stamp_of = {int(round(e[0] * SEC)): i for i, e in enumerate(events)}
+    at20 = [stamp_of[m.header.stamp] for m in maps20]
+    # every map waited nodes/D events after the previous one (the last: the end of the inputs)
+    assert all(b - a >= (b + 1) // D for a, b in zip(at20, at20[1:-1]))
+    # every correction of the undelayed run is in a map of the delayed one within nodes/D + 1 events
+    for i in (stamp_of[m.header.stamp] for m in maps0[:-1]):
+        assert any(i <= j <= i + (j + 1) // D + 1 for j in at20), i
+    assert [n.position for n in maps20[-1].nodes] == [n.position for n in maps0[-1].nodes]
