@@ -142,7 +142,7 @@ class ExpMapConfig(ConfigSection):
                                             "moving a node by at most max_correction_step")
     map_publish_every: int = Field(100, ge=0, description="publish map every max(N, nodes/10) events (0: only after loop "
                                    "closures, settled relaxations and at the end)")
-    map_correction_divisor: int = Field(100, ge=0, description="a map owed to a loop closure or a settled "
+    map_correction_divisor: int = Field(20, ge=0, description="a map owed to a loop closure or a settled "
                                         "correction waits until nodes/N events have passed since the last map "
                                         "(0: at once): the maps' cost per mission hour stays flat (issue 21)")
     dead_reckoning_period_sec: float = Field(0.0, ge=0, description="dead_reckoning decimation in event time "

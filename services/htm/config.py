@@ -37,7 +37,7 @@ class HtmConfig(ConfigSection):
     tm_predictedSegmentDecrement: float = Field(0.0, ge=0)
     tm_maxSegmentsPerCell: int = Field(255, ge=1)
     tm_maxSynapsesPerSegment: int = Field(255, ge=1)
-    tm_maxSynapses: int = Field(2_097_152, ge=0, description="synapse budget of the whole TM (ours, issue 21; 0: none, the "
+    tm_maxSynapses: int = Field(1_048_576, ge=0, description="synapse budget of the whole TM (ours, issue 21; 0: none, the "
                                 "dissertation's per-cell and per-segment caps only): beyond it the least recently used "
                                 "segments are evicted, so a step's cost stays flat over hours (services/htm/"
                                 "temporal_memory.py)")
@@ -90,7 +90,7 @@ class HtmConfig(ConfigSection):
         "new_places -- not a frame whose id is a revisit of a place created before the current traversal's last "
         "sv_seqmem_exclude frames (the memory then grows with the places seen, not with the time spent; "
         "services/htm/pipeline.py)")
-    sv_seqmem_every_frame_limit: int = Field(12000, ge=0, description="every_frame keeps every frame until the memory "
+    sv_seqmem_every_frame_limit: int = Field(6000, ge=0, description="every_frame keeps every frame until the memory "
                                              "holds this many, then new places only (the new_places rule), so a "
                                              "mission of hours costs per frame what its first ones did (0: no limit; "
                                              "ours, issue 21)")
