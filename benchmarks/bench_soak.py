@@ -252,8 +252,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(out, indent=1))
         return 0
+    print_report(out, args.minutes, args.parts)
+    return 0
+
+
+def print_report(out: dict[str, Any], minutes: float, n_parts: int) -> None:
+    """The readable form of ``out`` (the ``--json`` document)."""
+    dropped, parts, peaks = out["dropped"], out["per_mission_part"], out["peak_rss_mib"]
     p, t = out["pipeline"], out["transport_only"]
-    print(f"{args.minutes:g}-minute mission: full pipeline {p['wall_s']} s wall = {p['real_time_factor']}x real time; "
+    print(f"{minutes:g}-minute mission: full pipeline {p['wall_s']} s wall = {p['real_time_factor']}x real time; "
           f"player + recorder alone {t['wall_s']} s = {t['real_time_factor']}x (pipeline / transport speed "
           f"{out['rtf_ratio']})")
     print(f"messages dropped (input - recorded): {sum(dropped.values())} over {len(dropped)} keys; "
@@ -262,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"CPU seconds per service (sum {total:.0f} s over {p['wall_s']} s wall on {os.cpu_count()} cores): " +
           ", ".join(f"{n} {v:.0f} s ({100 * v / max(total, 1e-9):.0f} %)" for n, v in
                     sorted(out["cpu_s"].items(), key=lambda kv: -kv[1])))
-    print(f"per {args.parts}th of the mission: wall s (real-time factor) and CPU s per service; "
+    print(f"per 1/{n_parts} of the mission: wall s (real-time factor) and CPU s per service; "
           f"last / first: wall {out['last_vs_first']['wall']}x")
     for part in parts:
         print(f"  {part['mission_s'][0]:>7.0f}-{part['mission_s'][1]:<7.0f} s: {part['wall_s']:7.1f} s "
@@ -274,7 +281,6 @@ def main(argv: list[str] | None = None) -> int:
     print("peak RSS per sixth of the run (MiB):")
     for name, row in sorted(peaks.items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row) + f"   growth 2nd->6th {out['rss_growth_mib'][name]:+.1f}")
-    return 0
 
 
 if __name__ == "__main__":

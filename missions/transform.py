@@ -338,9 +338,8 @@ def transform(src: str | Path, out: str | Path, segments: list[tuple[float, floa
               seed: int = 0, pert: Perturbation | None = None, revisit_tolerance: int = 2,
               progress: bool = True, image_key: str = DEFAULT_IMAGE_KEY, areas: int = 2,
               compression: str = "zstd") -> dict[str, Any]:
-    """Write the transformed recording (MCAP chunks in ``compression``: zstd, lz4, none); returns
-    a summary (per-key counts, segment table).
-    ``image_key`` is the camera stream that is perturbed and indexed by ``truth/revisits``;
+    """Write the transformed recording (MCAP chunks in ``compression``); returns a summary (per-key
+    counts, segment table). ``image_key`` is the camera stream perturbed and indexed by ``truth/revisits``;
     ``areas`` 2 is the dissertation's nine-segment protocol, 1 keeps area 1 only."""
     src, out = Path(src), Path(out)
     _check_transform_args(src, out, areas, revisit_tolerance)
