@@ -45,9 +45,10 @@ __all__ = ["SequenceMatcher", "SequenceScore"]
 I64 = NDArray[np.int64]
 U64 = NDArray[np.uint64]
 F64 = NDArray[np.float64]
+I32 = NDArray[np.int32]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _f1_row(q: U64, q_size: int | np.int64, mem: U64, sizes: I64, n: int, out: F64) -> None:
     """out[j] = 2 |q & mem_j| / (|q| + |mem_j|) for j < n (packed uint64 rows)."""
     w = q.shape[0]
@@ -60,6 +61,56 @@ def _f1_row(q: U64, q_size: int | np.int64, mem: U64, sizes: I64, n: int, out: F
 
 
 @njit(cache=True)
+def _postings_add(bits: I64, j: int, head: I64, tail: I64, fill: I64, blocks: I32, nxt: I64, nblk: int) -> int:
+    """Append frame ``j`` to the posting list of each of its ``bits`` (chained blocks); returns
+    the blocks in use.  The caller guarantees room for ``bits.size`` new blocks."""
+    width = blocks.shape[1]
+    for b in bits:
+        t = tail[b]
+        if t < 0 or fill[b] == width:
+            nb = nblk
+            nblk += 1
+            nxt[nb] = -1
+            if t < 0:
+                head[b] = nb
+            else:
+                nxt[t] = nb
+            tail[b] = nb
+            fill[b] = 0
+            t = nb
+        blocks[t, fill[b]] = j
+        fill[b] += 1
+    return nblk
+
+
+@njit(cache=True, error_model="numpy")
+def _f1_row_postings(bits: I64, q_size: int | np.int64, head: I64, tail: I64, fill: I64, blocks: I32, nxt: I64,
+                     sizes: I64, n: int, cnt: I64, out: F64) -> None:
+    """:func:`_f1_row` from the posting lists of the query's bits: |q & mem_j| counted by walking
+    each bit's frames (ascending, so a walk stops at the first j >= n); the same F1 values."""
+    for j in range(n):
+        cnt[j] = 0
+    width = blocks.shape[1]
+    for b in bits:
+        blk = head[b]
+        while blk >= 0:
+            m = fill[b] if blk == tail[b] else width
+            done = False
+            for i in range(m):
+                j = blocks[blk, i]
+                if j >= n:
+                    done = True
+                    break
+                cnt[j] += 1
+            if done:
+                break
+            blk = nxt[blk]
+    for j in range(n):
+        den = q_size + sizes[j]
+        out[j] = 2.0 * cnt[j] / den if den > 0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
 def _normalise(s: F64, nc: int, cnt: F64, s1: F64, s2: F64, use_column: bool, prior: float, update: bool,
                z: F64) -> None:
     """z[:nc] = z-score of s over the candidates, then (``use_column``) standardised per stored
@@ -147,7 +198,7 @@ def _diag_advance(diag: F64, steps: I64, length: int, old: F64, old_len: int, hi
             diag[v, j] = x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _diag_add_max(diag: F64, row: F64, nc: int, length: int, out: F64) -> None:
     """diag[v, j] += row[j] (the new frame's points, j < nc); out[j] = max_v diag[v, j] / K."""
     for j in range(nc):
@@ -159,6 +210,48 @@ def _diag_add_max(diag: F64, row: F64, nc: int, length: int, out: F64) -> None:
                 out[j] = diag[v, j]
     for j in range(nc):
         out[j] /= length
+
+
+def _unique_bits(d: np.ndarray) -> I64:
+    """A descriptor's bits, sorted and unique (int64)."""
+    return np.unique(np.asarray(d, np.int64))
+
+
+class BitPostings:
+    """Inverted index of the memory: per descriptor bit, the stored frames holding it (ascending).
+
+    The descriptor is sparse (``sv_tm_topk`` 15 of 2048 column bits by default), so the F1
+    row of step 1 from the query's posting lists touches ~|D_t| x (frames per bit) entries
+    instead of every stored frame's packed words: same values, a fraction of the memory
+    traffic on a memory of hours (docs/DECISIONS.md, fourteenth session)."""
+
+    BLOCK = 32  # frames per block of a posting list
+
+    def __init__(self, n_bits: int):
+        self.head = np.full(n_bits, -1, np.int64)
+        self.tail = np.full(n_bits, -1, np.int64)
+        self.fill = np.zeros(n_bits, np.int64)
+        self.entries = np.zeros(n_bits, np.int64)  # frames per bit
+        self.blocks = np.zeros((64, self.BLOCK), np.int32)
+        self.nxt = np.full(64, -1, np.int64)
+        self.nblk = 0
+
+    def add(self, bits: np.ndarray, j: int) -> None:
+        """Frame ``j`` (larger than every frame added before) holds ``bits`` (sorted, unique)."""
+        need = self.nblk + bits.size
+        if need > self.blocks.shape[0]:
+            cap = max(2 * self.blocks.shape[0], need)
+            blocks = np.zeros((cap, self.BLOCK), np.int32)
+            blocks[:self.nblk] = self.blocks[:self.nblk]
+            nxt = np.full(cap, -1, np.int64)
+            nxt[:self.nblk] = self.nxt[:self.nblk]
+            self.blocks, self.nxt = blocks, nxt
+        self.nblk = _postings_add(bits, j, self.head, self.tail, self.fill, self.blocks, self.nxt, self.nblk)
+        self.entries[bits] += 1
+
+    def cost(self, bits: np.ndarray) -> int:
+        """Entries a query with ``bits`` walks (at most)."""
+        return int(self.entries[bits].sum())
 
 
 class SequenceScore:
@@ -209,6 +302,8 @@ class SequenceMatcher:
         self.steps = 0             # frames scored since the last reset()
         self._head = -1
         self._scratch = np.zeros(256, np.float64)
+        self._counts = np.zeros(256, np.int64)
+        self._postings = BitPostings(self.n_bits)
 
     def _alloc(self, cap: int) -> None:
         self.mem = np.zeros((cap, self.words), np.uint64)
@@ -262,7 +357,16 @@ class SequenceMatcher:
         if self._scratch.shape[0] < self.size:
             self._scratch = np.zeros(self.mem.shape[0], np.float64)
         s = self._scratch
-        _f1_row(q, np.int64(np.asarray(d).size), self.mem, self.sizes, nc, s)
+        q_size = np.int64(np.asarray(d).size)
+        bits = _unique_bits(d)
+        if self._postings.cost(bits) * 4 < nc * self.words:  # the cheaper of two exact ways
+            if self._counts.shape[0] < nc:
+                self._counts = np.zeros(self.mem.shape[0], np.int64)
+            ix = self._postings
+            _f1_row_postings(bits, q_size, ix.head, ix.tail, ix.fill, ix.blocks, ix.nxt, self.sizes, nc,
+                             self._counts, s)
+        else:
+            _f1_row(q, q_size, self.mem, self.sizes, nc, s)
         self._head = (self._head + 1) % self.length
         row = self.hist[self._head]
         if self.incremental:
@@ -299,6 +403,7 @@ class SequenceMatcher:
         self.mem[j] = q
         self.sizes[j] = np.asarray(d).size
         self.ids[j] = int(lvc_id)
+        self._postings.add(_unique_bits(d), j)
         self.size += 1
         return j
 
@@ -338,6 +443,9 @@ class SequenceMatcher:
         self.hist_len = st["hist_len"].astype(np.int64).copy()
         self.traversal_start, self.steps, self._head = (int(x) for x in st["counters"])
         self.size = n
+        self._postings = BitPostings(self.n_bits)  # derived from the memory, not saved
+        for j in range(n):
+            self._postings.add(np.flatnonzero(np.unpackbits(self.mem[j].view(np.uint8), bitorder="little")), j)
         if self.incremental:
             diag = st.get("diag")
             if diag is not None and diag.shape[0] == self.diag.shape[0] and diag.shape[1] <= self.diag.shape[1]:

@@ -174,3 +174,43 @@ def test_incremental_sums_rebuilt_from_a_state_without_them():
 def test_velocities_without_a_constant_step_use_the_full_computation():
     assert not SequenceMatcher(L, 8, [0.8, 1.25], 0).incremental
     assert SequenceMatcher(L, 8, [1.0, 2.0], 0).incremental
+
+
+def _sparse_stream(seed: int, n: int, bits: int = 15) -> list[np.ndarray]:
+    """Descriptors as sparse as the default tm descriptor (15 of L bits), places recurring."""
+    rng = np.random.default_rng(seed)
+    places = [np.sort(rng.choice(L, bits, replace=False)) for _ in range(60)]
+    out = []
+    for t in range(n):
+        p = places[(t // 3) % len(places)]
+        keep = rng.random(bits) < 0.7
+        out.append(np.unique(np.concatenate([p[keep], rng.choice(L, int((~keep).sum()), replace=False)])))
+    return out
+
+
+@pytest.mark.parametrize("sparse", [True, False])
+def test_f1_row_from_the_posting_lists_equals_the_packed_words(sparse):
+    """The inverted index gives the F1 row of the packed words exactly (same scores, ending
+    frames and F1s), through resets, query-only steps and a state round trip (which rebuilds
+    the index from the memory); dense descriptors keep the packed words."""
+    stream = _sparse_stream(4, 900) if sparse else _stream(4, 400)
+    ix = SequenceMatcher(L, 10, [1.0, 2.0], 20)
+    ref = SequenceMatcher(L, 10, [1.0, 2.0], 20)
+    ref._postings.cost = lambda bits: 1 << 60  # never cheaper: the packed words every time
+    used = 0
+    for t, d in enumerate(stream):
+        if t == 500:
+            ix.reset()
+            ref.reset()
+        if t == 300:
+            restored = SequenceMatcher(L, 10, [1.0, 2.0], 20)
+            restored.set_state(ix.state())
+            ix = restored
+        used += ix._postings.cost(np.unique(d)) * 4 < ix.candidates() * ix.words
+        a, b = ix.score(d, update=t % 5 != 0), ref.score(d, update=t % 5 != 0)
+        assert (a.frame, a.score, a.second, a.last, a.f1, a.f1_second) == \
+            (b.frame, b.score, b.second, b.last, b.f1, b.f1_second), t
+        if t % 4:
+            ix.add(d, t)
+            ref.add(d, t)
+    assert (used > 0) == sparse  # the index is what ran for sparse descriptors, never for dense ones
