@@ -42,7 +42,11 @@ class BusConfig(ConfigSection):
     namespace: str = Field("poseidon", pattern=r"^[A-Za-z0-9_\-/]+$", description="per-vehicle key prefix")
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     flow_window_ms: int = Field(3000, ge=100, description="replay keeps at most this much event time in flight (ms)")
-    heartbeat_interval_ms: int = Field(100, ge=1, description="event-time heartbeat of silent streams (ms)")
+    heartbeat_interval_ms: int = Field(250, ge=1, description="event-time heartbeat of silent streams (ms) in "
+                                       "replays: an output key silent this long gets a watermark. Larger: fewer "
+                                       "frames (100 -> 250 cut the services' CPU ~8 %, recordings identical; "
+                                       "docs/DECISIONS.md), a message may wait longer in event time for a sparse "
+                                       "stream. Live runs use live.watermark_interval_ms (latency)")
     startup_timeout_s: float = Field(180.0, gt=0, description="wait for subscribers/services to come alive (a "
                                      "service warms up first: on a cold numba cache the htm compiles for ~50 s on 2 "
                                      "loaded cores)")
@@ -81,7 +85,8 @@ class LiveConfig(ConfigSection):
     slow_ms: float = Field(0.0, ge=0, description="TEST SETTING: the delay of slow_service per input (ms)")
     lateness_ms: int = Field(200, ge=0, description="the live player's lateness bound (--live mcap; the rule: "
                              "common/live.py); the ROS bridge has its own, bridge_ros1.lateness_ms")
-    watermark_interval_ms: int = Field(100, ge=1, description="the live player sends wall-clock watermarks this often")
+    watermark_interval_ms: int = Field(100, ge=1, description="the live player sends wall-clock watermarks this "
+                                       "often; the services' heartbeat in live runs (bus.heartbeat_interval_ms in replays)")
     startup_timeout_s: float = Field(180.0, gt=0, description="wait this long for the services and the recorder "
                                      "(each warmed up: numba kernels compiled) before the source starts")
     stop_timeout_s: float = Field(120.0, gt=0, description="after the source stopped, wait this long for the "

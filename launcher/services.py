@@ -216,6 +216,8 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s)
     node = spec.node if spec.node is not None else build_node(name, config)
     live = config.live
-    return NodeRunner(node, bus, config.bus.heartbeat_interval_ms, drain_timeout_s=drain_s,
+    # live: a message waits for a silent stream's watermark in wall time, so the live interval
+    heartbeat_ms = live.watermark_interval_ms if spec.live else config.bus.heartbeat_interval_ms
+    return NodeRunner(node, bus, heartbeat_ms, drain_timeout_s=drain_s,
                       supervision=spec.supervision, max_queue=live.queue_frames if spec.live else 0,
                       delay_s=live.slow_ms / 1000 if spec.live and live.slow_service == name else 0.0)
