@@ -21,7 +21,9 @@ first visit in order.  :class:`SequenceMatcher` keeps every stored frame's descr
    for each velocity v of ``velocities`` (frames of the memory per frame of the traversal),
    the best v kept; a point outside the history or the candidates of its frame adds 0
    (so a diagonal shorter than K cannot outscore a full one).  The history holds the last
-   K normalised rows, so the cost per frame is O(#memory x (words + K x #velocities)).
+   K normalised rows; with the running diagonal sums the cost per frame is O(#memory x
+   #velocities) plus the F1 row of step 1: O(#memory x words) from the packed words, or, for
+   a sparse descriptor, O(|D_t| x frames per bit) from the posting lists (:class:`BitPostings`).
 
 ``score(D_t)`` does 1-3 and returns (j*, S*, S_2): the best ending frame, its score and the
 best score ending outside ``j* +- K`` (uniqueness, as in SeqSLAM; 0, the mean of a z-score,
