@@ -211,17 +211,45 @@ def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, serv
 PR_SET_PDEATHSIG = 1
 
 
-def _die_with_launcher(launcher_pid: int) -> Any:
+def _die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
     """``preexec_fn`` of every child: the kernel sends it SIGTERM when the launcher dies, even
     by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a service never outlives its run as an
-    orphan; SIGTERM lets the recorder close its file with a summary."""
+    orphan; SIGTERM lets the recorder close its file with a summary.
+
+    ``batch_scheduling`` (replays, ``bus.batch_scheduling``): the child and every thread it
+    starts run under Linux ``SCHED_BATCH``.  A refusal is not raised here (the launcher
+    checks the policy each child got, :func:`_check_batch_scheduling`)."""
     def setup() -> None:
         libc = ctypes.CDLL(None, use_errno=True)
         if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
             raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
         if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
             os.kill(os.getpid(), signal.SIGTERM)
+        if batch_scheduling and _SCHED_BATCH is not None:
+            try:
+                os.sched_setscheduler(0, _SCHED_BATCH, os.sched_param(0))
+            except OSError:  # reported by the launcher, which reads the policy the child got
+                pass
     return setup
+
+
+_SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
+
+
+def _check_batch_scheduling(name: str, proc: subprocess.Popen) -> None:
+    """Warn when a child asked for ``SCHED_BATCH`` did not get it (it runs, only slower)."""
+    if _SCHED_BATCH is None:
+        log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; service %s runs with the "
+                    "default scheduling", name)
+        return
+    try:
+        policy = os.sched_getscheduler(proc.pid)
+    except OSError as exc:  # the child already exited: its exit code tells the rest
+        log.debug("bus.batch_scheduling: cannot read the policy of %s: %s", name, exc)
+        return
+    if policy != _SCHED_BATCH:
+        log.warning("bus.batch_scheduling: service %s did not get SCHED_BATCH (policy %d); it runs with the "
+                    "default scheduling", name, policy)
 
 
 def _free_port() -> int:
@@ -320,6 +348,13 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         env.setdefault("PYTHONFAULTHANDLER", "1")  # a service killed by a fatal signal prints where it was
         restarts: dict[str, int] = {}
+        batch = config.bus.batch_scheduling
+
+        def _start(name: str, cmd: list[str]) -> subprocess.Popen:
+            proc = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=_die_with_launcher(os.getpid(), batch))
+            if batch:
+                _check_batch_scheduling(name, proc)
+            return proc
 
         def restart(name: str, rc: int) -> subprocess.Popen | None:
             """Supervision: start ``name`` again (resuming) unless it used its restarts."""
@@ -334,14 +369,13 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             log.warning("supervise: service %s died (%s); restart %d of %d in %.1f s, resuming from its last "
                         "checkpoint", name, _describe_exit(rc), n + 1, max_restarts, delay)
             time.sleep(delay)
-            return subprocess.Popen(cmds[name] + ["--resume"], env=env, stdout=2,
-                                    preexec_fn=_die_with_launcher(os.getpid()))
+            return _start(name, cmds[name] + ["--resume"])
 
         try:
             for name, cmd in cmds.items():
                 # a service's stdout (and any native library writing there) goes to our stderr: our
                 # stdout carries only this command's own output (``run --json``)
-                procs[name] = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=_die_with_launcher(os.getpid()))
+                procs[name] = _start(name, cmd)
             failed = _monitor(procs, timeout_s, restart if max_restarts > 0 else None, restarts)
         finally:
             _stop_all(procs)
