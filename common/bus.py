@@ -405,7 +405,10 @@ class Bus:
     def progress_publisher(self, service: str) -> ProgressReporter:
         return ProgressReporter(self.session, self.full_key(f"{PROGRESS}/{service}"))
 
-    def watch_progress(self) -> ProgressWatcher:
+    def watch_progress(self, services: Iterable[str] | None = None) -> ProgressWatcher:
+        """Follow the progress reports of ``services`` (default: every service).  Name the
+        services when only some matter: every report is a callback in this process, and
+        each service reports up to 50 times a second."""
         watcher = ProgressWatcher()
         prefix = self.full_key(PROGRESS) + "/"
 
@@ -415,7 +418,8 @@ class Bus:
                 log.error("progress report of %d bytes on %s ignored", len(data), sample.key_expr)
                 return
             watcher.update(str(sample.key_expr)[len(prefix):], struct.unpack("<q", data)[0])
-        self._keepalive.append(self.session.declare_subscriber(self.full_key(f"{PROGRESS}/*"), on_sample))
+        for name in ["*"] if services is None else sorted(services):
+            self._keepalive.append(self.session.declare_subscriber(self.full_key(f"{PROGRESS}/{name}"), on_sample))
         return watcher
 
     def watch_alive(self) -> AliveWatcher:

@@ -114,7 +114,7 @@ class NodeRunner(Sink, Source):
         self._consumer_progress = None
         if supervision is not None:
             self.serve_replays_for(self._publishers, wake=self.wake)
-            self._consumer_progress = bus.watch_progress()
+            self._consumer_progress = bus.watch_progress(supervision.consumers_of(node.outputs))
 
     def accept(self, merger: EventTimeMerger, key: str, data: bytes | memoryview) -> Message | str | None:
         """Decode one received frame and apply it to ``merger``.

@@ -18,3 +18,23 @@ def test_wait_slowest_wakes_on_the_report_that_reaches_the_target():
     t.join()
     w.update("a", 95)  # no waiter: nothing to wake, nothing kept waiting
     assert w.slowest(["a", "b"], default=0) == 90
+
+
+def test_watch_progress_of_named_services_follows_only_those():
+    """A supervised service follows the progress of its own consumers only (each report is a
+    callback in every process that follows it)."""
+    from common.bus import Bus, open_local_session
+
+    session = open_local_session()
+    bus = Bus(session=session)
+    named, every = bus.watch_progress(["htm", "recorder"]), bus.watch_progress()
+    for name, stamp in [("htm", 10), ("recorder", 20), ("expmap", 30)]:
+        bus.progress_publisher(name).report(stamp, force=True)
+    deadline = time.monotonic() + 5.0
+    while every.get("expmap") != 30 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert every.get("expmap") == 30 and every.slowest(["htm", "recorder"], default=-2) == 10
+    assert named.get("htm") == 10 and named.get("recorder") == 20
+    assert named.get("expmap") == -2  # not followed
+    bus.close()
+    session.close()

@@ -229,3 +229,22 @@ def test_player_replay_consumed_replays_what_services_read_and_the_truth(tmp_pat
     narrowed = plan_run(load_config(overrides=["player.replay=consumed", "player.keys=[camera/image_raw]"]), rec,
                         services=["encoder"])
     assert narrowed.player_keys == ["camera/image_raw"]
+
+
+def test_replay_children_run_under_sched_batch_and_a_refusal_is_reported(caplog):
+    """bus.batch_scheduling: a replay's service processes (and their threads) get SCHED_BATCH;
+    without it they keep the default policy, which the launcher reports as a warning."""
+    from launcher.run import _check_batch_scheduling, _die_with_launcher
+
+    if not hasattr(os, "SCHED_BATCH"):
+        pytest.skip("this system has no SCHED_BATCH")
+    probe = [sys.executable, "-c", "import os, sys, threading; t = threading.Thread(target=lambda: "
+             "print(os.sched_getscheduler(0))); t.start(); t.join(); sys.stdin.read()"]
+    for batch, policy in [(True, os.SCHED_BATCH), (False, os.SCHED_OTHER)]:
+        proc = subprocess.Popen(probe, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                preexec_fn=_die_with_launcher(os.getpid(), batch))
+        caplog.clear()
+        _check_batch_scheduling("probe", proc)
+        out, _ = proc.communicate("")
+        assert int(out) == policy  # a thread the child starts has the child's policy
+        assert ("did not get SCHED_BATCH" in caplog.text) is (not batch)
