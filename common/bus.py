@@ -357,8 +357,7 @@ class AliveWatcher:
 class Bus:
     """One Zenoh session of a process, scoped to a vehicle namespace.
 
-    ``session`` may be shared (embedded mode: every service on one session).
-    """
+    ``session`` may be shared (embedded mode: every service on one session)."""
 
     def __init__(self, namespace: str = "poseidon", connect: Iterable[str] = ("tcp/127.0.0.1:7447",),
                  mode: str = "client", listen: Iterable[str] = (), session: zenoh.Session | None = None,
@@ -406,18 +405,15 @@ class Bus:
         return ProgressReporter(self.session, self.full_key(f"{PROGRESS}/{service}"))
 
     def watch_progress(self, services: Iterable[str] | None = None) -> ProgressWatcher:
-        """Follow the progress reports of ``services`` (default: every service).  Name the
-        services when only some matter: every report is a callback in this process, and
-        each service reports up to 50 times a second."""
-        watcher = ProgressWatcher()
-        prefix = self.full_key(PROGRESS) + "/"
+        """Follow the progress of ``services`` (default: all; each report is a callback here)."""
+        watcher, prefix = ProgressWatcher(), self.full_key(PROGRESS) + "/"
 
         def on_sample(sample: zenoh.Sample) -> None:
             data = sample.payload.to_bytes()
-            if len(data) != 8:
+            if len(data) == 8:
+                watcher.update(str(sample.key_expr)[len(prefix):], struct.unpack("<q", data)[0])
+            else:
                 log.error("progress report of %d bytes on %s ignored", len(data), sample.key_expr)
-                return
-            watcher.update(str(sample.key_expr)[len(prefix):], struct.unpack("<q", data)[0])
         for name in ["*"] if services is None else sorted(services):
             self._keepalive.append(self.session.declare_subscriber(self.full_key(f"{PROGRESS}/{name}"), on_sample))
         return watcher

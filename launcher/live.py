@@ -57,12 +57,12 @@ import yaml
 from common.bus import Bus, open_hub
 from common.live import LATENCY_KEY
 from common.mcap_io import code_revision
+from launcher.children import die_with_launcher
 from launcher.config import PoseidonConfig
 from launcher.run import (
     RunFailed,
     RunPlan,
     RunResult,
-    _die_with_launcher,
     _free_port,
     _log_level,
     _monitor,
@@ -179,7 +179,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
 
         def start(name: str) -> None:
             procs[name] = subprocess.Popen(cmds[name], env=env, stdout=2, start_new_session=True,
-                                           preexec_fn=_die_with_launcher(os.getpid()))
+                                           preexec_fn=die_with_launcher(os.getpid()))
 
         failed: tuple[str, str] | None = None
         try:

@@ -34,7 +34,6 @@ under its ``.partial.mcap`` name (:attr:`RunFailed.partial`): nothing recorded i
 """
 from __future__ import annotations
 
-import ctypes
 import json
 import logging
 import math
@@ -58,6 +57,7 @@ from common.live import LATENCY_KEY
 from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
+from launcher.children import check_batch_scheduling, die_with_launcher
 from launcher.config import PoseidonConfig
 from launcher.services import WorkerSpec, available_services, build_node, build_worker, node_io
 from services.player.player import SOURCE_KEYS, replayed_keys
@@ -208,50 +208,6 @@ def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, serv
             "config": config.model_dump(mode="json")}
 
 
-PR_SET_PDEATHSIG = 1
-
-
-def _die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
-    """``preexec_fn`` of every child: the kernel sends it SIGTERM when the launcher dies, even
-    by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a service never outlives its run as an
-    orphan; SIGTERM lets the recorder close its file with a summary.
-
-    ``batch_scheduling`` (replays, ``bus.batch_scheduling``): the child and every thread it
-    starts run under Linux ``SCHED_BATCH``.  A refusal is not raised here (the launcher
-    checks the policy each child got, :func:`_check_batch_scheduling`)."""
-    def setup() -> None:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
-            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
-        if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
-            os.kill(os.getpid(), signal.SIGTERM)
-        if batch_scheduling and _SCHED_BATCH is not None:
-            try:
-                os.sched_setscheduler(0, _SCHED_BATCH, os.sched_param(0))
-            except OSError:  # reported by the launcher, which reads the policy the child got
-                pass
-    return setup
-
-
-_SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
-
-
-def _check_batch_scheduling(name: str, proc: subprocess.Popen) -> None:
-    """Warn when a child asked for ``SCHED_BATCH`` did not get it (it runs, only slower)."""
-    if _SCHED_BATCH is None:
-        log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; service %s runs with the "
-                    "default scheduling", name)
-        return
-    try:
-        policy = os.sched_getscheduler(proc.pid)
-    except OSError as exc:  # the child already exited: its exit code tells the rest
-        log.debug("bus.batch_scheduling: cannot read the policy of %s: %s", name, exc)
-        return
-    if policy != _SCHED_BATCH:
-        log.warning("bus.batch_scheduling: service %s did not get SCHED_BATCH (policy %d); it runs with the "
-                    "default scheduling", name, policy)
-
-
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -351,9 +307,9 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         batch = config.bus.batch_scheduling
 
         def _start(name: str, cmd: list[str]) -> subprocess.Popen:
-            proc = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=_die_with_launcher(os.getpid(), batch))
+            proc = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=die_with_launcher(os.getpid(), batch))
             if batch:
-                _check_batch_scheduling(name, proc)
+                check_batch_scheduling(name, proc)
             return proc
 
         def restart(name: str, rc: int) -> subprocess.Popen | None:

@@ -234,7 +234,7 @@ def test_player_replay_consumed_replays_what_services_read_and_the_truth(tmp_pat
 def test_replay_children_run_under_sched_batch_and_a_refusal_is_reported(caplog):
     """bus.batch_scheduling: a replay's service processes (and their threads) get SCHED_BATCH;
     without it they keep the default policy, which the launcher reports as a warning."""
-    from launcher.run import _check_batch_scheduling, _die_with_launcher
+    from launcher.children import check_batch_scheduling, die_with_launcher
 
     if not hasattr(os, "SCHED_BATCH"):
         pytest.skip("this system has no SCHED_BATCH")
@@ -242,9 +242,9 @@ def test_replay_children_run_under_sched_batch_and_a_refusal_is_reported(caplog)
              "print(os.sched_getscheduler(0))); t.start(); t.join(); sys.stdin.read()"]
     for batch, policy in [(True, os.SCHED_BATCH), (False, os.SCHED_OTHER)]:
         proc = subprocess.Popen(probe, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                                preexec_fn=_die_with_launcher(os.getpid(), batch))
+                                preexec_fn=die_with_launcher(os.getpid(), batch))
         caplog.clear()
-        _check_batch_scheduling("probe", proc)
+        check_batch_scheduling("probe", proc)
         out, _ = proc.communicate("")
         assert int(out) == policy  # a thread the child starts has the child's policy
         assert ("did not get SCHED_BATCH" in caplog.text) is (not batch)

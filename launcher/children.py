@@ -1,0 +1,58 @@
+"""How the launcher starts a service process: it dies with the launcher, and a replay's
+services run under Linux ``SCHED_BATCH`` (``bus.batch_scheduling``; why:
+``docs/DECISIONS.md``, "Fifteenth session")."""
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import signal
+import subprocess
+from typing import Any
+
+__all__ = ["check_batch_scheduling", "die_with_launcher"]
+
+log = logging.getLogger(__name__)
+
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
+    """``preexec_fn`` of every child: the kernel sends it SIGTERM when the launcher dies, even
+    by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a service never outlives its run as an
+    orphan; SIGTERM lets the recorder close its file with a summary.
+
+    ``batch_scheduling`` (replays, ``bus.batch_scheduling``): the child and every thread it
+    starts run under Linux ``SCHED_BATCH``.  A refusal is not raised here (the launcher
+    checks the policy each child got, :func:`check_batch_scheduling`)."""
+    def setup() -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+        if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+        if batch_scheduling and _SCHED_BATCH is not None:
+            try:
+                os.sched_setscheduler(0, _SCHED_BATCH, os.sched_param(0))
+            except OSError:  # reported by the launcher, which reads the policy the child got
+                pass
+    return setup
+
+
+_SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
+
+
+def check_batch_scheduling(name: str, proc: subprocess.Popen) -> None:
+    """Warn when a child asked for ``SCHED_BATCH`` did not get it (it runs, only slower)."""
+    if _SCHED_BATCH is None:
+        log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; service %s runs with the "
+                    "default scheduling", name)
+        return
+    try:
+        policy = os.sched_getscheduler(proc.pid)
+    except OSError as exc:  # the child already exited: its exit code tells the rest
+        log.debug("bus.batch_scheduling: cannot read the policy of %s: %s", name, exc)
+        return
+    if policy != _SCHED_BATCH:
+        log.warning("bus.batch_scheduling: service %s did not get SCHED_BATCH (policy %d); it runs with the "
+                    "default scheduling", name, policy)
