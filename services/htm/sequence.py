@@ -44,6 +44,9 @@ from services.htm._bits import pack_bits, popcount64
 
 __all__ = ["SequenceMatcher", "SequenceScore"]
 
+#: descriptors of at most n_bits / this many bits are indexed (:class:`BitPostings`)
+SPARSE_DENOMINATOR = 16
+
 I64 = NDArray[np.int64]
 U64 = NDArray[np.uint64]
 F64 = NDArray[np.float64]
@@ -222,10 +225,13 @@ def _unique_bits(d: np.ndarray) -> I64:
 class BitPostings:
     """Inverted index of the memory: per descriptor bit, the stored frames holding it (ascending).
 
-    The descriptor is sparse (``sv_tm_topk`` 15 of 2048 column bits by default), so the F1
+    For sparse descriptors (the ``tm`` source: ``sv_tm_topk`` 15 of 2048 column bits) the F1
     row of step 1 from the query's posting lists touches ~|D_t| x (frames per bit) entries
     instead of every stored frame's packed words: same values, a fraction of the memory
-    traffic on a memory of hours (docs/DECISIONS.md, fourteenth session)."""
+    traffic on a memory of hours (docs/DECISIONS.md, fourteenth session).  The default ``sdr``
+    descriptor is dense (~900 of 2048 bits, the union of the camera and sonar codes): there the
+    packed words are always cheaper, so :class:`SequenceMatcher` keeps no index once a dense
+    frame is stored (fifteenth session)."""
 
     BLOCK = 32  # frames per block of a posting list
 
@@ -305,7 +311,11 @@ class SequenceMatcher:
         self._head = -1
         self._scratch = np.zeros(256, np.float64)
         self._counts = np.zeros(256, np.int64)
-        self._postings = BitPostings(self.n_bits)
+        self._postings: BitPostings | None = BitPostings(self.n_bits)  # None: a dense frame is stored
+
+    def _sparse(self, size: int) -> bool:
+        """A descriptor of ``size`` bits for which the posting lists can pay (at most 1/16 of the bits)."""
+        return size * SPARSE_DENOMINATOR <= self.n_bits
 
     def _alloc(self, cap: int) -> None:
         self.mem = np.zeros((cap, self.words), np.uint64)
@@ -360,11 +370,11 @@ class SequenceMatcher:
             self._scratch = np.zeros(self.mem.shape[0], np.float64)
         s = self._scratch
         q_size = np.int64(np.asarray(d).size)
-        bits = _unique_bits(d)
-        if self._postings.cost(bits) * 4 < nc * self.words:  # the cheaper of two exact ways
+        ix = self._postings
+        bits = _unique_bits(d) if ix is not None else None
+        if ix is not None and bits is not None and ix.cost(bits) * 4 < nc * self.words:  # the cheaper exact way
             if self._counts.shape[0] < nc:
                 self._counts = np.zeros(self.mem.shape[0], np.int64)
-            ix = self._postings
             _f1_row_postings(bits, q_size, ix.head, ix.tail, ix.fill, ix.blocks, ix.nxt, self.sizes, nc,
                              self._counts, s)
         else:
@@ -405,7 +415,11 @@ class SequenceMatcher:
         self.mem[j] = q
         self.sizes[j] = np.asarray(d).size
         self.ids[j] = int(lvc_id)
-        self._postings.add(_unique_bits(d), j)
+        if self._postings is not None:
+            if self._sparse(int(self.sizes[j])):
+                self._postings.add(_unique_bits(d), j)
+            else:  # the index must hold every frame; a dense memory scores from the packed words
+                self._postings = None
         self.size += 1
         return j
 
@@ -445,9 +459,11 @@ class SequenceMatcher:
         self.hist_len = st["hist_len"].astype(np.int64).copy()
         self.traversal_start, self.steps, self._head = (int(x) for x in st["counters"])
         self.size = n
-        self._postings = BitPostings(self.n_bits)  # derived from the memory, not saved
-        for j in range(n):
-            self._postings.add(np.flatnonzero(np.unpackbits(self.mem[j].view(np.uint8), bitorder="little")), j)
+        self._postings = None  # derived from the memory, not saved; kept only while every frame is sparse
+        if all(self._sparse(int(x)) for x in self.sizes[:n]):
+            self._postings = BitPostings(self.n_bits)
+            for j in range(n):
+                self._postings.add(np.flatnonzero(np.unpackbits(self.mem[j].view(np.uint8), bitorder="little")), j)
         if self.incremental:
             diag = st.get("diag")
             if diag is not None and diag.shape[0] == self.diag.shape[0] and diag.shape[1] <= self.diag.shape[1]:
