@@ -49,8 +49,9 @@ class BusConfig(ConfigSection):
                                        "stream. Live runs use live.watermark_interval_ms (latency)")
     batch_scheduling: bool = Field(True, description="replays (poseidon run, not --live): every service "
                                    "process runs under Linux SCHED_BATCH, so a wake-up does not preempt the "
-                                   "running service: fewer context switches on a loaded machine (-13 % CPU, "
-                                   "-11 % wall on the 10-minute mission; docs/DECISIONS.md). Recordings identical")
+                                   "running service: fewer context switches on a loaded machine (-9 % CPU of all "
+                                   "services, -7.5 % wall on the 10-minute mission; docs/DECISIONS.md). Recordings "
+                                   "identical")
     startup_timeout_s: float = Field(180.0, gt=0, description="wait for subscribers/services to come alive (a "
                                      "service warms up first: on a cold numba cache the htm compiles for ~50 s on 2 "
                                      "loaded cores)")

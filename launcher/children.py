@@ -15,6 +15,7 @@ __all__ = ["check_batch_scheduling", "die_with_launcher"]
 log = logging.getLogger(__name__)
 
 PR_SET_PDEATHSIG = 1
+_SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
 
 
 def die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
@@ -38,8 +39,6 @@ def die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
                 pass
     return setup
 
-
-_SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
 
 
 def check_batch_scheduling(name: str, proc: subprocess.Popen) -> None:

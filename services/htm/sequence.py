@@ -371,8 +371,7 @@ class SequenceMatcher:
         s = self._scratch
         q_size = np.int64(np.asarray(d).size)
         ix = self._postings
-        bits = _unique_bits(d) if ix is not None else None
-        if ix is not None and bits is not None and ix.cost(bits) * 4 < nc * self.words:  # the cheaper exact way
+        if ix is not None and ix.cost(bits := _unique_bits(d)) * 4 < nc * self.words:  # the cheaper exact way
             if self._counts.shape[0] < nc:
                 self._counts = np.zeros(self.mem.shape[0], np.int64)
             _f1_row_postings(bits, q_size, ix.head, ix.tail, ix.fill, ix.blocks, ix.nxt, self.sizes, nc,
