@@ -11,7 +11,7 @@ from pydantic import Field
 
 from common.config import ConfigSection
 
-__all__ = ["ScanGraphConfig", "ExpMapConfig"]
+__all__ = ["ScanGraphConfig", "VisualScaleConfig", "ExpMapConfig"]
 
 
 class ScanGraphConfig(ConfigSection):
@@ -86,6 +86,31 @@ class ScanGraphConfig(ConfigSection):
     loop_max_residual: float = Field(3.0, ge=0, description="take back a closure whose loop edges keep a larger "
                                      "Mahalanobis residual after relaxation (0: off)")
     huber: float = Field(3.0, ge=0, description="Huber threshold on an edge's Mahalanobis residual (0: off)")
+
+
+class VisualScaleConfig(ConfigSection):
+    """The odometry's scale measured by the downward camera (``expmap.visual_scale``;
+    services/expmap/visual_scale.py documents the measurement)."""
+
+    enabled: bool = Field(False, description="scale the map's odometry edges by the camera's measure of the "
+                          "odometry's horizontal scale (needs expmap.image_topic and the DVL's altitude; false, the "
+                          "default: the odometry as it comes; docs/DECISIONS.md, issue 20 round 9, says why)")
+    dvl_topic: str = Field("dvl_linkquest", description="LinkquestDvl key whose altitude (m over the floor) gives the "
+                           "camera's height")
+    focal_px: float = Field(405.64, gt=0, description="the camera's focal length (px; the Cala Viuda camera's fx)")
+    camera_height_m: float = Field(0.2, description="the camera's offset below the DVL (m, body z): the camera's "
+                                   "height over the floor is the altitude minus this")
+    min_clearance_m: float = Field(0.3, gt=0, description="pairs where the camera is nearer the floor (m) are not "
+                                   "measured")
+    altitude_max_age_s: float = Field(2.0, gt=0, description="an altitude older than this (s) is not used")
+    pair_every: int = Field(2, ge=1, description="measure one consecutive frame pair in this many (each measured "
+                            "pair costs two frames' FFTs)")
+    min_step_m: float = Field(0.02, gt=0, description="pairs over which the odometry moved less (m) are not used")
+    inlier_band: float = Field(0.1, gt=0, lt=1, description="a pair counts when its camera/odometry ratio is within "
+                               "this fraction of the median ratio of every pair so far")
+    min_pairs: int = Field(200, ge=1, description="inlier pairs needed before the estimate is used")
+    update_step: float = Field(0.001, gt=0, description="the map's odometry scale follows the estimate when it moved "
+                               "by more than this fraction")
 
 
 class ExpMapConfig(ConfigSection):
@@ -186,3 +211,4 @@ class ExpMapConfig(ConfigSection):
         "(services/expmap/graph.py); scan_graph: planar pose graph of registered range scans "
         "(services/expmap/scan_graph.py, the laser preset)")
     scan_graph: ScanGraphConfig = Field(default_factory=ScanGraphConfig)
+    visual_scale: VisualScaleConfig = Field(default_factory=VisualScaleConfig)

@@ -40,23 +40,14 @@ Loop closure (Table 4.1), decided for the new node n of every event:
   is itself pulled toward the stored pose) and weight ``loop_edge_weight``, duration 0 s.
 
 Relaxation: the target is the exact weighted least-squares optimum of Eq. 4.20 with node 0
-fixed, not OpenRatSLAM's half-error sweep.  Because every node but the first has an
-odometry edge from its predecessor, the graph is one chain plus the loop edges: only the
-loop endpoints (and the two chain ends) are junctions.  A chain segment between junctions
-a, b is equivalent to one edge with the summed delta and resistance sum(1/w) (series
-reduction), so the optimum is found by solving the small reduced system over the
-junctions (sparse LU, minimum-degree ordering) and then placing every segment's
-interior node by distributing the segment residual in proportion to 1/w (O(nodes), numba).
-The map then moves toward that target: the correction of a node is capped at
-``max_correction_norm`` (if any node would move farther, the whole correction is scaled
-down uniformly, keeping its shape, and counted as clamped); each iteration moves every
-pending node by the same fraction of its remaining correction such that no node moves more
-than ``max_correction_step`` (so the map is always a blend of the old map and the target);
-``relax_iterations_per_event`` iterations run per accepted event, and
-:meth:`ExperienceMap.settle` finishes a pending correction.  Because every node moves by
-the same fraction, the pending state is ``position = pos + phi * rem`` and an event's
-iterations only advance phi (O(1)); positions are materialised when read.  Nodes created
-while a correction is pending inherit their predecessor's correction.
+fixed (not OpenRatSLAM's half-error sweep), found by series reduction of the chain between
+loop endpoints; the map moves toward it by capped iterations (``max_correction_norm``,
+``max_correction_step``, ``relax_iterations_per_event``; :meth:`ExperienceMap.settle`
+finishes a pending correction).  Every rule and its cost: :mod:`services.expmap.relaxation`.
+
+Odometry scale (issue 20): :meth:`ExperienceMap.set_odometry_scale` multiplies the horizontal
+displacement of this run's odometry edges by the camera's measure of the odometry's scale
+(:mod:`services.expmap.visual_scale`), retroactively, and relaxes toward the new optimum.
 
 Loop-edge displacement: with ``loop_scan_matching`` each node keeps the sonar sweep around
 its odometry position and a closure's edge asks for the displacement measured by registering
@@ -82,7 +73,6 @@ in order for each event.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -90,8 +80,8 @@ import numpy as np
 
 from services.expmap.candidates import candidate_nodes, choose_match, lattice_geometry, match_scores, pc_distance_cells
 from services.expmap.config import ExpMapConfig
-from services.expmap.loop_policy import LoopEdges, link_displacement, loop_displacement
-from services.expmap.relaxation import plan_correction, relax_fraction, solve_optimum
+from services.expmap.loop_policy import EventResult, LoopEdges, link_displacement, loop_displacement
+from services.expmap.relaxation import plan_correction, relax_fraction, rescale_edges, solve_optimum
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
 from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, rot2
@@ -99,26 +89,6 @@ from services.expmap.storage import FORMAT_VERSION, ColumnStore, SweepStore, loa
 
 __all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
            "read_map_file", "FORMAT_VERSION"]
-
-
-@dataclass
-class EventResult:
-    """What one event did to the map."""
-
-    node: int
-    match: int = -1                 # matched old node (-1: none)
-    score: float = 0.0
-    confirmations: int = 0
-    loop_closed: bool = False
-    rejected: str = ""              # "interval" | "route" | "scan" when a confirmed loop was not closed
-    correction_clamped: bool = False
-    correction_norm: float = 0.0    # largest node displacement planned by this closure (m)
-    step_max: float = 0.0           # largest node move in one relaxation iteration of this event (m)
-    iterations: int = 0             # relaxation iterations run during this event
-    step_capped: bool = False       # max_correction_step limited an iteration
-    settled: bool = False           # a pending correction finished during this event
-    session_started: bool = False   # this event's node is the first of a new session
-    linked: bool = False            # this event linked its session to an older one
 
 
 class ExperienceMap:
@@ -166,6 +136,8 @@ class ExperienceMap:
         self.frame_yaw = 0.0                  # rad: the newest session's odometry frame turned into the map's
         self.session_links: list[SessionLink] = []
         self.link_rejections = {"no_sweep": 0, "untrusted": 0, "ambiguous": 0, "inliers": 0}
+        self.odometry_scale = 1.0             # horizontal scale applied to this run's odometry edges
+        self.run_first = 0                    # first node of this run (edges from here are this run's odometry)
 
     # ---- read access --------------------------------------------------------------
     @property
@@ -294,6 +266,7 @@ class ExperienceMap:
             if self.last_odom is None:
                 raise RuntimeError("experience map holds nodes but no last odometry position")
             delta = odom - self.last_odom
+            delta[:2] *= self.odometry_scale
             if self.frame_yaw != 0.0:         # a session turned by a link: its odometry turns with it
                 delta[:2] = rot2(self.frame_yaw) @ delta[:2]
             A["delta"][n] = delta
@@ -428,6 +401,24 @@ class ExperienceMap:
         self.last_correction_stamp = stamp
         self.confirmations = 0
         res.loop_closed = True
+        self._plan(res)
+
+    def set_odometry_scale(self, scale: float) -> EventResult:
+        """Scale the horizontal displacement of this run's odometry edges (from :attr:`run_first`)
+        by ``scale`` (replacing the scale applied so far) and plan the relaxation toward Eq. 4.20's
+        new optimum."""
+        res = EventResult(node=self.n_nodes - 1)
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"odometry scale must be finite and > 0, got {scale}")
+        rescale_edges(self._g.arrays, self.run_first, self.n_nodes, scale / self.odometry_scale)
+        self.odometry_scale = float(scale)
+        if self.n_nodes:
+            self._plan(res)
+        return res
+
+    def _plan(self, res: EventResult) -> None:
+        """Plan the capped relaxation toward the optimum (the pending blend made the base first)."""
+        cfg = self.cfg
         target = self.optimum()
         self._apply_pending()
         disp, res.correction_clamped, res.correction_norm, self._peak = plan_correction(
@@ -497,4 +488,6 @@ class ExperienceMap:
     def load(cls, path: str | Path, cfg: ExpMapConfig, lattice_shape: Any = (15, 15, 15, 8),
              lattice_spacing: Any = (0.1, 0.1, 0.1)) -> ExperienceMap:
         """Read a map written by :meth:`save`; the lattice must match the saved one."""
-        return load_map(cls(cfg, lattice_shape, lattice_spacing), path)
+        em = load_map(cls(cfg, lattice_shape, lattice_spacing), path)
+        em.run_first = em.n_nodes
+        return em

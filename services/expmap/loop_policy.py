@@ -12,6 +12,7 @@ from __future__ import annotations
 import bisect
 import heapq
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -20,7 +21,27 @@ from numba import njit
 from services.expmap.config import ExpMapConfig
 from services.expmap.scans import Registration, register_sweeps
 
-__all__ = ["LoopEdges", "loop_displacement", "link_displacement"]
+__all__ = ["EventResult", "LoopEdges", "loop_displacement", "link_displacement"]
+
+
+@dataclass
+class EventResult:
+    """What one event did to the map."""
+
+    node: int
+    match: int = -1                 # matched old node (-1: none)
+    score: float = 0.0
+    confirmations: int = 0
+    loop_closed: bool = False
+    rejected: str = ""              # "interval" | "route" | "scan" when a confirmed loop was not closed
+    correction_clamped: bool = False
+    correction_norm: float = 0.0    # largest node displacement planned by this closure (m)
+    step_max: float = 0.0           # largest node move in one relaxation iteration of this event (m)
+    iterations: int = 0             # relaxation iterations run during this event
+    step_capped: bool = False       # max_correction_step limited an iteration
+    settled: bool = False           # a pending correction finished during this event
+    session_started: bool = False   # this event's node is the first of a new session
+    linked: bool = False            # this event linked its session to an older one
 
 
 @njit(cache=True)

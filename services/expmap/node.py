@@ -97,6 +97,7 @@ from services.expmap.graph import ExperienceMap
 from services.expmap.laser_input import LaserScans
 from services.expmap.scan_graph import ScanGraph
 from services.expmap.scans import SweepBuffer, echo_range
+from services.expmap.visual_scale import VisualScale
 
 __all__ = ["ExpMapNode", "map_message"]
 
@@ -115,6 +116,11 @@ def map_message(em: ExperienceMap | ScanGraph, header: Header) -> ExperienceMapM
                             corrections=em.corrections)
 
 
+def _visual_scale_on(cfg: ExpMapConfig) -> bool:
+    """The camera measures the odometry's scale (``expmap.visual_scale``; experience_map only)."""
+    return cfg.visual_scale.enabled and cfg.graph == "experience_map"
+
+
 class ExpMapNode(ServiceNode[ExpMapConfig]):
     """Transport wrapper of :class:`ExperienceMap` (or :class:`ScanGraph`) and :class:`EventImageAssociator`."""
 
@@ -126,9 +132,12 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
     def io_keys(cls, config: ExpMapConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """Input keys under ``config`` (the camera key is configurable, and optional)."""
         cfg = config
-        ins = ((cfg.image_topic,) if cfg.publish_experience_image else ()) + ("experience_event", "Odometry")
+        vs = _visual_scale_on(cfg)
+        ins = ((cfg.image_topic,) if cfg.publish_experience_image or vs else ()) + ("experience_event", "Odometry")
         if cfg.loop_scan_matching or cfg.graph == "scan_graph":
             ins += (cfg.scan_topic,)
+        if vs:
+            ins += (cfg.visual_scale.dvl_topic,)
         return ins, cls.outputs
 
     def __init__(self, config: ExpMapConfig, *, sync_stale_sec: float, pose_cell_shape: Sequence[int],
@@ -177,6 +186,16 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
                               f"robot_state.axis_remap={odometry_axis_remap!r}; set "
                               "expmap.loop_scan_matching=false or keep z last")
         self.sweeps = SweepBuffer(head_sign=odometry_axis_sign_z, sweep_deg=cfg.scan_sweep_deg)
+        self.visual: VisualScale | None = None
+        if _visual_scale_on(cfg):
+            if odometry_axis_remap[2] != "z":
+                raise ConfigError(f"expmap.visual_scale needs a vertical published z axis, but "
+                                  f"robot_state.axis_remap={odometry_axis_remap!r}; set "
+                                  "expmap.visual_scale.enabled=false or keep z last")
+            self.visual = VisualScale(cfg.visual_scale)
+            self.dvl_key = cfg.visual_scale.dvl_topic
+            if isinstance(self.graph, ExperienceMap):
+                self.graph.run_first = self.graph.n_nodes
 
     # ---- inputs ---------------------------------------------------------------------
     def process(self, key: str, msg: Any) -> None:
@@ -189,10 +208,18 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             self._on_image(msg)
         elif key == self.scan_key:
             self._on_beam(msg)
+        elif self.visual is not None and key == self.dvl_key:
+            alt = getattr(msg, "altitude", None)
+            if alt is None:
+                raise ConfigError(f"expmap.visual_scale.dvl_topic {key!r} carries {type(msg).__name__}, which has "
+                                  "no altitude; set expmap.visual_scale.enabled=false")
+            self.visual.add_altitude(msg.header.stamp, float(alt))
         else:
             raise KeyError(f"expmap: unexpected input key {key!r} (inputs {self.inputs})")
 
     def _on_event(self, ev: ExperienceEvent) -> None:
+        if self.visual is not None and isinstance(self.graph, ExperienceMap):
+            self._follow_scale()
         try:
             if self.scan_graph:
                 sweep = self.laser.sweep_for(ev.odom_position[0], ev.odom_position[1], ev.odom_yaw)
@@ -257,7 +284,22 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         if self.cfg.publish_experience_image:
             self._publish_images(self.images.on_event(ev.header))
 
+    def _follow_scale(self) -> None:
+        """Apply the camera's odometry scale when it moved by more than ``update_step``."""
+        assert self.visual is not None and isinstance(self.graph, ExperienceMap)
+        scale, applied = self.visual.scale, self.graph.odometry_scale
+        if scale is None or abs(scale / applied - 1.0) <= self.cfg.visual_scale.update_step:
+            return
+        res = self.graph.set_odometry_scale(scale)
+        self.count("odometry_scale_updates")
+        if res.correction_clamped:
+            self.count("corrections_clamped")
+        log.info("expmap: odometry scale %.4f (camera, %d of %d frame pairs)", scale, self.visual.counts["inliers"],
+                 self.visual.counts["pairs"])
+
     def _on_odometry(self, od: Odometry) -> None:
+        if self.visual is not None:
+            self.visual.add_odometry(od.header.stamp, od.position[0], od.position[1])
         if self.scan_graph:
             if np.all(np.isfinite(od.position)) and any(od.orientation):
                 self.laser.set_pose(od.position[0], od.position[1], yaw_of_quaternion(od.orientation))
@@ -296,7 +338,11 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self.count("scans")
 
     def _on_image(self, img: Image) -> None:
-        self._publish_images(self.images.on_frame(img))
+        if self.visual is not None:
+            d = img.data
+            self.visual.add_frame(img.header.stamp, d[:, :, 1] if d.ndim == 3 else d)   # green: the clearest in water
+        if self.cfg.publish_experience_image:
+            self._publish_images(self.images.on_frame(img))
 
     # ---- event-image association (services.expmap.association) ----------------------------
     def _publish_images(self, decisions: list[Association[Header, Image]]) -> None:
@@ -342,6 +388,13 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
                 loaded_nodes=self.loaded_nodes, links=links, rejections=dict(g.link_rejections)))
 
     def finish(self) -> None:
+        if self.visual is not None:
+            for k, v in self.visual.counts.items():
+                self.count(f"visual_scale_{k}", v - self.counters.get(f"visual_scale_{k}", 0))
+            log.info("expmap: odometry scale measured by the camera: %s (applied %.4f)", self.visual.scale,
+                     getattr(self.graph, "odometry_scale", 1.0))
+        if self.visual is not None and isinstance(self.graph, ExperienceMap):
+            self._follow_scale()
         if isinstance(self.graph, ScanGraph):
             for k, v in self.graph.counters.items():
                 self.count(k, v - self.counters.get(k, 0))

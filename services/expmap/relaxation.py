@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from numba import njit
 from scipy.sparse.linalg import splu
 
-__all__ = ["solve_optimum", "plan_correction", "relax_fraction"]
+__all__ = ["solve_optimum", "plan_correction", "relax_fraction", "rescale_edges"]
 
 
 @njit(cache=True)
@@ -118,3 +118,17 @@ def relax_fraction(phi: float, peak: float, step: float, iterations: int) -> tup
     if left <= iterations * step:
         return 1.0, max(1, math.ceil(left / step - 1e-9)), min(left, step), False
     return phi + iterations * step / peak, iterations, step, True
+
+
+def rescale_edges(arrays: dict[str, np.ndarray], first: int, n: int, factor: float) -> None:
+    """Multiply the horizontal delta of the weight-1 odometry edges into nodes first..n-1 by
+    ``factor`` and rebuild ``cum`` (the chain's summed deltas) from there; a session's break
+    edge (weight != 1) carries no measurement and keeps its delta."""
+    if n <= 0 or factor == 1.0:
+        return
+    lo = max(int(first), 1)
+    d, w, cum = arrays["delta"], arrays["weight"], arrays["cum"]
+    odo = np.nonzero(w[lo:n] == 1.0)[0] + lo
+    d[odo, :2] *= factor
+    if lo < n:
+        cum[lo:n] = cum[lo - 1] + np.cumsum(d[lo:n], axis=0)

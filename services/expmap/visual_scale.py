@@ -1,0 +1,174 @@
+"""The odometry's scale, measured by the downward camera (issue 20): what loop closures cannot see.
+
+Why: a loop closure ties two visits of one place, and around a closed route a scale error of
+the dead reckoning adds up to nothing, so neither relaxation (Eq. 4.20) nor a session link
+can see it.  On the simulated missions the DVL reads 1-2 % long (its scale and its forward
+bias), which is most of the map's error (``docs/DECISIONS.md``, "What limits the map").  The
+sonar sweeps did not measure it without a bias of their own (same section).  A downward
+camera over the floor does:
+
+- between two consecutive frames the floor's texture shifts by ``d_px = f d / h`` pixels
+  (pinhole over a locally flat floor; f = ``focal_px``, h = the camera's height over the
+  floor = the DVL's altitude minus ``camera_height_m``, the camera's offset below the DVL);
+- the shift comes from phase correlation of the two frames, each high-passed (a 13-px box
+  mean removed), contrast-normalised (divided by the 25-px box mean of its magnitude, so
+  the lamp's bright spot does not dominate) and Hann-windowed, refined to a tenth of a
+  pixel by a parabola through the peak;
+- the pair's metric displacement ``|d_px| h / f`` is compared with the odometry's
+  horizontal displacement between the same two stamps (interpolated):
+  ``s = sum(d_camera) / sum(d_odometry)`` over the pairs whose ratio lies within
+  ``inlier_band`` of the median ratio of every pair measured so far (re-estimated every 16
+  pairs).  A frame pair that failed (turbidity, snow, a bare floor) gives a wild ratio and is
+  left out; the rest average the per-pair noise away (+-8 % interquartile on the sim's
+  floors: the floor under the camera is not where the DVL measured its altitude).
+- :attr:`VisualScale.scale` is None until ``min_pairs`` inliers were seen.
+
+The map multiplies its odometry edges' horizontal displacements by ``s``
+(:meth:`services.expmap.graph.ExperienceMap.set_odometry_scale`); the depth channel is
+absolute and keeps its own scale.  Only every ``pair_every``-th frame pair is measured
+(the estimate needs hundreds, not every one; 2.5 ms per frame).  Everything is
+deterministic: the inputs' stamps decide every choice.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+import scipy.fft as sfft
+from scipy.ndimage import uniform_filter
+
+from services.expmap.config import VisualScaleConfig
+
+_REESTIMATE_EVERY = 16      # pairs between two estimates (each costs a median over every pair)
+
+__all__ = ["VisualScale", "image_shift"]
+
+
+def _prepare(image: np.ndarray) -> np.ndarray:
+    """Spectrum of the high-passed, contrast-normalised, Hann-windowed frame."""
+    img = np.asarray(image, np.float32)
+    hp = img - uniform_filter(img, 13)
+    hp /= uniform_filter(np.abs(hp), 25) + 1e-3
+    h, w = img.shape
+    win = np.outer(np.hanning(h), np.hanning(w)).astype(np.float32)
+    out: np.ndarray = sfft.rfft2(hp * win)
+    return out
+
+
+def _parabola(a: float, b: float, c: float) -> float:
+    d = a - 2.0 * b + c
+    return 0.0 if d == 0.0 else 0.5 * (a - c) / d
+
+
+def _shift(spec_a: np.ndarray, spec_b: np.ndarray, shape: tuple[int, int]) -> tuple[float, float]:
+    """(rows, columns) the content of frame b moved to reach frame a (phase correlation)."""
+    r = spec_a * np.conj(spec_b)
+    r /= np.abs(r) + 1e-9
+    c = sfft.irfft2(r, s=shape)
+    h, w = shape
+    i, j = np.unravel_index(int(np.argmax(c)), c.shape)
+    y = i + _parabola(c[(i - 1) % h, j], c[i, j], c[(i + 1) % h, j])
+    x = j + _parabola(c[i, (j - 1) % w], c[i, j], c[i, (j + 1) % w])
+    return (y - h if y > h / 2 else y), (x - w if x > w / 2 else x)
+
+
+def image_shift(first: np.ndarray, second: np.ndarray) -> tuple[float, float]:
+    """Pixels (rows, columns) the floor's texture moved from ``first`` to ``second`` (2-D arrays)."""
+    a, b = np.asarray(first), np.asarray(second)
+    if a.ndim != 2 or a.shape != b.shape:
+        raise ValueError(f"image_shift needs two 2-D frames of one shape, got {a.shape} and {b.shape}")
+    return _shift(_prepare(b), _prepare(a), (int(a.shape[0]), int(a.shape[1])))
+
+
+class VisualScale:
+    """Running estimate of the odometry's horizontal scale from camera frame pairs (module doc)."""
+
+    def __init__(self, cfg: VisualScaleConfig):
+        self.cfg = cfg
+        self._frames = 0
+        self._prev: tuple[int, np.ndarray] | None = None      # (stamp, spectrum) of the last prepared frame
+        self._altitude: tuple[int, float] | None = None
+        self._odom: deque[tuple[int, float, float]] = deque(maxlen=256)
+        self._pending: deque[tuple[int, int, float]] = deque()  # (t0, t1, camera metres) awaiting odometry
+        self._camera: list[float] = []                          # every measured pair: camera metres
+        self._odometry: list[float] = []                        # ... and the odometry's metres
+        self._estimated_at = 0
+        self.sum_camera = 0.0
+        self.sum_odometry = 0.0
+        self.counts = {"pairs": 0, "inliers": 0, "outliers": 0, "no_altitude": 0, "slow": 0, "no_odometry": 0}
+
+    @property
+    def scale(self) -> float | None:
+        """Camera over odometry, or None before ``min_pairs`` inliers."""
+        if self.counts["inliers"] < self.cfg.min_pairs or self.sum_odometry <= 0.0:
+            return None
+        return self.sum_camera / self.sum_odometry
+
+    def add_altitude(self, stamp: int, altitude_m: float) -> None:
+        """The DVL's altitude over the floor (m) at ``stamp`` (ns); non-finite or <= 0: none."""
+        self._altitude = (int(stamp), float(altitude_m)) if math.isfinite(altitude_m) and altitude_m > 0 else None
+
+    def add_odometry(self, stamp: int, x: float, y: float) -> None:
+        """The odometry's horizontal position (m) at ``stamp`` (ns); settles the pairs it covers."""
+        self._odom.append((int(stamp), float(x), float(y)))
+        while self._pending and self._pending[0][1] <= stamp:
+            self._settle(*self._pending.popleft())
+
+    def add_frame(self, stamp: int, image: np.ndarray) -> None:
+        """A camera frame (2-D, any numeric type); measures the pair it closes when its turn comes."""
+        cfg = self.cfg
+        k = self._frames
+        self._frames += 1
+        every = cfg.pair_every
+        if every > 1 and k % every not in (0, every - 1):
+            self._prev = None
+            return
+        spec = _prepare(image)
+        prev, self._prev = self._prev, (int(stamp), spec)
+        if prev is None or (every > 1 and k % every != 0):
+            return
+        alt = self._altitude
+        if alt is None or stamp - alt[0] > cfg.altitude_max_age_s * 1e9 or alt[1] - cfg.camera_height_m < cfg.min_clearance_m:
+            self.counts["no_altitude"] += 1
+            return
+        dy, dx = _shift(spec, prev[1], (int(image.shape[0]), int(image.shape[1])))
+        metres = math.hypot(dy, dx) * (alt[1] - cfg.camera_height_m) / cfg.focal_px
+        self._pending.append((prev[0], int(stamp), metres))
+
+    def _odom_at(self, t: int) -> np.ndarray | None:
+        od = self._odom
+        if not od or t < od[0][0] or t > od[-1][0]:
+            return None
+        ts = np.fromiter((o[0] for o in od), np.int64, len(od))
+        k = int(np.searchsorted(ts, t))
+        if ts[k] == t:
+            return np.array(od[k][1:])
+        (t0, x0, y0), (t1, x1, y1) = od[k - 1], od[k]
+        f = (t - t0) / (t1 - t0)
+        return np.array([x0 + f * (x1 - x0), y0 + f * (y1 - y0)])
+
+    def _settle(self, t0: int, t1: int, camera_m: float) -> None:
+        a, b = self._odom_at(t0), self._odom_at(t1)
+        if a is None or b is None:
+            self.counts["no_odometry"] += 1
+            return
+        odo = float(np.linalg.norm(b - a))
+        if odo < self.cfg.min_step_m:
+            self.counts["slow"] += 1
+            return
+        self.counts["pairs"] += 1
+        self._camera.append(camera_m)
+        self._odometry.append(odo)
+        if len(self._camera) - self._estimated_at >= _REESTIMATE_EVERY:
+            self._estimate()
+
+    def _estimate(self) -> None:
+        """Sum ratio over the pairs within ``inlier_band`` of the median pair ratio."""
+        cam, odo = np.asarray(self._camera), np.asarray(self._odometry)
+        ratio = cam / odo
+        sel = np.abs(ratio / float(np.median(ratio)) - 1.0) <= self.cfg.inlier_band
+        self.sum_camera, self.sum_odometry = float(cam[sel].sum()), float(odo[sel].sum())
+        self.counts["inliers"] = int(sel.sum())
+        self.counts["outliers"] = int(sel.size - sel.sum())
+        self._estimated_at = len(cam)
