@@ -96,7 +96,8 @@ class VisualScale:
         self._estimated_at = 0
         self.sum_camera = 0.0
         self.sum_odometry = 0.0
-        self.counts = {"pairs": 0, "inliers": 0, "outliers": 0, "no_altitude": 0, "slow": 0, "no_odometry": 0}
+        self.counts = {"pairs": 0, "inliers": 0, "outliers": 0, "no_altitude": 0, "slow": 0, "no_odometry": 0,
+                       "resized": 0}
 
     @property
     def scale(self) -> float | None:
@@ -126,6 +127,9 @@ class VisualScale:
             return
         spec = _prepare(image)
         prev, self._prev = self._prev, (int(stamp), spec)
+        if prev is not None and prev[1].shape != spec.shape:     # the camera's resolution changed
+            self.counts["resized"] += 1
+            return
         if prev is None or (every > 1 and k % every != 0):
             return
         alt = self._altitude
