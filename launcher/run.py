@@ -78,8 +78,10 @@ MAP_DIR_FILES = {
 
 def use_map_dir(config: PoseidonConfig, map_dir: str | Path) -> dict[str, str]:
     """Point every persisted state of ``config`` into ``map_dir`` (created if missing) and make
-    a loaded experience map begin a new session (``expmap.map_sessions``): a run loads what
-    is there at start and saves the merged state there at the end.  Returns the settings made."""
+    a loaded experience map begin a new session (``expmap.map_sessions``) in a new odometry
+    frame (``posecells.state_new_odometry_frame``: the loaded pose cells keep their activity and
+    associations, not the other mission's odometry): a run loads what is there at start and
+    saves the merged state there at the end.  Returns the settings made."""
     d = Path(map_dir)
     if d.exists() and not d.is_dir():
         raise ValueError(f"--map-dir {d}: exists and is not a directory")
@@ -91,6 +93,8 @@ def use_map_dir(config: PoseidonConfig, map_dir: str | Path) -> dict[str, str]:
         made[dotted] = str(d / name)
     config.expmap.map_sessions = True
     made["expmap.map_sessions"] = "true"
+    config.posecells.state_new_odometry_frame = True
+    made["posecells.state_new_odometry_frame"] = "true"
     return made
 
 

@@ -55,6 +55,13 @@ subscribed.
   ``loop_verified``, ``loop_rejected_score``, ``loop_rejected_ambiguous``, ``loop_from_lvc``)
   are added to the node's at the end.
 
+- odometry scale (``expmap.visual_scale.enabled``; off by default): the camera frames and the
+  DVL's altitude (``visual_scale.dvl_topic``) feed :class:`services.expmap.visual_scale.VisualScale`;
+  before each event, when its estimate moved by more than ``update_step`` from the scale the
+  map applies, the map's odometry edges of this run are rescaled to it
+  (:meth:`ExperienceMap.set_odometry_scale`, a relaxation toward the new optimum); once more at
+  the end.  The camera is subscribed for it even with ``publish_experience_image`` off.
+
 Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_interval``,
 ``loop_rejected_route``, ``loop_rejected_scan`` (the two sweeps do not fit),
 ``loop_scan_registered`` / ``loop_scan_untrusted`` (how closures got their displacement),
@@ -62,7 +69,9 @@ Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_int
 ``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
 max_correction_step), ``experience_images``, ``events_without_image``,
 ``image_wait_overflow``, ``maps_published``, ``sessions_started``, ``session_links``, ``session_backfill_edges``,
-``loop_rejected_link`` (a link candidate the sweeps did not verify).
+``loop_rejected_link`` (a link candidate the sweeps did not verify); with the odometry scale
+``odometry_scale_updates`` and ``visual_scale_<count>`` (frame pairs: ``pairs`` measured,
+``inliers``, ``outliers``, ``no_altitude``, ``slow``, ``no_odometry``, ``resized``).
 """
 from __future__ import annotations
 

@@ -40,6 +40,11 @@ class PoseCellsConfig(ConfigSection):
                                      "discontinuity (restarted odometry, later mission), not motion")
     state_path: str = Field("", description="load pose cells, associations and gates from this .npz at start "
                             "and save at end (empty: off)")
+    state_new_odometry_frame: bool = Field(False, description="the state loaded from state_path comes from another "
+                                           "mission in its own odometry frame (poseidon run --map-dir sets it): its "
+                                           "odometry reference and the event gates' memory (last event pose, VPR "
+                                           "window) are not restored, so no event of this run carries the other "
+                                           "mission's odometry; the activity and the LVC associations are")
 
     @model_validator(mode="after")
     def _consistent(self) -> PoseCellsConfig:

@@ -172,6 +172,8 @@ class PoseCellsCore:
         if state.get("version") != NODE_STATE_VERSION:
             raise ValueError(f"{path}: posecells node state version {state.get('version')}, "
                              f"expected {NODE_STATE_VERSION}")
+        self.placed = bool(state["placed"])
+        if self.cfg.state_new_odometry_frame:   # another mission's frame: only the network carries over
+            return
         self.gate.load_state(state["gate"])
         self.odometry.load_state(state)
-        self.placed = bool(state["placed"])

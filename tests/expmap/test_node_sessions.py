@@ -25,7 +25,8 @@ def test_use_map_dir_points_every_state_into_the_folder(tmp_path: Path) -> None:
     assert cfg.htm.state_path == str(tmp_path / "m" / MAP_DIR_FILES["htm.state_path"])
     assert cfg.posecells.state_path.startswith(str(tmp_path / "m"))
     assert cfg.expmap.map_path == str(tmp_path / "m" / "expmap.npz") and cfg.expmap.map_sessions
-    assert "{backbone}" in cfg.encoder.embedding_norm_path and len(made) == 5
+    assert cfg.posecells.state_new_odometry_frame, "the loaded pose cells must not lend their odometry"
+    assert "{backbone}" in cfg.encoder.embedding_norm_path and len(made) == 6
     (tmp_path / "f").write_text("x")
     try:
         use_map_dir(PoseidonConfig(), tmp_path / "f")

@@ -212,6 +212,34 @@ def test_save_load_continue_equals_an_uninterrupted_run(tmp_path: Path) -> None:
     assert [strip(e) for e in joined] == [strip(e) for e in ref]
 
 
+def test_a_state_from_another_mission_lends_no_odometry_to_this_one(tmp_path: Path) -> None:
+    """Issue 20: a second dive loads the first one's pose cells (``--map-dir``).  Its frames
+    before its own first Odometry must make no event carrying the first dive's last pose (an
+    experience 40 m off in the map); the network's associations carry over."""
+    cfg = config(require_vpr_for_event=False)
+    cfg.posecells.state_path = str(tmp_path / "pc.npz")
+    first = stream(seconds=20.0, ids=lambda k: (k // 3) % 9)
+    run_offline(build_node("posecells", cfg), first)
+    (tmp_path / "pc_first.npz").write_bytes((tmp_path / "pc.npz").read_bytes())
+    # the second dive: its odometry starts 2 s after its first frames, at its own origin
+    second = stream(seconds=10.0, ids=lambda k: (k // 3) % 9, odom_delay_s=2.0)
+    shifted = [(k, m.model_copy(update={"position": [v - 40.0 for v in m.position]})) if k == "Odometry" else (k, m)
+               for k, m in second]
+    cfg.posecells.state_new_odometry_frame = True
+    node = build_node("posecells", cfg)
+    assert len(node.net.beta) > 0, "the associations must carry over"
+    evs = events(run_offline(node, shifted))
+    assert node.counters["lvc_before_odometry"] == 8
+    assert evs and evs[0].header.stamp >= T0 + 2 * NS
+    assert all(e.odom_position[0] < -30.0 for e in evs), "every event carries this dive's odometry"
+    # without the setting (a mission continued in one frame) the loaded pose is the reference
+    cfg.posecells.state_new_odometry_frame = False
+    cfg.posecells.state_path = str(tmp_path / "pc_first.npz")
+    cont = build_node("posecells", cfg)
+    run_offline(cont, shifted)
+    assert cont.counters.get("lvc_before_odometry", 0) == 0
+
+
 def test_state_file_of_another_kind_is_a_clear_error(tmp_path: Path) -> None:
     bad = tmp_path / "other.npz"
     np.savez(bad, x=np.zeros(3))
