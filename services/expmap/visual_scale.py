@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from functools import lru_cache
 
 import numpy as np
 import scipy.fft as sfft
@@ -45,14 +46,21 @@ _REESTIMATE_EVERY = 16      # pairs between two estimates (each costs a median o
 __all__ = ["VisualScale", "image_shift"]
 
 
+@lru_cache(maxsize=4)
+def _window(h: int, w: int) -> np.ndarray:
+    """The 2-D Hann window of an h x w frame (float32, read-only: shared between calls)."""
+    win = np.outer(np.hanning(h), np.hanning(w)).astype(np.float32)
+    win.setflags(write=False)
+    return win
+
+
 def _prepare(image: np.ndarray) -> np.ndarray:
     """Spectrum of the high-passed, contrast-normalised, Hann-windowed frame."""
     img = np.asarray(image, np.float32)
     hp = img - uniform_filter(img, 13)
     hp /= uniform_filter(np.abs(hp), 25) + 1e-3
-    h, w = img.shape
-    win = np.outer(np.hanning(h), np.hanning(w)).astype(np.float32)
-    out: np.ndarray = sfft.rfft2(hp * win)
+    hp *= _window(*img.shape)
+    out: np.ndarray = sfft.rfft2(hp)
     return out
 
 
