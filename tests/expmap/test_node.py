@@ -96,6 +96,8 @@ def test_watermark_is_held_until_the_image_is_decided() -> None:
 def test_event_without_camera_when_images_are_off() -> None:
     cfg = PoseidonConfig()
     cfg.expmap.publish_experience_image = False
+    assert "camera/image_raw" in build_node("expmap", cfg).inputs, "the camera's odometry scale reads the frames"
+    cfg.expmap.visual_scale.enabled = False
     node = build_node("expmap", cfg)
     assert "camera/image_raw" not in node.inputs
     out = run_offline(node, [("camera/image_raw", frame(0, 0)), ("experience_event", event(0, 0))])

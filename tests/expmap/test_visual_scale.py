@@ -142,6 +142,6 @@ def test_the_node_subscribes_to_camera_and_dvl_only_when_enabled() -> None:
     on = small_cfg(publish_experience_image=False, visual_scale=VisualScaleConfig(enabled=True))
     ins, _ = ExpMapNode.io_keys(on)
     assert on.image_topic in ins and "dvl_linkquest" in ins
-    off = small_cfg(publish_experience_image=False)
+    off = small_cfg(publish_experience_image=False, visual_scale=VisualScaleConfig(enabled=False))
     ins, _ = ExpMapNode.io_keys(off)
     assert off.image_topic not in ins and "dvl_linkquest" not in ins
