@@ -112,6 +112,10 @@ class VisualScaleConfig(ConfigSection):
     min_pairs: int = Field(200, ge=1, description="inlier pairs needed before the estimate is used")
     update_step: float = Field(0.001, gt=0, description="the map's odometry scale follows the estimate when it moved "
                                "by more than this fraction")
+    max_deviation: float = Field(0.03, gt=0, lt=1, description="an estimate further than this fraction from 1 is not "
+                                 "applied (the map keeps the odometry's own scale): a DVL is off by 1-2 %, so the "
+                                 "camera is the one wrong (zoomed or edited frames, a wrong altitude); counted as "
+                                 "visual_scale_implausible")
 
 
 class ExpMapConfig(ConfigSection):

@@ -57,7 +57,8 @@ subscribed.
 
 - odometry scale (``expmap.visual_scale.enabled``; off by default): the camera frames and the
   DVL's altitude (``visual_scale.dvl_topic``) feed :class:`services.expmap.visual_scale.VisualScale`;
-  before each event, when its estimate moved by more than ``update_step`` from the scale the
+  before each event, when its estimate (1 when it is further than ``max_deviation`` from 1:
+  counted ``visual_scale_implausible``) moved by more than ``update_step`` from the scale the
   map applies, the map's odometry edges of this run are rescaled to it
   (:meth:`ExperienceMap.set_odometry_scale`, a relaxation toward the new optimum); once more at
   the end.  The camera is subscribed for it even with ``publish_experience_image`` off.
@@ -297,6 +298,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         """Apply the camera's odometry scale when it moved by more than ``update_step``."""
         assert self.visual is not None and isinstance(self.graph, ExperienceMap)
         scale, applied = self.visual.scale, self.graph.odometry_scale
+        if scale is not None and abs(scale - 1.0) > self.cfg.visual_scale.max_deviation:
+            self.count("visual_scale_implausible")
+            scale = 1.0                     # not the DVL: the camera's measure is wrong
         if scale is None or abs(scale / applied - 1.0) <= self.cfg.visual_scale.update_step:
             return
         res = self.graph.set_odometry_scale(scale)

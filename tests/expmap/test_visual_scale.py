@@ -145,3 +145,27 @@ def test_the_node_subscribes_to_camera_and_dvl_only_when_enabled() -> None:
     off = small_cfg(publish_experience_image=False, visual_scale=VisualScaleConfig(enabled=False))
     ins, _ = ExpMapNode.io_keys(off)
     assert off.image_topic not in ins and "dvl_linkquest" not in ins
+
+
+class _Estimate:
+    """Stands in for VisualScale's estimate in the node's rule."""
+
+    def __init__(self, scale: float):
+        self.scale = scale
+        self.counts = {"inliers": 300, "pairs": 400}
+
+
+def test_the_node_applies_a_plausible_estimate_and_refuses_an_implausible_one() -> None:
+    from launcher.config import PoseidonConfig
+    from launcher.services import build_node
+    cfg = PoseidonConfig()
+    cfg.expmap.publish_experience_image = False
+    node = build_node("expmap", cfg)
+    assert isinstance(node, ExpMapNode) and isinstance(node.graph, ExperienceMap)
+    straight_run(node.graph, 0, 5, 1.0)
+    node.visual = _Estimate(0.99)                       # type: ignore[assignment]
+    node._follow_scale()
+    assert node.graph.odometry_scale == pytest.approx(0.99)
+    node.visual = _Estimate(1.07)                       # type: ignore[assignment]  # zoomed frames, not a DVL
+    node._follow_scale()
+    assert node.graph.odometry_scale == 1.0 and node.counters["visual_scale_implausible"] == 1
