@@ -55,7 +55,7 @@ from common.messages import Message, message_type
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
     "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "code_revision",
-    "recording_status", "recover_recording", "read_file_order", "iter_file_order",
+    "recording_status", "recover_recording", "read_file_order", "iter_file_order", "key_digests",
 ]
 
 log = logging.getLogger(__name__)
@@ -422,6 +422,27 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
     messages.sort(key=lambda r: r.stamp)
     yield from (m for m in messages if (start_ns is None or m.stamp >= start_ns)
                 and (end_ns is None or m.stamp < end_ns))
+
+
+def key_digests(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Per key of a recording: ``{"messages": n, "sha256": hex}``, the digest of every message's
+    stamp (ns), sequence number and payload bytes in event-time order.
+
+    Two recordings with equal digests on a key carry the same stream on it, byte for byte,
+    whatever their chunking, compression or metadata (the run's configuration and code revision
+    are metadata, not messages).
+    """
+    hashes: dict[str, Any] = {}
+    counts: dict[str, int] = {}
+    for m in read_messages(path, strict=True):
+        h = hashes.get(m.key)
+        if h is None:
+            h = hashes[m.key] = hashlib.sha256()
+            counts[m.key] = 0
+        h.update(struct.pack("<qQI", m.stamp, m.seq, len(m.payload)))
+        h.update(m.payload)
+        counts[m.key] += 1
+    return {k: {"messages": counts[k], "sha256": hashes[k].hexdigest()} for k in sorted(hashes)}
 
 
 def recording_keys(path: str | Path) -> dict[str, str]:

@@ -30,7 +30,8 @@ Subcommands:
   into a complete file any standard MCAP reader opens.  ``--json`` keys: ``counts``,
   ``types``, ``start_ns``, ``end_ns``, ``duration_s``, ``metadata`` (record name -> field
   names), ``complete`` (bool), ``damage`` (where it stops being readable, "" if complete),
-  ``recovered`` (``{"path", "messages"}`` with ``--recover``).
+  ``recovered`` (``{"path", "messages"}`` with ``--recover``), ``digests`` (with ``--digests``: key ->
+  ``{"messages", "sha256"}``, :func:`common.mcap_io.key_digests`).
 - ``sim``, ``transform``, ``import``, ``export``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``,
   ``path``: see their own ``--help``.
 
@@ -212,6 +213,9 @@ def _add_info_command(sub: Any) -> None:
     p.add_argument("--json", action="store_true")
     p.add_argument("--recover", metavar="FIXED.mcap",
                    help="write every intact message of a damaged recording (e.g. a killed recorder's) to a complete file")
+    p.add_argument("--digests", action="store_true",
+                   help="also the sha256 of each key's stream (stamps, sequence numbers, payloads): two runs with "
+                        "equal digests on a key published the same bytes on it")
     p.add_argument("--log-level", default="WARNING")
     p.set_defaults(func=cmd_info)
 

@@ -184,6 +184,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     is listed, with how to recover it); 2: not a readable MCAP recording."""
     from common.mcap_io import (
         RecordingError,
+        key_digests,
         read_metadata,
         recording_keys,
         recording_status,
@@ -196,6 +197,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         summary["types"] = recording_keys(args.recording)
         meta = read_metadata(args.recording)
         recovered = None
+        if getattr(args, "digests", False):
+            summary["digests"] = key_digests(args.recording)
         if args.recover:
             recovered = recover_recording(args.recording, args.recover)
     except RecordingError as exc:
@@ -214,6 +217,8 @@ def cmd_info(args: argparse.Namespace) -> int:
             print(f"  {k:<24} {n:>8}  {summary['types'].get(k, '')}")
         for name, fields in summary["metadata"].items():
             print(f"  metadata {name}: {', '.join(fields)}")
+        for k, d in summary.get("digests", {}).items():
+            print(f"  sha256 {k:<24} {d['sha256']}")
     if recovered is not None:
         print(f"poseidon info: {recovered} messages written to {args.recover} (a complete recording)", file=sys.stderr)
         return 0
