@@ -37,8 +37,8 @@ import numpy as np
 from common.mcap_io import read_messages
 from common.node import run_offline
 from eval.deadreckon import PlainIntegrator, run_deadreckon
-from launcher.config import load_config
-from launcher.services import build_node
+from system.config import load_config
+from system.services import build_node
 
 
 def _mission(cache: Path, minutes: float, seed: int) -> Path:

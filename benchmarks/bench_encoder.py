@@ -178,8 +178,8 @@ def _mission(args: argparse.Namespace, runtimes: list[str]) -> None:
     """Whole recording through the encoder node per runtime: CPU seconds and SDR equality with torch."""
     from common.mcap_io import read_messages
     from common.node import run_offline
-    from launcher.config import PoseidonConfig
-    from launcher.services import build_node
+    from system.config import PoseidonConfig
+    from system.services import build_node
 
     base = PoseidonConfig.model_validate({"encoder": {"lsbh_matrix_path": "", "torch_threads": args.threads}})
     keys = ["camera/image_raw", base.encoder.sonar_topic]

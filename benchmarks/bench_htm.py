@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
     # the dissertation's SP + TM chain (services/htm/presets/dissertation.yaml: Table 4.1's SP and TM);
     # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
-    from launcher.config import load_config
+    from system.config import load_config
     preset = Path(__file__).resolve().parents[1] / "services/htm/presets/dissertation.yaml"
     update: dict = {"sp_learn_steps": 0} if args.boost is None else {"sp_learn_steps": 0, "sp_boostStrength": args.boost}
     cfg = load_config(preset).htm.model_copy(update=update)
@@ -167,9 +167,9 @@ def seqmem_mission(path: str) -> None:
     """A run's fused SDRs through the htm node with the running sums and with the K-term sums."""
     from common.mcap_io import read_messages
     from common.node import run_offline
-    from launcher.config import PoseidonConfig
-    from launcher.services import build_node
     from services.htm.sequence import SequenceMatcher
+    from system.config import PoseidonConfig
+    from system.services import build_node
 
     msgs = [(m.key, m.message()) for m in read_messages(path, keys=["neocortex/sdr"])]
     cfg = PoseidonConfig.model_validate({"htm": {"state_path": ""}})
@@ -192,8 +192,8 @@ def revisit_cost(path: str, loops: int) -> None:
     """The fourth part of the module doc: per-loop CPU of the htm node, every_frame vs new_places."""
     from common.mcap_io import read_messages
     from common.messages import LocalViewCells, Message
-    from launcher.config import PoseidonConfig
-    from launcher.services import build_node
+    from system.config import PoseidonConfig
+    from system.services import build_node
 
     recs = [(r.key, r.stamp, r.message()) for r in read_messages(path, keys=["neocortex/sdr", "Odometry"])]
     if not recs:

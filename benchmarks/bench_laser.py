@@ -25,9 +25,9 @@ from typing import Any
 
 from eval.run_eval import evaluate_run
 from launcher.cli import isolate_stdout
-from launcher.config import load_config
 from launcher.run import run_distributed
 from missions.importers.cli import main as import_main
+from system.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "radish"

@@ -40,10 +40,10 @@ from typing import Any
 
 from eval.run_eval import evaluate_run
 from launcher.cli import isolate_stdout
-from launcher.config import PoseidonConfig, load_config
 from launcher.live import run_live
-from launcher.services import LIVE_PLAYER
 from missions.sim.cli import simulate_cached
+from system.config import PoseidonConfig, load_config
+from system.services import LIVE_PLAYER
 
 STAGES = ("lvc", "event", "map", "odometry", "dead_reckoning")
 

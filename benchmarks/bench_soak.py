@@ -48,9 +48,9 @@ import numpy as np
 from common.mcap_io import recording_summary
 from common.resume import load_checkpoint
 from launcher.cli import isolate_stdout
-from launcher.config import load_config
 from launcher.run import run_distributed, state_dir_of
 from missions.sim.cli import simulate_cached
+from system.config import load_config
 
 SIXTHS = 6
 

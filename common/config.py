@@ -2,7 +2,7 @@
 
 Each service's section lives next to the service (``services/<name>/config.py``); the
 sections every process uses (the bus, the cross-topic association window, supervision)
-live here; the whole, one field per section, is assembled in ``launcher/config.py``,
+live here; the whole, one field per section, is assembled in ``system/config.py``,
 with the file ``deploy/poseidon.yaml`` spelling out every default. A user file only
 needs the keys it changes. Loading validates everything with pydantic: a wrong type, a
 value out of range or an unknown key fails at start-up with the dotted name of the field

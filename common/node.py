@@ -33,7 +33,7 @@ class ServiceNode(Generic[ConfigT]):
 
     A node is built from its own configuration section; what it needs from another
     service's section comes as explicit constructor arguments (the launcher's factory,
-    ``launcher/services.py::build_node``, passes them).
+    ``system/services.py::build_node``, passes them).
     """
 
     name: ClassVar[str] = ""

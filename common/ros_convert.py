@@ -1,5 +1,5 @@
 """ROS messages <-> our messages: the one mapping, shared by the bag importer
-(``missions/importers``), the bag exporters (``missions/export``) and the live ROS 1 bridge
+(``missions/importers``), the bag exporters (``products``) and the live ROS 1 bridge
 (``services/bridge_ros1``).  ROS -> ours is here, ours -> ROS in :mod:`common.ros_encode`;
 both tables are here.  Both directions work on rosbags message objects (the pure-Python
 ``rosbags`` typestores: no ROS installation needed); the bridge deserialises the bytes it
@@ -45,7 +45,7 @@ camelCase (``dataGood``, ``velocityInst``): fields are matched case-insensitivel
 
 Ours -> ROS (:func:`common.ros_encode.to_ros`, :func:`common.ros_encode.ros_type_of`): standard
 types where ROS has one; the Cala Viuda types for the dataset's own sensors; our SLAM outputs as
-``poseidon_msgs`` types (the exporter registers them from ``missions/export/msg``):
+``poseidon_msgs`` types (the exporter registers them from ``products/msg``):
 
 =========================== ====================================================== =====================
 key type (ours)             ROS type                                               loses

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from decimal import Decimal, InvalidOperation
 
-__all__ = ["seconds_to_ns", "ns_to_text"]
+__all__ = ["seconds_to_ns", "ns_to_text", "parse_stamp_ns"]
 
 NS = 1_000_000_000
 
@@ -30,3 +30,18 @@ def ns_to_text(ns: int) -> str:
     """Integer nanoseconds -> seconds with exactly 9 decimals (``stamp / 1e9`` without rounding)."""
     q, r = divmod(abs(int(ns)), NS)
     return f"{'-' if ns < 0 else ''}{q}.{r:09d}"
+
+
+def parse_stamp_ns(text: str) -> int:
+    """A stamp as integer nanoseconds: ``1372687208633787539`` (ns) or
+    ``1372687208.617629`` (seconds, decimal; converted exactly without float rounding)."""
+    t = text.strip()
+    if "." in t:
+        sec, frac = t.split(".", 1)
+        if not (sec.isdigit() and (frac.isdigit() or frac == "")):
+            raise ValueError(f"not a stamp: {text!r}")
+        frac = (frac + "0" * 9)[:9]
+        return int(sec) * 1_000_000_000 + int(frac)
+    if not t.isdigit():
+        raise ValueError(f"not a stamp: {text!r}")
+    return int(t)

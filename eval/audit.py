@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 __all__ = ["audit_run", "association", "sequence_gaps", "format_audit", "main"]
 

@@ -36,7 +36,7 @@ from typing import Any
 from eval.audit import audit_run
 from eval.run_eval import evaluate_run
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 __all__ = ["compare_runs", "compare_results", "format_compare", "main", "TABLE_5_4", "ADDITIONS"]
 

@@ -58,9 +58,9 @@ from common.mcap_io import RecordingError, read_messages
 from common.messages import Depth, LinkquestDvl, Message, Odometry
 from common.node import run_offline
 from eval.trajectory import NS, Trajectory, anchored_errors
-from launcher.config import PoseidonConfig, load_config
-from launcher.services import build_node
 from services.robot_state.config import RobotStateConfig
+from system.config import PoseidonConfig, load_config
+from system.services import build_node
 
 __all__ = ["main", "PlainIntegrator", "Trajectory", "read_cone_passes", "cone_scores", "truth_scores",
            "run_deadreckon"]
@@ -132,7 +132,7 @@ def _odometry_trajectory(outputs: Iterable[tuple[str, Message]], frame: OutputFr
 
 def read_cone_passes(path: str | Path) -> list[dict[str, Any]]:
     """Rows of a cone-pass file (``pass,stamp,cone,offset_x,offset_y``; stamp s or ns)."""
-    from missions.importers.rostopic_csv import parse_stamp_ns
+    from common.stamps import parse_stamp_ns
 
     p = Path(path)
     try:

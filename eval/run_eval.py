@@ -107,7 +107,7 @@ from eval.relations import read_relations, relation_summary
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 from eval.sessions import sessions_block
 from eval.trajectory import PoseSeries, Trajectory, anchored_errors, ate, drift_pct, rpe
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 __all__ = ["evaluate_run", "format_eval", "main", "map_trajectory", "loop_closure_table", "front_end_metrics",
            "stability_proxies", "relations_block", "RPE_DELTA_S"]

@@ -52,7 +52,7 @@ from common.messages import (
     message_type,
 )
 from eval.trajectory import PoseSeries, Trajectory, pose_series
-from launcher.config import PoseidonConfig, load_config
+from system.config import PoseidonConfig, load_config
 
 __all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "config_of_recording",
            "metadata_of_recording", "add_config_args", "config_from_args", "report_cli"]

@@ -28,7 +28,7 @@ from typing import Any
 from eval.audit import audit_run
 from eval.run_eval import evaluate_run
 from eval.rundata import load_run
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 __all__ = ["summarize_run", "format_summary"]
 

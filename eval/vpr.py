@@ -184,10 +184,10 @@ from eval.vpr_mission import (
 )
 
 if TYPE_CHECKING:
-    from launcher.config import PoseidonConfig
     from services.encoder.config import EncoderConfig
     from services.encoder.encoder import MultimodalEncoder
     from services.encoder.standardize import EmbeddingStandardizer
+    from system.config import PoseidonConfig
 
 __all__ = ["main", "pr_curve", "vpr_metrics", "best_matches", "load_sequence", "ground_truth_by_name",
            "ground_truth_from_file", "overlap_similarity", "cosine_similarity",
@@ -257,7 +257,7 @@ def _errors() -> tuple[type[Exception], ...]:
 
 def _load_configs(args: argparse.Namespace) -> tuple[PoseidonConfig, EncoderConfig]:
     """The run configuration and its encoder section with the command line's overrides."""
-    from launcher.config import load_config
+    from system.config import load_config
 
     cfg = load_config(args.config, args.overrides)
     enc_cfg = cfg.encoder

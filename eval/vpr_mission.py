@@ -17,7 +17,7 @@ from tqdm import tqdm
 from eval.baselines import SEQ_LENGTH, patch_normalise, sad_similarity, sequence_similarity
 from eval.vpr_htm import DECISION_KINDS, _htm_row, decision_kind, run_length_stats
 from eval.vpr_metrics import VprInputError, cosine_similarity, overlap_similarity, overlap_stats, vpr_metrics
-from launcher.services import build_node
+from system.services import build_node
 
 
 def _travelled(stamps: np.ndarray, pose_stamps: np.ndarray, positions: np.ndarray) -> np.ndarray:

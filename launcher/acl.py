@@ -86,7 +86,7 @@ class Grant:
 
 def identities(config=None) -> dict[str, str]:
     """Identity name -> role: ``player``, ``recorder``, then every service that can be built."""
-    from launcher.services import ALGORITHM_SERVICES, OPTIONAL_SERVICES, available_services
+    from system.services import ALGORITHM_SERVICES, OPTIONAL_SERVICES, available_services
     names = available_services(config) + [n for n in OPTIONAL_SERVICES if n not in ALGORITHM_SERVICES]
     return {"player": "player", "recorder": "recorder", **{n: "service" for n in dict.fromkeys(names)}}
 
@@ -94,9 +94,9 @@ def identities(config=None) -> dict[str, str]:
 def identity_grants(config=None) -> dict[str, list[Grant]]:
     """What each identity may do under ``config`` (default configuration if None)."""
     from common.resume import REPLAY
-    from launcher.config import PoseidonConfig
-    from launcher.services import node_io
     from services.player.player import SOURCE_KEYS
+    from system.config import PoseidonConfig
+    from system.services import node_io
     config = config if config is not None else PoseidonConfig()
     ns = config.bus.namespace.strip("/")
     out: dict[str, list[Grant]] = {}
@@ -122,7 +122,7 @@ def _intersects(a: str, b: str) -> bool:
 
 def access_control(config=None) -> dict:
     """The ``access_control`` section of the secured router (a JSON-able dict)."""
-    from launcher.config import PoseidonConfig
+    from system.config import PoseidonConfig
     config = config if config is not None else PoseidonConfig()
     ns = config.bus.namespace.strip("/")
     grants = identity_grants(config)
@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--check", metavar="ROUTER.json5", help="exit 1 if its generated block is out of date")
     args = ap.parse_args(argv)
     from common.config import ConfigError
-    from launcher.config import load_config
+    from system.config import load_config
     try:
         config = load_config(args.config, overrides=args.set)
         block = render_block(config)

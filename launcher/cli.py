@@ -13,7 +13,7 @@ Subcommands:
   job on a fresh machine (:mod:`launcher.demo`): a transformed simulated cave mission through
   every service with the VPR Guard ON and OFF, a summary with the method's checks, an HTML report.
 - ``service NAME --connect ENDPOINT [...]``: run one service (player, recorder or an
-  algorithm service, built by :func:`launcher.services.build_worker` as the embedded run
+  algorithm service, built by :func:`system.services.build_worker` as the embedded run
   builds them) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
   another service died (see :mod:`common.bus`).
@@ -81,7 +81,7 @@ DELEGATED = {
     "compare": "eval.compare:main",
     "report": "eval.report.cli:main",
     "path": "services.expmap.path:main",
-    "export": "missions.export.cli:main",
+    "export": "products.cli:main",
     "certs": "launcher.certs:main",
     "acl": "launcher.acl:main",
 }

@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from common.resume import Supervision
-    from launcher.config import PoseidonConfig
     from launcher.run import RunFailed
-    from launcher.services import WorkerSpec
+    from system.config import PoseidonConfig
+    from system.services import WorkerSpec
 
 __all__ = ["cmd_run", "cmd_demo", "cmd_info", "cmd_service", "cmd_bridge", "cmd_hub", "print_run", "EXIT_ABORTED"]
 
@@ -33,7 +33,7 @@ EXIT_ABORTED = 4
 
 
 def _load_config(args: argparse.Namespace) -> Any:
-    from launcher.config import load_config
+    from system.config import load_config
     return load_config(args.config, args.set)
 
 
@@ -352,7 +352,7 @@ def zenoh_error() -> type[Exception]:
 def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: Supervision | None) -> WorkerSpec:
     """What ``poseidon service NAME``'s flags say about the worker (the recorder's
     ``--metadata`` file is read here)."""
-    from launcher.services import RECORDER, WorkerSpec
+    from system.services import RECORDER, WorkerSpec
     spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
                       keys=args.keys.split(",") if args.keys else None,
                       announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
@@ -366,7 +366,7 @@ def _worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: 
 
 def cmd_service(args: argparse.Namespace) -> int:
     from common.config import ConfigError
-    from launcher.services import PLAYER, RECORDER, build_worker
+    from system.services import PLAYER, RECORDER, build_worker
     try:
         config = _load_config(args)
     except ConfigError as exc:
@@ -427,8 +427,8 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     import threading
 
     from common.config import ConfigError
-    from launcher.services import BRIDGE_ROS1, WorkerSpec, build_worker
     from services.bridge_ros1.ros_io import RosUnavailable
+    from system.services import BRIDGE_ROS1, WorkerSpec, build_worker
     try:
         config = _load_config(args)
     except ConfigError as exc:

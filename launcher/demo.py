@@ -53,7 +53,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from common.config import apply_overrides
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 if TYPE_CHECKING:
     from eval.rundata import RunData
@@ -110,7 +110,7 @@ def compile_kernels(config_json: str) -> None:
     """Compile the numba kernels of every service that has a ``warm_up`` (its own, on a
     throwaway node) into the numba cache; run in a background process by :func:`run_demo`."""
     from common.node import ServiceNode
-    from launcher.services import available_services, build_node, node_class
+    from system.services import available_services, build_node, node_class
     config = PoseidonConfig.model_validate_json(config_json)
     for name in available_services(config):
         if node_class(name, config).warm_up is not ServiceNode.warm_up:
@@ -188,7 +188,7 @@ def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bo
     from eval.report.cli import views_of, write_report
     from eval.rundata import load_run
     from launcher.run import run_distributed, run_embedded
-    from launcher.services import available_services
+    from system.services import available_services
 
     t0 = time.monotonic()
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -58,7 +58,6 @@ from common.bus import Bus, open_hub
 from common.live import LATENCY_KEY
 from common.mcap_io import code_revision
 from launcher.children import die_with_launcher
-from launcher.config import PoseidonConfig
 from launcher.run import (
     RunFailed,
     RunPlan,
@@ -71,8 +70,9 @@ from launcher.run import (
     _summarise,
     plan_run,
 )
-from launcher.services import BRIDGE_ROS1, LIVE_PLAYER, RECORDER, available_services, node_io
 from services.player.player import SOURCE_KEYS
+from system.config import PoseidonConfig
+from system.services import BRIDGE_ROS1, LIVE_PLAYER, RECORDER, available_services, node_io
 
 __all__ = ["plan_live", "run_live", "LIVE_SOURCES"]
 

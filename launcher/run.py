@@ -58,9 +58,9 @@ from common.mcap_io import RecordingError, code_revision, file_sha256, read_meta
 from common.resume import Supervision
 from common.worker import Worker
 from launcher.children import check_batch_scheduling, die_with_launcher
-from launcher.config import PoseidonConfig
-from launcher.services import WorkerSpec, available_services, build_node, build_worker, node_io
 from services.player.player import SOURCE_KEYS, replayed_keys
+from system.config import PoseidonConfig
+from system.services import WorkerSpec, available_services, build_node, build_worker, node_io
 
 __all__ = ["RunFailed", "ServiceStartError", "MAP_DIR_FILES", "use_map_dir", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
 

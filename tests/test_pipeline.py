@@ -1,10 +1,10 @@
 """The whole pipeline on a short simulated cave mission: every service, both modes."""
 import pytest
 
-from launcher.config import load_config
 from launcher.run import run_distributed, run_embedded
-from launcher.services import available_services
 from missions.sim.cli import main as sim_main
+from system.config import load_config
+from system.services import available_services
 from tests.common.recordings import payloads_by_key
 
 pytestmark = pytest.mark.timeout(600)

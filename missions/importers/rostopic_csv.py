@@ -22,9 +22,10 @@ from typing import Any
 from pydantic import ValidationError
 
 from common.messages import Depth, Header, Imu, LinkquestDvl, Message
+from common.stamps import parse_stamp_ns
 from missions.importers.errors import InputFormatError
 
-__all__ = ["KIND_TYPES", "read_rostopic_csv", "detect_kind", "parse_stamp_ns", "read_frame_timestamps"]
+__all__ = ["KIND_TYPES", "read_rostopic_csv", "detect_kind", "read_frame_timestamps"]
 
 #: kind (= recording key) -> message type of the flat messages a CSV log can hold
 KIND_TYPES: dict[str, type[Message]] = {
@@ -39,21 +40,6 @@ _SIGNATURE = {
     "imu_adis": {"qw", "roll", "gx"},
     "depth_sensor": {"depth"},
 }
-
-
-def parse_stamp_ns(text: str) -> int:
-    """A stamp as integer nanoseconds: ``1372687208633787539`` (ns) or
-    ``1372687208.617629`` (seconds, decimal; converted exactly without float rounding)."""
-    t = text.strip()
-    if "." in t:
-        sec, frac = t.split(".", 1)
-        if not (sec.isdigit() and (frac.isdigit() or frac == "")):
-            raise ValueError(f"not a stamp: {text!r}")
-        frac = (frac + "0" * 9)[:9]
-        return int(sec) * 1_000_000_000 + int(frac)
-    if not t.isdigit():
-        raise ValueError(f"not a stamp: {text!r}")
-    return int(t)
 
 
 def _field_spec(model: type[Message]) -> list[tuple[str, type, int]]:

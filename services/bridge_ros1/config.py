@@ -4,7 +4,7 @@
 it is the importer's mapping (:data:`common.ros_convert.DEFAULT_TOPIC_MAP`), and with
 ``discover`` every other published topic is bridged too, on the topic without its leading
 slash (the importer's rule).  Validated at start-up as part of the whole configuration
-(``launcher/config.py``); a wrong value fails naming its dotted field.
+(``system/config.py``); a wrong value fails naming its dotted field.
 """
 from __future__ import annotations
 
@@ -70,6 +70,6 @@ class BridgeRos1Config(ConfigSection):
 
     def output_stages(self) -> dict[str, str]:
         """Our output key -> its latency stage (:class:`common.live.LatencyTracker`): the outputs
-        published back to ROS, also those the live player times (``launcher.services.latency_stages``)."""
+        published back to ROS, also those the live player times (``system.services.latency_stages``)."""
         return {self.odometry_key: "odometry", self.dead_reckoning_key: "dead_reckoning", self.map_key: "map",
                 self.lvc_key: "lvc", self.event_key: "event"}

@@ -1,6 +1,6 @@
 """The encoder's configuration section (``encoder:``): CNN backbone, LSBH (Eq. 4.2), fusion (Eq. 4.3), sonar raster.
 
-Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+Validated at start-up as part of the whole configuration (``system/config.py``); a
 wrong value fails naming its dotted field.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The experience map's configuration section (``expmap:``, Eq. 4.20), with the laser preset's scan graph (``expmap.scan_graph``).
 
-Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+Validated at start-up as part of the whole configuration (``system/config.py``); a
 wrong value fails naming its dotted field.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The neocortex's configuration section (``htm:``): spatial pooler, temporal memory, LVC matching (Eqs. 4.4-4.10), sequence memory.
 
-Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+Validated at start-up as part of the whole configuration (``system/config.py``); a
 wrong value fails naming its dotted field.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The pose cells' configuration sections: the attractor (``posecells:``, Eqs. 4.15-4.19) and the VPR Guard (``vpr_guard:``, Eqs. 4.11-4.14), both run by this service.
 
-Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+Validated at start-up as part of the whole configuration (``system/config.py``); a
 wrong value fails naming its dotted field.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The dead-reckoning filter's configuration section (``robot_state:``).
 
-Validated at start-up as part of the whole configuration (``launcher/config.py``); a
+Validated at start-up as part of the whole configuration (``system/config.py``); a
 wrong value fails naming its dotted field.
 """
 from __future__ import annotations

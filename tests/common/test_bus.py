@@ -9,9 +9,9 @@ import pytest
 
 from common.bus import Bus, open_hub, open_local_session
 from common.mcap_io import read_messages
-from launcher.config import PoseidonConfig
 from launcher.run import RunFailed, run_distributed, run_embedded
 from services.player.player import Player
+from system.config import PoseidonConfig
 from tests.common.recordings import KEYS6, payloads_by_key, six_stream_recording
 from tests.conftest import REPO
 

@@ -2,8 +2,8 @@ import pytest
 import yaml
 
 from common.config import ConfigError
-from launcher.config import DEFAULT_CONFIG_PATH, PoseidonConfig, load_config
-from launcher.write_defaults import render
+from system.config import DEFAULT_CONFIG_PATH, PoseidonConfig, load_config
+from system.write_defaults import render
 
 
 def test_defaults_are_table_4_1():
@@ -47,7 +47,7 @@ def test_defaults_are_table_4_1():
 
 
 def test_deploy_file_spells_out_every_default():
-    assert DEFAULT_CONFIG_PATH.read_text() == render(), "run: python -m launcher.write_defaults"
+    assert DEFAULT_CONFIG_PATH.read_text() == render(), "run: python -m system.write_defaults"
     assert load_config(DEFAULT_CONFIG_PATH) == PoseidonConfig()
 
 

@@ -45,8 +45,8 @@ from common.messages import (
 )
 from common.ordering import EventTimeMerger
 from common.runtime import NodeRunner
-from launcher.config import PoseidonConfig
-from launcher.services import available_services
+from system.config import PoseidonConfig
+from system.services import available_services
 from tests.common.recordings import dvl
 
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,
@@ -300,7 +300,7 @@ def test_service_input_handling(service, service_config):
     """Random and mutated frames on every input key go through the runtime's decode and the
     node's process: every bad frame is a counted rejection, the node never raises."""
     from common.messages import KEYS
-    from launcher.services import build_node
+    from system.services import build_node
 
     try:
         node = build_node(service, service_config)

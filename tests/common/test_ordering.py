@@ -3,7 +3,7 @@ import random
 from common.messages import Depth, Header
 from common.node import ServiceNode, run_offline
 from common.ordering import EventTimeMerger
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 
 def _streams():

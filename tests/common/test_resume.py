@@ -126,9 +126,9 @@ def test_numbered_and_replay_frames_decode_and_malformed_ones_are_rejected():
 
 
 def test_supervision_file_round_trip_carries_both_checkpoint_intervals(tmp_path):
-    from launcher.config import load_config
     from launcher.run import plan_run, supervision_plan
     from missions.sim.cli import main as sim_main
+    from system.config import load_config
     assert sim_main(["--minutes", "0.05", "--seed", "1", "--out", str(tmp_path / "m.mcap")]) == 0
     cfg = load_config(overrides=["supervise.checkpoint_interval_s=12", "supervise.recorder_checkpoint_interval_s=1.5"])
     sup = supervision_plan(cfg, plan_run(cfg, tmp_path / "m.mcap", None), tmp_path / "state")

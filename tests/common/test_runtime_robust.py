@@ -14,8 +14,8 @@ from common.codec import DecodeError, decode, decode_frame, encode, encode_frame
 from common.mcap_io import read_messages
 from common.messages import Depth, Header, Image, LaserScan, NeocortexSdr, RangeImageBeam, RevisitTruth, Sdr
 from common.runtime import NodeRunner
-from launcher.config import PoseidonConfig
 from launcher.run import run_embedded
+from system.config import PoseidonConfig
 from tests.common.nodes import SlowEcho
 from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording, with_inconsistent_image
 from tests.conftest import REPO

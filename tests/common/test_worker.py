@@ -8,8 +8,8 @@ import pytest
 
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header
-from launcher.config import PoseidonConfig
-from launcher.services import WorkerSpec, build_worker
+from system.config import PoseidonConfig
+from system.services import WorkerSpec, build_worker
 
 pytestmark = pytest.mark.timeout(60)
 

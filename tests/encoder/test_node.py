@@ -10,10 +10,10 @@ import pytest
 
 from common.messages import Header, Image, Message, NeocortexSdr, RangeImageBeam
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.encoder.encoder import MultimodalEncoder
 from services.encoder.node import EncoderNode
+from system.config import PoseidonConfig
+from system.services import build_node
 
 S = 1_000_000_000
 

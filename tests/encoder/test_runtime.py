@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from common.config import ConfigError
-from launcher.config import load_config
 from services.encoder.config import EncoderConfig
 from services.encoder.encoder import MultimodalEncoder
 from services.encoder.runtime import RuntimeUnavailable, export_onnx, make_features
+from system.config import load_config
 
 NORDLAND = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "nordland_trimmed"
 EXPORTED = ["onnxruntime", "openvino"]

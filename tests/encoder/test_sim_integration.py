@@ -9,9 +9,9 @@ import pytest
 
 from common.mcap_io import read_messages
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.encoder.encoder import MultimodalEncoder
+from system.config import PoseidonConfig
+from system.services import build_node
 
 sim = pytest.importorskip("missions.sim.mission")
 

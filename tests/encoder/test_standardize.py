@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from launcher.services import build_node
 from services.encoder.config import EncoderConfig
 from services.encoder.lsbh import LsbhEncoder, make_projection
 from services.encoder.standardize import EmbeddingStandardizer, StandardizerError, norm_path
+from system.services import build_node
 
 D, L = 256, 512
 
@@ -122,8 +122,8 @@ def test_statistics_persist_and_reload(tmp_path: Path) -> None:
 def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
     from common.messages import Header, Image
     from common.node import run_offline
-    from launcher.config import PoseidonConfig
     from services.encoder.encoder import MultimodalEncoder
+    from system.config import PoseidonConfig
 
     enc = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 1,
            "torch_threads": 1, "embedding_norm_warmup": 100,
@@ -162,7 +162,7 @@ def test_standardize_sequence_gives_the_held_frames_the_statistics_of_the_hold(t
 
 
 def test_the_hold_ends_inside_the_replay_flow_window() -> None:
-    from launcher.config import PoseidonConfig
+    from system.config import PoseidonConfig
 
     cfg = PoseidonConfig.model_validate({"encoder": {"lsbh_matrix_path": "", "embedding_norm_hold_max_s": 5.0,
                                                      "pool_grid": 1, "sp_columns": 256}})

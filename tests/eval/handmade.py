@@ -40,7 +40,7 @@ from common.messages import (
     Odometry,
     RevisitTruth,
 )
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS

@@ -13,7 +13,7 @@ from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
 from common.stamps import ns_to_text
 from eval.corrected import map_corrected, read_tum, write_tum
 from eval.trajectory import PoseSeries, pose_series
-from missions.export.cli import main as export_main
+from products.cli import main as export_main
 
 NS = 1_000_000_000
 T0 = 1_700_000_000_123_456_789  # an odd epoch: the TUM time column must keep every nanosecond

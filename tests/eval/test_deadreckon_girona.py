@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from eval.deadreckon import read_cone_passes, run_deadreckon
-from launcher.config import load_config
+from system.config import load_config
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "girona_caves"
 PRESET = Path(__file__).resolve().parents[2] / "services" / "robot_state" / "presets" / "girona_linkquest.yaml"

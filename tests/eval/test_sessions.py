@@ -11,7 +11,7 @@ from common.messages import ExperienceMap, ExperienceNode, Header, MapSessions, 
 from eval.rundata import RunData
 from eval.sessions import sessions_block
 from eval.trajectory import Trajectory
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 SEC = 1_000_000_000
 

@@ -5,7 +5,7 @@ import pytest
 from common.mcap_io import RecordingWriter
 from common.messages import Header, LocalViewCells, Odometry, RevisitTruth
 from eval.summary import format_summary, summarize_run
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 
 def _pose(i, x):

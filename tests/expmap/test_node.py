@@ -23,11 +23,11 @@ from common.messages import (
     PoseStamped,
 )
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.expmap.graph import ExperienceMap as Graph
 from services.expmap.node import ExpMapNode
 from services.expmap.path import main as path_main
+from system.config import PoseidonConfig
+from system.services import build_node
 from tests.expmap.helpers import SEC, Event, loop_laps
 
 MS = 1_000_000

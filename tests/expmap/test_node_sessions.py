@@ -6,9 +6,9 @@ from pathlib import Path
 
 from common.messages import ExperienceEvent, Header, MapSessions
 from common.node import run_offline
-from launcher.config import PoseidonConfig
 from launcher.run import MAP_DIR_FILES, use_map_dir
-from launcher.services import build_node
+from system.config import PoseidonConfig
+from system.services import build_node
 from tests.expmap.helpers import SEC
 
 

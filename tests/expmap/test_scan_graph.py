@@ -150,7 +150,7 @@ def test_laser_preset_follows_the_scans_when_the_odometry_reports_the_wrong_dire
     """deploy/presets/laser2d.yaml (as FR079 needs): no translation prior and a 0.8 m window let the
     scans decide a step the odometry got backwards; the default chain (0.3 m window, 0.2 m prior)
     keeps the odometry's error."""
-    from launcher.config import load_config
+    from system.config import load_config
     preset = load_config(Path(__file__).resolve().parents[2] / "deploy/presets/laser2d.yaml", []).expmap.scan_graph
     truth, odo = _backing_up_route()
     worst = {}

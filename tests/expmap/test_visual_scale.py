@@ -156,8 +156,8 @@ class _Estimate:
 
 
 def test_the_node_applies_a_plausible_estimate_and_refuses_an_implausible_one() -> None:
-    from launcher.config import PoseidonConfig
-    from launcher.services import build_node
+    from system.config import PoseidonConfig
+    from system.services import build_node
     cfg = PoseidonConfig()
     cfg.expmap.publish_experience_image = False
     node = build_node("expmap", cfg)

@@ -134,8 +134,8 @@ def _node_stream(repeat_y: float) -> list:
 
 def test_the_node_gates_with_the_latest_odometry():
     from common.node import run_offline
-    from launcher.config import PoseidonConfig
-    from launcher.services import build_node
+    from system.config import PoseidonConfig
+    from system.services import build_node
     cfg = PoseidonConfig().model_copy(update={"htm": HtmConfig(
         input_size=L, sv_seqmem_length=K, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0, sv_tm_decide=False,
         sv_dr_gate_jump_m=1000.0)})

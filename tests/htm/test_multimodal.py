@@ -3,10 +3,10 @@ import numpy as np
 
 from common.messages import Header, NeocortexSdr, Sdr
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm
+from system.config import PoseidonConfig
+from system.services import build_node
 
 L = 2048
 

@@ -97,7 +97,7 @@ def test_chains_and_state_round_trip(tmp_path):
 
 
 def test_the_sp_tm_preset_is_the_sp_tm_chain():
-    from launcher.config import load_config
+    from system.config import load_config
     from tests.conftest import REPO
     cfg = load_config(REPO / "services" / "htm" / "presets" / "sp_tm.yaml")
     want = chain_config(load_config(None).htm, "sp_tm")

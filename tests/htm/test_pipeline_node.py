@@ -3,10 +3,10 @@ import pytest
 
 from common.messages import Header, NeocortexSdr, Sdr
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.htm.config import HtmConfig
 from services.htm.pipeline import NeocortexHtm, descriptor_similarity
+from system.config import PoseidonConfig
+from system.services import build_node
 
 L = 2048
 
@@ -211,8 +211,8 @@ def test_sp_frozen_after_sp_learn_steps_keeps_columns():
 
 
 def test_warm_up_compiles_on_a_throwaway_core_and_leaves_the_node_as_it_was() -> None:
-    from launcher.config import PoseidonConfig
     from services.htm.node import HtmNode
+    from system.config import PoseidonConfig
 
     cfg = PoseidonConfig().htm.model_copy(update={"input_size": 1024})
     node = HtmNode(cfg)

@@ -10,9 +10,9 @@ import zenoh
 
 from launcher import acl
 from launcher.certs import USERS
-from launcher.config import load_config
 from launcher.run import node_io
 from services.player.player import SOURCE_KEYS
+from system.config import load_config
 from tests.conftest import REPO
 
 ROUTER = REPO / "deploy" / "zenoh" / "secured-router.json5"

@@ -77,7 +77,7 @@ def test_compile_kernels_warms_up_only_the_services_that_have_kernels(monkeypatc
     """The background compilation builds a throwaway node of each service that overrides
     warm_up and calls it; services without one (the encoder: seconds of model loading for
     nothing) are not even built."""
-    import launcher.services as services
+    import system.services as services
     from common.node import ServiceNode
 
     warmed, built = [], []

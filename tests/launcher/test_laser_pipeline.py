@@ -10,11 +10,11 @@ import pytest
 
 from eval.corrected import read_tum
 from eval.run_eval import evaluate_run
-from launcher.config import load_config
 from launcher.run import run_embedded
-from missions.export.cli import main as export_main
 from missions.importers.cli import main as import_main
+from products.cli import main as export_main
 from services.expmap.pose_graph import relative_pose
+from system.config import load_config
 from tests.expmap.laser_world import drifting_odometry, raycast, ring_route, ring_world
 
 ROOT = Path(__file__).resolve().parents[2]

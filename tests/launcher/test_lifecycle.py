@@ -12,8 +12,8 @@ import pytest
 from mcap.reader import make_reader
 
 from common.node import ServiceNode
-from launcher.config import load_config
 from launcher.run import node_io, plan_run
+from system.config import load_config
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO
 

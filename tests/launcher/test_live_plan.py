@@ -4,8 +4,8 @@ import sys
 
 import pytest
 
-from launcher.config import load_config
 from launcher.live import plan_live, run_live
+from system.config import load_config
 from tests.conftest import REPO
 
 

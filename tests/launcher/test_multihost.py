@@ -101,8 +101,8 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     intruders' subscriptions would see a leak.
     """
     pytest.importorskip("cryptography")
-    from launcher.config import load_config
     from launcher.run import plan_run, run_embedded
+    from system.config import load_config
 
     host_a, host_b = two_hosts
     py = [sys.executable, "-m", "launcher.cli"]

@@ -10,8 +10,8 @@ import pytest
 
 from common.config import ConfigError
 from common.mcap_io import read_messages
-from launcher.config import PoseidonConfig, load_config
 from launcher.run import RunFailed, ServiceStartError, run_embedded
+from system.config import PoseidonConfig, load_config
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO
 

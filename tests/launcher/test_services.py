@@ -1,12 +1,12 @@
-"""The one factory of a run's workers (launcher.services.build_worker), used by both launchers."""
+"""The one factory of a run's workers (system.services.build_worker), used by both launchers."""
 import pytest
 
 from common.runtime import NodeRunner
 from common.worker import Sink, Source, Worker
-from launcher.config import PoseidonConfig
-from launcher.services import UnknownService, WorkerSpec, build_node, build_worker
 from services.player.player import Player
 from services.recorder.recorder import Recorder
+from system.config import PoseidonConfig
+from system.services import UnknownService, WorkerSpec, build_node, build_worker
 from tests.common.recordings import six_stream_recording
 
 pytestmark = pytest.mark.timeout(60)
@@ -66,8 +66,8 @@ def test_player_and_recorder_need_their_files(bus, config):
 def test_each_node_is_built_from_its_own_section_and_explicit_cross_section_values():
     """Item 4 of the architecture: a node sees its own section; what it needs from another
     section arrives as a named argument filled in by the launcher's wiring."""
-    from launcher.config import load_config
-    from launcher.services import WIRING
+    from system.config import load_config
+    from system.services import WIRING
 
     cfg = load_config(overrides=["posecells.distance_between_neurons=[0.5,0.25,0.2]", "sync.sync_stale_sec=0.4",
                                  "robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1", "encoder.cnn_backbone=efficientnet_lite0",

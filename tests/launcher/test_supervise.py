@@ -20,9 +20,9 @@ from common.codec import encode
 from common.mcap_io import read_messages
 from common.ordering import EventTimeMerger
 from common.resume import load_checkpoint, save_checkpoint
-from launcher.config import load_config
-from launcher.services import build_node
 from missions.sim.cli import main as sim_main
+from system.config import load_config
+from system.services import build_node
 from tests.common.recordings import payloads_by_key
 from tests.conftest import REPO
 

@@ -6,8 +6,9 @@ from pathlib import Path
 import pytest
 
 from common.messages import Depth, LinkquestDvl
+from common.stamps import parse_stamp_ns
 from missions.importers.errors import InputFormatError
-from missions.importers.rostopic_csv import parse_stamp_ns, read_frame_timestamps, read_rostopic_csv
+from missions.importers.rostopic_csv import read_frame_timestamps, read_rostopic_csv
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "girona_caves"
 needs_girona = pytest.mark.skipif(not DATA.is_dir(), reason=f"real Girona logs not present at {DATA}")

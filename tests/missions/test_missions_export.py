@@ -36,10 +36,10 @@ from common.messages import (
     TransformStamped,
     key_type,
 )
-from missions.export.cli import main as export_main
-from missions.export.foxglove import export_foxglove
-from missions.export.rosbag import ExportError, export_rosbag
 from missions.importers.cli import import_sources
+from products.cli import main as export_main
+from products.foxglove import export_foxglove
+from products.rosbag import ExportError, export_rosbag
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 BAGS = DATA / "ros1_bags"
@@ -165,8 +165,8 @@ def test_vendor_types_carried_raw_and_written_back(tmp_path: Path, ros2: bool) -
 
 def test_player_replays_and_recorder_records_raw_keys(tmp_path: Path) -> None:
     """A raw key goes through player -> bus -> recorder unchanged (no registration needed)."""
-    from launcher.config import PoseidonConfig
     from launcher.run import run_embedded
+    from system.config import PoseidonConfig
 
     src = tmp_path / "v.bag"
     _vendor_bag(src, ros2=False)

@@ -6,8 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from launcher.config import PoseidonConfig
 from services.posecells.core import OdometryIntegrator, PoseCellsCore, wrap_angle
+from system.config import PoseidonConfig
 
 
 def test_wrap_angle() -> None:

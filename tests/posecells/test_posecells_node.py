@@ -9,9 +9,9 @@ import pytest
 
 from common.messages import ExperienceEvent, Header, LocalViewCell, LocalViewCells, Message, Odometry
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.posecells.node import yaw_of_quaternion
+from system.config import PoseidonConfig
+from system.services import build_node
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS
@@ -263,8 +263,8 @@ def test_event_messages_validate_and_roundtrip_through_the_codec() -> None:
 def test_warm_up_leaves_the_network_as_it_was() -> None:
     import numpy as np
 
-    from launcher.config import PoseidonConfig
     from services.posecells.node import PoseCellsNode
+    from system.config import PoseidonConfig
 
     cfg = PoseidonConfig()
     node = PoseCellsNode(cfg.posecells, cfg.vpr_guard)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from common.config import ConfigError
-from launcher.config import load_config
 from services.ratslam_lv.matcher import LocalViewMatcher, area_downsample, grey, patch_normalise
+from system.config import load_config
 
 H, W = 288, 384
 

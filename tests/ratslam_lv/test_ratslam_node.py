@@ -11,9 +11,9 @@ import pytest
 from common.mcap_io import RecordingWriter, read_messages
 from common.messages import Header, Image, LocalViewCells
 from common.node import run_offline
-from launcher.config import load_config
-from launcher.services import available_services, build_node, node_class
 from services.ratslam_lv.node import RatSlamViewNode
+from system.config import load_config
+from system.services import available_services, build_node, node_class
 
 T0 = 1_700_000_000_000_000_000
 NS = 1_000_000_000

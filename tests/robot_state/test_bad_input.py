@@ -8,8 +8,8 @@ import numpy as np
 from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
 from common.node import run_offline
-from launcher.config import load_config
-from launcher.services import build_node
+from system.config import load_config
+from system.services import build_node
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 U = 0.5  # m/s forward, heading 0 -> north

@@ -78,8 +78,8 @@ def test_the_restricted_update_is_the_joseph_form_with_a_gain_only_on_its_states
 
 
 def test_warm_up_compiles_on_a_throwaway_filter() -> None:
-    from launcher.config import PoseidonConfig
-    from launcher.services import build_node
+    from system.config import PoseidonConfig
+    from system.services import build_node
     node = build_node("robot_state", PoseidonConfig())
     f = node.filter   # type: ignore[attr-defined]
     x, P, t, counters = f.x.copy(), f.P.copy(), f.t, dict(node.counters)

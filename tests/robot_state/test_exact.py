@@ -9,8 +9,8 @@ from synth import mission, odometry_positions
 
 from common.geometry import OutputFrame, matrix_to_euler, quaternion_to_matrix
 from common.node import run_offline
-from launcher.config import load_config
-from launcher.services import build_node
+from system.config import load_config
+from system.services import build_node
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 

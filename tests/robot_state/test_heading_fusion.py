@@ -8,9 +8,9 @@ import pytest
 from synth import NS, T0, depth, dvl, imu, mission, odometry_positions
 
 from common.node import run_offline
-from launcher.config import load_config
-from launcher.services import build_node
 from services.robot_state.filter import B_DVL, D_IMU
+from system.config import load_config
+from system.services import build_node
 
 NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
 

@@ -5,9 +5,9 @@ import math
 
 from common.messages import Header, Odometry
 from common.node import run_offline
-from launcher.config import PoseidonConfig
-from launcher.services import build_node
 from services.robot_state.node import RobotStateNode
+from system.config import PoseidonConfig
+from system.services import build_node
 
 
 def wheel(seq: int, stamp: int, x: float, y: float, yaw: float, q=None) -> Odometry:

@@ -34,7 +34,7 @@ from common.messages import (
     Sdr,
     SessionLinkInfo,
 )
-from launcher.config import PoseidonConfig
+from system.config import PoseidonConfig
 
 SIDE_M = 20.0
 PLACE_M = 2.0

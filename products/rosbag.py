@@ -3,7 +3,7 @@
 Topic of a message = ``/`` + its key (``camera/image_raw`` -> ``/camera/image_raw``); a
 raw-carried message (key ``raw/...``) goes back to its original topic with its original
 type.  Bag time = the message's event time (header stamp).  Types: see
-:mod:`missions.export.ros_types`.  A raw-carried message whose source bag was of the same
+:mod:`products.ros_types`.  A raw-carried message whose source bag was of the same
 kind is written with its original bytes and definition (ROS 1: the original md5sum too).
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 from common.mcap_io import read_messages
 from common.messages import RawMessage
 from common.ros_encode import to_ros
-from missions.export.ros_types import RawConverter, make_export_typestore
+from products.ros_types import RawConverter, make_export_typestore
 
 __all__ = ["ExportError", "export_rosbag"]
 

@@ -28,9 +28,9 @@ from common.node import ServiceNode
 from common.resume import Supervision
 from common.runtime import NodeRunner
 from common.worker import Worker
-from launcher.config import PoseidonConfig
 from services.player.player import Player
 from services.recorder.recorder import Recorder
+from system.config import PoseidonConfig
 
 __all__ = ["ALGORITHM_SERVICES", "OPTIONAL_SERVICES", "available_services", "node_class", "build_node",
            "PIPELINE_ORDER", "PLAYER", "RECORDER", "BRIDGE_ROS1", "LIVE_PLAYER", "latency_stages", "UnknownService",

@@ -4,10 +4,10 @@ A recording (``poseidon run``/``import``/``sim`` output) for the tools people al
 
 - ``--foxglove OUT.mcap``: Foxglove's well-known schemas (camera frames as images, sonar
   beams as point clouds, trajectories as poses and paths, the experience graph as a scene,
-  LVC ids and events as logs; everything else as ROS 2 CDR): :mod:`missions.export.foxglove`;
+  LVC ids and events as logs; everything else as ROS 2 CDR): :mod:`products.foxglove`;
 - ``--ros2 OUT_DIR``: a ROS 2 bag folder (sqlite3, CDR) with standard message types where
-  they exist and ``poseidon_msgs`` types (definitions in ``missions/export/msg``) for the
-  SLAM outputs: :mod:`missions.export.rosbag`, :mod:`missions.export.ros_types`;
+  they exist and ``poseidon_msgs`` types (definitions in ``products/msg``) for the
+  SLAM outputs: :mod:`products.rosbag`, :mod:`products.ros_types`;
 - ``--ros1 OUT.bag``: the same as a ROS 1 bag;
 - ``--tum OUT.txt``: the run's trajectory as a TUM file (``t x y z qx qy qz qw``), one
   pose per ``Odometry`` stamp, corrected by the final experience map; definition and
@@ -34,7 +34,7 @@ from typing import Any
 
 from common.codec import DecodeError
 from common.mcap_io import RecordingError
-from missions.export.rosbag import ExportError
+from products.rosbag import ExportError
 
 __all__ = ["main"]
 
@@ -51,8 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not (args.foxglove or args.ros2 or args.ros1 or args.tum):
         ap.error("nothing to do: give --foxglove, --ros2, --ros1 and/or --tum")
-    from missions.export.foxglove import export_foxglove
-    from missions.export.rosbag import export_rosbag
+    from products.foxglove import export_foxglove
+    from products.rosbag import export_rosbag
 
     exports: list[dict[str, Any]] = []
     try:

@@ -3,8 +3,8 @@
 Each section is defined next to its service (``services/<name>/config.py``) or, when every
 process uses it, in ``common/config.py``. This is the composition root's view: the
 launcher builds each service from its own section and passes what a service needs from
-another section explicitly (``launcher/services.py::build_node``); services never see the
-whole. ``deploy/poseidon.yaml`` spells out every default (``python -m launcher.write_defaults``);
+another section explicitly (``system/services.py::build_node``); services never see the
+whole. ``deploy/poseidon.yaml`` spells out every default (``python -m system.write_defaults``);
 defaults follow Table 4.1 of the dissertation.
 """
 from __future__ import annotations

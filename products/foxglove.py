@@ -58,8 +58,8 @@ from common.messages import (
     RawMessage,
 )
 from common.ros_encode import to_ros
-from missions.export.ros_types import make_export_typestore
-from missions.export.rosbag import ExportError
+from products.ros_types import make_export_typestore
+from products.rosbag import ExportError
 
 __all__ = ["export_foxglove", "file_descriptor_set"]
 
