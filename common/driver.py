@@ -21,12 +21,14 @@ lost mid-run is an outage (:mod:`common.live`: each key keeps its last ``outage_
 at most ``outage_bytes``, and sends them again when a consumer is back; counters in
 ``source.counters()``).
 
+A driver that produces records at a fixed rate (a frame grabber, a simulated sensor) paces
+itself with :class:`Pacer`: an absolute schedule, each record stamped with its scheduled instant.
 Example: ``deploy/examples/stream_images.py`` streams a folder of images at a given rate.
 """
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from types import TracebackType
 from typing import Any
 
@@ -36,7 +38,7 @@ from common.bus import Bus
 from common.live import LiveSource
 from common.messages import Header, Image, Imu, LinkquestDvl, Message, RangeImageBeam
 
-__all__ = ["SensorDriver"]
+__all__ = ["SensorDriver", "Pacer"]
 
 _ENCODING = {1: "mono8", 3: "rgb8", 4: "rgba8"}
 
@@ -48,6 +50,48 @@ def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, fl
     cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
     return (float(sr * cp * cy - cr * sp * sy), float(cr * sp * cy + sr * cp * sy),
             float(cr * cp * sy - sr * sp * cy), float(cr * cp * cy + sr * sp * sy))
+
+
+class Pacer:
+    """The schedule of a fixed-rate source: record ``i`` is due at ``start + i / rate_hz``, where
+    ``start`` is the first call of :meth:`wait` (record 0 is due when it is first ready).
+
+    The schedule is absolute (a slow record does not shift the ones after it) and kept on one
+    clock, ``clock_ns`` (monotonic); a record's stamp is the wall-clock time of its due instant,
+    ``wall_ns`` at the start plus the same offset, so stamps are exactly ``1 / rate_hz`` apart
+    whatever the time spent reading or sending a record.  A record that is behind its schedule
+    (a loaded machine) is stamped when it is taken, never earlier: stamps never run ahead of the
+    schedule and never lie in the past of the record's own publication.
+
+    :param rate_hz: records per second (> 0)
+    :param clock_ns: the pacing clock (ns), default :func:`time.monotonic_ns`
+    :param sleep: waits that many seconds, default :func:`time.sleep`
+    :param wall_ns: the stamps' clock (ns), default :func:`time.time_ns`, read once at the start
+    :raises ValueError: ``rate_hz`` is not > 0
+    """
+
+    def __init__(self, rate_hz: float, clock_ns: Callable[[], int] = time.monotonic_ns,
+                 sleep: Callable[[float], Any] = time.sleep, wall_ns: Callable[[], int] = time.time_ns):
+        if not rate_hz > 0:
+            raise ValueError(f"rate must be > 0 records/s, got {rate_hz}")
+        self.period_ns = 1e9 / rate_hz
+        self._clock_ns, self._sleep, self._wall_ns = clock_ns, sleep, wall_ns
+        self._start: int | None = None
+        self._wall_start = 0
+
+    def due_ns(self, i: int) -> int:
+        """Offset of record ``i``'s due instant from the start (ns)."""
+        return int(round(i * self.period_ns))
+
+    def wait(self, i: int) -> int:
+        """Sleep until record ``i`` is due (at once when it is overdue); its stamp (ns, wall clock)."""
+        if self._start is None:
+            self._start, self._wall_start = self._clock_ns(), self._wall_ns()
+        due = self.due_ns(i)
+        ahead = self._start + due - self._clock_ns()
+        if ahead > 0:
+            self._sleep(ahead / 1e9)
+        return self._wall_start + max(due, self._clock_ns() - self._start)
 
 
 class SensorDriver:

@@ -3,9 +3,10 @@
     python deploy/examples/stream_images.py FOLDER --rate 5 --connect tcp/127.0.0.1:7447 [--key camera/image_raw]
 
 Images (png, jpg, ...; sorted by name) are read with Pillow as RGB (``--mono``: grey) and
-published with the wall clock as their stamp, one every 1/rate seconds; the driver keeps the
-key alive with watermarks and ends it when the folder is done (or at Ctrl-C).  A vendor's
-driver is the same loop around its own SDK's callback.
+published one every 1/rate seconds on an absolute schedule, each stamped with its scheduled
+instant (wall clock; :class:`common.driver.Pacer`); the driver keeps the key alive with
+watermarks and ends it when the folder is done (or at Ctrl-C).  A vendor's driver is the same
+loop around its own SDK's callback.
 """
 from __future__ import annotations
 
@@ -13,37 +14,36 @@ import argparse
 import signal
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 from PIL import Image as PILImage
 
 from common.bus import Bus
-from common.driver import SensorDriver
+from common.driver import Pacer, SensorDriver
 
 SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 
 
 def stream_folder(driver: SensorDriver, folder: Path, rate_hz: float, key: str = "camera/image_raw",
-                  mono: bool = False, stop: threading.Event | None = None) -> int:
-    """Publish every image of ``folder`` (sorted by name) at ``rate_hz``; returns how many."""
+                  mono: bool = False, stop: threading.Event | None = None, pacer: Pacer | None = None) -> int:
+    """Publish every image of ``folder`` (sorted by name) at ``rate_hz``; returns how many.
+
+    Each frame is read first, then published at its instant of the schedule (:class:`Pacer`),
+    stamped with that instant: reading a frame never shifts its stamp.  ``pacer``: the schedule
+    (default ``Pacer(rate_hz)``, the wall clock; tests pass one with their own clock)."""
     if rate_hz <= 0:
         raise ValueError(f"--rate must be > 0 frames/s, got {rate_hz}")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in SUFFIXES)
     if not files:
         raise FileNotFoundError(f"{folder}: no images ({', '.join(sorted(SUFFIXES))})")
-    period = 1.0 / rate_hz
-    t0 = time.monotonic()
+    pacer = pacer or Pacer(rate_hz)
     for i, path in enumerate(files):
         if stop is not None and stop.is_set():
             return i
-        delay = t0 + i * period - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
         with PILImage.open(path) as img:
             data = np.asarray(img.convert("L" if mono else "RGB"))
-        driver.camera_frame(data, key=key)
+        driver.camera_frame(data, stamp_ns=pacer.wait(i), key=key)
     return len(files)
 
 

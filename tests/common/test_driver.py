@@ -10,7 +10,7 @@ import pytest
 from PIL import Image as PILImage
 
 from common.codec import decode_frame
-from common.driver import SensorDriver
+from common.driver import Pacer, SensorDriver
 from common.mcap_io import read_messages
 from common.messages import Image, Imu, LinkquestDvl, RangeImageBeam
 from services.recorder.recorder import Recorder
@@ -63,7 +63,52 @@ def test_each_kind_of_record_is_published_with_its_stamp_and_the_streams_end_at_
     assert isinstance(imu, Imu) and imu.gz == 0.1 and imu.qz == pytest.approx(np.sqrt(0.5))
 
 
-def test_the_example_streams_a_folder_of_images_at_the_given_rate(bus, tmp_path):
+class FakeClock:
+    """A pacing clock that only moves when slept on or when work is simulated (``spend``)."""
+
+    def __init__(self, start_ns: int = 5_000_000_000):
+        self.now = start_ns
+        self.sleeps: list[float] = []
+
+    def clock_ns(self) -> int:
+        return self.now
+
+    def sleep(self, s: float) -> None:
+        self.sleeps.append(s)
+        self.now += int(round(s * 1e9))
+
+    def spend(self, ms: float) -> None:
+        self.now += int(round(ms * 1e6))
+
+
+def _pacer(clock: FakeClock, rate_hz: float) -> Pacer:
+    return Pacer(rate_hz, clock_ns=clock.clock_ns, sleep=clock.sleep, wall_ns=lambda: 1_000_000_000_000)
+
+
+def test_the_pacer_stamps_each_record_with_its_scheduled_instant_whatever_the_work_before_it():
+    clock = FakeClock()
+    pacer = _pacer(clock, 20.0)
+    stamps = []
+    for i, work_ms in enumerate([12.0, 1.0, 30.0, 0.0]):  # reading the first frame is the slowest
+        clock.spend(work_ms)
+        stamps.append(pacer.wait(i))
+    assert [s - 1_000_000_000_000 for s in stamps] == [0, 50_000_000, 100_000_000, 150_000_000]
+    assert clock.sleeps == pytest.approx([0.049, 0.020, 0.050])  # to the absolute schedule, not after the last send
+
+
+def test_the_pacer_stamps_an_overdue_record_when_it_is_taken_and_keeps_the_schedule_after_it():
+    clock = FakeClock()
+    pacer = _pacer(clock, 10.0)
+    assert pacer.wait(0) == 1_000_000_000_000
+    clock.spend(250.0)  # a stall: records 1 and 2 are overdue
+    assert pacer.wait(1) - 1_000_000_000_000 == 250_000_000
+    assert pacer.wait(2) - 1_000_000_000_000 == 250_000_000
+    assert pacer.wait(3) - 1_000_000_000_000 == 300_000_000  # back on the schedule, not shifted by the stall
+    with pytest.raises(ValueError, match="rate"):
+        Pacer(0.0)
+
+
+def test_the_example_streams_a_folder_of_images_on_its_schedule(bus, tmp_path):
     spec = importlib.util.spec_from_file_location("stream_images", REPO / "deploy" / "examples" / "stream_images.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -74,13 +119,12 @@ def test_the_example_streams_a_folder_of_images_at_the_given_rate(bus, tmp_path)
     (folder / "notes.txt").write_text("not an image")
     out = tmp_path / "frames.mcap"
     t, _result = _record(bus, out, ["camera/image_raw"])
-    with SensorDriver(bus) as drv:
-        assert mod.stream_folder(drv, folder, rate_hz=20.0) == 5
+    clock = FakeClock()
+    with SensorDriver(bus, lateness_ms=60_000) as drv:  # stamps from the fake clock's epoch: never late
+        assert mod.stream_folder(drv, folder, rate_hz=20.0, pacer=Pacer(20.0, clock.clock_ns, clock.sleep)) == 5
     t.join(10)
     rec = list(read_messages(out, keys=["camera/image_raw"]))
     assert [int(m.message().data[0, 0, 0]) for m in rec] == [0, 40, 80, 120, 160]  # name order
-    since_ms = (np.asarray([m.stamp for m in rec]) - rec[0].stamp) / 1e6
-    assert np.all(since_ms >= np.arange(5) * 50 - 5), since_ms  # 20 frames/s: never ahead of the schedule
-    assert since_ms[-1] < 2000, since_ms  # (a loaded machine may run late, then catches up)
+    assert [m.stamp - rec[0].stamp for m in rec] == [i * 50_000_000 for i in range(5)]  # 20 frames/s
     with pytest.raises(ValueError, match="rate"):
         mod.stream_folder(drv, folder, rate_hz=0)
