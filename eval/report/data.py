@@ -15,11 +15,10 @@ Frames and units:
   built from odometry deltas).
 - Times are event times in ns; figures show seconds since the first message of the run.
 
-Sessions (issue 20): the run's last ``map_sessions`` (:attr:`eval.rundata.RunData.final_sessions`,
-published by a map of several sessions) gives the session of each node and the session links;
-:func:`session_groups` splits the nodes by session, each with its own colour
-(:data:`eval.report.style.SESSION_COLORS`).  A run without ``map_sessions`` is one session,
-drawn in the run's colour as before.
+Sessions: the run's last ``map_sessions`` (:attr:`eval.rundata.RunData.final_sessions`,
+published by a map of several sessions) gives the session of each node and the session links
+(:attr:`RunView.node_session`, :attr:`RunView.session_links`); a run without ``map_sessions``
+is one session.  How sessions are coloured is :func:`eval.report.style.session_groups`.
 """
 from __future__ import annotations
 
@@ -37,7 +36,7 @@ from common.messages import ExperienceImage
 from eval.rundata import RunData
 from eval.trajectory import Trajectory
 
-__all__ = ["RunView", "SessionGroup", "run_view", "run_label", "session_groups"]
+__all__ = ["RunView", "run_view", "run_label"]
 
 log = logging.getLogger(__name__)
 
@@ -188,33 +187,6 @@ def _session_arrays(run: RunData, node_ids: np.ndarray) -> tuple[np.ndarray, np.
         return none
     links = _i64([[lk.source, lk.target] for lk in ms.links]).reshape(-1, 2)
     return sess[node_ids], links
-
-
-@dataclass
-class SessionGroup:
-    """The nodes of one session of a run's map (indices into ``RunView.node_ids``) and its colour."""
-
-    session: int
-    color: str
-    index: np.ndarray
-
-    @property
-    def name(self) -> str:
-        return f"session {self.session}"
-
-
-def session_groups(view: RunView, run_index: int = 0) -> list[SessionGroup]:
-    """The map's nodes by session, oldest first, each in its own colour; a map of one session is
-    one group in the run's colour (:func:`eval.report.style.run_color`, as before sessions)."""
-    from eval.report.style import run_color, session_color
-    if not len(view.node_ids):
-        return []
-    sess = view.node_session if len(view.node_session) == len(view.node_ids) else \
-        np.zeros(len(view.node_ids), dtype=np.int64)
-    ids = np.unique(sess).tolist()
-    if len(ids) == 1:
-        return [SessionGroup(int(ids[0]), run_color(run_index), np.arange(len(sess)))]
-    return [SessionGroup(int(s), session_color(int(s)), np.flatnonzero(sess == s)) for s in ids]
 
 
 def _revisit_arrays(run: RunData) -> tuple[np.ndarray, list[np.ndarray]]:

@@ -9,18 +9,20 @@ import numpy as np
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from eval.report.data import RunView, SessionGroup, session_groups
+from eval.report.data import RunView
 from eval.report.style import (
     DR_COLOR,
     SESSION_LINK_COLOR,
     TRUTH_COLOR,
     FigureSpec,
+    SessionGroup,
     apply_layout,
     decimate,
     distinct_tracks,
     enu_columns,
     no_trajectories,
     run_color,
+    session_groups,
     track_name,
 )
 from eval.trajectory import Trajectory
@@ -210,7 +212,7 @@ def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
         "for the true distance between the two places it joins: a loop closure between places more than 5 m "
         "apart is false, Tables 5.2-5.3). Ground truth (green) and dead reckoning (orange) are drawn faintly "
         "for reference. A denser trace means more experiences (events) were created. A map of several sessions "
-        "(missions continued with poseidon run --map-dir, issue 20) draws each session's nodes and odometry links "
+        "(missions continued with poseidon run --map-dir) draws each session's nodes and odometry links "
         "in its own colour (legend: session 0, session 1, ...; the chain edge between two sessions joins two "
         "odometry frames and is not drawn) and its sonar-verified session links as thick black dashed lines "
         "(hover one for the link).")

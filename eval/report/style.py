@@ -1,5 +1,6 @@
 """What every figure of the report shares: the :class:`FigureSpec` it returns, its id
-(:data:`FIGURE_IDS`), colours, font, layout, decimation and the display frame.
+(:data:`FIGURE_IDS`), colours (of runs and of a map's sessions: :func:`session_groups`),
+font, layout, decimation and the display frame.
 
 Display frame: east, north, up (metres), i.e. the NED world frame of ``robot_state``
 drawn with z up (up = -depth), so the XY view reads like a map.
@@ -16,7 +17,7 @@ from eval.report.data import RunView
 from eval.trajectory import Trajectory
 
 __all__ = ["FigureSpec", "FIGURE_IDS", "TRUTH_COLOR", "DR_COLOR", "RUN_COLORS", "SESSION_COLORS", "SESSION_LINK_COLOR",
-           "FONT", "run_color", "session_color", "decimate",
+           "FONT", "run_color", "session_color", "SessionGroup", "session_groups", "decimate",
            "enu_columns", "distinct_tracks", "track_name", "apply_layout", "no_trajectories"]
 
 
@@ -27,7 +28,7 @@ FIGURE_IDS = ["fig-overlay-3d", "fig-projections", "fig-topology", "fig-deviatio
 TRUTH_COLOR = "#2ca02c"
 DR_COLOR = "#ff7f0e"
 RUN_COLORS = ["#1f77b4", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
-#: map sessions (issue 20), session 0 first: none is the truth's green, the dead reckoning's orange
+#: map sessions, session 0 first: none is the truth's green, the dead reckoning's orange
 #: or the loop closures' red
 SESSION_COLORS = ["#1f77b4", "#9467bd", "#17becf", "#8c564b", "#e377c2", "#bcbd22", "#7f7f7f"]
 SESSION_LINK_COLOR = "#000000"
@@ -52,6 +53,32 @@ def run_color(i: int) -> str:
 
 def session_color(s: int) -> str:
     return SESSION_COLORS[s % len(SESSION_COLORS)]
+
+
+@dataclass
+class SessionGroup:
+    """The nodes of one session of a run's map (indices into ``RunView.node_ids``) and its colour."""
+
+    session: int
+    color: str
+    index: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return f"session {self.session}"
+
+
+def session_groups(view: RunView, run_index: int = 0) -> list[SessionGroup]:
+    """The map's nodes by session, oldest first, each in its own colour; a map of one session is
+    one group in the run's colour (:func:`run_color`)."""
+    if not len(view.node_ids):
+        return []
+    sess = view.node_session if len(view.node_session) == len(view.node_ids) else \
+        np.zeros(len(view.node_ids), dtype=np.int64)
+    ids = np.unique(sess).tolist()
+    if len(ids) == 1:
+        return [SessionGroup(int(ids[0]), run_color(run_index), np.arange(len(sess)))]
+    return [SessionGroup(int(s), session_color(int(s)), np.flatnonzero(sess == s)) for s in ids]
 
 
 def decimate(n: int, max_points: int) -> np.ndarray:

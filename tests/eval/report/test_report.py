@@ -313,10 +313,9 @@ def test_view_cells_separate_revisits_from_the_same_pass(runs: tuple[Path, Path]
 
 
 def test_sessions_drawn_in_their_own_colours(runs: tuple[Path, Path], tmp_path: Path) -> None:
-    """A map of two sessions (map_sessions, issue 20): two session groups, distinct colours, the
+    """A map of two sessions (map_sessions): two session groups, distinct colours, the
     session link marked; a run of one session: one group in the run's colour, drawn as before."""
-    from eval.report.data import session_groups
-    from eval.report.style import SESSION_COLORS, run_color
+    from eval.report.style import SESSION_COLORS, run_color, session_groups
     two = tmp_path / "two_sessions.mcap"
     write_handmade_run(two, second_session=True)
     r2, r1 = load_run(two), load_run(runs[0])
