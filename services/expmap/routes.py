@@ -12,18 +12,30 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from services.expmap.graph import ExperienceMap
-
-__all__ = ["quickest_path", "quickest_path_links", "quickest_path_sessions", "session_planning_links",
+__all__ = ["RoutableMap", "quickest_path", "quickest_path_links", "quickest_path_sessions", "session_planning_links",
            "session_groups", "SessionsNotLinked"]
 
 
-def quickest_path(em: ExperienceMap, source: int, target: int) -> tuple[list[int], float, float]:
+class RoutableMap(Protocol):
+    """What a path needs of a map (:class:`services.expmap.graph.ExperienceMap` has it)."""
+
+    @property
+    def positions(self) -> np.ndarray: ...
+
+    @property
+    def sessions(self) -> np.ndarray: ...
+
+    @property
+    def session_links(self) -> list[Any]: ...
+
+    def edges(self) -> list[tuple[int, int, np.ndarray, float, float, bool]]: ...
+
+
+def quickest_path(em: RoutableMap, source: int, target: int) -> tuple[list[int], float, float]:
     """Quickest path over the map's edges, across linked sessions only (see
     :func:`quickest_path_sessions`)."""
     links = [(s, t, d) for s, t, _dl, d, _w, _l in em.edges()]
