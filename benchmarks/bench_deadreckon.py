@@ -12,7 +12,7 @@ baseline measured in the same run), wall clock.
 
 Reported per seed and over all seeds: the filter / plain ratios of ATE and of drift (< 1:
 the filter is better), their mean and worst, and how many seeds the filter loses.  The
-default seeds 101-105 are used by no test (issue 9 asked for seeds the filter was never
+default seeds 101-105 are used by no test (seeds the filter was never
 tuned on); a 10-minute mission takes ~30-60 s to generate and ~0.9 GB in the cache.
 
     .venv/bin/python benchmarks/bench_deadreckon.py                      # seeds 101-105, 10 min

@@ -6,7 +6,7 @@ variant's sonar rule says, the 224x224 polar sonar raster, through
 standardisation and LSBH -- what :class:`EncoderNode` does per frame.  Variants:
 
 * ``shufflenetv2@224 sonar/frame`` -- the baseline: the Table 4.1 network at 224 px with the
-  sonar raster re-encoded with every camera frame (the encoder before issue 8);
+  sonar raster re-encoded with every camera frame (the dissertation's encoder);
 * ``efficientnet_lite0@S sonar/frame`` -- EfficientNet-Lite0 to block 10 at S px, sonar every frame;
 * ``efficientnet_lite0@S sonar/5`` -- the same with the sonar re-encoded every 5th camera frame
   (the default ``encoder.sonar_encode_sweep_deg`` 45 deg at the Micron's 42 deg/s and a 5 Hz camera);

@@ -16,15 +16,15 @@ dead-reckoning gate checks every claim); printed: ms per frame over the last 100
 the frame memory holds ~N frames)
 for the default configuration (fused-SDR descriptor, SP + TM deciding, sequence memory,
 dead-reckoning gate), each named chain of ``services/htm/chains.py`` (``sdr_seqmem``: the
-default before issue 17's last step, no SP/TM; ``no_tm``, ``no_dr_gate``, ``no_seqmem``: the
+fused-SDR chain without SP/TM; ``no_tm``, ``no_dr_gate``, ``no_seqmem``: the
 default without one part; ``sp_tm``: SP columns as the descriptor) and ``sdr_seqmem`` without
-the sequence memory, all in the same run.  The issue-17 budget: the default <= 1 ms per frame
+the sequence memory, all in the same run.  The budget: the default <= 1 ms per frame
 at 6000 stored frames.
 
 Third part (``--seqmem-sizes``, default 1000,5000,20000; empty skips it): one
 :meth:`SequenceMatcher.score` (the default configuration: K 40, velocity 1, exclude 50, 900
 active bits) with that many frames stored, the running diagonal sums (``incremental``, the
-default) beside the K-term sums recomputed every frame (the computation before issue 21),
+default) beside the K-term sums recomputed every frame (the plain computation),
 rounds interleaved, median ms per frame; and whether both gave the same ending frames.
 ``--seqmem-only`` runs only this part.  ``--mission RUN.mcap`` (with ``--seqmem-only``) also
 replays a run's ``neocortex/sdr`` through the htm node (default configuration, no transport)

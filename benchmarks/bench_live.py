@@ -1,6 +1,6 @@
 """Live latency: a simulated mission played live (no ROS) through every service, per stage.
 
-Issue 19's latency benchmark.  ``--minutes`` (default 2) of ``poseidon sim`` (cached in
+``--minutes`` (default 2) of ``poseidon sim`` (cached in
 ``--cache-dir``) is played by the live player (``poseidon run --live mcap``,
 :mod:`services.player.live`) by the wall clock at each of ``--rates`` (default 1 and 4 x real
 time), every service in its own process with its bounded live queue.  For each rate:

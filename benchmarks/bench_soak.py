@@ -1,6 +1,6 @@
 """Soak: a long simulated mission through the full distributed pipeline at maximum replay speed.
 
-Issue 11's soak: ``--minutes`` (default 60) of ``poseidon sim`` (cached in ``--cache-dir``)
+``--minutes`` (default 60) of ``poseidon sim`` (cached in ``--cache-dir``)
 replayed as fast as the services take it (player rate 0), every service in its own process
 (``launcher.run.run_distributed``).  Reported:
 

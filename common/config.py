@@ -59,7 +59,7 @@ class BusConfig(ConfigSection):
 
 
 class SuperviseConfig(ConfigSection):
-    """Supervision of a distributed run (launcher/supervise.py, common/resume.py, issue 11)."""
+    """Supervision of a distributed run (launcher/supervise.py, common/resume.py)."""
 
     max_restarts: int = Field(3, ge=0, description="restarts of a service that dies, per service and run; "
                               "0: no supervision, a dying service ends the run (exit 3 naming it)")

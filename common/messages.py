@@ -384,7 +384,7 @@ class SessionLinkInfo(BaseModel):
 
 
 class MapSessions(Message):
-    """``map_sessions``: the sessions of the ``map`` published with the same stamp (issue 20);
+    """``map_sessions``: the sessions of the ``map`` published with the same stamp;
     published only by a map with more than one session."""
 
     node_session: list[int] = Field(description="session id per node of that map")

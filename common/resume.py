@@ -1,4 +1,4 @@
-"""Restart and resume of a supervised run: checkpoints, replay and de-duplication (issue 11).
+"""Restart and resume of a supervised run: checkpoints, replay and de-duplication.
 
 The launcher (:mod:`launcher.run`) restarts a service that dies; this module makes the
 restarted service continue so that every stream equals an uninterrupted run's:
@@ -228,7 +228,7 @@ def load_checkpoint(path: Path, attempts: int = 5) -> dict[str, Any] | None:
                 raise ValueError(str(exc)) from None
             if (now.st_ino, now.st_mtime_ns) == (before.st_ino, before.st_mtime_ns):
                 raise ValueError(str(exc)) from None
-            log.info("%s: replaced while being read; reading it again", path)
+            log.debug("%s: replaced while being read; reading it again", path)
             continue
         if not isinstance(state, dict) or state.get("version") not in _CKPT_READABLE:
             raise ValueError(f"{path}: not a checkpoint of version {_CKPT_VERSION}")

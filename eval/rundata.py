@@ -108,7 +108,7 @@ class RunData:
     sdrs: list[SdrRecord] = field(default_factory=list)
     final_map: ExperienceMap | None = None
     map_messages: int = 0
-    final_sessions: MapSessions | None = None  # the last map_sessions (a map of several sessions, issue 20)
+    final_sessions: MapSessions | None = None  # the last map_sessions (a map of several sessions)
     latency: LatencyReport | None = None  # live/latency: a live run's latency per stage (common.live)
     truth_yaw: np.ndarray | None = None  # truth/pose yaw (NED, rad) at ``truth`` stamps
 

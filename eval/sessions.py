@@ -1,4 +1,4 @@
-"""The ``sessions`` block of ``poseidon eval`` (issue 20): a map built over several missions
+"""The ``sessions`` block of ``poseidon eval``: a map built over several missions
 (``poseidon run --map-dir``) or a mission whose odometry jumped (kidnapped vehicle), judged
 against ground truth.
 

@@ -65,7 +65,7 @@ argmax, correct iff it is in the query's ground truth):
   sequence memory's best diagonal ended, j* itself; its score is the sequence margin
   S* - S_2 (z units) with the sequence memory on (``htm.sv_seqmem_length`` > 0), else R.
   A query that no rule accepted predicts the frame j* where the sequence memory's best
-  diagonal ended, scored by its margin below the gate (issue 17): the precision-recall curve
+  diagonal ended, scored by its margin below the gate: the precision-recall curve
   sweeps the decision threshold, as every other matcher's curve sweeps its own score, and the
   configured gates are one point on it (``htm_query_matched`` counts the accepted queries;
   without the sequence memory a rejected query predicts nothing).  On ``--mission`` the same
@@ -75,15 +75,15 @@ argmax, correct iff it is in the query's ground truth):
   depth through the ``robot_state`` node, as in a run.  Image sets have no positions: the
   gate checks nothing there.
 * ``htm_lvc_accepted`` -- (image sets) ``htm_lvc`` with the accepted queries only: the
-  decisions at the configured gates, ranked by their confidence (the ``htm_lvc`` of before
-  issue 17's threshold sweep).
+  decisions at the configured gates, ranked by their confidence (the curve that stops at the
+  accepted share of the queries).
 * ``htm_descriptor`` -- R(D_q, D_r) (Eq. 4.7) between the TM descriptors of every query
   and reference frame: the HTM's similarity without the LVC decision.
 * ``sdr_seqmem``, ``no_tm``, ``no_dr_gate``, ``no_seqmem``, ``sp_tm``, ``sdr_seqmem_f1``,
   ``sdr_seqmem_cal``, ``new_places`` -- ``htm_lvc`` of the named chains of :mod:`services.htm.chains` (the
   configured ``htm`` section with the chain's overrides; the module says what each changes),
   run on the same SDRs in the same run, printed beside the default (``--no-chains`` skips
-  them): ``sdr_seqmem`` is the default before issue 17's SP + TM + dead-reckoning gate (fused
+  them): ``sdr_seqmem`` is the default without the SP + TM and the dead-reckoning gate (fused
   SDR, sequence memory, no SP, no TM), ``no_tm`` / ``no_dr_gate`` / ``no_seqmem`` the default
   without one part, ``sp_tm`` the SP's columns as the descriptor, ``new_places`` the default
   keeping only the frames that are no revisit of an older place.

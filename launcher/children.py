@@ -1,6 +1,6 @@
 """How the launcher starts a service process: it dies with the launcher, and a replay's
 services run under Linux ``SCHED_BATCH`` (``bus.batch_scheduling``; why:
-``docs/DECISIONS.md``, "Fifteenth session")."""
+``docs/DECISIONS.md``, "Replays under SCHED_BATCH")."""
 from __future__ import annotations
 
 import ctypes

@@ -1,4 +1,4 @@
-"""The size bar (issue 18): no source file over 500 lines without a reason in its docstring,
+"""The size bar: no source file over 500 lines without a reason in its docstring,
 no function over 80 lines outside numba kernels.
 
 Convention:

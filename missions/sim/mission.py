@@ -103,7 +103,7 @@ class SimParams:
 
     minutes: float = 10.0
     seed: int = 0                   # route, motion and sensor-noise seed
-    world_seed: int | None = None   # the cave's seed (None: ``seed``, the missions before issue 20)
+    world_seed: int | None = None   # the cave's seed (None: ``seed``, the cave of the route's seed)
     start: str = "area1"            # where the route starts: "area1" (the default) or "area2" (see trajectory.py)
     first_loops: int | None = None  # loops of the start area before the first transition (None: 3, every cycle's)
     speed_m_s: float = 0.3

@@ -23,7 +23,7 @@ __all__ = ["START_AREAS", "VehicleMotion", "make_trajectory", "rot_wb", "footpri
 BASE_HZ = 50.0
 LOOPS_PER_AREA = 3
 #: where a mission may start: "area1" enters area 1 from the tunnel of area 2 and flies the
-#: cycle from there (every mission before issue 20); "area2" enters area 2 through the last 15 m
+#: cycle from there (the default); "area2" enters area 2 through the last 15 m
 #: of the transition from area 1 and flies the same cycle from area 2 (its loops, the transition
 #: back, area 1, the transition): the same cave, the same world frame
 START_AREAS = ("area1", "area2")
@@ -160,7 +160,7 @@ def _tunnel_normals(cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
     to 0.5 m along a normal that jumps at every vertex made the vehicle step backwards there on
     the inside of bends -- the velocity direction (the heading, until generator_version 3) then
     flipped by 180 deg, np.unwrap chose a side at random and the 1-s heading average turned the
-    flips into yaw spins of up to ~2000 deg/s (issue 9)."""
+    flips into yaw spins of up to ~2000 deg/s."""
     tang = np.stack([np.gradient(cx), np.gradient(cy)], axis=1)
     tang /= np.linalg.norm(tang, axis=1, keepdims=True) + 1e-12
     tang = _moving_average(tang, int(BASE_HZ))

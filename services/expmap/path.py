@@ -7,7 +7,7 @@ edge durations (each edge usable both ways; a loop-closure edge takes 0 s, it jo
 experiences of the same place).  Prints the node ids, the total duration (s) and the length
 (m, along the map positions).  Exit code 2 on a bad file or node id, or when no route exists.
 
-Sessions (issue 20, :mod:`services.expmap.session_link`): a map of several sessions plans
+Sessions (:mod:`services.expmap.session_link`): a map of several sessions plans
 across a sonar-verified link between two sessions (a 0 s edge, like a loop closure), never
 across the chain edge into a session's first node (it joins two odometry frames and measures
 nothing: :func:`services.expmap.routes.session_planning_links`).  When the start and the goal

@@ -1,6 +1,6 @@
 """Quickest paths over an experience map's edges (``poseidon path``, :mod:`services.expmap.path`).
 
-Sessions (issue 20): the chain edge into a session's first node joins two odometry frames and
+Sessions: the chain edge into a session's first node joins two odometry frames and
 measures nothing (:data:`services.expmap.session_link.SESSION_BREAK_WEIGHT`), so it is no
 route: :func:`session_planning_links` drops every chain edge between two sessions and keeps the
 sonar-verified links (0 s, like a loop closure).  Two sessions not joined by links are

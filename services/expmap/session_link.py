@@ -1,4 +1,4 @@
-"""Sessions of the experience map (issue 20) and the rigid move that links two of them.
+"""Sessions of the experience map and the rigid move that links two of them.
 
 A map continued by another mission (``map_sessions``, ``poseidon run
 --map-dir``) or a vehicle whose odometry jumps by more than ``session_jump_m`` between two

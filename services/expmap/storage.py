@@ -55,7 +55,7 @@ class SweepStore:
     """Per-node sonar sweeps ((k, 2) float32 points, or None), list-like, in one point array
     with amortised doubling plus per-node (start, length) -- not a Python list of small arrays.
 
-    Why (issue 21): a checkpoint pickles the map every interval; a list of one small array per
+    Why: a checkpoint pickles the map every interval; a list of one small array per
     node is written whole every time (31 MB at the end of a 3-hour mission), while one large
     append-only array falls into the checkpoint's content-addressed blocks
     (:func:`common.resume.save_checkpoint`), of which only the blocks appended to are new.
@@ -204,7 +204,7 @@ def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
     for k in em._g.arrays:
         if k in z:
             em._g.arrays[k][:n] = z[k]
-        elif k == "session":              # maps saved before sessions (issue 20): one session
+        elif k == "session":              # a map file without session ids: one session
             em._g.arrays[k][:n] = 0
         elif k == "odom":                 # ... and their odometry is their positions' chain
             em._g.arrays[k][:n] = z["cum"] + (z["pos"][0] if n else 0.0)

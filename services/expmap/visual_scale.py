@@ -1,4 +1,4 @@
-"""The odometry's scale, measured by the downward camera (issue 20): what loop closures cannot see.
+"""The odometry's scale, measured by the downward camera: what loop closures cannot see.
 
 Why: a loop closure ties two visits of one place, and around a closed route a scale error of
 the dead reckoning adds up to nothing, so neither relaxation (Eq. 4.20) nor a session link

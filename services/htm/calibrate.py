@@ -1,4 +1,4 @@
-"""Self-calibrated gates: a threshold read from the mission's own score distribution (ours, issue 17).
+"""Self-calibrated gates: a threshold read from the mission's own score distribution (ours).
 
 A constant threshold on a similarity (the Eq. 4.9 gates, the sequence memory's F1 check) is
 tuned on one data set; when another mission's whole score level is higher or lower (other

@@ -1,4 +1,4 @@
-"""Named front-end chains (issue 17): htm overrides that ``poseidon vpr`` runs beside the configured default.
+"""Named front-end chains: htm overrides that ``poseidon vpr`` runs beside the configured default.
 
 The default (``htm`` section as shipped): the fused SDR is the descriptor of the Eq. 4.9 gates
 (0.72) and the sequence memory; a spatial pooler (4096 columns, 800 active, potential pool over
@@ -9,7 +9,7 @@ revisit claim must pass the dead-reckoning gate (:mod:`services.htm.geometry`), 
 sequence memory decide at margin 0.75 / score 1.0.  Each chain below is the default with one
 part changed, so the rows say what each part adds:
 
-- ``sdr_seqmem`` -- the default before issue 17's last step: no SP, no TM, no dead-reckoning
+- ``sdr_seqmem`` -- the fused-SDR chain: no SP, no TM, no dead-reckoning
   gate, sequence margin 1.75 / score 1.5 (``sp_columns_used`` 0).
 - ``no_tm`` -- the default without the TM's decisions (and so without the SP).
 - ``no_dr_gate`` -- the default without the dead-reckoning gate (the appearance-only chain).
@@ -22,7 +22,7 @@ part changed, so the rows say what each part adds:
   traversal's confident matches, margin 1.5; :mod:`services.htm.calibrate`); both let a sequence
   match override an Eq. 4.9 id the pass created in its last 50 frames.
 - ``new_places`` -- the default whose sequence memory and TM frame index keep only the frames that
-  are no revisit of an older place (``sv_seqmem_store``, issue 21): the cost per frame then
+  are no revisit of an older place (``sv_seqmem_store``): the cost per frame then
   grows with the places seen, not with the mission's length.
 
 ``chain_config(htm_cfg, name)`` returns the configured ``HtmConfig`` with the chain's overrides.

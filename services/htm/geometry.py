@@ -1,4 +1,4 @@
-"""Dead-reckoning consistency of a revisit claim (ours, issue 17).
+"""Dead-reckoning consistency of a revisit claim (ours).
 
 Repeated structure makes a cave stretch look like an earlier one frame by frame, *in order*:
 no appearance score and no sequence score tells the two apart (on sim seed 2103, 37 of the 62

@@ -16,7 +16,7 @@ walks an inverted index bit -> prototype ids (chains of 64-entry blocks), whose 
 of the posting lengths of the query's bits; a space of at most ``PACKED_MAX_BITS`` bits (the
 fused SDR, the SP's columns) keeps every prototype bit-packed and counts I by popcount over
 L / 64 words per prototype.  The fused SDR has ~900 of 2048 bits on, so a query's postings
-sum to ~0.4 x #LVCs x 900: at 1000 LVCs the popcount is ~15x cheaper (issue 17's 1 ms budget).
+sum to ~0.4 x #LVCs x 900: at 1000 LVCs the popcount is ~15x cheaper (the default chain's budget is 1 ms per frame).
 """
 from __future__ import annotations
 

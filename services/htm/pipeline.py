@@ -20,14 +20,14 @@ created the matched LVC by R = |A & B| / |A| >= ``sv_min_img_score`` (``sv_min_s
 for every modality present in both; otherwise Eq. 4.10 creates a new id.  A modality
 missing on either side is not checked.  Pass the per-modality SDRs to ``step`` as
 ``modalities={"camera": ..., "sonar": ...}``.
-Place-sequence prior (``sv_seq_match_threshold`` > 0, ours, issue 8): the ids of consecutive
+Place-sequence prior (``sv_seq_match_threshold`` > 0, ours): the ids of consecutive
 frames teach a successor graph (id a then id b != a: b is a successor of a).  When the best
 prototype l* fails Eq. 4.9, the prototypes up to ``sv_seq_hops`` successors ahead of the
 previous frame's id are tried with the gate ``sv_seq_match_threshold`` (on R and F1, with
 I >= I_min): a revisit that has locked onto an earlier stretch keeps following it through
 frames that alone would be too weak, as a sequence memory over places.  Query-only steps
 (``store=False``) use the graph without adding to it.
-Sequence memory (``sv_seqmem_length`` K > 0, ours, issue 8; :mod:`services.htm.sequence`):
+Sequence memory (``sv_seqmem_length`` K > 0, ours; :mod:`services.htm.sequence`):
 every frame's D_t is kept with the id it was given, and each frame scores the SeqSLAM-like
 diagonals of its last K frames against that memory (causal).  The decision of a frame is:
 l* when it passes Eq. 4.9 (+ F1 gate); else the id of the stored frame j* where the best
@@ -37,8 +37,8 @@ different -- Nordland winter vs summer -- is recognised by their order); else th
 place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
 report it.  ``sv_seqmem_store`` ``new_places`` (or ``every_frame`` once the memory holds
 ``sv_seqmem_every_frame_limit`` frames) keeps a revisit of a place older than the last ``sv_seqmem_exclude``
-frames out of the memory and the TM frame index (``frames_not_stored``): they grow with the places seen (issue 21).
-TM decision (``sv_tm_decide``, ours, issue 17; :mod:`services.htm.tm_match`): with
+frames out of the memory and the TM frame index (``frames_not_stored``): they grow with the places seen.
+TM decision (``sv_tm_decide``, ours; :mod:`services.htm.tm_match`): with
 ``sv_descriptor_source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm_input_columns`` most
 strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
 vote for the stored frames where they won, and when the best frame's votes are >=
@@ -46,7 +46,7 @@ vote for the stored frames where they won, and when the best frame's votes are >
 match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp_overlap_norm_steps`` N > 0 makes the SP
 rank standardised overlaps (:mod:`services.htm.spatial_pooler`).  The named chains that use
 them are in :mod:`services.htm.chains`.
-Sequence-match checks (ours, issue 17; off by default, used by the ``sdr_seqmem_f1`` /
+Sequence-match checks (ours; off by default, used by the ``sdr_seqmem_f1`` /
 ``sdr_seqmem_cal`` chains): ``sv_seqmem_override`` -- an Eq. 4.9 match whose l* was created
 by a frame that is no sequence candidate (the current traversal's last ``sv_seqmem_exclude``
 frames: the pass's own new id, no revisit) yields to a sequence (or TM) decision, so a revisit
@@ -64,7 +64,7 @@ with it.  The calibration sample restarts with ``reset_sequence()`` and is saved
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
 continues exactly as the saved one would have, but for the dead-reckoning gate's stored
 positions, which a loaded map forgets (they are in the earlier run's odometry frame).
-Dead-reckoning gate (``sv_dr_gate``, ours, issue 17): every revisit claim (l*, TM, sequence,
+Dead-reckoning gate (``sv_dr_gate``, ours): every revisit claim (l*, TM, sequence,
 prior) must pass Eq. G.1 with the frame's position passed to ``step``; a sequence match it
 checked decides at ``sv_dr_gate_seqmem_*``. How and why: :mod:`services.htm.geometry`.
 """

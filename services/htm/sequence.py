@@ -1,4 +1,4 @@
-"""Sequence memory over stored frames: the LVC decision of a frame from its recent sequence (ours, issue 8).
+"""Sequence memory over stored frames: the LVC decision of a frame from its recent sequence (ours).
 
 Single-frame matching (Eqs. 4.6-4.9) fails when a place looks different on a revisit
 (Nordland summer vs winter: no summer frame passes the R/F1 gates for its winter frame).
@@ -228,10 +228,10 @@ class BitPostings:
     For sparse descriptors (the ``tm`` source: ``sv_tm_topk`` 15 of 2048 column bits) the F1
     row of step 1 from the query's posting lists touches ~|D_t| x (frames per bit) entries
     instead of every stored frame's packed words: same values, a fraction of the memory
-    traffic on a memory of hours (docs/DECISIONS.md, fourteenth session).  The default ``sdr``
+    traffic on a memory of hours (docs/DECISIONS.md, "HTM cost per frame").  The default ``sdr``
     descriptor is dense (~900 of 2048 bits, the union of the camera and sonar codes): there the
     packed words are always cheaper, so :class:`SequenceMatcher` keeps no index once a dense
-    frame is stored (fifteenth session)."""
+    frame is stored."""
 
     BLOCK = 32  # frames per block of a posting list
 

@@ -13,7 +13,7 @@ duty cycles are moving averages over ``duty_cycle_period``; boosting uses
 overlap duty cycle falls under ``min_pct_overlap_duty_cycle * max(overlapDutyCycle)`` get
 all permanences raised by ``connected / 10`` (BAMI ``increasePermanences``).
 
-Overlap standardisation (``overlap_norm_steps`` N > 0, ours, issue 17): inhibition ranks
+Overlap standardisation (``overlap_norm_steps`` N > 0, ours): inhibition ranks
 ``(overlap - mean_c) / sqrt(var_c + 1)`` with each column's running mean and variance of its
 overlap over the first N learning steps (then frozen), in place of boosting, and the
 permanences do not learn.  A dense input (the camera OR sonar union has ~900 of 2048 bits on)

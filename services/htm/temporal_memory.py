@@ -18,7 +18,7 @@ Per step, with the active columns of the Spatial Pooler:
    active cells, *matching* with ``>= minThreshold`` potential synapses. Cells with an
    active segment are the predictive cells.
 
-With a synapse budget (``max_synapses`` > 0; ours, issue 21: the dissertation's TM has only
+With a synapse budget (``max_synapses`` > 0; ours: the dissertation's TM has only
 the per-cell and per-segment caps), a learning step that leaves more synapses than the budget
 destroys approximately least recently used segments of any cell until it holds no more (the
 oldest last-learnt of 32 segments drawn at random, O(1) each; never one the step may still

@@ -1,4 +1,4 @@
-"""The temporal memory's revisit decision: which stored frame the TM's predictions say we are at (ours, issue 17).
+"""The temporal memory's revisit decision: which stored frame the TM's predictions say we are at (ours).
 
 The TM learns the mission as one long sequence of SP column sets.  A cell of the TM is a
 column *in a temporal context*: a frame's winner cells name the frame's place and the

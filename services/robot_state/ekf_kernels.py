@@ -1,7 +1,7 @@
 """Numba kernels of the dead-reckoning EKF (:mod:`services.robot_state.filter`): the prediction
 step and the restricted-gain Kalman update on the 15-state filter, in place.
 
-Why kernels (issue 21): at 50 Hz of IMU, DVL and depth input the filter's arithmetic is a few
+Why kernels: at 50 Hz of IMU, DVL and depth input the filter's arithmetic is a few
 15 x 15 products per record, and numpy's per-call overhead on such small matrices was most of
 robot_state's CPU (cProfile over a 3-min sim mission: the prediction 0.61 s, the update 0.31 s
 of 1.66 s).  The kernels compute what that numpy code did (the filter's module notes give the

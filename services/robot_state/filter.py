@@ -29,7 +29,7 @@ it grows at the rate ``d_imu`` plus a random walk ``imu_yaw_drift_sigma_deg_s``)
 drift rate of the IMU yaw error, prior std ``imu_yaw_drift_rate_sigma_deg_min``, random
 walk ``imu_yaw_drift_rate_rw_deg_min_s``).
 
-Why a drift *rate* (issue 9): an AHRS yaw drifts steadily (its own gyro bias integrated);
+Why a drift *rate*: an AHRS yaw drifts steadily (its own gyro bias integrated);
 modelled as a zero-mean random walk only, the early part of the ramp was taken for the
 compass offset, which then held the heading 0.3-0.8 deg off for the rest of the mission
 (sim seeds 101-105: mean yaw error +0.2 to +0.8 deg).  With ``d_imu`` the difference IMU yaw

@@ -32,7 +32,7 @@ event counted since the previous output (``dvl_invalid_flag``, ``dvl_nonfinite``
 
 ``ground_truth`` relays each ``odometry`` message unchanged except its header seq.
 
-Fault injection (tests and evaluation only, issue 20): with ``fault_jump_at_s`` > 0, every
+Fault injection (tests and evaluation only): with ``fault_jump_at_s`` > 0, every
 ``Odometry`` published that many seconds or more after the first one has ``fault_jump_m``
 (m, published frame) added to its position and ``fault_jump`` in its status (counted once,
 ``fault_jump``, and logged as a warning): a kidnapped vehicle, or a navigation reset.

@@ -169,7 +169,7 @@ def test_main_mission_json(short_mission, tmp_path, capsys):
                                     "lsbh_overlap", "lsbh_fused_overlap", "htm_lvc", "htm_descriptor"} | chains
     # the named chains beside the default: the same LVC figures, SP columns and the TM's share of decisions
     assert set(out["chains"]) == chains
-    # the default runs the SP and the TM; the chain of before issue 17's last step does not
+    # the default runs the SP and the TM; the fused-SDR chain sdr_seqmem does not
     assert out["sp_columns_used"] > 0 and out["chains"]["sp_tm"]["sp_columns_used"] > 0
     assert out["chains"]["sdr_seqmem"]["sp_columns_used"] == 0 and out["chains"]["no_tm"]["sp_columns_used"] == 0
     # the mission's own navigation gives every frame after the first Odometry a position

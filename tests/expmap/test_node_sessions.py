@@ -1,4 +1,4 @@
-"""The expmap node with a map directory (issue 20): a loaded map begins a new session and the
+"""The expmap node with a map directory: a loaded map begins a new session and the
 node publishes ``map_sessions``; without sessions nothing is published on that key."""
 from __future__ import annotations
 

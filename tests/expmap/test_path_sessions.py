@@ -1,4 +1,4 @@
-"""``poseidon path`` over a map of two sessions (issue 20): across the sonar-verified link when
+"""``poseidon path`` over a map of two sessions: across the sonar-verified link when
 the sessions are linked, never across the chain edge into the second session's first node; a
 clear refusal naming the sessions when they are not linked.  Hand-made two-session chamber of
 tests/expmap/test_sessions.py (session A: nodes 0..39, session B: 40..79)."""

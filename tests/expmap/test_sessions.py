@@ -1,4 +1,4 @@
-"""Sessions in the experience map (issue 20): a continued map begins a new session in its own
+"""Sessions in the experience map: a continued map begins a new session in its own
 odometry frame, linked to the old one only by a verified sonar registration; the same link
 recovers a kidnapped vehicle (an odometry jump within one mission)."""
 from __future__ import annotations

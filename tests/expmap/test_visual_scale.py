@@ -1,4 +1,4 @@
-"""The odometry's scale measured by the downward camera (issue 20, round 9): the image shift,
+"""The odometry's scale measured by the downward camera: the image shift,
 the running estimate against an odometry that reads long, and the map's retroactive rescale."""
 from __future__ import annotations
 

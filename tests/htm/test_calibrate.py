@@ -1,4 +1,4 @@
-"""Self-calibrated gates (issue 17): RunningQuantile, the sequence match's F1 checks, the override."""
+"""Self-calibrated gates: RunningQuantile, the sequence match's F1 checks, the override."""
 import numpy as np
 
 from services.htm.calibrate import RunningQuantile

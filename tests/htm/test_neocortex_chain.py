@@ -1,4 +1,4 @@
-"""The SP + TM chain of issue 17: overlap-standardised SP, the TM's revisit decision, named chains."""
+"""The SP + TM chain: overlap-standardised SP, the TM's revisit decision, named chains."""
 import numpy as np
 import pytest
 

@@ -12,7 +12,7 @@ L = 2048
 
 
 # the SP -> TM -> descriptor chain with Table 4.1's SP, TM and LVC gates (the default descriptor is
-# the fused SDR, issue 8; the default SP/TM are issue 17's)
+# the fused SDR, and the default SP/TM are the overlap-standardised ones)
 _CHAIN = dict(sv_descriptor_source="tm", interval_mode=True, sv_match_threshold=0.38, min_f1=0.55,
               sv_seq_match_threshold=0.0, sv_tm_decide=False, sp_columns=2048, sp_numActiveColumns=20,
               sp_potentialRadius=600, sp_boostStrength=2.0, sp_overlap_norm_steps=0, tm_input_columns=0,

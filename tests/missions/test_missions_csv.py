@@ -84,7 +84,7 @@ def test_undetectable_kind_and_empty(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("bad", ["nan", "inf", "-inf", "1e308"])
 def test_non_finite_or_absurd_values_are_rejected_naming_line_and_column(tmp_path: Path, bad: str) -> None:
-    """Issue 11 case 7: nan/inf/1e308 in a rostopic CSV are an error, never imported silently."""
+    """nan/inf/1e308 in a rostopic CSV are an error, never imported silently."""
     p = tmp_path / "depth_sensor.csv"
     p.write_text("%time,field.header.seq,field.header.stamp,field.header.frame_id,field.depth\n"
                  "1372687208633787539,0,1372687208633787539,depth,1.5\n"

@@ -1,4 +1,4 @@
-"""The simulated vehicle turns like a vehicle (issue 9: no yaw spins at route junctions)."""
+"""The simulated vehicle turns like a vehicle: no yaw spins at route junctions."""
 import numpy as np
 
 from missions.sim.mission import GENERATOR_VERSION

@@ -1,4 +1,4 @@
-"""`poseidon sim --world-seed W --start area2` (issue 20, item 1): a second mission in the same cave."""
+"""`poseidon sim --world-seed W --start area2`: a second mission in the same cave."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -44,7 +44,7 @@ def test_world_seed_separates_cave_from_route_noise(tmp_path: Path) -> None:
     # same cave and start: both within a few metres (lateral offset, speed differ by seed), not identical
     assert np.hypot(*(truth["a.mcap"][0, :2] - truth["b.mcap"][0, :2])) < 3.0
     assert not np.array_equal(truth["a.mcap"], truth["b.mcap"])
-    # a default mission records neither key (its bytes are the ones before issue 20)
+    # a default mission records neither key (its bytes do not depend on the options)
     generate(tmp_path / "c.mcap", SimParams(seed=3, **base), progress=False)
     meta_c = read_metadata(tmp_path / "c.mcap")["poseidon"]
     assert "world_seed" not in meta_c and "start" not in meta_c and "world_seed" not in meta_c["params"]

@@ -213,7 +213,7 @@ def test_save_load_continue_equals_an_uninterrupted_run(tmp_path: Path) -> None:
 
 
 def test_a_state_from_another_mission_lends_no_odometry_to_this_one(tmp_path: Path) -> None:
-    """Issue 20: a second dive loads the first one's pose cells (``--map-dir``).  Its frames
+    """A second dive loads the first one's pose cells (``--map-dir``).  Its frames
     before its own first Odometry must make no event carrying the first dive's last pose (an
     experience 40 m off in the map); the network's associations carry over."""
     cfg = config(require_vpr_for_event=False)

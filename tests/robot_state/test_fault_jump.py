@@ -1,4 +1,4 @@
-"""robot_state's fault injection (issue 20): from ``fault_jump_at_s`` after the first output on,
+"""robot_state's fault injection: from ``fault_jump_at_s`` after the first output on,
 every published position carries ``fault_jump_m`` (a kidnapped vehicle); off by default."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Heading fusion and dropout behaviour that decide dead reckoning across missions (issue 9)."""
+"""Heading fusion and dropout behaviour that decide dead reckoning across missions."""
 from __future__ import annotations
 
 import math
@@ -77,8 +77,8 @@ def test_imu_yaw_drift_rate_keeps_the_compass_offset_unbiased():
 
 
 def test_spin_resets_the_yaw_without_corrupting_the_compass_offset():
-    """A spin at up to 2400 deg/s (as the simulator produces at some route junctions, see the
-    issue 9 note), ending 4 s before the last record: the yaw is reset to the IMU at every
+    """A spin at up to 2400 deg/s (what a heading flip at a route junction of the
+    simulator looked like, ``missions/sim/trajectory.py::_tunnel_normals``), ending 4 s before the last record: the yaw is reset to the IMU at every
     sample the gyro cannot predict (counted), so the heading is right at once and the compass
     offset learned before survives; without the gate the heading is still ~10 deg off."""
     spin = [(k, m) for k, m in _drifting_imu_with_compass(4, 0.0, 2.0, 0.5, spin_at=225.0)
