@@ -301,8 +301,9 @@ def revision(root: Path = ROOT) -> str:
 class Runner:
     """Runs one topic's commands from the project root, logs them, keeps their output in ``work/logs``."""
 
-    def __init__(self, topic: str, work: Path, say: Callable[[str], None] = print) -> None:
-        self.topic, self.work, self.say = topic, work, say
+    def __init__(self, topic: str, work: Path, say: Callable[[str], None] | None = None) -> None:
+        self.topic, self.work = topic, work
+        self.say = say or (lambda line: print(line, flush=True))
         self.commands: list[str] = []
         (work / "logs").mkdir(parents=True, exist_ok=True)
 
@@ -464,10 +465,10 @@ def main(argv: list[str] | None = None) -> int:
         topic = BY_NAME[name]
         missing = [str(DATA / d) for d in topic.data if not (DATA / d).exists()]
         if missing:
-            print(f"{name}: skipped, data absent: {', '.join(missing)}")
+            print(f"{name}: skipped, data absent: {', '.join(missing)}", flush=True)
             continue
         runner = Runner(name, work / name)
-        print(f"{name}: ~{topic.minutes} min")
+        print(f"{name}: ~{topic.minutes} min", flush=True)
         try:
             body = topic.measure(runner)
         except CommandFailed as exc:
