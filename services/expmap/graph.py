@@ -22,13 +22,13 @@ Loop closure (Table 4.1), decided for the new node n of every event:
   only the nodes of the same LVC are scored, through an index lvc -> nodes (cost
   O(candidates)); otherwise every old node is scored.
 - a match is a candidate with score >= ``match_threshold``.  Consecutive events confirm a
-  loop when both match and their matched nodes are at most ``loop_confirmation_gap``
+  loop when both match and their matched nodes are at most ``loops.confirmation_gap``
   experiences apart on the old route (either direction, so a route driven backwards
   confirms too); the event chooses, among its matches, the one closest to the previous
   match, else the best score (ties: the oldest).  A loop is closed between n and its match
-  m when ``loop_confirmations`` consecutive events confirmed it, at least
-  ``min_correction_interval_sec`` of event time passed since the last correction, and the
-  route between m and n is at least ``min_correction_route_len`` experiences long.
+  m when ``loops.confirmations`` consecutive events confirmed it, at least
+  ``corrections.min_interval_sec`` of event time passed since the last correction, and the
+  route between m and n is at least ``corrections.min_route_len`` experiences long.
   Route length is counted in experiences (edges) along the shortest route of the current
   graph, loop edges included: the same unit as ``min_experience_age`` and independent of
   drift; after an earlier closure it is shorter than the age, which is what keeps a
@@ -37,29 +37,31 @@ Loop closure (Table 4.1), decided for the new node n of every event:
 - the loop edge goes from m to n with zero displacement (an LVC match says "same place";
   measured by sonar instead when available, see below;
   the pose-cell offset is not used because the lattice wraps every 1.5 m and its centroid
-  is itself pulled toward the stored pose) and weight ``loop_edge_weight``, duration 0 s.
+  is itself pulled toward the stored pose) and weight ``loops.edge_weight``, duration 0 s.
 
 Relaxation: the target is the exact weighted least-squares optimum of Eq. 4.20 with node 0
 fixed (not OpenRatSLAM's half-error sweep), found by series reduction of the chain between
-loop endpoints; the map moves toward it by capped iterations (``max_correction_norm``,
-``max_correction_step``, ``relax_iterations_per_event``; :meth:`ExperienceMap.settle`
+loop endpoints; the map moves toward it by capped iterations (``corrections.max_norm``,
+``corrections.max_step``, ``corrections.iterations_per_event``; :meth:`ExperienceMap.settle`
 finishes a pending correction).  Every rule and its cost: :mod:`services.expmap.relaxation`.
 
 Odometry scale: :meth:`ExperienceMap.set_odometry_scale` multiplies the horizontal
 displacement of this run's odometry edges by the camera's measure of the odometry's scale
 (:mod:`services.expmap.visual_scale`), retroactively, and relaxes toward the new optimum.
 
-Loop-edge displacement: with ``loop_scan_matching`` each node keeps the sonar sweep around
+Loop-edge displacement: with ``loops.scan_matching`` each node keeps the sonar sweep around
 its odometry position and a closure's edge asks for the displacement measured by registering
 the two sweeps (:mod:`services.expmap.scans`; a departure from the zero displacement above,
 which stays the fallback when a sweep is missing or the registration is not trusted).
 
-Save/load (:meth:`save`, :meth:`load`, npz) keeps everything needed to continue: nodes,
-odometry increments, loop edges, sonar sweeps, the confirmation chain, the pending correction
-and the last event's odometry (a continued mission must use the same odometry frame).
+State and save/load: :meth:`ExperienceMap.state` gives everything needed to continue the map
+as an :class:`~services.expmap.state.ExperienceMapState` (nodes, odometry increments, loop
+edges, sonar sweeps, the confirmation chain, the pending correction, the last event's odometry,
+the sessions), :meth:`ExperienceMap.load_state` takes one; :meth:`save` and :meth:`load` write
+and read it as a file (npz, :mod:`services.expmap.storage`).
 
 Sessions: a map continued by another mission (``poseidon run --map-dir``) or a
-vehicle whose odometry jumps by more than ``session_jump_m`` (kidnapped) begins a new session
+vehicle whose odometry jumps by more than ``sessions.jump_m`` (kidnapped) begins a new session
 (:meth:`ExperienceMap.begin_session`), unlinked to the earlier ones until a link verified by
 the sonar joins them; the rules are in :mod:`services.expmap.session_link`.
 
@@ -69,6 +71,10 @@ Eq. 4.20 solver and the capped blend in :mod:`services.expmap.relaxation`; the n
 and the map file in :mod:`services.expmap.storage`; quickest paths in
 :mod:`services.expmap.routes`; session links in :mod:`services.expmap.session_link`.  :class:`ExperienceMap` holds the state and applies the rules
 in order for each event.
+
+(Over 500 lines because the class holds the map's state and applies every rule to it in order:
+the rules' arithmetic lives in the modules above, and what remains (the event, the loop and link
+policy, the relaxation's bookkeeping, the public state) shares that one state.)
 """
 from __future__ import annotations
 
@@ -85,9 +91,10 @@ from services.expmap.relaxation import plan_correction, relax_fraction, rescale_
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
 from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, rot2
+from services.expmap.state import NODE_COLUMNS, ExperienceMapState
 from services.expmap.storage import FORMAT_VERSION, ColumnStore, SweepStore, load_map, read_map_file, save_map
 
-__all__ = ["ExperienceMap", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
+__all__ = ["ExperienceMap", "ExperienceMapState", "EventResult", "quickest_path", "quickest_path_links", "pc_distance_cells",
            "read_map_file", "FORMAT_VERSION"]
 
 
@@ -103,18 +110,8 @@ class ExperienceMap:
             raise ValueError("posecells.number_of_neurons needs 4 values and distance_between_neurons 3")
         self._period, self._cell = lattice_geometry(self.lattice_shape, self.lattice_spacing)
         g = ColumnStore()
-        g.add("pos", (3,), np.float64)       # map position (m)
-        g.add("delta", (3,), np.float64)     # odometry increment from the previous node (edge k-1 -> k)
-        g.add("cum", (3,), np.float64)       # sum of the increments up to the node
-        g.add("cumres", (), np.float64)      # sum of 1/w of the odometry edges up to the node
-        g.add("weight", (), np.float64)      # w of edge k-1 -> k
-        g.add("yaw", (), np.float64)
-        g.add("lvc", (), np.int64)
-        g.add("pc", (4,), np.float64)
-        g.add("stamp", (), np.int64)
-        g.add("rem", (3,), np.float64)       # correction being applied (m): position = pos + phi * rem
-        g.add("session", (), np.int64)       # session id (0: the map's first)
-        g.add("odom", (3,), np.float64)      # the event's odometry position, in its session's frame
+        for name, (shape, dtype) in NODE_COLUMNS.items():   # the node columns (their meaning: NODE_COLUMNS)
+            g.add(name, shape, dtype)
         self._g = g
         self._loop_edges = LoopEdges()
         self._lvc_index: dict[int, list[int]] = {}
@@ -239,8 +236,8 @@ class ExperienceMap:
         g.reserve(n + 1)
         A = g.arrays
         res = EventResult(node=n)
-        jump = (n > 0 and cfg.session_jump_m > 0 and self.last_odom is not None
-                and float(np.linalg.norm(odom - self.last_odom)) > cfg.session_jump_m)
+        jump = (n > 0 and cfg.sessions.jump_m > 0 and self.last_odom is not None
+                and float(np.linalg.norm(odom - self.last_odom)) > cfg.sessions.jump_m)
         if n > 0 and (self._session_pending or jump):
             self.session = int(self._a("session").max()) + 1
             self._session_root[self.session] = self.session
@@ -290,9 +287,9 @@ class ExperienceMap:
         self._scans.append(sw)
 
         self._loop_search(n, res)
-        if res.confirmations >= cfg.loop_confirmations:
+        if res.confirmations >= cfg.loops.confirmations:
             self._try_close(n, res)
-        self._relax(res, cfg.relax_iterations_per_event)
+        self._relax(res, cfg.corrections.iterations_per_event)
         return res
 
     def _loop_search(self, n: int, res: EventResult) -> None:
@@ -311,7 +308,7 @@ class ExperienceMap:
             return
         matches, mscores = cand[ok], scores[ok]
         chosen, self.confirmations = choose_match(matches, mscores, self.last_match, self.confirmations,
-                                                  cfg.loop_confirmation_gap)
+                                                  cfg.loops.confirmation_gap)
         self.last_match = int(matches[chosen])
         res.match, res.score, res.confirmations = self.last_match, float(mscores[chosen]), self.confirmations
 
@@ -338,10 +335,10 @@ class ExperienceMap:
         if self.session_root(int(sess[m])) != self.session_root(int(sess[n])):
             self._try_link(m, n, stamp, res)
             return
-        if self.last_correction_stamp >= 0 and (stamp - self.last_correction_stamp) < cfg.min_correction_interval_sec * 1e9:
+        if self.last_correction_stamp >= 0 and (stamp - self.last_correction_stamp) < cfg.corrections.min_interval_sec * 1e9:
             res.rejected = "interval"
             return
-        if self._loop_edges.route_bound(m, n, self.n_nodes, cfg.min_correction_route_len) < cfg.min_correction_route_len:
+        if self._loop_edges.route_bound(m, n, self.n_nodes, cfg.corrections.min_route_len) < cfg.corrections.min_route_len:
             res.rejected = "route"
             return
         delta = self.loop_delta(m, n)
@@ -367,8 +364,8 @@ class ExperienceMap:
         moving = np.array([s for s, r in self._session_root.items() if r == old_root], np.int64)
         mask = np.isin(A["session"][:N], moving)
         # the rigid transform of the newer component about n, with the registration's rotation
-        # (zero with session_link_rotate off)
-        theta = math.radians(float(reg.rotation_deg)) if self.cfg.session_link_rotate else 0.0
+        # (zero with sessions.link_rotate off)
+        theta = math.radians(float(reg.rotation_deg)) if self.cfg.sessions.link_rotate else 0.0
         shift = A["pos"][m] + delta - A["pos"][n]
         move_component(A, N, mask, n, A["pos"][m] + delta, theta, self._loop_edges, self._scans)
         if theta != 0.0:
@@ -390,13 +387,13 @@ class ExperienceMap:
         N = self.n_nodes
         found = backfill(self.cfg, self._g.arrays["pos"][:N], self._a("odom"), self._scans[:N], newer, older)
         for j, i, delta in found:
-            self.add_loop_edge(j, i, float(self.cfg.loop_edge_weight), stamp, delta)
+            self.add_loop_edge(j, i, float(self.cfg.loops.edge_weight), stamp, delta)
         return len(found)
 
     def _close(self, m: int, n: int, stamp: int, delta: np.ndarray, res: EventResult) -> None:
         """Add the loop edge m -> n asking ``delta`` and plan the relaxation toward the optimum."""
         cfg = self.cfg
-        self.add_loop_edge(m, n, float(cfg.loop_edge_weight), stamp, delta)
+        self.add_loop_edge(m, n, float(cfg.loops.edge_weight), stamp, delta)
         self.corrections += 1
         self.last_correction_stamp = stamp
         self.confirmations = 0
@@ -422,7 +419,7 @@ class ExperienceMap:
         target = self.optimum()
         self._apply_pending()
         disp, res.correction_clamped, res.correction_norm, self._peak = plan_correction(
-            target, self._a("pos"), cfg.max_correction_norm)
+            target, self._a("pos"), cfg.corrections.max_norm)
         self._g.arrays["rem"][: self.n_nodes] = disp
         self._phi = 0.0
         if self._peak <= 0.0:
@@ -462,7 +459,7 @@ class ExperienceMap:
         (:func:`services.expmap.relaxation.relax_fraction`; O(1) until the map is read)."""
         if self._peak <= 0.0:
             return
-        self._phi, ran, step_max, capped = relax_fraction(self._phi, self._peak, self.cfg.max_correction_step,
+        self._phi, ran, step_max, capped = relax_fraction(self._phi, self._peak, self.cfg.corrections.max_step,
                                                           iterations)
         res.iterations += ran
         res.step_max = max(res.step_max, step_max)
@@ -476,18 +473,64 @@ class ExperienceMap:
         """Finish a pending correction (every iteration still capped); returns iterations run."""
         res = EventResult(node=self.n_nodes - 1)
         if self._peak > 0.0:
-            self._relax(res, math.ceil((1.0 - self._phi) * self._peak / self.cfg.max_correction_step) + 1)
+            self._relax(res, math.ceil((1.0 - self._phi) * self._peak / self.cfg.corrections.max_step) + 1)
         return res.iterations
 
-    # ---- persistence ----------------------------------------------------------------
+    # ---- state and persistence ------------------------------------------------------
+    def state(self) -> ExperienceMapState:
+        """Everything needed to continue the map, as data (copies of the arrays); what
+        :meth:`save` writes and :meth:`load_state` takes."""
+        return ExperienceMapState(
+            lattice_shape=self.lattice_shape, lattice_spacing=self.lattice_spacing,
+            columns={k: self._a(k).copy() for k in self._g.arrays},
+            loops=list(self.loops), loop_deltas=[d.copy() for d in self.loop_deltas], sweeps=list(self._scans),
+            phi=self._phi, peak=self._peak, last_odom=None if self.last_odom is None else self.last_odom.copy(),
+            last_match=self.last_match, confirmations=self.confirmations,
+            last_correction_stamp=self.last_correction_stamp, corrections=self.corrections, solves=self.solves,
+            session=self.session, session_pending=self._session_pending, session_root=dict(self._session_root),
+            session_links=list(self.session_links), link_rejections=dict(self.link_rejections),
+            frame_yaw=self.frame_yaw)
+
+    def load_state(self, state: ExperienceMapState) -> None:
+        """Fill this empty map from ``state`` (:meth:`state` of a map on the same lattice).
+
+        :raises ValueError: the map already holds nodes, or ``state`` does not fit it
+            (:meth:`ExperienceMapState.check_fits`)
+        """
+        if self.n_nodes:
+            raise ValueError(f"load_state needs an empty map, this one holds {self.n_nodes} nodes")
+        state.check_fits(self.lattice_shape, self.lattice_spacing)
+        n = state.n_nodes
+        self._g.reserve(max(n, 1))
+        for name, col in self._g.arrays.items():
+            col[:n] = state.columns[name]
+        self._g.n = n
+        for (m, k, w, stamp), dl in zip(state.loops, state.loop_deltas):
+            self.add_loop_edge(int(m), int(k), float(w), int(stamp), dl)
+        self._phi, self._peak = float(state.phi), float(state.peak)
+        self.last_odom = None if state.last_odom is None else np.asarray(state.last_odom, np.float64).copy()
+        self.last_match, self.confirmations = int(state.last_match), int(state.confirmations)
+        self.last_correction_stamp = int(state.last_correction_stamp)
+        self.corrections, self.solves = int(state.corrections), int(state.solves)
+        self.session, self._session_pending = int(state.session), bool(state.session_pending)
+        self._session_first = int(np.argmax(self.sessions == self.session)) if n else 0
+        self._session_root = {int(k): int(v) for k, v in state.session_root.items()}
+        self.session_links = list(state.session_links)
+        self.frame_yaw = float(state.frame_yaw)
+        self.link_rejections.update(state.link_rejections)
+        for i, lvc in enumerate(self.lvc_ids.tolist()):
+            self._lvc_index.setdefault(int(lvc), []).append(i)
+        self._scans = SweepStore(state.sweeps)
+
     def save(self, path: str | Path) -> None:
         """Write everything needed to continue the map (npz, :func:`services.expmap.storage.save_map`)."""
-        save_map(self, path)
+        save_map(self.state(), path)
 
     @classmethod
     def load(cls, path: str | Path, cfg: ExpMapConfig, lattice_shape: Any = (15, 15, 15, 8),
              lattice_spacing: Any = (0.1, 0.1, 0.1)) -> ExperienceMap:
         """Read a map written by :meth:`save`; the lattice must match the saved one."""
-        em = load_map(cls(cfg, lattice_shape, lattice_spacing), path)
+        em = cls(cfg, lattice_shape, lattice_spacing)
+        em.load_state(load_map(path, em.lattice_shape, em.lattice_spacing))
         em.run_first = em.n_nodes
         return em

@@ -1,16 +1,16 @@
 """Sessions of the experience map and the rigid move that links two of them.
 
-A map continued by another mission (``map_sessions``, ``poseidon run
---map-dir``) or a vehicle whose odometry jumps by more than ``session_jump_m`` between two
+A map continued by another mission (``sessions.begin_on_load``, ``poseidon run
+--map-dir``) or a vehicle whose odometry jumps by more than ``sessions.jump_m`` between two
 events (kidnapped) begins a new *session* (:meth:`~services.expmap.graph.ExperienceMap.begin_session`): its first
 node sits at its own odometry position (its own frame, unlinked to the earlier nodes), the
 chain edge from the previous node is kept with weight :data:`SESSION_BREAK_WEIGHT` (a
 resistance of 1e6: it carries the chain's bookkeeping, not a measurement) and every node
 carries its session id.  Every node of an earlier session is a loop candidate, whatever
 ``min_experience_age`` (another mission is never "the place just passed").  A confirmed
-match (``loop_confirmations`` consecutive events, as a loop closure) between sessions not yet linked is a *link candidate*: it becomes a link only
+match (``loops.confirmations`` consecutive events, as a loop closure) between sessions not yet linked is a *link candidate*: it becomes a link only
 when the two experiences' sonar sweeps register trusted along both axes with at least
-``session_link_min_inliers`` inliers (:func:`services.expmap.loop_policy.link_displacement`,
+``sessions.link_min_inliers`` inliers (:func:`services.expmap.loop_policy.link_displacement`,
 searched around "the same place", since the separation of two unlinked frames means
 nothing); otherwise it is rejected (``rejected = "link"``, the reason counted in
 :attr:`~services.expmap.graph.ExperienceMap.link_rejections`).  A link moves the newer component (every session
@@ -18,8 +18,8 @@ linked to the new one) rigidly so that the two experiences sit at the measured d
 records the link as a loop edge (so relaxation treats it like one from then on; the interval
 and route rules do not apply to it) and joins the components: the older one's frame (session
 0's, the prior map's) is the frame of both.  The move is a rigid transform about n: the
-registration's translation *and* rotation (``session_link_rotate``, searched within
-``session_link_max_rotation_deg``): the newer component's positions, headings, sweeps, chain
+registration's translation *and* rotation (``sessions.link_rotate``, searched within
+``sessions.link_max_rotation_deg``): the newer component's positions, headings, sweeps, chain
 deltas and loop deltas turn with it, and so does the odometry of the rest of the session
 (:attr:`~services.expmap.graph.ExperienceMap.frame_yaw`).  Depth is not rotated (pressure depth is absolute).  Both
 angles are recorded with the link (:class:`SessionLink`: measured and applied).
@@ -27,11 +27,11 @@ angles are recorded with the link (:class:`SessionLink`: measured and applied).
 Backfill: the part of the newer component mapped before the link hangs from the link node
 through its odometry chain alone, so it carries the older map's error at that one place plus
 the odometry's drift away from it.  Right after the move, every experience i of the newer
-component (one per ``session_backfill_spacing_m`` of path) is paired with the nearest
-experience j of the older component within ``session_backfill_radius_m`` in the linked frame;
-their sweeps are registered around the separation p_i - p_j (``session_backfill_search_m``)
+component (one per ``sessions.backfill_spacing_m`` of path) is paired with the nearest
+experience j of the older component within ``sessions.backfill_radius_m`` in the linked frame;
+their sweeps are registered around the separation p_i - p_j (``sessions.backfill_search_m``)
 and kept as a loop edge only when trusted along both axes with at least
-``session_link_min_inliers`` inliers (the link's rule).  The relaxation that follows the link
+``sessions.link_min_inliers`` inliers (the link's rule).  The relaxation that follows the link
 then pins that part to the older map at every such place (:func:`backfill_pairs` chooses the
 pairs; the count is :attr:`SessionLink.backfill_edges`).
 
@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -52,7 +52,6 @@ from services.expmap.loop_policy import link_displacement
 if TYPE_CHECKING:
     from services.expmap.config import ExpMapConfig
     from services.expmap.loop_policy import LoopEdges
-    from services.expmap.storage import SweepStore
 
 __all__ = ["SESSION_BREAK_WEIGHT", "SessionLink", "rot2", "move_component", "backfill_pairs", "backfill"]
 
@@ -84,8 +83,16 @@ class SessionLink:
     backfill_edges: int = 0     # loop edges the backfill added with the link (module notes)
 
 
+class MutableSweeps(Protocol):
+    """Per-node sonar sweeps, read and replaced by node id (:class:`services.expmap.storage.SweepStore`)."""
+
+    def __getitem__(self, i: int, /) -> np.ndarray | None: ...
+
+    def __setitem__(self, i: int, sweep: np.ndarray | None, /) -> None: ...
+
+
 def move_component(A: dict[str, np.ndarray], N: int, mask: np.ndarray, n: int, target_n: np.ndarray, theta: float,
-                   loop_edges: LoopEdges, scans: SweepStore) -> None:
+                   loop_edges: LoopEdges, scans: MutableSweeps) -> None:
     """Move the nodes ``mask`` (the newer component, node n among them) of the node columns
     ``A`` (first N rows) rigidly about n: x -> R (x - p_n) + ``target_n``, R the rotation of
     ``theta`` rad about the vertical (the registration's: it lays n's sweep onto m's).
@@ -149,10 +156,10 @@ def backfill(cfg: ExpMapConfig, pos: np.ndarray, odom: np.ndarray, scans: list[n
     (m; height from the odometry, pressure depth being absolute)."""
     has_sweep = np.array([sw is not None for sw in scans], bool)
     out = []
-    for j, i in backfill_pairs(pos, newer, older, has_sweep, cfg.session_backfill_radius_m,
-                               cfg.session_backfill_spacing_m):
+    for j, i in backfill_pairs(pos, newer, older, has_sweep, cfg.sessions.backfill_radius_m,
+                               cfg.sessions.backfill_spacing_m):
         delta, _reg, _why = link_displacement(cfg, scans[j], scans[i], float(odom[i, 2] - odom[j, 2]),
-                                              separation=pos[i] - pos[j], search_radius_m=cfg.session_backfill_search_m)
+                                              separation=pos[i] - pos[j], search_radius_m=cfg.sessions.backfill_search_m)
         if delta is not None:
             out.append((j, i, delta))
     return out

@@ -3,7 +3,8 @@
 :class:`ColumnStore` keeps one array per node attribute with amortised doubling;
 :class:`SweepStore` keeps every node's sonar sweep in one growing point array.
 :func:`save_map` / :func:`load_map` write and read everything needed to continue a map
-(:class:`services.expmap.graph.ExperienceMap`): nodes, odometry increments, loop edges,
+(:class:`services.expmap.state.ExperienceMapState`, the public state of
+:class:`services.expmap.graph.ExperienceMap`): nodes, odometry increments, loop edges,
 sonar sweeps, the confirmation chain, the pending correction, the last event's odometry
 (a continued mission must use the same odometry frame, unless it begins a new session) and
 the sessions (id per node, links, which sessions are linked).  :func:`read_map_file` opens a map
@@ -15,14 +16,12 @@ import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, overload
+from typing import Any, overload
 
 import numpy as np
 
 from services.expmap.session_link import SessionLink
-
-if TYPE_CHECKING:
-    from services.expmap.graph import ExperienceMap
+from services.expmap.state import NODE_COLUMNS, ExperienceMapState
 
 __all__ = ["ColumnStore", "SweepStore", "read_map_file", "save_map", "load_map", "FORMAT_VERSION"]
 
@@ -148,29 +147,32 @@ def read_map_file(path: Path, what: str) -> tuple[Any, dict[str, Any]]:
         raise ValueError(f"{path}: not {what} file ({exc})") from None
 
 
-def save_map(em: ExperienceMap, path: str | Path) -> None:
-    """Write everything needed to continue ``em`` (npz, written to a temporary name then moved)."""
+def save_map(state: ExperienceMapState, path: str | Path) -> None:
+    """Write everything needed to continue a map (npz, written to a temporary name then moved).
+
+    :param state: the map's state (:meth:`services.expmap.graph.ExperienceMap.state`)
+    :param path: the map file
+    """
     meta = {
-        "format": FORMAT_VERSION, "lattice_shape": list(em.lattice_shape),
-        "lattice_spacing": list(em.lattice_spacing), "last_match": em.last_match,
-        "confirmations": em.confirmations, "last_correction_stamp": em.last_correction_stamp,
-        "corrections": em.corrections, "solves": em.solves,
-        "phi": em._phi, "peak": em._peak,
-        "session": em.session, "session_pending": em._session_pending,
-        "session_root": {str(k): v for k, v in em._session_root.items()},
+        "format": FORMAT_VERSION, "lattice_shape": list(state.lattice_shape),
+        "lattice_spacing": list(state.lattice_spacing), "last_match": state.last_match,
+        "confirmations": state.confirmations, "last_correction_stamp": state.last_correction_stamp,
+        "corrections": state.corrections, "solves": state.solves,
+        "phi": state.phi, "peak": state.peak,
+        "session": state.session, "session_pending": state.session_pending,
+        "session_root": {str(k): v for k, v in state.session_root.items()},
         "session_links": [{"session": lk.session, "to_session": lk.to_session, "m": lk.m, "n": lk.n,
                            "stamp": lk.stamp, "delta": lk.delta.tolist(), "shift": lk.shift.tolist(),
                            "rotation_deg": lk.rotation_deg, "inlier_fraction": lk.inlier_fraction,
                            "applied_deg": lk.applied_deg, "backfill_edges": lk.backfill_edges}
-                          for lk in em.session_links],
-        "link_rejections": em.link_rejections, "frame_yaw": em.frame_yaw,
+                          for lk in state.session_links],
+        "link_rejections": state.link_rejections, "frame_yaw": state.frame_yaw,
     }
-    arrays = {k: em._a(k) for k in em._g.arrays}
-    loops = np.array([(m, n, s) for m, n, _w, s in em.loops], np.int64).reshape(-1, 3)
-    loop_w = np.array([w for _m, _n, w, _s in em.loops], np.float64)
-    loop_d = np.asarray(em.loop_deltas, np.float64).reshape(-1, 3)
-    last_odom = em.last_odom if em.last_odom is not None else np.full(3, np.nan)
-    sweeps = [np.zeros((0, 2), np.float32) if a is None else a for a in em._scans]
+    loops = np.array([(m, n, s) for m, n, _w, s in state.loops], np.int64).reshape(-1, 3)
+    loop_w = np.array([w for _m, _n, w, _s in state.loops], np.float64)
+    loop_d = np.asarray(state.loop_deltas, np.float64).reshape(-1, 3)
+    last_odom = state.last_odom if state.last_odom is not None else np.full(3, np.nan)
+    sweeps = [np.zeros((0, 2), np.float32) if a is None else a for a in state.sweeps]
     sweep_ptr = np.concatenate([[0], np.cumsum([len(a) for a in sweeps])]).astype(np.int64)
     sweep_pts = np.concatenate(sweeps).astype(np.float32) if sweeps else np.zeros((0, 2), np.float32)
     path = Path(path)
@@ -179,7 +181,7 @@ def save_map(em: ExperienceMap, path: str | Path) -> None:
     # numpy's savez stub types **kwds against its allow_pickle: bool keyword
     np.savez(tmp, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), loops=loops, loop_weight=loop_w,
              loop_delta=loop_d, last_odom=last_odom, sweep_ptr=sweep_ptr, sweep_pts=sweep_pts,
-             **arrays)  # type: ignore[arg-type]
+             **state.columns)  # type: ignore[arg-type]
     tmp.replace(path)
 
 
@@ -193,55 +195,70 @@ def _check_header(path: Path, meta: dict[str, Any], lattice_shape: tuple[int, ..
                          f"{meta['lattice_spacing']} m, configured {list(lattice_shape)} x {list(lattice_spacing)}")
 
 
-def load_map(em: ExperienceMap, path: str | Path) -> ExperienceMap:
-    """Fill the empty map ``em`` (built with the configuration and lattice of the run) from a
-    file written by :func:`save_map`; the lattice must match the saved one."""
-    path = Path(path)
-    z, meta = read_map_file(path, "an experience map")
-    _check_header(path, meta, em.lattice_shape, em.lattice_spacing)
+def _columns(path: Path, z: Any) -> dict[str, np.ndarray]:
+    """The node columns of an open map file, in :data:`NODE_COLUMNS` order and dtypes."""
     n = int(z["pos"].shape[0])
-    em._g.reserve(max(n, 1))
-    for k in em._g.arrays:
+    columns = {}
+    for k, (shape, dtype) in NODE_COLUMNS.items():
         if k in z:
-            em._g.arrays[k][:n] = z[k]
-        elif k == "session":              # a map file without session ids: one session
-            em._g.arrays[k][:n] = 0
+            col = np.asarray(z[k])
+        elif k == "session":              # maps saved before sessions (issue 20): one session
+            col = np.zeros(n)
         elif k == "odom":                 # ... and their odometry is their positions' chain
-            em._g.arrays[k][:n] = z["cum"] + (z["pos"][0] if n else 0.0)
+            col = z["cum"] + (z["pos"][0] if n else 0.0)
         else:
             raise ValueError(f"{path}: missing array {k!r}")
-    em._g.n = n
-    deltas = z["loop_delta"] if "loop_delta" in z else np.zeros((len(z["loops"]), 3))
-    for (m, k, s), w, dl in zip(z["loops"], z["loop_weight"], deltas):
-        em.add_loop_edge(int(m), int(k), float(w), int(s), dl)
-    em._phi, em._peak = float(meta["phi"]), float(meta["peak"])
-    lo = z["last_odom"]
-    em.last_odom = None if np.any(np.isnan(lo)) else lo.astype(np.float64)
-    em.last_match = int(meta["last_match"])
-    em.confirmations = int(meta["confirmations"])
-    em.last_correction_stamp = int(meta["last_correction_stamp"])
-    em.corrections = int(meta["corrections"])
-    em.solves = int(meta["solves"])
-    em.session = int(meta.get("session", 0))
-    em._session_pending = bool(meta.get("session_pending", False))
-    em._session_first = int(np.argmax(em.sessions == em.session)) if n else 0
-    em._session_root = {int(k): int(v) for k, v in meta.get("session_root", {"0": 0}).items()}
-    em.session_links = [SessionLink(session=int(d["session"]), to_session=int(d["to_session"]), m=int(d["m"]),
-                                    n=int(d["n"]), stamp=int(d["stamp"]), delta=np.asarray(d["delta"], np.float64),
-                                    shift=np.asarray(d["shift"], np.float64), rotation_deg=float(d["rotation_deg"]),
-                                    inlier_fraction=float(d["inlier_fraction"]),
-                                    applied_deg=float(d.get("applied_deg", 0.0)),
-                                    backfill_edges=int(d.get("backfill_edges", 0)))
-                        for d in meta.get("session_links", [])]
-    em.frame_yaw = float(meta.get("frame_yaw", 0.0))
-    em.link_rejections.update({k: int(v) for k, v in meta.get("link_rejections", {}).items()})
-    for i, lvc in enumerate(em.lvc_ids.tolist()):
-        em._lvc_index.setdefault(int(lvc), []).append(i)
+        out = np.zeros((n,) + shape, dtype)
+        out[:] = col
+        columns[k] = out
+    return columns
+
+
+def _session_link(d: dict[str, Any]) -> SessionLink:
+    return SessionLink(session=int(d["session"]), to_session=int(d["to_session"]), m=int(d["m"]),
+                       n=int(d["n"]), stamp=int(d["stamp"]), delta=np.asarray(d["delta"], np.float64),
+                       shift=np.asarray(d["shift"], np.float64), rotation_deg=float(d["rotation_deg"]),
+                       inlier_fraction=float(d["inlier_fraction"]),
+                       applied_deg=float(d.get("applied_deg", 0.0)),
+                       backfill_edges=int(d.get("backfill_edges", 0)))
+
+
+def load_map(path: str | Path, lattice_shape: tuple[int, ...], lattice_spacing: tuple[float, ...]
+             ) -> ExperienceMapState:
+    """Read a map file written by :func:`save_map`.
+
+    :param path: the map file
+    :param lattice_shape: the run's pose-cell lattice (cells), which must be the saved one
+    :param lattice_spacing: the run's lattice cell size (m), which must be the saved one
+    :raises ValueError: not a map file, another format version, another lattice, or a
+        missing or inconsistent array (the message names the file)
+    """
+    path = Path(path)
+    z, meta = read_map_file(path, "an experience map")
+    _check_header(path, meta, lattice_shape, lattice_spacing)
+    columns = _columns(path, z)
+    n = int(columns["pos"].shape[0])
+    loops = [(int(m), int(k), float(w), int(s)) for (m, k, s), w in zip(z["loops"], z["loop_weight"])]
+    deltas = z["loop_delta"] if "loop_delta" in z else np.zeros((len(loops), 3))
     if "sweep_ptr" in z:                      # maps saved before sonar sweeps existed have none
         ptr, pts = z["sweep_ptr"], z["sweep_pts"]
         if len(ptr) != n + 1:
             raise ValueError(f"{path}: {len(ptr) - 1} sonar sweeps for {n} experiences")
-        em._scans = SweepStore([pts[ptr[i]:ptr[i + 1]] if ptr[i + 1] > ptr[i] else None for i in range(n)])
+        sweeps = [pts[ptr[i]:ptr[i + 1]] if ptr[i + 1] > ptr[i] else None for i in range(n)]
     else:
-        em._scans = SweepStore([None] * n)
-    return em
+        sweeps = [None] * n
+    lo = z["last_odom"]
+    return ExperienceMapState(
+        lattice_shape=tuple(int(v) for v in meta["lattice_shape"]),
+        lattice_spacing=tuple(float(v) for v in meta["lattice_spacing"]),
+        columns=columns, loops=loops, loop_deltas=[np.asarray(d, np.float64) for d in deltas], sweeps=sweeps,
+        phi=float(meta["phi"]), peak=float(meta["peak"]),
+        last_odom=None if np.any(np.isnan(lo)) else lo.astype(np.float64),
+        last_match=int(meta["last_match"]), confirmations=int(meta["confirmations"]),
+        last_correction_stamp=int(meta["last_correction_stamp"]), corrections=int(meta["corrections"]),
+        solves=int(meta["solves"]), session=int(meta.get("session", 0)),
+        session_pending=bool(meta.get("session_pending", False)),
+        session_root={int(k): int(v) for k, v in meta.get("session_root", {"0": 0}).items()},
+        session_links=[_session_link(d) for d in meta.get("session_links", [])],
+        link_rejections={k: int(v) for k, v in meta.get("link_rejections", {}).items()},
+        frame_yaw=float(meta.get("frame_yaw", 0.0)))

@@ -188,8 +188,8 @@ def test_sweeps_survive_save_and_load(tmp_path: Path) -> None:
     _chamber_loop(em, np.array([0.4, 0.2]), sweeps=True)
     em.save(tmp_path / "m.npz")
     back = ExperienceMap.load(tmp_path / "m.npz", cfg)
-    assert len(back._scans) == em.n_nodes
-    for a, b in zip(em._scans, back._scans):
+    assert len(back.state().sweeps) == em.n_nodes
+    for a, b in zip(em.state().sweeps, back.state().sweeps):
         assert (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
 

@@ -70,7 +70,7 @@ def test_a_new_session_starts_unlinked_in_its_own_frame_and_links_after_verifica
     assert len(linked) == 1 and len(em.session_links) == 1
     # not from a single match: the events before the link matched but were not yet confirmed
     first = linked[0]
-    assert res[first].confirmations >= em.cfg.loop_confirmations and any(r.match >= 0 for r in res[:first])
+    assert res[first].confirmations >= em.cfg.loops.confirmations and any(r.match >= 0 for r in res[:first])
     # before the link session B sat in its own frame
     assert em.session_links[0].stamp == (100 + first) * SEC
     link = em.session_links[0]
@@ -140,7 +140,7 @@ def test_a_map_saved_before_sessions_loads_as_one_session(tmp_path: Path) -> Non
     np.savez(tmp_path / "old.npz", **z)
     back = ExperienceMap.load(tmp_path / "old.npz", cfg())
     assert back.n_sessions == 1 and (back.sessions == 0).all()
-    np.testing.assert_allclose(back._a("odom"), em._a("odom"), atol=1e-9)
+    np.testing.assert_allclose(back.state().columns["odom"], em.state().columns["odom"], atol=1e-9)
 
 
 @pytest.mark.parametrize("jump_m", [0.0, 5.0])

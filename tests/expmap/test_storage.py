@@ -1,4 +1,4 @@
-"""SweepStore: the experience map's per-node sonar sweeps (services/expmap/storage.py)."""
+"""The experience map's storage (services/expmap/storage.py): SweepStore, its per-node sonar sweeps."""
 from __future__ import annotations
 
 import pickle
