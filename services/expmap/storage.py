@@ -202,7 +202,7 @@ def _columns(path: Path, z: Any) -> dict[str, np.ndarray]:
     for k, (shape, dtype) in NODE_COLUMNS.items():
         if k in z:
             col = np.asarray(z[k])
-        elif k == "session":              # maps saved before sessions (issue 20): one session
+        elif k == "session":              # a map file without session ids: one session
             col = np.zeros(n)
         elif k == "odom":                 # ... and their odometry is their positions' chain
             col = z["cum"] + (z["pos"][0] if n else 0.0)
