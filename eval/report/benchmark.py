@@ -227,7 +227,7 @@ def fig_scan_maps(run: RunData) -> FigureSpec:
             continue
         res = raster_resolution(pts)
         uri = raster_png(pts, res, poses.positions[:, :2])
-        parts.append(f'<figure class="thumb" style="max-width:49%"><img src="{uri}" style="width:100%" '
+        parts.append(f'<figure class="thumb scan-map"><img src="{uri}" '
                      f'alt="{html.escape(title)}"><figcaption>{html.escape(title)}: {len(pts)} beam end points, '
                      f'{res:.2f} m per pixel</figcaption></figure>')
     if parts:

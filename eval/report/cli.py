@@ -7,23 +7,27 @@ deviation over time and on XY, evidence images), the tables (run summary; per ru
 evaluation of :func:`eval.run_eval.evaluate_run` and the audit of
 :func:`eval.audit.audit_run`; for two or more runs :func:`eval.compare.compare_runs` of
 the first with each other, Table 5.4 and Tables 5.2-5.3), and each run's configuration
-and code revision.  A table whose function cannot be imported or fails is listed on the
-page as unavailable with the reason (and logged); ``--strict`` makes that an error.
+and code revision.  The page shows what the runs have data for, in an order that suits
+them (:mod:`eval.report.page`): a run without ground truth or with laser scans leads with
+its map.  A run with laser scans (key ``scan``) also gets its laser point maps and its
+loop closures over time (:mod:`eval.report.benchmark`).  A table whose function cannot be
+imported or fails is listed on the page as unavailable with the reason (and logged);
+``--strict`` makes that an error.
 
-Options: ``--label L`` (once per run, default ``<file stem> (VPR Guard ON|OFF)``),
-``--max-points`` (per trajectory, default 3000), ``--max-frames`` (similarity matrix,
-default 500), ``--min-gap-m`` (pairs closer in true travel are left out of
+Options: ``--label L`` (once per run; default for one run its name, e.g. ``ACES laser run
+(laser2d)``, :func:`eval.report.naming.run_label`; for several ``<file stem> (VPR Guard
+ON|OFF)``), ``--max-points`` (per trajectory, default 3000), ``--max-frames`` (similarity
+matrix, default 500), ``--min-gap-m`` (pairs closer in true travel are left out of
 precision-recall, default 10 m, the simulator's revisit rule), ``--relations FILE`` (a
-Freiburg benchmark relations file: the evaluation tables score the map and the raw
-odometry against it, and a section "Benchmark" adds the laser point maps at corrected and
-raw poses, the loop closures over time and the relations table beside the published
-results: :mod:`eval.report.benchmark`; one run only).
+Freiburg benchmark relations file: the map and the raw odometry are scored against it,
+the table beside the published results shown right after the map; one run only).
 
 Exit codes: 0 written, 2 bad input (unreadable recording, wrong options), 3 ``--strict``
 and a table unavailable.
 
 ``--json`` prints ``{"out": path of index.html, "bytes": page size, "figures": {figure id:
-"shown" | "not shown: reason"}, "tables": [table names], "unavailable": {table name:
+"shown" | "not shown: reason"}, "tables": [names of the tables on the page], "sections": [ids of the
+page's sections, in order], "unavailable": {table name:
 reason}, "precision_recall": {run label: {"source", "pairs", "positives",
 "average_precision", "best_f1", "lvc_pair_precision", "lvc_pair_recall", "lvc_pair_f1"}}, "runs":
 [{"path", "label", "duration_s", "counts": {key: n}}]}``.
@@ -44,6 +48,7 @@ from eval.audit import audit_run
 from eval.compare import compare_runs
 from eval.report.benchmark import benchmark_figures, relations_table
 from eval.report.data import RunView, run_view
+from eval.report.naming import run_kind
 from eval.report.page import render_report
 from eval.run_eval import evaluate_run, relations_block
 from eval.rundata import RunData, load_run
@@ -110,13 +115,19 @@ def evaluation_tables(runs: list[RunData], labels: list[str],
         if result is not None:
             tables[name] = present_comparison(result, labels[0], label)
     details: list[str] = []
-    evaluate: Callable[..., dict] = evaluate_run
-    if relations is not None:
-        evaluate = lambda run: evaluate_run(run, relations=relations)  # noqa: E731
+    def evaluate(run: RunData) -> dict:
+        result = evaluate_run(run) if relations is None else evaluate_run(run, relations=relations)
+        return present_evaluation(result) if isinstance(result, dict) else result
     for run, label in zip(runs, labels):
+        camera = "camera" in run_kind(run.counts)
+
+        def audit(run: RunData, camera: bool = camera) -> dict:
+            result = audit_run(run)
+            return present_audit(result, camera) if isinstance(result, dict) else result
+        audit_name = f"Audit (event-evidence association): {label}" if camera else \
+            f"Audit (message sequences): {label}"
         for name, func, where in ((f"Evaluation (trajectory error, loop closures): {label}", evaluate,
-                                   "eval.run_eval.evaluate_run"),
-                                  (f"Audit (event-evidence association): {label}", audit_run, "eval.audit.audit_run")):
+                                   "eval.run_eval.evaluate_run"), (audit_name, audit, "eval.audit.audit_run")):
             _guarded(tables, unavailable, name, func, where, run)
             details.append(name)
     return tables, unavailable, (details if len(runs) > 1 else [])
@@ -124,12 +135,49 @@ def evaluation_tables(runs: list[RunData], labels: list[str],
 
 RELATIONS_TABLE = "Relations (Freiburg benchmark): this run and published results"
 
+#: keys of an evaluation (:func:`eval.run_eval.evaluate_run`) that only ground truth gives a value (None: the
+#: whole key): left out of the page for a run without it, where their zeros would read as measured
+TRUTH_ONLY: dict[str, tuple[str, ...] | None] = {
+    "far_m": None, "ate": None, "ate_rmse_m": None, "rpe": None, "drift_pct": None, "truth_distance_m": None,
+    "dead_reckoning": None,
+    "loop_closures": ("true", "false", "unlabelled", "precision", "recall", "opportunities", "recalled", "passes",
+                      "passes_closed", "pass_recall")}
+#: keys of an audit (:func:`eval.audit.audit_run`) about camera evidence: left out for a run without a camera
+AUDIT_EVIDENCE = ("slop_s", "images", "associated", "precision", "recall", "f1", "missing_images",
+                  "missing_events", "duplicate_images", "late_images", "dt_mean_s", "dt_max_s")
 
-def _benchmark_section(run: RunData, relations: Path, tables: dict[str, dict]) -> tuple[str, str, list[Any]]:
-    """Adds the relations table to ``tables``; returns the benchmark section (:mod:`eval.report.benchmark`)."""
-    tables[RELATIONS_TABLE] = {"relation error, mean ± population std over the relations used":
-                               relations_table(relations_block(run, relations))}
-    return "sec-benchmark", "Benchmark (laser maps, loop closures, relations)", benchmark_figures(run)
+
+def present_evaluation(result: dict[str, Any]) -> dict[str, Any]:
+    """:func:`eval.run_eval.evaluate_run`'s result as the page shows it: for a run without ground truth
+    (``ground_truth`` false) the keys that need it (:data:`TRUTH_ONLY`) are left out, and so is the
+    ``sessions`` block of a map of one session."""
+    out = dict(result)
+    sessions = out.get("sessions")
+    if isinstance(sessions, dict) and (sessions.get("count") or 0) <= 1 and not sessions.get("loaded_nodes"):
+        out.pop("sessions")
+    if result.get("ground_truth") is not False:
+        return out
+    for key, sub in TRUTH_ONLY.items():
+        if sub is None:
+            out.pop(key, None)
+        elif isinstance(out.get(key), dict):
+            out[key] = {k: v for k, v in out[key].items() if k not in sub}
+    return out
+
+
+def present_audit(result: dict[str, Any], camera: bool) -> dict[str, Any]:
+    """:func:`eval.audit.audit_run`'s result as the page shows it: for a run without a camera only the
+    message-sequence part (the evidence keys, :data:`AUDIT_EVIDENCE`, are left out)."""
+    return result if camera else {k: v for k, v in result.items() if k not in AUDIT_EVIDENCE}
+
+
+def _benchmark(run: RunData, relations: Path | None, tables: dict[str, dict]) -> list[Any]:
+    """The laser maps and loop closures of a run with scans (:mod:`eval.report.benchmark`); with
+    ``relations``, the relations table is added to ``tables``."""
+    if relations is not None:
+        tables[RELATIONS_TABLE] = {"relation error, mean ± population std over the relations used":
+                                   relations_table(relations_block(run, relations))}
+    return benchmark_figures(run) if run.counts.get("scan") else []
 
 
 def load_views(paths: list[Path], labels: list[str]) -> list[RunView]:
@@ -155,7 +203,7 @@ def views_of(runs: list[RunData], labels: list[str]) -> list[RunView]:
     for i, run in enumerate(runs):
         if not run.counts:
             raise RecordingError(f"{run.path}: no readable message (not an MCAP recording, or an empty one)")
-        views.append(run_view(run, label=(labels[i] if labels else None)))
+        views.append(run_view(run, label=(labels[i] if labels else None), compare=len(runs) > 1))
     names = [v.label for v in views]
     if len(set(names)) != len(names):  # labels name the series and table columns: make them unique
         for i, v in enumerate(views):
@@ -170,10 +218,11 @@ def write_report(runs: list[RunView], out: str | Path, relations: Path | None = 
 
     :raises RecordingError, DecodeError, ValueError: the relations file cannot be used (named).
     """
-    tables, unavailable, details = evaluation_tables([r.run for r in runs], [r.label for r in runs], relations)
-    extra = [_benchmark_section(runs[0].run, relations, tables)] if relations is not None else []
+    tables, unavailable, details = evaluation_tables([r.run for r in runs], [r.label for r in runs])
+    extra = _benchmark(runs[0].run, relations, tables) if len(runs) == 1 else []
     result = render_report(runs, tables, out, unavailable=unavailable, folded=details, max_points=max_points,
-                           max_frames=max_frames, min_gap_m=min_gap_m, extra_sections=extra)
+                           max_frames=max_frames, min_gap_m=min_gap_m, extra_figures=extra,
+                           lead_tables=[RELATIONS_TABLE] if relations is not None else [])
     result["runs"] = [{"path": str(r.path), "label": r.label, "duration_s": round(r.duration_s, 3),
                        "counts": r.counts} for r in runs]
     return result, unavailable

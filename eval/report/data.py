@@ -33,10 +33,11 @@ import numpy as np
 
 from common.mcap_io import read_messages
 from common.messages import ExperienceImage
+from eval.report.naming import run_label
 from eval.rundata import RunData
 from eval.trajectory import Trajectory
 
-__all__ = ["RunView", "run_view", "run_label"]
+__all__ = ["RunView", "run_view"]
 
 log = logging.getLogger(__name__)
 
@@ -109,15 +110,6 @@ class RunView:
     def seconds(self, stamps: np.ndarray) -> np.ndarray:
         """Seconds since the run's first message."""
         return (np.asarray(stamps, dtype=np.int64) - self.start_ns) / 1e9
-
-
-def run_label(metadata: dict[str, Any], path: Path, has_events: bool = True) -> str:
-    """``<file stem> (VPR Guard ON|OFF)`` when the run has events and its configuration says, else the stem."""
-    cfg = metadata.get("config")
-    guard = cfg.get("vpr_guard", {}).get("require_vpr_for_event") if isinstance(cfg, dict) else None
-    if guard is None or not has_events:
-        return path.stem
-    return f"{path.stem} (VPR Guard {'ON' if guard else 'OFF'})"
 
 
 def _image_uri(msg: ExperienceImage, max_width: int = 256) -> tuple[str, str]:
@@ -218,8 +210,9 @@ def _thumbnails(view: RunView, max_images: int) -> None:
             view.images.append((r.stamp, int(ev_lvc.get(r.stamp, -1)), uri, size))
 
 
-def run_view(run: RunData, label: str | None = None, max_images: int = 12) -> RunView:
-    """The figures' view of ``run`` (module docstring); ``label`` defaults to :func:`run_label`."""
+def run_view(run: RunData, label: str | None = None, max_images: int = 12, compare: bool = False) -> RunView:
+    """The figures' view of ``run`` (module docstring); ``label`` defaults to :func:`eval.report.naming.run_label` (``compare``:
+    the run is one of several compared)."""
     truth = run.truth if run.truth is not None else _empty("truth/pose")
     dr = run.odometry if run.odometry is not None else (run.dead_reckoning or _empty("dead_reckoning"))
     dr = _anchor(dr, truth)
@@ -227,7 +220,7 @@ def run_view(run: RunData, label: str | None = None, max_images: int = 12) -> Ru
     revisit_stamps, revisit_same = _revisit_arrays(run)
     node_ids, node_lvc, node_stamps, node_ned, links, link_loop = _map_arrays(run, dr, truth)
     view = RunView(
-        run=run, label=label or run_label(run.metadata, run.path, bool(ev)), truth=truth, dead_reckoning=dr,
+        run=run, label=label or run_label(run, compare), truth=truth, dead_reckoning=dr,
         event_stamps=_i64([e.header.stamp for e in ev]), event_lvc=_i64([e.lvc_id for e in ev]),
         event_gate=[e.gate for e in ev], node_ids=node_ids, node_lvc=node_lvc, node_stamps=node_stamps,
         node_ned=node_ned, links=links, link_loop=link_loop,

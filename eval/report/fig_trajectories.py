@@ -27,7 +27,10 @@ from eval.report.style import (
 )
 from eval.trajectory import Trajectory
 
-__all__ = ["fig_overlay_3d", "fig_projections", "fig_topology", "fig_deviation_time", "fig_deviation_xy"]
+__all__ = ["fig_overlay_3d", "fig_projections", "fig_topology", "fig_deviation_time", "fig_deviation_xy", "PLANAR_M"]
+
+#: a run whose trajectories span less than this vertically is planar: no 3D view, no side views (m)
+PLANAR_M = 0.01
 
 
 def _map_points(r: RunView, max_points: int) -> np.ndarray:
@@ -78,9 +81,10 @@ def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
                          + [np.stack(enu_columns(r.node_ned), axis=1) for r in runs if len(r.node_ids)])
     extent = np.maximum(np.nanmax(pts, axis=0) - np.nanmin(pts, axis=0), 1e-3)
     ratio = extent / extent[:2].max()
-    if extent[2] < 0.01:
-        spec.notes.append("constant depth: the vertical axis only gives the depth")
-    elif ratio[2] < 0.25:
+    if extent[2] < PLANAR_M:
+        spec.notes.append("every trajectory at one depth (a planar run): the top views show it all")
+        return spec
+    if ratio[2] < 0.25:
         spec.notes.append(f"vertical scale exaggerated {0.25 / ratio[2]:.1f}x: the depth range ({extent[2]:.2f} m) is "
                           f"small next to the horizontal extent ({extent[:2].max():.1f} m)")
     box = np.array([ratio[0], ratio[1], max(ratio[2], 0.25)])
@@ -105,8 +109,6 @@ def fig_projections(runs: list[RunView], max_points: int) -> FigureSpec:
     if no_trajectories(runs):
         spec.notes.append("no trajectory in the runs")
         return spec
-    fig = make_subplots(rows=1, cols=3, subplot_titles=("XY (top view)", "XZ (side view)", "YZ (side view)"),
-                        horizontal_spacing=0.07)
     series: list[tuple[str, str, np.ndarray, str]] = []
     truths, drs = distinct_tracks(runs, "truth"), distinct_tracks(runs, "dead_reckoning")
     series += [(track_name("ground truth", runs, i, len(truths)), TRUTH_COLOR, t.p[decimate(len(t), max_points)],
@@ -115,18 +117,27 @@ def fig_projections(runs: list[RunView], max_points: int) -> FigureSpec:
                 "lines") for i, t in drs]
     series += [(f"map: {r.label}", run_color(i), _map_points(r, max_points), "lines+markers")
                for i, r in enumerate(runs) if len(r.node_ids)]
+    up = np.concatenate([enu_columns(ned)[2] for _, _, ned, _ in series])
+    planar = not len(up) or float(np.nanmax(up) - np.nanmin(up)) < PLANAR_M
+    panels = [("XY (top view)", "east (m)", "north (m)"), ("XZ (side view)", "east (m)", "up (m)"),
+              ("YZ (side view)", "north (m)", "up (m)")][:1 if planar else 3]
+    if planar:
+        spec.title = "Top view (XY)"
+        spec.caption = ("The trajectories seen from above (east vs north, equal scales): horizontal alignment and "
+                        "loop geometry. Every trajectory is at one depth (a planar run): no side views. Zoom by "
+                        "dragging a box; double-click to reset.")
+    fig = make_subplots(rows=1, cols=len(panels), subplot_titles=[p[0] for p in panels], horizontal_spacing=0.07)
     for name, color, ned, mode in series:
         e, n, u = enu_columns(ned)
-        for col, (a, b) in enumerate(((e, n), (e, u), (n, u)), start=1):
+        for col, (a, b) in enumerate(((e, n), (e, u), (n, u))[:len(panels)], start=1):
             fig.add_trace(go.Scatter(x=a, y=b, mode=mode, name=name, legendgroup=name, showlegend=col == 1,
                                      line=dict(color=color, width=2), marker=dict(size=3, color=color)),
                           row=1, col=col)
-    for col, (xt, yt) in enumerate((("east (m)", "north (m)"), ("east (m)", "up (m)"), ("north (m)", "up (m)")),
-                                   start=1):
+    for col, (_, xt, yt) in enumerate(panels, start=1):
         fig.update_xaxes(title_text=xt, row=1, col=col)
         fig.update_yaxes(title_text=yt, row=1, col=col)
     fig.update_yaxes(scaleanchor="x", scaleratio=1, row=1, col=1)
-    spec.figure = apply_layout(fig, 480)
+    spec.figure = apply_layout(fig, 600 if planar else 480)
     return spec
 
 

@@ -1,5 +1,15 @@
 """One self-contained HTML page from the loaded runs, their figures and the evaluation tables.
 
+The page adapts to the runs: a figure or table without data is left out (the figures left
+out are listed, folded, under the introduction), and so is a section with nothing left.
+A single run is titled by its name (:func:`eval.report.data.run_label`).  Order
+(:func:`page_sections`): runs with ground truth lead with the tables (the comparison of two
+runs, the evaluation), then the trajectories, the deviation from the truth, place
+recognition and the evidence; runs without ground truth, and laser runs, lead with the map
+(laser point maps, topology, trajectories), then the benchmark relations when given
+(``lead_tables``), then the numbers.  The recording's messages and configuration close the
+page.  Tables are drawn by :mod:`eval.report.tables` (long ones summarised and downloadable).
+
 Self-contained: plotly.js is inlined once from the installed ``plotly`` package, images are
 data URIs, nothing is fetched when the page is opened (no ``src``/``href`` to the network).
 Every figure element has the id of :data:`eval.report.figures.FIGURE_IDS`; every table a
@@ -11,7 +21,7 @@ from __future__ import annotations
 import html
 import json
 import logging
-import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +31,11 @@ from plotly.offline import get_plotlyjs
 
 from eval.report.data import RunView
 from eval.report.figures import FigureSpec, build_figures
+from eval.report.naming import run_details
+from eval.report.tables import cell, render_table, rows_table, table_id
 
-__all__ = ["render_report", "render_table", "table_id"]
+__all__ = ["render_report", "render_table", "table_id", "page_sections", "Section", "SUMMARY_TABLE",
+           "MESSAGES_TABLE"]
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +55,11 @@ th { background: #eef2f6; } td.num { text-align: right; font-variant-numeric: ta
 .unavailable { background: #fff4e5; border: 1px solid #f0c27b; padding: 8px 12px; margin: 8px 0; }
 .gallery { display: flex; flex-wrap: wrap; gap: 10px; } .thumb { margin: 0; font-size: 12px; }
 .thumb img { width: 192px; display: block; border: 1px solid #ccc; }
+.scan-map { flex: 1 1 45%; max-width: 49%; } .scan-map img { width: 100%; image-rendering: pixelated; }
 details { margin: 8px 0; } summary { cursor: pointer; font-weight: bold; }
+.lede { color: #4a5868; margin-top: -8px; } .left-out summary { font-weight: normal; color: #4a5868; }
+.table-summary { margin: 4px 0; } .table-head { margin: 4px 0 0; font-size: 13px; color: #4a5868; }
+a.csv { font-size: 14px; color: #1f5f9f; }
 code { background: #eef2f6; padding: 0 3px; }
 """
 
@@ -76,102 +93,15 @@ function poseidonPlot(id, spec) {
 """
 
 
-def table_id(name: str) -> str:
-    """``table-`` + the name in lower case with runs of other characters as ``-``."""
-    return "table-" + re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")
-
-
-def _fmt(v: Any) -> tuple[str, bool]:
-    """Cell text and whether it is numeric."""
-    if v is None:
-        return "&mdash;", False
-    if isinstance(v, (bool, np.bool_)):
-        return ("yes" if v else "no"), False
-    if isinstance(v, (int, np.integer)):
-        return f"{int(v):,}", True
-    if isinstance(v, (float, np.floating)):
-        f = float(v)
-        if not np.isfinite(f):
-            return html.escape(str(f)), True
-        if f != 0 and (abs(f) >= 1e6 or abs(f) < 1e-3):
-            return f"{f:.3e}", True
-        return f"{f:.4g}" if abs(f) < 1000 else f"{f:,.1f}", True
-    if isinstance(v, (list, tuple)) and all(not isinstance(x, (dict, list, tuple)) for x in v):
-        return html.escape(", ".join(_fmt(x)[0] if not isinstance(x, str) else x for x in v)), False
-    if isinstance(v, (dict, list, tuple)):
-        return f"<code>{html.escape(json.dumps(v, default=str))}</code>", False
-    return html.escape(str(v)), False
-
-
-def _cell(v: Any, tag: str = "td") -> str:
-    text, num = _fmt(v)
-    return f'<{tag} class="num">{text}</{tag}>' if num and tag == "td" else f"<{tag}>{text}</{tag}>"
-
-
-def _scalar(v: Any) -> bool:
-    return not isinstance(v, (dict, list, tuple)) or (
-        isinstance(v, (list, tuple)) and all(not isinstance(x, (dict, list, tuple)) for x in v))
-
-
-def _rows_table(rows: list[dict[str, Any]]) -> str:
-    cols: list[str] = []
-    for r in rows:
-        cols += [k for k in r if k not in cols]
-    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in cols)
-    body = "".join("<tr>" + "".join(_cell(r.get(c)) for c in cols) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _matrix_table(d: dict[str, dict[str, Any]]) -> str:
-    """Rows = outer keys, columns = the inner keys (e.g. metric -> {run A, run B})."""
-    return _rows_table([{"": k, **v} for k, v in d.items()])
-
-
-def _render_value(d: Any, depth: int) -> str:
-    if isinstance(d, list) and d and all(isinstance(x, dict) for x in d) and all(_scalar(v) for x in d for v in x.values()):
-        return _rows_table(d)
-    if isinstance(d, dict):
-        if d and all(isinstance(v, dict) and v and all(_scalar(x) for x in v.values()) for v in d.values()) and \
-                len({tuple(v) for v in d.values()}) == 1 and len(d) > 1:
-            return _matrix_table(d)
-        scalars = {k: v for k, v in d.items() if _scalar(v)}
-        out = []
-        if scalars:
-            rows = "".join(f"<tr><th>{html.escape(str(k))}</th>{_cell(v)}</tr>" for k, v in scalars.items())
-            out.append(f"<table><tbody>{rows}</tbody></table>")
-        level = min(depth + 4, 6)
-        subs = [f'<div class="sub"><h{level}>{html.escape(str(k))}</h{level}>{_render_value(v, depth + 1)}</div>'
-                for k, v in d.items() if not _scalar(v)]
-        if subs:
-            out.append(f'<div class="subs">{"".join(subs)}</div>')
-        return "".join(out) if out else '<p class="note">(empty)</p>'
-    if isinstance(d, list):
-        if not d:
-            return '<p class="note">(none)</p>'
-        return "".join(_render_value(x, depth + 1) for x in d)
-    return f"<p>{_fmt(d)[0]}</p>"
-
-
-def render_table(name: str, data: dict[str, Any], folded: bool = False) -> str:
-    """A named table (nested dicts become sub-tables; lists of dicts become row tables); ``folded``
-    puts it in a closed ``<details>`` (the detail tables under a comparison)."""
-    body = _render_value(data, 0)
-    if folded:
-        return (f'<div class="table" id="{table_id(name)}"><details><summary>{html.escape(name)} '
-                f'(click to unfold)</summary>{body}</details></div>')
-    return f'<div class="table" id="{table_id(name)}"><h3>{html.escape(name)}</h3>{body}</div>'
-
-
 def _run_summary(runs: list[RunView], pr: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """Plain counts read from the recordings (no metric: those are in the evaluation tables)."""
+    """Plain counts read from the recordings (no metric: those are in the evaluation tables; the file,
+    tool and code revision are in the page's header and its configuration section)."""
     out: dict[str, dict[str, Any]] = {}
     for r in runs:
         p = pr.get(r.label, {})
         out[r.label] = {
-            "file": str(r.path), "size (MB)": round(r.path.stat().st_size / 1e6, 2),
-            "duration (s)": round(r.duration_s, 2), "code revision": r.metadata.get("code_revision"),
-            "tool": r.metadata.get("tool"), "mode": r.metadata.get("mode"),
-            "messages": sum(r.counts.values()),
+            "size (MB)": round(r.path.stat().st_size / 1e6, 2), "duration (s)": round(r.duration_s, 2),
+            "messages": sum(r.counts.values()), "laser scans": r.counts.get("scan") or None,
             "frames (local_view_cells)": len(r.lvc_stamps), "view cells (LVC ids)": len(np.unique(r.lvc_id)),
             "experience events": len(r.event_stamps),
             "events per second": round(len(r.event_stamps) / r.duration_s, 3) if r.duration_s > 0 else None,
@@ -203,7 +133,7 @@ def _configuration(runs: list[RunView]) -> str:
                 if len({json.dumps(f.get(k, "(absent)"), sort_keys=True, default=str) for f in flat}) > 1]
         if diff:
             parts.append(f'<div class="table" id="table-config-differences"><h3>Configuration fields that differ '
-                         f'between the runs</h3>{_rows_table(diff)}</div>')
+                         f'between the runs</h3>{rows_table(diff, "configuration differences")}</div>')
         else:
             parts.append('<p>The runs have the same configuration.</p>')
     for r, f in zip(runs, flat):
@@ -214,14 +144,17 @@ def _configuration(runs: list[RunView]) -> str:
             continue
         body = render_table(f"Run metadata: {r.label}", meta)
         if f:
-            rows = "".join(f"<tr><th>{html.escape(k)}</th>{_cell(v)}</tr>" for k, v in f.items())
+            rows = "".join(f"<tr><th>{html.escape(k)}</th>{cell(v)}</tr>" for k, v in f.items())
             body += f"<details><summary>Full configuration of {html.escape(r.label)} ({len(f)} fields)</summary>" \
                     f"<table><tbody>{rows}</tbody></table></details>"
         parts.append(body)
     return "".join(parts)
 
 
+
+
 def _figure_html(spec: FigureSpec, scripts: list[str]) -> str:
+    """The figure's element, or "" when it has nothing to draw (its notes say why: see ``left out``)."""
     notes = "".join(f'<p class="note">{html.escape(n)}</p>' for n in spec.notes)
     content = spec.html
     if spec.figure is not None:
@@ -231,72 +164,135 @@ def _figure_html(spec: FigureSpec, scripts: list[str]) -> str:
         payload = pio.to_json(spec.figure, validate=False).replace("</", "<\\/")
         scripts.append(f'poseidonPlot("{plot_id}", {payload});')
     elif not content:
-        content = '<p class="note">Not shown: the runs lack the data for this figure (see the notes).</p>'
+        return ""
     return (f'<section class="figure" id="{spec.id}"><h3>{html.escape(spec.title)}</h3>{content}'
             f'<p class="caption">{html.escape(spec.caption)}</p>{notes}</section>')
 
 
-SECTIONS = [
-    ("sec-trajectories", "Trajectories and map", ["fig-overlay-3d", "fig-projections", "fig-topology"]),
-    ("sec-deviation", "Deviation from ground truth", ["fig-deviation-time", "fig-deviation-xy"]),
-    ("sec-recognition", "Place recognition", ["fig-similarity", "fig-viewcells", "fig-pr"]),
-    ("sec-evidence", "Evidence", ["fig-evidence"]),
-]
+def _shown(spec: FigureSpec) -> bool:
+    return spec.figure is not None or bool(spec.html)
 
 
-def render_report(runs: list[RunView], tables: dict[str, dict], out_dir: str | Path, *,
-                  unavailable: dict[str, str] | None = None, folded: list[str] | tuple[str, ...] = (), max_points: int = 3000, max_frames: int = 500,
-                  min_gap_m: float = 10.0, title: str = "PoseidonSLAM run report",
-                  extra_sections: list[tuple[str, str, list[FigureSpec]]] | None = None) -> dict[str, Any]:
-    """Write ``out_dir/index.html``; return ``{"out", "bytes", "figures", "tables", "unavailable",
-    "precision_recall"}`` (figure id -> ``shown`` or the reason it is not).
+@dataclass
+class Section:
+    """One ``<h2>`` section of the page: its figures (ids) and tables (names), tables first."""
 
-    ``extra_sections``: (section id, title, figures) drawn after the standard sections
-    (e.g. :mod:`eval.report.benchmark`).
+    id: str
+    title: str
+    figures: list[str]
+    tables: list[str]
 
-    ``tables``: name -> dict, rendered in order after the run summary (nested dicts become
-    sub-tables, lists of dicts row tables); ``unavailable``: name -> why a table is missing;
-    ``folded``: names of tables shown in a closed ``<details>``."""
+
+SUMMARY_TABLE = "Run summary (read from the recordings)"
+MESSAGES_TABLE = "Messages per key"
+#: the figures of the map, in the order a map-first page shows them (laser maps when the run has scans)
+MAP_FIGURES = ["fig-scan-maps", "fig-topology", "fig-loop-closures", "fig-projections", "fig-overlay-3d"]
+
+
+def page_sections(map_first: bool, table_names: list[str], lead_tables: list[str], figure_ids: list[str]) -> list[Section]:
+    """The page's sections in order (module docstring): ``table_names`` the tables besides the lead
+    ones, the run summary and the messages; ``figure_ids`` every figure built (the benchmark's too)."""
+    lead = [t for t in lead_tables if t in table_names]
+    rest = [t for t in table_names if t not in lead and t != MESSAGES_TABLE]
+    closing = Section("sec-config", "Recording and configuration", [], [MESSAGES_TABLE])
+    recognition = Section("sec-recognition", "Place recognition", ["fig-similarity", "fig-viewcells", "fig-pr"], [])
+    deviation = Section("sec-deviation", "Deviation from ground truth", ["fig-deviation-time", "fig-deviation-xy"], [])
+    evidence = Section("sec-evidence", "Evidence", ["fig-evidence"], [])
+    if map_first:
+        return [Section("sec-map", "Map", [f for f in MAP_FIGURES if f in figure_ids], []),
+                Section("sec-benchmark", "Benchmark relations", [], lead),
+                Section("sec-tables", "Numbers", [], rest), deviation, recognition, evidence, closing]
+    extra = [f for f in figure_ids if f in ("fig-scan-maps", "fig-loop-closures")]
+    return [Section("sec-tables", "Tables", [], lead + rest),
+            Section("sec-trajectories", "Trajectories and map", ["fig-overlay-3d", "fig-projections", "fig-topology"],
+                    []),
+            deviation, recognition, evidence, Section("sec-laser", "Laser maps and loop closures", extra, []), closing]
+
+
+def _map_first(runs: list[RunView]) -> bool:
+    """Lead with the map: no run has ground truth, or a run carries laser scans."""
+    return not any(len(r.truth) for r in runs) or any(r.counts.get("scan") for r in runs)
+
+
+def _header(runs: list[RunView], title: str, left_out: list[FigureSpec], comparison: bool) -> list[str]:
+    """Title, what the runs are, how to read the page, and the figures left out for lack of data."""
+    out = [f"<h1>{html.escape(title)}</h1>"]
+    if len(runs) == 1:
+        out.append(f'<p class="lede">{html.escape(run_details(runs[0].run))}</p>')
+    else:
+        out.append("<ul>" + "".join(f"<li><b>{html.escape(r.label)}</b>: {html.escape(run_details(r.run))}</li>"
+                                    for r in runs) + "</ul>")
+    how = ("Every figure is interactive (hover for values, drag to zoom, double-click to reset, click a legend "
+           "entry to hide a series) and has a caption saying what to look for. Positions are metres in a world "
+           "frame with x east, y north, z up.")
+    if comparison:
+        how = ("The tables first give the numbers (what each run recorded, the ON/OFF comparison of Table 5.4, "
+               "the loop closures of Tables 5.2-5.3 and the trajectory error, the event-evidence audit); the "
+               "figures then show where those numbers come from. " + how)
+    out.append(f"<p>{how}</p>")
+    if left_out:
+        items = "".join(f"<li>{html.escape(s.title)}: {html.escape('; '.join(s.notes) or 'no data')}</li>"
+                        for s in left_out)
+        out.append(f'<details class="left-out"><summary>{len(left_out)} figure(s) left out: the run lacks their '
+                   f"data</summary><ul>{items}</ul></details>")
+    return out
+
+
+def render_report(runs: list[RunView], tables: dict[str, Any], out_dir: str | Path, *,
+                  unavailable: dict[str, str] | None = None, folded: list[str] | tuple[str, ...] = (),
+                  max_points: int = 3000, max_frames: int = 500, min_gap_m: float = 10.0, title: str | None = None,
+                  extra_figures: list[FigureSpec] | tuple[FigureSpec, ...] = (),
+                  lead_tables: list[str] | tuple[str, ...] = (), map_first: bool | None = None) -> dict[str, Any]:
+    """Write ``out_dir/index.html``; return ``{"out", "bytes", "figures", "tables", "sections", "unavailable",
+    "precision_recall"}`` (figure id -> ``shown`` or the reason it is not; the names of the tables and the
+    ids of the sections on the page, in page order).
+
+    ``tables``: name -> value (:mod:`eval.report.tables`), after the run summary; ``unavailable``: name ->
+    why a table is missing; ``folded``: names of tables shown in a closed ``<details>``; ``lead_tables``:
+    tables shown first (after the map on a map-first page); ``extra_figures``: more figures (the laser
+    maps and loop closures of :mod:`eval.report.benchmark`); ``title``: the run's label for one run, the
+    labels joined by "vs" for several; ``map_first``: lead with the map (default: no run has ground truth
+    or one has laser scans)."""
     if not runs:
         raise ValueError("render_report: no runs given")
     unavailable = dict(unavailable or {})
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     specs, pr_summary = build_figures(runs, max_points=max_points, max_frames=max_frames, min_gap_m=min_gap_m)
-    sections = list(SECTIONS)
-    for sid, name, extra in extra_sections or []:
-        specs = specs + list(extra)
-        sections.append((sid, name, [x.id for x in extra]))
+    specs = specs + list(extra_figures)
     by_id = {s.id: s for s in specs}
-    scripts: list[str] = []
     keys = sorted({k for r in runs for k in r.counts})
-    all_tables = {"Run summary (read from the recordings)": _run_summary(runs, pr_summary), **tables,
-                  "Messages per key": {k: {r.label: r.counts.get(k, 0) for r in runs} for k in keys}}
-    runs_list = "".join(
-        f"<li><b>{html.escape(r.label)}</b>: <code>{html.escape(str(r.path))}</code>, {r.duration_s:.1f} s of "
-        f"mission, code revision <code>{html.escape(str(r.metadata.get('code_revision', 'unknown')))}</code></li>"
-        for r in runs)
-    toc = ['<li><a href="#sec-tables">Tables</a></li>']
-    toc += [f'<li><a href="#{sid}">{html.escape(name)}</a></li>' for sid, name, _ in sections]
-    toc.append('<li><a href="#sec-config">Configuration and code revision</a></li>')
-    body = [f"<h1>{html.escape(title)}</h1>", f"<ul>{runs_list}</ul>",
-            "<p>How to read this page: the tables first give the numbers (what each run recorded, the "
-            "event-evidence audit, the ON/OFF comparison of Table 5.4, loop closures of Tables 5.2-5.3 and the "
-            "trajectory error); the figures then show where those numbers come from. Every figure is interactive "
-            "(hover for values, drag to zoom, double-click to reset, click a legend entry to hide a series) and "
-            "has a caption saying what to look for. Positions are metres in a world frame with x east, y north, "
-            "z up.</p>",
-            f'<nav><ol>{"".join(toc)}</ol></nav>', '<h2 id="sec-tables">Tables</h2>']
-    for name, data in all_tables.items():
-        body.append(render_table(name, data, folded=name in folded))
-    for name, reason in unavailable.items():
-        body.append(f'<div class="unavailable" id="{table_id(name)}"><h3>{html.escape(name)}</h3>'
-                    f'<p>Unavailable: {html.escape(reason)}</p></div>')
-    for sid, name, ids in sections:
-        body.append(f'<h2 id="{sid}">{html.escape(name)}</h2>')
-        body += [_figure_html(by_id[i], scripts) for i in ids]
-    body.append('<h2 id="sec-config">Configuration and code revision</h2>')
-    body.append(_configuration(runs))
+    all_tables = {SUMMARY_TABLE: _run_summary(runs, pr_summary), **tables,
+                  MESSAGES_TABLE: {k: {r.label: r.counts.get(k, 0) for r in runs} for k in keys}}
+    if map_first is None:
+        map_first = _map_first(runs)
+    sections = page_sections(map_first, list(all_tables) + list(unavailable), list(lead_tables), list(by_id))
+    title = title or (runs[0].label if len(runs) == 1 else " vs ".join(r.label for r in runs))
+    scripts: list[str] = []
+    parts: list[tuple[Section, str]] = []
+    shown_tables: list[str] = []
+    for sec in sections:
+        blocks = []
+        for name in sec.tables:
+            if name in unavailable:
+                blocks.append(f'<div class="unavailable" id="{table_id(name)}"><h3>{html.escape(name)}</h3>'
+                              f"<p>Unavailable: {html.escape(unavailable[name])}</p></div>")
+            elif name in all_tables:
+                block = render_table(name, all_tables[name], folded=name in folded)
+                if block:
+                    blocks.append(block)
+                    shown_tables.append(name)
+        blocks += [b for b in (_figure_html(by_id[f], scripts) for f in sec.figures if f in by_id) if b]
+        if sec.id == "sec-config":
+            blocks.append(_configuration(runs))
+        if blocks:
+            parts.append((sec, "".join(blocks)))
+    left_out = [s for s in specs if not _shown(s)]
+    body = _header(runs, title, left_out, comparison=len(runs) > 1)
+    body.append("<nav><ol>" + "".join(f'<li><a href="#{sec.id}">{html.escape(sec.title)}</a></li>'
+                                      for sec, _ in parts) + "</ol></nav>")
+    for sec, content in parts:
+        body.append(f'<h2 id="{sec.id}">{html.escape(sec.title)}</h2>{content}')
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{html.escape(title)}</title><style>{CSS}</style>"
             f"<script>{get_plotlyjs()}</script><script>{JS_BOOT}</script></head>"
@@ -305,11 +301,11 @@ def render_report(runs: list[RunView], tables: dict[str, dict], out_dir: str | P
             + "<script>\n" + "\n".join(scripts) + "\n</script></body></html>")
     path = out_dir / "index.html"
     path.write_text(page, encoding="utf-8")
-    figures = {s.id: ("shown" if (s.figure is not None or s.html) else "not shown: " + "; ".join(s.notes))
-               for s in specs}
+    figures = {s.id: ("shown" if _shown(s) else "not shown: " + "; ".join(s.notes)) for s in specs}
     log.debug("report: %s (%.1f MB, %d plots)", path, path.stat().st_size / 1e6, len(scripts))
-    return {"out": str(path), "bytes": path.stat().st_size, "figures": figures, "tables": list(all_tables),
-            "unavailable": unavailable, "precision_recall": _jsonable(pr_summary)}
+    return {"out": str(path), "bytes": path.stat().st_size, "figures": figures, "tables": shown_tables,
+            "sections": [sec.id for sec, _ in parts], "unavailable": unavailable,
+            "precision_recall": _jsonable(pr_summary)}
 
 
 def _jsonable(d: Any) -> Any:

@@ -1,6 +1,7 @@
 """A small hand-made run recording whose content is known, for the report tests.
 
-The vehicle flies a 20 m square twice at 1 m/s and 5 m depth (NED truth at 5 Hz).
+The vehicle flies a 20 m square twice at 1 m/s, its depth 5 m +- 1 m (one sine a lap; NED
+truth at 5 Hz).
 Dead reckoning (``Odometry``, published ENU as robot_state does by default) drifts by a
 heading error growing 0.002 rad/s and a 2 % scale error.  Camera frames at 2 Hz: the
 perimeter is cut into 40 places of 2 m; the first lap creates one LVC id per place, the
@@ -51,7 +52,7 @@ def square_ned(s: np.ndarray) -> np.ndarray:
     f = u - side * SIDE_M
     n = np.select([side == 0, side == 1, side == 2, side == 3], [f, SIDE_M, SIDE_M - f, 0.0 * f])
     e = np.select([side == 0, side == 1, side == 2, side == 3], [0.0 * f, f, SIDE_M, SIDE_M - f])
-    return np.stack([n, e, np.full_like(u, 5.0)], axis=1)
+    return np.stack([n, e, 5.0 + np.sin(2 * np.pi * u / (4 * SIDE_M))], axis=1)
 
 
 def dead_reckoning_ned(t_s: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -74,8 +74,11 @@ def test_report_with_relations_renders_the_benchmark_section(tmp_path, capsys):
     res = json.loads(capsys.readouterr().out)
     assert res["figures"]["fig-scan-maps"] == "shown" and res["figures"]["fig-loop-closures"] == "shown"
     page = (out / "index.html").read_text(encoding="utf-8")
-    section = page[page.index('id="sec-benchmark"'):]
+    # a laser run without ground truth: the map first (laser point maps), then the relations' result
+    assert res["sections"][:2] == ["sec-map", "sec-benchmark"]
+    section = page[page.index('id="sec-map"'):page.index('id="sec-benchmark"')]
     assert section.count("data:image/png;base64,") == 2
+    assert 'id="table-relations-freiburg-benchmark' in page[page.index('id="sec-benchmark"'):]
     assert "map-corrected (final map)" in section and "raw odometry (wheel_odometry)" in section
     assert "0.0375 ± 0.0426" in page and "0.37 ± 0.47" in page and "Hess et al. ICRA 2016" in page
     assert "0.2580 ± 0.4270" not in page  # FR079 rows only for an fr079 file

@@ -186,7 +186,7 @@ def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture) -> No
     assert str(garbage) in capsys.readouterr().err
 
 
-def test_run_with_only_truth_still_renders_and_says_what_is_missing(tmp_path: Path,
+def test_run_with_only_truth_shows_what_it_has_and_lists_what_is_left_out(tmp_path: Path,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     from common.mcap_io import RecordingWriter
     from common.messages import Header, Odometry
@@ -204,7 +204,11 @@ def test_run_with_only_truth_still_renders_and_says_what_is_missing(tmp_path: Pa
     assert "no local_view_cells" in figs["fig-viewcells"]
     assert "no experience_image" in figs["fig-evidence"]
     html = (tmp_path / "out" / "index.html").read_text(encoding="utf-8")
-    assert all(f'id="{fid}"' in html for fid in FIGURE_IDS)
+    for fid in FIGURE_IDS:  # a figure without data is left out of the page, not drawn empty
+        assert (f'id="{fid}"' in html) == (figs[fid] == "shown"), fid
+    left_out = re.search(r'<details class="left-out">(.*?)</details>', html, flags=re.S).group(1)
+    assert "no map message" in left_out and "no experience_image" in left_out
+    assert "Not shown" not in html
     assert "has no <code>poseidon</code> metadata record" in html
 
 
@@ -228,7 +232,7 @@ def test_positions_are_taken_to_ned_and_anchored(runs: tuple[Path, Path]) -> Non
     # anchoring: the first node moved onto dead reckoning at its stamp (from 30 % to 100 % of the drift)
     shift = 0.7 * (dead_reckoning_ned(t_n[:1], truth_n[:1]) - truth_n[:1])
     np.testing.assert_allclose(r.node_ned, expected_map + shift, atol=1e-6)
-    assert r.label == "guard_on (VPR Guard ON)"
+    assert r.label == "guard_on camera run"  # one run: what it is (guard states name runs compared)
     assert r.metadata["code_revision"] == "0123456789abcdef-test"
 
 
