@@ -213,7 +213,7 @@ class MultimodalEncoder:
 
     def standardize_sequence(self, modality: str, embeddings: Sequence[np.ndarray]) -> list[np.ndarray]:
         """z of each embedding of one modality's sequence, as the encoder node gives them: with
-        the warm-up hold (``embedding_norm_hold``, :mod:`services.encoder.clock`) the embeddings
+        the warm-up hold (``embedding_norm_hold``, :mod:`services.encoder.core`) the embeddings
         before the statistics settle are standardised with the statistics at that point."""
         c = self.cfg
         hold = c.embedding_norm_hold if c.embedding_norm == "running" else 0

@@ -26,7 +26,7 @@ event order; the statistics are saved at the end, see :mod:`services.encoder.sta
 With running statistics the first outputs are held until the camera has
 ``encoder.embedding_norm_hold`` embeddings (at most ``embedding_norm_hold_max_s`` of event
 time), then hashed with them (the warm-up hold,
-:mod:`services.encoder.clock`); the output watermark stays at the oldest held stamp meanwhile,
+:mod:`services.encoder.core`); the output watermark stays at the oldest held stamp meanwhile,
 and the end of the inputs releases what is still held.  Counter ``outputs_held``.
 Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
 one batch of two).  Sonar encoding rule: the raster is re-encoded when the beams have swept
@@ -37,7 +37,7 @@ is no sonar SDR yet (start, after a ring reset); otherwise the last sonar SDR is
 while the CNN costs as much as a camera frame, so this keeps the sonar cost per camera
 frame at about a fifth of a CNN pass (``benchmarks/bench_encoder.py``).
 
-The rules live in :class:`services.encoder.clock.EncoderCore` and
+The rules live in :class:`services.encoder.core.EncoderCore` and
 :class:`~services.encoder.clock.SonarClock`; the node subscribes, calls the core, publishes
 and counts.
 """
@@ -53,7 +53,8 @@ from common.messages import Header, Image, LaserScan, Message, NeocortexSdr, Ran
 from common.node import ServiceNode
 from services.encoder.config import EncoderConfig
 
-from .clock import EncoderCore, EncoderOutput, SonarClock
+from .clock import SonarClock
+from .core import EncoderCore, EncoderOutput
 from .encoder import MultimodalEncoder
 from .sonar import SonarRaster
 

@@ -109,7 +109,7 @@ class EmbeddingStandardizer:
 
     def settled(self, frames: int) -> bool:
         """The statistics hold at least ``frames`` embeddings, or are not estimated online
-        (``none``, ``fixed``, frozen): the encoder's warm-up hold may end (:mod:`services.encoder.clock`)."""
+        (``none``, ``fixed``, frozen): the encoder's warm-up hold may end (:mod:`services.encoder.core`)."""
         return self.mode != "running" or self.frozen or self.count >= frames
 
     def _apply(self, y: np.ndarray) -> np.ndarray:
