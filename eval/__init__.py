@@ -9,6 +9,8 @@ command, benchmarks and tests do.
   ATE, RPE, drift (frame conventions and angle helpers: :mod:`common.geometry`);
 - :mod:`eval.frontend` -- LVC revisit recall/precision, false associations, VPR window ok_ratio;
 - :mod:`eval.run_eval` -- ``poseidon eval``: ``evaluate_run`` (loop closures, recall, ATE, proxies);
+- :mod:`eval.cli` -- the command lines of ``poseidon eval`` and ``poseidon vpr`` (arguments, text output) over
+  their computing modules;
 - :mod:`eval.audit` -- ``poseidon audit``: ``audit_run`` (event-evidence association, sequence gaps);
 - :mod:`eval.compare` -- ``poseidon compare``: ``compare_runs`` (Tables 5.2-5.4 and our additions);
 - :mod:`eval.summary` -- the evaluation block of ``poseidon run`` / ``demo``;

@@ -76,7 +76,7 @@ DELEGATED = {
     "import": "missions.importers.cli:main",
     "vpr": "eval.vpr:main",
     "deadreckon": "eval.deadreckon:main",
-    "eval": "eval.run_eval:main",
+    "eval": "eval.cli.run_eval:main",
     "audit": "eval.audit:main",
     "compare": "eval.compare:main",
     "report": "eval.report.cli:main",

@@ -11,9 +11,9 @@ import pytest
 from common.geometry import wrap_angles as wrap
 from common.mcap_io import RecordingWriter
 from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
+from eval.cli.run_eval import main as eval_main
 from eval.relations import Relations, interpolate_planar, read_relations, relation_errors, relation_summary
 from eval.run_eval import evaluate_run
-from eval.run_eval import main as eval_main
 
 NS = 1_000_000_000
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "radish"
