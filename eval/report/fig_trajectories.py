@@ -215,18 +215,29 @@ def _draw_sessions(fig: go.Figure, r: RunView, groups: list[SessionGroup], pairs
     return np.asarray(loop & ~is_link, dtype=bool) if len(pairs) else loop
 
 
+def _topology_caption(runs: list[RunView]) -> str:
+    """The topology's caption, saying only what the runs draw."""
+    truth = any(len(r.truth) for r in runs)
+    refs = [w for w, on in (("ground truth (green)", truth), ("dead reckoning (orange)",
+                                                             any(len(r.dead_reckoning) for r in runs))) if on]
+    parts = [f"The final experience map seen from above{', one panel per run' if len(runs) > 1 else ''}: "
+             "nodes (dots), odometry links (grey) and loop-closure links (thick red; hover one for "
+             + ("the true distance between the two places it joins: a loop closure between places more than 5 m "
+                "apart is false, Tables 5.2-5.3)." if truth else "the two experiences it joins).")]
+    if refs:
+        parts.append(f"{' and '.join(refs).capitalize()} drawn faintly for reference.")
+    parts.append("A denser trace means more experiences (events) were created.")
+    if any(len(np.unique(r.node_session)) > 1 for r in runs):
+        parts.append("A map of several sessions (missions continued with poseidon run --map-dir) draws each "
+                     "session's nodes and odometry links in its own colour (legend: session 0, session 1, ...; the "
+                     "chain edge between two sessions joins two odometry frames and is not drawn) and its "
+                     "sonar-verified session links as thick black dashed lines (hover one for the link).")
+    return " ".join(parts)
+
+
 def fig_topology(runs: list[RunView], max_points: int) -> FigureSpec:
-    spec = FigureSpec(
-        "fig-topology", "Final topology of each run (cf. Fig. 5.21)",
-        "The final experience map seen from above, one panel per run (VPR Guard ON and OFF side by side when "
-        "two runs are given): nodes (dots), odometry links (grey) and loop-closure links (thick red; hover one "
-        "for the true distance between the two places it joins: a loop closure between places more than 5 m "
-        "apart is false, Tables 5.2-5.3). Ground truth (green) and dead reckoning (orange) are drawn faintly "
-        "for reference. A denser trace means more experiences (events) were created. A map of several sessions "
-        "(missions continued with poseidon run --map-dir) draws each session's nodes and odometry links "
-        "in its own colour (legend: session 0, session 1, ...; the chain edge between two sessions joins two "
-        "odometry frames and is not drawn) and its sonar-verified session links as thick black dashed lines "
-        "(hover one for the link).")
+    spec = FigureSpec("fig-topology", "Final topology of each run (cf. Fig. 5.21)" if len(runs) > 1 else
+                      "Final topology: the experience map (cf. Fig. 5.21)", _topology_caption(runs))
     mapped = [(i, r) for i, r in enumerate(runs) if len(r.node_ids)]
     for r in runs:
         if not len(r.node_ids):

@@ -124,6 +124,11 @@ def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix: d}
 
 
+def _config_cell(v: Any) -> str:
+    """A configuration value as set: an unset (null) or empty one spelled as JSON, not as a missing cell."""
+    return f"<td><code>{html.escape(json.dumps(v))}</code></td>" if v is None or v in ([], {}, "") else cell(v)
+
+
 def _configuration(runs: list[RunView]) -> str:
     parts = []
     flat = [_flatten(r.metadata.get("config") or {}) for r in runs]
@@ -144,7 +149,7 @@ def _configuration(runs: list[RunView]) -> str:
             continue
         body = render_table(f"Run metadata: {r.label}", meta)
         if f:
-            rows = "".join(f"<tr><th>{html.escape(k)}</th>{cell(v)}</tr>" for k, v in f.items())
+            rows = "".join(f"<tr><th>{html.escape(k)}</th>{_config_cell(v)}</tr>" for k, v in f.items())
             body += f"<details><summary>Full configuration of {html.escape(r.label)} ({len(f)} fields)</summary>" \
                     f"<table><tbody>{rows}</tbody></table></details>"
         parts.append(body)

@@ -64,8 +64,8 @@ def _is_matrix(d: Any) -> bool:
 
 
 def _missing(v: Any) -> bool:
-    """None, NaN, an empty container, or a list of missing values."""
-    return v is None or v is EMPTY or (isinstance(v, float) and np.isnan(v)) or \
+    """None, NaN, an empty string or container, or a list of missing values."""
+    return v is None or v is EMPTY or v == "" or (isinstance(v, float) and np.isnan(v)) or \
         (isinstance(v, (list, tuple, dict)) and not v) or \
         (isinstance(v, (list, tuple)) and all(_missing(x) for x in v))
 
