@@ -38,9 +38,15 @@ Subcommands:
 ``--json`` output of ``run`` and ``demo``: ``{"output", "mode", "wall_s", "services":
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
 "restarts": {name: number of supervised restarts},
-"evaluation": {"front_end": {...}, "dead_reckoning": {...}, "back_end": {...}}}`` (``demo`` adds
+"evaluation": {"front_end": {...}, "dead_reckoning": {...}, "back_end": {...}}, "log": path}`` (``demo`` adds
 ``"mission"``: the simulated input file; the evaluation keys are documented in
-:mod:`eval.summary`, present when the run has LVC ids / ground truth / a map).
+:mod:`eval.summary`, present when the run has LVC ids / ground truth / a map; ``log``: the run's
+log file).
+
+Console and log (:mod:`launcher.logs`): the console shows warnings, errors, progress bars and
+results; ``--verbose`` adds the services' INFO messages, ``--log-level LEVEL`` sets its level
+outright.  ``run`` writes every service's full log to ``RUN.log`` beside ``RUN.mcap``, ``demo``
+to ``OUT/demo.log``; the last line of their output names it.
 
 This module parses the command line and delegates; the built-in commands are
 :mod:`launcher.commands`.
@@ -87,21 +93,42 @@ DELEGATED = {
 }
 
 
-def _setup_logging(level: str) -> None:
-    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO), stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    try:  # Zenoh's own errors (TLS handshakes, refused authentication) on stderr; RUST_LOG overrides
-        import zenoh
-        zenoh.init_log_from_env_or("error")
-    except (ImportError, AttributeError):
-        pass
+def _log_file_of(args: argparse.Namespace) -> tuple[Path | None, bool]:
+    """The log file of a command (:mod:`launcher.logs`) and whether it is appended to: ``run``
+    beside its output, ``demo`` in its folder, a service process wherever its launcher logs."""
+    if args.command == "run":
+        return Path(args.out).with_suffix(".log"), False
+    if args.command == "demo":
+        return Path(args.out) / "demo.log", False
+    if args.command == "service" and args.log_file:
+        return Path(args.log_file), True
+    return None, False
+
+
+def _setup_logging(args: argparse.Namespace) -> None:
+    from launcher import logs
+    file, append = _log_file_of(args)
+    name = args.name if args.command == "service" else args.command
+    try:
+        level = logs.console_level_of(args.log_level, args.verbose)
+    except ValueError as exc:
+        print(f"poseidon {args.command}: --log-level: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    logs.setup(level, file, service=name, append=append)
+
+
+def _add_log_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--verbose", "-v", action="store_true",
+                   help="also the services' INFO messages on the console (they are always in the log file)")
+    p.add_argument("--log-level", default=None, help="the console's logging level outright (DEBUG, INFO, WARNING; "
+                   "default WARNING, INFO with --verbose)")
 
 
 def _add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="YAML configuration (defaults: deploy/poseidon.yaml values)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one field, e.g. --set vpr_guard.vpr_window=30 (repeatable)")
-    p.add_argument("--log-level", default="INFO")
+    _add_log_args(p)
 
 
 def _add_secure_args(p: argparse.ArgumentParser) -> None:
@@ -178,6 +205,8 @@ def _add_service_command(sub: Any) -> None:
                    "launcher, see common/resume.py)")
     p.add_argument("--resume", action="store_true", help="with --supervise: this is a restart, resume from the "
                    "last checkpoint")
+    p.add_argument("--log-file", help="also log to this file from DEBUG, appending (a run's log: the launcher "
+                   "passes its own)")
     _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_service)
@@ -201,7 +230,7 @@ def _add_hub_command(sub: Any) -> None:
     p = sub.add_parser("hub", help="run a hub (Zenoh router) for services on several hosts")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="endpoint to listen on")
     p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file (deploy/zenoh/*.json5)")
-    p.add_argument("--log-level", default="INFO")
+    _add_log_args(p)
     _add_secure_args(p)
     p.set_defaults(func=cmd_hub)
 
@@ -216,7 +245,7 @@ def _add_info_command(sub: Any) -> None:
     p.add_argument("--digests", action="store_true",
                    help="also the sha256 of each key's stream (stamps, sequence numbers, payloads): two runs with "
                         "equal digests on a key published the same bytes on it")
-    p.add_argument("--log-level", default="WARNING")
+    _add_log_args(p)
     p.set_defaults(func=cmd_info)
 
 
@@ -238,10 +267,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in DELEGATED:
-        _setup_logging("INFO")
+        from launcher import logs
+        logs.setup(logs.console_level_of(None, False), service=argv[0])
         return int(_delegate(argv[0])(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
-    _setup_logging(args.log_level)
+    _setup_logging(args)
     return int(args.func(args) or 0)
 
 

@@ -41,7 +41,10 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
     """Print the result of ``run``/``demo`` with its ``evaluation`` (:mod:`eval.summary`) added:
     the ``--json`` document (:mod:`launcher.cli`), or a readable summary."""
     from eval.summary import format_summary, summarize_run
+    from launcher.logs import log_file
     result["evaluation"] = summarize_run(result["output"], config)
+    log_path = log_file()
+    result["log"] = str(log_path) if log_path is not None else None
     if as_json:
         print(json.dumps(result, indent=2))
         return
@@ -87,6 +90,8 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
                       f"p99 {lat['p99_ms']:8.1f} ms  (n {lat['n']})")
     for line in format_summary(result["evaluation"]):
         print(line)
+    if log_path is not None:
+        print(f"log: {log_path}")
 
 
 def _run_live(args: argparse.Namespace) -> int:
@@ -122,8 +127,9 @@ def _services_arg(args: argparse.Namespace) -> list[str] | None:
 
 def _report_run_failed(args: argparse.Namespace, exc: RunFailed) -> int:
     """Exit 3 naming the failed service and where the partial recording is."""
-    print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was)",
-          file=sys.stderr)
+    from launcher.logs import log_file
+    print(f"poseidon run: {exc}; what was recorded so far is in {exc.partial} ({args.out} left as it was); "
+          f"the log: {log_file()}", file=sys.stderr)
     return 3
 
 
@@ -288,7 +294,7 @@ class _Signals:
 
     def _on_signal(self, signum: int) -> None:
         if self.stopped.is_set() and time.monotonic() - self._first_at < self.DUPLICATE_S:
-            log.info("%s: signal %d again within %.1f s: the same stop", self.what, signum, self.DUPLICATE_S)
+            log.debug("%s: signal %d again within %.1f s: the same stop", self.what, signum, self.DUPLICATE_S)
             return
         if self.stopped.is_set():
             print(f"{self.what}: second signal {signum}: exiting now", file=sys.stderr)

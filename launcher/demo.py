@@ -39,7 +39,8 @@ kept).  Exit 2: bad configuration; 3: a service failed.
 "report": path of index.html, "wall_s": total, "runs": {label: {"path", "wall_s",
 "mission_s", "real_time_factor", "events", "nodes", "edges", "loop_closures": {"accepted",
 "true", "false", "recall"}, "ate_rmse_m": {"map", "dead_reckoning"}, "audit_f1"}},
-"checks": {name: bool}}`` (labels ``on``, ``off``, ``ratslam``).
+"checks": {name: bool}, "log": the log file (``OUT/demo.log``, :mod:`launcher.logs`)}`` (labels ``on``,
+``off``, ``ratslam``).
 """
 from __future__ import annotations
 
@@ -180,6 +181,8 @@ def print_summary(d: dict[str, Any]) -> None:
         print(f"  {'PASS' if ok else 'FAIL'}  {name}")
     print(f"report: {d['report']}   (open it in a browser; it needs no network)")
     print(f"recordings: {', '.join(r['path'] for r in d['runs'].values())}")
+    if d.get("log"):
+        print(f"log: {d['log']}")
 
 
 def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bool = False,
@@ -187,6 +190,7 @@ def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bo
     """Run the demo (see the module docstring); returns the exit code."""
     from eval.report.cli import views_of, write_report
     from eval.rundata import load_run
+    from launcher.logs import log_file
     from launcher.run import run_distributed, run_embedded
     from system.services import available_services
 
@@ -233,7 +237,7 @@ def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bo
          + "".join(f"\n      table unavailable: {name}: {why}" for name, why in unavailable.items()))
     d = {"mission": str(mission), "mission_cached": cached, "out": str(out_dir),
          "report": str(report_dir / "index.html"), "wall_s": round(time.monotonic() - t0, 1),
-         "runs": runs, "checks": _checks(runs)}
+         "runs": runs, "checks": _checks(runs), "log": str(log_file()) if log_file() is not None else None}
     if as_json:
         print(json.dumps(d, indent=2))
     else:

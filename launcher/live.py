@@ -63,7 +63,7 @@ from launcher.run import (
     RunPlan,
     RunResult,
     _free_port,
-    _log_level,
+    _log_args,
     _monitor,
     _stats_file,
     _stop_all,
@@ -130,7 +130,7 @@ def _first_failure(procs: dict[str, subprocess.Popen[bytes]], first: str, wait_s
 def _commands(plan: RunPlan, source: str, tmp: Path, endpoint: str, partial: Path, inp: Path | None,
               rate: float) -> dict[str, list[str]]:
     """The command line of every process of the run (its configuration and metadata in ``tmp``)."""
-    common = ["--connect", endpoint, "--config", str(tmp / "config.yaml"), "--log-level", _log_level()]
+    common = ["--connect", endpoint, "--config", str(tmp / "config.yaml"), *_log_args()]
     base = [sys.executable, "-m", "launcher.cli", "service"]
     cmds = {RECORDER: base + [RECORDER, *common, "--out", str(partial), "--expect", ",".join(plan.expect),
                               "--metadata", str(tmp / "metadata.json"), "--stats", str(_stats_file(tmp, RECORDER))]}

@@ -21,7 +21,8 @@ had not checkpointed (:mod:`common.resume`), so the recorded streams equal an un
 run's.  When a service has used its ``max_restarts`` the run fails as without supervision
 (:class:`RunFailed` naming it, exit 3).  Embedded runs are not supervised.
 
-Every service process logs at the launcher's level (``--log-level``).
+Every service process logs to its console at the launcher's level and appends to the run's
+log file (:mod:`launcher.logs`).
 
 Children die with the launcher, even when it is killed with SIGKILL: each is started with
 ``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (Linux), so no service is left running as an orphan.
@@ -239,9 +240,11 @@ def supervision_plan(config: PoseidonConfig, plan: RunPlan, state_dir: Path) -> 
                        recorder_checkpoint_interval_ns=int(round(sup.recorder_checkpoint_interval_s * 1e9)))
 
 
-def _log_level() -> str:
-    """The launcher's logging level by name, for its service processes (they log like it)."""
-    return logging.getLevelName(logging.getLogger().getEffectiveLevel())
+def _log_args() -> list[str]:
+    """The arguments that make a service process log like the launcher (:mod:`launcher.logs`):
+    the same console level, appending to the run's log file."""
+    from launcher.logs import child_args
+    return child_args()
 
 
 def _describe_exit(rc: int) -> str:
@@ -293,7 +296,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         cfg_file.write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
         meta_file = Path(tmp) / "metadata.json"
         meta_file.write_text(json.dumps(run_metadata(config, input_path, "distributed", plan.services)))
-        common = ["--connect", endpoint, "--config", str(cfg_file), "--log-level", _log_level()]
+        common = ["--connect", endpoint, "--config", str(cfg_file), *_log_args()]
         supervise_args: list[str] = []
         if state_dir is not None:
             if state_dir.exists():  # checkpoints of an earlier run must never be resumed from

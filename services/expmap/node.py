@@ -307,7 +307,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self.count("odometry_scale_updates")
         if res.correction_clamped:
             self.count("corrections_clamped")
-        log.info("expmap: odometry scale %.4f (camera, %d of %d frame pairs)", scale, self.visual.counts["inliers"],
+        log.debug("expmap: odometry scale %.4f (camera, %d of %d frame pairs)", scale, self.visual.counts["inliers"],
                  self.visual.counts["pairs"])
 
     def _on_odometry(self, od: Odometry) -> None:
