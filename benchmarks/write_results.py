@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import os
 import re
 import shlex
 import shutil
@@ -45,8 +46,8 @@ PREAMBLE = (
     "Written by `benchmarks/write_results.py`; each section names the commands that produced it, the\n"
     "date (UTC) and the code revision (`+dirty`: files other than Markdown differed from it). Re-run one\n"
     "topic with `.venv/bin/python benchmarks/write_results.py --only NAME` (`--list` names them).\n"
-    "`WORK` is the script's scratch folder. Speeds depend on the machine and its load; every speed is\n"
-    "printed beside a baseline measured in the same run.\n"
+    "`WORK` is the script's scratch folder. Speeds depend on the machine and its load; where a speed is\n"
+    "compared with a baseline, the baseline was measured in the same run.\n"
 )
 #: published relation errors (mean, std), translation m and heading deg (None: not published):
 #: Kuemmerle et al. 2009 (Autonomous Robots 27(4)), Hess et al. 2016 (ICRA, Table II)
@@ -238,11 +239,13 @@ def _marks(name: str) -> tuple[str, str]:
     return f"<!-- results:{name} -->", f"<!-- /results:{name} -->"
 
 
-def section_text(name: str, heading: str, commands: Sequence[str], stamp: str, revision: str, body: str) -> str:
-    """One delimited section: heading, commands, date and revision, body."""
+def section_text(name: str, heading: str, commands: Sequence[str], stamp: str, revision: str, body: str,
+                 machine: str = "") -> str:
+    """One delimited section: heading, commands, date, revision (and the machine, if given), body."""
     begin, end = _marks(name)
     cmds = "\n".join(f"    {c}" for c in commands)
-    return (f"{begin}\n## {heading}\n\nMeasured {stamp}, revision `{revision}`, by:\n\n{cmds}\n\n"
+    on = f" on {machine}" if machine else ""
+    return (f"{begin}\n## {heading}\n\nMeasured {stamp}{on}, revision `{revision}`, by:\n\n{cmds}\n\n"
             f"{body.rstrip()}\n{end}\n")
 
 
@@ -468,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: skipped, data absent: {', '.join(missing)}", flush=True)
             continue
         runner = Runner(name, work / name)
+        machine = f"{os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f} at the start)"
         print(f"{name}: ~{topic.minutes} min", flush=True)
         try:
             body = topic.measure(runner)
@@ -475,7 +479,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: FAILED, {out} unchanged\n{exc}", file=sys.stderr)
             return 1
         stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-        new[name] = section_text(name, topic.heading, runner.commands, stamp, rev, body)
+        new[name] = section_text(name, topic.heading, runner.commands, stamp, rev, body, machine)
     text = out.read_text() if out.exists() else PREAMBLE
     order = [t.name for t in TOPICS]
     spans = split_sections(text)

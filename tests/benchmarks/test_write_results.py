@@ -95,3 +95,10 @@ def test_the_mission_recognition_table_has_a_mean_row_with_the_lowest_precision(
 def test_a_missing_figure_renders_as_not_available():
     body = wr.render_vpr_images({"corridor": {"n_query_with_gt": 111, "matchers": {"htm_lvc": {"auc": 1.0}}}})
     assert "| corridor (VPR-Bench) | 111 | 1.000 | n/a |" in body
+
+
+def test_the_results_file_has_one_section_per_topic_under_the_preamble():
+    text = (_PATH.parents[1] / "docs" / "RESULTS.md").read_text()
+    assert text.startswith(wr.PREAMBLE)
+    spans = wr.split_sections(text)
+    assert list(spans) == ORDER, "sections in topic order, one per topic"
