@@ -1,5 +1,8 @@
 """``poseidon vpr``: visual place recognition figures of the neocortical front-end.
 
+The figures are computed here (:func:`evaluate_image_sets`, :func:`evaluate_mission`); the command
+line (arguments, the printed table) is :mod:`eval.cli.vpr`.
+
 Usage::
 
     poseidon vpr --ref DIR --query DIR [--gt FILE] [--tolerance N] [--weights PATH]
@@ -139,9 +142,6 @@ Progress goes to stderr.  Returns 0, or 2 on bad arguments / inputs (message on 
 """
 from __future__ import annotations
 
-import argparse
-import json
-import logging
 import sys
 import time
 from dataclasses import dataclass
@@ -189,7 +189,7 @@ if TYPE_CHECKING:
     from services.encoder.standardize import EmbeddingStandardizer
     from system.config import PoseidonConfig
 
-__all__ = ["main", "pr_curve", "vpr_metrics", "best_matches", "load_sequence", "ground_truth_by_name",
+__all__ = ["evaluate_image_sets", "evaluate_mission", "input_errors", "pr_curve", "vpr_metrics", "best_matches", "load_sequence", "ground_truth_by_name",
            "ground_truth_from_file", "overlap_similarity", "cosine_similarity",
            # the building blocks live in eval.vpr_metrics, eval.vpr_htm and eval.vpr_mission; these names
            # stay importable from here
@@ -197,56 +197,10 @@ __all__ = ["main", "pr_curve", "vpr_metrics", "best_matches", "load_sequence", "
            "image_set_standardizer", "DECISION_KINDS", "decision_kind", "run_length_stats", "MissionStreams",
            "run_mission", "encode_mission", "mission_htm", "score_mission", "lvc_revisit_scores"]
 
-log = logging.getLogger(__name__)
 
-
-
-
-def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="poseidon vpr", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--ref", default=None, help="reference image folder")
-    ap.add_argument("--query", default=None, help="query image folder")
-    ap.add_argument("--mission", default=None, metavar="FILE.mcap",
-                    help="a recording with camera/image_raw, truth/revisits and truth/pose (instead of --ref/--query)")
-    ap.add_argument("--min-gap-m", type=float, default=None,
-                    help="--mission: earlier frames count as candidates only this far back along the track, m "
-                         "(default: the recording's revisit_min_gap_m)")
-    ap.add_argument("--gt", default="", help="VPR-Bench ground truth .npy (default: same file name)")
-    ap.add_argument("--tolerance", type=int, default=0, help="same-name ground truth: +-N frames also match")
-    ap.add_argument("--weights", default=None, help="torchvision state dict (default: encoder.weights_path)")
-    ap.add_argument("--backbone", choices=["efficientnet_lite0", "shufflenetv2", "alexnet_conv3"], default=None)
-    ap.add_argument("--limit", type=int, default=0, help="first N frames of each folder (0: all)")
-    ap.add_argument("--config", default=None, help="PoseidonSLAM YAML configuration")
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    ap.add_argument("--no-htm", action="store_true", help="skip the HTM matchers")
-    ap.add_argument("--no-chains", action="store_true",
-                    help="do not run the named chains (services/htm/chains.py: sdr_seqmem, no_tm, no_dr_gate, no_seqmem, sp_tm, sdr_seqmem_f1, "
-                         "sdr_seqmem_cal, new_places) beside the default")
-    ap.add_argument("--htm-query-learning", action="store_true",
-                    help="keep HTM learning on during the query pass (default: off, fixed reference)")
-    ap.add_argument("--save-norm", default=None, metavar="FILE.npz",
-                    help="write the camera embedding statistics of the run (embedding_norm running/fixed) here, "
-                         "e.g. for encoder.embedding_norm fixed")
-    ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
-    return ap
-
-
-def _print_lvc(name: str, r: dict) -> None:
-    d = r.get("decisions", {})
-    print(f"{name:12s} LVC ids {r['n_lvc']}, per-frame revisit recall {r['lvc_recall']:.3f}, "
-          f"precision {r['lvc_precision']:.3f}; SP columns used {r.get('sp_columns_used', 0)}; decisions "
-          + ", ".join(f"{k} {v}" for k, v in d.items()) + f" (TM share {r.get('tm_decision_share', 0.0):.3f})")
-
-
-def _print_table(title: str, metrics: dict) -> None:
-    print(title)
-    print(f"{'matcher':24s} {'AUC':>7s} {'R@P100':>7s} {'bestF1':>7s}")
-    for name, m in metrics.items():
-        print(f"{name:24s} {m['auc']:7.3f} {m['recall_at_p100']:7.3f} {m['best_f1']:7.3f}")
-
-
-def _errors() -> tuple[type[Exception], ...]:
-    """The input errors ``poseidon vpr`` reports as exit code 2."""
+def input_errors() -> tuple[type[Exception], ...]:
+    """The errors that mean bad input (configuration, folders, weights, statistics): ``poseidon vpr``
+    reports them with exit code 2."""
     from common.config import ConfigError
     from services.encoder.backbones import WeightsError
     from services.encoder.lsbh import LsbhError
@@ -255,67 +209,17 @@ def _errors() -> tuple[type[Exception], ...]:
     return (ConfigError, VprInputError, WeightsError, LsbhError, StandardizerError)
 
 
-def _load_configs(args: argparse.Namespace) -> tuple[PoseidonConfig, EncoderConfig]:
-    """The run configuration and its encoder section with the command line's overrides."""
-    from system.config import load_config
+def evaluate_mission(mission: str | Path, cfg: PoseidonConfig, enc_cfg: EncoderConfig, min_gap_m: float | None = None,
+                     htm: bool = True, chains: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The figures of one recording (the ``--mission`` JSON of the module docstring, :func:`run_mission`
+    with the mission, backbone and embedding standardisation named first).
 
-    cfg = load_config(args.config, args.overrides)
-    enc_cfg = cfg.encoder
-    upd: dict[str, Any] = {}
-    if args.weights is not None:
-        upd["weights_path"] = args.weights
-    if args.backbone is not None:
-        upd["cnn_backbone"] = args.backbone
-    if enc_cfg.embedding_norm != "fixed":
-        upd["embedding_norm_path"] = ""  # running statistics start fresh, in memory, every run
-    return cfg, enc_cfg.model_copy(update=upd)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``poseidon vpr`` (see the module docstring)."""
-    args = _parser().parse_args(argv)
-    errors = _errors()
-    if not logging.getLogger().handlers:
-        logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(levelname)s %(message)s")
-    if args.mission is None and (args.ref is None or args.query is None):
-        print("poseidon vpr: give --ref DIR and --query DIR, or --mission FILE.mcap", file=sys.stderr)
-        return 2
-    if args.mission is not None and (args.ref is not None or args.query is not None):
-        print("poseidon vpr: --mission excludes --ref/--query", file=sys.stderr)
-        return 2
-    from services.htm.chains import CHAINS
-    chains = () if (args.no_htm or args.no_chains) else tuple(CHAINS)
-    try:
-        cfg, enc_cfg = _load_configs(args)
-    except errors as exc:
-        print(f"poseidon vpr: {exc}", file=sys.stderr)
-        return 2
-    if args.mission is not None:
-        return _main_mission(args, cfg, enc_cfg, chains, errors)
-    return _main_image_sets(args, cfg, enc_cfg, chains, errors)
-
-
-def _main_mission(args: argparse.Namespace, cfg: PoseidonConfig, enc_cfg: EncoderConfig,
-                  chains: tuple[str, ...], errors: tuple[type[Exception], ...]) -> int:
-    """``poseidon vpr --mission``: figures of one recording, printed as a table or JSON."""
-    try:
-        result = run_mission(args.mission, cfg, enc_cfg, args.min_gap_m, not args.no_htm, chains)
-    except errors as exc:
-        print(f"poseidon vpr: {exc}", file=sys.stderr)
-        return 2
-    result = {"mission": str(args.mission), "backbone": enc_cfg.cnn_backbone,
+    :raises: one of :func:`input_errors` on bad input
+    """
+    result = run_mission(mission, cfg, enc_cfg, min_gap_m, htm, chains)
+    result = {"mission": str(mission), "backbone": enc_cfg.cnn_backbone,
               "embedding_norm": enc_cfg.embedding_norm, **result}
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        _print_table(f"VPR on mission {args.mission}: {result['n_frames']} frames, {result['n_revisit_frames']} "
-                     f"revisits, backbone {enc_cfg.cnn_backbone} ({result['weights']} weights), "
-                     f"embedding_norm {enc_cfg.embedding_norm}", result["matchers"])
-        if "lvc_recall" in result:
-            _print_lvc("default", result)
-            for cname, c in result.get("chains", {}).items():
-                _print_lvc(cname, c)
-    return 0
+    return result
 
 
 @dataclass
@@ -339,18 +243,20 @@ class _ImageSets:
     t_embed: float
 
 
-def _encode_image_sets(args: argparse.Namespace, enc_cfg: EncoderConfig) -> _ImageSets:
+def _encode_image_sets(ref: str | Path, query: str | Path, enc_cfg: EncoderConfig, limit: int = 0,
+                       gt_file: str | Path = "", tolerance: int = 0, save_norm: str | Path | None = None
+                       ) -> _ImageSets:
     """Read both folders and the ground truth; embed, standardise and hash every frame."""
     from services.encoder.encoder import MultimodalEncoder
 
-    ref_names, ref_imgs = load_sequence(args.ref, args.limit)
-    q_names, q_imgs = load_sequence(args.query, args.limit)
-    if args.gt:
-        gt = ground_truth_from_file(args.gt, len(q_names), len(ref_names))
-        gt_desc = str(args.gt)
+    ref_names, ref_imgs = load_sequence(ref, limit)
+    q_names, q_imgs = load_sequence(query, limit)
+    if gt_file:
+        gt = ground_truth_from_file(gt_file, len(q_names), len(ref_names))
+        gt_desc = str(gt_file)
     else:
-        gt = ground_truth_by_name(q_names, ref_names, args.tolerance)
-        gt_desc = f"file name +-{args.tolerance}"
+        gt = ground_truth_by_name(q_names, ref_names, tolerance)
+        gt_desc = f"file name +-{tolerance}"
     t0 = time.perf_counter()
     encoder = MultimodalEncoder(enc_cfg)
     y_ref: list[np.ndarray] = []
@@ -366,8 +272,8 @@ def _encode_image_sets(args: argparse.Namespace, enc_cfg: EncoderConfig) -> _Ima
     z_q = [encoder.standardize("camera", y, update=False) for y in y_q]
     s_ref = [encoder.lsbh("camera").encode(z) for z in z_ref]
     s_q = [encoder.lsbh("camera").encode(z) for z in z_q]
-    if args.save_norm and st is not None:
-        st.save(Path(args.save_norm))
+    if save_norm and st is not None:
+        st.save(Path(save_norm))
     t_embed = time.perf_counter() - t0
     return _ImageSets(ref_names, ref_imgs, q_names, q_imgs, gt, gt_desc, encoder, st, y_ref, y_q, z_ref, z_q,
                       s_ref, s_q, t_embed)
@@ -388,11 +294,11 @@ def _image_set_similarities(sets: _ImageSets) -> dict[str, np.ndarray]:
     return sims
 
 
-def _image_set_htm(args: argparse.Namespace, cfg: PoseidonConfig, sets: _ImageSets, length: int,
-                   chains: tuple[str, ...], sims: dict[str, np.ndarray]) -> dict[str, Any]:
+def _image_set_htm(cfg: PoseidonConfig, sets: _ImageSets, length: int, chains: tuple[str, ...],
+                   sims: dict[str, np.ndarray], query_learning: bool = False) -> dict[str, Any]:
     """The default HTM and the named chains over the SDRs: adds their matchers to ``sims``,
     returns their JSON figures (``n_lvc``, ``htm_query_matched``, ``decisions``, ``chains``)."""
-    ref_out, q_out, htm = run_htm(cfg.htm, sets.s_ref, sets.s_q, length, args.htm_query_learning)
+    ref_out, q_out, htm = run_htm(cfg.htm, sets.s_ref, sets.s_q, length, query_learning)
     sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
     accepted = sims["htm_lvc"].copy()
     accepted[[i for i, o in enumerate(q_out) if o[0] < 0]] = -np.inf
@@ -405,28 +311,35 @@ def _image_set_htm(args: argparse.Namespace, cfg: PoseidonConfig, sets: _ImageSe
     result["chains"] = {}
     for cname in chains:
         c_ref, c_q, c_htm = run_htm(chain_config(cfg.htm, cname), sets.s_ref, sets.s_q, length,
-                                    args.htm_query_learning)
+                                    query_learning)
         sims[cname] = htm_similarities(c_ref, c_q)[0]
         result["chains"][cname] = {"n_lvc": len(c_htm.lvc), "htm_query_matched": sum(1 for o in c_q if o[0] >= 0),
                                    "decisions": c_htm.query_decisions}
     return result
 
 
-def _main_image_sets(args: argparse.Namespace, cfg: PoseidonConfig, enc_cfg: EncoderConfig,
-                     chains: tuple[str, ...], errors: tuple[type[Exception], ...]) -> int:
-    """``poseidon vpr --ref DIR --query DIR``: figures of the query folder against the reference."""
-    try:
-        sets = _encode_image_sets(args, enc_cfg)
-    except errors as exc:
-        print(f"poseidon vpr: {exc}", file=sys.stderr)
-        return 2
+def evaluate_image_sets(ref: str | Path, query: str | Path, cfg: PoseidonConfig, enc_cfg: EncoderConfig, *,
+                        limit: int = 0, gt_file: str | Path = "", tolerance: int = 0,
+                        save_norm: str | Path | None = None, htm: bool = True, chains: tuple[str, ...] = (),
+                        query_learning: bool = False) -> dict[str, Any]:
+    """The figures of the ``query`` folder against the ``ref`` folder (the image-set JSON of the
+    module docstring; ``matchers``: per matcher its :func:`vpr_metrics`).
+
+    :param limit: first N frames of each folder (0: all)
+    :param gt_file: VPR-Bench ground truth .npy ("": same file name, ``tolerance`` frames either side)
+    :param save_norm: write the camera embedding statistics here
+    :param htm: run the HTM matchers; ``chains``: the named chains beside the default
+    :param query_learning: HTM learning stays on during the query pass
+    :raises: one of :func:`input_errors` on bad input
+    """
+    sets = _encode_image_sets(ref, query, enc_cfg, limit, gt_file, tolerance, save_norm)
     length = enc_cfg.sp_columns
     sims = _image_set_similarities(sets)
     result: dict[str, Any] = {}
     t_htm = 0.0
-    if not args.no_htm:
+    if htm:
         t1 = time.perf_counter()
-        result = _image_set_htm(args, cfg, sets, length, chains, sims)
+        result = _image_set_htm(cfg, sets, length, chains, sims, query_learning)
         t_htm = time.perf_counter() - t1
     gt, encoder = sets.gt, sets.encoder
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
@@ -440,14 +353,4 @@ def _main_image_sets(args: argparse.Namespace, cfg: PoseidonConfig, enc_cfg: Enc
         **result,
         "seconds": {"embed": round(sets.t_embed, 2), "htm": round(t_htm, 2)},
     }
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        _print_table(f"VPR {args.query} vs {args.ref}: {result['n_query']} queries, {result['n_ref']} references, "
-                     f"backbone {result['backbone']} ({result['weights']} weights), ground truth {sets.gt_desc}, "
-                     f"embedding_norm {enc_cfg.embedding_norm}", metrics)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    return result

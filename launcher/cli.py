@@ -80,7 +80,7 @@ DELEGATED = {
     "sim": "missions.sim.cli:main",
     "transform": "missions.transform:main",
     "import": "missions.importers.cli:main",
-    "vpr": "eval.vpr:main",
+    "vpr": "eval.cli.vpr:main",
     "deadreckon": "eval.deadreckon:main",
     "eval": "eval.cli.run_eval:main",
     "audit": "eval.audit:main",

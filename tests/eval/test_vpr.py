@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image as PILImage
 
-from eval.vpr import ground_truth_by_name, ground_truth_from_file, main, overlap_similarity, pr_curve, vpr_metrics
+from eval.cli.vpr import main
+from eval.vpr import ground_truth_by_name, ground_truth_from_file, overlap_similarity, pr_curve, vpr_metrics
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
