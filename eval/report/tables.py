@@ -4,7 +4,8 @@ A table is a named value: nested dicts become sub-tables, lists of flat dicts be
 tables, a dict of equally keyed dicts a matrix (rows = outer keys, columns = inner keys).
 
 - What is shown: a value that is missing (``None``, an empty dict) is left out, and so is a
-  row or column of a row table, or a row of a matrix, whose every cell is missing; a table
+  row or column of a row table, or a row of a matrix, whose every cell is missing (but for
+  a row's leading label, e.g. a metric's name); a table
   with nothing left is not drawn at all (:func:`prune` returns :data:`EMPTY`).  An empty
   list or dict is missing too (a count beside it says "none").
 - Long row tables (more than :data:`LONG_ROWS` rows): the page shows the count, a few
@@ -76,7 +77,9 @@ def prune(value: Any) -> Any:
         return EMPTY
     if _is_rows(value):
         cols = [c for c in dict.fromkeys(k for r in value for k in r) if any(not _missing(r.get(c)) for r in value)]
-        rows = [{c: r.get(c) for c in cols} for r in value if any(not _missing(r.get(c)) for c in cols)]
+        # a row's values: every cell but a leading label (a string, e.g. the metric's name)
+        rows = [{c: r.get(c) for c in cols} for r in value
+                if any(not _missing(r.get(c)) for c in (cols[1:] if isinstance(r.get(cols[0]), str) else cols))]
         return rows if rows else EMPTY
     if _is_matrix(value):
         kept = {k: v for k, v in value.items() if any(not _missing(x) for x in v.values())}

@@ -15,6 +15,10 @@ def test_missing_values_rows_and_columns_are_left_out() -> None:
     rows = [{"seq": 1, "d_gt_m": None, "label": None}, {"seq": None, "d_gt_m": None, "label": None},
             {"seq": 3, "d_gt_m": None, "label": "TP"}]
     assert prune(rows) == [{"seq": 1, "label": None}, {"seq": 3, "label": "TP"}]
+    # a labelled row (metric, run A, run B) with no value in any run goes
+    metrics = [{"metric": "ATE (m)", "A": 0.4, "B": None}, {"metric": "nodes", "A": 3, "B": 4},
+               {"metric": "recall", "A": None, "B": None}]
+    assert prune(metrics) == metrics[:2]
     # a matrix (quantity x run): a row missing in every run goes, a row missing in one run stays
     matrix = {"nodes": {"A": 3, "B": 4}, "PR F1": {"A": None, "B": None}, "ATE": {"A": 0.5, "B": None}}
     assert prune(matrix) == {"nodes": {"A": 3, "B": 4}, "ATE": {"A": 0.5, "B": None}}
