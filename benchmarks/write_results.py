@@ -49,17 +49,17 @@ PREAMBLE = (
     "`WORK` is the script's scratch folder. Speeds depend on the machine and its load; where a speed is\n"
     "compared with a baseline, the baseline was measured in the same run.\n"
 )
-#: published relation errors (mean, std), translation m and heading deg (None: not published):
-#: Kuemmerle et al. 2009 (Autonomous Robots 27(4)), Hess et al. 2016 (ICRA, Table II)
-PUBLISHED: dict[str, list[tuple[str, tuple[float, float], tuple[float, float] | None]]] = {
-    "aces": [("scan matching [Kümmerle 2009]", (0.173, 0.614), None),
-             ("GMapping [Kümmerle 2009]", (0.060, 0.049), None),
-             ("graph mapping [Kümmerle 2009]", (0.044, 0.044), (0.4, 0.4)),
-             ("Cartographer [Hess 2016]", (0.0375, 0.0426), (0.37, 0.47))],
-    "fr079": [("scan matching [Kümmerle 2009]", (0.258, 0.427), None),
-              ("GMapping [Kümmerle 2009]", (0.061, 0.044), None),
-              ("graph mapping [Kümmerle 2009]", (0.056, 0.042), (0.6, 0.6)),
-              ("Cartographer [Hess 2016]", (0.0452, 0.0354), (0.54, 0.72))],
+#: published relation errors, translation m and heading deg, mean ± std as published ("": not published):
+#: Kümmerle et al. 2009 (Autonomous Robots 27(4)), Hess et al. 2016 (ICRA, Table II)
+PUBLISHED: dict[str, list[tuple[str, str, str]]] = {
+    "aces": [("scan matching [published, Kümmerle 2009]", "0.173 ± 0.614", ""),
+             ("GMapping [published, Kümmerle 2009]", "0.060 ± 0.049", ""),
+             ("graph mapping [published, Kümmerle 2009]", "0.044 ± 0.044", "0.4 ± 0.4"),
+             ("Cartographer [published, Hess 2016]", "0.0375 ± 0.0426", "0.37 ± 0.47")],
+    "fr079": [("scan matching [published, Kümmerle 2009]", "0.258 ± 0.427", ""),
+              ("GMapping [published, Kümmerle 2009]", "0.061 ± 0.044", ""),
+              ("graph mapping [published, Kümmerle 2009]", "0.056 ± 0.042", "0.6 ± 0.6"),
+              ("Cartographer [published, Hess 2016]", "0.0452 ± 0.0354", "0.54 ± 0.72")],
 }
 LASER_LOGS = ("aces", "fr079")
 VPR_SEEDS = (4101, 4102, 4103, 4104, 4105)
@@ -140,12 +140,12 @@ def render_laser(results: dict[str, dict[str, Any]]) -> str:
         rows = [["**this preset, map-corrected**", f"**{mean_std(rel, 'trans_abs_m', 3)}**",
                  f"**{mean_std(rel, 'rot_abs_deg', 2)}**"],
                 ["raw odometry (same run)", mean_std(odo, "trans_abs_m", 3), mean_std(odo, "rot_abs_deg", 2)]]
-        for method, trans, rot in PUBLISHED.get(log, []):
-            rows.append([f"{method} [published]", f"{trans[0]} ± {trans[1]}", f"{rot[0]} ± {rot[1]}" if rot else ""])
+        rows += [list(row) for row in PUBLISHED.get(log, [])]
         lc = ev.get("loop_closures") or {}
-        out.append(f"**{log.upper()}** ({fmt(rel.get('count'))} relations; {fmt(ev.get('nodes'))} experiences, "
-                   f"{fmt(lc.get('accepted'))} loop closures; log {fmt(span, 0)} s run in {fmt(wall, 0)} s, "
-                   f"{fmt(span / wall if span and wall else None, 1)}x real time, no baseline in this run)\n\n"
+        speed = (f"; the log's {span:.0f} s ran in {wall:.0f} s, {span / wall:.1f}x real time (no baseline in this run)"
+                 if span and wall else "")
+        out.append(f"**{log.upper()}** ({fmt(rel.get('count', odo.get('count')))} relations; {fmt(ev.get('nodes'))} "
+                   f"experiences, {fmt(lc.get('accepted'))} loop closures{speed})\n\n"
                    + table(["method", "translation (m)", "heading (deg)"], rows))
     return "\n".join(out)
 
