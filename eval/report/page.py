@@ -31,7 +31,7 @@ from plotly.offline import get_plotlyjs
 
 from eval.report.data import RunView
 from eval.report.figures import FigureSpec, build_figures
-from eval.report.naming import run_details
+from eval.report.naming import recording_name, run_details
 from eval.report.tables import cell, render_table, rows_table, table_id
 
 __all__ = ["render_report", "render_table", "table_id", "page_sections", "Section", "SUMMARY_TABLE",
@@ -214,6 +214,15 @@ def page_sections(map_first: bool, table_names: list[str], lead_tables: list[str
             deviation, recognition, evidence, Section("sec-laser", "Laser maps and loop closures", extra, []), closing]
 
 
+def _title(runs: list[RunView]) -> str:
+    """One run: its label; several: their labels joined by "vs", after the recording they share."""
+    if len(runs) == 1:
+        return runs[0].label
+    names = {recording_name(r.run) for r in runs}
+    labels = " vs ".join(r.label for r in runs)
+    return f"{names.pop()}: {labels}" if len(names) == 1 else labels
+
+
 def _map_first(runs: list[RunView]) -> bool:
     """Lead with the map: no run has ground truth, or a run carries laser scans."""
     return not any(len(r.truth) for r in runs) or any(r.counts.get("scan") for r in runs)
@@ -255,8 +264,9 @@ def render_report(runs: list[RunView], tables: dict[str, Any], out_dir: str | Pa
     ``tables``: name -> value (:mod:`eval.report.tables`), after the run summary; ``unavailable``: name ->
     why a table is missing; ``folded``: names of tables shown in a closed ``<details>``; ``lead_tables``:
     tables shown first (after the map on a map-first page); ``extra_figures``: more figures (the laser
-    maps and loop closures of :mod:`eval.report.benchmark`); ``title``: the run's label for one run, the
-    labels joined by "vs" for several; ``map_first``: lead with the map (default: no run has ground truth
+    maps and loop closures of :mod:`eval.report.benchmark`); ``title``: default the run's label for one
+    run, the labels joined by "vs" for several (after the name of the recording they were made from,
+    when they share it); ``map_first``: lead with the map (default: no run has ground truth
     or one has laser scans)."""
     if not runs:
         raise ValueError("render_report: no runs given")
@@ -272,7 +282,7 @@ def render_report(runs: list[RunView], tables: dict[str, Any], out_dir: str | Pa
     if map_first is None:
         map_first = _map_first(runs)
     sections = page_sections(map_first, list(all_tables) + list(unavailable), list(lead_tables), list(by_id))
-    title = title or (runs[0].label if len(runs) == 1 else " vs ".join(r.label for r in runs))
+    title = title or _title(runs)
     scripts: list[str] = []
     parts: list[tuple[Section, str]] = []
     shown_tables: list[str] = []
