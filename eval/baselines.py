@@ -63,7 +63,7 @@ def patch_normalise(image: np.ndarray, size: tuple[int, int] = THUMB_WH, patch: 
     w, h = size
     if w % patch or h % patch:
         raise ValueError(f"thumbnail {w}x{h} is not a whole number of {patch}x{patch} patches")
-    g = np.asarray(PILImage.fromarray(a, mode="F").resize((w, h), PILImage.BILINEAR), dtype=np.float32)
+    g = np.asarray(PILImage.fromarray(a, mode="F").resize((w, h), PILImage.Resampling.BILINEAR), dtype=np.float32)
     p = g.reshape(h // patch, patch, w // patch, patch).transpose(0, 2, 1, 3).reshape(-1, patch * patch)
     mu = p.mean(axis=1, keepdims=True)
     sd = p.std(axis=1, keepdims=True)

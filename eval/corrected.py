@@ -65,7 +65,8 @@ def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> P
         """Odometry positions corrected by node e's correction."""
         c, s = np.cos(dpsi[e]), np.sin(dpsi[e])
         d = odom.positions - at_nodes.positions[e]
-        return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]]) + m_pos[e]
+        corrected: np.ndarray = np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]]) + m_pos[e]
+        return corrected
 
     e = np.clip(np.searchsorted(nt, odom.stamps, side="right") - 1, 0, len(ns) - 1)
     e1 = np.minimum(e + 1, len(ns) - 1)

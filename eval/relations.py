@@ -91,8 +91,9 @@ def read_relations(path: str | Path) -> Relations:
         ti.append(a)
         tj.append(b)
         vals.append((row[0], row[1], row[5]))
-    v = np.array(vals, dtype=float).reshape(-1, 3)
-    return Relations(np.array(ti, dtype=np.int64), np.array(tj, dtype=np.int64), v[:, 0], v[:, 1], v[:, 2])
+    table = np.array(vals, dtype=float).reshape(-1, 3)
+    return Relations(np.array(ti, dtype=np.int64), np.array(tj, dtype=np.int64), table[:, 0], table[:, 1],
+                     table[:, 2])
 
 
 def _number(s: str) -> bool:

@@ -86,7 +86,8 @@ class Trajectory:
         s = np.asarray(list(stamps) if not isinstance(stamps, np.ndarray) else stamps, dtype=np.int64)
         if not len(self.t):
             return np.zeros(len(s), dtype=bool)
-        return (s >= self.t[0]) & (s <= self.t[-1])
+        inside: np.ndarray = (s >= self.t[0]) & (s <= self.t[-1])
+        return inside
 
     def _seconds(self, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return (self.t - self.t[0]) / NS, (np.asarray(stamps, dtype=np.int64) - self.t[0]) / NS
@@ -109,7 +110,8 @@ class Trajectory:
         if st.shape == self.t.shape and np.array_equal(st, self.t):
             return self.yaw.copy()
         ts, s = self._seconds(st)
-        return np.interp(s, ts, self.yaw)
+        yaw: np.ndarray = np.interp(s, ts, self.yaw)
+        return yaw
 
     def positions_within(self, stamps: Sequence[int] | np.ndarray) -> np.ndarray:
         """Positions (n, 3) interpolated linearly at ``stamps`` (ns); NaN rows outside the
@@ -174,7 +176,8 @@ class Trajectory:
             raise ValueError("Trajectory is empty")
         seg = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(self.p, axis=0), axis=1))]
         ts, s = self._seconds(np.asarray(stamps, dtype=np.int64))
-        return np.interp(s, ts, seg)
+        travelled: np.ndarray = np.interp(s, ts, seg)
+        return travelled
 
 
 @dataclass(frozen=True)

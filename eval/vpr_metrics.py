@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -77,7 +78,8 @@ def cosine_similarity(q: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Cosine between rows of q (n_q x d) and r (n_r x d)."""
     qn = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
     rn = r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-12)
-    return qn @ rn.T
+    cos: np.ndarray = qn @ rn.T
+    return cos
 
 
 def _dense(sets: Sequence[np.ndarray], used: np.ndarray) -> np.ndarray:
@@ -97,7 +99,8 @@ def overlap_similarity(q: Sequence[np.ndarray], r: Sequence[np.ndarray]) -> np.n
     used = np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
     inter = _dense(q, used) @ _dense(r, used).T
     size = np.array([max(len(np.unique(a)), 1) for a in q], dtype=np.float32)[:, None]
-    return inter / size
+    overlap: np.ndarray = inter / size
+    return overlap
 
 
 # --------------------------------------------------------------------------- inputs
@@ -160,7 +163,7 @@ def ground_truth_from_file(path: str | Path, n_query: int, n_ref: int) -> list[l
 
 
 
-def overlap_stats(sim: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray | None = None) -> dict:
+def overlap_stats(sim: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray | None = None) -> dict[str, Any]:
     """Mean SDR overlap |A_q & A_r| / |A_q| of same-place (ground truth) and different-place pairs.
 
     Independent LSBH SDRs overlap by s = 0.25 on average; ``eligible`` restricts the pairs.

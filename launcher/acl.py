@@ -40,6 +40,10 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from system.config import PoseidonConfig
 
 __all__ = ["CONTROL_GRANTS", "VERBS", "Grant", "identity_grants", "access_control", "render_block",
            "replace_block", "identities", "MARK_BEGIN", "MARK_END", "main"]
@@ -84,14 +88,14 @@ class Grant:
     key: str
 
 
-def identities(config=None) -> dict[str, str]:
+def identities(config: PoseidonConfig | None = None) -> dict[str, str]:
     """Identity name -> role: ``player``, ``recorder``, then every service that can be built."""
     from system.services import ALGORITHM_SERVICES, OPTIONAL_SERVICES, available_services
     names = available_services(config) + [n for n in OPTIONAL_SERVICES if n not in ALGORITHM_SERVICES]
     return {"player": "player", "recorder": "recorder", **{n: "service" for n in dict.fromkeys(names)}}
 
 
-def identity_grants(config=None) -> dict[str, list[Grant]]:
+def identity_grants(config: PoseidonConfig | None = None) -> dict[str, list[Grant]]:
     """What each identity may do under ``config`` (default configuration if None)."""
     from common.resume import REPLAY
     from services.player.player import SOURCE_KEYS
@@ -120,7 +124,7 @@ def _intersects(a: str, b: str) -> bool:
     return zenoh.KeyExpr(a).intersects(zenoh.KeyExpr(b))
 
 
-def access_control(config=None) -> dict:
+def access_control(config: PoseidonConfig | None = None) -> dict[str, Any]:
     """The ``access_control`` section of the secured router (a JSON-able dict)."""
     from system.config import PoseidonConfig
     config = config if config is not None else PoseidonConfig()
@@ -159,7 +163,7 @@ def access_control(config=None) -> dict:
             "policies": policies}
 
 
-def render_block(config=None, indent: str = "  ") -> str:
+def render_block(config: PoseidonConfig | None = None, indent: str = "  ") -> str:
     """The marked ``access_control: {...},`` block, one rule / subject / policy a line."""
     acl = access_control(config)
     lines = [indent + MARK_BEGIN, indent + "access_control: {",

@@ -28,6 +28,11 @@ import ipaddress
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
 
 __all__ = ["make_ca", "make_host_cert", "write_credentials", "USERS", "HUB_COMMON_NAME", "main"]
 
@@ -52,14 +57,14 @@ def write_credentials(out: Path, users: tuple[str, ...] = USERS) -> None:
         f.write("".join(f"{u}:{p}\n" for u, p in pw.items()))
 
 
-def _name(cn: str):
+def _name(cn: str) -> x509.Name:
     from cryptography import x509
     from cryptography.x509.oid import NameOID
     return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "PoseidonSLAM"),
                       x509.NameAttribute(NameOID.COMMON_NAME, cn)])
 
 
-def _write_key(path: Path, key) -> None:
+def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     from cryptography.hazmat.primitives import serialization
     data = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
                              serialization.NoEncryption())
@@ -68,13 +73,14 @@ def _write_key(path: Path, key) -> None:
         f.write(data)
 
 
-def _write_cert(path: Path, cert) -> None:
+def _write_cert(path: Path, cert: x509.Certificate) -> None:
     from cryptography.hazmat.primitives import serialization
     with open(path, "xb") as f:
         f.write(cert.public_bytes(serialization.Encoding.PEM))
 
 
-def make_ca(days: int = 3650, name: str = "PoseidonSLAM CA"):
+def make_ca(days: int = 3650, name: str = "PoseidonSLAM CA"
+            ) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
     """A self-signed CA certificate and its key."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes
@@ -92,7 +98,8 @@ def make_ca(days: int = 3650, name: str = "PoseidonSLAM CA"):
     return cert, key
 
 
-def make_host_cert(host: str, ca_cert, ca_key, days: int = 3650, common_name: str | None = None):
+def make_host_cert(host: str, ca_cert: x509.Certificate, ca_key: ec.EllipticCurvePrivateKey, days: int = 3650,
+                   common_name: str | None = None) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
     """A certificate for computer ``host`` (SAN; CN ``common_name``, default the host), signed by the CA."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes
@@ -101,7 +108,7 @@ def make_host_cert(host: str, ca_cert, ca_key, days: int = 3650, common_name: st
     key = ec.generate_private_key(ec.SECP256R1())
     now = dt.datetime.now(dt.UTC)
     try:
-        alt: list = [x509.IPAddress(ipaddress.ip_address(host))]  # an IP is never a DNSName (rustls rejects it)
+        alt: list[x509.GeneralName] = [x509.IPAddress(ipaddress.ip_address(host))]  # an IP is never a DNSName (rustls rejects it)
     except ValueError:
         alt = [x509.DNSName(host)]
     # services reach their own computer's router on loopback

@@ -41,7 +41,7 @@ def die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
 
 
 
-def check_batch_scheduling(name: str, proc: subprocess.Popen) -> None:
+def check_batch_scheduling(name: str, proc: subprocess.Popen[Any]) -> None:
     """Warn when a child asked for ``SCHED_BATCH`` did not get it (it runs, only slower)."""
     if _SCHED_BATCH is None:
         log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; service %s runs with the "
