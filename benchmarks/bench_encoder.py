@@ -9,7 +9,7 @@ standardisation and LSBH -- what :class:`EncoderNode` does per frame.  Variants:
   sonar raster re-encoded with every camera frame (the dissertation's encoder);
 * ``efficientnet_lite0@S sonar/frame`` -- EfficientNet-Lite0 to block 10 at S px, sonar every frame;
 * ``efficientnet_lite0@S sonar/5`` -- the same with the sonar re-encoded every 5th camera frame
-  (the default ``encoder.sonar_encode_sweep_deg`` 45 deg at the Micron's 42 deg/s and a 5 Hz camera);
+  (the default ``encoder.sonar.encode_sweep_deg`` 45 deg at the Micron's 42 deg/s and a 5 Hz camera);
 * ``... unfolded BN`` -- the default before ``encoder.fold_batchnorm`` (batch norm run as its own operator);
 * ``... batch 8`` -- eight camera frames per forward pass (what a replay backlog allows);
 * ``... onnxruntime`` / ``... openvino`` -- the default path with the backbone on another
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (288, 384, 3), dtype=np.uint8) for _ in range(40)]
     sonar = np.repeat(rng.random((224, 224, 1), dtype=np.float32), 3, axis=2)
-    base: dict[str, Any] = dict(lsbh_matrix_path="", torch_threads=args.threads, embedding_norm="running")
+    base: dict[str, Any] = dict(lsbh={"matrix_path": ""}, torch_threads=args.threads, embedding_norm={"mode": "running"})
     variants: dict[str, tuple[Callable[[], None], int]] = {}
     # label, backbone, input px, sonar every n-th frame, batch, fold batch norm, runtime
     specs: list[tuple[str, str, int, int, int, bool, str]] = [
@@ -181,8 +181,8 @@ def _mission(args: argparse.Namespace, runtimes: list[str]) -> None:
     from system.config import PoseidonConfig
     from system.services import build_node
 
-    base = PoseidonConfig.model_validate({"encoder": {"lsbh_matrix_path": "", "torch_threads": args.threads}})
-    keys = ["camera/image_raw", base.encoder.sonar_topic]
+    base = PoseidonConfig.model_validate({"encoder": {"lsbh": {"matrix_path": ""}, "torch_threads": args.threads}})
+    keys = ["camera/image_raw", base.encoder.sonar.topic]
     msgs = [(m.key, m.message()) for m in read_messages(args.mission, keys=keys)]
     n_cam = sum(k == "camera/image_raw" for k, _ in msgs)
     cpu: dict[str, list[float]] = {rt: [] for rt in runtimes}

@@ -32,7 +32,7 @@ with each computation: process CPU seconds and whether the ``local_view_cells`` 
 
 Fourth part (``--revisits RUN.mcap``, only it runs): a run's ``neocortex/sdr`` and ``Odometry``
 replayed ``--loops`` times through the htm node (default configuration, stamps shifted per loop:
-a vehicle surveying the same cave again and again), once with ``htm.sv_seqmem_store``
+a vehicle surveying the same cave again and again), once with ``htm.seqmem.store``
 ``every_frame`` (the baseline) and once with ``new_places``: process CPU ms per frame per loop,
 the ratio of the last loop's to the first's, the frames each memory holds, and on how many
 frames the two give the same LVC id.
@@ -78,7 +78,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--hold", type=int, default=3, help="frames per place")
     ap.add_argument("--bits", type=int, default=512, help="active bits of the fused SDR")
     ap.add_argument("--noise", type=float, default=0.05, help="fraction of bits replaced per frame")
-    ap.add_argument("--boost", type=float, default=None, help="htm.sp_boostStrength (default: config)")
+    ap.add_argument("--boost", type=float, default=None, help="htm.sp.boost_strength (default: config)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--pipeline-frames", type=int, default=6000,
                     help="frames for the default-chain timing (6000 = a 20-min mission at 5 Hz; 0: skip)")
@@ -107,11 +107,11 @@ def main(argv: list[str] | None = None) -> int:
 
     stream = make_stream(args.steps, args.places, args.hold, args.bits, args.noise, args.seed)
     # the dissertation's SP + TM chain (services/htm/presets/dissertation.yaml: Table 4.1's SP and TM);
-    # sp_learn_steps 0: the SP learns on every step (the learning step is what is timed)
+    # sp.learn_steps 0: the SP learns on every step (the learning step is what is timed)
     from system.config import load_config
     preset = Path(__file__).resolve().parents[1] / "services/htm/presets/dissertation.yaml"
-    update: dict = {"sp_learn_steps": 0} if args.boost is None else {"sp_learn_steps": 0, "sp_boostStrength": args.boost}
-    cfg = load_config(preset).htm.model_copy(update=update)
+    update: dict = {"sp.learn_steps": 0} if args.boost is None else {"sp.learn_steps": 0, "sp.boost_strength": args.boost}
+    cfg = load_config(preset).htm.updated(update)
     warm = NeocortexHtm(cfg)          # compiles / loads the numba kernels
     for f in stream[:5]:
         warm.step(f)
@@ -146,8 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     sptm = t_sp + t_tm
     print(f"stream: {args.steps} frames, {args.places} places x {args.hold} frames, {args.bits} active bits "
           f"of 2048, noise {args.noise:.0%}")
-    print(f"parameters: SP 2048 cols / {cfg.sp_numActiveColumns} active, potentialRadius {cfg.sp_potentialRadius}; "
-          f"boostStrength {cfg.sp_boostStrength}; TM {cfg.tm_cellsPerColumn} cells/col, activationThreshold {cfg.tm_activationThreshold}, learning on")
+    print(f"parameters: SP 2048 cols / {cfg.sp.num_active_columns} active, potentialRadius {cfg.sp.potential_radius}; "
+          f"boostStrength {cfg.sp.boost_strength}; TM {cfg.tm.cells_per_column} cells/col, activationThreshold {cfg.tm.activation_threshold}, learning on")
     print(f"SP step          mean {ms(t_sp):.3f} ms  median {med(t_sp):.3f} ms")
     print(f"TM step          mean {ms(t_tm):.3f} ms  median {med(t_tm):.3f} ms")
     print(f"SP+TM step       mean {ms(sptm):.3f} ms  median {med(sptm):.3f} ms  p95 {1e3 * np.percentile(sptm, 95):.3f} ms")
@@ -202,7 +202,7 @@ def revisit_cost(path: str, loops: int) -> None:
     period = recs[-1][1] - recs[0][1] + 1_000_000_000
     ids: dict[str, list[int]] = {}
     for store in ("every_frame", "new_places"):
-        node = build_node("htm", PoseidonConfig.model_validate({"htm": {"state_path": "", "sv_seqmem_store": store}}))
+        node = build_node("htm", PoseidonConfig.model_validate({"htm": {"state_path": "", "seqmem": {"store": store}}}))
         node.warm_up()
         out: list[int] = ids.setdefault(store, [])
 
@@ -231,23 +231,23 @@ def seqmem_cost(sizes: list[int], seed: int, rounds: int = 7, queries: int = 20)
     from services.htm.sequence import SequenceMatcher
 
     cfg = HtmConfig()
-    print(f"\nsequence memory, one score per frame (K {cfg.sv_seqmem_length}, velocities {cfg.sv_seqmem_velocities}, "
-          f"exclude {cfg.sv_seqmem_exclude}, 900 active bits), median of {rounds} interleaved rounds of {queries} frames")
+    print(f"\nsequence memory, one score per frame (K {cfg.seqmem.length}, velocities {cfg.seqmem.velocities}, "
+          f"exclude {cfg.seqmem.exclude}, 900 active bits), median of {rounds} interleaved rounds of {queries} frames")
     print(f"{'stored frames':>13s} {'K-term sums':>12s} {'running sums':>13s} {'ratio':>6s} {'same ends':>10s}")
     for n in sizes:
-        frames = make_stream(n + cfg.sv_seqmem_length + queries, max(n // 3, 1), 3, 900, 0.05, seed + 2)
+        frames = make_stream(n + cfg.seqmem.length + queries, max(n // 3, 1), 3, 900, 0.05, seed + 2)
 
         def make(incremental: bool) -> SequenceMatcher:
-            return SequenceMatcher(2048, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
-                                   cfg.sv_seqmem_column_norm, incremental=incremental)
+            return SequenceMatcher(2048, cfg.seqmem.length, cfg.seqmem.velocities, cfg.seqmem.exclude,
+                                   cfg.seqmem.column_norm, incremental=incremental)
 
         full = make(False)
         for i, f in enumerate(frames[:n]):
             full.add(f.astype(np.int64), i)
-        for f in frames[n:n + cfg.sv_seqmem_length]:  # fill the history with rows of n candidates
+        for f in frames[n:n + cfg.seqmem.length]:  # fill the history with rows of n candidates
             full.score(f.astype(np.int64))
         start = full.state()
-        queries_ = [f.astype(np.int64) for f in frames[n + cfg.sv_seqmem_length:]]
+        queries_ = [f.astype(np.int64) for f in frames[n + cfg.seqmem.length:]]
         times: dict[bool, list[float]] = {False: [], True: []}
         ends: dict[bool, list[int]] = {}
         for _ in range(rounds):
@@ -276,8 +276,8 @@ def pipeline_cost(args: argparse.Namespace) -> None:
     from services.htm.chains import CHAINS, chain_config
     runs = [("default configuration", HtmConfig())]
     runs += [(f"chain {c}", chain_config(HtmConfig(), c)) for c in CHAINS]
-    runs += [("chain sdr_seqmem, sequence memory off", chain_config(HtmConfig(), "sdr_seqmem").model_copy(
-        update={"sv_seqmem_length": 0}))]
+    runs += [("chain sdr_seqmem, sequence memory off", chain_config(HtmConfig(), "sdr_seqmem").updated(
+        {"seqmem.length": 0}))]
     for name, cfg in runs:
         warm = NeocortexHtm(cfg)
         for f in frames[:5]:

@@ -49,7 +49,7 @@ def one_log(name: str, cache: Path) -> dict[str, Any]:
     if not imported.exists():
         if import_main([str(log), "--out", str(imported)]) != 0:
             raise RuntimeError(f"import of {log} failed")
-    cfg = load_config(PRESET, overrides=[f"encoder.lsbh_matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
+    cfg = load_config(PRESET, overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
     print(f"{name}: transport only (player -> recorder)", file=sys.stderr)
     base = run_distributed(cfg, imported, cache / f"{name}_transport.mcap", services=[], progress=False)
     print(f"{name}: full pipeline, laser preset", file=sys.stderr)

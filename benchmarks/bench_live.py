@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     cache.mkdir(parents=True, exist_ok=True)
     mission = simulate_cached(cache / f"live_{args.minutes:g}min_seed{args.seed}.mcap", args.minutes, args.seed,
                               progress=False)
-    cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
+    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
     out: dict[str, Any] = {"minutes": args.minutes, "mission": str(mission),
                            "floor_ms": {"lateness_ms": cfg.live.lateness_ms,
                                         "watermark_interval_ms": cfg.live.watermark_interval_ms},

@@ -5,10 +5,10 @@ Baseline, measured in the same run: brute force in numpy over a padded prototype
 (``I = mask[protos].sum(1)``, then arg max R with the IoU / lowest-id tie-breaks). Both
 answers are compared on every query.
 
-Descriptor spaces: ``tm`` 15 bits of 81 920 TM cells (sv_tm_topk, default), ``sp`` 20 of
+Descriptor spaces: ``tm`` 15 bits of 81 920 TM cells (htm.descriptor.tm_topk, default), ``sp`` 20 of
 2048 columns, ``sdr`` 512 of 2048 SDR bits (the raw LSBH code, baseline matcher).
 
-Then the sequence memory (``services/htm/sequence.py``, default K = ``htm.sv_seqmem_length``)
+Then the sequence memory (``services/htm/sequence.py``, default K = ``htm.seqmem.length``)
 at the same numbers of stored *frames* (``--seq-bits`` active of 2048, default 900 = fused
 camera OR sonar): ms per ``score`` (F1 against every stored frame, normalisation, diagonals),
 next to the inverted-index LVC query of the ``sdr`` space at the same size, same run.
@@ -84,8 +84,8 @@ def run_sequence(n_frames: int, n_queries: int, bits: int, seed: int) -> float:
     """ms per SequenceMatcher.score with ``n_frames`` stored frames (default configuration)."""
     cfg = HtmConfig()
     rng = np.random.default_rng(seed)
-    m = SequenceMatcher(2048, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
-                        cfg.sv_seqmem_column_norm)
+    m = SequenceMatcher(2048, cfg.seqmem.length, cfg.seqmem.velocities, cfg.seqmem.exclude,
+                        cfg.seqmem.column_norm)
     frames = [np.sort(rng.choice(2048, bits, replace=False)) for _ in range(min(n_frames, 2000))]
     for i in tqdm(range(n_frames), desc=f"seq: store {n_frames}", file=sys.stderr, mininterval=1.0, leave=False):
         m.add(frames[i % len(frames)], i)

@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     cache.mkdir(parents=True, exist_ok=True)
     mission = simulate_cached(cache / f"soak_{args.minutes:g}min_seed{args.seed}.mcap", args.minutes, args.seed)
     inp = recording_summary(mission)
-    cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
+    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
 
     print("transport only: player -> recorder", file=sys.stderr)
     base = run_distributed(cfg, mission, cache / "soak_transport.mcap", services=[], progress=False)

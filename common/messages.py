@@ -380,7 +380,7 @@ class SessionLinkInfo(BaseModel):
     rotation_deg: float = Field(description="heading disagreement of the two sweeps (the registration's, deg)")
     inlier_fraction: float
     applied_deg: float = Field(0.0, description="rotation applied to the newer session (deg; 0: translation "
-                               "only, expmap.session_link_rotate off)")
+                               "only, expmap.sessions.link_rotate off)")
 
 
 class MapSessions(Message):

@@ -19,7 +19,7 @@ the bus stops it (``RunnerStats.aborted`` says why).
 
 Live runs: ``max_queue`` > 0 bounds the input queue (drop oldest, counted per key in
 ``RunnerStats.dropped``; :class:`common.worker.DropOldestQueue`), and ``delay_s`` > 0 -- a *test
-setting* only (``live.slow_service``, ``live.slow_ms``) -- makes the runner sleep that long
+setting* only (``debug.slow_service``, ``debug.slow_ms``) -- makes the runner sleep that long
 before each input it hands to the node, to show what happens when a service falls behind.
 
 Numbered frames (:mod:`common.codec`) already received are dropped (``RunnerStats.duplicates``).
@@ -187,7 +187,7 @@ class NodeRunner(Sink, Source):
         is the service's failure: re-raised naming the input that provoked it."""
         self._index_of.pop(id(msg), None)
         self._last_stamp = msg.header.stamp
-        if self.delay_s > 0:  # test setting: a service that falls behind (live.slow_service)
+        if self.delay_s > 0:  # test setting: a service that falls behind (debug.slow_service)
             time.sleep(self.delay_s)
         try:
             self.node.process(key, msg)

@@ -4,7 +4,7 @@ Event-evidence association (Section 5.4.4, "Audit of Event-Evidence Corresponden
 ``experience_event`` and ``experience_image`` are joined by header ``(seq, stamp)`` (the
 expmap gives each image its event's header).  A joined pair is an *association* when its
 evidence lag dt = |source_stamp - event stamp| is at most ``slop_s`` (default: the run's
-``expmap.image_sync_slop``, 0.75 s, the dissertation's ``slop_sec``).
+``expmap.image.sync_slop``, 0.75 s, the dissertation's ``slop_sec``).
 
 ``--json`` keys:
 
@@ -91,7 +91,7 @@ def audit_run(path: str | Path | RunData, slop_s: float | None = None,
               config: PoseidonConfig | None = None) -> dict[str, Any]:
     """Audit a run recording (``path`` or a loaded :class:`RunData`); keys in the module docstring."""
     run = path if isinstance(path, RunData) else load_run(path, config)
-    slop = run.config.expmap.image_sync_slop if slop_s is None else slop_s
+    slop = run.config.expmap.image.sync_slop if slop_s is None else slop_s
     out: dict[str, Any] = {"recording": str(run.path), "config_source": run.config_source, "slop_s": slop}
     assoc = association([(e.header.seq, e.header.stamp) for e in run.events],
                         [(i.seq, i.stamp, i.source_stamp) for i in run.images], slop)
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("recording", type=Path)
     ap.add_argument("--json", action="store_true", help="print the result as JSON (keys: see the module docstring)")
     ap.add_argument("--slop", type=float, default=None,
-                    help="largest evidence lag of an association (s; default expmap.image_sync_slop of the run)")
+                    help="largest evidence lag of an association (s; default expmap.image.sync_slop of the run)")
     add_config_args(ap)
     args = ap.parse_args(argv)
     return report_cli("audit", lambda: audit_run(args.recording, slop_s=args.slop, config=config_from_args(args)), format_audit, args.json)

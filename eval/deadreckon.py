@@ -5,7 +5,7 @@ the same code path as the live service) and prints a summary of its dead-reckoni
 trajectory, next to a naive baseline computed in the same run: **plain integration** =
 each valid DVL record's ``velocityinst`` (flag 1, finite; same extrinsic rotation and sign
 as the filter) rotated by the DVL's own heading only (Eqs. 3.10-3.11 with roll = pitch = 0),
-held until the next valid record and integrated; z = latest depth + ``depth_offset_m``.
+held until the next valid record and integrated; z = latest depth + ``robot_state.depth.offset_m``.
 
 Every position below is in the world NED frame (m), origin = the filter's start
 position; the published ``Odometry`` is converted back from its ``axis_remap`` frame.
@@ -71,7 +71,7 @@ class PlainIntegrator:
 
     def __init__(self, cfg: RobotStateConfig):
         self.cfg = cfg
-        self.r_bd = euler_to_matrix(*np.radians(cfg.dvl_rotation_rpy_deg))
+        self.r_bd = euler_to_matrix(*np.radians(cfg.dvl.rotation_rpy_deg))
         self.t: int | None = None
         self.xy = np.zeros(2)
         self.z = 0.0
@@ -101,7 +101,7 @@ class PlainIntegrator:
             assert isinstance(msg, Depth)
             if math.isfinite(msg.depth):
                 self._advance(stamp)
-                self.z = msg.depth + self.cfg.depth_offset_m
+                self.z = msg.depth + self.cfg.depth.offset_m
                 self._record()
         elif key == "dvl_linkquest":
             assert isinstance(msg, LinkquestDvl)
@@ -110,7 +110,7 @@ class PlainIntegrator:
                 self.skipped += 1
                 return
             self._advance(stamp)
-            vb = self.cfg.dvl_velocity_sign * (self.r_bd @ v)
+            vb = self.cfg.dvl.velocity_sign * (self.r_bd @ v)
             self.yaw = math.radians(msg.heading)
             self.v = (rot_z(self.yaw) @ vb)[:2]
             self.started = True
@@ -289,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("recording", type=Path, help="MCAP recording with dvl_linkquest / imu / depth_sensor")
     ap.add_argument("--config", type=Path, default=None, help="configuration YAML (default: built-in defaults)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="K=V",
-                    help="override a configuration value, e.g. robot_state.dvl_velocity_sign=-1")
+                    help="override a configuration value, e.g. robot_state.dvl.velocity_sign=-1")
     ap.add_argument("--cones", type=Path, default=None, help="cone_passes.csv (pass,stamp,cone,offset_x,offset_y)")
     ap.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = ap.parse_args(argv)

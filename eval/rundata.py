@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from common.codec import DecodeError, decode
-from common.config import ConfigError
+from common.config import ConfigError, migrate_renamed
 from common.geometry import published_to_ned, yaw_of_quaternion
 from common.live import LATENCY_KEY
 from common.mcap_io import RecordedMessage, RecordingError, read_messages, read_metadata
@@ -151,8 +151,8 @@ def _config_of_metadata(path: str | Path, meta: dict[str, Any]) -> PoseidonConfi
     raw = meta.get("config")
     if raw is None:
         return None
-    try:
-        return PoseidonConfig.model_validate(json.loads(raw) if isinstance(raw, str) else raw)
+    try:   # a recording of an older version stores keys renamed since: read under their new names
+        return PoseidonConfig.model_validate(migrate_renamed(json.loads(raw) if isinstance(raw, str) else raw))
     except (ValueError, ValidationError) as exc:
         raise RecordingError(f"{path}: metadata 'poseidon' field 'config' is not a valid configuration: "
                              f"{exc}") from None

@@ -22,7 +22,7 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   map's frame in the world); ``rotation_error_deg`` = the heading error of the link's target
   node in the final map relative to its source node's (their map headings against their true
   headings: after a link that applies its rotation, the link's heading error; with
-  ``expmap.session_link_rotate`` off, the frames' heading difference);
+  ``expmap.sessions.link_rotate`` off, the frames' heading difference);
 - ``time_to_link_s``: for the first link of this run, the mission seconds from the first
   ``truth/pose`` sample of the linked session within ``place_m`` (2 m, horizontally) of the
   true position of an older node (first entering a mapped place) to the link's event.  An
@@ -30,7 +30,7 @@ Keys (``null`` when not computable: no truth for an end, no link, no ``--prior``
   ``expmap.min_experience_age`` experiences before the sample (the rule of a revisit
   opportunity in ``loop_closures``: the place just passed is no revisit; for a kidnapped
   vehicle the place of the jump, which it was mapping at that moment, is not one); negative
-  when the link came before (the sonar registers up to ``expmap.scan_search_radius_m`` apart);
+  when the link came before (the sonar registers up to ``expmap.scan.search_radius_m`` apart);
 - ``link_error_m``: mean ``error_m`` over the links with truth at both ends;
 - ``cross_loop_closures``: ``{accepted, true, false, unlabelled}`` of the loop closures of
   the final map with one end loaded from the map directory and the other made by this run

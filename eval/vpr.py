@@ -18,7 +18,7 @@ list of matching reference indices]``, indices into the sorted full folders); wi
 the reference frame with the query's file name is the match, and ``--tolerance N`` also
 accepts the N neighbours on either side of it (Nordland: same name = same place).
 
-Embedding standardisation (``encoder.embedding_norm``, :mod:`services.encoder.standardize`)
+Embedding standardisation (``encoder.embedding_norm.mode``, :mod:`services.encoder.standardize`)
 on image sets: ``running`` is estimated in memory on the reference sequence in order (as
 the node would), the queries use the statistics as they stand; ``fixed`` is fitted on the
 reference set (``--save-norm FILE`` writes the camera statistics, e.g. for a deployment
@@ -26,7 +26,7 @@ with ``embedding_norm: fixed``); ``none`` hashes the raw y (Eq. 4.2 exactly).
 
 ``--mission FILE.mcap``: one recording (``poseidon sim --minutes M --seed S --out F.mcap``,
 or ``poseidon transform``) with ``camera/image_raw``, ``truth/revisits`` and ``truth/pose``.
-The camera and the ``encoder.sonar_topic`` stream go through :class:`EncoderNode` in event
+The camera and the ``encoder.sonar.topic`` stream go through :class:`EncoderNode` in event
 order (fused SDR = camera OR sonar, running statistics from the mission itself, in memory),
 then :class:`NeocortexHtm` steps over the fused SDRs once, *storing* LVCs as online.  Each
 frame i is compared with the earlier frames j that are at least ``--min-gap-m`` (default:
@@ -66,7 +66,7 @@ argmax, correct iff it is in the query's ground truth):
   place-sequence prior) predicts the reference frame with that LVC id whose descriptor
   overlaps D_q most (Eq. 4.7) -- or, when the id is that of the stored frame j* where the
   sequence memory's best diagonal ended, j* itself; its score is the sequence margin
-  S* - S_2 (z units) with the sequence memory on (``htm.sv_seqmem_length`` > 0), else R.
+  S* - S_2 (z units) with the sequence memory on (``htm.seqmem.length`` > 0), else R.
   A query that no rule accepted predicts the frame j* where the sequence memory's best
   diagonal ended, scored by its margin below the gate: the precision-recall curve
   sweeps the decision threshold, as every other matcher's curve sweeps its own score, and the
@@ -74,7 +74,7 @@ argmax, correct iff it is in the query's ground truth):
   without the sequence memory a rejected query predicts nothing).  On ``--mission`` the same
   rule picks among the eligible earlier frames (a rejected frame there gets a new id and
   predicts nothing), and the frames' dead-reckoned positions for the dead-reckoning gate
-  (``htm.sv_dr_gate``, :mod:`services.htm.geometry`) come from the mission's own DVL, IMU and
+  (``htm.dr_gate.enabled``, :mod:`services.htm.geometry`) come from the mission's own DVL, IMU and
   depth through the ``robot_state`` node, as in a run.  Image sets have no positions: the
   gate checks nothing there.
 * ``htm_lvc_accepted`` -- (image sets) ``htm_lvc`` with the accepted queries only: the
@@ -126,7 +126,7 @@ and with ``--mission``::
      "n_lvc": .., "tm_anomaly_mean": .., "sp_columns_used": ..,   # the last 7 without --no-htm
      "lvc_pair_precision": .., "lvc_pair_recall": ..,   # frame pairs with the same id (eval.frontend.lvc_pair_metrics)
      "decisions": {"gate": .., "tm": .., "seqmem": .., "prior": .., "new": ..}, "tm_decision_share": ..,
-     "frames_stored": ..,   # frames the sequence memory holds at the end (htm.sv_seqmem_store; 0 without it)
+     "frames_stored": ..,   # frames the sequence memory holds at the end (htm.seqmem.store; 0 without it)
      "chains": {"sdr_seqmem": {<the LVC figures above>}, "no_tm": {...}, "no_dr_gate": {...},
                 "no_seqmem": {...}, "sp_tm": {...}, "sdr_seqmem_f1": {...}, "sdr_seqmem_cal": {...},
                 "new_places": {...}},   # without --no-htm / --no-chains
@@ -218,7 +218,7 @@ def evaluate_mission(mission: str | Path, cfg: PoseidonConfig, enc_cfg: EncoderC
     """
     result = run_mission(mission, cfg, enc_cfg, min_gap_m, htm, chains)
     result = {"mission": str(mission), "backbone": enc_cfg.cnn_backbone,
-              "embedding_norm": enc_cfg.embedding_norm, **result}
+              "embedding_norm": enc_cfg.embedding_norm.mode, **result}
     return result
 
 
@@ -347,7 +347,7 @@ def evaluate_image_sets(ref: str | Path, query: str | Path, cfg: PoseidonConfig,
         "matchers": metrics,
         "n_ref": len(sets.ref_names), "n_query": len(sets.q_names), "n_query_with_gt": sum(1 for g in gt if g),
         "weights": encoder.weights, "backbone": enc_cfg.cnn_backbone, "embedding_dim": encoder.dim,
-        "embedding_norm": enc_cfg.embedding_norm,
+        "embedding_norm": enc_cfg.embedding_norm.mode,
         "sdr_bits": 2 * encoder.lsbh("camera").k, "sdr_length": length, "ground_truth": sets.gt_desc,
         "sdr_overlap": overlap_stats(sims["lsbh_overlap"], gt),
         **result,

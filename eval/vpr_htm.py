@@ -43,7 +43,7 @@ def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.nda
 
 def match_confidence(htm, r) -> float:
     """The score a query's LVC match is ranked by: with the sequence memory
-    (``htm.sv_seqmem_length`` > 0) the sequence margin S* - S_2 at the predicted frame, else R."""
+    (``htm.seqmem.length`` > 0) the sequence margin S* - S_2 at the predicted frame, else R."""
     return float(r.seq_margin) if htm.seqmem is not None else float(r.rate)
 
 
@@ -81,9 +81,9 @@ def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
 def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
     """The camera standardiser of an image-set run, or None for ``embedding_norm`` none.
 
-    ``running``: in memory (nothing read from or written to ``embedding_norm_path``),
+    ``running``: in memory (nothing read from or written to ``encoder.embedding_norm.path``),
     estimated on the reference sequence in order exactly as the encoder node does (the first
-    frames, held until ``embedding_norm_hold`` are in, standardised with those statistics, then
+    frames, held until ``encoder.embedding_norm.hold`` are in, standardised with those statistics, then
     each frame with the frames before it until the warm-up ends:
     :meth:`MultimodalEncoder.standardize_sequence`); the queries are then
     standardised with the statistics as they stand, without updating them (like the HTM
@@ -91,13 +91,13 @@ def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
     """
     from services.encoder.standardize import EmbeddingStandardizer
 
-    mode = enc_cfg.embedding_norm
+    mode = enc_cfg.embedding_norm.mode
     if mode == "none":
         return None
     if mode == "fixed":
-        return EmbeddingStandardizer.fitted(np.stack(y_ref), enc_cfg.embedding_norm_scale)
-    return EmbeddingStandardizer(dim, "running", enc_cfg.embedding_norm_warmup, enc_cfg.embedding_norm_rate,
-                                 enc_cfg.embedding_norm_scale, None)
+        return EmbeddingStandardizer.fitted(np.stack(y_ref), enc_cfg.embedding_norm.scale)
+    return EmbeddingStandardizer(dim, "running", enc_cfg.embedding_norm.warmup, enc_cfg.embedding_norm.rate,
+                                 enc_cfg.embedding_norm.scale, None)
 
 
 

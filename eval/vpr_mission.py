@@ -195,7 +195,7 @@ def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | 
     node = build_node("encoder", run_cfg, encoder=encoder)
     t0 = time.perf_counter()
     robot_state = build_node("robot_state", run_cfg)
-    rd = _read_mission(path, node, enc_cfg.sonar_topic, robot_state)
+    rd = _read_mission(path, node, enc_cfg.sonar.topic, robot_state)
     node.finish()
     _take_sdrs(node, rd)      # what the warm-up hold still held at the end
     robot_state.finish()
@@ -228,7 +228,7 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
                 eligible: np.ndarray, positions: Sequence[np.ndarray | None] | None = None) -> dict:
     """One NeocortexHtm storing LVCs online over one SDR stream: LVC scores and similarity matrices.
 
-    ``positions``: the dead-reckoned position of each frame, for ``htm.sv_dr_gate``."""
+    ``positions``: the dead-reckoned position of each frame, for ``htm.dr_gate.enabled``."""
     from services.htm.pipeline import NeocortexHtm
 
     htm = NeocortexHtm(htm_cfg.model_copy(update={"input_size": length}))
@@ -277,7 +277,7 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Seque
             "patchnorm_sad": masked(sad_similarity(st.thumbs, st.thumbs)),
             "lsbh_overlap": masked(lsbh_cam),
             "lsbh_fused_overlap": masked(overlap_similarity(fused, fused))}
-    if enc_cfg.embedding_norm != "none":
+    if enc_cfg.embedding_norm.mode != "none":
         sims["cnn_cosine_standardized"] = masked(cosine_similarity(st.z, st.z))
     result: dict = {"n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": st.min_gap_m,
                     "dr_positions": sum(1 for p in (st.dr_positions or []) if p is not None),

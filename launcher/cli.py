@@ -32,6 +32,10 @@ Subcommands:
   names), ``complete`` (bool), ``damage`` (where it stops being readable, "" if complete),
   ``recovered`` (``{"path", "messages"}`` with ``--recover``), ``digests`` (with ``--digests``: key ->
   ``{"messages", "sha256"}``, :func:`common.mcap_io.key_digests`).
+- ``config --explain KEY`` / ``config --show [--config FILE] [--set ...]``: what a configuration
+  key is (description, type, default, unit, range; a section's fields; a renamed key's new
+  name), or the effective configuration as YAML (:mod:`launcher.config_cmd`).  Exit 2 for an
+  unknown key (the closest keys are named) or a bad configuration.
 - ``sim``, ``transform``, ``import``, ``export``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``,
   ``path``: see their own ``--help``.
 
@@ -72,6 +76,8 @@ from pathlib import Path
 from typing import Any
 
 from launcher.commands import cmd_bridge, cmd_demo, cmd_hub, cmd_info, cmd_run, cmd_service
+from launcher.config_cmd import add_arguments as config_arguments
+from launcher.config_cmd import cmd_config
 
 __all__ = ["main"]
 
@@ -249,6 +255,15 @@ def _add_info_command(sub: Any) -> None:
     p.set_defaults(func=cmd_info)
 
 
+def _add_config_command(sub: Any) -> None:
+    """``poseidon config``: explain a key, or show the effective configuration (:mod:`launcher.config_cmd`)."""
+    p = sub.add_parser("config", help="explain a configuration key (--explain KEY) or print the effective "
+                       "configuration (--show)")
+    config_arguments(p)
+    _add_config_args(p)
+    p.set_defaults(func=cmd_config)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="poseidon", description="PoseidonSLAM: underwater SLAM services")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -258,6 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bridge_command(sub)
     _add_hub_command(sub)
     _add_info_command(sub)
+    _add_config_command(sub)
 
     for name in DELEGATED:
         sub.add_parser(name, help=f"see 'poseidon {name} --help'", add_help=False)

@@ -73,13 +73,13 @@ MAP_DIR_FILES = {
     "htm.state_path": "htm_state.npz",                               # SP/TM/LVC prototypes, sequence memory
     "posecells.state_path": "posecells.npz",                         # pose cells, LVC associations, gates
     "expmap.map_path": "expmap.npz",                                 # the experience map with its sessions
-    "encoder.embedding_norm_path": "embnorm_{backbone}_{modality}.npz",  # embedding statistics per modality
+    "encoder.embedding_norm.path": "embnorm_{backbone}_{modality}.npz",  # embedding statistics per modality
 }
 
 
 def use_map_dir(config: PoseidonConfig, map_dir: str | Path) -> dict[str, str]:
     """Point every persisted state of ``config`` into ``map_dir`` (created if missing) and make
-    a loaded experience map begin a new session (``expmap.map_sessions``) in a new odometry
+    a loaded experience map begin a new session (``expmap.sessions.begin_on_load``) in a new odometry
     frame (``posecells.state_new_odometry_frame``: the loaded pose cells keep their activity and
     associations, not the other mission's odometry): a run loads what is there at start and
     saves the merged state there at the end.  Returns the settings made."""
@@ -89,11 +89,11 @@ def use_map_dir(config: PoseidonConfig, map_dir: str | Path) -> dict[str, str]:
     d.mkdir(parents=True, exist_ok=True)
     made = {}
     for dotted, name in MAP_DIR_FILES.items():
-        section, field_name = dotted.split(".")
-        setattr(getattr(config, section), field_name, str(d / name))
+        *path, field_name = dotted.split(".")
+        setattr(config.get(".".join(path)), field_name, str(d / name))
         made[dotted] = str(d / name)
-    config.expmap.map_sessions = True
-    made["expmap.map_sessions"] = "true"
+    config.expmap.sessions.begin_on_load = True
+    made["expmap.sessions.begin_on_load"] = "true"
     config.posecells.state_new_odometry_frame = True
     made["posecells.state_new_odometry_frame"] = "true"
     return made
@@ -156,7 +156,7 @@ class RunPlan:
 def calibrate_from_input(config: PoseidonConfig, input_path: str | Path) -> None:
     """Take what the input recording says about its own sensors where the configuration
     leaves it open: ``expmap.scan_graph.sensor_offset`` null (the default) becomes the offset
-    of ``expmap.scan_topic``'s sensor that the import measured (``poseidon`` metadata
+    of ``expmap.scan.topic``'s sensor that the import measured (``poseidon`` metadata
     ``laser_offsets``: dx, dy m, dtheta rad), else 0 0 0.  Logged at INFO."""
     sg = config.expmap.scan_graph
     if config.expmap.graph != "scan_graph" or sg.sensor_offset is not None:
@@ -165,7 +165,7 @@ def calibrate_from_input(config: PoseidonConfig, input_path: str | Path) -> None
     raw = read_metadata(input_path).get("poseidon", {}).get("laser_offsets")
     if raw:
         try:
-            entry = json.loads(raw).get(config.expmap.scan_topic)
+            entry = json.loads(raw).get(config.expmap.scan.topic)
         except (json.JSONDecodeError, AttributeError) as exc:
             raise RecordingError(f"{input_path}: metadata poseidon.laser_offsets is not a JSON object ({exc})") from None
         if entry:

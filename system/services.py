@@ -117,7 +117,8 @@ WIRING: dict[str, _Wiring] = {
         "sync_stale_sec": c.sync.sync_stale_sec, "lvc_map_persisted": bool(c.htm.state_path),
         "flow_window_s": c.bus.flow_window_ms / 1000.0}),
     "htm": _Wiring(lambda c: c.htm),
-    "robot_state": _Wiring(lambda c: c.robot_state),
+    "robot_state": _Wiring(lambda c: c.robot_state, lambda c: {
+        "fault_jump_at_s": c.debug.fault_jump_at_s, "fault_jump_m": list(c.debug.fault_jump_m)}),
     "posecells": _Wiring(lambda c: c.posecells, lambda c: {"guard": c.vpr_guard}),
     "expmap": _Wiring(lambda c: c.expmap, lambda c: {
         "sync_stale_sec": c.sync.sync_stale_sec,
@@ -162,7 +163,7 @@ class WorkerSpec:
     Recorder: ``out`` (required), ``expect`` (keys whose end-of-stream ends the recording),
     ``metadata`` (the ``poseidon`` metadata record).  ROS 1 bridge: ``announce`` (source keys
     it keeps alive with wall-clock watermarks and ends at its stop).  ``live``: a service of a
-    live run (bounded input queue ``live.queue_frames``; ``live.slow_service`` is slowed).  Service: ``node`` already built (None:
+    live run (bounded input queue ``live.queue_frames``; ``debug.slow_service`` is slowed).  Service: ``node`` already built (None:
     built here).
     """
 
@@ -215,9 +216,9 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
         return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s)
     node = spec.node if spec.node is not None else build_node(name, config)
-    live = config.live
+    live, debug = config.live, config.debug
     # live: a message waits for a silent stream's watermark in wall time, so the live interval
     heartbeat_ms = live.watermark_interval_ms if spec.live else config.bus.heartbeat_interval_ms
     return NodeRunner(node, bus, heartbeat_ms, drain_timeout_s=drain_s,
                       supervision=spec.supervision, max_queue=live.queue_frames if spec.live else 0,
-                      delay_s=live.slow_ms / 1000 if spec.live and live.slow_service == name else 0.0)
+                      delay_s=debug.slow_ms / 1000 if spec.live and debug.slow_service == name else 0.0)

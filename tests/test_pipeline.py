@@ -21,7 +21,7 @@ def mission(tmp_path_factory):
 
 
 def test_every_service_runs_and_modes_agree_byte_for_byte(mission, tmp_path):
-    cfg = load_config(overrides=[f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"])
+    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"])
     assert {"encoder", "htm", "robot_state", "posecells", "expmap"} <= set(available_services())
     a = run_distributed(cfg, mission, tmp_path / "dist.mcap", progress=False, timeout_s=400)
     b = run_embedded(cfg, mission, tmp_path / "emb.mcap", progress=False, timeout_s=400)
@@ -44,7 +44,7 @@ def test_guard_off_on_the_on_runs_front_end_equals_the_full_pipeline(mission, tm
     """`poseidon demo`'s Guard OFF run: only the services the guard changes, on the ON run's
     recording, give the events and map a full Guard OFF pipeline gives."""
     from launcher.demo import GUARDED_SERVICES
-    lsbh = f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"
+    lsbh = f"encoder.lsbh.matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"
     on_cfg = load_config(overrides=[lsbh, "vpr_guard.require_vpr_for_event=true"])
     off_cfg = load_config(overrides=[lsbh, "vpr_guard.require_vpr_for_event=false"])
     run_embedded(on_cfg, mission, tmp_path / "on.mcap", progress=False, timeout_s=400)

@@ -46,7 +46,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="keep HTM learning on during the query pass (default: off, fixed reference)")
     ap.add_argument("--save-norm", default=None, metavar="FILE.npz",
                     help="write the camera embedding statistics of the run (embedding_norm running/fixed) here, "
-                         "e.g. for encoder.embedding_norm fixed")
+                         "e.g. for encoder.embedding_norm.mode fixed")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
 
@@ -76,9 +76,9 @@ def _load_configs(args: argparse.Namespace) -> tuple[PoseidonConfig, EncoderConf
         upd["weights_path"] = args.weights
     if args.backbone is not None:
         upd["cnn_backbone"] = args.backbone
-    if enc_cfg.embedding_norm != "fixed":
-        upd["embedding_norm_path"] = ""  # running statistics start fresh, in memory, every run
-    return cfg, enc_cfg.model_copy(update=upd)
+    if enc_cfg.embedding_norm.mode != "fixed":
+        upd["embedding_norm.path"] = ""  # running statistics start fresh, in memory, every run
+    return cfg, enc_cfg.updated(upd)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -118,7 +118,7 @@ def _main_mission(args: argparse.Namespace, cfg: PoseidonConfig, enc_cfg: Encode
     else:
         _print_table(f"VPR on mission {args.mission}: {result['n_frames']} frames, {result['n_revisit_frames']} "
                      f"revisits, backbone {enc_cfg.cnn_backbone} ({result['weights']} weights), "
-                     f"embedding_norm {enc_cfg.embedding_norm}", result["matchers"])
+                     f"embedding_norm {enc_cfg.embedding_norm.mode}", result["matchers"])
         if "lvc_recall" in result:
             _print_lvc("default", result)
             for cname, c in result.get("chains", {}).items():
@@ -142,7 +142,7 @@ def _main_image_sets(args: argparse.Namespace, cfg: PoseidonConfig, enc_cfg: Enc
     else:
         _print_table(f"VPR {args.query} vs {args.ref}: {result['n_query']} queries, {result['n_ref']} references, "
                      f"backbone {result['backbone']} ({result['weights']} weights), ground truth {result['ground_truth']}, "
-                     f"embedding_norm {enc_cfg.embedding_norm}", metrics)
+                     f"embedding_norm {enc_cfg.embedding_norm.mode}", metrics)
     return 0
 
 

@@ -30,43 +30,45 @@ def _default_topics() -> dict[str, TopicRoute]:
 
 
 class BridgeRos1Config(ConfigSection):
+    """The ROS 1 bridge: ROS topics in, our outputs back to ROS (services/bridge_ros1)."""
+
     master_uri: str = Field("", description="ROS master; '' = the ROS_MASTER_URI environment variable, "
                             "else http://localhost:11311")
     node_name: str = Field("poseidon_bridge", pattern=r"^[A-Za-z][A-Za-z0-9_]*$", description="ROS node name")
     ros_python_path: str = Field("/usr/lib/python3/dist-packages",
                                  description="where rospy is (appended to sys.path, never prepended)")
-    master_timeout_s: float = Field(10.0, gt=0, description="wait this long for the ROS master at start (s)")
+    master_timeout_s: float = Field(10.0, gt=0, description="wait this long for the ROS master at start [s]")
     topics: dict[str, TopicRoute] = Field(default_factory=_default_topics,
                                           description="ROS topic -> our key (default: the importer's mapping)")
     ros_queue_size: int = Field(10000, ge=1, description="rospy's queue per subscribed topic: if the bridge "
                                 "falls this far behind a topic, rospy drops its oldest messages (a loaded machine at "
-                                "rosbag play -r 8 needs more than a few hundred)")
+                                "rosbag play -r 8 needs more than a few hundred) [messages]")
     discover: bool = Field(True, description="also bridge every other published topic (key: the topic "
                            "without its leading slash)")
-    discover_interval_s: float = Field(1.0, gt=0, description="how often the master is asked for new topics (s)")
+    discover_interval_s: float = Field(1.0, gt=0, description="how often the master is asked for new topics [s]")
     ignore_topics: list[str] = Field(default_factory=lambda: ["/rosout", "/rosout_agg", "/clock"],
                                      description="never bridged in (our own output topics never are)")
     lateness_ms: int = Field(200, ge=0, description="live watermarks: a stream promises nothing older than "
-                             "its wall-clock-mapped time minus this (ms); see bridge.py")
+                             "its wall-clock-mapped time minus this; see bridge.py [ms]")
     outage_buffer_frames: int = Field(1000, ge=1, description="per key, the last frames kept to send again "
                                       "after its consumers were unreachable (common/live.py: the outage rule); "
-                                      "held frames beyond it are dropped oldest first, counted dropped_outage")
-    outage_buffer_mb: float = Field(64.0, gt=0, description="per key, at most this much kept for an outage (MB)")
+                                      "held frames beyond it are dropped oldest first, counted dropped_outage [frames]")
+    outage_buffer_mb: float = Field(64.0, gt=0, description="per key, at most this much kept for an outage [MB]")
     watermark_interval_ms: int = Field(100, ge=10, description="wall-clock watermarks on every source key this "
-                                       "often (ms)")
+                                       "often [ms]")
     odometry_key: str = Field("Odometry", description="our key published as nav_msgs/Odometry")
-    odometry_topic: str = Field("/poseidon/odom")
+    odometry_topic: str = Field("/poseidon/odom", description="ROS topic of odometry_key")
     dead_reckoning_key: str = Field("dead_reckoning", description="our key published as geometry_msgs/PoseStamped")
-    dead_reckoning_topic: str = Field("/poseidon/dead_reckoning")
+    dead_reckoning_topic: str = Field("/poseidon/dead_reckoning", description="ROS topic of dead_reckoning_key")
     map_key: str = Field("map", description="our key published as nav_msgs/Path + visualization_msgs/MarkerArray")
     path_topic: str = Field("/poseidon/path", description="experience map as nav_msgs/Path (latched)")
     markers_topic: str = Field("/poseidon/map_markers",
                                description="experience map as visualization_msgs/MarkerArray (latched)")
-    map_period_s: float = Field(1.0, ge=0, description="publish the map to ROS at most this often (s, wall)")
+    map_period_s: float = Field(1.0, ge=0, description="publish the map to ROS at most this often (wall clock) [s]")
     lvc_key: str = Field("local_view_cells", description="our key published as std_msgs/Int32 (the LVC id)")
-    lvc_topic: str = Field("/poseidon/lvc_id")
+    lvc_topic: str = Field("/poseidon/lvc_id", description="ROS topic of lvc_key")
     event_key: str = Field("experience_event", description="our key published as std_msgs/String (JSON)")
-    event_topic: str = Field("/poseidon/experience_event")
+    event_topic: str = Field("/poseidon/experience_event", description="ROS topic of event_key")
 
     def output_stages(self) -> dict[str, str]:
         """Our output key -> its latency stage (:class:`common.live.LatencyTracker`): the outputs

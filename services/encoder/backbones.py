@@ -26,7 +26,7 @@ EfficientNet-Lite0 file, else the torch hub cache (``$TORCH_HOME/hub/checkpoints
 ``shufflenet_v2_x1_0-*.pth`` / ``alexnet-*.pth``).  No weights, an unreadable file or one
 that does not fit is a :class:`WeightsError` naming the file, the missing/unexpected keys and
 how to fix it.  ``encoder.untrained: true`` asks explicitly for a deterministic seeded
-initialisation (He-normal convolutions, torch seed ``encoder.lsbh_seed``), logged as a
+initialisation (He-normal convolutions, torch seed ``encoder.lsbh.seed``), logged as a
 WARNING.  Nothing is ever downloaded.
 """
 from __future__ import annotations

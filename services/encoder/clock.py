@@ -4,7 +4,7 @@
 :mod:`services.encoder.node`): the :class:`~services.encoder.sonar.SonarRaster` the beams
 accumulate in, the bearing swept since the last output (the sonar sweep clock: one
 sonar-only output per further 360 deg while the camera is silent) and since the last sonar
-encoding (the re-encoding rule: at least ``encoder.sonar_encode_sweep_deg``), the last
+encoding (the re-encoding rule: at least ``encoder.sonar.encode_sweep_deg``), the last
 sonar SDR, and the freshness test of the sonar for a camera frame (newest beam at most
 ``sync.sync_stale_sec`` older).  Stamps are integer nanoseconds, bearings radians.
 
@@ -40,7 +40,7 @@ class SonarClock:
     """The sonar raster plus the sweep clock and the re-encoding rule.
 
     ``mode``: ``encoder.fusion_mode``; ``stale_ns``: ``sync.sync_stale_sec`` in ns;
-    ``reencode_rad``: ``encoder.sonar_encode_sweep_deg`` in radians.
+    ``reencode_rad``: ``encoder.sonar.encode_sweep_deg`` in radians.
     """
 
     def __init__(self, raster: SonarRaster, mode: str, stale_ns: int, reencode_rad: float):

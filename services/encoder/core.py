@@ -6,7 +6,7 @@ sonar message, returning the per-modality SDRs of an output (or None).  Core and
 directly.  What happened is tallied in order in :attr:`EncoderCore.events` (counter name,
 increment), which the node drains into its counters.
 
-The warm-up hold (``encoder.embedding_norm_hold`` H > 0, running statistics): the SDR of a
+The warm-up hold (``encoder.embedding_norm.hold`` H > 0, running statistics): the SDR of a
 frame is the hash of its embedding centred by the mean of the embeddings before it, so the
 first frames of a mission are hashed with a mean of a handful of frames (the very first with
 none) and do not match their own place seen later (corridor: the first 8 of 111 queries

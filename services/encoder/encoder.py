@@ -3,7 +3,7 @@
 Per modality m: y = f_m(o) (Eq. 4.1, :mod:`services.encoder.backbones`: the tap block of
 EfficientNet-Lite0 (default block 10) or ShuffleNetV2 stage3 / AlexNet conv3, pooled to
 ``pool_grid`` x ``pool_grid`` and flattened), z = standardised y
-(``encoder.embedding_norm``, :mod:`services.encoder.standardize`; ``none``: z = y),
+(``encoder.embedding_norm.mode``, :mod:`services.encoder.standardize`; ``none``: z = y),
 s^(m) = LSBH(P_m^T z) (Eq. 4.2, :mod:`services.encoder.lsbh`), fused by OR (Eq. 4.3,
 :mod:`services.encoder.fusion`).
 Camera and sonar share one backbone (the sonar raster is replicated to 3 channels) and have
@@ -82,7 +82,7 @@ class MultimodalEncoder:
         self.cfg = cfg
         torch.set_num_threads(cfg.torch_threads)
         self.backbone = backbone if backbone is not None else load_backbone(
-            cfg.cnn_backbone, cfg.weights_path, seed=cfg.lsbh_seed, untrained=cfg.untrained, tap_block=cfg.tap_block)
+            cfg.cnn_backbone, cfg.weights_path, seed=cfg.lsbh.seed, untrained=cfg.untrained, tap_block=cfg.tap_block)
         self.input_size = int(cfg.input_size)
         self.runtime = runtime or cfg.runtime
         # the exported runtimes take plain NCHW arrays; channels_last only helps torch's kernels
@@ -160,24 +160,24 @@ class MultimodalEncoder:
 
     # ------------------------------------------------------------------ Eq. 4.2
     def lsbh(self, modality: str) -> LsbhEncoder:
-        """The LSBH of ``modality`` (projection loaded from / saved to ``lsbh_matrix_path``)."""
+        """The LSBH of ``modality`` (projection loaded from / saved to ``lsbh.matrix_path``)."""
         enc = self._lsbh.get(modality)
         if enc is None:
             path = None
-            if self.cfg.lsbh_matrix_path:
-                path = projection_path(self.cfg.lsbh_matrix_path, self.cfg.cnn_backbone, modality)
-            p = load_or_create_projection(path, self.dim, self.cfg.sp_columns // 2, self.cfg.lsbh_seed, modality)
-            enc = self._lsbh[modality] = LsbhEncoder(p, self.cfg.sp_columns, self.cfg.lsbh_s)
+            if self.cfg.lsbh.matrix_path:
+                path = projection_path(self.cfg.lsbh.matrix_path, self.cfg.cnn_backbone, modality)
+            p = load_or_create_projection(path, self.dim, self.cfg.sp_columns // 2, self.cfg.lsbh.seed, modality)
+            enc = self._lsbh[modality] = LsbhEncoder(p, self.cfg.sp_columns, self.cfg.lsbh.s)
         return enc
 
     def standardizer(self, modality: str) -> EmbeddingStandardizer:
-        """The embedding standardiser of ``modality`` (statistics at ``embedding_norm_path``)."""
+        """The embedding standardiser of ``modality`` (statistics at ``embedding_norm.path``)."""
         st = self._norm.get(modality)
         if st is None:
             c = self.cfg
-            path = norm_path(c.embedding_norm_path, c.cnn_backbone, modality) if c.embedding_norm_path else None
-            st = self._norm[modality] = EmbeddingStandardizer(self.dim, c.embedding_norm, c.embedding_norm_warmup,
-                                                             c.embedding_norm_rate, c.embedding_norm_scale, path)
+            path = norm_path(c.embedding_norm.path, c.cnn_backbone, modality) if c.embedding_norm.path else None
+            st = self._norm[modality] = EmbeddingStandardizer(self.dim, c.embedding_norm.mode, c.embedding_norm.warmup,
+                                                             c.embedding_norm.rate, c.embedding_norm.scale, path)
         return st
 
     @property
@@ -213,10 +213,10 @@ class MultimodalEncoder:
 
     def standardize_sequence(self, modality: str, embeddings: Sequence[np.ndarray]) -> list[np.ndarray]:
         """z of each embedding of one modality's sequence, as the encoder node gives them: with
-        the warm-up hold (``embedding_norm_hold``, :mod:`services.encoder.core`) the embeddings
+        the warm-up hold (``embedding_norm.hold``, :mod:`services.encoder.core`) the embeddings
         before the statistics settle are standardised with the statistics at that point."""
         c = self.cfg
-        hold = c.embedding_norm_hold if c.embedding_norm == "running" else 0
+        hold = c.embedding_norm.hold if c.embedding_norm.mode == "running" else 0
         out: list[np.ndarray] = []
         pending: list[np.ndarray] = []
         holding = hold > 0 and not self.settled(modality, hold)
@@ -226,7 +226,7 @@ class MultimodalEncoder:
                 continue
             self.standardize(modality, y)
             pending.append(y)
-            if self.settled(modality, hold) or len(pending) >= c.embedding_norm_warmup:
+            if self.settled(modality, hold) or len(pending) >= c.embedding_norm.warmup:
                 out.extend(self.standardize(modality, p, update=False) for p in pending)
                 pending, holding = [], False
         out.extend(self.standardize(modality, p, update=False) for p in pending)

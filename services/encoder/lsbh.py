@@ -1,8 +1,8 @@
 """Locality-sensitive binary hashing (LSBH), Eq. 4.2 of the dissertation.
 
 v = P_m^T y with a fixed projection P_m (d_m x L/2): Gaussian entries, columns scaled to
-unit norm, generated from ``lsbh_seed`` (42) and a per-modality derived seed, persisted to
-``lsbh_matrix_path`` (``{backbone}`` and ``{modality}`` substituted) and reloaded from there.
+unit norm, generated from ``lsbh.seed`` (42) and a per-modality derived seed, persisted to
+``lsbh.matrix_path`` (``{backbone}`` and ``{modality}`` substituted) and reloaded from there.
 
 With p = L/2 and k = floor(s p): bit i (0 <= i < p) is 1 iff i is among the k largest
 components of v; bit p + i is 1 iff i is among the k smallest.  Exactly 2k bits are set
@@ -33,7 +33,7 @@ def lsbh_k(length: int, s: float) -> int:
     if length < 2 or length % 2:
         raise LsbhError(f"SDR length L must be even and >= 2, got {length}")
     if not 0.0 < s < 1.0:
-        raise LsbhError(f"lsbh_s must be in (0, 1), got {s}")
+        raise LsbhError(f"encoder.lsbh.s must be in (0, 1), got {s}")
     k = int(np.floor(s * (length // 2)))
     if k < 1:
         raise LsbhError(f"k = floor({s} * {length // 2}) = 0: no bit would be set")
@@ -92,11 +92,11 @@ def make_projection(d: int, half: int, seed: int, modality: str) -> np.ndarray:
 
 
 def projection_path(template: str, backbone: str, modality: str) -> Path:
-    """``lsbh_matrix_path`` with ``{backbone}`` and ``{modality}`` substituted."""
+    """``lsbh.matrix_path`` with ``{backbone}`` and ``{modality}`` substituted."""
     try:
         return Path(template.format(backbone=backbone, modality=modality))
     except (KeyError, IndexError) as exc:
-        raise LsbhError(f"encoder.lsbh_matrix_path {template!r}: only {{backbone}} and {{modality}} "
+        raise LsbhError(f"encoder.lsbh.matrix_path {template!r}: only {{backbone}} and {{modality}} "
                         f"may be substituted ({exc})") from None
 
 
@@ -113,7 +113,7 @@ def load_or_create_projection(path: Path | None, d: int, half: int, seed: int, m
         if p.shape != (d, half):
             raise LsbhError(f"LSBH projection {path} has shape {p.shape}, the encoder needs ({d}, {half}) "
                             f"(d_m x L/2 for modality {modality!r}); delete it or point "
-                            f"encoder.lsbh_matrix_path elsewhere")
+                            f"encoder.lsbh.matrix_path elsewhere")
         if not np.all(np.isfinite(p)):
             raise LsbhError(f"LSBH projection {path} contains non-finite values")
         log.debug("encoder: LSBH projection for %s loaded from %s", modality, path)

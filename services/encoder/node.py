@@ -1,6 +1,6 @@
 """``encoder`` service: camera frames + MSIS sonar beams -> ``neocortex/sdr`` (Eqs. 4.1-4.3).
 
-Inputs: ``camera/image_raw`` (:class:`Image`) and the sonar key ``encoder.sonar_topic``
+Inputs: ``camera/image_raw`` (:class:`Image`) and the sonar key ``encoder.sonar.topic``
 (``sonar_micron`` by default: :class:`RangeImageBeam`; the ``*_ros`` keys: :class:`LaserScan`).
 Output: ``neocortex/sdr`` (:class:`NeocortexSdr`): per-modality SDRs and the fused SDR.
 
@@ -21,16 +21,16 @@ When an output is produced (the "clock"):
 Beams accumulate in :class:`~services.encoder.sonar.SonarRaster` between outputs; a gap of
 more than ``sync.sync_stale_sec`` between consecutive beams resets the ring (counted as
 ``sonar_ring_reset``), so an image never mixes sweeps from before and after a dropout.
-Embeddings are standardised per modality before LSBH (``encoder.embedding_norm``, in
+Embeddings are standardised per modality before LSBH (``encoder.embedding_norm.mode``, in
 event order; the statistics are saved at the end, see :mod:`services.encoder.standardize`).
 With running statistics the first outputs are held until the camera has
-``encoder.embedding_norm_hold`` embeddings (at most ``embedding_norm_hold_max_s`` of event
+``encoder.embedding_norm.hold`` embeddings (at most ``embedding_norm.hold_max_s`` of event
 time), then hashed with them (the warm-up hold,
 :mod:`services.encoder.core`); the output watermark stays at the oldest held stamp meanwhile,
 and the end of the inputs releases what is still held.  Counter ``outputs_held``.
 Messages are processed one at a time (a frame plus the sonar raster go through the CNN as
 one batch of two).  Sonar encoding rule: the raster is re-encoded when the beams have swept
-at least ``encoder.sonar_encode_sweep_deg`` (45 deg: a fifth of a Micron turn, ~1 s at
+at least ``encoder.sonar.encode_sweep_deg`` (45 deg: a fifth of a Micron turn, ~1 s at
 42 deg/s, i.e. about every 5th camera frame at 5 Hz) since its last encoding, or when there
 is no sonar SDR yet (start, after a ring reset); otherwise the last sonar SDR is reused
 (counted as ``sonar_sdr_reused``).  A raster changes little within a few degrees of sweep
@@ -73,7 +73,7 @@ class EncoderNode(ServiceNode[EncoderConfig]):
 
     @classmethod
     def io_keys(cls, config: EncoderConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        return ("camera/image_raw", config.sonar_topic), (OUT,)
+        return ("camera/image_raw", config.sonar.topic), (OUT,)
 
     def __init__(self, config: EncoderConfig, *, sync_stale_sec: float, lvc_map_persisted: bool = False,
                  encoder: MultimodalEncoder | None = None, flow_window_s: float = 3.0):
@@ -84,20 +84,20 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         time before a replay's flow window is used up, and is off when the window is under 1 s)."""
         super().__init__(config)
         cfg = config
-        self.sonar_key = cfg.sonar_topic
+        self.sonar_key = cfg.sonar.topic
         self.encoder = encoder if encoder is not None else MultimodalEncoder(cfg)
         self.mode = cfg.fusion_mode
-        if lvc_map_persisted and cfg.embedding_norm == "running" and not cfg.embedding_norm_path:
-            log.warning("encoder: htm.state_path keeps the LVC map across runs but encoder.embedding_norm_path is "
+        if lvc_map_persisted and cfg.embedding_norm.mode == "running" and not cfg.embedding_norm.path:
+            log.warning("encoder: htm.state_path keeps the LVC map across runs but encoder.embedding_norm.path is "
                         "empty: the running embedding statistics restart every run, so the SDRs of known places "
-                        "change; set encoder.embedding_norm_path (e.g. state/embnorm_{backbone}_{modality}.npz)")
+                        "change; set encoder.embedding_norm.path (e.g. state/embnorm_{backbone}_{modality}.npz)")
             self.count("embedding_norm_not_persisted")
-        raster = SonarRaster(cfg.sonar_polar_width, cfg.sonar_polar_height, cfg.sonar_rmax, cfg.sonar_use_intensities)
+        raster = SonarRaster(cfg.sonar.polar_width, cfg.sonar.polar_height, cfg.sonar.max_range_m, cfg.sonar.use_intensities)
         clock = SonarClock(raster, self.mode, int(round(sync_stale_sec * 1e9)),
-                           math.radians(cfg.sonar_encode_sweep_deg))
-        hold_max_s = min(cfg.embedding_norm_hold_max_s, flow_window_s - 1.0)
-        hold = cfg.embedding_norm_hold if cfg.embedding_norm == "running" and hold_max_s > 0 else 0
-        self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm_warmup, 1),
+                           math.radians(cfg.sonar.encode_sweep_deg))
+        hold_max_s = min(cfg.embedding_norm.hold_max_s, flow_window_s - 1.0)
+        hold = cfg.embedding_norm.hold if cfg.embedding_norm.mode == "running" and hold_max_s > 0 else 0
+        self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm.warmup, 1),
                                 int(round(max(hold_max_s, 1e-3) * 1e9)))
         self.length = cfg.sp_columns
 
@@ -156,7 +156,7 @@ class EncoderNode(ServiceNode[EncoderConfig]):
             self.encoder.lsbh(modality)
             if self.encoder.lsbh_digests()[modality] != digest:
                 raise ValueError(f"encoder: the LSBH projection of {modality} differs from the checkpoint's "
-                                 "(encoder.lsbh_seed or encoder.lsbh_matrix_path changed)")
+                                 "(encoder.lsbh.seed or encoder.lsbh.matrix_path changed)")
         super().restore_checkpoint(state)
 
     def finish(self) -> None:

@@ -2,16 +2,16 @@
 
 A mechanically scanned imaging sonar (MSIS: Tritech Micron / SeaKing) delivers one beam
 at a time; a full 360 deg sweep takes seconds.  :class:`SonarRaster` keeps the most recent
-sweep as a ring of ``W`` angle bins (``sonar_polar_width``): each incoming beam overwrites
+sweep as a ring of ``W`` angle bins (``sonar.polar_width``): each incoming beam overwrites
 the bins it covers, so the image always shows the latest echo profile at every bearing.
 
 Polar image (default, the dissertation's "polar tensor"), shape (H, W) =
-(``sonar_polar_height``, ``sonar_polar_width``):
+(``sonar.polar_height``, ``sonar.polar_width``):
 
 * column j covers bearings [j, j+1) * 2 pi / W (beam angle taken modulo 2 pi);
-* row i covers ranges [i, i+1) * ``sonar_rmax`` / H metres (row 0 nearest the sonar);
-  echoes beyond ``sonar_rmax`` are dropped;
-* value: with ``sonar_use_intensities`` the echo intensity / ``intensity_scale`` clipped to
+* row i covers ranges [i, i+1) * ``sonar.max_range_m`` / H metres (row 0 nearest the sonar);
+  echoes beyond ``sonar.max_range_m`` are dropped;
+* value: with ``sonar.use_intensities`` the echo intensity / ``intensity_scale`` clipped to
   [0, 1] (several range bins falling in one row: their maximum); without, 1 at the range
   of the strongest echo of the beam (``RangeImageBeam``) or at the measured range
   (``LaserScan``) and 0 elsewhere.
@@ -21,7 +21,7 @@ when the step is at most ``max_fill_rad`` (so a 1.8 deg step leaves no empty col
 1.6 deg-per-column ring); a larger jump only writes its own column.
 
 ``cartesian=True`` renders the same ring as a top-down fan instead: the sonar at the image
-centre, x to the right = bearing 0, bearing increasing counter-clockwise, ``sonar_rmax`` at
+centre, x to the right = bearing 0, bearing increasing counter-clockwise, ``sonar.max_range_m`` at
 the half-width (pixels outside the disc are 0).
 
 :meth:`SonarRaster.image3` gives the 3-channel float tensor for the CNN (the grey image
@@ -49,7 +49,7 @@ class SonarRaster:
         if width < 1 or height < 1:
             raise ValueError(f"sonar raster size must be positive, got {width}x{height}")
         if rmax <= 0:
-            raise ValueError(f"sonar_rmax must be > 0 m, got {rmax}")
+            raise ValueError(f"encoder.sonar.max_range_m must be > 0 m, got {rmax}")
         if intensity_scale <= 0:
             raise ValueError(f"intensity_scale must be > 0, got {intensity_scale}")
         self.width = int(width)

@@ -1,4 +1,4 @@
-"""Embedding standardisation before LSBH (``encoder.embedding_norm``; an addition to Eq. 4.2).
+"""Embedding standardisation before LSBH (``encoder.embedding_norm.mode``; an addition to Eq. 4.2).
 
 Eq. 4.2 hashes v = P^T y of the raw embedding.  Untrained (seeded) or simply uncentred CNN
 features are post-ReLU and positive: every embedding carries a large common-mode component
@@ -15,21 +15,21 @@ Modes:
 * ``running``: mu, sigma estimated online, in event order, per modality (Welford).  A frame
   is standardised with the statistics of the frames *before* it (the first frame: z = y;
   until two frames have been seen, sigma = 1), then added to them, for the first
-  ``embedding_norm_warmup`` frames.  After the warm-up the statistics are frozen
-  (``embedding_norm_rate`` 0, default: the SDR of a place stays the same for the rest of the
+  ``embedding_norm.warmup`` frames.  After the warm-up the statistics are frozen
+  (``embedding_norm.rate`` 0, default: the SDR of a place stays the same for the rest of the
   mission, so its LVC id can be found again) or follow an exponential moving average with
   that rate per frame.
 * ``fixed``: mu, sigma fitted beforehand on a reference sequence (:meth:`fit`; ``poseidon
   vpr`` fits them on its reference set, ``--save-norm`` writes them) and loaded from
-  ``embedding_norm_path``; never updated.
+  ``embedding_norm.path``; never updated.
 
-``embedding_norm_scale`` false (default) only centres, z = y - mu: measured better than
+``embedding_norm.scale`` false (default) only centres, z = y - mu: measured better than
 full standardisation on the corridor set and the simulated missions (dividing by sigma
 amplified near-constant dimensions, notably of the sparse sonar rasters; fused-SDR PR AUC on
 a 5-minute sim mission 0.17 centred vs 0.02 scaled).  With scaling sigma is floored at
 ``1e-3 x mean(sigma)`` so constant (dead) dimensions do not amplify rounding noise.
 The state (count, mu, M2 = sum of squared deviations, frozen flag) is stored per modality
-in ``embedding_norm_path`` when set (``{backbone}`` and ``{modality}`` substituted, e.g.
+in ``embedding_norm.path`` when set (``{backbone}`` and ``{modality}`` substituted, e.g.
 ``state/embnorm_{backbone}_{modality}.npz`` next to the LSBH projection): loaded at start
 when the file exists, written when the warm-up completes and when the encoder closes.  The
 default is empty (in memory): the statistics describe the data they were estimated on, so
@@ -60,11 +60,11 @@ class StandardizerError(ValueError):
 
 
 def norm_path(template: str, backbone: str, modality: str) -> Path:
-    """``embedding_norm_path`` with ``{backbone}`` and ``{modality}`` substituted."""
+    """``embedding_norm.path`` with ``{backbone}`` and ``{modality}`` substituted."""
     try:
         return Path(template.format(backbone=backbone, modality=modality))
     except (KeyError, IndexError) as exc:
-        raise StandardizerError(f"encoder.embedding_norm_path {template!r}: only {{backbone}} and {{modality}} "
+        raise StandardizerError(f"encoder.embedding_norm.path {template!r}: only {{backbone}} and {{modality}} "
                                 f"may be substituted ({exc})") from None
 
 
@@ -74,11 +74,11 @@ class EmbeddingStandardizer:
     def __init__(self, dim: int, mode: str = "running", warmup: int = 50, rate: float = 0.0,
                  scale: bool = False, path: Path | None = None):
         if mode not in NORM_MODES:
-            raise StandardizerError(f"encoder.embedding_norm must be one of {NORM_MODES}, got {mode!r}")
+            raise StandardizerError(f"encoder.embedding_norm.mode must be one of {NORM_MODES}, got {mode!r}")
         if warmup < 1:
-            raise StandardizerError(f"encoder.embedding_norm_warmup must be >= 1, got {warmup}")
+            raise StandardizerError(f"encoder.embedding_norm.warmup must be >= 1, got {warmup}")
         if not 0.0 <= rate < 1.0:
-            raise StandardizerError(f"encoder.embedding_norm_rate must be in [0, 1), got {rate}")
+            raise StandardizerError(f"encoder.embedding_norm.rate must be in [0, 1), got {rate}")
         self.dim = int(dim)
         self.mode = mode
         self.warmup = int(warmup)
@@ -93,8 +93,8 @@ class EmbeddingStandardizer:
         if path is not None and mode != "none" and path.exists():
             self.load(path)
         elif mode == "fixed":
-            where = f"{path}" if path is not None else "no encoder.embedding_norm_path"
-            raise StandardizerError(f"encoder.embedding_norm fixed needs fitted statistics: {where} does not exist "
+            where = f"{path}" if path is not None else "no encoder.embedding_norm.path"
+            raise StandardizerError(f"encoder.embedding_norm.mode fixed needs fitted statistics: {where} does not exist "
                                     f"(fit them with `poseidon vpr --save-norm FILE` on a reference set)")
 
     # ------------------------------------------------------------------ statistics
@@ -212,7 +212,7 @@ class EmbeddingStandardizer:
                                     f"expected {STATE_VERSION}")
         if meta["dim"] != self.dim or data["mean"].shape != (self.dim,):
             raise StandardizerError(f"embedding statistics {path} are for {meta['dim']} dimensions, the encoder "
-                                    f"has {self.dim}; delete the file or point encoder.embedding_norm_path elsewhere")
+                                    f"has {self.dim}; delete the file or point encoder.embedding_norm.path elsewhere")
         if not (np.all(np.isfinite(data["mean"])) and np.all(np.isfinite(data["m2"]))):
             raise StandardizerError(f"embedding statistics {path} contain non-finite values")
         self.mean = data["mean"].astype(np.float64)

@@ -7,7 +7,7 @@ so only those are scored (an index lvc -> nodes).  Score (Table 4.1):
 ``lv_factor * [lvc_m == lvc_n] + pc_factor * exp(-d^2 / (2 s^2))`` with d the wrap-aware
 distance between the pose-cell centroids in lattice cells, s = ``pc_proximity_sigma_cells``.
 A match scores >= ``match_threshold``; :func:`choose_match` picks the one that continues the
-confirmation chain (closest to the previous match, within ``loop_confirmation_gap``), else
+confirmation chain (closest to the previous match, within ``loops.confirmation_gap``), else
 the best score (ties: the oldest).  The rules in full: :mod:`services.expmap.graph`.
 """
 from __future__ import annotations

@@ -4,7 +4,7 @@ displacement a closure asks for (with the sonar sweep verification).
 :class:`LoopEdges` keeps the loop edges (m, n, weight, stamp) and the displacement
 ``p_n - p_m`` (m) each asks for, and answers route lengths: edges on the shortest route
 between two experiences over the odometry chain plus the loop edges (a loop edge counts 1),
-the unit of ``min_correction_route_len``.  :func:`loop_displacement` is the Delta p of a new
+the unit of ``corrections.min_route_len``.  :func:`loop_displacement` is the Delta p of a new
 loop edge (Eq. 4.20), or None when the two sonar sweeps contradict the recognition.
 """
 from __future__ import annotations
@@ -38,7 +38,7 @@ class EventResult:
     correction_norm: float = 0.0    # largest node displacement planned by this closure (m)
     step_max: float = 0.0           # largest node move in one relaxation iteration of this event (m)
     iterations: int = 0             # relaxation iterations run during this event
-    step_capped: bool = False       # max_correction_step limited an iteration
+    step_capped: bool = False       # corrections.max_step limited an iteration
     settled: bool = False           # a pending correction finished during this event
     session_started: bool = False   # this event's node is the first of a new session
     linked: bool = False            # this event linked its session to an older one
@@ -158,30 +158,30 @@ def loop_displacement(cfg: ExpMapConfig, d: np.ndarray, sweep_m: np.ndarray | No
     height difference (m); ``tallies``: registration outcomes counted here (``trusted``,
     ``partial``, ``untrusted``, ``no_sweep``).
 
-    With ``loop_scan_matching`` and both sweeps, they are registered
+    With ``loops.scan_matching`` and both sweeps, they are registered
     (:func:`services.expmap.scans.register_sweeps`): a trusted registration gives the
     horizontal displacement (along an ambiguous axis, e.g. along a straight tunnel, the map's
     current separation is kept) and the odometry gives the vertical one (pressure depth is
     absolute).  Otherwise the dissertation's rule: a recognised place is the same place, zero
-    displacement; with ``loop_place_radius_m`` r > 0 the edge keeps the current separation d
+    displacement; with ``loops.place_radius_m`` r > 0 the edge keeps the current separation d
     when |d| <= r and asks for d r / |d| beyond (pulls the two to r apart).  Geometric
-    verification (``scan_reject_inconsistent``): when both sweeps have enough echoes but fewer
-    than ``scan_min_inlier_fraction`` of them fit after the best alignment, the two
+    verification (``scan.reject_inconsistent``): when both sweeps have enough echoes but fewer
+    than ``scan.min_inlier_fraction`` of them fit after the best alignment, the two
     experiences do not see the same walls: None.  Sweeps without walls in range or ambiguous
     in every direction prove nothing and fall back to the rule above.
     """
     reg = None
-    if cfg.loop_scan_matching:
+    if cfg.loops.scan_matching:
         if sweep_m is None or sweep_n is None:
             tallies["no_sweep"] += 1
         else:
-            reg = register_sweeps(sweep_m, sweep_n, d[:2], cell_m=cfg.scan_cell_m,
-                                  search_radius_m=cfg.scan_search_radius_m,
-                                  max_rotation_deg=cfg.scan_max_rotation_deg,
-                                  rotation_step_deg=cfg.scan_rotation_step_deg, min_points=cfg.scan_min_points,
-                                  min_inlier_fraction=cfg.scan_min_inlier_fraction,
-                                  ambiguity_margin_m=cfg.scan_ambiguity_margin_m,
-                                  max_ambiguity_m=cfg.scan_max_ambiguity_m)
+            reg = register_sweeps(sweep_m, sweep_n, d[:2], cell_m=cfg.scan.cell_m,
+                                  search_radius_m=cfg.scan.search_radius_m,
+                                  max_rotation_deg=cfg.scan.max_rotation_deg,
+                                  rotation_step_deg=cfg.scan.rotation_step_deg, min_points=cfg.scan.min_points,
+                                  min_inlier_fraction=cfg.scan.min_inlier_fraction,
+                                  ambiguity_margin_m=cfg.scan.ambiguity_margin_m,
+                                  max_ambiguity_m=cfg.scan.max_ambiguity_m)
             if reg.trusted:
                 t = reg.translation.copy()
                 if reg.ambiguous_axis is not None:
@@ -192,9 +192,9 @@ def loop_displacement(cfg: ExpMapConfig, d: np.ndarray, sweep_m: np.ndarray | No
                     tallies["trusted"] += 1
                 return np.array([t[0], t[1], dz_odom]), reg
             tallies["untrusted"] += 1
-            if reg.inconsistent and cfg.scan_reject_inconsistent:
+            if reg.inconsistent and cfg.scan.reject_inconsistent:
                 return None, reg
-    r = float(cfg.loop_place_radius_m)
+    r = float(cfg.loops.place_radius_m)
     if r <= 0.0:
         return np.zeros(3), reg
     norm = float(np.sqrt(np.sum(d * d)))
@@ -208,9 +208,9 @@ def link_displacement(cfg: ExpMapConfig, sweep_m: np.ndarray | None, sweep_n: np
     confirmed match between two unlinked sessions; the displacement None unless verified.
 
     The frames of two unlinked sessions are unrelated, so the search is centred on "the same
-    place" (zero separation, grown by ``scan_search_radius_m``).  Verified: both sweeps, a
+    place" (zero separation, grown by ``scan.search_radius_m``).  Verified: both sweeps, a
     registration trusted along both axes (no ambiguous axis: a straight tunnel does not place
-    a session) with at least ``session_link_min_inliers`` inliers.  The reason when not:
+    a session) with at least ``sessions.link_min_inliers`` inliers.  The reason when not:
     ``no_sweep``, ``untrusted``, ``ambiguous`` or ``inliers``.  ``dz_odom``: the two
     experiences' odometry height difference (m; pressure depth is absolute in every session).
     The backfill of a made link (:mod:`services.expmap.session_link`) passes the two nodes'
@@ -220,17 +220,17 @@ def link_displacement(cfg: ExpMapConfig, sweep_m: np.ndarray | None, sweep_n: np
     if sweep_m is None or sweep_n is None:
         return None, None, "no_sweep"
     around = np.zeros(2) if separation is None else np.asarray(separation, np.float64)[:2]
-    radius = cfg.scan_search_radius_m if search_radius_m is None else search_radius_m
-    reg = register_sweeps(sweep_m, sweep_n, around, cell_m=cfg.scan_cell_m,
-                          search_radius_m=radius, max_rotation_deg=cfg.session_link_max_rotation_deg,
-                          rotation_step_deg=cfg.session_link_rotation_step_deg, min_points=cfg.scan_min_points,
-                          min_inlier_fraction=cfg.scan_min_inlier_fraction,
-                          ambiguity_margin_m=cfg.scan_ambiguity_margin_m, max_ambiguity_m=cfg.scan_max_ambiguity_m)
+    radius = cfg.scan.search_radius_m if search_radius_m is None else search_radius_m
+    reg = register_sweeps(sweep_m, sweep_n, around, cell_m=cfg.scan.cell_m,
+                          search_radius_m=radius, max_rotation_deg=cfg.sessions.link_max_rotation_deg,
+                          rotation_step_deg=cfg.sessions.link_rotation_step_deg, min_points=cfg.scan.min_points,
+                          min_inlier_fraction=cfg.scan.min_inlier_fraction,
+                          ambiguity_margin_m=cfg.scan.ambiguity_margin_m, max_ambiguity_m=cfg.scan.max_ambiguity_m)
     if not reg.trusted:
         return None, reg, "untrusted"
     if reg.ambiguous_axis is not None:
         return None, reg, "ambiguous"
-    if reg.inlier_fraction < cfg.session_link_min_inliers:
+    if reg.inlier_fraction < cfg.sessions.link_min_inliers:
         return None, reg, "inliers"
     t = reg.translation
     return np.array([float(t[0]), float(t[1]), dz_odom]), reg, ""

@@ -1,21 +1,21 @@
 """Experience map service node: ``experience_event`` -> ``map``, ``experience_image``,
 ``dead_reckoning`` (Section 4.2.4, Eqs. 4.20-4.21; audit contract of Fig. 4.1).
 
-Inputs, in priority order for equal stamps: the camera (``expmap.image_topic``; first, so
+Inputs, in priority order for equal stamps: the camera (``expmap.image.topic``; first, so
 the frame that produced an event is already buffered when the event is handled),
-``experience_event``, ``Odometry``.  Without ``publish_experience_image`` the camera is not
+``experience_event``, ``Odometry``.  Without ``image.publish_experience`` the camera is not
 subscribed.
 
 - Every valid event updates :class:`services.expmap.graph.ExperienceMap` (one node, maybe a
-  loop closure, ``relax_iterations_per_event`` relaxation iterations).  An event the graph
+  loop closure, ``corrections.iterations_per_event`` relaxation iterations).  An event the graph
   refuses (non-finite values) is logged with its seq, counted (``events_invalid``) and skipped.
 - ``experience_image``: the camera frame whose stamp is closest to the event's stamp, within
-  ``min(sync.sync_stale_sec, expmap.image_sync_slop)`` (ties: the earlier frame), published
+  ``min(sync.sync_stale_sec, expmap.image.sync_slop)`` (ties: the earlier frame), published
   with the event's header (seq, stamp, frame_id) and ``source_stamp`` = the frame's stamp.
   Inputs arrive in event-time order, so the candidates are the last frame at or before the
   event and the first frame after it: the decision waits until a frame later than the event
   arrives (or the inputs end) and no longer; meanwhile :meth:`output_watermark` holds the
-  outputs' promise at the oldest undecided event.  At most ``image_buffer_size`` events wait;
+  outputs' promise at the oldest undecided event.  At most ``image.buffer_size`` events wait;
   beyond that the oldest is decided with the frames seen so far (``image_wait_overflow``).
   No frame within the window: counted (``events_without_image``), nothing published.
   The rule is :class:`services.expmap.association.EventImageAssociator`.
@@ -32,20 +32,20 @@ subscribed.
   final map is the clamped least-squares map.
 - ``map_path``: the map is loaded at start when the file exists and saved at the end (after
   settling), to continue in a later mission with the same odometry frame; with
-  ``map_sessions`` (``poseidon run --map-dir``) the run begins a new session instead, in its
+  ``sessions.begin_on_load`` (``poseidon run --map-dir``) the run begins a new session instead, in its
   own odometry frame, linked to the loaded map by a verified recognition
   (:mod:`services.expmap.session_link`).
 - ``map_sessions`` (key): a map of more than one session (a continued map, or a kidnapped
-  vehicle with ``session_jump_m``) publishes, with every ``map``, a ``MapSessions`` with the
+  vehicle with ``sessions.jump_m``) publishes, with every ``map``, a ``MapSessions`` with the
   same stamp: the session of every node, how many nodes were loaded, the links made and the
   link candidates refused (per reason).
 
-- sonar (``expmap.scan_topic``, with ``loop_scan_matching``): every beam's wall echo becomes
+- sonar (``expmap.scan.topic``, with ``loops.scan_matching``): every beam's wall echo becomes
   a point in the dead-reckoning frame with the latest ``Odometry`` pose; each experience
   keeps the last full sweep, and a loop closure registers the two experiences' sweeps for
   the loop edge's displacement (:mod:`services.expmap.scans`).
 
-- range scans (``expmap.graph: scan_graph``, the laser preset): ``expmap.scan_topic`` carries
+- range scans (``expmap.graph: scan_graph``, the laser preset): ``expmap.scan.topic`` carries
   ``LaserScan``; each scan's returns (``scan_graph.min_range_m`` .. ``max_range_m``) become
   points in the dead-reckoning frame with the latest ``Odometry`` pose (after
   ``scan_graph.sensor_offset``, the sensor's pose on the robot), and an experience keeps
@@ -61,14 +61,14 @@ subscribed.
   counted ``visual_scale_implausible``) moved by more than ``update_step`` from the scale the
   map applies, the map's odometry edges of this run are rescaled to it
   (:meth:`ExperienceMap.set_odometry_scale`, a relaxation toward the new optimum); once more at
-  the end.  The camera is subscribed for it even with ``publish_experience_image`` off.
+  the end.  The camera is subscribed for it even with ``image.publish_experience`` off.
 
 Counters: ``events``, ``events_invalid``, ``loop_closures``, ``loop_rejected_interval``,
 ``loop_rejected_route``, ``loop_rejected_scan`` (the two sweeps do not fit),
 ``loop_scan_registered`` / ``loop_scan_untrusted`` (how closures got their displacement),
-``scan_beams_before_odometry`` (beams before the first pose, unused), ``odometry_without_attitude`` (a zero quaternion, not used for the sweep), ``corrections_clamped`` (a closure scaled to max_correction_norm),
+``scan_beams_before_odometry`` (beams before the first pose, unused), ``odometry_without_attitude`` (a zero quaternion, not used for the sweep), ``corrections_clamped`` (a closure scaled to corrections.max_norm),
 ``relaxation_iterations``, ``relaxation_steps_capped`` (iterations limited by
-max_correction_step), ``experience_images``, ``events_without_image``,
+corrections.max_step), ``experience_images``, ``events_without_image``,
 ``image_wait_overflow``, ``maps_published``, ``sessions_started``, ``session_links``, ``session_backfill_edges``,
 ``loop_rejected_link`` (a link candidate the sweeps did not verify); with the odometry scale
 ``odometry_scale_updates`` and ``visual_scale_<count>`` (frame pairs: ``pairs`` measured,
@@ -143,9 +143,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         """Input keys under ``config`` (the camera key is configurable, and optional)."""
         cfg = config
         vs = _visual_scale_on(cfg)
-        ins = ((cfg.image_topic,) if cfg.publish_experience_image or vs else ()) + ("experience_event", "Odometry")
-        if cfg.loop_scan_matching or cfg.graph == "scan_graph":
-            ins += (cfg.scan_topic,)
+        ins = ((cfg.image.topic,) if cfg.image.publish_experience or vs else ()) + ("experience_event", "Odometry")
+        if cfg.loops.scan_matching or cfg.graph == "scan_graph":
+            ins += (cfg.scan.topic,)
         if vs:
             ins += (cfg.visual_scale.dvl_topic,)
         return ins, cls.outputs
@@ -161,9 +161,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         and the heading's sign)."""
         super().__init__(config)
         self.cfg = cfg = config
-        self.image_key = cfg.image_topic
+        self.image_key = cfg.image.topic
         self.images: EventImageAssociator[Header, Image] = EventImageAssociator(
-            int(round(min(sync_stale_sec, cfg.image_sync_slop) * 1e9)), cfg.image_buffer_size)
+            int(round(min(sync_stale_sec, cfg.image.sync_slop) * 1e9)), cfg.image.buffer_size)
         shape, spacing = list(pose_cell_shape), list(pose_cell_spacing)
         self.map_path = Path(cfg.map_path) if cfg.map_path else None
         self.scan_graph = cfg.graph == "scan_graph"
@@ -178,7 +178,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         else:
             self.graph = ExperienceMap(cfg, shape, spacing)
         self.loaded_nodes = self.graph.n_nodes
-        if cfg.map_sessions and isinstance(self.graph, ExperienceMap) and self.graph.n_nodes:
+        if cfg.sessions.begin_on_load and isinstance(self.graph, ExperienceMap) and self.graph.n_nodes:
             self.graph.begin_session()
             log.info("expmap: this run begins session %d, unlinked to the %d loaded experiences",
                      int(self.graph.sessions.max()) + 1, self.graph.n_nodes)
@@ -188,14 +188,14 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self._since_map = 0
         self._map_owed = False     # a loop closure or a settled correction not in a published map yet
         self._dirty = False
-        self.scan_key = cfg.scan_topic if (cfg.loop_scan_matching or self.scan_graph) else None
+        self.scan_key = cfg.scan.topic if (cfg.loops.scan_matching or self.scan_graph) else None
         sg = cfg.scan_graph
         self.laser = LaserScans(sg.min_range_m, sg.max_range_m, sg.sensor_offset)
         if self.scan_key is not None and odometry_axis_remap[2] != "z":
-            raise ConfigError(f"expmap.loop_scan_matching needs a vertical published z axis, but "
+            raise ConfigError(f"expmap.loops.scan_matching needs a vertical published z axis, but "
                               f"robot_state.axis_remap={odometry_axis_remap!r}; set "
-                              "expmap.loop_scan_matching=false or keep z last")
-        self.sweeps = SweepBuffer(head_sign=odometry_axis_sign_z, sweep_deg=cfg.scan_sweep_deg)
+                              "expmap.loops.scan_matching=false or keep z last")
+        self.sweeps = SweepBuffer(head_sign=odometry_axis_sign_z, sweep_deg=cfg.scan.sweep_deg)
         self.visual: VisualScale | None = None
         if _visual_scale_on(cfg):
             if odometry_axis_remap[2] != "z":
@@ -291,7 +291,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         gap = self.graph.n_nodes // div if div else 0
         if (self._map_owed and self._since_map >= gap) or (every and self._since_map >= every):
             self._publish_map(ev.header.stamp)
-        if self.cfg.publish_experience_image:
+        if self.cfg.image.publish_experience:
             self._publish_images(self.images.on_event(ev.header))
 
     def _follow_scale(self) -> None:
@@ -336,7 +336,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             self._on_scan(beam)
             return
         c = self.cfg
-        rng = echo_range(beam.beam_data, float(beam.max_range), c.scan_min_range_m, c.scan_echo_threshold)
+        rng = echo_range(beam.beam_data, float(beam.max_range), c.scan.min_range_m, c.scan.echo_threshold)
         if not self.sweeps.add_beam(beam.angle_rad, rng):
             self.count("scan_beams_before_odometry")
 
@@ -354,7 +354,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         if self.visual is not None:
             d = img.data
             self.visual.add_frame(img.header.stamp, d[:, :, 1] if d.ndim == 3 else d)   # green: the clearest in water
-        if self.cfg.publish_experience_image:
+        if self.cfg.image.publish_experience:
             self._publish_images(self.images.on_frame(img))
 
     # ---- event-image association (services.expmap.association) ----------------------------

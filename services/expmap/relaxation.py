@@ -9,9 +9,9 @@ reduction); :func:`solve_optimum` solves the small reduced system over the junct
 (sparse LU, minimum-degree ordering) and places every segment's interior node by
 distributing the segment residual in proportion to 1/w (O(nodes), numba).
 
-Blend: :func:`plan_correction` caps the correction at ``max_correction_norm`` (scaled down
+Blend: :func:`plan_correction` caps the correction at ``corrections.max_norm`` (scaled down
 uniformly, keeping its shape); :func:`relax_fraction` advances the applied fraction phi of
-the pending correction so that no node moves more than ``max_correction_step`` per
+the pending correction so that no node moves more than ``corrections.max_step`` per
 iteration (positions = pos + phi * rem).  Positions in m.
 """
 from __future__ import annotations

@@ -13,24 +13,24 @@ experiences have a sweep and the registration is trustworthy, and falls back to 
 dissertation's zero displacement otherwise.
 
 - :func:`echo_range`: the range of a beam's wall echo = the strongest bin beyond
-  ``scan_min_range_m`` (the transducer ring-down) if its intensity reaches
-  ``scan_echo_threshold``, else no echo.
+  ``scan.min_range_m`` (the transducer ring-down) if its intensity reaches
+  ``scan.echo_threshold``, else no echo.
 - :class:`SweepBuffer`: beams become points in the dead-reckoning frame with the latest
   ``Odometry`` pose (the beam direction is the body-frame head angle turned by the
   published attitude); :meth:`SweepBuffer.sweep` returns the points of the last full turn
-  of the head (accumulated head travel >= ``scan_sweep_deg``), relative to a given position:
+  of the head (accumulated head travel >= ``scan.sweep_deg``), relative to a given position:
   an experience's sweep, motion-compensated by dead reckoning (locally accurate).
 - :func:`register_sweeps`: the translation t (and a small rotation) that lays the current
   sweep onto the stored one, by exhaustive search of the truncated chamfer cost
   ``mean_k min(dist(R q_k + t, ref), tau)`` on a distance transform of the stored sweep
-  (cell ``scan_cell_m``, tau = 5 cells), over a box covering both hypotheses (the places
-  coincide, and the map's current separation) grown by ``scan_search_radius_m``, then refined
+  (cell ``scan.cell_m``, tau = 5 cells), over a box covering both hypotheses (the places
+  coincide, and the map's current separation) grown by ``scan.search_radius_m``, then refined
   to a quarter cell.  t is p_n - p_m (the current experience seen from the stored one).
-  Trust: at least ``scan_min_points`` points in each sweep and ``scan_min_inlier_fraction`` of
+  Trust: at least ``scan.min_points`` points in each sweep and ``scan.min_inlier_fraction`` of
   the current points within 2 cells of a stored point after alignment.  Degenerate geometry (a
   straight tunnel constrains only across-track) shows as a valley of near-best costs: the
-  near-best translations (cost <= best + ``scan_ambiguity_margin_m``) have a spread; along a
-  principal axis whose spread (std) exceeds ``scan_max_ambiguity_m`` the registration says
+  near-best translations (cost <= best + ``scan.ambiguity_margin_m``) have a spread; along a
+  principal axis whose spread (std) exceeds ``scan.max_ambiguity_m`` the registration says
   nothing, and the loop edge keeps the map's current separation along that axis.  Both axes
   ambiguous: not trusted.  Too few inliers: ``inconsistent`` (the sweeps do not show the
   same walls), which the map uses to reject the loop closure (geometric verification).

@@ -4,7 +4,7 @@ The default (``htm`` section as shipped): the fused SDR is the descriptor of the
 (0.72) and the sequence memory; a spatial pooler (4096 columns, 800 active, potential pool over
 the whole input, inhibition on standardised overlaps, no boosting) feeds its 20 most strongly
 driven columns to a temporal memory whose correct predictions decide a revisit
-(:mod:`services.htm.tm_match`, share >= ``sv_tm_share``), before the sequence memory; every
+(:mod:`services.htm.tm_match`, share >= ``tm.decide_share``), before the sequence memory; every
 revisit claim must pass the dead-reckoning gate (:mod:`services.htm.geometry`), which lets the
 sequence memory decide at margin 0.75 / score 1.0.  Each chain below is the default with one
 part changed, so the rows say what each part adds:
@@ -22,7 +22,7 @@ part changed, so the rows say what each part adds:
   traversal's confident matches, margin 1.5; :mod:`services.htm.calibrate`); both let a sequence
   match override an Eq. 4.9 id the pass created in its last 50 frames.
 - ``new_places`` -- the default whose sequence memory and TM frame index keep only the frames that
-  are no revisit of an older place (``sv_seqmem_store``): the cost per frame then
+  are no revisit of an older place (``seqmem.store``): the cost per frame then
   grows with the places seen, not with the mission's length.
 
 ``chain_config(htm_cfg, name)`` returns the configured ``HtmConfig`` with the chain's overrides.
@@ -36,22 +36,23 @@ if TYPE_CHECKING:
 
 __all__ = ["CHAINS", "chain_config"]
 
-_SDR_SEQMEM: dict[str, Any] = {"sv_descriptor_source": "sdr", "sv_tm_decide": False, "sv_dr_gate": False,
-                               "sv_match_threshold": 0.72, "min_f1": 0.72, "sv_seq_match_threshold": 0.68,
-                               "sv_seqmem_margin": 1.75, "sv_seqmem_threshold": 1.5}
+_SDR_SEQMEM: dict[str, Any] = {"descriptor.source": "sdr", "tm.decide": False, "dr_gate.enabled": False,
+                               "lvc.match_threshold": 0.72, "lvc.min_f1": 0.72, "lvc.successor_threshold": 0.68,
+                               "seqmem.margin": 1.75, "seqmem.threshold": 1.5}
 
+#: chain name -> changes to the ``htm`` section (dotted field -> value)
 CHAINS: dict[str, dict[str, Any]] = {
     "sdr_seqmem": _SDR_SEQMEM,
-    "no_tm": {"sv_tm_decide": False},
-    "no_dr_gate": {"sv_dr_gate": False},
-    "no_seqmem": {"sv_seqmem_length": 0, "sv_dr_gate": False},
-    "sp_tm": {"sv_descriptor_source": "sp", "sv_match_threshold": 0.66, "min_f1": 0.66, "sv_seq_match_threshold": 0.62},
-    "sdr_seqmem_f1": {**_SDR_SEQMEM, "sv_seqmem_override": True, "sv_seqmem_margin": 1.25, "sv_seqmem_min_f1": 0.68,
-                      "sv_seqmem_f1_quantile": 0.0},
-    "sdr_seqmem_cal": {**_SDR_SEQMEM, "sv_seqmem_override": True, "sv_seqmem_margin": 1.5, "sv_seqmem_min_f1": 0.0,
-                       "sv_seqmem_f1_quantile": 0.2, "sv_seqmem_confident_margin": 1.75,
-                       "sv_seqmem_calib_warmup": 20},
-    "new_places": {"sv_seqmem_store": "new_places"},
+    "no_tm": {"tm.decide": False},
+    "no_dr_gate": {"dr_gate.enabled": False},
+    "no_seqmem": {"seqmem.length": 0, "dr_gate.enabled": False},
+    "sp_tm": {"descriptor.source": "sp", "lvc.match_threshold": 0.66, "lvc.min_f1": 0.66,
+              "lvc.successor_threshold": 0.62},
+    "sdr_seqmem_f1": {**_SDR_SEQMEM, "seqmem.override": True, "seqmem.margin": 1.25, "seqmem.min_f1": 0.68,
+                      "seqmem.f1_quantile": 0.0},
+    "sdr_seqmem_cal": {**_SDR_SEQMEM, "seqmem.override": True, "seqmem.margin": 1.5, "seqmem.min_f1": 0.0,
+                       "seqmem.f1_quantile": 0.2, "seqmem.confident_margin": 1.75, "seqmem.calib_warmup": 20},
+    "new_places": {"seqmem.store": "new_places"},
 }
 
 
@@ -59,4 +60,4 @@ def chain_config(htm_cfg: HtmConfig, name: str) -> HtmConfig:
     """``htm_cfg`` (an ``HtmConfig``) with the overrides of chain ``name``."""
     if name not in CHAINS:
         raise ValueError(f"unknown front-end chain {name!r}; known: {sorted(CHAINS)}")
-    return htm_cfg.model_copy(update=CHAINS[name])
+    return htm_cfg.updated(CHAINS[name])

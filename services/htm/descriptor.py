@@ -2,28 +2,28 @@
 
 Bit spaces (``n_bits``):
 
-- ``tm`` (default): with ``sv_tm_bits: cells`` TM *cell* indices, ``column * cellsPerColumn
+- ``tm`` (default): with ``descriptor.tm_bits: cells`` TM *cell* indices, ``column * cellsPerColumn
   + cell`` (81 920 bits at the dissertation's 2048 x 40), so the descriptor keeps the
   sequence context the TM encodes in which cell of a column wins (Fig. 4.3); with
-  ``sv_tm_bits: columns`` (default: measured better on revisits, whose context differs lap to
+  ``descriptor.tm_bits: columns`` (default: measured better on revisits, whose context differs lap to
   lap) the winners' columns (2048 bits): the same pooling, without the context.
-- ``sp``: SP active column indices (``sp_columns`` bits).
+- ``sp``: SP active column indices (``sp.columns`` bits).
 - ``sdr``: the raw fused SDR indices (``input_size`` = L bits).
 
 Pipeline of ``tm`` mode:
 
-1. temporal pooling: the winner cells of the last ``sv_tm_window`` steps are counted and the
-   ``sv_tm_topk`` most frequent kept -> A_t (Eq. 4.4). Ties in frequency are broken by a
+1. temporal pooling: the winner cells of the last ``descriptor.tm_window`` steps are counted and the
+   ``descriptor.tm_topk`` most frequent kept -> A_t (Eq. 4.4). Ties in frequency are broken by a
    seeded random rank of the bit (a min-hash order), so equal windows give equal A_t and
    similar windows give similar A_t, without favouring low indices;
-2. interval union (Eq. 4.5) when ``interval_mode``: the run continues (K_t = min(K_{t-1} + 1,
+2. interval union (Eq. 4.5) when ``descriptor.interval_mode``: the run continues (K_t = min(K_{t-1} + 1,
    theta_rho)) while |A_t & A_{t-1}| / |A_t| >= theta_alpha, else restarts (K_t = 1);
    D_t = A_t | ... | A_{t-K_t+1};
-3. cap: D_t keeps its ``max_bits`` (``sv_tm_topk`` when 0) best bits, ranked by how many of the
+3. cap: D_t keeps its ``descriptor.max_bits`` (``descriptor.tm_topk`` when 0) best bits, ranked by how many of the
    run's A sets hold the bit, then its window frequency, then the seeded rank.
 
 ``sp`` / ``sdr`` modes skip step 1 (A_t is the SP output or the fused SDR) and cap only when
-``max_bits`` > 0.
+``descriptor.max_bits`` > 0.
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ class DescriptorBuilder:
     def __init__(self, mode: str, n_bits: int, window: int, topk: int, interval_mode: bool,
                  theta_alpha: float, theta_rho: int, max_bits: int, seed: int):
         if mode not in ("tm", "sp", "sdr"):
-            raise ValueError(f"htm.sv_descriptor_source must be tm, sp or sdr, got {mode!r}")
+            raise ValueError(f"htm.descriptor.source must be tm, sp or sdr, got {mode!r}")
         self.mode = mode
         self.n_bits = int(n_bits)
         self.window = int(window) if mode == "tm" else 1

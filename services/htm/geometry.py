@@ -13,7 +13,7 @@ current frame t when
 ``r_min`` (m) is the scale of a place (the sensors' footprint: a revisit seen from further away
 is another view), ``drift`` (a fraction of the path) the dead reckoning's error growth, and
 ``s_min`` (m) says what a revisit is: the vehicle flew away and came back (a frame a few metres
-back along the path trivially looks alike and is no revisit).  Defaults (htm.sv_dr_gate_*):
+back along the path trivially looks alike and is no revisit).  Defaults (htm.dr_gate.*):
 r_min 2 m, drift 1 % of the path, s_min 10 m.  They were chosen on sim seeds 1234, 77 and
 2101-2105 (r_min 1.5 / 2 m x margin 0.75 / 1.0: 2 m, margin 0.75 kept the lowest seed's
 precision at 0.973) and are reported on seeds never used (README).  1 % is about ten times the
@@ -27,7 +27,7 @@ id carried on from the last metres is no revisit claim) or a prior id counts onl
 frames passes.  The best diagonal is still chosen over every stored frame, so a far-off
 look-alike keeps the margin low: a veto, not a selector (selecting among plausible frames made
 the margin test meaningless, precision 0.963 -> 0.92 on seed 77).  A sequence match the gate
-checked (both positions known) needs only ``sv_dr_gate_seqmem_threshold`` / ``_margin`` (1.0 /
+checked (both positions known) needs only ``dr_gate.seqmem_threshold`` / ``_margin`` (1.0 /
 0.75 against 1.5 / 1.75 on appearance alone): the far-off look-alikes the higher margin guarded
 against are gone.
 

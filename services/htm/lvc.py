@@ -2,7 +2,7 @@
 
 For the current descriptor D_t and every stored prototype D_l:
 I = |D_t & D_l| (Eq. 4.6), R = I / |D_t| (Eq. 4.7); l* = argmax R (Eq. 4.8), ties broken by
-the larger IoU = I / |D_t | D_l| (``sv_use_iou_tiebreak``), then the lowest id. l* is
+the larger IoU = I / |D_t | D_l| (``lvc.iou_tiebreak``), then the lowest id. l* is
 accepted iff I >= I_min and R >= tau_R (Eq. 4.9) and, with the F1 gate on,
 F1 = 2 I / (|D_t| + |D_l|) >= min_f1; otherwise a new id is created with prototype D_t
 (Eq. 4.10). Ids are 0, 1, 2, ... in creation order, so the first place seen is LVC 0.
@@ -52,7 +52,7 @@ class LvcResult:
     (:mod:`services.htm.sequence`): ``by_sequence`` when the id came from the sequence match,
     ``frame`` the stored frame (memory index) whose diagonal ended best, ``seq_score`` its
     score S* and ``seq_margin`` S* minus the best score ending elsewhere (z units; 0 when off).
-    With the TM decision (``sv_tm_decide``, :mod:`services.htm.tm_match`): ``by_tm`` when the id
+    With the TM decision (``tm.decide``, :mod:`services.htm.tm_match`): ``by_tm`` when the id
     came from the TM's predictions, ``tm_frame`` the stored frame j* they point at and ``tm_share``
     the fraction of the frame's active columns predicted in j*'s context.
     """
@@ -250,7 +250,7 @@ class LvcMatcher:
         """Match D_t (sorted unique bit indices) or create a new LVC (Eqs. 4.6-4.10).
 
         ``veto(l*)`` returning True rejects a candidate that passed Eq. 4.9 (used for the
-        per-modality validation of ``sv_require_multimodal``).
+        per-modality validation of ``lvc.require_multimodal``).
         """
         d = self._check(d)
         best, best_i = self.best(d)

@@ -1,6 +1,6 @@
-"""Per-modality prototypes of the LVCs for ``htm.sv_require_multimodal`` (Table 4.1): the camera
+"""Per-modality prototypes of the LVCs for ``htm.lvc.require_multimodal`` (Table 4.1): the camera
 (sonar) SDR of the frame that created each LVC, and the check that a match's frame overlaps it
-by R = |A & B| / |A| >= ``sv_min_img_score`` (``sv_min_sonar_score``) in every modality present
+by R = |A & B| / |A| >= ``lvc.min_camera_score`` (``lvc.min_sonar_score``) in every modality present
 on both sides (:mod:`services.htm.pipeline`)."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ __all__ = ["ModalityPrototypes"]
 
 
 class ModalityPrototypes:
-    """Per-modality SDRs of the frame that created each LVC (for ``sv_require_multimodal``)."""
+    """Per-modality SDRs of the frame that created each LVC (for ``lvc.require_multimodal``)."""
 
     def __init__(self, thresholds: dict[str, float]):
         self.thresholds = thresholds

@@ -5,15 +5,15 @@ and frame_id (never suppressed; gating happens downstream in the VPR Guard). Wit
 ``htm.state_path`` set, the SP/TM/LVC state is loaded at start when the file exists and
 saved when the inputs end and when the node closes.  A frame whose fused SDR has the wrong
 size is logged with its key and seq, counted (``sdr_wrong_size``) and skipped.  With
-``htm.sv_require_multimodal`` the per-modality SDRs of the frame validate each match.
+``htm.lvc.require_multimodal`` the per-modality SDRs of the frame validate each match.
 
-With ``htm.sv_dr_gate`` (the dead-reckoning gate, :mod:`services.htm.geometry`) the node also
+With ``htm.dr_gate.enabled`` (the dead-reckoning gate, :mod:`services.htm.geometry`) the node also
 subscribes to ``Odometry``, first in priority, so a frame is checked against the latest
 dead-reckoned position at or before its stamp (the posecells rule); a frame before any
 ``Odometry`` is not checked (``frames_without_odometry``), a non-finite position is logged,
 counted (``odometry_non_finite``) and skipped, and ``dr_gate_rejections`` counts the claims
 the gate turned down.  ``tm_segments_evicted`` counts the segments the temporal memory's
-synapse budget (``htm.tm_maxSynapses``) evicted.
+synapse budget (``htm.tm.max_synapses``) evicted.
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def warm_up_kernels(cfg: HtmConfig, places: int = 10) -> None:
     ``places`` synthetic places with positions, so the spatial pooler, the temporal memory, the
     LVC search and the sequence memory have each run and numba has compiled (or loaded) their
     kernels (the same argument types as the real core's)."""
-    core = NeocortexHtm(cfg.model_copy(update={"state_path": "", "sv_seqmem_exclude": 2}))
+    core = NeocortexHtm(cfg.updated({"state_path": "", "seqmem.exclude": 2}))
     rng = np.random.default_rng(0)
     k = max(1, cfg.input_size // 20)
     sdrs = [np.sort(rng.choice(cfg.input_size, k, replace=False)).astype(np.uint32) for _ in range(places)]
@@ -56,13 +56,13 @@ class HtmNode(ServiceNode[HtmConfig]):
 
     @classmethod
     def io_keys(cls, config: HtmConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """``Odometry`` first (the dead-reckoning gate's positions) when ``sv_dr_gate``, then the SDRs."""
-        gate = config.sv_dr_gate and config.sv_seqmem_length > 0
+        """``Odometry`` first (the dead-reckoning gate's positions) when ``dr_gate.enabled``, then the SDRs."""
+        gate = config.dr_gate.enabled and config.seqmem.length > 0
         return (("Odometry",) if gate else ()) + cls.inputs, cls.outputs
 
     def __init__(self, config: HtmConfig):
         super().__init__(config)
-        self.position: np.ndarray | None = None     # latest dead-reckoned position (sv_dr_gate)
+        self.position: np.ndarray | None = None     # latest dead-reckoned position (dr_gate.enabled)
         self.cfg = config
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         if self.state_path is not None and self.state_path.exists():

@@ -5,66 +5,66 @@
 ``describe(active)`` returns D_t only (e.g. to build a similarity matrix with
 :func:`descriptor_similarity`), ``step(active, store=False)`` matches without creating ids,
 ``reset_sequence()`` forgets the temporal context between two sequences.
-``sv_descriptor_source`` picks what D_t is built from: ``tm`` TM winner cells (default),
+``descriptor.source`` picks what D_t is built from: ``tm`` TM winner cells (default),
 ``sp`` SP active columns, ``sdr`` the fused SDR itself (SP/TM are then not run). In ``tm``
-mode ``sv_tm_bits`` chooses the bit space: ``cells`` (winner cell indices, the dissertation's
+mode ``descriptor.tm_bits`` chooses the bit space: ``cells`` (winner cell indices, the dissertation's
 reading) or ``columns`` (the winners' columns, default: the same pooling over the window,
 but a place seen in another temporal context keeps its bits).
-``sp_learn_steps`` N > 0 lets the SP learn (permanences, duty cycles, boost factors) during
+``sp.learn_steps`` N > 0 lets the SP learn (permanences, duty cycles, boost factors) during
 its first N learning steps only and then freezes it, so a place maps to the same columns for
 the rest of the mission (a continually learning SP moves the columns of places seen once and
 the stored prototypes stop matching); the TM keeps learning.
-``sv_require_multimodal`` (Table 4.1) adds a per-modality check to an accepted match: the
+``lvc.require_multimodal`` (Table 4.1) adds a per-modality check to an accepted match: the
 camera (sonar) SDR of the frame must overlap the camera (sonar) SDR of the frame that
-created the matched LVC by R = |A & B| / |A| >= ``sv_min_img_score`` (``sv_min_sonar_score``),
+created the matched LVC by R = |A & B| / |A| >= ``lvc.min_camera_score`` (``lvc.min_sonar_score``),
 for every modality present in both; otherwise Eq. 4.10 creates a new id.  A modality
 missing on either side is not checked.  Pass the per-modality SDRs to ``step`` as
 ``modalities={"camera": ..., "sonar": ...}``.
-Place-sequence prior (``sv_seq_match_threshold`` > 0, ours): the ids of consecutive
+Place-sequence prior (``lvc.successor_threshold`` > 0, ours): the ids of consecutive
 frames teach a successor graph (id a then id b != a: b is a successor of a).  When the best
-prototype l* fails Eq. 4.9, the prototypes up to ``sv_seq_hops`` successors ahead of the
-previous frame's id are tried with the gate ``sv_seq_match_threshold`` (on R and F1, with
+prototype l* fails Eq. 4.9, the prototypes up to ``lvc.successor_hops`` successors ahead of the
+previous frame's id are tried with the gate ``lvc.successor_threshold`` (on R and F1, with
 I >= I_min): a revisit that has locked onto an earlier stretch keeps following it through
 frames that alone would be too weak, as a sequence memory over places.  Query-only steps
 (``store=False``) use the graph without adding to it.
-Sequence memory (``sv_seqmem_length`` K > 0, ours; :mod:`services.htm.sequence`):
+Sequence memory (``seqmem.length`` K > 0, ours; :mod:`services.htm.sequence`):
 every frame's D_t is kept with the id it was given, and each frame scores the SeqSLAM-like
 diagonals of its last K frames against that memory (causal).  The decision of a frame is:
 l* when it passes Eq. 4.9 (+ F1 gate); else the id of the stored frame j* where the best
-diagonal ends, when its score S* >= ``sv_seqmem_threshold`` and S* minus the best score
-ending more than K frames away >= ``sv_seqmem_margin`` (so a revisit whose frames each look
+diagonal ends, when its score S* >= ``seqmem.threshold`` and S* minus the best score
+ending more than K frames away >= ``seqmem.margin`` (so a revisit whose frames each look
 different -- Nordland winter vs summer -- is recognised by their order); else the
 place-sequence prior; else Eq. 4.10.  ``LvcResult.by_sequence/frame/seq_score/seq_margin``
-report it.  ``sv_seqmem_store`` ``new_places`` (or ``every_frame`` once the memory holds
-``sv_seqmem_every_frame_limit`` frames) keeps a revisit of a place older than the last ``sv_seqmem_exclude``
+report it.  ``seqmem.store`` ``new_places`` (or ``every_frame`` once the memory holds
+``seqmem.every_frame_limit`` frames) keeps a revisit of a place older than the last ``seqmem.exclude``
 frames out of the memory and the TM frame index (``frames_not_stored``): they grow with the places seen.
-TM decision (``sv_tm_decide``, ours; :mod:`services.htm.tm_match`): with
-``sv_descriptor_source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm_input_columns`` most
+TM decision (``tm.decide``, ours; :mod:`services.htm.tm_match`): with
+``descriptor.source`` ``sp`` (or ``sdr``) the SP and a TM over the ``tm.input_columns`` most
 strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
 vote for the stored frames where they won, and when the best frame's votes are >=
-``sv_tm_share`` of the TM's columns its id is taken (after Eq. 4.9, before the sequence
-match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp_overlap_norm_steps`` N > 0 makes the SP
+``tm.decide_share`` of the TM's columns its id is taken (after Eq. 4.9, before the sequence
+match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp.overlap_norm_steps`` N > 0 makes the SP
 rank standardised overlaps (:mod:`services.htm.spatial_pooler`).  The named chains that use
 them are in :mod:`services.htm.chains`.
 Sequence-match checks (ours; off by default, used by the ``sdr_seqmem_f1`` /
-``sdr_seqmem_cal`` chains): ``sv_seqmem_override`` -- an Eq. 4.9 match whose l* was created
-by a frame that is no sequence candidate (the current traversal's last ``sv_seqmem_exclude``
+``sdr_seqmem_cal`` chains): ``seqmem.override`` -- an Eq. 4.9 match whose l* was created
+by a frame that is no sequence candidate (the current traversal's last ``seqmem.exclude``
 frames: the pass's own new id, no revisit) yields to a sequence (or TM) decision, so a revisit
 the sequence memory recognises a few frames late takes over the new ids its first frames made;
-``sv_seqmem_min_f1`` -- the sequence match (the margin gate above, which replaces nothing of
+``seqmem.min_f1`` -- the sequence match (the margin gate above, which replaces nothing of
 Eqs. 4.6-4.10) also needs the frame's own F1(D_t, D_j*) (the F1 of the Eq. 4.9 gate, at the
-stored frame j* where the diagonal ends) >= a constant; ``sv_seqmem_f1_quantile`` q > 0 -- the
+stored frame j* where the diagonal ends) >= a constant; ``seqmem.f1_quantile`` q > 0 -- the
 self-calibrated form: F1(D_t, D_j*) >= the q-quantile of F1(D_t', D_j*') over the traversal's
-*confident* sequence matches t' so far (margin >= ``sv_seqmem_confident_margin``; until
-``sv_seqmem_calib_warmup`` of them the confident margin is required instead), read from the
+*confident* sequence matches t' so far (margin >= ``seqmem.confident_margin``; until
+``seqmem.calib_warmup`` of them the confident margin is required instead), read from the
 traversal itself (:mod:`services.htm.calibrate`): a level shift of every F1 moves the threshold
 with it.  The calibration sample restarts with ``reset_sequence()`` and is saved with the state.
-``sp_enable: false`` feeds the fused SDR straight to the TM as its active columns (needs
-``sp_columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
+``sp.enabled: false`` feeds the fused SDR straight to the TM as its active columns (needs
+``sp.columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
 continues exactly as the saved one would have, but for the dead-reckoning gate's stored
 positions, which a loaded map forgets (they are in the earlier run's odometry frame).
-Dead-reckoning gate (``sv_dr_gate``, ours): every revisit claim (l*, TM, sequence,
+Dead-reckoning gate (``dr_gate.enabled``, ours): every revisit claim (l*, TM, sequence,
 prior) must pass Eq. G.1 with the frame's position passed to ``step``; a sequence match it
 checked decides at ``sv_dr_gate_seqmem_*``. How and why: :mod:`services.htm.geometry`.
 """
@@ -78,6 +78,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from common.config import RENAMED_KEYS
 from services.htm.calibrate import RunningQuantile
 from services.htm.config import HtmConfig
 from services.htm.descriptor import DescriptorBuilder
@@ -94,9 +95,9 @@ __all__ = ["NeocortexHtm", "LvcResult", "descriptor_similarity"]
 STATE_VERSION = 1
 T = TypeVar("T")
 # configuration fields that change the shape or meaning of the saved state
-_STRUCTURAL = ("input_size", "sp_enable", "sv_tm_decide", "sp_columns", "sp_potentialRadius", "sp_potentialPct", "sp_overlap_norm_steps",
-               "tm_cellsPerColumn", "tm_maxSynapsesPerSegment", "sv_descriptor_source",
-               "sv_tm_window", "sv_tm_bits", "theta_rho", "seed")
+_STRUCTURAL = ("input_size", "sp.enabled", "tm.decide", "sp.columns", "sp.potential_radius", "sp.potential_pct",
+               "sp.overlap_norm_steps", "tm.cells_per_column", "tm.max_synapses_per_segment", "descriptor.source",
+               "descriptor.tm_window", "descriptor.tm_bits", "descriptor.theta_rho", "seed")
 
 
 def _need(part: T | None, what: str) -> T:
@@ -116,41 +117,41 @@ class NeocortexHtm:
 
     def __init__(self, cfg: HtmConfig):
         self.cfg = cfg
-        self.mode = cfg.sv_descriptor_source
-        self.tm_decides = self.mode in ("sp", "sdr") and cfg.sv_tm_decide and cfg.sp_enable
-        run_sp = cfg.sp_enable and (self.mode in ("tm", "sp") or self.tm_decides)
+        self.mode = cfg.descriptor.source
+        self.tm_decides = self.mode in ("sp", "sdr") and cfg.tm.decide and cfg.sp.enabled
+        run_sp = cfg.sp.enabled and (self.mode in ("tm", "sp") or self.tm_decides)
         run_tm = self.mode == "tm" or self.tm_decides
-        if self.mode == "sp" and not cfg.sp_enable:
-            raise ValueError("htm.sv_descriptor_source 'sp' needs htm.sp_enable true")
-        if run_tm and not cfg.sp_enable and cfg.sp_columns != cfg.input_size:
-            raise ValueError(f"htm.sp_enable false feeds the SDR to the TM: htm.sp_columns ({cfg.sp_columns}) "
+        if self.mode == "sp" and not cfg.sp.enabled:
+            raise ValueError("htm.descriptor.source 'sp' needs htm.sp.enabled true")
+        if run_tm and not cfg.sp.enabled and cfg.sp.columns != cfg.input_size:
+            raise ValueError(f"htm.sp.enabled false feeds the SDR to the TM: htm.sp.columns ({cfg.sp.columns}) "
                              f"must equal htm.input_size ({cfg.input_size})")
         self.sp = SpatialPooler(
-            cfg.input_size, cfg.sp_columns, cfg.sp_numActiveColumns, cfg.sp_potentialRadius,
-            cfg.sp_potentialPct, cfg.sp_synPermActiveInc, cfg.sp_synPermInactiveDec,
-            cfg.sp_synPermConnected, cfg.sp_boostStrength, cfg.sp_dutyCyclePeriod,
-            cfg.sp_minPctOverlapDutyCycle, cfg.seed, cfg.sp_overlap_norm_steps) if run_sp else None
+            cfg.input_size, cfg.sp.columns, cfg.sp.num_active_columns, cfg.sp.potential_radius,
+            cfg.sp.potential_pct, cfg.sp.syn_perm_active_inc, cfg.sp.syn_perm_inactive_dec,
+            cfg.sp.syn_perm_connected, cfg.sp.boost_strength, cfg.sp.duty_cycle_period,
+            cfg.sp.min_pct_overlap_duty_cycle, cfg.seed, cfg.sp.overlap_norm_steps) if run_sp else None
         self.tm = TemporalMemory(
-            cfg.sp_columns, cfg.tm_cellsPerColumn, cfg.tm_activationThreshold, cfg.tm_minThreshold,
-            cfg.tm_initialPermanence, cfg.tm_connectedPermanence, cfg.tm_permanenceIncrement,
-            cfg.tm_permanenceDecrement, cfg.tm_predictedSegmentDecrement, cfg.tm_maxNewSynapseCount,
-            cfg.tm_maxSegmentsPerCell, cfg.tm_maxSynapsesPerSegment, cfg.seed + 1, cfg.tm_maxSynapses) if run_tm else None
-        self.tm_columns = cfg.sv_tm_bits == "columns"
-        n_tm_bits = cfg.sp_columns if self.tm_columns else cfg.sp_columns * cfg.tm_cellsPerColumn
-        n_bits = {"tm": n_tm_bits, "sp": cfg.sp_columns, "sdr": cfg.input_size}[self.mode]
-        self.descriptor = DescriptorBuilder(self.mode, n_bits, cfg.sv_tm_window, cfg.sv_tm_topk,
-                                            cfg.interval_mode, cfg.theta_alpha, cfg.theta_rho,
-                                            cfg.max_bits, cfg.seed + 2)
-        tau_r = cfg.sv_tm_match_threshold if self.mode == "tm" else cfg.sv_match_threshold
-        self.lvc = LvcMatcher(n_bits, cfg.sv_min_intersection, tau_r, cfg.sv_enable_f1_gate,
-                              cfg.min_f1, cfg.sv_use_iou_tiebreak)
-        self.multimodal = ModalityPrototypes({"camera": cfg.sv_min_img_score, "sonar": cfg.sv_min_sonar_score}) \
-            if cfg.sv_require_multimodal else None
-        self.seqmem = SequenceMatcher(n_bits, cfg.sv_seqmem_length, cfg.sv_seqmem_velocities, cfg.sv_seqmem_exclude,
-                                      cfg.sv_seqmem_column_norm) if cfg.sv_seqmem_length > 0 else None
-        self.tm_index = TmFrameIndex(cfg.sp_columns * cfg.tm_cellsPerColumn) if self.tm_decides else None
-        self.dr_gate = DeadReckoningGate(cfg.sv_dr_gate_min_m, cfg.sv_dr_gate_drift, cfg.sv_dr_gate_jump_m,
-                                         cfg.sv_dr_gate_min_path_m) if cfg.sv_dr_gate and self.seqmem is not None else None
+            cfg.sp.columns, cfg.tm.cells_per_column, cfg.tm.activation_threshold, cfg.tm.min_threshold,
+            cfg.tm.initial_permanence, cfg.tm.connected_permanence, cfg.tm.permanence_increment,
+            cfg.tm.permanence_decrement, cfg.tm.predicted_segment_decrement, cfg.tm.max_new_synapse_count,
+            cfg.tm.max_segments_per_cell, cfg.tm.max_synapses_per_segment, cfg.seed + 1, cfg.tm.max_synapses) if run_tm else None
+        self.tm_columns = cfg.descriptor.tm_bits == "columns"
+        n_tm_bits = cfg.sp.columns if self.tm_columns else cfg.sp.columns * cfg.tm.cells_per_column
+        n_bits = {"tm": n_tm_bits, "sp": cfg.sp.columns, "sdr": cfg.input_size}[self.mode]
+        self.descriptor = DescriptorBuilder(self.mode, n_bits, cfg.descriptor.tm_window, cfg.descriptor.tm_topk,
+                                            cfg.descriptor.interval_mode, cfg.descriptor.theta_alpha, cfg.descriptor.theta_rho,
+                                            cfg.descriptor.max_bits, cfg.seed + 2)
+        tau_r = cfg.lvc.tm_match_threshold if self.mode == "tm" else cfg.lvc.match_threshold
+        self.lvc = LvcMatcher(n_bits, cfg.lvc.min_intersection, tau_r, cfg.lvc.f1_gate,
+                              cfg.lvc.min_f1, cfg.lvc.iou_tiebreak)
+        self.multimodal = ModalityPrototypes({"camera": cfg.lvc.min_camera_score, "sonar": cfg.lvc.min_sonar_score}) \
+            if cfg.lvc.require_multimodal else None
+        self.seqmem = SequenceMatcher(n_bits, cfg.seqmem.length, cfg.seqmem.velocities, cfg.seqmem.exclude,
+                                      cfg.seqmem.column_norm) if cfg.seqmem.length > 0 else None
+        self.tm_index = TmFrameIndex(cfg.sp.columns * cfg.tm.cells_per_column) if self.tm_decides else None
+        self.dr_gate = DeadReckoningGate(cfg.dr_gate.min_m, cfg.dr_gate.drift, cfg.dr_gate.jump_m,
+                                         cfg.dr_gate.min_path_m) if cfg.dr_gate.enabled and self.seqmem is not None else None
         self.dr_rejections = 0               # claims the dead-reckoning gate turned down (gate / TM / prior)
         self.frames_not_stored = 0           # revisit frames sv_seqmem_store new_places kept out of the memory
         self.id_last_frame: dict[int, int] = {}   # LVC id -> its latest frame in the sequence memory
@@ -159,7 +160,7 @@ class NeocortexHtm:
         self.last_tm_hits = np.zeros(0, np.int64)
         self.last_tm_columns = 0
         self.steps = 0
-        self.seq_calib = RunningQuantile(cfg.sv_seqmem_calib_warmup)  # own F1 of the confident sequence matches
+        self.seq_calib = RunningQuantile(cfg.seqmem.calib_warmup)  # own F1 of the confident sequence matches
         self.lvc_birth: list[int] = []       # memory index of the frame that created each LVC (with the sequence memory)
         self.successors: dict[int, set[int]] = {}
         self.last_id = -1
@@ -169,16 +170,16 @@ class NeocortexHtm:
 
     # ---- the optional parts, for the code paths that need them ----------------------
     def _need_sp(self) -> SpatialPooler:
-        return _need(self.sp, "runs no spatial pooler (htm.sp_enable)")
+        return _need(self.sp, "runs no spatial pooler (htm.sp.enabled)")
 
     def _need_tm(self) -> TemporalMemory:
-        return _need(self.tm, "runs no temporal memory (htm.sv_descriptor_source / htm.sv_tm_decide)")
+        return _need(self.tm, "runs no temporal memory (htm.descriptor.source / htm.tm.decide)")
 
     def _need_tm_index(self) -> TmFrameIndex:
-        return _need(self.tm_index, "keeps no TM frame index (htm.sv_tm_decide)")
+        return _need(self.tm_index, "keeps no TM frame index (htm.tm.decide)")
 
     def _need_seqmem(self) -> SequenceMatcher:
-        return _need(self.seqmem, "has no sequence memory (htm.sv_seqmem_length)")
+        return _need(self.seqmem, "has no sequence memory (htm.seqmem.length)")
 
     @property
     def n_bits(self) -> int:
@@ -206,8 +207,8 @@ class NeocortexHtm:
         if self.mode == "sdr" and not self.tm_decides:
             return a, 0.0
         if self.sp is not None:
-            sp_learn = learn and (self.cfg.sp_learn_steps == 0 or self.sp.iteration_learn < self.cfg.sp_learn_steps
-                                  or self.cfg.sp_overlap_norm_steps > 0)
+            sp_learn = learn and (self.cfg.sp.learn_steps == 0 or self.sp.iteration_learn < self.cfg.sp.learn_steps
+                                  or self.cfg.sp.overlap_norm_steps > 0)
             cols = self.sp.compute(a, sp_learn)
         else:
             cols = a.astype(np.int32)
@@ -230,8 +231,8 @@ class NeocortexHtm:
         return winners, float(tm.anomaly)
 
     def _tm_input(self, cols: np.ndarray) -> np.ndarray:
-        """The ``tm_input_columns`` most strongly driven active columns (all when 0), sorted."""
-        k = self.cfg.tm_input_columns
+        """The ``tm.input_columns`` most strongly driven active columns (all when 0), sorted."""
+        k = self.cfg.tm.input_columns
         if k <= 0 or cols.size <= k:
             return cols
         sp = self._need_sp()
@@ -254,8 +255,8 @@ class NeocortexHtm:
              position: np.ndarray | list[float] | None = None) -> LvcResult:
         """One frame: fused SDR indices -> LVC id, R, is_new, I (Eqs. 4.3-4.10).  ``store`` False only
         queries (evaluation against a fixed reference map): the id is the accepted l* or -1, no
-        prototype is created.  ``modalities`` (per-modality SDR indices): with ``sv_require_multimodal``
-        only; ``position`` (the frame's dead-reckoned position, m; None: unknown): ``sv_dr_gate`` only."""
+        prototype is created.  ``modalities`` (per-modality SDR indices): with ``lvc.require_multimodal``
+        only; ``position`` (the frame's dead-reckoned position, m; None: unknown): ``dr_gate.enabled`` only."""
         d = self.describe(active, learn)
         anomaly = self.last_anomaly if self.tm is not None else 0.0
         self.steps += 1
@@ -266,17 +267,17 @@ class NeocortexHtm:
         seq = self.seqmem.score(d) if self.seqmem is not None else None
         tmv = self._tm_vote() if self.tm_index is not None else None
         res = self._decide(d, veto, seq, store, tmv)
-        if self.cfg.sv_seqmem_f1_quantile > 0 and seq is not None and seq.frame >= 0 \
-                and seq.score >= self.cfg.sv_seqmem_threshold \
-                and seq.score - seq.second >= self.cfg.sv_seqmem_confident_margin:
+        if self.cfg.seqmem.f1_quantile > 0 and seq is not None and seq.frame >= 0 \
+                and seq.score >= self.cfg.seqmem.threshold \
+                and seq.score - seq.second >= self.cfg.seqmem.confident_margin:
             self.seq_calib.add(seq.f1)
         if store:
             if mm is not None and res.is_new:
                 mm.store(res.lvc_id, modalities)
             if self.last_id >= 0 and res.lvc_id != self.last_id:
                 self.successors.setdefault(self.last_id, set()).add(res.lvc_id)
-            lim, held = self.cfg.sv_seqmem_every_frame_limit, len(self.frame_ids if self.seqmem is None else self.seqmem)
-            keep = (self.cfg.sv_seqmem_store == "every_frame" and not 0 < lim <= held) or res.is_new or self._recent(res.lvc_id)
+            lim, held = self.cfg.seqmem.every_frame_limit, len(self.frame_ids if self.seqmem is None else self.seqmem)
+            keep = (self.cfg.seqmem.store == "every_frame" and not 0 < lim <= held) or res.is_new or self._recent(res.lvc_id)
             self.frames_not_stored += not keep
             if self.seqmem is not None and keep:
                 if res.is_new:
@@ -292,9 +293,9 @@ class NeocortexHtm:
 
     def _tm_vote(self) -> tuple[int, float]:
         """(stored frame j*, share) the TM's correctly predicted cells point at (:mod:`services.htm.tm_match`);
-        candidates are the stored frames but the last ``sv_seqmem_exclude`` of the current traversal."""
+        candidates are the stored frames but the last ``seqmem.exclude`` of the current traversal."""
         idx = self._need_tm_index()
-        nc = max(min(self.tm_traversal_start, idx.size), idx.size - self.cfg.sv_seqmem_exclude, 0)
+        nc = max(min(self.tm_traversal_start, idx.size), idx.size - self.cfg.seqmem.exclude, 0)
         j, votes = idx.vote(self.last_tm_hits, nc)
         return j, votes / max(self.last_tm_columns, 1)
 
@@ -311,9 +312,9 @@ class NeocortexHtm:
             extra.update(tm_frame=tmv[0], tm_share=tmv[1])
         gate = best >= 0 and self.lvc.accepts(i, n, self.lvc.prototype_size(best)) and not (veto and veto(best)) \
             and self._plausible_id(best, revisit=False)
-        if gate and not (self.cfg.sv_seqmem_override and self._recent(best)):
+        if gate and not (self.cfg.seqmem.override and self._recent(best)):
             return LvcResult(best, rate, False, i, best, rate, i, n, **extra)
-        if tmv is not None and tmv[0] >= 0 and tmv[1] >= self.cfg.sv_tm_share and self._plausible_frame(tmv[0]):
+        if tmv is not None and tmv[0] >= 0 and tmv[1] >= self.cfg.tm.decide_share and self._plausible_frame(tmv[0]):
             lid = self.frame_ids[tmv[0]]
             if lid >= 0 and not (veto and veto(lid)):
                 it = int(np.intersect1d(d, self.lvc.prototype(lid), assume_unique=True).size)
@@ -323,7 +324,7 @@ class NeocortexHtm:
             return LvcResult(sm[0], sm[1], False, sm[2], best, rate, i, n, by_sequence=True, **extra)
         if gate:
             return LvcResult(best, rate, False, i, best, rate, i, n, **extra)
-        if self.cfg.sv_seq_match_threshold > 0:
+        if self.cfg.lvc.successor_threshold > 0:
             pm = self._predicted_match(d, veto)
             if pm is not None:
                 return LvcResult(pm[0], pm[1], False, pm[2], best, rate, i, n, by_prior=True, **extra)
@@ -359,7 +360,7 @@ class NeocortexHtm:
 
     def _recent(self, lvc_id: int) -> bool:
         """True when LVC ``lvc_id`` was created by a frame that is no sequence candidate (stored in the
-        last ``sv_seqmem_exclude`` steps of the current traversal): its match is no revisit."""
+        last ``seqmem.exclude`` steps of the current traversal): its match is no revisit."""
         return self.seqmem is not None and 0 <= lvc_id < len(self.lvc_birth) \
             and self.lvc_birth[lvc_id] >= self.seqmem.candidates()
 
@@ -369,14 +370,14 @@ class NeocortexHtm:
         if seq is None or seq.frame < 0:
             return None
         checked = self.dr_gate is not None and self.dr_gate.checks(seq.frame)
-        threshold = cfg.sv_dr_gate_seqmem_threshold if checked else cfg.sv_seqmem_threshold
-        margin = cfg.sv_dr_gate_seqmem_margin if checked else cfg.sv_seqmem_margin
-        if seq.score < threshold or seq.score - seq.second < margin or seq.f1 < cfg.sv_seqmem_min_f1:
+        threshold = cfg.dr_gate.seqmem_threshold if checked else cfg.seqmem.threshold
+        margin = cfg.dr_gate.seqmem_margin if checked else cfg.seqmem.margin
+        if seq.score < threshold or seq.score - seq.second < margin or seq.f1 < cfg.seqmem.min_f1:
             return None
-        if cfg.sv_seqmem_f1_quantile > 0:
-            q = self.seq_calib.quantile(cfg.sv_seqmem_f1_quantile)
+        if cfg.seqmem.f1_quantile > 0:
+            q = self.seq_calib.quantile(cfg.seqmem.f1_quantile)
             if q is None:       # calibration not yet warm: the margin alone, at the confident level
-                if seq.score - seq.second < cfg.sv_seqmem_confident_margin:
+                if seq.score - seq.second < cfg.seqmem.confident_margin:
                     return None
             elif seq.f1 < q:
                 return None
@@ -387,12 +388,12 @@ class NeocortexHtm:
         return lid, (i / d.size if d.size else 0.0), i
 
     def predicted_ids(self) -> list[int]:
-        """LVC ids 1 .. ``sv_seq_hops`` successor steps ahead of the previous frame's id (sorted)."""
+        """LVC ids 1 .. ``lvc.successor_hops`` successor steps ahead of the previous frame's id (sorted)."""
         if self.last_id < 0:
             return []
         frontier: set[int] = {self.last_id}
         seen: set[int] = set()
-        for _ in range(self.cfg.sv_seq_hops):
+        for _ in range(self.cfg.lvc.successor_hops):
             frontier = {b for a in frontier for b in self.successors.get(a, ())} - seen - {self.last_id}
             seen |= frontier
         return sorted(seen)
@@ -400,14 +401,14 @@ class NeocortexHtm:
     def _predicted_match(self, d: np.ndarray, veto: Callable[[int], bool] | None) -> tuple[int, float, int] | None:
         """(id, R, I) of the best predicted prototype passing the sequence gate, or None."""
         n = d.size
-        g = self.cfg.sv_seq_match_threshold
+        g = self.cfg.lvc.successor_threshold
         best = None
         for lid in self.predicted_ids():
             if not self._plausible_id(lid):
                 continue
             proto = self.lvc.prototype(lid)
             i = int(np.intersect1d(d, proto, assume_unique=True).size)
-            if n == 0 or i < self.cfg.sv_min_intersection or i / n < g or 2.0 * i / (n + proto.size) < g:
+            if n == 0 or i < self.cfg.lvc.min_intersection or i / n < g or 2.0 * i / (n + proto.size) < g:
                 continue
             if (best is None or i > best[2]) and not (veto and veto(lid)):
                 best = (lid, i / n, i)
@@ -443,7 +444,7 @@ class NeocortexHtm:
         arrays["tmidx.frame_ids"] = np.array(self.frame_ids, np.int64)
         arrays["tmidx.traversal_start"] = np.array([self.tm_traversal_start], np.int64)
         meta = {"version": STATE_VERSION, "steps": self.steps, "frames_not_stored": self.frames_not_stored,
-                "config": {k: getattr(self.cfg, k) for k in _STRUCTURAL}}
+                "config": {k: self.cfg.get(k) for k in _STRUCTURAL}}
         arrays["meta_json"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
@@ -471,8 +472,9 @@ class NeocortexHtm:
         if meta.get("version") != STATE_VERSION:
             raise ValueError(f"{path}: HTM state version {meta.get('version')}, expected {STATE_VERSION}")
         for k, v in meta["config"].items():
-            if getattr(self.cfg, k) != v:
-                raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {getattr(self.cfg, k)!r}")
+            k = RENAMED_KEYS.get(f"htm.{k}", f"htm.{k}").removeprefix("htm.")   # a state file of an older version
+            if self.cfg.get(k) != v:
+                raise ValueError(f"{path}: saved with htm.{k}={v!r}, configuration has {self.cfg.get(k)!r}")
         for prefix, part in (("sp", self.sp), ("tm", self.tm), ("desc", self.descriptor), ("lvc", self.lvc),
                              ("mm", self.multimodal), ("seqmem", self.seqmem), ("tmidx", self.tm_index),
                              ("seqcalib", self.seq_calib), ("drgate", self.dr_gate)):

@@ -225,7 +225,7 @@ def _unique_bits(d: np.ndarray) -> I64:
 class BitPostings:
     """Inverted index of the memory: per descriptor bit, the stored frames holding it (ascending).
 
-    For sparse descriptors (the ``tm`` source: ``sv_tm_topk`` 15 of 2048 column bits) the F1
+    For sparse descriptors (the ``tm`` source: ``descriptor.tm_topk`` 15 of 2048 column bits) the F1
     row of step 1 from the query's posting lists touches ~|D_t| x (frames per bit) entries
     instead of every stored frame's packed words: same values, a fraction of the memory
     traffic on a memory of hours (docs/DECISIONS.md, "HTM cost per frame").  The default ``sdr``

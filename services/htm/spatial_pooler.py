@@ -144,7 +144,7 @@ class SpatialPooler:
                  syn_perm_connected: float, boost_strength: float, duty_cycle_period: int,
                  min_pct_overlap_duty_cycle: float, seed: int, overlap_norm_steps: int = 0):
         if num_active > columns:
-            raise ValueError(f"sp_numActiveColumns ({num_active}) exceeds sp_columns ({columns})")
+            raise ValueError(f"htm.sp.num_active_columns ({num_active}) exceeds htm.sp.columns ({columns})")
         self.input_size = int(input_size)
         self.columns = int(columns)
         self.num_active = int(num_active)

@@ -15,7 +15,9 @@ __all__ = ["PlayerConfig"]
 
 
 class PlayerConfig(ConfigSection):
-    rate: float = Field(0.0, ge=0, description="replay speed: 1 = real time, N = N x, 0 = as fast as taken")
+    """Replay of a recording onto the bus (services/player)."""
+
+    rate: float = Field(0.0, ge=0, description="replay speed: 1 = real time, N = N x, 0 = as fast as taken [x real time]")
     keys: list[str] = Field(default_factory=list, description="keys to publish (empty: every key)")
     replay: Literal["all", "consumed"] = Field(
         "all", description="what a poseidon run replays from its input: all = every key of the recording (the "

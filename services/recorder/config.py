@@ -15,5 +15,7 @@ __all__ = ["RecorderConfig"]
 
 
 class RecorderConfig(ConfigSection):
-    chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size (bytes)")
-    compression: Literal["zstd", "lz4", "none"] = "zstd"
+    """The run's MCAP recording (services/recorder)."""
+
+    chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size [bytes]")
+    compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="compression of the MCAP chunks")

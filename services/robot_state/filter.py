@@ -22,12 +22,12 @@ an absolute position fix).
 State ``x`` (15; conventions in :mod:`common.geometry`): position NED ``p``
 (m), body-frame (FRD) velocity ``v`` (m/s), attitude ``e = (roll, pitch, yaw)`` (rad),
 ``b_imu`` (error of the IMU's reported yaw, prior 0: the IMU defines the initial heading;
-it grows at the rate ``d_imu`` plus a random walk ``imu_yaw_drift_sigma_deg_s``),
+it grows at the rate ``d_imu`` plus a random walk ``imu.yaw_drift_sigma_deg_s``),
 ``b_dvl`` (the DVL compass mounting offset, constant, prior std
-``dvl_heading_offset_sigma_deg``), gyro biases ``b_g`` (rad/s, prior std
-``gyro_bias_sigma_deg_s``, random walk ``gyro_bias_rw_deg_s``) and ``d_imu`` (rad/s, the
-drift rate of the IMU yaw error, prior std ``imu_yaw_drift_rate_sigma_deg_min``, random
-walk ``imu_yaw_drift_rate_rw_deg_min_s``).
+``dvl.heading_offset_sigma_deg``), gyro biases ``b_g`` (rad/s, prior std
+``imu.gyro_bias_sigma_deg_s``, random walk ``imu.gyro_bias_rw_deg_s``) and ``d_imu`` (rad/s, the
+drift rate of the IMU yaw error, prior std ``imu.yaw_drift_rate_sigma_deg_min``, random
+walk ``imu.yaw_drift_rate_rw_deg_min_s``).
 
 Why a drift *rate*: an AHRS yaw drifts steadily (its own gyro bias integrated);
 modelled as a zero-mean random walk only, the early part of the ramp was taken for the
@@ -41,28 +41,28 @@ moving forward, not along its old world direction.
 - **Prediction** (at every input's stamp, in event-time order; sub-steps <= 0.5 s while
   the gyro drives the attitude):
   ``p += R(e) v dt`` (Eqs. 3.10-3.11), ``e += E(e) (w - b_g) dt`` with the latest gyro rates ``w``
-  (zero-order hold) while the IMU is fresh (``imu_timeout_s``), ``v`` constant with a
+  (zero-order hold) while the IMU is fresh (``imu.timeout_s``), ``v`` constant with a
   random-walk ``process_accel_sigma``.  Covariance ``P = F P F' + Q`` with the analytic
   Jacobian, so heading uncertainty grows cross-track position uncertainty.
 - **DVL velocity update**: ``v_body = sign * R_bd velocityinst - w x r_d`` (extrinsic
-  rotation ``dvl_rotation_rpy_deg``, lever arm ``dvl_translation_m``, sign
-  ``dvl_velocity_sign``).  Records are rejected (and counted) when ``velocityinstflag != 1``
-  (``dvl_invalid_flag``), fewer than ``dvl_min_good_beams`` beams are good
+  rotation ``dvl.rotation_rpy_deg``, lever arm ``dvl.translation_m``, sign
+  ``dvl.velocity_sign``).  Records are rejected (and counted) when ``velocityinstflag != 1``
+  (``dvl_invalid_flag``), fewer than ``dvl.min_good_beams`` beams are good
   (``dvl_few_beams``), a value is NaN/inf (``dvl_nonfinite``), the speed exceeds
-  ``dvl_max_speed`` (``dvl_too_fast``), or (optional) the innovation fails a chi-square gate
+  ``dvl.max_speed`` (``dvl_too_fast``), or (optional) the innovation fails a chi-square gate
   (``dvl_outlier``; three in a row re-initialise the velocity, ``dvl_reinit``).
-- **Depth update**: ``z = depth + depth_offset_m`` observes ``p_z`` (sigma ``depth_sigma``).
+- **Depth update**: ``z = depth + depth.offset_m`` observes ``p_z`` (sigma ``depth.sigma``).
   z comes from pressure, never from integrated velocity: the vertical velocity only carries
-  z across the interval between two depth records (<= ``depth_timeout_s``); beyond that z
+  z across the interval between two depth records (<= ``depth.timeout_s``); beyond that z
   is held and its variance grows (``depth_dropout``).
-- **Attitude**: with an IMU, roll/pitch (``roll_pitch_sigma_deg``) and yaw + ``b_imu``
-  (``heading_sigma_deg``) are measurements and the gyro drives the prediction
-  (``gyro_sigma_deg_s``).  With ``dvl_heading_fusion`` the DVL compass heading is a second
-  yaw measurement (yaw + ``b_dvl``, ``dvl_heading_sigma_deg``): while the IMU yaw is still
+- **Attitude**: with an IMU, roll/pitch (``imu.roll_pitch_sigma_deg``) and yaw + ``b_imu``
+  (``imu.heading_sigma_deg``) are measurements and the gyro drives the prediction
+  (``imu.gyro_sigma_deg_s``).  With ``dvl.heading_fusion`` the DVL compass heading is a second
+  yaw measurement (yaw + ``b_dvl``, ``dvl.heading_sigma_deg``): while the IMU yaw is still
   good the compass offset is learned, later the drift-free compass holds the IMU's yaw
   drift in check (an AHRS yaw drifts; a magnetic compass does not, but sits at an
-  unknown offset).  Without a fresh IMU (none recorded, ``use_imu`` false, or older
-  than ``imu_timeout_s``) the DVL's roll/pitch/heading (degrees) are taken as the attitude
+  unknown offset).  Without a fresh IMU (none recorded, ``imu.enabled`` false, or older
+  than ``imu.timeout_s``) the DVL's roll/pitch/heading (degrees) are taken as the attitude
   (a reset, minus the learned compass offset: with no rate sensor there is nothing to
   blend them with).  Yaw innovations beyond ``heading_gate_chi2`` (1 dof): a compass
   heading is rejected (``dvl_heading_outlier``: magnetic disturbance); an IMU yaw resets the
@@ -77,14 +77,14 @@ moving forward, not along its old world direction.
   covariance update, which stays consistent for any gain): the DVL never moves the
   position, the depth never moves x/y.  The published dead reckoning therefore never
   jumps horizontally; the back-end differentiates it (Eq. 4.15).
-- **DVL dropout**: for ``dvl_timeout_s`` after the last valid record the velocity is held
+- **DVL dropout**: for ``dvl.timeout_s`` after the last valid record the velocity is held
   (variance growing with ``process_accel_sigma``); after that it decays towards zero
   (hovering) as a first-order Gauss-Markov process with time constant
-  ``dvl_dropout_decay_s`` (30 s: a cruising vehicle keeps its speed; with 5 s the filter
+  ``dvl.dropout_decay_s`` (30 s: a cruising vehicle keeps its speed; with 5 s the filter
   lost ~1% of the distance in the DVL's dropout bursts, which plain integration, holding
-  the last velocity, did not) and stationary std ``dropout_speed_sigma``.  A dropout of any
+  the last velocity, did not) and stationary std ``dvl.dropout_speed_sigma``.  A dropout of any
   length (a 30 s gap included) therefore moves the estimate by at most
-  ``|v| (dvl_timeout_s + dvl_dropout_decay_s)`` while the covariance keeps growing.
+  ``|v| (dvl.timeout_s + dvl.dropout_decay_s)`` while the covariance keeps growing.
 - **Time**: inputs are processed in event-time order; a record older than its own stream's
   previous one (stamp or seq going backwards) is rejected (``timestamp_backwards``); one
   older than the state time but in order on its stream is applied at the state time
@@ -172,28 +172,28 @@ class DeadReckoningFilter:
     """EKF dead reckoning from DVL, IMU and depth; see the module docstring."""
 
     def __init__(self, cfg: RobotStateConfig):
-        if cfg.dvl_velocity_sign not in (1.0, -1.0):
-            raise ValueError(f"robot_state.dvl_velocity_sign must be 1 or -1, got {cfg.dvl_velocity_sign}")
+        if cfg.dvl.velocity_sign not in (1.0, -1.0):
+            raise ValueError(f"robot_state.dvl.velocity_sign must be 1 or -1, got {cfg.dvl.velocity_sign}")
         self.cfg = cfg
-        self.r_bd = euler_to_matrix(*np.radians(cfg.dvl_rotation_rpy_deg))
-        self.r_bi = euler_to_matrix(*np.radians(cfg.imu_rotation_rpy_deg))
-        self.dvl_identity = not any(cfg.dvl_rotation_rpy_deg)
-        self.imu_identity = not any(cfg.imu_rotation_rpy_deg)
-        self.r_dvl = np.asarray(cfg.dvl_translation_m, dtype=float)
+        self.r_bd = euler_to_matrix(*np.radians(cfg.dvl.rotation_rpy_deg))
+        self.r_bi = euler_to_matrix(*np.radians(cfg.imu.rotation_rpy_deg))
+        self.dvl_identity = not any(cfg.dvl.rotation_rpy_deg)
+        self.imu_identity = not any(cfg.imu.rotation_rpy_deg)
+        self.r_dvl = np.asarray(cfg.dvl.translation_m, dtype=float)
         self.x = np.zeros(N_STATE)
-        fusion = cfg.dvl_heading_fusion
+        fusion = cfg.dvl.heading_fusion
         self.P = np.diag([0.0, 0.0, 1e4, 1e2, 1e2, 1e2, 1e2, 1e2, 1e2, 0.0,
-                          math.radians(cfg.dvl_heading_offset_sigma_deg) ** 2]
-                         + [math.radians(cfg.gyro_bias_sigma_deg_s) ** 2] * 3
-                         + [math.radians(cfg.imu_yaw_drift_rate_sigma_deg_min / 60.0) ** 2 if fusion else 0.0])
+                          math.radians(cfg.dvl.heading_offset_sigma_deg) ** 2]
+                         + [math.radians(cfg.imu.gyro_bias_sigma_deg_s) ** 2] * 3
+                         + [math.radians(cfg.imu.yaw_drift_rate_sigma_deg_min / 60.0) ** 2 if fusion else 0.0])
         self.t: int | None = None  # state time (ns)
         # process-noise variance rates (per s) of the prediction
-        self._q_rates = {"gyro": math.radians(cfg.gyro_sigma_deg_s) ** 2,
+        self._q_rates = {"gyro": math.radians(cfg.imu.gyro_sigma_deg_s) ** 2,
                          "attitude_rw": math.radians(cfg.attitude_rw_sigma_deg_s) ** 2,
-                         "imu_yaw": math.radians(cfg.imu_yaw_drift_sigma_deg_s) ** 2 if fusion else 0.0,
-                         "imu_yaw_rate": math.radians(cfg.imu_yaw_drift_rate_rw_deg_min_s / 60.0) ** 2
+                         "imu_yaw": math.radians(cfg.imu.yaw_drift_sigma_deg_s) ** 2 if fusion else 0.0,
+                         "imu_yaw_rate": math.radians(cfg.imu.yaw_drift_rate_rw_deg_min_s / 60.0) ** 2
                          if fusion else 0.0,
-                         "gyro_bias": math.radians(cfg.gyro_bias_rw_deg_s) ** 2}
+                         "gyro_bias": math.radians(cfg.imu.gyro_bias_rw_deg_s) ** 2}
         self.gyro = np.zeros(3)
         self.have_velocity = False
         self.have_attitude = False
@@ -223,14 +223,14 @@ class DeadReckoningFilter:
         return self.have_velocity and self.have_attitude
 
     def imu_fresh(self, t: int) -> bool:
-        return (self.cfg.use_imu and self.last_imu_t is not None
-                and t - self.last_imu_t <= self.cfg.imu_timeout_s * NS)
+        return (self.cfg.imu.enabled and self.last_imu_t is not None
+                and t - self.last_imu_t <= self.cfg.imu.timeout_s * NS)
 
     def dvl_fresh(self, t: int) -> bool:
-        return self.last_dvl_t is not None and t - self.last_dvl_t <= self.cfg.dvl_timeout_s * NS
+        return self.last_dvl_t is not None and t - self.last_dvl_t <= self.cfg.dvl.timeout_s * NS
 
     def depth_fresh(self, t: int) -> bool:
-        return self.last_depth_t is not None and t - self.last_depth_t <= self.cfg.depth_timeout_s * NS
+        return self.last_depth_t is not None and t - self.last_depth_t <= self.cfg.depth.timeout_s * NS
 
     def _admit(self, stream: str, stamp: int, seq: int) -> int | None:
         """Order checks of one record; returns the time to apply it at, or None (rejected)."""
@@ -256,8 +256,8 @@ class DeadReckoningFilter:
     # ------------------------------------------------------------------ prediction
     def _boundaries(self, t0: int, t1: int) -> list[int]:
         cuts = {t1}
-        for last, timeout in ((self.last_dvl_t, self.cfg.dvl_timeout_s), (self.last_imu_t, self.cfg.imu_timeout_s),
-                              (self.last_depth_t, self.cfg.depth_timeout_s)):
+        for last, timeout in ((self.last_dvl_t, self.cfg.dvl.timeout_s), (self.last_imu_t, self.cfg.imu.timeout_s),
+                              (self.last_depth_t, self.cfg.depth.timeout_s)):
             if last is not None:
                 b = last + int(round(timeout * NS)) + 1  # first instant at which the source is stale
                 if t0 < b < t1:
@@ -295,15 +295,15 @@ class DeadReckoningFilter:
             a, g = 1.0, dt
             qv = cfg.process_accel_sigma ** 2 * dt
         else:
-            tau = cfg.dvl_dropout_decay_s
+            tau = cfg.dvl.dropout_decay_s
             a = math.exp(-dt / tau)
             g = tau * (1.0 - a)
-            qv = cfg.dropout_speed_sigma ** 2 * (1.0 - a * a)
+            qv = cfg.dvl.dropout_speed_sigma ** 2 * (1.0 - a * a)
         integrate = self.initialised
         z_moves = integrate and self.depth_fresh(t0)
         q = self._q_rates
         q_att = (q["gyro"] if gyro_on else q["attitude_rw"]) * dt
-        q_z = cfg.dropout_speed_sigma ** 2 * dt * 1.0 if integrate and not z_moves else 0.0  # z held: 1 s correlation
+        q_z = cfg.dvl.dropout_speed_sigma ** 2 * dt * 1.0 if integrate and not z_moves else 0.0  # z held: 1 s correlation
         predict(self.x, self.P, self.gyro, dt, a, g, qv, gyro_on, integrate, z_moves, q_att, q_z,
                 q["imu_yaw"] * dt, q["imu_yaw_rate"] * dt, q["gyro_bias"] * dt)
 
@@ -369,7 +369,7 @@ class DeadReckoningFilter:
         H = np.zeros((1, N_STATE))
         H[0, 8] = H[0, B_DVL] = 1.0
         y = np.array([wrap_angle(heading - self.x[8] - self.x[B_DVL])])
-        r = np.array([[math.radians(self.cfg.dvl_heading_sigma_deg) ** 2]])
+        r = np.array([[math.radians(self.cfg.dvl.heading_sigma_deg) ** 2]])
         if self._yaw_gated(float(y[0]), float(H[0] @ self.P @ H[0]) + float(r[0, 0])):
             self.count("dvl_heading_outlier")
             return
@@ -383,7 +383,7 @@ class DeadReckoningFilter:
         if not _finite(*vals):
             self.count("imu_nonfinite")
             return False
-        if not self.cfg.use_imu:
+        if not self.cfg.imu.enabled:
             return False
         t = self._admit("imu", stamp, msg.header.seq)
         if t is None:
@@ -397,7 +397,7 @@ class DeadReckoningFilter:
         reset = self.attitude_source != "imu" or not self.imu_fresh(t)
         self.gyro = w
         self.last_imu_t = t
-        sig = np.radians([self.cfg.roll_pitch_sigma_deg, self.cfg.roll_pitch_sigma_deg, self.cfg.heading_sigma_deg])
+        sig = np.radians([self.cfg.imu.roll_pitch_sigma_deg, self.cfg.imu.roll_pitch_sigma_deg, self.cfg.imu.heading_sigma_deg])
         self._set_attitude(e, sig, reset=reset, bias=B_IMU)
         self.attitude_source = "imu"
         return True
@@ -410,8 +410,8 @@ class DeadReckoningFilter:
         t = self._admit("depth", msg.header.stamp, msg.header.seq)
         if t is None:
             return False
-        z = msg.depth + self.cfg.depth_offset_m
-        r = np.array([[self.cfg.depth_sigma ** 2]])
+        z = msg.depth + self.cfg.depth.offset_m
+        r = np.array([[self.cfg.depth.sigma ** 2]])
         if not self.have_depth or not self.depth_fresh(t):
             # first depth, or z was held without depth: pressure is absolute, take it
             if self.have_depth:
@@ -448,27 +448,27 @@ class DeadReckoningFilter:
                 self.count("dvl_attitude_zero")  # no compass: roll, pitch and heading exactly 0
                 e = np.zeros(3)
             if e is not None:
-                sig = np.radians([cfg.roll_pitch_sigma_deg, cfg.roll_pitch_sigma_deg, cfg.heading_sigma_deg])
+                sig = np.radians([cfg.imu.roll_pitch_sigma_deg, cfg.imu.roll_pitch_sigma_deg, cfg.imu.heading_sigma_deg])
                 self._set_attitude(e, sig, reset=True, bias=B_DVL)
                 self.attitude_source = "dvl"
             else:
                 self.count("dvl_attitude_nonfinite")
-        elif cfg.dvl_heading_fusion and e is not None and self.have_attitude:
+        elif cfg.dvl.heading_fusion and e is not None and self.have_attitude:
             self._fuse_dvl_heading(float(e[2]))
         if msg.velocityinstflag != 1:
             self.count("dvl_invalid_flag")
             return False
-        if sum(1 for g in msg.datagood if g == 1) < cfg.dvl_min_good_beams:
+        if sum(1 for g in msg.datagood if g == 1) < cfg.dvl.min_good_beams:
             self.count("dvl_few_beams")
             return False
         v_inst = np.asarray(vi, dtype=float)
-        if float(np.linalg.norm(v_inst)) > cfg.dvl_max_speed:
+        if float(np.linalg.norm(v_inst)) > cfg.dvl.max_speed:
             self.count("dvl_too_fast")
             return False
-        v_b = cfg.dvl_velocity_sign * (v_inst if self.dvl_identity else self.r_bd @ v_inst)
+        v_b = cfg.dvl.velocity_sign * (v_inst if self.dvl_identity else self.r_bd @ v_inst)
         w = self.gyro - self.x[11:14] if self.imu_fresh(t) else np.zeros(3)
         v_b = v_b - np.cross(w, self.r_dvl)
-        r = np.eye(3) * cfg.dvl_velocity_sigma ** 2
+        r = np.eye(3) * cfg.dvl.velocity_sigma ** 2
         if not self.have_velocity or not self.dvl_fresh(t):
             if self.have_velocity:
                 self.count("dvl_reacquired")
@@ -476,10 +476,10 @@ class DeadReckoningFilter:
             self.have_velocity = True
         else:
             y = v_b - self.x[3:6]
-            if cfg.dvl_gate_chi2 > 0:
+            if cfg.dvl.gate_chi2 > 0:
                 S = self.P[3:6, 3:6] + r
                 d2 = float(y @ np.linalg.solve(S, y))
-                if d2 > cfg.dvl_gate_chi2:
+                if d2 > cfg.dvl.gate_chi2:
                     self._gate_rejects += 1
                     if self._gate_rejects < _GATE_MAX_REJECTS:
                         self.count("dvl_outlier")
@@ -498,7 +498,7 @@ class DeadReckoningFilter:
     def flags(self, t: int) -> list[str]:
         """Status flags of the estimate at time ``t``."""
         out = []
-        if self.cfg.use_imu and not self.imu_fresh(t):
+        if self.cfg.imu.enabled and not self.imu_fresh(t):
             out.append("imu_absent")
         out.append(f"attitude_{self.attitude_source}")
         if self.attitude_source == "dvl" and self.dvl_attitude_zero:

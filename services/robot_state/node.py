@@ -1,7 +1,7 @@
 """``robot_state`` service: fused dead reckoning ``Odometry`` (dissertation Section 4.2.4).
 
-Inputs (priority order for equal stamps): the IMU (``imu_topic``, default
-``imu_adis_ros``; not subscribed when ``use_imu`` is false; first, so that a DVL record
+Inputs (priority order for equal stamps): the IMU (``imu.topic``, default
+``imu_adis_ros``; not subscribed when ``imu.enabled`` is false; first, so that a DVL record
 stamped like an IMU record sees its rates for the lever-arm term), ``dvl_linkquest``,
 ``depth_sensor`` and the recording's reference ``odometry``.  Outputs: ``Odometry`` and ``ground_truth``.
 
@@ -32,7 +32,8 @@ event counted since the previous output (``dvl_invalid_flag``, ``dvl_nonfinite``
 
 ``ground_truth`` relays each ``odometry`` message unchanged except its header seq.
 
-Fault injection (tests and evaluation only): with ``fault_jump_at_s`` > 0, every
+Fault injection (tests and evaluation only; ``debug.fault_jump_at_s`` and ``debug.fault_jump_m``,
+passed by the launcher as ``fault_jump_at_s`` / ``fault_jump_m``): with ``fault_jump_at_s`` > 0, every
 ``Odometry`` published that many seconds or more after the first one has ``fault_jump_m``
 (m, published frame) added to its position and ``fault_jump`` in its status (counted once,
 ``fault_jump``, and logged as a warning): a kidnapped vehicle, or a navigation reset.
@@ -47,6 +48,7 @@ quaternion is logged, counted (``wheel_odometry_invalid``) and skipped.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -99,18 +101,26 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
 
     @classmethod
     def io_keys(cls, config: RobotStateConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """Inputs under ``config``: the configured IMU key (none with ``use_imu`` false) first."""
+        """Inputs under ``config``: the configured IMU key (none with ``imu.enabled`` false) first."""
         cfg = config
         if cfg.source == "wheel_odometry":
             return ("wheel_odometry", "odometry"), cls.outputs
-        imu = (cfg.imu_topic,) if cfg.use_imu else ()
+        imu = (cfg.imu.topic,) if cfg.imu.enabled else ()
         return imu + ("dvl_linkquest", "depth_sensor", "odometry"), cls.outputs
 
-    def __init__(self, config: RobotStateConfig):
+    def __init__(self, config: RobotStateConfig, fault_jump_at_s: float = 0.0,
+                 fault_jump_m: Sequence[float] = (0.0, 0.0, 0.0)):
+        """:param config: the ``robot_state`` section.
+        :param fault_jump_at_s: fault injection (``debug.fault_jump_at_s``): the published position
+            jumps from this long after the first published Odometry on (s; 0: off).
+        :param fault_jump_m: the jump, x y z in the published frame (m; ``debug.fault_jump_m``).
+        """
         super().__init__(config)
         cfg = config
         self.cfg = cfg
-        self.imu_key = cfg.imu_topic
+        self.fault_jump_at_s = float(fault_jump_at_s)
+        self.fault_jump_m = [float(v) for v in fault_jump_m]
+        self.imu_key = cfg.imu.topic
         self.frame = OutputFrame(cfg.axis_remap, cfg.axis_sign_z)
         self.filter = DeadReckoningFilter(cfg)
         self.filter.counters = self.counters  # one set of counters for the run summary
@@ -120,7 +130,7 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
         self._last_input: int | None = None
         self._gap_from = 0  # outputs stamped strictly between these are bridged
         self._gap_until: int | None = None
-        self._gyro_sigma = float(np.radians(cfg.gyro_sigma_deg_s))
+        self._gyro_sigma = float(np.radians(cfg.imu.gyro_sigma_deg_s))
         self._first_pub: int | None = None   # stamp of the first published Odometry (fault injection clock)
         self._jumped = False
 
@@ -150,13 +160,13 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
                                          self._gyro_sigma)
             if self._first_pub is None:
                 self._first_pub = g
-            if self.cfg.fault_jump_at_s > 0 and g - self._first_pub >= self.cfg.fault_jump_at_s * NS:
+            if self.fault_jump_at_s > 0 and g - self._first_pub >= self.fault_jump_at_s * NS:
                 if not self._jumped:
                     log.warning("robot_state: FAULT INJECTION: published position jumps by %s m from stamp %d "
-                                "(robot_state.fault_jump_at_s)", self.cfg.fault_jump_m, g)
+                                "(debug.fault_jump_at_s)", self.fault_jump_m, g)
                     self._jumped = True
                     self.count("fault_jump")
-                out.position = [p + d for p, d in zip(out.position, self.cfg.fault_jump_m)]
+                out.position = [p + d for p, d in zip(out.position, self.fault_jump_m)]
                 out.status = out.status + ["fault_jump"]
             self.publish("Odometry", out)
             self._next_pub = g + self.period

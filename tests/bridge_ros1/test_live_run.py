@@ -1,7 +1,7 @@
 """``poseidon run --live ros1`` against a private ROS master: a bag played with ``rosbag play``
 goes through robot_state into a complete recording that ends on SIGINT, carries the latency
 summary, and replays through ``poseidon run --input`` to the same outputs; a service slowed on
-purpose (``live.slow_service``) drops its oldest queued inputs, counted, while the recording
+purpose (``debug.slow_service``) drops its oldest queued inputs, counted, while the recording
 stays complete.  Skips without ROS 1 or the bag."""
 import json
 import signal
@@ -98,8 +98,8 @@ def test_a_service_slowed_on_purpose_drops_its_oldest_inputs_counted_and_the_rec
     bag = require_bag()
     core = Roscore(tmp_path / "roshome")
     try:
-        _out, _cfg, result = _live_run(tmp_path, core, bag, "--set", "live.slow_service=robot_state",
-                                       "--set", "live.slow_ms=20", "--set", "live.queue_frames=20")
+        _out, _cfg, result = _live_run(tmp_path, core, bag, "--set", "debug.slow_service=robot_state",
+                                       "--set", "debug.slow_ms=20", "--set", "live.queue_frames=20")
     finally:
         core.stop()
     counts = result["recording"]["counts"]

@@ -164,9 +164,9 @@ def test_run_rejects_unreadable_input_and_bad_config(tmp_path):
     src = tmp_path / "small.mcap"
     six_stream_recording(src, 50)
     proc = subprocess.run([sys.executable, "-m", "launcher.cli", "run", "--input", str(src), "--out",
-                           str(tmp_path / "o.mcap"), "--set", "htm.sp_numActiveColumns=lots"],
+                           str(tmp_path / "o.mcap"), "--set", "htm.sp.num_active_columns=lots"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2 and "htm.sp_numActiveColumns" in proc.stderr
+    assert proc.returncode == 2 and "htm.sp.num_active_columns" in proc.stderr
 
 
 def test_heartbeat_watermarks_only_keys_that_were_silent():

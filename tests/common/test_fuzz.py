@@ -276,13 +276,13 @@ def weird_valid(draw, cls):
 def _service_config(tmp_path_factory) -> PoseidonConfig:
     from services.encoder.config import EncoderConfig
     tmp = tmp_path_factory.mktemp("fuzzsvc")
-    enc = {"lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256,
-           "pool_grid": 2, "sonar_polar_width": 32, "sonar_polar_height": 32, "torch_threads": 1}
+    enc = {"lsbh": {"matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy")}, "sp_columns": 256,
+           "pool_grid": 2, "sonar": {"polar_width": 32, "polar_height": 32}, "torch_threads": 1}
     if "untrained" in EncoderConfig.model_fields:  # a seeded network: fuzzing needs no weights file
         enc["untrained"] = True
     return PoseidonConfig.model_validate({
         "encoder": enc,
-        "htm": {"input_size": 64, "sp_columns": 128, "sp_numActiveColumns": 8, "sp_potentialRadius": 32}})
+        "htm": {"input_size": 64, "sp": {"columns": 128, "num_active_columns": 8, "potential_radius": 32}}})
 
 
 def _valid_inputs(key: str, cls: type) -> list[object]:

@@ -155,9 +155,7 @@ def test_hub_cache_is_used(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
 
 def test_encoder_embedding_dims_and_batching(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
-    cfg = EncoderConfig(lsbh_matrix_path=str(tmp_path / "p_{backbone}_{modality}.npy"), batch_max=3, pool_grid=2,
-                        torch_threads=1, embedding_norm_path=str(tmp_path / "n_{backbone}_{modality}.npz"),
-                        cnn_backbone="shufflenetv2", untrained=True)
+    cfg = EncoderConfig(batch_max=3, pool_grid=2, torch_threads=1, cnn_backbone="shufflenetv2", untrained=True, lsbh={"matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy")}, embedding_norm={"path": str(tmp_path / "n_{backbone}_{modality}.npz")})
     enc = MultimodalEncoder(cfg)
     rng = np.random.default_rng(0)
     imgs = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(5)]

@@ -16,7 +16,7 @@ NORDLAND = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "nor
 
 @pytest.fixture(scope="module")
 def pretrained() -> MultimodalEncoder:
-    return MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none"))
+    return MultimodalEncoder(EncoderConfig(lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
 
 
 def test_packaged_weights_load_strictly_into_the_plain_torch_definition() -> None:
@@ -40,7 +40,7 @@ def test_same_image_same_embedding_every_time(pretrained: MultimodalEncoder) -> 
     rng = np.random.default_rng(3)
     img = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
     a = pretrained.encode_camera([img])[0]
-    other = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none"))
+    other = MultimodalEncoder(EncoderConfig(lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     b = other.encode_camera([img])[0]
     assert a.shape == (112 * 16,) and np.array_equal(a, b)
     assert np.array_equal(pretrained.sdr("camera", a), other.sdr("camera", b))
@@ -66,7 +66,7 @@ def test_pretrained_features_separate_places_better_than_untrained(pretrained: M
         return [np.asarray(Image.open(NORDLAND / season / n).convert("RGB")) for n in names]
 
     summer, winter = load("summer"), load("winter")
-    untrained = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", untrained=True))
+    untrained = MultimodalEncoder(EncoderConfig(untrained=True, lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     acc = {}
     for name, enc in (("pretrained", pretrained), ("untrained", untrained)):
         acc[name] = _top1(np.stack(enc.encode_camera(summer)), np.stack(enc.encode_camera(winter)))

@@ -101,7 +101,7 @@ def test_projection_persisted_and_reloaded(tmp_path: Path) -> None:
     assert np.array_equal(load_or_create_projection(path, 30, 8, 42, "sonar"), p1)
     with pytest.raises(LsbhError, match=r"lsbh_shufflenetv2_sonar.npy has shape \(30, 8\).*\(31, 8\)"):
         load_or_create_projection(path, 31, 8, 42, "sonar")
-    with pytest.raises(LsbhError, match="lsbh_matrix_path"):
+    with pytest.raises(LsbhError, match="lsbh.matrix_path"):
         projection_path("state/{model}.npy", "a", "b")
 
 

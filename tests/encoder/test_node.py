@@ -22,8 +22,8 @@ S = 1_000_000_000
 def config(tmp_path_factory: pytest.TempPathFactory) -> PoseidonConfig:
     tmp = tmp_path_factory.mktemp("enc")
     return PoseidonConfig.model_validate({"encoder": {
-        "lsbh_matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 2,
-        "sonar_polar_width": 64, "sonar_polar_height": 64, "embedding_norm_path": "",
+        "lsbh": {"matrix_path": str(tmp / "lsbh_{backbone}_{modality}.npy")}, "sp_columns": 256, "pool_grid": 2,
+        "sonar": {"polar_width": 64, "polar_height": 64}, "embedding_norm": {"path": ""},
         "torch_threads": 1}})  # one thread: robust when the CI shares the cores
 
 
@@ -151,7 +151,7 @@ def test_single_modality_and_and_modes(config: PoseidonConfig, encoder: Multimod
 
 
 def test_sonar_topic_from_config(config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
-    cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_topic": "sonar_seaking"})})
+    cfg = config.model_copy(update={"encoder": config.encoder.updated({"sonar.topic": "sonar_seaking"})})
     node = build_node("encoder", cfg, encoder=encoder)
     assert node.inputs == ("camera/image_raw", "sonar_seaking")
     out = run_offline(node, [("sonar_seaking", ping(0.0, 0)), ("camera/image_raw", frame(0.1, 0))])
@@ -177,7 +177,7 @@ def test_warns_when_htm_map_persists_but_embedding_statistics_do_not(config: Pos
     cfg = config.model_copy(update={"htm": config.htm.model_copy(update={"state_path": "state/htm.npz"})})
     with caplog.at_level("WARNING", logger="services.encoder.node"):
         node = build_node("encoder", cfg, encoder=encoder)
-    assert node.counters["embedding_norm_not_persisted"] == 1 and "embedding_norm_path" in caplog.text
+    assert node.counters["embedding_norm_not_persisted"] == 1 and "embedding_norm.path" in caplog.text
     assert "embedding_norm_not_persisted" not in build_node("encoder", config, encoder=encoder).counters
 
 
@@ -191,7 +191,7 @@ def test_sonar_is_re_encoded_after_enough_sweep(config: PoseidonConfig, encoder:
     assert 8 <= enc <= 11
     sonar = [next(s.active for s in o.modalities if s.modality == "sonar") for o in with_sonar]
     assert sum(np.array_equal(a, b) for a, b in zip(sonar, sonar[1:])) >= node.counters["sonar_sdr_reused"]
-    every = config.model_copy(update={"encoder": config.encoder.model_copy(update={"sonar_encode_sweep_deg": 0.0})})
+    every = config.model_copy(update={"encoder": config.encoder.updated({"sonar.encode_sweep_deg": 0.0})})
     node0, out0 = run(every, encoder, duration=4.0)
     assert node0.counters["sonar_encodings"] == 19 and "sonar_sdr_reused" not in node0.counters
 
@@ -199,7 +199,7 @@ def test_sonar_is_re_encoded_after_enough_sweep(config: PoseidonConfig, encoder:
 def test_warm_up_hold_delays_the_first_outputs_then_matches_the_unheld_stream(
         config: PoseidonConfig, encoder: MultimodalEncoder) -> None:
     def drive(hold: int) -> tuple[list[tuple[int, int, int]], list[NeocortexSdr], EncoderNode]:
-        cfg = config.model_copy(update={"encoder": config.encoder.model_copy(update={"embedding_norm_hold": hold})})
+        cfg = config.model_copy(update={"encoder": config.encoder.updated({"embedding_norm.hold": hold})})
         node = build_node("encoder", cfg, encoder=MultimodalEncoder(cfg.encoder, backbone=encoder.backbone))
         assert isinstance(node, EncoderNode)
         msgs = sorted(stream(duration=4.0), key=lambda km: (km[1].header.stamp, km[0] != "camera/image_raw"))

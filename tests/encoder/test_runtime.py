@@ -47,14 +47,13 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def reference() -> MultimodalEncoder:
-    return MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime="torch"))
+    return MultimodalEncoder(EncoderConfig(runtime="torch", lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
 
 
 @pytest.mark.parametrize("runtime", EXPORTED)
 def test_runtime_gives_torchs_embedding_and_sdr(runtime: str, reference: MultimodalEncoder) -> None:
     _need(runtime)
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime,
-                                          precision="f32"))
+    enc = MultimodalEncoder(EncoderConfig(runtime=runtime, precision="f32", lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     assert enc.runtime == runtime and reference.runtime == "torch"
     imgs = _images()
     want, got = reference.embed(imgs), enc.embed(imgs)
@@ -72,7 +71,7 @@ def test_runtime_gives_torchs_embedding_and_sdr(runtime: str, reference: Multimo
 def test_runtime_changes_the_embedding_when_the_image_changes(runtime: str) -> None:
     """Not a constant: the exported graph runs on its input (a stale or zero graph would pass equality on one image)."""
     _need(runtime)
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime))
+    enc = MultimodalEncoder(EncoderConfig(runtime=runtime, lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     a, b = enc.embed(_images()[3:5])
     assert _rel(a, b) > 0.05
 
@@ -82,7 +81,8 @@ def test_runtime_changes_the_embedding_when_the_image_changes(runtime: str) -> N
                                            ("efficientnet_lite0", 128)])
 def test_other_backbones_and_sizes(runtime: str, backbone: str, size: int) -> None:
     _need(runtime)
-    cfg = dict(cnn_backbone=backbone, input_size=size, untrained=True, lsbh_matrix_path="", embedding_norm="none")
+    cfg = dict(cnn_backbone=backbone, input_size=size, untrained=True, lsbh={"matrix_path": ""},
+               embedding_norm={"mode": "none"})
     ref = MultimodalEncoder(EncoderConfig(**cfg, runtime="torch"))
     enc = MultimodalEncoder(EncoderConfig(**cfg, runtime=runtime, precision="f32"))
     imgs = _images()[::2]
@@ -97,8 +97,7 @@ def test_runtime_on_real_images(runtime: str, reference: MultimodalEncoder) -> N
     from PIL import Image
 
     _need(runtime)
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime=runtime,
-                                          precision="f32"))
+    enc = MultimodalEncoder(EncoderConfig(runtime=runtime, precision="f32", lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     names = sorted(p.name for p in (NORDLAND / "summer").glob("*.png"))[400:1000:60]
     imgs = [np.asarray(Image.open(NORDLAND / s / n).convert("RGB")) for n in names for s in ("summer", "winter")]
     for a, b in zip(enc.embed(imgs), reference.embed(imgs)):
@@ -110,7 +109,7 @@ def test_export_is_deterministic_and_one_image() -> None:
     pytest.importorskip("onnx", reason="onnx is not installed (pip install -e . installs it)")
     import onnx
 
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", runtime="torch"))
+    enc = MultimodalEncoder(EncoderConfig(runtime="torch", lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     data = export_onnx(enc.backbone, 160)
     assert data == export_onnx(enc.backbone, 160)
     graph = onnx.load_from_string(data).graph
@@ -123,7 +122,7 @@ def test_missing_runtime_package_is_a_clear_error(monkeypatch: pytest.MonkeyPatc
     for name in EXPORTED:
         monkeypatch.setitem(sys.modules, name, None)  # import fails as if not installed
         with pytest.raises(RuntimeUnavailable, match=f"encoder.runtime {name}.*not installed"):
-            MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", input_size=32, runtime=name))
+            MultimodalEncoder(EncoderConfig(input_size=32, runtime=name, lsbh={"matrix_path": ""}))
 
 
 def test_runtime_field_is_validated(tmp_path: Path) -> None:
@@ -138,7 +137,7 @@ def test_precision_field_is_validated_and_applies_to_openvino_only() -> None:
     assert load_config(overrides=["encoder.precision=f32"]).encoder.precision == "f32"
     with pytest.raises(ConfigError, match="encoder.precision"):
         load_config(overrides=["encoder.precision=int8"])
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", input_size=32, runtime="onnxruntime"))
+    enc = MultimodalEncoder(EncoderConfig(input_size=32, runtime="onnxruntime", lsbh={"matrix_path": ""}))
     assert enc.precision == "f32"  # bf16 (the default) does not apply to onnxruntime
     with pytest.raises(ValueError, match="bf16 runs on openvino only"):
         make_features(enc.backbone, "onnxruntime", 32, 1, "bf16")
@@ -148,9 +147,9 @@ def test_bf16_openvino_stays_close_to_torch(reference: MultimodalEncoder) -> Non
     """encoder.precision bf16: the plugin computes in bfloat16 where the CPU has it (else f32);
     either way the embedding stays within a few % of torch's and the SDR keeps most bits."""
     _need("openvino")
-    enc = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", precision="bf16"))
+    enc = MultimodalEncoder(EncoderConfig(precision="bf16", lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}))
     assert enc.runtime == "openvino" and enc.precision == "bf16"
-    torch_rt = MultimodalEncoder(EncoderConfig(lsbh_matrix_path="", embedding_norm="none", precision="bf16"),
+    torch_rt = MultimodalEncoder(EncoderConfig(precision="bf16", lsbh={"matrix_path": ""}, embedding_norm={"mode": "none"}),
                                  runtime="torch")
     assert torch_rt.precision == "f32"  # a runtime override away from openvino runs f32
     import openvino as ov

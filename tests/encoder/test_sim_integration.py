@@ -24,11 +24,11 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_sim_mission_every_frame_encoded_and_ros_form_identical(recording: Path, tmp_path: Path) -> None:
-    base = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "pool_grid": 2, "torch_threads": 1}
+    base = {"lsbh": {"matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy")}, "pool_grid": 2, "torch_threads": 1}
     outs: dict[str, list[Any]] = {}
     encoder = None
     for topic in ("sonar_micron", "sonar_micron_ros"):
-        cfg = PoseidonConfig.model_validate({"encoder": {**base, "sonar_topic": topic}})
+        cfg = PoseidonConfig.model_validate({"encoder": {**base, "sonar": {"topic": topic}}})
         # a fresh encoder per run (the running embedding statistics are state), sharing the backbone
         encoder = MultimodalEncoder(cfg.encoder, backbone=encoder.backbone if encoder else None)
         msgs = [(m.key, m.message()) for m in read_messages(recording, keys=["camera/image_raw", topic])]

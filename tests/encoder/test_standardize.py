@@ -113,7 +113,7 @@ def test_statistics_persist_and_reload(tmp_path: Path) -> None:
         EmbeddingStandardizer(100, "running", path=path)
     with pytest.raises(StandardizerError, match="fixed needs fitted statistics"):
         EmbeddingStandardizer(D, "fixed", path=tmp_path / "absent.npz")
-    with pytest.raises(StandardizerError, match="embedding_norm_warmup"):
+    with pytest.raises(StandardizerError, match="embedding_norm.warmup"):
         EmbeddingStandardizer(D, "running", warmup=0)
     with pytest.raises(StandardizerError, match="expects 256"):
         a.transform(np.zeros(3))
@@ -125,9 +125,9 @@ def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
     from services.encoder.encoder import MultimodalEncoder
     from system.config import PoseidonConfig
 
-    enc = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 1,
-           "torch_threads": 1, "embedding_norm_warmup": 100,
-           "embedding_norm_path": str(tmp_path / "n_{backbone}_{modality}.npz")}
+    enc = {"lsbh": {"matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy")}, "sp_columns": 256, "pool_grid": 1,
+           "torch_threads": 1,
+           "embedding_norm": {"warmup": 100, "path": str(tmp_path / "n_{backbone}_{modality}.npz")}}
     cfg = PoseidonConfig.model_validate({"encoder": enc})
     rng = np.random.default_rng(0)
     msgs = [("camera/image_raw", Image(header=Header(seq=i, stamp=i * 200_000_000, frame_id="cam"), height=16,
@@ -138,16 +138,16 @@ def test_encoder_node_saves_statistics_on_finish(tmp_path: Path) -> None:
     assert len(out) == 4
     st = EmbeddingStandardizer(112, "running", warmup=100, path=tmp_path / "n_efficientnet_lite0_camera.npz")
     assert st.count == 4 and not st.frozen  # mid warm-up state saved at the end, continued next time
-    assert EncoderConfig().embedding_norm == "running" and EncoderConfig().torch_threads == 1
+    assert EncoderConfig().embedding_norm.mode == "running" and EncoderConfig().torch_threads == 1
 
 
 def test_standardize_sequence_gives_the_held_frames_the_statistics_of_the_hold(tmp_path: Path) -> None:
     from services.encoder.encoder import MultimodalEncoder
 
-    base = {"lsbh_matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy"), "sp_columns": 256, "pool_grid": 1,
-            "torch_threads": 1, "embedding_norm_warmup": 20}
-    held = MultimodalEncoder(EncoderConfig.model_validate({**base, "embedding_norm_hold": 4}))
-    plain = MultimodalEncoder(EncoderConfig.model_validate({**base, "embedding_norm_hold": 0}),
+    base = {"lsbh": {"matrix_path": str(tmp_path / "p_{backbone}_{modality}.npy")}, "sp_columns": 256, "pool_grid": 1,
+            "torch_threads": 1}
+    held = MultimodalEncoder(EncoderConfig.model_validate({**base, "embedding_norm": {"warmup": 20, "hold": 4}}))
+    plain = MultimodalEncoder(EncoderConfig.model_validate({**base, "embedding_norm": {"warmup": 20, "hold": 0}}),
                               backbone=held.backbone)
     y = np.random.default_rng(3).random((8, held.dim)) + 5.0
     zh = held.standardize_sequence("camera", list(y))
@@ -164,7 +164,7 @@ def test_standardize_sequence_gives_the_held_frames_the_statistics_of_the_hold(t
 def test_the_hold_ends_inside_the_replay_flow_window() -> None:
     from system.config import PoseidonConfig
 
-    cfg = PoseidonConfig.model_validate({"encoder": {"lsbh_matrix_path": "", "embedding_norm_hold_max_s": 5.0,
+    cfg = PoseidonConfig.model_validate({"encoder": {"lsbh": {"matrix_path": ""}, "embedding_norm": {"hold_max_s": 5.0},
                                                      "pool_grid": 1, "sp_columns": 256}})
     node = build_node("encoder", cfg)
     assert node.core.hold == 10 and node.core.hold_max_ns == 2_000_000_000   # 3 s window - 1 s

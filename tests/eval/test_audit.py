@@ -38,7 +38,7 @@ def run_path(tmp_path_factory):
 
 def test_audit_hand_made_run(run_path):
     a = audit_run(run_path)
-    assert a["slop_s"] == 0.75  # expmap.image_sync_slop of the recorded configuration
+    assert a["slop_s"] == 0.75  # expmap.image.sync_slop of the recorded configuration
     # 20 events; images for all but event 5, event 7's is 1 s late, one orphan image
     assert (a["events"], a["images"], a["associated"]) == (20, 20, 18)
     assert (a["precision"], a["recall"], a["f1"]) == (0.9, 0.9, 0.9)

@@ -96,5 +96,5 @@ def test_deadreckon_bad_inputs_exit_2(tmp_path, capsys):
     bad.write_text("a,b\n1,2\n")
     assert main([str(rec), "--cones", str(bad)]) == 2
     assert "bad.csv" in capsys.readouterr().err
-    assert main([str(rec), "--set", "robot_state.dvl_max_speed=-1"]) == 2
-    assert "dvl_max_speed" in capsys.readouterr().err
+    assert main([str(rec), "--set", "robot_state.dvl.max_speed=-1"]) == 2
+    assert "robot_state.dvl.max_speed" in capsys.readouterr().err

@@ -71,17 +71,17 @@ def test_main_synthetic_json(tmp_path, capsys):
     _write_seq(tmp_path / "ref", list(range(6)), names)
     _write_seq(tmp_path / "query", list(range(6)), names)  # identical images: cosine finds each one
     common = ["--ref", str(tmp_path / "ref"), "--query", str(tmp_path / "query"), "--json",
-              "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+              "--set", f"encoder.lsbh.matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
               "--set", "encoder.torch_threads=1"]
     # fixed: statistics fitted on the reference set, written with --save-norm
-    assert main(common + ["--set", "encoder.embedding_norm=fixed", "--no-htm",
+    assert main(common + ["--set", "encoder.embedding_norm.mode=fixed", "--no-htm",
                           "--save-norm", str(tmp_path / "norm.npz")]) == 0
     fixed = json.loads(capsys.readouterr().out)
     assert fixed["embedding_norm"] == "fixed" and (tmp_path / "norm.npz").exists()
     assert fixed["matchers"]["lsbh_overlap"]["auc"] == pytest.approx(1.0)
     assert fixed["matchers"]["cnn_cosine_standardized"]["auc"] == pytest.approx(1.0)
     assert fixed["sdr_overlap"]["same_place"] == 1.0 and fixed["sdr_overlap"]["different_place"] < 0.5
-    rc = main(common + ["--set", "encoder.embedding_norm=none", "--set", "encoder.untrained=true"])
+    rc = main(common + ["--set", "encoder.embedding_norm.mode=none", "--set", "encoder.untrained=true"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_ref"] == out["n_query"] == 6 and out["weights"] == "seeded"
@@ -123,7 +123,7 @@ def test_main_on_nordland_frames(tmp_path, capsys):
         pytest.skip(f"Nordland data not found under {DATA / 'nordland_trimmed'}")
     rc = main(["--ref", str(summer), "--query", str(winter), "--limit", "12", "--tolerance", "1", "--json",
                "--backbone", "alexnet_conv3", "--set", "encoder.untrained=true",
-               "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+               "--set", f"encoder.lsbh.matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
                "--set", "encoder.torch_threads=1"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
@@ -159,8 +159,8 @@ def short_mission(tmp_path_factory):
 
 def test_main_mission_json(short_mission, tmp_path, capsys):
     args = ["--mission", str(short_mission), "--json", "--set", "encoder.pool_grid=1",
-            "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
-            "--set", "encoder.embedding_norm_warmup=20"]
+            "--set", f"encoder.lsbh.matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy",
+            "--set", "encoder.embedding_norm.warmup=20"]
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_frames"] == 119 and out["n_revisit_frames"] > 10 and out["min_gap_m"] == 10.0
@@ -204,7 +204,7 @@ def test_main_mission_transformed_recording(short_mission, tmp_path, capsys):
     out = tmp_path / "t.mcap"
     transform(short_mission, out, [(0.0, 10.0), (10.0, 30.0), (30.0, 35.0), (35.0, 50.0), (50.0, 55.0)], seed=1)
     assert main(["--mission", str(out), "--json", "--no-htm", "--set", "encoder.pool_grid=1",
-                 "--set", f"encoder.lsbh_matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy"]) == 0
+                 "--set", f"encoder.lsbh.matrix_path={tmp_path}/p_{{backbone}}_{{modality}}.npy"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["min_gap_m"] == 10.0 and res["n_revisit_frames"] > 20 and "htm_lvc" not in res["matchers"]
     # copies of a loop are the same place: the raw LSBH overlap finds many of them

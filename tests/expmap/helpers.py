@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -57,8 +57,8 @@ def loop_laps(laps: int, per_lap: int = 300, radius: float = 20.0,
     return events, np.array(truth)
 
 
-def small_cfg(**kw: Any) -> ExpMapConfig:
-    base: dict[str, Any] = dict(min_experience_age=20, loop_confirmations=2, min_correction_route_len=25,
-                min_correction_interval_sec=15.0, loop_confirmation_gap=3)
-    base.update(kw)
-    return ExpMapConfig(**base)
+def small_cfg(changes: Mapping[str, Any] | None = None) -> ExpMapConfig:
+    """A small map's configuration with ``changes`` (dotted field -> value) applied."""
+    base: dict[str, Any] = {"min_experience_age": 20, "loops.confirmations": 2, "corrections.min_route_len": 25,
+                            "corrections.min_interval_sec": 15.0, "loops.confirmation_gap": 3}
+    return ExpMapConfig().updated({**base, **(changes or {})})

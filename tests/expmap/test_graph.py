@@ -10,13 +10,13 @@ from services.expmap.config import ExpMapConfig
 from services.expmap.graph import ExperienceMap, pc_distance_cells, quickest_path
 from tests.expmap.helpers import SEC, feed, line_lap, loop_laps, pc_of, revisit, small_cfg
 
-SQUARE_CFG = dict(min_experience_age=3, loop_confirmations=1, min_correction_route_len=3,
-                  min_correction_interval_sec=0.0)
+SQUARE_CFG = {"min_experience_age": 3, "loops.confirmations": 1, "corrections.min_route_len": 3,
+              "corrections.min_interval_sec": 0.0}
 
 
 def square(side_x_last: float, cfg: ExpMapConfig | None = None) -> ExperienceMap:
     """Square 10 m sides; the third side measured as `side_x_last`; node 4 sees node 0's place."""
-    em = ExperienceMap(cfg or ExpMapConfig(**SQUARE_CFG))
+    em = ExperienceMap(cfg or ExpMapConfig().updated(SQUARE_CFG))
     odom = [(0, 0, 0), (10, 0, 0), (10, 10, 0), (10 - side_x_last, 10, 0), (10 - side_x_last, 0, 0)]
     lv = [0, 1, 2, 3, 0]
     truth = [(0, 0, 0), (10, 0, 0), (10, 10, 0), (0, 10, 0), (0, 0, 0)]
@@ -59,7 +59,7 @@ def test_square_with_one_long_side_spreads_the_error_over_every_edge() -> None:
 
 
 def test_stiff_loop_edge_puts_the_error_on_the_odometry_edges() -> None:
-    em = square(11.0, ExpMapConfig(**SQUARE_CFG, loop_edge_weight=1e6))
+    em = square(11.0, ExpMapConfig().updated({**SQUARE_CFG, "loops.edge_weight": 1e6}))
     em.settle()
     r = residuals(em)
     np.testing.assert_allclose(np.abs(r[:4, 0]), 0.25, atol=1e-6)
@@ -90,8 +90,7 @@ def test_optimum_equals_dense_weighted_least_squares() -> None:
 
 
 def test_no_correction_exceeds_the_clamps() -> None:
-    cfg = ExpMapConfig(relax_iterations_per_event=1, max_correction_norm=20.0, max_correction_step=0.05,
-                       min_correction_interval_sec=15.0)
+    cfg = ExpMapConfig(corrections={"iterations_per_event": 1, "max_norm": 20.0, "max_step": 0.05, "min_interval_sec": 15.0})
     events, _truth = loop_laps(3, drift_per_event=(0.08, -0.05, 0.0))  # ~36 m of drift per lap
     em = ExperienceMap(cfg)
     start, closures, clamped = None, 0, 0
@@ -172,7 +171,7 @@ def test_pose_cell_proximity_is_wrap_aware() -> None:
     assert pc_distance_cells([0.01, 0, 0, 0], [1.49, 0, 0, 0], shape, spacing) == pytest.approx(0.2)
     assert pc_distance_cells([0, 0, 0, 0.1], [0, 0, 0, 2 * np.pi - 0.1], shape, spacing) == \
         pytest.approx(0.2 / (2 * np.pi / 8))
-    em = ExperienceMap(small_cfg(loop_confirmations=1, pc_proximity_sigma_cells=3.5))
+    em = ExperienceMap(small_cfg({"loops.confirmations": 1, "pc_proximity_sigma_cells": 3.5}))
     feed(em, [(0, 0, [0.01, 0.7, 0.7, 0.0], [0.0, 0, 0])] + line_lap(30, t0=1, lvc0=1))
     far = feed(em, [(31, 0, [0.3, 0.7, 0.7, 0.0], [0.0, 0, 0])])[0]     # same LVC, 2.9 cells away
     assert far.match == -1
@@ -194,7 +193,7 @@ def test_index_search_equals_scoring_every_node() -> None:
 
 
 def test_save_load_continue_equals_uninterrupted(tmp_path: Path) -> None:
-    cfg = ExpMapConfig(relax_iterations_per_event=1)
+    cfg = ExpMapConfig(corrections={"iterations_per_event": 1})
     events, _ = loop_laps(3, drift_per_event=(0.02, -0.01, 0.0))
     full = ExperienceMap(cfg)
     r_full = feed(full, events)
@@ -266,14 +265,14 @@ def test_route_length_equals_breadth_first_search() -> None:
 
 
 def test_place_radius_keeps_separations_within_it_and_pulls_larger_ones_to_it() -> None:
-    """loop_place_radius_m r: a loop whose two experiences are within r of each other stays put
+    """loops.place_radius_m r: a loop whose two experiences are within r of each other stays put
     (the place is recognised, not exactly revisited); one farther apart is pulled to r."""
-    within = square(10.5, ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))   # nodes 4 and 0 0.5 m apart
+    within = square(10.5, ExpMapConfig().updated({**SQUARE_CFG, "loops.place_radius_m": 1.0}))   # nodes 4 and 0 0.5 m apart
     before = within.positions.copy()
     within.settle()
     np.testing.assert_allclose(within.positions, before, atol=1e-12)
     np.testing.assert_allclose(within.loop_deltas[0], before[4] - before[0], atol=1e-12)
-    beyond = square(13.0, ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))   # 3 m apart
+    beyond = square(13.0, ExpMapConfig().updated({**SQUARE_CFG, "loops.place_radius_m": 1.0}))   # 3 m apart
     beyond.settle()
     gap = np.linalg.norm(beyond.positions[4] - beyond.positions[0])
     literal = square(13.0)
@@ -288,8 +287,8 @@ def test_place_radius_keeps_separations_within_it_and_pulls_larger_ones_to_it() 
 
 
 def test_place_radius_survives_save_and_load(tmp_path: Path) -> None:
-    em = square(13.0, ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))
+    em = square(13.0, ExpMapConfig().updated({**SQUARE_CFG, "loops.place_radius_m": 1.0}))
     em.save(tmp_path / "m.npz")
-    back = ExperienceMap.load(tmp_path / "m.npz", ExpMapConfig(**SQUARE_CFG, loop_place_radius_m=1.0))
+    back = ExperienceMap.load(tmp_path / "m.npz", ExpMapConfig().updated({**SQUARE_CFG, "loops.place_radius_m": 1.0}))
     np.testing.assert_allclose(back.loop_deltas[0], em.loop_deltas[0])
     np.testing.assert_allclose(back.optimum(), em.optimum())

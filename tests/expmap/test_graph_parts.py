@@ -50,14 +50,14 @@ def test_route_length_takes_loop_edges_and_the_bound_is_cached() -> None:
 
 
 def test_loop_displacement_without_sweeps_is_zero_or_the_place_radius() -> None:
-    cfg = ExpMapConfig(loop_scan_matching=False)
+    cfg = ExpMapConfig(loops={"scan_matching": False})
     tallies = {"trusted": 0, "partial": 0, "untrusted": 0, "no_sweep": 0}
     d = np.array([3.0, 4.0, 0.0])
     delta, reg = loop_displacement(cfg, d, None, None, 0.0, tallies)
     assert delta is not None and delta.tolist() == [0.0, 0.0, 0.0] and reg is None
-    cfg_r = ExpMapConfig(loop_scan_matching=False, loop_place_radius_m=1.0)
+    cfg_r = ExpMapConfig(loops={"scan_matching": False, "place_radius_m": 1.0})
     assert loop_displacement(cfg_r, d, None, None, 0.0, tallies)[0] == pytest.approx([0.6, 0.8, 0.0])
-    cfg_s = ExpMapConfig(loop_scan_matching=True)
+    cfg_s = ExpMapConfig(loops={"scan_matching": True})
     loop_displacement(cfg_s, d, None, np.zeros((3, 2)), 0.0, tallies)
     assert tallies["no_sweep"] == 1
 

@@ -95,7 +95,7 @@ def test_watermark_is_held_until_the_image_is_decided() -> None:
 
 def test_event_without_camera_when_images_are_off() -> None:
     cfg = PoseidonConfig()
-    cfg.expmap.publish_experience_image = False
+    cfg.expmap.image.publish_experience = False
     assert "camera/image_raw" in build_node("expmap", cfg).inputs, "the camera's odometry scale reads the frames"
     cfg.expmap.visual_scale.enabled = False
     node = build_node("expmap", cfg)
@@ -215,9 +215,9 @@ def test_laser_scans_make_a_scan_graph_map() -> None:
 
     cfg = PoseidonConfig().model_copy(deep=True)
     cfg.expmap.graph = "scan_graph"
-    cfg.expmap.scan_topic = "scan"
-    cfg.expmap.loop_scan_matching = False
-    cfg.expmap.publish_experience_image = False
+    cfg.expmap.scan.topic = "scan"
+    cfg.expmap.loops.scan_matching = False
+    cfg.expmap.image.publish_experience = False
     truth = ring_route(laps=2, step=0.5)[:150]
     odo = drifting_odometry(truth, yaw_drift_deg_per_m=0.4, scale=1.01)
     rng = np.random.default_rng(1)
@@ -252,7 +252,7 @@ def test_laser_scan_without_scan_graph_is_a_configuration_error() -> None:
     from common.messages import LaserScan
 
     cfg = PoseidonConfig().model_copy(deep=True)
-    cfg.expmap.scan_topic = "scan"
+    cfg.expmap.scan.topic = "scan"
     node = build_node("expmap", cfg)
     node.process("Odometry", odometry(0, 1, (0.0, 0.0, 0.0), 0.0))
     scan = LaserScan(header=Header(seq=0, stamp=2, frame_id="laser"), angle_min=-1.0, angle_max=1.0,
@@ -270,9 +270,9 @@ def test_laser_sensor_offset_places_returns_in_the_robot_frame() -> None:
 
     cfg = PoseidonConfig().model_copy(deep=True)
     cfg.expmap.graph = "scan_graph"
-    cfg.expmap.scan_topic = "scan"
-    cfg.expmap.loop_scan_matching = False
-    cfg.expmap.publish_experience_image = False
+    cfg.expmap.scan.topic = "scan"
+    cfg.expmap.loops.scan_matching = False
+    cfg.expmap.image.publish_experience = False
     cfg.expmap.scan_graph.sensor_offset = [0.5, 0.0, 90.0]
     cfg.expmap.scan_graph.min_points = 3
     node = build_node("expmap", cfg)

@@ -24,9 +24,9 @@ def test_use_map_dir_points_every_state_into_the_folder(tmp_path: Path) -> None:
     assert (tmp_path / "m").is_dir()
     assert cfg.htm.state_path == str(tmp_path / "m" / MAP_DIR_FILES["htm.state_path"])
     assert cfg.posecells.state_path.startswith(str(tmp_path / "m"))
-    assert cfg.expmap.map_path == str(tmp_path / "m" / "expmap.npz") and cfg.expmap.map_sessions
+    assert cfg.expmap.map_path == str(tmp_path / "m" / "expmap.npz") and cfg.expmap.sessions.begin_on_load
     assert cfg.posecells.state_new_odometry_frame, "the loaded pose cells must not lend their odometry"
-    assert "{backbone}" in cfg.encoder.embedding_norm_path and len(made) == 6
+    assert "{backbone}" in cfg.encoder.embedding_norm.path and len(made) == 6
     (tmp_path / "f").write_text("x")
     try:
         use_map_dir(PoseidonConfig(), tmp_path / "f")
@@ -39,7 +39,7 @@ def test_use_map_dir_points_every_state_into_the_folder(tmp_path: Path) -> None:
 def test_a_loaded_map_begins_a_session_and_publishes_map_sessions(tmp_path: Path) -> None:
     cfg = PoseidonConfig()
     use_map_dir(cfg, tmp_path)
-    cfg.expmap.publish_experience_image = False
+    cfg.expmap.image.publish_experience = False
     out1 = run_offline(build_node("expmap", cfg), events(10, 0.0))
     assert not [m for k, m in out1 if k == "map_sessions"]          # one session: nothing on the key
     assert (tmp_path / "expmap.npz").exists()
@@ -61,7 +61,7 @@ def test_a_loaded_map_begins_a_session_and_publishes_map_sessions(tmp_path: Path
 def test_without_map_sessions_a_loaded_map_is_continued_in_the_same_frame(tmp_path: Path) -> None:
     cfg = PoseidonConfig()
     cfg.expmap.map_path = str(tmp_path / "m.npz")
-    cfg.expmap.publish_experience_image = False
+    cfg.expmap.image.publish_experience = False
     run_offline(build_node("expmap", cfg), events(5, 0.0))
     out = run_offline(build_node("expmap", cfg), events(3, 2.5))
     assert not [m for k, m in out if k == "map_sessions"]

@@ -162,8 +162,7 @@ def _chamber_loop(em: ExperienceMap, offset_true: np.ndarray, sweeps: bool) -> N
 
 def test_loop_edge_asks_for_the_measured_displacement_not_zero() -> None:
     off = np.array([0.5, -0.3])                                 # NED
-    cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0,
-                    loop_edge_weight=1000.0)
+    cfg = small_cfg({"min_experience_age": 20, "corrections.min_route_len": 20, "corrections.min_interval_sec": 0.0, "loops.edge_weight": 1000.0})
     em = ExperienceMap(cfg)
     _chamber_loop(em, off, sweeps=True)
     assert em.corrections >= 1 and em.scan_registrations["trusted"] >= 1
@@ -177,13 +176,13 @@ def test_loop_edge_asks_for_the_measured_displacement_not_zero() -> None:
     em0 = ExperienceMap(cfg)
     _chamber_loop(em0, off, sweeps=False)
     assert em0.scan_registrations["no_sweep"] >= 1 and np.allclose(em0.loop_deltas[0], 0.0)
-    em1 = ExperienceMap(cfg.model_copy(update={"loop_scan_matching": False}))
+    em1 = ExperienceMap(cfg.updated({"loops.scan_matching": False}))
     _chamber_loop(em1, off, sweeps=True)
     assert np.allclose(em1.loop_deltas[0], 0.0) and sum(em1.scan_registrations.values()) == 0
 
 
 def test_sweeps_survive_save_and_load(tmp_path: Path) -> None:
-    cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0)
+    cfg = small_cfg({"min_experience_age": 20, "corrections.min_route_len": 20, "corrections.min_interval_sec": 0.0})
     em = ExperienceMap(cfg)
     _chamber_loop(em, np.array([0.4, 0.2]), sweeps=True)
     em.save(tmp_path / "m.npz")
@@ -198,7 +197,7 @@ def test_a_closure_whose_sweeps_do_not_fit_is_rejected() -> None:
     chamber; the closure is refused (or, with the check off, closed with zero displacement)."""
     ang = np.linspace(0, 2 * np.pi, 7)[:-1] + 0.3
     other = np.c_[2 + 5 * np.cos(ang), 4 + 4 * np.sin(ang)]               # a hexagonal chamber
-    cfg = small_cfg(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0)
+    cfg = small_cfg({"min_experience_age": 20, "corrections.min_route_len": 20, "corrections.min_interval_sec": 0.0})
 
     def run(c: ExpMapConfig) -> tuple[ExperienceMap, list[EventResult]]:
         em = ExperienceMap(c)
@@ -217,5 +216,5 @@ def test_a_closure_whose_sweeps_do_not_fit_is_rejected() -> None:
     assert em.corrections == 0 and not em.loops
     assert any(r.rejected == "scan" for r in results) and em.scan_registrations["untrusted"] >= 1
     assert em.last_registration is not None and em.last_registration.inconsistent
-    em_off, _ = run(cfg.model_copy(update={"scan_reject_inconsistent": False}))
+    em_off, _ = run(cfg.updated({"scan.reject_inconsistent": False}))
     assert em_off.corrections >= 1 and np.allclose(em_off.loop_deltas[0], 0.0)

@@ -4,8 +4,9 @@ recovers a kidnapped vehicle (an odometry jump within one mission)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,11 +24,11 @@ FRAME_B = np.array([31.0, -12.0, 0.0])     # where session B's odometry frame pu
 OFF_TRUE = np.array([0.3, -0.2])           # session B flies 0.3 m N, 0.2 m W of session A's line (NED m)
 
 
-def cfg(**kw: float) -> ExpMapConfig:
-    base = dict(min_experience_age=20, min_correction_route_len=20, min_correction_interval_sec=0.0,
-                loop_edge_weight=1000.0)
-    base.update(kw)
-    return small_cfg(**base)
+def cfg(changes: Mapping[str, Any] | None = None) -> ExpMapConfig:
+    """The sessions' map configuration with ``changes`` (dotted field -> value) applied."""
+    base = {"min_experience_age": 20, "corrections.min_route_len": 20, "corrections.min_interval_sec": 0.0,
+            "loops.edge_weight": 1000.0}
+    return small_cfg({**base, **(changes or {})})
 
 
 def true_ned(k: int, offset: Sequence[float] = (0.0, 0.0)) -> np.ndarray:
@@ -146,9 +147,9 @@ def test_a_map_saved_before_sessions_loads_as_one_session(tmp_path: Path) -> Non
 @pytest.mark.parametrize("jump_m", [0.0, 5.0])
 def test_kidnapped_vehicle_recovers_by_a_verified_link(jump_m: float) -> None:
     """One mission: after a lap the odometry jumps by 33 m (the vehicle was moved, or the
-    navigation reset); with session_jump_m the jump begins a new session which the next
+    navigation reset); with sessions.jump_m the jump begins a new session which the next
     verified recognition links back; without, the jump is taken as motion and the map keeps it."""
-    em = ExperienceMap(cfg(session_jump_m=jump_m))
+    em = ExperienceMap(cfg({"sessions.jump_m": jump_m}))
     lap(em, 0, range(40), np.zeros(3))
     res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
     em.settle()
@@ -164,7 +165,7 @@ def test_kidnapped_vehicle_recovers_by_a_verified_link(jump_m: float) -> None:
 
 def test_an_earlier_session_is_a_candidate_whatever_its_age() -> None:
     """A prior map smaller than min_experience_age events: its places are still candidates."""
-    c = cfg(min_experience_age=200)
+    c = cfg({"min_experience_age": 200})
     em = session_a(c)
     em.begin_session()
     res = lap(em, 100, range(40), FRAME_B, OFF_TRUE)
@@ -195,8 +196,7 @@ def test_a_link_turns_the_new_session_by_the_registered_rotation(rotate: bool) -
     """Session B's frame is turned 20 degrees from A's: the link applies the registration's
     rotation too, so B (before and after the link point) lines up with A's frame; translation
     only leaves it visibly turned."""
-    em = session_a(cfg(session_link_max_rotation_deg=25.0, session_link_rotation_step_deg=1.0,
-                       session_link_rotate=rotate))
+    em = session_a(cfg({"sessions.link_max_rotation_deg": 25.0, "sessions.link_rotation_step_deg": 1.0, "sessions.link_rotate": rotate}))
     em.begin_session()
     lap_b = _turned_lap(em, 100, range(40), -20.0)
     _turned_lap(em, 140, range(40), -20.0)     # a second pass: the odometry after the link turns too
@@ -235,7 +235,7 @@ def test_the_part_mapped_before_the_link_is_pinned_to_the_older_map(radius_m: fl
     with the backfill off (radius 0) the drift stays.  Measured against session A's nodes as the
     map holds them (B's event k truly sits OFF_TRUE from A's event k): Eq. 4.20 spreads B's
     drift over both chains, so the older map is not the truth any more either."""
-    em = session_a(cfg(session_backfill_radius_m=radius_m))
+    em = session_a(cfg({"sessions.backfill_radius_m": radius_m}))
     em.begin_session()
     res = _drifting_session_b(em, 15, np.array([0.03, 0.0, 0.0]))
     em.settle()

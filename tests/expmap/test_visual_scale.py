@@ -104,7 +104,7 @@ def straight_run(em: ExperienceMap, t0: int, n: int, gain: float, origin: float 
 
 
 def test_the_map_rescales_this_runs_odometry_edges_only() -> None:
-    em = ExperienceMap(small_cfg(min_experience_age=1000))
+    em = ExperienceMap(small_cfg({"min_experience_age": 1000}))
     straight_run(em, 0, 10, 1.0)                 # a loaded map's part: not this run's odometry
     em.run_first = em.n_nodes
     straight_run(em, 100, 21, 1.02, origin=10.02)  # this run: 21 odometry edges of 1.02 m each, truly 1 m
@@ -126,7 +126,7 @@ def test_the_map_rescales_this_runs_odometry_edges_only() -> None:
 
 
 def test_a_session_break_edge_is_not_rescaled() -> None:
-    em = ExperienceMap(small_cfg(min_experience_age=1000))
+    em = ExperienceMap(small_cfg({"min_experience_age": 1000}))
     straight_run(em, 0, 5, 1.0)
     em.begin_session()
     straight_run(em, 100, 6, 1.02, origin=50.0)
@@ -139,12 +139,12 @@ def test_a_session_break_edge_is_not_rescaled() -> None:
 
 
 def test_the_node_subscribes_to_camera_and_dvl_only_when_enabled() -> None:
-    on = small_cfg(publish_experience_image=False, visual_scale=VisualScaleConfig(enabled=True))
+    on = small_cfg({"image.publish_experience": False, "visual_scale": VisualScaleConfig(enabled=True)})
     ins, _ = ExpMapNode.io_keys(on)
-    assert on.image_topic in ins and "dvl_linkquest" in ins
-    off = small_cfg(publish_experience_image=False, visual_scale=VisualScaleConfig(enabled=False))
+    assert on.image.topic in ins and "dvl_linkquest" in ins
+    off = small_cfg({"image.publish_experience": False, "visual_scale": VisualScaleConfig(enabled=False)})
     ins, _ = ExpMapNode.io_keys(off)
-    assert off.image_topic not in ins and "dvl_linkquest" not in ins
+    assert off.image.topic not in ins and "dvl_linkquest" not in ins
 
 
 class _Estimate:
@@ -159,7 +159,7 @@ def test_the_node_applies_a_plausible_estimate_and_refuses_an_implausible_one() 
     from system.config import PoseidonConfig
     from system.services import build_node
     cfg = PoseidonConfig()
-    cfg.expmap.publish_experience_image = False
+    cfg.expmap.image.publish_experience = False
     node = build_node("expmap", cfg)
     assert isinstance(node, ExpMapNode) and isinstance(node.graph, ExperienceMap)
     straight_run(node.graph, 0, 5, 1.0)

@@ -68,9 +68,9 @@ def _loop(seed=0, n=150, keep=0.62):
     return frames, 2 * n + 60
 
 
-def _run(frames, **kw):
-    cfg = HtmConfig(input_size=L, sv_descriptor_source="sdr", sv_seq_match_threshold=0.0, sv_seqmem_length=10,
-                    sv_seqmem_velocities=[0.5, 1.0], sv_seqmem_exclude=20, **kw)
+def _run(frames, changes=None):
+    cfg = HtmConfig(input_size=L, descriptor={"source": "sdr"}, lvc={"successor_threshold": 0.0},
+                    seqmem={"length": 10, "velocities": [0.5, 1.0], "exclude": 20}).updated(changes or {})
     h = NeocortexHtm(cfg)
     return h, [h.step(f) for f in frames]
 
@@ -82,7 +82,7 @@ def test_override_lets_the_sequence_replace_a_recent_id():
     for override in (False, True):
         # a strict sequence gate: some lap-2 places get a new id first, their second frame then
         # passes Eq. 4.9 against that recent id
-        h, out = _run(frames, sv_seqmem_override=override, sv_seqmem_threshold=8.0, sv_seqmem_margin=1.0)
+        h, out = _run(frames, {"seqmem.override": override, "seqmem.threshold": 8.0, "seqmem.margin": 1.0})
         lap1_ids = {r.lvc_id for r in out[:2 * n_places]}
         res[override] = (sum(r.lvc_id in lap1_ids for r in out[start:]),
                          sum(r.by_sequence and r.best_rate >= 0.72 for r in out[start:]))
@@ -96,8 +96,8 @@ def test_override_lets_the_sequence_replace_a_recent_id():
 def test_f1_checks_of_the_sequence_match():
     frames, start = _loop()
     _, base = _run(frames)
-    _, strict = _run(frames, sv_seqmem_min_f1=0.99)             # no lap-2 frame has F1 0.99 with lap 1
-    _, calib = _run(frames, sv_seqmem_f1_quantile=0.5, sv_seqmem_calib_warmup=5)
+    _, strict = _run(frames, {"seqmem.min_f1": 0.99})             # no lap-2 frame has F1 0.99 with lap 1
+    _, calib = _run(frames, {"seqmem.f1_quantile": 0.5, "seqmem.calib_warmup": 5})
     assert sum(r.by_sequence for r in base[start:]) > 0
     assert sum(r.by_sequence for r in strict) == 0
     assert 0 < sum(r.by_sequence for r in calib[start:]) <= sum(r.by_sequence for r in base[start:])
@@ -105,8 +105,8 @@ def test_f1_checks_of_the_sequence_match():
 
 def test_save_and_load_keep_the_calibration(tmp_path):
     frames, start = _loop()
-    kw = dict(sv_seqmem_override=True, sv_seqmem_f1_quantile=0.5, sv_seqmem_calib_warmup=5)
-    h, _ = _run(frames[:start + 100], **kw)
+    kw = {"seqmem.override": True, "seqmem.f1_quantile": 0.5, "seqmem.calib_warmup": 5}
+    h, _ = _run(frames[:start + 100], kw)
     h.save(tmp_path / "s.npz")
     cfg = h.cfg
     g = NeocortexHtm.load(tmp_path / "s.npz", cfg)

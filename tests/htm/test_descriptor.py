@@ -64,7 +64,7 @@ def test_tm_mode_cap_defaults_to_topk_and_modes_validated():
     for _ in range(10):
         d = b.update(rng.choice(81920, 20, replace=False))
         assert d.size <= 15
-    with pytest.raises(ValueError, match="sv_descriptor_source"):
+    with pytest.raises(ValueError, match="descriptor.source"):
         DescriptorBuilder("cells", 10, 1, 1, False, 0.5, 3, 0, 1)
     with pytest.raises(ValueError, match="out of range"):
         builder().update(np.array([81920]))

@@ -68,9 +68,7 @@ def _aliased_mission(seed: int = 5):
 
 def _claims(positions_route, positions_repeat, gate: bool) -> list:
     route, repeat = _aliased_mission()
-    cfg = HtmConfig(input_size=L, sv_seqmem_length=K, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0,
-                    sv_dr_gate=gate, sv_dr_gate_min_m=2.0, sv_dr_gate_drift=0.01, sv_dr_gate_min_path_m=10.0,
-                    sv_dr_gate_jump_m=1000.0)   # the test jumps to the repeat: no discontinuity
+    cfg = HtmConfig(input_size=L, seqmem={"length": K, "exclude": 5}, lvc={"successor_threshold": 0.0}, dr_gate={"enabled": gate, "min_m": 2.0, "drift": 0.01, "min_path_m": 10.0, "jump_m": 1000.0})   # the test jumps to the repeat: no discontinuity
     h = NeocortexHtm(cfg)
     for d, p in zip(route, positions_route):
         h.step(d.astype(np.uint32), position=p)
@@ -94,8 +92,7 @@ def test_an_ordered_look_alike_far_away_is_no_revisit_and_a_true_one_is():
 
 def test_a_map_loaded_from_an_earlier_run_forgets_its_positions(tmp_path):
     route, repeat = _aliased_mission()
-    cfg = HtmConfig(input_size=L, sv_seqmem_length=K, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0,
-                    sv_dr_gate=True, sv_dr_gate_min_m=2.0, sv_dr_gate_drift=0.01)
+    cfg = HtmConfig(input_size=L, seqmem={"length": K, "exclude": 5}, lvc={"successor_threshold": 0.0}, dr_gate={"enabled": True, "min_m": 2.0, "drift": 0.01})
     h = NeocortexHtm(cfg)
     for k, d in enumerate(route):
         h.step(d.astype(np.uint32), position=[2.0 * k, 0.0, 0.0])
@@ -108,7 +105,7 @@ def test_a_map_loaded_from_an_earlier_run_forgets_its_positions(tmp_path):
 
 def test_without_the_sequence_memory_the_gate_is_off():
     from services.htm.node import HtmNode
-    cfg = HtmConfig(sv_dr_gate=True, sv_seqmem_length=0)
+    cfg = HtmConfig(dr_gate={"enabled": True}, seqmem={"length": 0})
     assert NeocortexHtm(cfg).dr_gate is None
     assert HtmNode.io_keys(cfg)[0] == ("neocortex/sdr",)
     assert HtmNode.io_keys(HtmConfig())[0] == ("Odometry", "neocortex/sdr")
@@ -136,9 +133,7 @@ def test_the_node_gates_with_the_latest_odometry():
     from common.node import run_offline
     from system.config import PoseidonConfig
     from system.services import build_node
-    cfg = PoseidonConfig().model_copy(update={"htm": HtmConfig(
-        input_size=L, sv_seqmem_length=K, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0, sv_tm_decide=False,
-        sv_dr_gate_jump_m=1000.0)})
+    cfg = PoseidonConfig().model_copy(update={"htm": HtmConfig(input_size=L, seqmem={"length": K, "exclude": 5}, lvc={"successor_threshold": 0.0}, tm={"decide": False}, dr_gate={"jump_m": 1000.0})})
     results = {}
     for y in (0.3, 40.0):
         node = build_node("htm", cfg)

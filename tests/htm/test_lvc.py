@@ -62,7 +62,7 @@ def test_eq_4_9_rate_threshold_at_and_below():
     m.add(proto)
     r = m.match(_query_with(proto, 12, 41))
     assert r.is_new and r.best_rate == pytest.approx(12 / 41)
-    # same through tau_R = 0.38 (sv_match_threshold): 19/50 = 0.38 passes, 18/50 does not
+    # same through tau_R = 0.38 (htm.lvc.match_threshold): 19/50 = 0.38 passes, 18/50 does not
     proto50 = np.arange(0, 50, dtype=np.int32)
     for i, new in ((19, False), (18, True)):
         m = matcher(i_min=12, tau=0.38, f1=False)

@@ -1,4 +1,4 @@
-"""sv_require_multimodal (Table 4.1): per-modality validation of an accepted LVC match."""
+"""htm.lvc.require_multimodal (Table 4.1): per-modality validation of an accepted LVC match."""
 import numpy as np
 
 from common.messages import Header, NeocortexSdr, Sdr
@@ -13,7 +13,7 @@ L = 2048
 
 def _cfg(require: bool) -> HtmConfig:
     # descriptor = the fused SDR itself, so the LVC decision depends only on the bits given
-    return HtmConfig(sv_descriptor_source="sdr", interval_mode=False, sv_require_multimodal=require)
+    return HtmConfig(descriptor={"source": "sdr", "interval_mode": False}, lvc={"require_multimodal": require})
 
 
 def _sets():

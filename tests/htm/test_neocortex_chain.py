@@ -51,10 +51,7 @@ def test_overlap_standardised_sp_keeps_similarity_better_than_random():
 
 def test_tm_decides_a_revisit_of_a_learned_sequence():
     places = _places(40, seed=3)
-    cfg = HtmConfig(input_size=L, sv_descriptor_source="sp", sv_tm_decide=True, sp_potentialRadius=L,
-                    sp_numActiveColumns=200, sp_overlap_norm_steps=40, sp_boostStrength=0.0,
-                    tm_input_columns=40, tm_cellsPerColumn=8, sv_tm_share=0.3, sv_seqmem_length=0,
-                    sv_seq_match_threshold=0.0, sv_seqmem_exclude=5, sv_match_threshold=0.99, min_f1=0.99)
+    cfg = HtmConfig(input_size=L, descriptor={"source": "sp"}, tm={"decide": True, "input_columns": 40, "cells_per_column": 8, "decide_share": 0.3}, sp={"potential_radius": L, "num_active_columns": 200, "overlap_norm_steps": 40, "boost_strength": 0.0}, seqmem={"length": 0, "exclude": 5}, lvc={"successor_threshold": 0.0, "match_threshold": 0.99, "min_f1": 0.99})
     h = NeocortexHtm(cfg)
     lap1 = [h.step(p) for p in places]
     lap2 = [h.step(p) for p in places]
@@ -67,10 +64,7 @@ def test_tm_decides_a_revisit_of_a_learned_sequence():
 
 def test_a_shuffled_revisit_is_not_decided_by_the_tm():
     places = _places(40, seed=4)
-    cfg = HtmConfig(input_size=L, sv_descriptor_source="sp", sv_tm_decide=True, sp_potentialRadius=L,
-                    sp_numActiveColumns=200, sp_overlap_norm_steps=40, sp_boostStrength=0.0,
-                    tm_input_columns=40, tm_cellsPerColumn=8, sv_tm_share=0.3, sv_seqmem_length=0,
-                    sv_seq_match_threshold=0.0, sv_seqmem_exclude=5, sv_match_threshold=0.99, min_f1=0.99)
+    cfg = HtmConfig(input_size=L, descriptor={"source": "sp"}, tm={"decide": True, "input_columns": 40, "cells_per_column": 8, "decide_share": 0.3}, sp={"potential_radius": L, "num_active_columns": 200, "overlap_norm_steps": 40, "boost_strength": 0.0}, seqmem={"length": 0, "exclude": 5}, lvc={"successor_threshold": 0.0, "match_threshold": 0.99, "min_f1": 0.99})
     h = NeocortexHtm(cfg)
     for p in places:
         h.step(p)
@@ -82,7 +76,7 @@ def test_chains_and_state_round_trip(tmp_path):
     assert set(CHAINS) >= {"sdr_seqmem", "sp_tm"}
     with pytest.raises(ValueError, match="unknown front-end chain"):
         chain_config(HtmConfig(), "nope")
-    cfg = chain_config(HtmConfig(input_size=L), "sp_tm").model_copy(update={"sp_overlap_norm_steps": 20})
+    cfg = chain_config(HtmConfig(input_size=L), "sp_tm").updated({"sp.overlap_norm_steps": 20})
     places = _places(30, seed=6)
     a = NeocortexHtm(cfg)
     for p in places[:20]:
@@ -101,4 +95,4 @@ def test_the_sp_tm_preset_is_the_sp_tm_chain():
     from tests.conftest import REPO
     cfg = load_config(REPO / "services" / "htm" / "presets" / "sp_tm.yaml")
     want = chain_config(load_config(None).htm, "sp_tm")
-    assert {k: getattr(cfg.htm, k) for k in CHAINS["sp_tm"]} == {k: getattr(want, k) for k in CHAINS["sp_tm"]}
+    assert {k: cfg.htm.get(k) for k in CHAINS["sp_tm"]} == {k: want.get(k) for k in CHAINS["sp_tm"]}

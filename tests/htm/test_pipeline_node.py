@@ -13,14 +13,14 @@ L = 2048
 
 # the SP -> TM -> descriptor chain with Table 4.1's SP, TM and LVC gates (the default descriptor is
 # the fused SDR, and the default SP/TM are the overlap-standardised ones)
-_CHAIN = dict(sv_descriptor_source="tm", interval_mode=True, sv_match_threshold=0.38, min_f1=0.55,
-              sv_seq_match_threshold=0.0, sv_tm_decide=False, sp_columns=2048, sp_numActiveColumns=20,
-              sp_potentialRadius=600, sp_boostStrength=2.0, sp_overlap_norm_steps=0, tm_input_columns=0,
-              tm_cellsPerColumn=40, tm_activationThreshold=5, tm_maxNewSynapseCount=20)
+_CHAIN = {"descriptor.source": "tm", "descriptor.interval_mode": True, "lvc.match_threshold": 0.38, "lvc.min_f1": 0.55,
+          "lvc.successor_threshold": 0.0, "tm.decide": False, "sp.columns": 2048, "sp.num_active_columns": 20,
+          "sp.potential_radius": 600, "sp.boost_strength": 2.0, "sp.overlap_norm_steps": 0, "tm.input_columns": 0,
+          "tm.cells_per_column": 40, "tm.activation_threshold": 5, "tm.max_new_synapse_count": 20}
 
 
-def TmConfig(**kw) -> HtmConfig:  # noqa: N802 - reads like the config class it builds
-    return HtmConfig(**{**_CHAIN, **kw})
+def TmConfig(changes: dict | None = None) -> HtmConfig:  # noqa: N802 - reads like the config class it builds
+    return HtmConfig().updated({**_CHAIN, **(changes or {})})
 
 
 def route(n_places=12, seed=0):
@@ -49,7 +49,7 @@ def test_same_input_and_seed_same_id_stream():
     assert ra[0].lvc_id == 0 and ra[0].is_new
     ids = [r.lvc_id for r in ra]
     assert max(ids) == len(a.lvc) - 1
-    other = NeocortexHtm(TmConfig(seed=43))
+    other = NeocortexHtm(TmConfig({"seed": 43}))
     assert [other.step(f).lvc_id for f in frames] != ids or \
         not np.array_equal(other.last_descriptor, a.last_descriptor)
 
@@ -59,19 +59,19 @@ def test_route_revisited_after_a_detour_maps_back_to_its_ids(literal):
     route_places = route(n_places=15, seed=1)
     detour = route(n_places=10, seed=9)
     if literal:  # no boosting, cell descriptor, SP always learning
-        h = NeocortexHtm(TmConfig(sp_boostStrength=0.0, sv_tm_bits="cells", sp_learn_steps=0))
-    else:  # defaults: the SP learns (with boosting) for sp_learn_steps, then keeps its columns
+        h = NeocortexHtm(TmConfig({"sp.boost_strength": 0.0, "descriptor.tm_bits": "cells", "sp.learn_steps": 0}))
+    else:  # defaults: the SP learns (with boosting) for sp.learn_steps, then keeps its columns
         h = NeocortexHtm(TmConfig())
-        for p in route(n_places=HtmConfig().sp_learn_steps, seed=5):
+        for p in route(n_places=HtmConfig().sp.learn_steps, seed=5):
             h.step(p)
-        assert h.sp.iteration_learn == HtmConfig().sp_learn_steps
+        assert h.sp.iteration_learn == HtmConfig().sp.learn_steps
     first = [h.step(p) for p in route_places]
     for p in detour:
         h.step(p)
     second = [h.step(p) for p in route_places]
     assert [r.lvc_id for r in first][0] == (0 if literal else first[0].lvc_id)
     # the route's first place bursts (new context after the detour); from its second place on
-    # the TM replays the learnt cells, and once the sv_tm_window (7) has flushed the detour
+    # the TM replays the learnt cells, and once the descriptor.tm_window (7) has flushed the detour
     # the descriptors are those of the first pass again
     for k in range(8, 15):
         r = second[k]
@@ -85,7 +85,7 @@ def test_route_revisited_after_a_detour_maps_back_to_its_ids(literal):
 def test_revisiting_first_place_returns_lvc_0_in_sp_and_sdr_modes(mode):
     places = route(seed=2)
     # no boosting: with boost the SP moves the columns of a place during its learning phase
-    h = NeocortexHtm(TmConfig(sv_descriptor_source=mode, sp_boostStrength=0.0))
+    h = NeocortexHtm(TmConfig({"descriptor.source": mode, "sp.boost_strength": 0.0}))
     first = h.step(places[0])
     assert (first.lvc_id, first.is_new) == (0, True)
     ids = [h.step(p).lvc_id for p in places[3:]]
@@ -104,8 +104,8 @@ def test_save_load_continues_identically(tmp_path):
     b = NeocortexHtm.load(path, TmConfig())
     assert [a.step(f) for f in frames[30:]] == [b.step(f) for f in frames[30:]]
     assert np.array_equal(a.last_descriptor, b.last_descriptor)
-    with pytest.raises(ValueError, match="tm_cellsPerColumn"):
-        NeocortexHtm.load(path, TmConfig(tm_cellsPerColumn=32))
+    with pytest.raises(ValueError, match="tm.cells_per_column"):
+        NeocortexHtm.load(path, TmConfig({"tm.cells_per_column": 32}))
 
 
 def test_input_validation_and_similarity_helper():
@@ -148,7 +148,7 @@ def test_node_publishes_every_frame_with_its_header_and_persists(tmp_path):
 
     # state_path: two runs over halves equal one run over everything
     state = tmp_path / "htm.npz"
-    cfg_state = PoseidonConfig(htm=TmConfig(state_path=str(state)))
+    cfg_state = PoseidonConfig(htm=TmConfig({"state_path": str(state)}))
     first = run_offline(build_node("htm", cfg_state), msgs[:10])
     assert state.exists()
     second = run_offline(build_node("htm", cfg_state), msgs[10:])
@@ -171,7 +171,7 @@ def test_node_skips_counts_and_logs_wrong_sdr_size(caplog):
 
 def test_query_only_and_describe():
     places = route(n_places=6, seed=7)
-    h = NeocortexHtm(TmConfig(sv_descriptor_source="sp", interval_mode=False, sp_boostStrength=0.0))
+    h = NeocortexHtm(TmConfig({"descriptor.source": "sp", "descriptor.interval_mode": False, "sp.boost_strength": 0.0}))
     ids = [h.step(p).lvc_id for p in places]
     assert ids == list(range(6))
     n = len(h.lvc)
@@ -187,7 +187,7 @@ def test_query_only_and_describe():
 
 def test_sp_frozen_after_sp_learn_steps_keeps_columns():
     places = route(n_places=30, seed=11)
-    h = NeocortexHtm(TmConfig(sp_learn_steps=20, sv_descriptor_source="sp"))
+    h = NeocortexHtm(TmConfig({"sp.learn_steps": 20, "descriptor.source": "sp"}))
     for p in places[:20]:
         h.step(p)
     assert h.sp.iteration_learn == 20
@@ -200,7 +200,7 @@ def test_sp_frozen_after_sp_learn_steps_keeps_columns():
     h.step(places[20])
     assert np.array_equal(h.last_columns, cols)
     # an always-learning SP with boosting moves the columns of the same input
-    g = NeocortexHtm(TmConfig(sp_learn_steps=0, sv_descriptor_source="sp"))
+    g = NeocortexHtm(TmConfig({"sp.learn_steps": 0, "descriptor.source": "sp"}))
     for p in places[:21]:
         g.step(p)
     before = g.last_columns.copy()
@@ -223,7 +223,7 @@ def test_warm_up_compiles_on_a_throwaway_core_and_leaves_the_node_as_it_was() ->
 
 def test_new_places_memory_grows_with_the_places_not_with_the_laps():
     """A route of 60 places flown four times (the default chain, SP + TM deciding): with
-    sv_seqmem_store every_frame the sequence memory and the TM frame index keep every frame;
+    seqmem.store every_frame the sequence memory and the TM frame index keep every frame;
     with new_places the laps after the first add nearly nothing, and the ids of those laps are
     the ones every_frame gives (the places are recognised the same way)."""
     rng = np.random.default_rng(7)
@@ -232,7 +232,7 @@ def test_new_places_memory_grows_with_the_places_not_with_the_laps():
     lap = len(frames) // 4
     runs = {}
     for store in ("every_frame", "new_places"):
-        h = NeocortexHtm(HtmConfig(sv_seqmem_store=store))
+        h = NeocortexHtm(HtmConfig(seqmem={"store": store}))
         ids = [h.step(f).lvc_id for f in frames]
         runs[store] = (h, ids)
     full, ids_full = runs["every_frame"]
@@ -246,12 +246,12 @@ def test_new_places_memory_grows_with_the_places_not_with_the_laps():
     assert len(set(ids_kept[lap:]) - set(ids_kept[:lap])) <= 0.05 * len(set(ids_kept[:lap]))   # revisits, not new ids
     # every_frame up to a limit: every frame until the memory holds it, then the new_places rule
     limit = lap + lap // 2
-    capped = NeocortexHtm(HtmConfig(sv_seqmem_every_frame_limit=limit))
+    capped = NeocortexHtm(HtmConfig(seqmem={"every_frame_limit": limit}))
     ids_capped = [capped.step(f).lvc_id for f in frames]
     assert ids_capped[:limit] == ids_full[:limit]            # below the limit: every_frame exactly
     assert limit <= capped.seqmem.size == capped.tm_index.size < limit + 0.15 * (len(frames) - limit)
     assert capped.frames_not_stored == len(frames) - capped.seqmem.size
-    roomy = NeocortexHtm(HtmConfig(sv_seqmem_every_frame_limit=len(frames)))
+    roomy = NeocortexHtm(HtmConfig(seqmem={"every_frame_limit": len(frames)}))
     assert [roomy.step(f).lvc_id for f in frames] == ids_full and roomy.frames_not_stored == 0
 
 
@@ -259,7 +259,7 @@ def test_new_places_state_round_trips(tmp_path):
     rng = np.random.default_rng(8)
     places = route(n_places=60, seed=3)
     frames = [noisy(rng, p) for _ in range(2) for p in places for _ in range(2)]
-    cfg = HtmConfig(sv_seqmem_store="new_places")
+    cfg = HtmConfig(seqmem={"store": "new_places"})
     a = NeocortexHtm(cfg)
     for f in frames[:180]:
         a.step(f)
@@ -270,10 +270,10 @@ def test_new_places_state_round_trips(tmp_path):
 
 
 def test_node_counts_the_segments_the_tm_budget_evicted():
-    """htm.tm_maxSynapses reaches the TM of the default chain; the node counts its evictions."""
+    """htm.tm.max_synapses reaches the TM of the default chain; the node counts its evictions."""
     rng = np.random.default_rng(9)
     frames = [np.sort(rng.choice(L, 600, replace=False)).astype(np.uint32) for _ in range(120)]   # all new places
-    node = build_node("htm", PoseidonConfig(htm=HtmConfig(tm_maxSynapses=3000)))
+    node = build_node("htm", PoseidonConfig(htm=HtmConfig(tm={"max_synapses": 3000})))
     run_offline(node, _messages(frames))
     tm = node.htm.tm
     assert tm.max_synapses == 3000 and tm.num_synapses <= 3000

@@ -45,13 +45,13 @@ def test_consistent_revisit_scores_its_diagonal_and_a_shuffled_one_does_not():
     # once K frames of the revisit are in, the best diagonal ends at the stored frame of the place
     assert [s.frame for s in ordered[K:]] == list(range(10 + K, 30))
     assert min(s.score for s in ordered[K:]) > 2.0
-    assert min(s.score - s.second for s in ordered[K:]) > HtmConfig().sv_seqmem_margin
+    assert min(s.score - s.second for s in ordered[K:]) > HtmConfig().seqmem.margin
     m.reset()
     order = rng.permutation(len(revisit))
     shuffled = [m.score(revisit[k]) for k in order]
     # single hits, no line: nothing scores like the diagonal, nothing passes the default margin gate
     assert max(s.score for s in shuffled) < 0.6 * min(s.score for s in ordered[K:])
-    assert max(s.score - s.second for s in shuffled) < HtmConfig().sv_seqmem_margin
+    assert max(s.score - s.second for s in shuffled) < HtmConfig().seqmem.margin
 
 
 def test_causal_the_score_of_a_frame_ignores_later_frames():
@@ -69,7 +69,7 @@ def test_causal_the_score_of_a_frame_ignores_later_frames():
 
 def _pipeline(seqmem_length: int, revisit_order=None, tmp_path=None):
     route, revisit, rng = _route()
-    cfg = HtmConfig(input_size=L, sv_seqmem_length=seqmem_length, sv_seqmem_exclude=5, sv_seq_match_threshold=0.0)
+    cfg = HtmConfig(input_size=L, seqmem={"length": seqmem_length, "exclude": 5}, lvc={"successor_threshold": 0.0})
     h = NeocortexHtm(cfg)
     first = [h.step(p.astype(np.uint32)).lvc_id for p in route]
     if tmp_path is not None:   # the frame memory and its history are part of the saved state
@@ -100,7 +100,7 @@ def test_pipeline_does_not_match_a_shuffled_revisit():
 
 def test_query_only_steps_leave_the_memory_unchanged():
     route, revisit, _ = _route()
-    h = NeocortexHtm(HtmConfig(input_size=L, sv_seqmem_length=K, sv_seq_match_threshold=0.0))
+    h = NeocortexHtm(HtmConfig(input_size=L, seqmem={"length": K}, lvc={"successor_threshold": 0.0}))
     for p in route:
         h.step(p.astype(np.uint32))
     h.reset_sequence()
@@ -111,8 +111,8 @@ def test_query_only_steps_leave_the_memory_unchanged():
 
 
 def test_bad_configuration_is_named():
-    with pytest.raises(ValueError, match="sv_seqmem_velocities"):
-        HtmConfig(sv_seqmem_velocities=[1.0, 0.0])
+    with pytest.raises(ValueError, match="seqmem.velocities"):
+        HtmConfig(seqmem={"velocities": [1.0, 0.0]})
 
 
 def _stream(seed: int, n: int, places: int = 60, bits: int = 300, noise: float = 0.2) -> list[np.ndarray]:

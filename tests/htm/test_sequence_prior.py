@@ -24,7 +24,7 @@ def _noisy(bits: np.ndarray, frac: float, rng: np.random.Generator) -> np.ndarra
 def _run(seq_gate: float, tmp_path=None):
     rng = np.random.default_rng(4)
     route = [_place(rng) for _ in range(12)]
-    h = NeocortexHtm(HtmConfig(input_size=L, sv_seq_match_threshold=seq_gate))
+    h = NeocortexHtm(HtmConfig(input_size=L, lvc={"successor_threshold": seq_gate}))
     first = [h.step(p).lvc_id for p in route]
     # the revisit: the first frame close to the stored place (passes the 0.72 gate), the others at R = 0.68
     revisit = [_noisy(route[0], 0.1, rng)] + [_noisy(p, 0.32, rng) for p in route[1:]]
@@ -49,7 +49,7 @@ def test_revisit_follows_the_stored_sequence_only_with_the_prior(tmp_path):
 def test_query_only_steps_use_the_graph_without_learning():
     rng = np.random.default_rng(9)
     route = [_place(rng) for _ in range(6)]
-    h = NeocortexHtm(HtmConfig(input_size=L, sv_seq_match_threshold=0.65))
+    h = NeocortexHtm(HtmConfig(input_size=L, lvc={"successor_threshold": 0.65}))
     for p in route:
         h.step(p)
     graph = {a: set(b) for a, b in h.successors.items()}

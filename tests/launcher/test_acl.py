@@ -110,7 +110,7 @@ def test_control_traffic(policy):
 
 
 def test_the_policy_follows_the_configuration():
-    config = load_config(overrides=["encoder.sonar_topic=sonar_seaking", "bus.namespace=auv2"])
+    config = load_config(overrides=["encoder.sonar.topic=sonar_seaking", "bus.namespace=auv2"])
     policy = acl.access_control(config)
     assert allowed(policy, "encoder", "ingress", "declare_subscriber", "auv2/sonar_seaking")
     assert not allowed(policy, "encoder", "ingress", "declare_subscriber", "auv2/sonar_micron")

@@ -60,7 +60,7 @@ def test_laser_preset_maps_a_hand_made_log(tmp_path):
     write_relations(rel, truth, stamps)
     imported = tmp_path / "ring.mcap"
     assert import_main([str(log), "--out", str(imported)]) == 0
-    cfg = load_config(PRESET, overrides=[f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"])
+    cfg = load_config(PRESET, overrides=[f"encoder.lsbh.matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"])
     res = run_embedded(cfg, imported, tmp_path / "run.mcap", progress=False, timeout_s=400)
     counters = res.services["expmap"]["counters"]
     assert counters["loop_closures"] >= 1 and counters["chain_scan"] >= 0.9 * counters["events"] > 60

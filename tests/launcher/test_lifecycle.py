@@ -92,14 +92,14 @@ class _Configured(ServiceNode):
 
     @classmethod
     def io_keys(cls, config):
-        return (config.encoder.sonar_topic, "depth_sensor"), cls.outputs
+        return (config.encoder.sonar.topic, "depth_sensor"), cls.outputs
 
     def process(self, key, msg):
         pass
 
 
 def test_one_declaration_of_keys_used_by_node_and_launcher(tmp_path):
-    cfg = load_config(overrides=["encoder.sonar_topic=sonar_seaking"])
+    cfg = load_config(overrides=["encoder.sonar.topic=sonar_seaking"])
     assert node_io("encoder", cfg) == (("camera/image_raw", "sonar_seaking"), ("neocortex/sdr",))
     node = _Configured(cfg)
     assert (node.inputs, node.outputs) == _Configured.io_keys(cfg) == (("sonar_seaking", "depth_sensor"),

@@ -109,7 +109,7 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
     tls, rogue = tmp_path / "tls", tmp_path / "rogue"
     for out, hosts in ((tls, "10.77.0.1,10.77.0.2"), (rogue, "10.77.0.2")):
         subprocess.run([*py, "certs", "--out", str(out), "--hosts", hosts], cwd=REPO, check=True, timeout=60)
-    sets = [f"encoder.lsbh_matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"]
+    sets = [f"encoder.lsbh.matrix_path={tmp_path}/lsbh_{{backbone}}_{{modality}}.npy"]
     config = load_config(overrides=sets)
     plan = plan_run(config, short_mission)
     t0 = time.monotonic()

@@ -48,7 +48,7 @@ def test_out_equal_to_input_is_refused(small, tmp_path):
 def test_bad_configuration_never_touches_an_existing_output(small, tmp_path):
     out = tmp_path / "run.mcap"
     out.write_bytes(b"an earlier run that must survive")
-    for setting in ("robot_state.axis_remap=xxx", "htm.sp_numActiveColumns=5000"):
+    for setting in ("robot_state.axis_remap=xxx", "htm.sp.num_active_columns=5000"):
         proc = _run("--input", small, "--out", out, "--set", setting)
         assert proc.returncode == 2, proc.stderr
         assert setting.split("=")[0] in proc.stderr
@@ -76,8 +76,8 @@ def test_output_moves_into_place_only_on_success(small, tmp_path, embedded):
 
 
 def test_cross_field_configuration_errors():
-    for setting, text in (("htm.sp_numActiveColumns=5000", "htm.sp_numActiveColumns (5000) must be <= htm.sp_columns"),
-                          ("htm.tm_minThreshold=9", "htm.tm_minThreshold (9) must be <= htm.tm_activationThreshold"),
+    for setting, text in (("htm.sp.num_active_columns=5000", "htm.sp.num_active_columns (5000) must be <= htm.sp.columns"),
+                          ("htm.tm.min_threshold=9", "htm.tm.min_threshold (9) must be <= htm.tm.activation_threshold"),
                           ("robot_state.axis_remap=xxx", "permutation of xyz"),
                           ("robot_state.axis_sign_z=0.5", "axis_sign_z must be 1 or -1"),
                           ("posecells.number_of_neurons=[15,15,0,8]", "posecells.number_of_neurons.2"),
@@ -95,8 +95,8 @@ def test_cross_field_configuration_errors():
 def test_embedded_bad_setting_exits_at_once(small, tmp_path):
     t0 = time.monotonic()
     proc = _run("--embedded", "--input", small, "--out", tmp_path / "o.mcap", "--set",
-                "htm.sp_numActiveColumns=5000", "--timeout", "20", timeout=60)
-    assert proc.returncode == 2 and "htm.sp_numActiveColumns" in proc.stderr
+                "htm.sp.num_active_columns=5000", "--timeout", "20", timeout=60)
+    assert proc.returncode == 2 and "htm.sp.num_active_columns" in proc.stderr
     assert time.monotonic() - t0 < 30
 
 

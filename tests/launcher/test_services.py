@@ -78,7 +78,7 @@ def test_each_node_is_built_from_its_own_section_and_explicit_cross_section_valu
         assert not isinstance(node.config, PoseidonConfig), name
     expmap = build_node("expmap", cfg)
     assert expmap.graph.lattice_spacing == (0.5, 0.25, 0.2)        # from posecells, explicitly
-    assert expmap.images.slop_ns == round(min(0.4, cfg.expmap.image_sync_slop) * 1e9)  # from sync, explicitly
+    assert expmap.images.slop_ns == round(min(0.4, cfg.expmap.image.sync_slop) * 1e9)  # from sync, explicitly
     assert expmap.sweeps.head_sign == 1.0                          # from robot_state, explicitly
     encoder = build_node("encoder", cfg)
     assert encoder.core.clock.stale_ns == 400_000_000              # from sync, explicitly

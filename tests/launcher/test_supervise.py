@@ -44,7 +44,7 @@ def work(tmp_path_factory):
 
 
 def _settings(work: Path) -> list[str]:
-    return ["--set", f"encoder.lsbh_matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy",
+    return ["--set", f"encoder.lsbh.matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy",
             "--set", f"supervise.checkpoint_interval_s={CHECKPOINT_S}",
             "--set", f"supervise.recorder_checkpoint_interval_s={CHECKPOINT_S / 2}", "--set", "supervise.restart_backoff_s=0.1"]
 
@@ -124,7 +124,7 @@ def test_sigkill_mid_run_resumes_to_the_uninterrupted_streams(service, work, uni
 def test_checkpoint_round_trip_continues_like_an_uninterrupted_node(service, work, uninterrupted, tmp_path):
     """Save mid-stream, load into a node built afresh, continue: outputs byte for byte those of
     one node that ran through (also prints the checkpoint's cost and size)."""
-    config = load_config(overrides=[f"encoder.lsbh_matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy"])
+    config = load_config(overrides=[f"encoder.lsbh.matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy"])
     first = build_node(service, config)
     merger = EventTimeMerger(list(first.inputs))
     for rec in read_messages(uninterrupted, keys=list(first.inputs)):

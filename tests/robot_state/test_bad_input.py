@@ -131,10 +131,10 @@ def test_gap_of_30s_is_bridged_flagged_and_bounded():
     bridged = [m for m in odo if "gap_bridged" in m.status]
     assert len(bridged) == 299  # the grid strictly inside the gap
     assert all("dvl_dropout" in m.status for m in bridged[-10:])
-    # velocity held for dvl_timeout_s then decaying: the bridge moves at most |v| (timeout + tau)
+    # velocity held for dvl.timeout_s then decaying: the bridge moves at most |v| (timeout + tau)
     i30, i60 = np.searchsorted(t, 30.0), np.searchsorted(t, 60.0)
     bridge = p[i60 - 1, 0] - p[i30, 0]
-    assert 0 < bridge <= U * (rs.dvl_timeout_s + rs.dvl_dropout_decay_s) + 1e-9
+    assert 0 < bridge <= U * (rs.dvl.timeout_s + rs.dvl.dropout_decay_s) + 1e-9
     assert _max_step(out) <= U / rs.publish_rate_hz + 1e-9  # never a jump
     # covariance grows through the gap and shrinks back (velocity) after it
     var = np.array([m.pose_covariance[0] + m.pose_covariance[7] for m in odo])
@@ -163,11 +163,11 @@ def test_dvl_dropout_is_flagged_and_velocity_decays():
     odo = _odometry(out)
     t, p = odometry_positions(out)
     flagged = [tt for tt, m in zip(t, odo) if "dvl_dropout" in m.status]
-    assert flagged and min(flagged) > 20.0 + cfg.robot_state.dvl_timeout_s - 0.1 and max(flagged) < 40.0
+    assert flagged and min(flagged) > 20.0 + cfg.robot_state.dvl.timeout_s - 0.1 and max(flagged) < 40.0
     assert node.counters["dvl_reacquired"] == 1
     speed = np.diff(p[:, 0]) / np.diff(t)
     i38 = np.searchsorted(t, 38.0)
-    assert speed[i38] < U * math.exp(-(38 - 22.1) / cfg.robot_state.dvl_dropout_decay_s) * 1.01
+    assert speed[i38] < U * math.exp(-(38 - 22.1) / cfg.robot_state.dvl.dropout_decay_s) * 1.01
     assert _max_step(out) <= U / cfg.robot_state.publish_rate_hz + 1e-9
 
 
@@ -185,7 +185,7 @@ def test_imu_dropout_falls_back_to_dvl_attitude():
 
 
 def test_innovation_gate_rejects_spikes_and_reinitialises_on_a_real_step():
-    cfg = load_config(overrides=NED + ["robot_state.dvl_gate_chi2=16.27"])
+    cfg = load_config(overrides=NED + ["robot_state.dvl.gate_chi2=16.27"])
     msgs = _straight(30.0)
     msgs = _replace(msgs, "dvl_linkquest", 40, dvl(T0 + 8 * NS, 40, [1.9, 0.0, 0.0]))  # one spike
     node = build_node("robot_state", cfg)

@@ -49,7 +49,7 @@ def test_pure_rotation_with_lever_arm():
     msgs = mission(40, lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, math.remainder(w * t, 2 * math.pi)),
                    lambda t: (0.0, 0.0, w), lambda t: 5.0,
                    dvl_velocity=lambda t: tuple(np.cross([0.0, 0.0, w], r)))
-    node = build_node("robot_state", load_config(overrides=NED + ["robot_state.dvl_translation_m=[0.4,0.1,0.2]"]))
+    node = build_node("robot_state", load_config(overrides=NED + ["robot_state.dvl.translation_m=[0.4,0.1,0.2]"]))
     out = run_offline(node, msgs)
     t, p = odometry_positions(out)
     assert np.abs(p - [0.0, 0.0, 5.0]).max() < 1e-9
@@ -100,9 +100,9 @@ def test_dvl_attitude_fallback_without_imu():
 
 
 def test_use_imu_false_drops_the_imu_input():
-    node = build_node("robot_state", load_config(overrides=["robot_state.use_imu=false"]))
+    node = build_node("robot_state", load_config(overrides=["robot_state.imu.enabled=false"]))
     assert node.inputs == ("dvl_linkquest", "depth_sensor", "odometry")
-    node = build_node("robot_state", load_config(overrides=["robot_state.imu_topic=imu_adis"]))
+    node = build_node("robot_state", load_config(overrides=["robot_state.imu.topic=imu_adis"]))
     assert node.inputs[0] == "imu_adis"
 
 
@@ -147,7 +147,7 @@ def test_dvl_compass_bounds_imu_yaw_drift(fusion):
         msgs.append(("dvl_linkquest", dvl(T0 + k * NS // 2, k, [0.3, 0.0, 0.0], rpy_deg=(0.0, 0.0, 2.0))))
     for k in range(600 + 1):
         msgs.append(("depth_sensor", depth(T0 + k * NS, k, 5.0)))
-    node = build_node("robot_state", load_config(overrides=NED + [f"robot_state.dvl_heading_fusion={str(fusion).lower()}"]))
+    node = build_node("robot_state", load_config(overrides=NED + [f"robot_state.dvl.heading_fusion={str(fusion).lower()}"]))
     out = run_offline(node, msgs)
     yaw_end = math.degrees(_yaws(out, OutputFrame("xyz", 1.0))[-1])
     if fusion:
@@ -163,7 +163,7 @@ def test_gyro_bias_is_estimated():
     bias = math.radians(0.05)
     msgs = mission(300, lambda t: (0.3, 0.0, 0.0), lambda t: (0.0, 0.0, 0.0), lambda t: (0.0, 0.0, bias),
                    lambda t: 5.0, dvl_hz=2.0, depth_hz=2.0)
-    node = build_node("robot_state", load_config(overrides=NED + ["robot_state.dvl_heading_fusion=false"]))
+    node = build_node("robot_state", load_config(overrides=NED + ["robot_state.dvl.heading_fusion=false"]))
     out = run_offline(node, msgs)
     assert abs(node.filter.x[13] - bias) < 0.05 * bias
     assert abs(math.degrees(_yaws(out, OutputFrame("xyz", 1.0))[-1])) < 0.01

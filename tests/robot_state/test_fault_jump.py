@@ -1,5 +1,5 @@
-"""robot_state's fault injection: from ``fault_jump_at_s`` after the first output on,
-every published position carries ``fault_jump_m`` (a kidnapped vehicle); off by default."""
+"""robot_state's fault injection: from ``debug.fault_jump_at_s`` after the first output on,
+every published position carries ``debug.fault_jump_m`` (a kidnapped vehicle); off by default."""
 from __future__ import annotations
 
 import math
@@ -24,7 +24,7 @@ def _run(extra: list[str]):
 
 def test_the_published_position_jumps_at_the_set_time_and_only_then() -> None:
     base, _ = _run([])
-    out, node = _run(["robot_state.fault_jump_at_s=10", "robot_state.fault_jump_m=[20.0,-5.0,0.0]"])
+    out, node = _run(["debug.fault_jump_at_s=10", "debug.fault_jump_m=[20.0,-5.0,0.0]"])
     t, p = odometry_positions(out)
     t0, p0 = odometry_positions(base)
     assert np.array_equal(t, t0)

@@ -72,7 +72,7 @@ def test_imu_yaw_drift_rate_keeps_the_compass_offset_unbiased():
     # the cross-track error of a 180 m straight run stays below 1 m (0.3 deg)
     _t, p = odometry_positions(out)
     assert abs(p[-1, 1]) < 1.0
-    old, _ = _run(msgs, "robot_state.imu_yaw_drift_rate_sigma_deg_min=0")
+    old, _ = _run(msgs, "robot_state.imu.yaw_drift_rate_sigma_deg_min=0")
     assert abs(math.degrees(old.filter.x[B_DVL]) - 2.0) > abs(offset - 2.0) + 0.1
 
 
@@ -112,6 +112,6 @@ def test_short_dvl_dropout_keeps_the_cruise_speed():
     assert node.counters.get("dvl_reacquired") == 1
     i = int(np.searchsorted(t, 26.0))
     assert 0.5 * t[i] - p[i, 0] < 0.15
-    fast, out5 = _run(msgs, "robot_state.dvl_dropout_decay_s=5")
+    fast, out5 = _run(msgs, "robot_state.dvl.dropout_decay_s=5")
     t5, p5 = odometry_positions(out5)
     assert 0.5 * t5[i] - p5[i, 0] > 0.5
