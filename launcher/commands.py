@@ -41,12 +41,16 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
     """Print the result of ``run``/``demo`` with its ``evaluation`` (:mod:`eval.summary`) added:
     the ``--json`` document (:mod:`launcher.cli`), or a readable summary."""
     from eval.summary import format_summary, summarize_run
+    from launcher.inputs import format_inputs
     from launcher.logs import log_file
     result["evaluation"] = summarize_run(result["output"], config)
     log_path = log_file()
     result["log"] = str(log_path) if log_path is not None else None
     if as_json:
         print(json.dumps(result, indent=2))
+        for r in (result.get("inputs") or {}).values():  # what the user must act on, also with --json
+            if r.get("hint"):
+                print(f"poseidon run: {r['hint']}", file=sys.stderr)
         return
     rec = result["recording"]
     print(f"run finished ({result['mode']}) in {result['wall_s']:.1f} s wall; "
@@ -88,6 +92,8 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
             if lat.get("n"):
                 print(f"    latency arrival -> {stage:<9} p50 {lat['p50_ms']:8.1f} ms  p95 {lat['p95_ms']:8.1f} ms  "
                       f"p99 {lat['p99_ms']:8.1f} ms  (n {lat['n']})")
+    for line in format_inputs(result.get("inputs") or {}):
+        print(line)
     for line in format_summary(result["evaluation"]):
         print(line)
     if log_path is not None:

@@ -58,6 +58,7 @@ from common.bus import Bus, open_hub
 from common.live import LATENCY_KEY
 from common.mcap_io import code_revision
 from launcher.children import die_with_launcher
+from launcher.inputs import input_report
 from launcher.run import (
     RunFailed,
     RunPlan,
@@ -215,4 +216,5 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
             if p.exists():
                 result.services[name] = json.loads(p.read_text())
     result.recording = _summarise(out)
+    result.inputs = input_report(config, plan.io, result.services, inp)
     return result

@@ -59,6 +59,7 @@ from common.mcap_io import RecordingError, code_revision, file_sha256, read_meta
 from common.resume import Supervision
 from common.worker import Worker
 from launcher.children import check_batch_scheduling, die_with_launcher
+from launcher.inputs import input_report
 from services.player.player import SOURCE_KEYS, replayed_keys
 from system.config import PoseidonConfig
 from system.services import WorkerSpec, available_services, build_node, build_worker, node_io
@@ -201,10 +202,12 @@ class RunResult:
     services: dict[str, dict[str, Any]] = field(default_factory=dict)
     recording: dict[str, Any] = field(default_factory=dict)
     restarts: dict[str, int] = field(default_factory=dict)
+    inputs: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
-                "services": self.services, "recording": self.recording, "restarts": self.restarts}
+                "services": self.services, "recording": self.recording, "restarts": self.restarts,
+                "inputs": self.inputs}
 
 
 def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:
@@ -355,6 +358,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             if p.exists():
                 result.services[name] = json.loads(p.read_text())
     result.recording = _summarise(out)
+    result.inputs = input_report(config, plan.io, result.services, input_path)
     return result
 
 
@@ -488,4 +492,5 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     _publish_output(partial, out)
     result = RunResult(str(out), "embedded", time.monotonic() - t0, services=results)
     result.recording = _summarise(out)
+    result.inputs = input_report(config, plan.io, result.services, input_path)
     return result

@@ -1,4 +1,4 @@
-"""``poseidon import SRC [SRC ...] --out FILE.mcap [--topic-map FILE.yaml] [--json]``.
+"""``poseidon import SRC [SRC ...] --out FILE.mcap [--topic TOPIC=KEY ...] [--topic-map FILE.yaml] [--json]``.
 
 Sources, merged into one recording in chronological order (the camera bag and the
 sensor bag of the caves dataset become one recording):
@@ -15,8 +15,14 @@ sensor bag of the caves dataset become one recording):
   not apply to it.  Exit 1 when a line was rejected, as for a bag's unreadable records.
 
 Topics map to keys by :data:`~missions.importers.rosbags_io.DEFAULT_TOPIC_MAP`, other
-topics to the topic without its leading slash.  ``--topic-map`` is a YAML mapping
-``topic: key`` (overrides; ``topic: null`` drops a topic).
+topics to the topic without its leading slash.  ``--topic TOPIC=KEY`` (repeatable) imports a
+bag topic under one of our keys, e.g. ``--topic /imu/data=imu_adis_ros`` for a robot whose IMU
+is not named as the services expect (``poseidon run`` names the mapping a recording needs);
+a key the services read (:data:`common.messages.KEYS`) takes only a topic whose type converts
+to that key's message, else the import stops (exit 2) naming both.  ``--topic-map`` is a YAML
+mapping ``topic: key`` (overrides; ``topic: null`` drops a topic); ``--topic`` wins over it.
+The recording's ``poseidon`` metadata keeps the sources, the topic map and each bag topic's
+ROS type and key (``topics``).
 
 Nothing is lost: a message whose type has a model (table in
 :mod:`missions.importers.rosbags_io`) is converted; any other message -- a type without a
@@ -58,7 +64,7 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from common.mcap_io import RecordingWriter
-from common.messages import RAW_KEY_PREFIX, Message
+from common.messages import KEYS, RAW_KEY_PREFIX, Message
 from common.ros_convert import key_of, raw_message, stamped_header
 from missions.importers import frames as frames_mod
 from missions.importers.carmen import import_carmen, is_carmen_log
@@ -74,7 +80,7 @@ from missions.importers.rosbags_io import (
 )
 from missions.importers.rostopic_csv import read_rostopic_csv
 
-__all__ = ["main", "import_sources", "load_topic_map"]
+__all__ = ["main", "import_sources", "load_topic_map", "parse_topic_args"]
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +107,27 @@ def load_topic_map(path: str | Path | None) -> dict[str, str | None]:
                                    f"slash or null, got {key!r}")
         tm[str(topic)] = key
     return tm
+
+
+def parse_topic_args(pairs: list[str]) -> dict[str, str]:
+    """``--topic TOPIC=KEY`` arguments as ``{topic: key}``; :class:`InputFormatError` naming a bad one."""
+    out: dict[str, str] = {}
+    for pair in pairs:
+        topic, sep, key = pair.partition("=")
+        topic, key = topic.strip(), key.strip()
+        if not sep or not topic or not key or key.startswith("/"):
+            raise InputFormatError(f"--topic {pair!r}: give TOPIC=KEY, e.g. --topic /imu/data=imu_adis_ros "
+                                   f"(KEY without a leading slash)")
+        out[topic if topic.startswith("/") else "/" + topic] = key
+    return out
+
+
+def _check_key_type(topic: str, key: str, msg: Message) -> None:
+    """A message for one of the services' keys must be that key's type (:data:`common.messages.KEYS`)."""
+    want = KEYS.get(key)
+    if want is not None and not isinstance(msg, want):
+        raise InputFormatError(f"topic {topic} converts to {type(msg).__name__}, but key {key!r} carries "
+                               f"{want.__name__}; map it to a key of that type")
 
 
 class _Stats:
@@ -230,6 +257,8 @@ def _one_bag_message(bm: Any, reader: Any, tm: dict[str, str | None], stats: _St
         except (ConversionError, ValidationError, TypeError, ValueError) as exc:
             why = f"no lossless conversion to our model: {str(exc).splitlines()[0]}"
         else:
+            if not ts["mapped"]:
+                _check_key_type(bm.topic, key, msg)
             ts["mapped"] += 1
             yield bm.record_ns, 0, key, msg
             return
@@ -310,7 +339,8 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
             last = st if last is None else max(last, st)
             bar.update(1)
         writer.add_metadata("poseidon", {"tool": "poseidon import", "sources": [str(s) for s in sources],
-                                         "topic_map": tm})
+                                         "topic_map": tm, "topics": {t: {"type": v["type"], "key": v["key"]}
+                                                                     for t, v in sorted(stats.topics.items())}})
         ok = True
     finally:
         bar.close()
@@ -338,6 +368,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="ROS1 .bag, ROS2 bag folder/.db3/.mcap, rostopic CSV, frames folder, or one CARMEN log "
                          "(.clf, .clf.bz2, .clf.gz)")
     ap.add_argument("--out", required=True, help="output MCAP recording")
+    ap.add_argument("--topic", action="append", default=[], metavar="TOPIC=KEY",
+                    help="import bag topic TOPIC under our key KEY, e.g. --topic /imu/data=imu_adis_ros (repeatable)")
     ap.add_argument("--topic-map", default=None, help="YAML mapping 'topic: key' (null drops a topic)")
     ap.add_argument("--frames-timestamps", default=None, help="timestamps file of a frames folder")
     ap.add_argument("--raw", action="append", default=None, metavar="TOPIC",
@@ -349,7 +381,8 @@ def main(argv: list[str] | None = None) -> int:
     if any(is_carmen_log(s) for s in args.sources):
         return _main_carmen(ap, args)
     try:
-        summary = import_sources(args.sources, args.out, load_topic_map(args.topic_map), args.frames_timestamps,
+        topic_map = {**load_topic_map(args.topic_map), **parse_topic_args(args.topic)}
+        summary = import_sources(args.sources, args.out, topic_map, args.frames_timestamps,
                                  progress=not args.no_progress, raw_topics=set(args.raw) if args.raw else None)
     except InputFormatError as exc:
         print(f"poseidon import: error: {exc}", file=sys.stderr)
@@ -369,8 +402,8 @@ def _main_carmen(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """``poseidon import LOG.clf[.bz2|.gz] --out FILE.mcap``: one CARMEN log on its own."""
     if len(args.sources) != 1:
         ap.error(f"a CARMEN log is imported on its own, got {len(args.sources)} sources: {args.sources}")
-    if args.topic_map or args.raw or args.frames_timestamps:
-        ap.error("--topic-map, --raw and --frames-timestamps do not apply to a CARMEN log")
+    if args.topic_map or args.topic or args.raw or args.frames_timestamps:
+        ap.error("--topic, --topic-map, --raw and --frames-timestamps do not apply to a CARMEN log")
     try:
         summary = import_carmen(args.sources[0], args.out)
     except InputFormatError as exc:

@@ -398,3 +398,27 @@ def test_image_encodings() -> None:
     with pytest.raises(ConversionError, match="expected step"):
         conv(SimpleNamespace(encoding="rgb8", height=2, width=2, step=6, is_bigendian=0,
                              data=np.zeros(7, np.uint8)), h)
+
+
+def test_topic_option_maps_a_topic_onto_our_key_when_its_type_converts(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from common.mcap_io import read_metadata
+    from missions.importers.cli import parse_topic_args
+    _write_bag(tmp_path / "cv.bag", ros2=False)
+    out = tmp_path / "out.mcap"
+    assert main([str(tmp_path / "cv.bag"), "--topic", "/imu_adis=imu_adis_ros", "--out", str(out), "--no-progress",
+                 "--json"]) == 0
+    written = json.loads(capsys.readouterr().out)["written"]
+    assert "imu_adis_ros" in written and "imu_adis" not in written
+    topics = json.loads(read_metadata(out)["poseidon"]["topics"])
+    assert topics["/imu_adis"] == {"type": "cirs_girona_cala_viuda/Imu", "key": "imu_adis_ros"}
+    # an IMU on the DVL's key would fail in the service: refused, naming both types, nothing written
+    bad = tmp_path / "bad.mcap"
+    assert main([str(tmp_path / "cv.bag"), "--topic", "/imu_adis=dvl_linkquest", "--out", str(bad),
+                 "--no-progress"]) == 2
+    assert "converts to Imu, but key 'dvl_linkquest' carries LinkquestDvl" in capsys.readouterr().err
+    assert not list(tmp_path.glob("bad.mcap*"))
+    assert parse_topic_args(["imu/data=imu_adis", "/x = y"]) == {"/imu/data": "imu_adis", "/x": "y"}
+    for wrong in ("/imu/data", "/imu/data=", "=imu_adis", "/imu/data=/imu_adis"):
+        with pytest.raises(InputFormatError, match="TOPIC=KEY"):
+            parse_topic_args([wrong])
