@@ -82,3 +82,20 @@ def test_each_node_is_built_from_its_own_section_and_explicit_cross_section_valu
     assert expmap.sweeps.head_sign == 1.0                          # from robot_state, explicitly
     encoder = build_node("encoder", cfg)
     assert encoder.core.clock.stale_ns == 400_000_000              # from sync, explicitly
+
+
+def test_debug_knobs_reach_only_the_service_that_uses_them(bus):
+    """``debug.fault_jump_*`` go to robot_state as named arguments, ``debug.slow_*`` to the runner
+    of the slowed service of a live run; neither is part of a service's own section."""
+    from system.config import load_config
+
+    cfg = load_config(overrides=["debug.fault_jump_at_s=12", "debug.fault_jump_m=[1,2,3]",
+                                 "debug.slow_service=posecells", "debug.slow_ms=40"])
+    rs = build_node("robot_state", cfg)
+    assert (rs.fault_jump_at_s, rs.fault_jump_m) == (12.0, [1.0, 2.0, 3.0])
+    assert "fault_jump_at_s" not in type(cfg.robot_state).model_fields
+    slowed = build_worker("posecells", cfg, bus, WorkerSpec(live=True))
+    other = build_worker("posecells", load_config(overrides=["debug.slow_service=expmap", "debug.slow_ms=40"]), bus,
+                         WorkerSpec(live=True))
+    assert isinstance(slowed, NodeRunner) and isinstance(other, NodeRunner)
+    assert (slowed.delay_s, other.delay_s) == (0.04, 0.0)
