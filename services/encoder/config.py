@@ -57,7 +57,7 @@ class EmbeddingNormConfig(ConfigSection):
                       "{modality}.npz next to htm.state_path (empty: in memory, every run warms up on its own data)")
     hold: int = Field(10, ge=0, description="running statistics: the encoder holds its outputs until the camera "
                       "(sonar mode: the sonar) has this many embeddings, then hashes the held frames with those "
-                      "statistics (a start-up delay of hold camera frames, services/encoder/clock.py; 0: each frame "
+                      "statistics (a start-up delay of hold camera frames, services/encoder/core.py; 0: each frame "
                       "hashed at once with the frames before it) [frames]")
     hold_max_s: float = Field(2.0, gt=0, description="the warm-up hold ends at the latest when the inputs are this "
                               "much event time past the oldest held output; at most bus.flow_window_ms - 1 s (a "
