@@ -59,6 +59,7 @@ from common.messages import Depth, LinkquestDvl, Message, Odometry
 from common.node import run_offline
 from eval.trajectory import NS, Trajectory, anchored_errors
 from services.robot_state.config import RobotStateConfig
+from services.robot_state.node import RobotStateNode
 from system.config import PoseidonConfig, load_config
 from system.services import build_node
 
@@ -185,6 +186,7 @@ def run_deadreckon(messages: list[tuple[str, Message]], config: PoseidonConfig,
                    cones: list[dict[str, Any]] | None = None, recording: str = "") -> dict[str, Any]:
     """Run the node and the plain baseline over ``messages``; the summary documented above."""
     node = build_node("robot_state", config)
+    assert isinstance(node, RobotStateNode)
     frame = node.frame
     plain = PlainIntegrator(config.robot_state)
     counts: dict[str, int] = {}

@@ -55,7 +55,7 @@ class Trajectory:
     unwrapped so that interpolation never crosses the +-pi seam the long way.
     """
 
-    def __init__(self, stamps: Sequence[int] | np.ndarray, positions: Sequence[Sequence[float]] | np.ndarray,
+    def __init__(self, stamps: Sequence[int] | np.ndarray, positions: Sequence[Sequence[float]] | Sequence[np.ndarray] | np.ndarray,
                  yaws: Sequence[float] | np.ndarray | None = None, source: str = "") -> None:
         t = np.asarray(stamps, dtype=np.int64).reshape(-1)
         p = np.asarray(positions, dtype=float).reshape(-1, 3)
