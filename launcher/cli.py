@@ -43,13 +43,15 @@ Subcommands:
 {name: {...per-service counters...}}, "recording": {"counts": {key: n}, "duration_s"},
 "restarts": {name: number of supervised restarts},
 "evaluation": {"front_end": {...}, "dead_reckoning": {...}, "back_end": {...}},
-"inputs": {name: {"received": {key: n}, "missing": [key], "hint": str}}, "log": path}`` (``demo`` adds
-``"mission"``: the simulated input file; the evaluation keys are documented in
+"inputs": {name: {"received": {key: n}, "missing": [key], "hint": str}}, "places": {...}, "log": path}``
+(``demo`` adds ``"mission"``: the simulated input file; the evaluation keys are documented in
 :mod:`eval.summary`, present when the run has LVC ids / ground truth / a map; ``inputs``: per
 algorithm service the messages it received on each input key, the inputs that got nothing and,
 then, a one-line ``hint`` naming the recording's unread keys and the ``poseidon import --topic
 TOPIC=KEY`` mapping (and setting) that feeds them to it (:mod:`launcher.inputs`; also printed at
-the end of the run); ``log``: the run's log file).
+the end of the run); ``places`` (with ``local_view_cells``, else null): ``{"frames", "places",
+"revisits": [[frame, first frame of its place, LVC id]], "names": frame file names}``
+(:mod:`launcher.places`); ``log``: the run's log file).
 
 Console and log (:mod:`launcher.logs`): the console shows warnings, errors, progress bars and
 results; ``--verbose`` adds the services' INFO messages, ``--log-level LEVEL`` sets its level

@@ -43,7 +43,9 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
     from eval.summary import format_summary, summarize_run
     from launcher.inputs import format_inputs
     from launcher.logs import log_file
+    from launcher.places import format_places, places_summary
     result["evaluation"] = summarize_run(result["output"], config)
+    result["places"] = places_summary(result["output"])
     log_path = log_file()
     result["log"] = str(log_path) if log_path is not None else None
     if as_json:
@@ -95,6 +97,8 @@ def print_run(result: dict[str, Any], as_json: bool, config: Any) -> None:
     for line in format_inputs(result.get("inputs") or {}):
         print(line)
     for line in format_summary(result["evaluation"]):
+        print(line)
+    for line in format_places(result["places"]):
         print(line)
     if log_path is not None:
         print(f"log: {log_path}")

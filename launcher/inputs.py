@@ -9,7 +9,8 @@ inputs, ``hint`` says in one line which keys of the recording no service read an
 them on keys the service reads, matched by message type (:data:`common.messages.KEYS`),
 with the setting the run then needs when the service reads that key only under another
 configuration (:data:`ALTERNATIVES`, e.g. ``robot_state.source=wheel_odometry`` for a
-ground robot's wheel odometry).  A service missing only what other services of the run
+ground robot's wheel odometry).  Inputs a service does not need under the run's configuration
+(:func:`optional_inputs`: the sonar of an encoder fusing the camera alone) are never missing.  A service missing only what other services of the run
 publish is named with them (``htm: no input on Odometry (robot_state published nothing)``).
 """
 from __future__ import annotations
@@ -26,10 +27,19 @@ from common.messages import KEYS, RAW_KEY_PREFIX
 from system.config import PoseidonConfig
 from system.services import node_io
 
-__all__ = ["REFERENCE_KEYS", "ALTERNATIVES", "input_report", "format_inputs"]
+__all__ = ["REFERENCE_KEYS", "ALTERNATIVES", "optional_inputs", "input_report", "format_inputs"]
 
 #: inputs that are references for evaluation (ground truth), never needed by a service
 REFERENCE_KEYS = ("odometry", "truth/pose", "truth/revisits")
+
+def optional_inputs(name: str, config: PoseidonConfig) -> set[str]:
+    """Inputs service ``name`` subscribes to but does not need under ``config`` (the encoder's
+    other modality when it fuses one alone)."""
+    if name == "encoder":
+        mode = config.encoder.fusion_mode
+        return {config.encoder.sonar.topic} if mode == "camera" else {"camera/image_raw"} if mode == "sonar" else set()
+    return set()
+
 
 #: settings under which a service reads other inputs: tried when its inputs are missing
 ALTERNATIVES: dict[str, tuple[str, ...]] = {
@@ -125,7 +135,8 @@ def input_report(config: PoseidonConfig, io: Mapping[str, tuple[tuple[str, ...],
     for name, (ins, _outs) in io.items():
         got = dict((services.get(name) or {}).get("received") or {})
         received = {k: int(got.get(k, 0)) for k in ins}
-        missing = [k for k, n in received.items() if n == 0 and k not in REFERENCE_KEYS]
+        missing = [k for k, n in received.items()
+                   if n == 0 and k not in REFERENCE_KEYS and k not in optional_inputs(name, config)]
         sensors = [k for k in missing if k not in producer]   # what the recording (a source) had to give
         hint = ""
         if sensors and input_path is not None:

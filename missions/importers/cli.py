@@ -7,8 +7,9 @@ sensor bag of the caves dataset become one recording):
   (type mapping: :mod:`missions.importers.rosbags_io`);
 - rostopic-echo CSV logs (``.csv``; kind detected from the columns, key = kind:
   ``dvl_linkquest``, ``depth_sensor``, ``imu_adis``; :mod:`missions.importers.rostopic_csv`);
-- a folder of image frames with a timestamps file (key ``camera/image_raw``;
-  :mod:`missions.importers.frames`);
+- a folder of image frames (key ``camera/image_raw``; :mod:`missions.importers.frames`): stamped
+  by its timestamps file, or without one in file-name order at ``--frame-rate`` frames/s
+  (default 1); the metadata keeps the frames' file names in order (``frames``);
 - a CARMEN robot log (``.clf``, ``.clf.bz2``, ``.clf.gz``; :mod:`missions.importers.carmen`,
   which documents its mapping and its own ``--json`` keys): imported on its own, not
   merged with other sources; ``--topic-map``, ``--raw`` and ``--frames-timestamps`` do
@@ -288,13 +289,15 @@ def _frames_stream(plan: list[tuple[int, int, Path]], order: int) -> Iterator[tu
 
 def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[str, str | None] | None = None,
                    frames_timestamps: str | Path | None = None, progress: bool = True,
-                   raw_topics: set[str] | None = None) -> dict[str, Any]:
+                   raw_topics: set[str] | None = None, frame_rate: float | None = None) -> dict[str, Any]:
     """Import every source into one recording at ``out``; returns the summary (see module doc).
-    ``raw_topics``: bag topics carried raw even when a model exists (``{"*"}``: every topic)."""
+    ``raw_topics``: bag topics carried raw even when a model exists (``{"*"}``: every topic);
+    ``frame_rate``: frames/s of a frames folder without a timestamps file."""
     tm: dict[str, str | None] = topic_map if topic_map is not None else dict(DEFAULT_TOPIC_MAP)
     stats = _Stats()
     bags: list[Path] = []
     streams: list[Iterator[tuple[int, int, str, Message]]] = []
+    frame_names: list[tuple[int, str]] = []
     if not sources:
         raise InputFormatError("no sources given")
     for i, s in enumerate(sources):
@@ -312,7 +315,8 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
                 continue
             streams.append(_list_stream([(key, m) for _, m in recs], i + 1))
         elif p.is_dir() and not (p / "metadata.yaml").exists():
-            plan = frames_mod.frames_plan(p, frames_timestamps)
+            plan = frames_mod.frames_plan(p, frames_timestamps, frame_rate)
+            frame_names += [(stamp, path.name) for stamp, _seq, path in plan]
             stats.inputs.append({"paths": [str(p)], "format": "frames", "topics": {"camera/image_raw": {"type": "image", "count": len(plan)}}})
             stats.read["camera/image_raw"] = stats.read.get("camera/image_raw", 0) + len(plan)
             streams.append(_frames_stream(plan, i + 1))
@@ -340,7 +344,8 @@ def import_sources(sources: list[str | Path], out: str | Path, topic_map: dict[s
             bar.update(1)
         writer.add_metadata("poseidon", {"tool": "poseidon import", "sources": [str(s) for s in sources],
                                          "topic_map": tm, "topics": {t: {"type": v["type"], "key": v["key"]}
-                                                                     for t, v in sorted(stats.topics.items())}})
+                                                                     for t, v in sorted(stats.topics.items())},
+                                         **({"frames": [n for _s, n in sorted(frame_names)]} if frame_names else {})})
         ok = True
     finally:
         bar.close()
@@ -372,6 +377,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="import bag topic TOPIC under our key KEY, e.g. --topic /imu/data=imu_adis_ros (repeatable)")
     ap.add_argument("--topic-map", default=None, help="YAML mapping 'topic: key' (null drops a topic)")
     ap.add_argument("--frames-timestamps", default=None, help="timestamps file of a frames folder")
+    ap.add_argument("--frame-rate", type=float, default=None, metavar="HZ",
+                    help="frames/s of a frames folder without a timestamps file: frames in file-name order (default 1)")
     ap.add_argument("--raw", action="append", default=None, metavar="TOPIC",
                     help="carry this bag topic raw (bytes + definition) even when a model exists; '*' = every topic "
                          "(repeatable)")
@@ -383,7 +390,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         topic_map = {**load_topic_map(args.topic_map), **parse_topic_args(args.topic)}
         summary = import_sources(args.sources, args.out, topic_map, args.frames_timestamps,
-                                 progress=not args.no_progress, raw_topics=set(args.raw) if args.raw else None)
+                                 progress=not args.no_progress, raw_topics=set(args.raw) if args.raw else None,
+                                 frame_rate=args.frame_rate)
     except InputFormatError as exc:
         print(f"poseidon import: error: {exc}", file=sys.stderr)
         return 2
@@ -402,8 +410,8 @@ def _main_carmen(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """``poseidon import LOG.clf[.bz2|.gz] --out FILE.mcap``: one CARMEN log on its own."""
     if len(args.sources) != 1:
         ap.error(f"a CARMEN log is imported on its own, got {len(args.sources)} sources: {args.sources}")
-    if args.topic_map or args.topic or args.raw or args.frames_timestamps:
-        ap.error("--topic, --topic-map, --raw and --frames-timestamps do not apply to a CARMEN log")
+    if args.topic_map or args.topic or args.raw or args.frames_timestamps or args.frame_rate:
+        ap.error("--topic, --topic-map, --raw, --frames-timestamps and --frame-rate do not apply to a CARMEN log")
     try:
         summary = import_carmen(args.sources[0], args.out)
     except InputFormatError as exc:

@@ -285,8 +285,28 @@ def test_empty_folder_and_missing_inputs(tmp_path: Path) -> None:
     from PIL import Image as PILImage
 
     PILImage.fromarray(np.zeros((4, 4, 3), np.uint8)).save(d / "a.png")
-    with pytest.raises(InputFormatError, match=r"frames: no timestamps file"):
-        import_sources([d], tmp_path / "out.mcap", progress=False)
+    with pytest.raises(InputFormatError, match=r"missing\.txt: no such timestamps file"):
+        import_sources([d], tmp_path / "out.mcap", frames_timestamps=tmp_path / "missing.txt", progress=False)
+    with pytest.raises(InputFormatError, match=r"--frame-rate must be > 0"):
+        import_sources([d], tmp_path / "out.mcap", frame_rate=0.0, progress=False)
+
+
+def test_a_folder_of_frames_without_timestamps_in_file_name_order_at_the_frame_rate(tmp_path: Path) -> None:
+    from PIL import Image as PILImage
+
+    from common.mcap_io import read_metadata
+    d = tmp_path / "lab"
+    d.mkdir()
+    for i, name in enumerate(["b.jpg", "a.png", "c.jpeg"]):
+        PILImage.fromarray(np.full((6, 8, 3), 50 * i, np.uint8)).save(d / name)
+    (d / "notes.txt").write_text("not a frame")
+    out = tmp_path / "lab.mcap"
+    assert main([str(d), "--out", str(out), "--frame-rate", "4", "--no-progress"]) == 0
+    imgs = _recorded(out)["camera/image_raw"]
+    assert [m.header.stamp for m in imgs] == [0, 250_000_000, 500_000_000]
+    assert [m.header.seq for m in imgs] == [0, 1, 2]
+    assert [int(np.asarray(m.data)[0, 0, 0]) for m in imgs] == [50, 0, 100]    # a.png, b.jpg, c.jpeg
+    assert json.loads(read_metadata(out)["poseidon"]["frames"]) == ["a.png", "b.jpg", "c.jpeg"]
 
 
 def test_csv_missing_column_via_import(tmp_path: Path) -> None:
