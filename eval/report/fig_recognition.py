@@ -178,12 +178,22 @@ def fig_similarity(runs: list[RunView], sims: list[tuple[int, Similarity | None]
         spec.notes += [f"{runs[i].label}: {n}" for n in sim.notes]
     if not shown:
         return spec
+    cols = 2 if any(sim.truth is not None for _, sim in shown) else 1
+    if cols == 1:
+        spec.title = "Similarity matrix (cf. Figs 5.9-5.10)"
+        spec.caption = ("Similarity between every pair of frames (row = frame, column = frame, both in time order; "
+                        "brighter = more similar; hover for the exact value). The bright diagonal is each frame "
+                        "with itself and its neighbours; bright off-diagonal bands are places recognised again; "
+                        "scattered bright spots can be perceptual aliasing (risk of false loop closures). The run "
+                        "has no revisit ground truth (truth/revisits) to compare with.")
     titles = []
     for i, sim in shown:
         sub = f"{len(sim.stamps)} of {sim.frame_total} frames" if len(sim.stamps) < sim.frame_total else \
             f"{sim.frame_total} frames"
-        titles += [f"{runs[i].label}: {sim.source} ({sub})", "ground truth: same place"]
-    fig = make_subplots(rows=len(shown), cols=2, subplot_titles=titles, horizontal_spacing=0.08,
+        titles += [f"{runs[i].label}: {sim.source} ({sub})"]
+        if cols == 2:
+            titles.append("ground truth: same place" if sim.truth is not None else "no ground truth")
+    fig = make_subplots(rows=len(shown), cols=cols, subplot_titles=titles, horizontal_spacing=0.08,
                         vertical_spacing=0.08)
     for row, (i, sim) in enumerate(shown, start=1):
         t = runs[i].seconds(sim.stamps).astype(np.float32)
@@ -195,9 +205,12 @@ def fig_similarity(runs: list[RunView], sims: list[tuple[int, Similarity | None]
                                      colorscale=[[0, "#000000"], [1, "#ffffff"]], name="ground truth",
                                      hovertemplate="%{y:.1f} s vs %{x:.1f} s: same place %{z}<extra></extra>"),
                           row=row, col=2)
-        for col in (1, 2):
+        for col in range(1, cols + 1):
             fig.update_xaxes(title_text="time (s)", row=row, col=col)
             fig.update_yaxes(title_text="time (s)", autorange="reversed", row=row, col=col)
+        if cols == 1:  # one matrix a row: square, not stretched across the page
+            fig.update_xaxes(constrain="domain", row=row, col=1)
+            fig.update_yaxes(scaleanchor="x" if row == 1 else f"x{row}", constrain="domain", row=row, col=1)
     # colour range from the off-diagonal values (1st to 99.9th percentile): a dense SDR's chance overlap is far
     # above 0 %, and a 0-100 scale would wash the structure out
     off = np.concatenate([sim.percent[~np.eye(len(sim.stamps), dtype=bool)] for _, sim in shown])
