@@ -243,14 +243,16 @@ def revisit_frames(r: RunView, min_gap_m: float) -> np.ndarray:
 
 
 def fig_viewcells(runs: list[RunView], max_points: int, min_gap_m: float = 10.0) -> FigureSpec:
+    truth = any(r.revisit_same for r in runs)
     spec = FigureSpec(
         "fig-viewcells", "View cells over time: creation and recognition (cf. Figs 5.11-5.12)",
-        "One panel per run. Each frame's local view cell (LVC) id against time: blue crosses are frames that "
+        ("One panel per run. " if len(runs) > 1 else "")
+        + "Each frame's local view cell (LVC) id against time: blue crosses are frames that "
         "created a new cell (a place not seen before); grey dots matched a cell created moments before (the same "
         "pass over a place); red circles matched a cell created at least the minimum travel earlier (a place "
         "recognised again, a loop-closure candidate); black diamonds are loop closures the experience map "
         "accepted. A rising staircase is exploration; red circles at low ids late in the run are revisits of "
-        "early places (compare with the ground-truth matrix above).")
+        "early places" + (" (compare with the ground-truth matrix above)." if truth else "."))
     with_lvc = [(i, r) for i, r in enumerate(runs) if len(r.lvc_stamps)]
     for r in runs:
         if not len(r.lvc_stamps):

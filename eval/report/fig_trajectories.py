@@ -53,6 +53,11 @@ def fig_overlay_3d(runs: list[RunView], max_points: int) -> FigureSpec:
         "it. A good map follows the green path more closely than the orange one; where the map jumps, a loop "
         "closure corrected it. Estimates are anchored to the truth at their first sample (shapes are compared, "
         "not the choice of origin).")
+    if not any(len(r.truth) for r in runs):
+        spec.title = "3D view: dead reckoning and map (cf. Fig. 5.19)"
+        spec.caption = ("Dead reckoning (orange) and the final experience map of each run (its nodes in creation "
+                        "order) in metres, east/north/up. Drag to rotate, scroll to zoom, click a legend entry to "
+                        "hide it. Where the map leaves the dead reckoning, a loop closure corrected it.")
     if no_trajectories(runs):
         spec.notes.append("no trajectory in the runs (keys truth/pose, Odometry, dead_reckoning, map)")
         return spec
