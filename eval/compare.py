@@ -34,17 +34,18 @@ from pathlib import Path
 from typing import Any
 
 from eval.audit import audit_run
+from eval.results import RunEvaluation
 from eval.run_eval import evaluate_run
 from eval.rundata import RunData, add_config_args, config_from_args, load_run, report_cli
 from system.config import PoseidonConfig
 
 __all__ = ["compare_runs", "compare_results", "format_compare", "main", "TABLE_5_4", "ADDITIONS"]
 
-Getter = Callable[[dict[str, Any], dict[str, Any]], Any]
+Getter = Callable[[RunEvaluation, dict[str, Any]], Any]
 
 
 def _get(*path: str) -> Getter:
-    def f(ev: dict[str, Any], _au: dict[str, Any]) -> Any:
+    def f(ev: RunEvaluation, _au: dict[str, Any]) -> Any:
         v: Any = ev
         for k in path:
             if v is None:
@@ -93,7 +94,7 @@ ADDITIONS: dict[str, tuple[str, Getter]] = {
 }
 
 
-def compare_results(ev_a: dict[str, Any], au_a: dict[str, Any], ev_b: dict[str, Any], au_b: dict[str, Any],
+def compare_results(ev_a: RunEvaluation, au_a: dict[str, Any], ev_b: RunEvaluation, au_b: dict[str, Any],
                     labels: tuple[str, str] = ("A", "B")) -> dict[str, Any]:
     """Arrange two runs' :func:`evaluate_run` and :func:`audit_run` results (module docstring)."""
     def table(spec: dict[str, tuple[str, Getter]]) -> dict[str, Any]:

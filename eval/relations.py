@@ -30,12 +30,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from common.geometry import wrap_angles as wrap
 from common.stamps import seconds_to_ns
+from eval.results import MeanStd, RelationFigures
 
 __all__ = ["Relations", "read_relations", "interpolate_planar", "relation_errors", "relation_summary"]
 
@@ -146,14 +146,14 @@ def relation_errors(stamps: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.nd
     return ex, ey, ea, inside
 
 
-def _ms(v: np.ndarray) -> dict[str, float | None]:
+def _ms(v: np.ndarray) -> MeanStd:
     if not len(v):
         return {"mean": None, "std": None}
     return {"mean": round(float(np.mean(v)), 6), "std": round(float(np.std(v)), 6)}
 
 
 def relation_summary(stamps: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
-                     rel: Relations) -> dict[str, Any]:
+                     rel: Relations) -> RelationFigures:
     """``{count, outside, trans_abs_m, rot_abs_deg, trans_sq_m2}`` (module docstring)."""
     ex, ey, ea, inside = relation_errors(stamps, x, y, yaw, rel)
     sq = ex[inside] ** 2 + ey[inside] ** 2

@@ -102,6 +102,24 @@ import numpy as np
 from eval.corrected import map_corrected
 from eval.frontend import frame_indices, lvc_false_associations, lvc_revisit_metrics, vpr_window_ok_ratio
 from eval.relations import read_relations, relation_summary
+from eval.results import (
+    AteBlock,
+    AteFigures,
+    DeadReckoningErrors,
+    FrontEnd,
+    LatencyBlock,
+    LatencyStageFigures,
+    LoopClosureRow,
+    LoopClosures,
+    MapAndDeadReckoning,
+    ProxyRatios,
+    RelationErrors,
+    RelationsBlock,
+    RpeBlock,
+    RpeFigures,
+    RunEvaluation,
+    StabilityProxies,
+)
 from eval.rundata import RunData, load_run
 from eval.sessions import sessions_block
 from eval.trajectory import PoseSeries, Trajectory, anchored_errors, ate, drift_pct, rpe
@@ -145,10 +163,10 @@ def _truth_at(run: RunData, stamps: list[int]) -> np.ndarray:
     return out
 
 
-def loop_closure_table(run: RunData, far_m: float = 5.0) -> dict[str, Any]:
+def loop_closure_table(run: RunData, far_m: float = 5.0) -> LoopClosures:
     """The ``loop_closures`` block (module docstring)."""
     age = run.config.expmap.min_experience_age
-    out: dict[str, Any] = {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0, "precision": None,
+    out: LoopClosures = {"accepted": 0, "true": 0, "false": 0, "unlabelled": 0, "precision": None,
                            "recall": None, "opportunities": 0, "recalled": 0, "passes": 0, "passes_closed": 0,
                            "pass_recall": None, "min_experience_age": age, "table": []}
     m = run.final_map
@@ -156,7 +174,7 @@ def loop_closure_table(run: RunData, far_m: float = 5.0) -> dict[str, Any]:
         return out
     nodes = {n.id: n for n in m.nodes if n.id >= run.loaded_nodes}   # loaded nodes: eval.sessions
     seq_of_stamp = {e.header.stamp: e.header.seq for e in run.events}
-    rows = []
+    rows: list[LoopClosureRow] = []
     for link in m.links:
         if not link.loop_closure:
             continue
@@ -232,7 +250,7 @@ def _box(p: np.ndarray) -> tuple[float, float, float]:
     return float(np.linalg.norm(ext)), float(np.prod(ext)), float(np.linalg.norm(p[-1] - p[0]))
 
 
-def stability_proxies(mp: np.ndarray, odom: np.ndarray | None, gt: np.ndarray | None) -> dict[str, Any]:
+def stability_proxies(mp: np.ndarray, odom: np.ndarray | None, gt: np.ndarray | None) -> StabilityProxies:
     """Span norm, bounding-box volume and end displacement of MAP, ODOM, GT point sequences
     (each (n, 3), NED, same order) and the MAP/ODOM, MAP/GT ratios (module docstring)."""
     vals = {"map": _box(mp)}
@@ -240,31 +258,32 @@ def stability_proxies(mp: np.ndarray, odom: np.ndarray | None, gt: np.ndarray | 
         vals["odom"] = _box(odom)
     if gt is not None:
         vals["gt"] = _box(gt)
-    names = ("span_norm", "volume", "end_displacement")
-    out: dict[str, Any] = {"samples": int(len(mp))}
-    for k, (name, unit) in enumerate(zip(names, ("m", "m3", "m"))):
-        out[f"{name}_{unit}"] = {src: _r(v[k]) for src, v in vals.items()}
-    ratios: dict[str, float | None] = {}
-    for ref in ("odom", "gt"):
-        for k, name in enumerate(names):
-            r = vals.get(ref)
-            ratios[f"{name}_map_{ref}"] = _r(vals["map"][k] / r[k]) if r is not None and r[k] > 0 else None
-    out["ratios"] = ratios
-    return out
+    def per_source(k: int) -> dict[str, float | None]:
+        return {src: _r(v[k]) for src, v in vals.items()}
+
+    def ratio(k: int, ref: str) -> float | None:
+        r = vals.get(ref)
+        return _r(vals["map"][k] / r[k]) if r is not None and r[k] > 0 else None
+
+    ratios: ProxyRatios = {
+        "span_norm_map_odom": ratio(0, "odom"), "volume_map_odom": ratio(1, "odom"),
+        "end_displacement_map_odom": ratio(2, "odom"), "span_norm_map_gt": ratio(0, "gt"),
+        "volume_map_gt": ratio(1, "gt"), "end_displacement_map_gt": ratio(2, "gt")}
+    return {"samples": int(len(mp)), "span_norm_m": per_source(0), "volume_m3": per_source(1),
+            "end_displacement_m": per_source(2), "ratios": ratios}
 
 
-def front_end_metrics(run: RunData, far_m: float = 5.0, min_gap_m: float = 10.0) -> dict[str, Any] | None:
+def front_end_metrics(run: RunData, far_m: float = 5.0, min_gap_m: float = 10.0) -> FrontEnd | None:
     """The ``front_end`` block (module docstring); None without ``local_view_cells``."""
     lvcs = run.lvcs
     if not lvcs:
         return None
     ids = [m.most_active_cell for m in lvcs]
-    out: dict[str, Any] = {"frames": len(lvcs), "lvc_ids": len(set(ids)),
-                           "new_id_fraction": _r(sum(m.is_new for m in lvcs) / len(lvcs), 4)}
     stamps = [m.header.stamp for m in lvcs]
     by_stamp = {r.header.stamp: r.frame_index for r in run.revisits.values()}
     frames, how = frame_indices(stamps, by_stamp)
-    out["frame_matching"] = how
+    out: FrontEnd = {"frames": len(lvcs), "lvc_ids": len(set(ids)),
+                     "new_id_fraction": round(sum(m.is_new for m in lvcs) / len(lvcs), 4), "frame_matching": how}
     if run.revisits:
         # ground truth row of each LVC message, re-indexed to LVC message positions
         pos_of_frame = {f: i for i, f in enumerate(frames)}
@@ -285,10 +304,23 @@ def front_end_metrics(run: RunData, far_m: float = 5.0, min_gap_m: float = 10.0)
     return out
 
 
-def _ate_block(run: RunData, mp: Trajectory | None) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], Any]:
-    ate_d: dict[str, Any] = {"stamps": None, "map": None, "dead_reckoning": None}
-    rpe_d: dict[str, Any] = {"delta_s": RPE_DELTA_S, "map": None, "dead_reckoning": None}
-    drift: dict[str, Any] = {"map": None, "dead_reckoning": None}
+def _ate_figures(e: Trajectory, ref: Trajectory, s: np.ndarray) -> AteFigures:
+    a = ate(e, ref, s)
+    return {"rmse_m": _r(a["rmse_m"]), "mean_m": _r(a["mean_m"]), "max_m": _r(a["max_m"]),
+            "final_m": _r(a["final_m"]), "n": int(a["n"])}
+
+
+def _rpe_figures(e: Trajectory, ref: Trajectory, s: np.ndarray) -> RpeFigures:
+    r = rpe(e, ref, RPE_DELTA_S, s)
+    return {"rmse_m": _r(r["rmse_m"]), "mean_m": _r(r["mean_m"]), "n": int(r["n"] or 0), "delta_s": RPE_DELTA_S}
+
+
+def _ate_block(run: RunData, mp: Trajectory | None
+               ) -> tuple[AteBlock, RpeBlock, MapAndDeadReckoning, float | None]:
+    """The ``ate``, ``rpe`` and ``drift_pct`` blocks and the true distance travelled (m)."""
+    ate_d: AteBlock = {"stamps": None, "map": None, "dead_reckoning": None}
+    rpe_d: RpeBlock = {"delta_s": RPE_DELTA_S, "map": None, "dead_reckoning": None}
+    drift: MapAndDeadReckoning = {"map": None, "dead_reckoning": None}
     dist = None
     if not run.has_truth:
         return ate_d, rpe_d, drift, dist
@@ -312,25 +344,28 @@ def _ate_block(run: RunData, mp: Trajectory | None) -> tuple[dict[str, Any], dic
         if est is None:
             continue
         e = est.resampled(s)
-        ate_d[name] = {k: _r(v) for k, v in ate(e, ref, s).items()}
-        rpe_d[name] = {k: _r(v) for k, v in rpe(e, ref, RPE_DELTA_S, s).items()}
         p = e.p + (ref.p[0] - e.p[0])
-        drift[name] = _r(drift_pct(float(np.linalg.norm(p[-1] - ref.p[-1])), dist))
+        d = _r(drift_pct(float(np.linalg.norm(p[-1] - ref.p[-1])), dist))
+        if name == "map":
+            ate_d["map"], rpe_d["map"], drift["map"] = _ate_figures(e, ref, s), _rpe_figures(e, ref, s), d
+        else:
+            ate_d["dead_reckoning"], rpe_d["dead_reckoning"] = _ate_figures(e, ref, s), _rpe_figures(e, ref, s)
+            drift["dead_reckoning"] = d
     return ate_d, rpe_d, drift, dist
 
 
-def _scored(source: str, poses: PoseSeries, rel: Any) -> dict[str, Any]:
+def _scored(source: str, poses: PoseSeries, rel: Any) -> RelationErrors:
     return {"source": source, **relation_summary(poses.stamps, poses.positions[:, 0], poses.positions[:, 1],
                                                  poses.yaws, rel)}
 
 
-def relations_block(run: RunData, relations: str | Path) -> dict[str, Any]:
+def relations_block(run: RunData, relations: str | Path) -> RelationsBlock:
     """``relations_file``, ``relations_in_file``, ``relations``, ``relations_odometry`` (module docstring).
 
     :raises ValueError: unreadable or malformed relations file (names file and line).
     """
     rel = read_relations(relations)
-    out: dict[str, Any] = {"relations_file": str(relations), "relations_in_file": len(rel), "relations": None,
+    out: RelationsBlock = {"relations_file": str(relations), "relations_in_file": len(rel), "relations": None,
                            "relations_odometry": None}
     if run.odometry_poses is not None and run.final_map is not None and run.final_map.nodes:
         out["relations"] = _scored("map_corrected", map_corrected(run.odometry_poses, run.final_map.nodes), rel)
@@ -343,32 +378,26 @@ def relations_block(run: RunData, relations: str | Path) -> dict[str, Any]:
 
 def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: PoseidonConfig | None = None,
                  min_gap_m: float = 10.0, relations: str | Path | None = None,
-                 prior: str | Path | None = None) -> dict[str, Any]:
-    """Judge a run recording (``path`` or an already loaded :class:`RunData`); keys in the module docstring.
-    ``relations``: a Freiburg relations file to score the map and the odometry against; ``prior``: the
-    recording of the run that saved the map this run continued (truth of the loaded nodes)."""
+                 prior: str | Path | None = None) -> RunEvaluation:
+    """Judge a run recording (``path`` or an already loaded :class:`RunData`): the figures of
+    :class:`eval.results.RunEvaluation` (each key with its unit there; definitions in the module docstring).
+
+    :param far_m: d_gt threshold of a true loop closure (m)
+    :param config: replaces the configuration recorded in the run
+    :param min_gap_m: travel before a re-used LVC id claims a revisit (m)
+    :param relations: a Freiburg relations file to score the map and the odometry against
+    :param prior: the recording of the run that saved the map this run continued (truth of the loaded nodes)
+    """
     run = path if isinstance(path, RunData) else load_run(path, config)
     prior_run = load_run(prior, keys=["truth/pose"]) if prior is not None else None
     mp, _ = map_trajectory(run)
     m = run.final_map
     nodes = len(m.nodes) if m is not None else 0
     edges = len(m.links) if m is not None else 0
-    out: dict[str, Any] = {
-        "recording": str(run.path), "config_source": run.config_source, "duration_s": _r(run.duration_s, 3),
-        "ground_truth": run.has_truth, "far_m": far_m,
-        "events": len(run.events),
-        "events_per_s": _r(len(run.events) / run.duration_s) if run.duration_s > 0 else None,
-        "map_messages": run.map_messages, "nodes": nodes, "edges": edges,
-        "mean_degree": _r(2.0 * edges / nodes) if nodes else None,
-        "loop_closures": loop_closure_table(run, far_m),
-    }
+    loop_closures = loop_closure_table(run, far_m)
     ate_d, rpe_d, drift, dist = _ate_block(run, mp)
-    out["ate_rmse_m"] = {k: (ate_d[k] or {}).get("rmse_m") for k in ("map", "dead_reckoning")}
-    out["ate"] = ate_d
-    out["rpe"] = rpe_d
-    out["drift_pct"] = drift
-    out["truth_distance_m"] = _r(dist)
-    out["proxies"] = None
+    ate_map, ate_dr = ate_d["map"], ate_d["dead_reckoning"]
+    proxies = None
     if mp is not None:
         s = mp.t.copy()
         keep = np.ones(len(s), dtype=bool)
@@ -378,26 +407,51 @@ def evaluate_run(path: str | Path | RunData, far_m: float = 5.0, config: Poseido
             keep &= run.truth.covered(s)  # type: ignore[union-attr]
         if keep.sum() >= 2:
             s = s[keep]
-            out["proxies"] = stability_proxies(
+            proxies = stability_proxies(
                 mp.p[keep], run.odometry.positions_at(s) if run.odometry is not None else None,
                 run.truth.positions_at(s) if run.has_truth else None)  # type: ignore[union-attr]
     vg = run.config.vpr_guard
-    out["vpr_ok_ratio"] = _r(vpr_window_ok_ratio([x.most_active_cell for x in run.lvcs], vg.vpr_window,
-                                                 vg.vpr_min_rep)) if run.lvcs else None
-    out["front_end"] = front_end_metrics(run, far_m, min_gap_m)
-    out["dead_reckoning"] = None
-    if run.has_truth and run.odometry is not None and len(run.odometry) > 1:
-        out["dead_reckoning"] = {k: _r(v, 4) for k, v in anchored_errors(run.odometry, run.truth).items()}  # type: ignore[arg-type]
-    out["sessions"] = sessions_block(run, prior_run, far_m)
-    out["latency"] = latency_block(run)
+    out: RunEvaluation = {
+        "recording": str(run.path), "config_source": run.config_source, "duration_s": _r(run.duration_s, 3),
+        "ground_truth": run.has_truth, "far_m": far_m,
+        "events": len(run.events),
+        "events_per_s": _r(len(run.events) / run.duration_s) if run.duration_s > 0 else None,
+        "map_messages": run.map_messages, "nodes": nodes, "edges": edges,
+        "mean_degree": _r(2.0 * edges / nodes) if nodes else None,
+        "loop_closures": loop_closures,
+        "ate_rmse_m": {"map": ate_map["rmse_m"] if ate_map is not None else None,
+                       "dead_reckoning": ate_dr["rmse_m"] if ate_dr is not None else None},
+        "ate": ate_d, "rpe": rpe_d, "drift_pct": drift, "truth_distance_m": _r(dist), "proxies": proxies,
+        "vpr_ok_ratio": _r(vpr_window_ok_ratio([x.most_active_cell for x in run.lvcs], vg.vpr_window,
+                                               vg.vpr_min_rep)) if run.lvcs else None,
+        "front_end": front_end_metrics(run, far_m, min_gap_m),
+        "dead_reckoning": _dead_reckoning(run),
+        "sessions": sessions_block(run, prior_run, far_m),
+        "latency": latency_block(run),
+    }
     if relations is not None:
-        out.update(relations_block(run, relations))
+        rb = relations_block(run, relations)
+        out["relations_file"], out["relations_in_file"] = rb["relations_file"], rb["relations_in_file"]
+        out["relations"], out["relations_odometry"] = rb["relations"], rb["relations_odometry"]
     return out
 
 
-def latency_block(run: RunData) -> dict[str, Any] | None:
+def _dead_reckoning(run: RunData) -> DeadReckoningErrors | None:
+    """The ``dead_reckoning`` block: the whole ``Odometry`` stream against the truth (None without either)."""
+    if run.truth is None or not len(run.truth) or run.odometry is None or len(run.odometry) <= 1:
+        return None
+    e = anchored_errors(run.odometry, run.truth)
+    return {"ate_rmse_m": _r(e["ate_rmse_m"], 4), "final_error_m": _r(e["final_error_m"], 4),
+            "final_drift_pct": _r(e["final_drift_pct"], 4), "max_error_m": _r(e["max_error_m"], 4),
+            "truth_distance_m": _r(e["truth_distance_m"], 4)}
+
+
+def latency_block(run: RunData) -> LatencyBlock | None:
     """The ``latency`` key: a live run's report as recorded (null for a replay)."""
     r = run.latency
     if r is None:
         return None
-    return {"source": r.source, "rate": r.rate, "stages": {k: v.model_dump() for k, v in sorted(r.stages.items())}}
+    stages: dict[str, LatencyStageFigures] = {
+        k: {"n": v.n, "unmatched": v.unmatched, "p50_ms": v.p50_ms, "p95_ms": v.p95_ms, "p99_ms": v.p99_ms,
+            "max_ms": v.max_ms} for k, v in sorted(r.stages.items())}
+    return {"source": r.source, "rate": r.rate, "stages": stages}

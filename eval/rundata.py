@@ -27,7 +27,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from pydantic import ValidationError
@@ -305,7 +305,10 @@ def config_from_args(args: argparse.Namespace) -> PoseidonConfig | None:
     return load_config(args.config, args.overrides)
 
 
-def report_cli(command: str, compute: Callable[[], dict[str, Any]], fmt: Callable[[dict[str, Any]], list[str]],
+_Result = TypeVar("_Result")
+
+
+def report_cli(command: str, compute: Callable[[], _Result], fmt: Callable[[_Result], list[str]],
                as_json: bool) -> int:
     """The common tail of the evaluation commands: ``compute()``, then the result as JSON or
     as text lines; a bad recording, configuration or value is exit 2 with ``poseidon COMMAND:``."""

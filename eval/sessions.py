@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from eval.results import CrossLoopClosures, SessionLinkRow, SessionsBlock
 from eval.rundata import RunData
 from eval.trajectory import align_rigid
 
@@ -98,7 +99,7 @@ def _r(v: float | None, nd: int = 4) -> float | None:
     return None if v is None or not math.isfinite(v) else round(float(v), nd)
 
 
-def _empty_block() -> dict[str, Any]:
+def _empty_block() -> SessionsBlock:
     return {"count": 0, "loaded_nodes": 0, "unlinked_nodes": 0, "links": 0, "false_links": 0,
             "time_to_link_s": None, "link_error_m": None, "ate_prior_frame_m": None,
             "ate_prior_frame_n": 0, "dr_ate_at_link_m": None, "dr_ate_at_link_n": 0,
@@ -171,10 +172,10 @@ def _time_to_link(run: RunData, lk: Any, nd: _MapNodes) -> float | None:
     return None
 
 
-def _link_row(run: RunData, lk: Any, nd: _MapNodes, rot: np.ndarray | None, t0: int) -> tuple[dict[str, Any], float | None]:
+def _link_row(run: RunData, lk: Any, nd: _MapNodes, rot: np.ndarray | None, t0: int) -> tuple[SessionLinkRow, float | None]:
     """One link's row of the ``table`` and its position error (m; None without truth)."""
     i, j = lk.source, lk.target
-    row: dict[str, Any] = {"session": lk.session, "to_session": lk.to_session, "source": i, "target": j,
+    row: SessionLinkRow = {"session": lk.session, "to_session": lk.to_session, "source": i, "target": j,
                            "stamp_s": _r((lk.stamp - t0) * 1e-9, 3), "error_m": None,
                            "rotation_error_deg": None, "false": None, "time_to_link_s": None,
                            "inlier_fraction": _r(lk.inlier_fraction)}
@@ -186,13 +187,14 @@ def _link_row(run: RunData, lk: Any, nd: _MapNodes, rot: np.ndarray | None, t0: 
         row["error_m"] = _r(err)
         if math.isfinite(gy[i]) and math.isfinite(gy[j]):
             e_i, e_j = _wrap(nd.yaw_ned[i] - gy[i]), _wrap(nd.yaw_ned[j] - gy[j])
-            row["rotation_error_deg"] = _r(math.degrees(abs(_wrap(e_j - e_i))), 3)
-            row["false"] = bool(err > LINK_FAR_M or row["rotation_error_deg"] > LINK_FAR_DEG)
+            rot_err = _r(math.degrees(abs(_wrap(e_j - e_i))), 3)
+            row["rotation_error_deg"] = rot_err
+            row["false"] = bool(err > LINK_FAR_M or (rot_err is not None and rot_err > LINK_FAR_DEG))
     row["time_to_link_s"] = _time_to_link(run, lk, nd)
     return row, err
 
 
-def _count_cross_loop_closures(cross: dict[str, int], map_links: list[Any], session_links: set[tuple[int, int]],
+def _count_cross_loop_closures(cross: CrossLoopClosures, map_links: list[Any], session_links: set[tuple[int, int]],
                                nd: _MapNodes, far_m: float) -> None:
     """Loop closures with one end loaded from the map directory and the other made by this
     run, session links excepted (the loaded map's own closures are the prior run's)."""
@@ -203,10 +205,12 @@ def _count_cross_loop_closures(cross: dict[str, int], map_links: list[Any], sess
                 or not (0 <= a < n_nodes and 0 <= b < n_nodes)):
             continue
         cross["accepted"] += 1
-        if np.all(np.isfinite(nd.g[[a, b]])):
-            cross["true" if float(np.linalg.norm(nd.g[a] - nd.g[b])) <= far_m else "false"] += 1
-        else:
+        if not np.all(np.isfinite(nd.g[[a, b]])):
             cross["unlabelled"] += 1
+        elif float(np.linalg.norm(nd.g[a] - nd.g[b])) <= far_m:
+            cross["true"] += 1
+        else:
+            cross["false"] += 1
 
 
 def _ate_in_frame(nd: _MapNodes, use: np.ndarray, rot: np.ndarray, trans: np.ndarray) -> float | None:
@@ -215,7 +219,7 @@ def _ate_in_frame(nd: _MapNodes, use: np.ndarray, rot: np.ndarray, trans: np.nda
     return _r(float(np.sqrt(np.mean(np.sum(e * e, axis=1)))))
 
 
-def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.0) -> dict[str, Any]:
+def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.0) -> SessionsBlock:
     """The ``sessions`` block (module docstring)."""
     m = run.final_map
     out = _empty_block()
@@ -231,7 +235,7 @@ def sessions_block(run: RunData, prior: RunData | None = None, far_m: float = 5.
         raise ValueError(f"{run.path}: map_sessions names {len(ms.node_session)} nodes, the final map has {n_nodes}")
     sess = np.asarray(ms.node_session, np.int64)
     loaded = int(ms.loaded_nodes)
-    out.update(count=int(sess.max()) + 1, loaded_nodes=loaded, links=len(ms.links))
+    out["count"], out["loaded_nodes"], out["links"] = int(sess.max()) + 1, loaded, len(ms.links)
     nd = _map_nodes(run, prior, nodes, sess, loaded)
     stamps, g = nd.stamps, nd.g
     # the map's frame in the world: session 0's nodes aligned to their truth

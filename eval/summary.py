@@ -23,9 +23,9 @@ ones a run summary shows.  Keys (each block present only when the run has its in
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from eval.audit import audit_run
+from eval.results import RunSummary
 from eval.run_eval import evaluate_run
 from eval.rundata import load_run
 from system.config import PoseidonConfig
@@ -33,11 +33,16 @@ from system.config import PoseidonConfig
 __all__ = ["summarize_run", "format_summary"]
 
 
-def summarize_run(path: str | Path, config: PoseidonConfig | None = None, far_m: float = 5.0) -> dict[str, Any]:
-    """Judge the run recorded in ``path`` (keys in the module docstring)."""
+def summarize_run(path: str | Path, config: PoseidonConfig | None = None, far_m: float = 5.0) -> RunSummary:
+    """Judge the run recorded in ``path``: the blocks of :class:`eval.results.RunSummary` (keys
+    in the module docstring, units there).
+
+    :param config: replaces the configuration recorded in the run
+    :param far_m: d_gt threshold of a true loop closure (m)
+    """
     run = load_run(path, config)
     ev = evaluate_run(run, far_m=far_m)
-    out: dict[str, Any] = {}
+    out: RunSummary = {}
     if ev["front_end"] is not None:
         out["front_end"] = ev["front_end"]
     if ev["dead_reckoning"] is not None:
@@ -48,9 +53,11 @@ def summarize_run(path: str | Path, config: PoseidonConfig | None = None, far_m:
         out["back_end"] = {
             "events": ev["events"], "events_per_s": ev["events_per_s"], "nodes": ev["nodes"], "edges": ev["edges"],
             "mean_degree": ev["mean_degree"],
-            "loop_closures": {k: lc[k] for k in ("accepted", "true", "false", "recall", "pass_recall")},
+            "loop_closures": {"accepted": lc["accepted"], "true": lc["true"], "false": lc["false"],
+                              "recall": lc["recall"], "pass_recall": lc["pass_recall"]},
             "ate_rmse_m": ev["ate_rmse_m"], "drift_pct": ev["drift_pct"],
-            "audit": {k: au[k] for k in ("f1", "missing_events", "missing_images", "dt_max_s")},
+            "audit": {"f1": au["f1"], "missing_events": au["missing_events"], "missing_images": au["missing_images"],
+                      "dt_max_s": au["dt_max_s"]},
         }
     return out
 
@@ -63,20 +70,22 @@ def _m(v: float | None) -> str:
     return "n/a" if v is None else f"{v:.2f} m"
 
 
-def format_summary(s: dict[str, Any]) -> list[str]:
+def format_summary(s: RunSummary) -> list[str]:
     """Human-readable lines of a :func:`summarize_run` result."""
     lines = []
     fe = s.get("front_end")
     if fe:
         line = (f"front-end: {fe['frames']} frames -> {fe['lvc_ids']} LVC ids "
                 f"({100 * fe['new_id_fraction']:.0f}% of frames created an id)")
-        if fe.get("revisit_recall") is not None:
-            line += (f"; per-frame revisit recall {100 * fe['revisit_recall']:.1f}% of {fe['revisit_frames']} frames"
+        recall, precision, false_rate = (fe.get("revisit_recall"), fe.get("revisit_precision"),
+                                         fe.get("false_association_rate"))
+        if recall is not None:
+            line += (f"; per-frame revisit recall {100 * recall:.1f}% of {fe['revisit_frames']} frames"
                      f" (the frame's id points to an earlier visit of its place)")
-        if fe.get("revisit_precision") is not None:
-            line += f", per-frame revisit precision {100 * fe['revisit_precision']:.1f}% of {fe['claimed_revisits']} claims"
-        if fe.get("false_association_rate") is not None:
-            line += (f"; {100 * fe['false_association_rate']:.1f}% of {fe['matched_frames']} matches "
+        if precision is not None:
+            line += f", per-frame revisit precision {100 * precision:.1f}% of {fe['claimed_revisits']} claims"
+        if false_rate is not None:
+            line += (f"; {100 * false_rate:.1f}% of {fe['matched_frames']} matches "
                      f"joined places > 5 m apart")
         lines.append(line)
     dr = s.get("dead_reckoning")

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from eval.results import RunEvaluation
 from eval.run_eval import evaluate_run
 from eval.rundata import add_config_args, config_from_args, report_cli
 
@@ -20,7 +21,7 @@ def _f(v: Any, fmt: str = ".3f") -> str:
     return "n/a" if v is None else format(v, fmt)
 
 
-def format_eval(r: dict[str, Any]) -> list[str]:
+def format_eval(r: RunEvaluation) -> list[str]:
     """Human-readable lines of an :func:`evaluate_run` result."""
     lc = r["loop_closures"]
     lines = [f"recording          {r['recording']} ({r['duration_s']:.1f} s, config from {r['config_source']})",
@@ -73,9 +74,9 @@ def format_eval(r: dict[str, Any]) -> list[str]:
                 why = "no map message" if name == "relations" else "no odometry"
                 lines.append(f"  {label:<16} n/a ({why})")
                 continue
-            t, a = b["trans_abs_m"], b["rot_abs_deg"]
-            lines.append(f"  {label:<16} {_f(t['mean'])} +- {_f(t['std'])} m, {_f(a['mean'], '.2f')} +- "
-                         f"{_f(a['std'], '.2f')} deg over {b['count']} relations ({b['outside']} outside the "
+            t, rot = b["trans_abs_m"], b["rot_abs_deg"]
+            lines.append(f"  {label:<16} {_f(t['mean'])} +- {_f(t['std'])} m, {_f(rot['mean'], '.2f')} +- "
+                         f"{_f(rot['std'], '.2f')} deg over {b['count']} relations ({b['outside']} outside the "
                          f"trajectory; {b['source']})")
     return lines
 

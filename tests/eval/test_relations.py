@@ -13,7 +13,9 @@ from common.mcap_io import RecordingWriter
 from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
 from eval.cli.run_eval import main as eval_main
 from eval.relations import Relations, interpolate_planar, read_relations, relation_errors, relation_summary
+from eval.results import RunEvaluation
 from eval.run_eval import evaluate_run
+from tests.eval.shapes import assert_shape
 
 NS = 1_000_000_000
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "radish"
@@ -175,6 +177,7 @@ def test_eval_scores_the_map_and_the_raw_odometry(tmp_path, capsys):
     rel = tmp_path / "r.relations"
     rel.write_text("100.0 110.0 10.0 0.0 0 0 0 0.0\n100.0 120.0 20.0 0.0 0 0 0 0.0\n")
     r = evaluate_run(run, relations=rel)
+    assert_shape(r, RunEvaluation)
     assert r["relations_in_file"] == 2
     m, o = r["relations"], r["relations_odometry"]
     assert m["source"] == "map_corrected" and o["source"] == "wheel_odometry"

@@ -8,10 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from common.messages import ExperienceMap, ExperienceNode, Header, MapSessions, SessionLinkInfo
+from eval.results import SessionsBlock
 from eval.rundata import RunData
 from eval.sessions import sessions_block
 from eval.trajectory import Trajectory
 from system.config import PoseidonConfig
+from tests.eval.shapes import assert_shape
 
 SEC = 1_000_000_000
 
@@ -54,6 +56,7 @@ def two_missions(delta_error_ned: tuple[float, float, float] = (0.0, 0.0, 0.0),
 def test_a_correct_link_and_the_map_in_the_prior_frame() -> None:
     run, prior = two_missions()
     s = sessions_block(run, prior)
+    assert_shape(s, SessionsBlock)
     assert (s["count"], s["links"], s["false_links"], s["loaded_nodes"], s["unlinked_nodes"]) == (2, 1, 0, 10, 0)
     assert s["link_error_m"] < 1e-6 and s["table"][0]["rotation_error_deg"] < 1e-6
     assert s["ate_prior_frame_m"] < 1e-6 and s["ate_prior_frame_n"] == 10
