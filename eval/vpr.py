@@ -146,14 +146,16 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
 
 from eval.baselines import SEQ_LENGTH, patch_normalise, sad_similarity, sequence_similarity
+from eval.results import ImageSetChain, ImageSetHtm, ImageSetResult, MissionResult
 from eval.vpr_htm import (
     DECISION_KINDS,
+    HtmPass,
     decision_kind,
     htm_similarities,
     image_set_standardizer,
@@ -210,16 +212,19 @@ def input_errors() -> tuple[type[Exception], ...]:
 
 
 def evaluate_mission(mission: str | Path, cfg: PoseidonConfig, enc_cfg: EncoderConfig, min_gap_m: float | None = None,
-                     htm: bool = True, chains: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The figures of one recording (the ``--mission`` JSON of the module docstring, :func:`run_mission`
-    with the mission, backbone and embedding standardisation named first).
+                     htm: bool = True, chains: tuple[str, ...] = ()) -> MissionResult:
+    """The figures of one recording: :class:`eval.results.MissionResult` (each key with its unit
+    there; the ``--mission`` JSON of the module docstring), :func:`run_mission` with the mission,
+    backbone and embedding standardisation named first.
 
+    :param min_gap_m: travel before an earlier frame is a revisit candidate (m; None: the recording's)
+    :param htm: run the HTM (the LVC figures, ``modalities``); ``chains``: the named chains beside it
     :raises: one of :func:`input_errors` on bad input
     """
-    result = run_mission(mission, cfg, enc_cfg, min_gap_m, htm, chains)
-    result = {"mission": str(mission), "backbone": enc_cfg.cnn_backbone,
-              "embedding_norm": enc_cfg.embedding_norm.mode, **result}
-    return result
+    scores = run_mission(mission, cfg, enc_cfg, min_gap_m, htm, chains)
+    named: MissionResult = {"mission": str(mission), "backbone": enc_cfg.cnn_backbone,
+                            "embedding_norm": enc_cfg.embedding_norm.mode, **scores}
+    return named
 
 
 @dataclass
@@ -295,35 +300,37 @@ def _image_set_similarities(sets: _ImageSets) -> dict[str, np.ndarray]:
 
 
 def _image_set_htm(cfg: PoseidonConfig, sets: _ImageSets, length: int, chains: tuple[str, ...],
-                   sims: dict[str, np.ndarray], query_learning: bool = False) -> dict[str, Any]:
+                   sims: dict[str, np.ndarray], query_learning: bool = False) -> ImageSetHtm:
     """The default HTM and the named chains over the SDRs: adds their matchers to ``sims``,
     returns their JSON figures (``n_lvc``, ``htm_query_matched``, ``decisions``, ``chains``)."""
-    ref_out, q_out, htm = run_htm(cfg.htm, sets.s_ref, sets.s_q, length, query_learning)
-    sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(ref_out, q_out)
-    accepted = sims["htm_lvc"].copy()
-    accepted[[i for i, o in enumerate(q_out) if o[0] < 0]] = -np.inf
-    sims["htm_lvc_accepted"] = accepted
-    result: dict[str, Any] = {}
-    result["n_lvc"] = len(htm.lvc)
-    result["htm_query_matched"] = sum(1 for o in q_out if o[0] >= 0)
-    result["decisions"] = htm.query_decisions
     from services.htm.chains import chain_config
-    result["chains"] = {}
+
+    default = run_htm(cfg.htm, sets.s_ref, sets.s_q, length, query_learning)
+    sims["htm_lvc"], sims["htm_descriptor"] = htm_similarities(default.ref, default.query)
+    accepted = sims["htm_lvc"].copy()
+    accepted[[i for i, o in enumerate(default.query) if o[0] < 0]] = -np.inf
+    sims["htm_lvc_accepted"] = accepted
+    per_chain: dict[str, ImageSetChain] = {}
     for cname in chains:
-        c_ref, c_q, c_htm = run_htm(chain_config(cfg.htm, cname), sets.s_ref, sets.s_q, length,
-                                    query_learning)
-        sims[cname] = htm_similarities(c_ref, c_q)[0]
-        result["chains"][cname] = {"n_lvc": len(c_htm.lvc), "htm_query_matched": sum(1 for o in c_q if o[0] >= 0),
-                                   "decisions": c_htm.query_decisions}
-    return result
+        c = run_htm(chain_config(cfg.htm, cname), sets.s_ref, sets.s_q, length, query_learning)
+        sims[cname] = htm_similarities(c.ref, c.query)[0]
+        per_chain[cname] = _chain_figures(c)
+    return {**_chain_figures(default), "chains": per_chain}
+
+
+def _chain_figures(p: HtmPass) -> ImageSetChain:
+    """LVC ids, accepted queries and decisions per rule of one HTM pass over image sets."""
+    return {"n_lvc": len(p.htm.lvc), "htm_query_matched": sum(1 for o in p.query if o[0] >= 0),
+            "decisions": p.query_decisions}
 
 
 def evaluate_image_sets(ref: str | Path, query: str | Path, cfg: PoseidonConfig, enc_cfg: EncoderConfig, *,
                         limit: int = 0, gt_file: str | Path = "", tolerance: int = 0,
                         save_norm: str | Path | None = None, htm: bool = True, chains: tuple[str, ...] = (),
-                        query_learning: bool = False) -> dict[str, Any]:
-    """The figures of the ``query`` folder against the ``ref`` folder (the image-set JSON of the
-    module docstring; ``matchers``: per matcher its :func:`vpr_metrics`).
+                        query_learning: bool = False) -> ImageSetResult:
+    """The figures of the ``query`` folder against the ``ref`` folder: :class:`eval.results.ImageSetResult`
+    (each key with its unit there; the image-set JSON of the module docstring; ``matchers``: per
+    matcher its :func:`vpr_metrics`).
 
     :param limit: first N frames of each folder (0: all)
     :param gt_file: VPR-Bench ground truth .npy ("": same file name, ``tolerance`` frames either side)
@@ -335,22 +342,24 @@ def evaluate_image_sets(ref: str | Path, query: str | Path, cfg: PoseidonConfig,
     sets = _encode_image_sets(ref, query, enc_cfg, limit, gt_file, tolerance, save_norm)
     length = enc_cfg.sp_columns
     sims = _image_set_similarities(sets)
-    result: dict[str, Any] = {}
+    htm_figures: ImageSetHtm | None = None
     t_htm = 0.0
     if htm:
         t1 = time.perf_counter()
-        result = _image_set_htm(cfg, sets, length, chains, sims, query_learning)
+        htm_figures = _image_set_htm(cfg, sets, length, chains, sims, query_learning)
         t_htm = time.perf_counter() - t1
     gt, encoder = sets.gt, sets.encoder
     metrics = {name: vpr_metrics(s, gt) for name, s in sims.items()}
-    result = {
+    result: ImageSetResult = {
         "matchers": metrics,
         "n_ref": len(sets.ref_names), "n_query": len(sets.q_names), "n_query_with_gt": sum(1 for g in gt if g),
         "weights": encoder.weights, "backbone": enc_cfg.cnn_backbone, "embedding_dim": encoder.dim,
         "embedding_norm": enc_cfg.embedding_norm.mode,
         "sdr_bits": 2 * encoder.lsbh("camera").k, "sdr_length": length, "ground_truth": sets.gt_desc,
         "sdr_overlap": overlap_stats(sims["lsbh_overlap"], gt),
-        **result,
         "seconds": {"embed": round(sets.t_embed, 2), "htm": round(t_htm, 2)},
     }
+    if htm_figures is not None:
+        result["n_lvc"], result["htm_query_matched"] = htm_figures["n_lvc"], htm_figures["htm_query_matched"]
+        result["decisions"], result["chains"] = htm_figures["decisions"], htm_figures["chains"]
     return result

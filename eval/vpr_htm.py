@@ -6,15 +6,37 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from tqdm import tqdm
 
+from eval.results import RunLengthStats
 from eval.vpr_metrics import overlap_similarity
 
+if TYPE_CHECKING:
+    from services.encoder.config import EncoderConfig
+    from services.encoder.standardize import EmbeddingStandardizer
+    from services.htm.config import HtmConfig
+    from services.htm.lvc import LvcResult
+    from services.htm.pipeline import NeocortexHtm
 
-def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.ndarray], length: int,
-            query_learning: bool = False):
+#: one HTM step of an evaluation: (LVC id, confidence, descriptor D_t, memory frame or -1); see :func:`_htm_row`
+HtmRow = tuple[int, float, np.ndarray, int]
+
+
+class HtmPass(NamedTuple):
+    """The rows of the reference and the query pass (:func:`run_htm`), the HTM after them and
+    the query frames per decision rule (:data:`DECISION_KINDS`)."""
+
+    ref: list[HtmRow]
+    query: list[HtmRow]
+    htm: NeocortexHtm
+    query_decisions: dict[str, int]
+
+
+def run_htm(htm_cfg: HtmConfig, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.ndarray], length: int,
+            query_learning: bool = False) -> HtmPass:
     """LVC ids, rates and descriptors D_t of the reference then the query sequence.
 
     :class:`services.htm.pipeline.NeocortexHtm` (``htm.input_size`` = L) runs over the
@@ -27,27 +49,28 @@ def run_htm(htm_cfg, ref_sdrs: Sequence[np.ndarray], query_sdrs: Sequence[np.nda
 
     cfg = htm_cfg.model_copy(update={"input_size": length})
     htm = NeocortexHtm(cfg)
-    ref_out, q_out = [], []
+    ref_out: list[HtmRow] = []
+    q_out: list[HtmRow] = []
     for bits in tqdm(ref_sdrs, desc="htm ref", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32))
         ref_out.append(_htm_row(htm, r))
     htm.reset_sequence()
     learn = cfg.learning and query_learning
-    htm.query_decisions = {k: 0 for k in DECISION_KINDS}
+    decisions = {k: 0 for k in DECISION_KINDS}
     for bits in tqdm(query_sdrs, desc="htm query", file=sys.stderr, leave=False):
         r = htm.step(np.asarray(bits, dtype=np.uint32), learn=learn, store=False)
         q_out.append(_htm_row(htm, r))
-        htm.query_decisions[decision_kind(r)] += 1
-    return ref_out, q_out, htm
+        decisions[decision_kind(r)] += 1
+    return HtmPass(ref_out, q_out, htm, decisions)
 
 
-def match_confidence(htm, r) -> float:
+def match_confidence(htm: NeocortexHtm, r: LvcResult) -> float:
     """The score a query's LVC match is ranked by: with the sequence memory
     (``htm.seqmem.length`` > 0) the sequence margin S* - S_2 at the predicted frame, else R."""
     return float(r.seq_margin) if htm.seqmem is not None else float(r.rate)
 
 
-def _htm_row(htm, r) -> tuple[int, float, np.ndarray, int]:
+def _htm_row(htm: NeocortexHtm, r: LvcResult) -> HtmRow:
     """(LVC id, confidence, D_t, memory frame the id was read from -- or, for a query without
     an id, the sequence memory's candidate -- or -1) of one step."""
     # a query no rule accepted (id -1) keeps the sequence memory's candidate j* and its margin: the
@@ -57,7 +80,7 @@ def _htm_row(htm, r) -> tuple[int, float, np.ndarray, int]:
     return int(r.lvc_id), match_confidence(htm, r), np.asarray(htm.last_descriptor, dtype=np.int64).copy(), frame
 
 
-def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
+def htm_similarities(ref_out: Sequence[HtmRow], query_out: Sequence[HtmRow]) -> tuple[np.ndarray, np.ndarray]:
     """(htm_lvc, htm_descriptor) similarity matrices from the HTM outputs (see module doc)."""
     d_ref = [o[2] for o in ref_out]
     d_q = [o[2] for o in query_out]
@@ -78,7 +101,8 @@ def htm_similarities(ref_out, query_out) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- standardisation
 
 
-def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
+def image_set_standardizer(enc_cfg: EncoderConfig, dim: int, y_ref: Sequence[np.ndarray]
+                           ) -> EmbeddingStandardizer | None:
     """The camera standardiser of an image-set run, or None for ``embedding_norm`` none.
 
     ``running``: in memory (nothing read from or written to ``encoder.embedding_norm.path``),
@@ -104,7 +128,7 @@ def image_set_standardizer(enc_cfg, dim: int, y_ref: Sequence[np.ndarray]):
 DECISION_KINDS = ("gate", "tm", "seqmem", "prior", "new")
 
 
-def decision_kind(r) -> str:
+def decision_kind(r: LvcResult) -> str:
     """Which rule gave a frame its id: ``gate`` (Eq. 4.9 on l*), ``tm`` (the TM's predictions,
     :mod:`services.htm.tm_match`), ``seqmem`` (the sequence memory's diagonal), ``prior`` (the
     place-sequence prior), ``new`` (Eq. 4.10, or no id on a query-only step)."""
@@ -117,7 +141,7 @@ def decision_kind(r) -> str:
     return "prior" if r.by_prior else "gate"
 
 
-def run_length_stats(ids: np.ndarray) -> dict:
+def run_length_stats(ids: np.ndarray) -> RunLengthStats:
     """Lengths of the runs of identical consecutive LVC ids: median, mean, and the share of frames
     in runs of >= 3 (what the VPR Guard needs: the same id >= 3 times within 26 frames)."""
     ids = np.asarray(ids)

@@ -5,10 +5,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from tqdm import tqdm
+
+from eval.results import MatcherMetrics, SdrOverlap
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -54,7 +55,7 @@ def pr_curve(scores: np.ndarray, correct: np.ndarray, n_positive: int) -> tuple[
     return precision, recall
 
 
-def vpr_metrics(similarity: np.ndarray, gt: Sequence[Sequence[int]]) -> dict[str, float]:
+def vpr_metrics(similarity: np.ndarray, gt: Sequence[Sequence[int]]) -> MatcherMetrics:
     """AUC of the precision-recall curve, recall at precision 1 and best F1 (see module doc)."""
     sim = np.asarray(similarity)
     if sim.ndim != 2 or sim.shape[0] != len(gt):
@@ -163,7 +164,7 @@ def ground_truth_from_file(path: str | Path, n_query: int, n_ref: int) -> list[l
 
 
 
-def overlap_stats(sim: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray | None = None) -> dict[str, Any]:
+def overlap_stats(sim: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray | None = None) -> SdrOverlap:
     """Mean SDR overlap |A_q & A_r| / |A_q| of same-place (ground truth) and different-place pairs.
 
     Independent LSBH SDRs overlap by s = 0.25 on average; ``eligible`` restricts the pairs.

@@ -9,15 +9,22 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from tqdm import tqdm
 
+from common.messages import Image, Odometry, RevisitTruth
 from eval.baselines import SEQ_LENGTH, patch_normalise, sad_similarity, sequence_similarity
+from eval.results import LvcRevisitScores, LvcScores, MatcherMetrics, MissionScores, ModalityScores
 from eval.vpr_htm import DECISION_KINDS, _htm_row, decision_kind, run_length_stats
 from eval.vpr_metrics import VprInputError, cosine_similarity, overlap_similarity, overlap_stats, vpr_metrics
 from system.services import build_node
+
+if TYPE_CHECKING:
+    from services.encoder.config import EncoderConfig
+    from services.htm.config import HtmConfig
+    from system.config import PoseidonConfig
 
 
 def _travelled(stamps: np.ndarray, pose_stamps: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -26,7 +33,7 @@ def _travelled(stamps: np.ndarray, pose_stamps: np.ndarray, positions: np.ndarra
     return np.interp(stamps.astype(np.float64), pose_stamps.astype(np.float64), seg)
 
 
-def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray) -> dict:
+def lvc_revisit_scores(ids: np.ndarray, gt: Sequence[Sequence[int]], eligible: np.ndarray) -> LvcRevisitScores:
     """LVC-id recall and precision on a mission (see the module doc, ``--mission``), by the one
     definition of :func:`eval.frontend.lvc_revisit_metrics`.  ``eligible[i]`` is a prefix of
     the earlier frames (those at least the revisit gap of travel back)."""
@@ -51,7 +58,7 @@ class MissionStreams:
     gt: list[list[int]]
     eligible: np.ndarray          # (n, n) bool: j is a candidate earlier frame of i
     min_gap_m: float
-    counters: dict
+    counters: dict[str, int]
     weights: str
     dim: int
     fusion_mode: str
@@ -59,8 +66,8 @@ class MissionStreams:
     dr_positions: list[np.ndarray | None] | None = None   # robot_state's position at each frame (m; None: none yet)
 
 
-def run_mission(path: str | Path, cfg, enc_cfg, min_gap_m: float | None, use_htm: bool,
-                chains: Sequence[str] = ()) -> dict:
+def run_mission(path: str | Path, cfg: PoseidonConfig, enc_cfg: EncoderConfig, min_gap_m: float | None,
+                use_htm: bool, chains: Sequence[str] = ()) -> MissionScores:
     """The front-end (EncoderNode, then NeocortexHtm storing LVCs online) over one MCAP mission.
 
     Returns the figures of the ``--mission`` JSON (see the module doc); ``chains`` names the
@@ -157,12 +164,15 @@ def _read_mission(path: Path, node: Any, sonar_key: str, robot_state: Any = None
                         rd.odom_p.append(list(odo.position))
                 continue
             if rec.key == "truth/revisits":
+                assert isinstance(msg, RevisitTruth)
                 rd.truth[int(msg.frame_index)] = np.asarray(msg.same_place, np.int64)
             elif rec.key == "truth/pose":
+                assert isinstance(msg, Odometry)
                 rd.pose_t.append(msg.header.stamp)
                 rd.pose_p.append(msg.position)
             else:
                 if rec.key == "camera/image_raw":
+                    assert isinstance(msg, Image)
                     rd.cam_stamps.append(msg.header.stamp)
                     rd.thumbs.append(patch_normalise(image_to_rgb(msg)))
                     bar.update(1)
@@ -201,6 +211,7 @@ def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | 
     robot_state.finish()
     for key, odo in robot_state.take_outbox():
         if key == "Odometry":
+            assert isinstance(odo, Odometry)
             rd.odom_t.append(odo.header.stamp)
             rd.odom_p.append(list(odo.position))
     t_embed = time.perf_counter() - t0
@@ -224,8 +235,19 @@ def encode_mission(path: str | Path, cfg: Any, enc_cfg: Any, min_gap_m: float | 
         dim=encoder.dim, fusion_mode=enc_cfg.fusion_mode, seconds_embed=t_embed, dr_positions=dr)
 
 
-def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[Sequence[int]],
-                eligible: np.ndarray, positions: Sequence[np.ndarray | None] | None = None) -> dict:
+class MissionHtm(TypedDict):
+    """One HTM over a mission's stream (:func:`mission_htm`): its LVC figures, its ``htm_lvc`` and
+    ``htm_descriptor`` similarities (frame x earlier frame, -inf off the candidates) and the LVC id
+    of every frame."""
+
+    scores: LvcScores
+    htm_lvc: np.ndarray
+    htm_descriptor: np.ndarray
+    ids: np.ndarray
+
+
+def mission_htm(htm_cfg: HtmConfig, length: int, bits: Sequence[np.ndarray], gt: Sequence[Sequence[int]],
+                eligible: np.ndarray, positions: Sequence[np.ndarray | None] | None = None) -> MissionHtm:
     """One NeocortexHtm storing LVCs online over one SDR stream: LVC scores and similarity matrices.
 
     ``positions``: the dead-reckoned position of each frame, for ``htm.dr_gate.enabled``."""
@@ -252,17 +274,18 @@ def mission_htm(htm_cfg, length: int, bits: Sequence[np.ndarray], gt: Sequence[S
         same = np.flatnonzero(eligible[i] & (ids == ids[i]))
         if same.size:
             lvc[i, same[np.argmax(desc[i, same])]] = out[i][1]
-    res = lvc_revisit_scores(ids, gt, eligible)
-    res.update({"n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
-                "tm_anomaly_mean": round(float(np.mean([o[4] for o in out])), 4) if out else 0.0,
-                "sp_columns_used": len(cols_used), "decisions": kinds,
-                "frames_stored": len(htm.seqmem) if htm.seqmem is not None else 0,
-                "tm_decision_share": round(kinds["tm"] / max(n - kinds["new"], 1), 4)})
+    res: LvcScores = {
+        **lvc_revisit_scores(ids, gt, eligible), "n_lvc": len(htm.lvc), "lvc_run_length": run_length_stats(ids),
+        "tm_anomaly_mean": round(float(np.mean([o[4] for o in out])), 4) if out else 0.0,
+        "sp_columns_used": len(cols_used), "decisions": kinds,
+        "frames_stored": len(htm.seqmem) if htm.seqmem is not None else 0,
+        "tm_decision_share": round(kinds["tm"] / max(n - kinds["new"], 1), 4)}
     return {"scores": res, "htm_lvc": lvc, "htm_descriptor": np.where(eligible, desc, -np.inf), "ids": ids}
 
 
 
-def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Sequence[str] = ()) -> dict:
+def score_mission(st: MissionStreams, cfg: PoseidonConfig, enc_cfg: EncoderConfig, use_htm: bool,
+                  chains: Sequence[str] = ()) -> MissionScores:
     """The ``--mission`` figures (see the module doc) from the encoded streams."""
     gt, eligible, n = st.gt, st.eligible, len(st.gt)
 
@@ -279,11 +302,9 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Seque
             "lsbh_fused_overlap": masked(overlap_similarity(fused, fused))}
     if enc_cfg.embedding_norm.mode != "none":
         sims["cnn_cosine_standardized"] = masked(cosine_similarity(st.z, st.z))
-    result: dict = {"n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": st.min_gap_m,
-                    "dr_positions": sum(1 for p in (st.dr_positions or []) if p is not None),
-                    "sdr_overlap": overlap_stats(lsbh_cam, gt, eligible),
-                    "fused_bits_mean": round(float(np.mean([f.size for f in fused])), 1),
-                    "encoder_counters": st.counters}
+    fused_scores: LvcScores | None = None
+    modalities: dict[str, ModalityScores] = {}
+    chain_scores: dict[str, LvcScores] = {}
     t_htm = 0.0
     if use_htm:
         t1 = time.perf_counter()
@@ -291,27 +312,35 @@ def score_mission(st: MissionStreams, cfg, enc_cfg, use_htm: bool, chains: Seque
         for m in ("camera", "sonar"):
             if st.fusion_mode != m:
                 streams[m] = st.sdrs[m]
-        per: dict[str, dict] = {}
         for name, bits in streams.items():
             h = mission_htm(cfg.htm, enc_cfg.sp_columns, bits, gt, eligible, st.dr_positions)
-            per[name] = {**h["scores"], "htm_lvc": vpr_metrics(h["htm_lvc"], gt)}
+            modalities[name] = {**h["scores"], "htm_lvc": vpr_metrics(h["htm_lvc"], gt)}
             if name.startswith("fused"):
                 sims["htm_lvc"], sims["htm_descriptor"] = h["htm_lvc"], h["htm_descriptor"]
-                result.update(h["scores"])
-        result["modalities"] = per
+                fused_scores = h["scores"]
         if chains:
             from services.htm.chains import chain_config
-            result["chains"] = {}
             for cname in chains:
                 h = mission_htm(chain_config(cfg.htm, cname), enc_cfg.sp_columns, fused, gt, eligible, st.dr_positions)
                 sims[cname] = h["htm_lvc"]
-                result["chains"][cname] = h["scores"]
+                chain_scores[cname] = h["scores"]
         t_htm = time.perf_counter() - t1
-    result["matchers"] = {name: vpr_metrics(s, gt) for name, s in sims.items()}
-    result["seconds"] = {"embed": round(st.seconds_embed, 2), "htm": round(t_htm, 2)}
-    result["weights"] = st.weights
-    result["embedding_dim"] = st.dim
-    return result
+    matchers: dict[str, MatcherMetrics] = {name: vpr_metrics(s, gt) for name, s in sims.items()}
+    result: MissionScores = {
+        "n_frames": n, "n_revisit_frames": sum(1 for g in gt if g), "min_gap_m": st.min_gap_m,
+        "dr_positions": sum(1 for p in (st.dr_positions or []) if p is not None),
+        "sdr_overlap": overlap_stats(lsbh_cam, gt, eligible),
+        "fused_bits_mean": round(float(np.mean([f.size for f in fused])), 1),
+        "encoder_counters": st.counters, "matchers": matchers,
+        "seconds": {"embed": round(st.seconds_embed, 2), "htm": round(t_htm, 2)},
+        "weights": st.weights, "embedding_dim": st.dim}
+    if fused_scores is None:
+        return result
+    # the fused code's LVC figures at the top level
+    with_htm: MissionScores = {**result, **fused_scores, "modalities": modalities}
+    if chains:
+        with_htm["chains"] = chain_scores
+    return with_htm
 
 
 # --------------------------------------------------------------------------- CLI

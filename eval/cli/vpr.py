@@ -8,6 +8,7 @@ import logging
 import sys
 from typing import TYPE_CHECKING, Any
 
+from eval.results import LvcScores, MatcherMetrics, MissionResult
 from eval.vpr import evaluate_image_sets, evaluate_mission, input_errors
 
 if TYPE_CHECKING:
@@ -51,14 +52,14 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _print_lvc(name: str, r: dict[str, Any]) -> None:
+def _print_lvc(name: str, r: LvcScores | MissionResult) -> None:
     d = r.get("decisions", {})
     print(f"{name:12s} LVC ids {r['n_lvc']}, per-frame revisit recall {r['lvc_recall']:.3f}, "
           f"precision {r['lvc_precision']:.3f}; SP columns used {r.get('sp_columns_used', 0)}; decisions "
           + ", ".join(f"{k} {v}" for k, v in d.items()) + f" (TM share {r.get('tm_decision_share', 0.0):.3f})")
 
 
-def _print_table(title: str, metrics: dict[str, dict[str, float]]) -> None:
+def _print_table(title: str, metrics: dict[str, MatcherMetrics]) -> None:
     print(title)
     print(f"{'matcher':24s} {'AUC':>7s} {'R@P100':>7s} {'bestF1':>7s}")
     for name, m in metrics.items():
