@@ -122,7 +122,7 @@ def _setup_logging(args: argparse.Namespace) -> None:
     file, append = _log_file_of(args)
     name = args.name if args.command == "service" else args.command
     try:
-        level = logs.console_level_of(args.log_level, args.verbose)
+        level = logs.console_level_of(getattr(args, "log_level", None), getattr(args, "verbose", False))
     except ValueError as exc:
         print(f"poseidon {args.command}: --log-level: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
