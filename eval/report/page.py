@@ -6,8 +6,8 @@ A single run is titled by its name (:func:`eval.report.data.run_label`).  Order
 (:func:`page_sections`): runs with ground truth lead with the tables (the comparison of two
 runs, the evaluation), then the trajectories, the deviation from the truth, place
 recognition and the evidence; runs without ground truth, and laser runs, lead with the map
-(laser point maps, topology, trajectories), then the benchmark relations when given
-(``lead_tables``), then the numbers.  The recording's messages and configuration close the
+(laser point maps, topology), then the benchmark relations when given (``lead_tables``),
+then the trajectories and loop closures over time, then the numbers.  The recording's messages and configuration close the
 page.  Tables are drawn by :mod:`eval.report.tables` (long ones summarised and downloadable).
 
 Self-contained: plotly.js is inlined once from the installed ``plotly`` package, images are
@@ -190,8 +190,10 @@ class Section:
 
 SUMMARY_TABLE = "Run summary (read from the recordings)"
 MESSAGES_TABLE = "Messages per key"
-#: the figures of the map, in the order a map-first page shows them (laser maps when the run has scans)
-MAP_FIGURES = ["fig-scan-maps", "fig-topology", "fig-loop-closures", "fig-projections", "fig-overlay-3d"]
+#: the figures of the map, first on a map-first page (laser maps when the run has scans), and those that
+#: follow the benchmark relations there
+MAP_FIGURES = ["fig-scan-maps", "fig-topology"]
+TRACK_FIGURES = ["fig-loop-closures", "fig-projections", "fig-overlay-3d"]
 
 
 def page_sections(map_first: bool, table_names: list[str], lead_tables: list[str], figure_ids: list[str]) -> list[Section]:
@@ -206,6 +208,8 @@ def page_sections(map_first: bool, table_names: list[str], lead_tables: list[str
     if map_first:
         return [Section("sec-map", "Map", [f for f in MAP_FIGURES if f in figure_ids], []),
                 Section("sec-benchmark", "Benchmark relations", [], lead),
+                Section("sec-trajectories", "Trajectories and loop closures",
+                        [f for f in TRACK_FIGURES if f in figure_ids], []),
                 Section("sec-tables", "Numbers", [], rest), deviation, recognition, evidence, closing]
     extra = [f for f in figure_ids if f in ("fig-scan-maps", "fig-loop-closures")]
     return [Section("sec-tables", "Tables", [], lead + rest),

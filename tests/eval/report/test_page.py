@@ -117,8 +117,8 @@ def test_relations_follow_the_map_and_runs_with_truth_lead_with_the_tables() -> 
     names = ["Run summary", "Relations", "Evaluation"]
     figs = ["fig-topology", "fig-projections", "fig-scan-maps", "fig-pr"]
     laser = page_sections(True, names, ["Relations"], figs)
-    assert [s.id for s in laser][:3] == ["sec-map", "sec-benchmark", "sec-tables"]
-    assert laser[0].figures == ["fig-scan-maps", "fig-topology", "fig-projections"]
-    assert laser[1].tables == ["Relations"] and laser[2].tables == ["Run summary", "Evaluation"]
+    assert [s.id for s in laser][:4] == ["sec-map", "sec-benchmark", "sec-trajectories", "sec-tables"]
+    assert laser[0].figures == ["fig-scan-maps", "fig-topology"] and laser[2].figures == ["fig-projections"]
+    assert laser[1].tables == ["Relations"] and laser[3].tables == ["Run summary", "Evaluation"]
     truth = page_sections(False, names, [], figs)
     assert truth[0].id == "sec-tables" and truth[0].tables == names
