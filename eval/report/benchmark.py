@@ -29,6 +29,7 @@ import html
 import io
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +77,7 @@ def _pm(mean: float | None, std: float | None, fmt: str) -> str:
     return "n/a" if mean is None or std is None else f"{mean:{fmt}} ± {std:{fmt}}"
 
 
-def relations_table(result: dict[str, Any]) -> list[dict[str, Any]]:
+def relations_table(result: Mapping[str, Any]) -> list[dict[str, Any]]:
     """Rows ``{data set, method, translation (m), rotation (deg), relations, source}``: this run's
     ``relations`` / ``relations_odometry`` (an :func:`eval.run_eval.evaluate_run` result with
     ``--relations``) and the published rows of the same data set."""

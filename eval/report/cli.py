@@ -38,7 +38,7 @@ import argparse
 import json
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -147,7 +147,7 @@ AUDIT_EVIDENCE = ("slop_s", "images", "associated", "precision", "recall", "f1",
                   "missing_events", "duplicate_images", "late_images", "dt_mean_s", "dt_max_s")
 
 
-def present_evaluation(result: dict[str, Any]) -> dict[str, Any]:
+def present_evaluation(result: Mapping[str, Any]) -> dict[str, Any]:
     """:func:`eval.run_eval.evaluate_run`'s result as the page shows it: for a run without ground truth
     (``ground_truth`` false) the keys that need it (:data:`TRUTH_ONLY`) are left out, and so is the
     ``sessions`` block of a map of one session."""
@@ -165,10 +165,10 @@ def present_evaluation(result: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def present_audit(result: dict[str, Any], camera: bool) -> dict[str, Any]:
+def present_audit(result: Mapping[str, Any], camera: bool) -> dict[str, Any]:
     """:func:`eval.audit.audit_run`'s result as the page shows it: for a run without a camera only the
     message-sequence part (the evidence keys, :data:`AUDIT_EVIDENCE`, are left out)."""
-    return result if camera else {k: v for k, v in result.items() if k not in AUDIT_EVIDENCE}
+    return dict(result) if camera else {k: v for k, v in result.items() if k not in AUDIT_EVIDENCE}
 
 
 def _benchmark(run: RunData, relations: Path | None, tables: dict[str, dict]) -> list[Any]:
