@@ -59,7 +59,9 @@ outright.  ``run`` writes every service's full log to ``RUN.log`` beside ``RUN.m
 to ``OUT/demo.log``; the last line of their output names it.
 
 This module parses the command line and delegates; the built-in commands are
-:mod:`launcher.commands`.
+:mod:`launcher.run_cmd` (``run``; its summary: :mod:`launcher.run_report`), :mod:`launcher.demo`,
+:mod:`launcher.service_cmd` (``service``, ``bridge``), :mod:`launcher.hub_cmd`, :mod:`launcher.info`
+and :mod:`launcher.config_cmd`.
 """
 from __future__ import annotations
 
@@ -81,9 +83,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from launcher.commands import cmd_bridge, cmd_demo, cmd_hub, cmd_info, cmd_run, cmd_service
 from launcher.config_cmd import add_arguments as config_arguments
 from launcher.config_cmd import cmd_config
+from launcher.hub_cmd import cmd_hub
+from launcher.info import cmd_info
+from launcher.run_cmd import cmd_run
+from launcher.service_cmd import cmd_bridge, cmd_service
 
 __all__ = ["main"]
 
@@ -187,6 +192,7 @@ def _add_demo_command(sub: Any) -> None:
     p = sub.add_parser("demo", help="simulate and transform a cave mission, run it with the VPR Guard ON and OFF, "
                        "write the report")
     from launcher.demo import add_arguments as demo_arguments
+    from launcher.demo import cmd_demo
     demo_arguments(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_demo)

@@ -59,7 +59,7 @@ from system.config import PoseidonConfig
 if TYPE_CHECKING:
     from eval.rundata import RunData
 
-__all__ = ["run_demo", "GUARDED_SERVICES", "SIM_MINUTES", "ensure_mission", "compile_kernels"]
+__all__ = ["run_demo", "cmd_demo", "GUARDED_SERVICES", "SIM_MINUTES", "ensure_mission", "compile_kernels"]
 
 #: the services downstream of the VPR Guard: all the Guard OFF run recomputes
 GUARDED_SERVICES = ("posecells", "expmap")
@@ -253,3 +253,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--embedded", action="store_true", help="services as threads of this process")
     p.add_argument("--timeout", type=float, help="fail a run that takes longer (s)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in launcher/demo.py)")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """``poseidon demo``: :func:`run_demo` with the command's flags; exit 2 on a bad configuration,
+    3 when a service, the simulation or the report failed."""
+    from common.config import ConfigError
+    from launcher.run import RunFailed
+    from system.config import load_config
+    try:
+        config = load_config(args.config, args.set)
+        return run_demo(config, Path(args.out), seed=args.seed, baselines=args.baselines, embedded=args.embedded,
+                        timeout_s=args.timeout, as_json=args.json)
+    except ConfigError as exc:
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"poseidon demo: {exc}; what was recorded so far is in {exc.partial}", file=sys.stderr)
+        return 3
+    except RuntimeError as exc:  # the simulation or the report failed; their own messages precede this
+        print(f"poseidon demo: {exc}", file=sys.stderr)
+        return 3

@@ -362,7 +362,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     return result
 
 
-#: exit code of a service stopped by the run's abort (``launcher.commands.EXIT_ABORTED``)
+#: exit code of a service stopped by the run's abort (``launcher.service_cmd.EXIT_ABORTED``)
 _ABORTED = 4
 
 

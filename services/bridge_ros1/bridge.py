@@ -33,7 +33,7 @@
   waiting (at most 10 s) until the recorder has taken it.  It does not wait for its consumers to
   leave (``bus.drain_timeout_s``): the services' outputs ending shows they got its end-of-stream,
   and the services wait for the bridge's own subscription to their outputs to go (a cycle).  A
-  second SIGTERM/SIGINT exits at once (``launcher/commands.py``); a bridge that never reaches
+  second SIGTERM/SIGINT exits at once (``launcher/service_cmd.py``); a bridge that never reaches
   its hub gives up after ``bus.startup_timeout_s`` (exit 2).
 """
 from __future__ import annotations

@@ -58,20 +58,3 @@ def test_no_back_end_block_without_events(tmp_path):
     with RecordingWriter(path) as w:
         w.write("truth/pose", _pose(0, 0.0))
     assert "back_end" not in summarize_run(path, PoseidonConfig())
-
-
-def test_poseidon_run_json_carries_the_evaluation(tmp_path, capsys):
-    """`poseidon run --json` / `demo --json`: the "evaluation" block comes from eval.summary."""
-    import json
-
-    from launcher.commands import print_run
-    from tests.eval import handmade as hm
-    path = hm.write_run(tmp_path / "hm.mcap")
-    result = {"output": str(path), "mode": "embedded", "wall_s": 1.0, "services": {},
-              "recording": {"counts": {}, "duration_s": 80.0}}
-    print_run(result, True, hm.config())
-    ev = json.loads(capsys.readouterr().out)["evaluation"]
-    assert set(ev) == {"front_end", "dead_reckoning", "back_end"}
-    assert ev["front_end"]["revisit_recall"] == 0.5 and ev["back_end"]["loop_closures"]["true"] == 2
-    print_run(dict(result), False, hm.config())
-    assert "back-end: 20 events" in capsys.readouterr().out

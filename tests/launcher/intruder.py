@@ -22,7 +22,7 @@ import zenoh
 from common.bus import zenoh_config
 from common.codec import decode_frame, encode_frame
 from common.messages import Header, Image, Odometry
-from launcher.commands import _Signals
+from launcher.service_cmd import _Signals
 
 
 def forged(key: str, seq: int):

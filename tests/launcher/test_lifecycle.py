@@ -172,7 +172,7 @@ def test_a_signal_delivered_twice_at_once_is_one_stop_and_a_later_one_exits():
     signal a while later exits at once with EXIT_ABORTED."""
     code = (
         "import os, signal, sys, time\n"
-        "from launcher.commands import _Signals, EXIT_ABORTED\n"
+        "from launcher.service_cmd import _Signals, EXIT_ABORTED\n"
         "s = _Signals('probe'); stops = []\n"
         "s.on_stop(lambda: stops.append(1))\n"
         "os.kill(os.getpid(), signal.SIGTERM); os.kill(os.getpid(), signal.SIGTERM)\n"
@@ -191,7 +191,7 @@ def test_signals_are_seen_while_the_main_thread_is_held_in_native_code():
     still be seen, SIGUSR1 must print the stacks, and the second SIGTERM must exit."""
     code = (
         "import ctypes, os, signal, threading\n"
-        "from launcher.commands import _Signals\n"
+        "from launcher.service_cmd import _Signals\n"
         "s = _Signals('probe'); s.on_stop(lambda: print('stop seen', flush=True))\n"
         "libc = ctypes.CDLL(None); mutex = ctypes.create_string_buffer(64)\n"
         "libc.pthread_mutex_lock(mutex)\n"
