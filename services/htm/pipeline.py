@@ -43,9 +43,8 @@ TM decision (``tm.decide``, ours; :mod:`services.htm.tm_match`): with
 strongly driven SP columns run beside the descriptor; the cells the TM predicted correctly
 vote for the stored frames where they won, and when the best frame's votes are >=
 ``tm.decide_share`` of the TM's columns its id is taken (after Eq. 4.9, before the sequence
-match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp.overlap_norm_steps`` N > 0 makes the SP
-rank standardised overlaps (:mod:`services.htm.spatial_pooler`).  The named chains that use
-them are in :mod:`services.htm.chains`.
+match; ``LvcResult.by_tm/tm_frame/tm_share``).  ``sp.overlap_norm_steps`` N > 0: the SP ranks
+standardised overlaps (:mod:`services.htm.spatial_pooler`); named chains: :mod:`services.htm.chains`.
 Sequence-match checks (ours; off by default, used by the ``sdr_seqmem_f1`` /
 ``sdr_seqmem_cal`` chains): ``seqmem.override`` -- an Eq. 4.9 match whose l* was created
 by a frame that is no sequence candidate (the current traversal's last ``seqmem.exclude``
@@ -59,14 +58,13 @@ self-calibrated form: F1(D_t, D_j*) >= the q-quantile of F1(D_t', D_j*') over th
 ``seqmem.calib_warmup`` of them the confident margin is required instead), read from the
 traversal itself (:mod:`services.htm.calibrate`): a level shift of every F1 moves the threshold
 with it.  The calibration sample restarts with ``reset_sequence()`` and is saved with the state.
-``sp.enabled: false`` feeds the fused SDR straight to the TM as its active columns (needs
-``sp.columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
+``sp.enabled: false`` feeds the fused SDR to the TM (needs ``sp.columns == input_size``). ``save(path)`` / ``NeocortexHtm.load(path, cfg)`` persist the
 whole state (SP, TM, descriptor history, LVC prototypes) to an ``.npz``; a loaded object
 continues exactly as the saved one would have, but for the dead-reckoning gate's stored
 positions, which a loaded map forgets (they are in the earlier run's odometry frame).
 Dead-reckoning gate (``dr_gate.enabled``, ours): every revisit claim (l*, TM, sequence,
 prior) must pass Eq. G.1 with the frame's position passed to ``step``; a sequence match it
-checked decides at ``sv_dr_gate_seqmem_*``. How and why: :mod:`services.htm.geometry`.
+checked decides at ``dr_gate.seqmem_threshold``/``seqmem_margin`` (:mod:`services.htm.geometry`).
 """
 from __future__ import annotations
 
@@ -153,7 +151,7 @@ class NeocortexHtm:
         self.dr_gate = DeadReckoningGate(cfg.dr_gate.min_m, cfg.dr_gate.drift, cfg.dr_gate.jump_m,
                                          cfg.dr_gate.min_path_m) if cfg.dr_gate.enabled and self.seqmem is not None else None
         self.dr_rejections = 0               # claims the dead-reckoning gate turned down (gate / TM / prior)
-        self.frames_not_stored = 0           # revisit frames sv_seqmem_store new_places kept out of the memory
+        self.frames_not_stored = 0           # revisit frames seqmem.store=new_places kept out of the memory
         self.id_last_frame: dict[int, int] = {}   # LVC id -> its latest frame in the sequence memory
         self.frame_ids: list[int] = []       # LVC id of every frame stored in the TM frame index
         self.tm_traversal_start = 0
