@@ -163,7 +163,8 @@ def _delegate(name: str) -> Callable[[list[str]], int]:
         if exc.name and module.startswith(exc.name):
             raise SystemExit(f"poseidon {name}: not available in this build ({module} missing)") from None
         raise
-    return getattr(mod, func)
+    command: Callable[[list[str]], int] = getattr(mod, func)
+    return command
 
 
 def _add_run_command(sub: Any) -> None:

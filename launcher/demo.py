@@ -235,9 +235,10 @@ def run_demo(config: PoseidonConfig, out_dir: Path, seed: int = 1, baselines: bo
     written, unavailable = write_report(views_of(list(loaded.values()), [labels[k] for k in loaded]), report_dir)
     _say(f"      {written['out']} ({written['bytes'] / 1e6:.1f} MB)"
          + "".join(f"\n      table unavailable: {name}: {why}" for name, why in unavailable.items()))
-    d = {"mission": str(mission), "mission_cached": cached, "out": str(out_dir),
-         "report": str(report_dir / "index.html"), "wall_s": round(time.monotonic() - t0, 1),
-         "runs": runs, "checks": _checks(runs), "log": str(log_file()) if log_file() is not None else None}
+    d: dict[str, Any] = {
+        "mission": str(mission), "mission_cached": cached, "out": str(out_dir),
+        "report": str(report_dir / "index.html"), "wall_s": round(time.monotonic() - t0, 1),
+        "runs": runs, "checks": _checks(runs), "log": str(log_file()) if log_file() is not None else None}
     if as_json:
         print(json.dumps(d, indent=2))
     else:

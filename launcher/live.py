@@ -206,7 +206,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
         finally:
             _stop_all(procs)
             watcher.close()
-            hub.close()
+            hub.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
         if failed:
             raise RunFailed(failed[0], failed[1], str(partial))
         os.replace(partial, out)

@@ -204,7 +204,7 @@ class RunResult:
     restarts: dict[str, int] = field(default_factory=dict)
     inputs: dict[str, Any] = field(default_factory=dict)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
                 "services": self.services, "recording": self.recording, "restarts": self.restarts,
                 "inputs": self.inputs}
@@ -219,7 +219,8 @@ def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, serv
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        port: int = s.getsockname()[1]
+        return port
 
 
 def _summarise(out: Path) -> dict[str, Any]:
@@ -293,7 +294,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     t0 = time.monotonic()
     hub = open_hub(endpoint)
-    procs: dict[str, subprocess.Popen] = {}
+    procs: dict[str, subprocess.Popen[bytes]] = {}
     with tempfile.TemporaryDirectory(prefix="poseidon-run-") as tmp:
         cfg_file = Path(tmp) / "config.yaml"
         cfg_file.write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
@@ -316,13 +317,13 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         restarts: dict[str, int] = {}
         batch = config.bus.batch_scheduling
 
-        def _start(name: str, cmd: list[str]) -> subprocess.Popen:
+        def _start(name: str, cmd: list[str]) -> subprocess.Popen[bytes]:
             proc = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=die_with_launcher(os.getpid(), batch))
             if batch:
                 check_batch_scheduling(name, proc)
             return proc
 
-        def restart(name: str, rc: int) -> subprocess.Popen | None:
+        def restart(name: str, rc: int) -> subprocess.Popen[bytes] | None:
             """Supervision: start ``name`` again (resuming) unless it used its restarts."""
             n = restarts.get(name, 0)
             if n >= max_restarts:
@@ -345,7 +346,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             failed = _monitor(procs, timeout_s, restart if max_restarts > 0 else None, restarts)
         finally:
             _stop_all(procs)
-            hub.close()
+            hub.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
         if failed:
             name, detail = failed
             raise RunFailed(name, detail, str(partial))
@@ -366,7 +367,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
 _ABORTED = 4
 
 
-def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
+def _monitor(procs: dict[str, subprocess.Popen[bytes]], timeout_s: float | None,
              restart: Any = None, restarts: dict[str, int] | None = None,
              blame_grace_s: float = 3.0) -> tuple[str, str] | None:
     """Wait for every process; the first failure (not a mere abort) is named.  ``restart(name,
@@ -405,7 +406,7 @@ def _monitor(procs: dict[str, subprocess.Popen], timeout_s: float | None,
         time.sleep(0.1)
 
 
-def _stop_all(procs: dict[str, subprocess.Popen], grace_s: float = 10.0, recorder_grace_s: float = 60.0) -> None:
+def _stop_all(procs: dict[str, subprocess.Popen[bytes]], grace_s: float = 10.0, recorder_grace_s: float = 60.0) -> None:
     """SIGTERM to every process still running, then wait for each, ``grace_s`` (the recorder:
     ``recorder_grace_s``, since it first writes what has arrived and then the file's summary,
     which a kill would lose) before SIGKILL."""
@@ -485,7 +486,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
         if still:
             log.error("threads still running after the stop: %s", still)
         bus.close()
-        session.close()
+        session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
     if errors:
         name, exc = next(iter(errors.items()))
         raise RunFailed(name, f"{type(exc).__name__}: {exc}", str(partial))
