@@ -58,8 +58,8 @@ __all__ = ["main", "evaluation_tables", "load_views", "views_of", "write_report"
 log = logging.getLogger("poseidon.report")
 
 
-def _guarded(tables: dict[str, dict], unavailable: dict[str, str], name: str,
-             func: Callable[..., dict], where: str, *args: Any) -> dict | None:
+def _guarded(tables: dict[str, dict[str, Any]], unavailable: dict[str, str], name: str,
+             func: Callable[..., dict[str, Any]], where: str, *args: Any) -> dict[str, Any] | None:
     """Table ``name`` = ``func(*args)``; when the function fails, the reason in ``unavailable``."""
     try:
         result = func(*args)
@@ -104,10 +104,10 @@ COMPARISON = "Comparison (Table 5.4, Tables 5.2-5.3)"
 
 
 def evaluation_tables(runs: list[RunData], labels: list[str],
-                      relations: Path | None = None) -> tuple[dict[str, dict], dict[str, str], list[str]]:
+                      relations: Path | None = None) -> tuple[dict[str, dict[str, Any]], dict[str, str], list[str]]:
     """The tables of the eval package for the runs: (name -> dict, name -> why unavailable, names of the
     per-run detail tables, shown folded when there is a comparison)."""
-    tables: dict[str, dict] = {}
+    tables: dict[str, dict[str, Any]] = {}
     unavailable: dict[str, str] = {}
     for run, label in zip(runs[1:], labels[1:]):
         name = f"{COMPARISON}: {labels[0]} vs {label}"
@@ -115,13 +115,13 @@ def evaluation_tables(runs: list[RunData], labels: list[str],
         if result is not None:
             tables[name] = present_comparison(result, labels[0], label)
     details: list[str] = []
-    def evaluate(run: RunData) -> dict:
+    def evaluate(run: RunData) -> dict[str, Any]:
         result = evaluate_run(run) if relations is None else evaluate_run(run, relations=relations)
         return present_evaluation(result) if isinstance(result, dict) else result
     for run, label in zip(runs, labels):
         camera = "camera" in run_kind(run.counts)
 
-        def audit(run: RunData, camera: bool = camera) -> dict:
+        def audit(run: RunData, camera: bool = camera) -> dict[str, Any]:
             result = audit_run(run)
             return present_audit(result, camera) if isinstance(result, dict) else result
         audit_name = f"Audit (event-evidence association): {label}" if camera else \
@@ -171,7 +171,7 @@ def present_audit(result: Mapping[str, Any], camera: bool) -> dict[str, Any]:
     return dict(result) if camera else {k: v for k, v in result.items() if k not in AUDIT_EVIDENCE}
 
 
-def _benchmark(run: RunData, relations: Path | None, tables: dict[str, dict]) -> list[Any]:
+def _benchmark(run: RunData, relations: Path | None, tables: dict[str, dict[str, Any]]) -> list[Any]:
     """The laser maps and loop closures of a run with scans (:mod:`eval.report.benchmark`); with
     ``relations``, the relations table is added to ``tables``."""
     if relations is not None:

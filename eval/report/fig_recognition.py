@@ -65,7 +65,7 @@ def frame_similarity(run: RunView, max_frames: int = 500, min_gap_m: float = 10.
         k = decimate(len(run.sdr_stamps), max_frames)
         stamps = run.sdr_stamps[k]
         active = [run.sdr_active[j] for j in k]
-        bits, inverse = np.unique(np.concatenate(active), return_inverse=True) if active else (np.zeros(0), None)
+        bits, inverse = np.unique(np.concatenate(active), return_inverse=True)   # k: at least 2 frames
         dense = np.zeros((len(k), len(bits)), dtype=np.float32)
         start = 0
         for row, a in enumerate(active):
@@ -150,6 +150,11 @@ def precision_recall(scores: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
 
 def _same_similarity(a: Similarity, b: Similarity) -> bool:
     return a.source == b.source and np.array_equal(a.stamps, b.stamps) and np.array_equal(a.percent, b.percent)
+
+
+def _same_array(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """Both absent, or both present and equal."""
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
 
 def similarities(runs: list[RunView], max_frames: int, min_gap_m: float) -> list[tuple[int, Similarity | None]]:
@@ -239,7 +244,8 @@ def revisit_frames(r: RunView, min_gap_m: float) -> np.ndarray:
         gap, limit = along - along[first], min_gap_m
     else:
         gap, limit = (r.lvc_stamps - r.lvc_stamps[first]) / 1e9, 60.0
-    return ~r.lvc_new & (gap >= limit)
+    revisit: np.ndarray = ~r.lvc_new & (gap >= limit)
+    return revisit
 
 
 def fig_viewcells(runs: list[RunView], max_points: int, min_gap_m: float = 10.0) -> FigureSpec:
@@ -312,8 +318,8 @@ def fig_pr(runs: list[RunView], sims: list[tuple[int, Similarity | None]]) -> tu
         if sim is None or sim.truth is None or sim.pair_ok is None:
             spec.notes.append(f"{r.label}: no similarity/ground truth (see the similarity matrix)")
             continue
-        twin = next((j for j, o in shown if _same_similarity(o, sim) and np.array_equal(o.truth, sim.truth)
-                     and np.array_equal(o.lvc, sim.lvc)), None)
+        twin = next((j for j, o in shown if _same_similarity(o, sim) and _same_array(o.truth, sim.truth)
+                     and _same_array(o.lvc, sim.lvc)), None)
         if twin is not None:
             spec.notes.append(f"{r.label}: same curve as {runs[twin].label} (same front-end output and truth)")
             summary[r.label] = summary[runs[twin].label]

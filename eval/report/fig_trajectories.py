@@ -37,7 +37,7 @@ def _map_points(r: RunView, max_points: int) -> np.ndarray:
     """The map's nodes (decimated, creation order) as one line; a map of several sessions gets a
     gap (NaN row) where one session ends and the next begins (two odometry frames, no move)."""
     k = decimate(len(r.node_ids), max_points)
-    p = r.node_ned[k]
+    p: np.ndarray = r.node_ned[k]
     if len(r.node_session) != len(r.node_ids):
         return p
     s = r.node_session[k]
