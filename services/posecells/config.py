@@ -35,7 +35,7 @@ class PoseCellsConfig(ConfigSection):
     lvc_injection_gain: float = Field(0.1, ge=0, description="delta of Eq. 4.19")
     multiple_local_view_active: bool = Field(True, description="up to top_k LVCs of a message inject energy; "
                                              "false: the most active one only")
-    # --- added for the pose-cell service (issue 9); see services/posecells/
+    # --- the pose-cell service's own parameters (services/posecells/)
     beta_min_fraction: float = Field(0.25, gt=0, le=1, description="Eq. 4.19 beta is stored on the cells with "
                                      "activity >= this fraction of the packet peak (sparse association) [fraction]")
     beta_max_cells: int = Field(64, ge=1, description="at most this many associated cells per LVC (the strongest) [cells]")
