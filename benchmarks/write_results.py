@@ -11,7 +11,7 @@ commands, the date (UTC) and the code revision (``git rev-parse --short HEAD``, 
 a file other than Markdown differs from it), then its tables.  Sections are delimited by
 ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->``; a run replaces only the sections of
 the topics it ran and keeps every other byte of the file; a topic never measured gets a
-placeholder section naming its commands.
+"Not measured yet" section naming its commands.
 
 Console: one line per command as it starts, a line a minute while it runs (the last line of its
 stderr), its duration when it ends.  Each command's stdout and stderr are kept in
@@ -249,7 +249,7 @@ def section_text(name: str, heading: str, commands: Sequence[str], stamp: str, r
             f"{body.rstrip()}\n{end}\n")
 
 
-def placeholder(topic: Topic) -> str:
+def unmeasured_section(topic: Topic) -> str:
     """The section of a topic never measured."""
     begin, end = _marks(topic.name)
     cmds = "\n".join(f"    {c}" for c in topic.commands)
@@ -413,7 +413,7 @@ class Topic:
     heading: str
     minutes: int  # rough, on 2 shared cores
     data: tuple[str, ...]  # paths under ../shared/data that must exist
-    commands: tuple[str, ...]  # what it runs, for --list and the placeholder
+    commands: tuple[str, ...]  # what it runs, for --list and the "Not measured yet" section
     measure: Callable[[Runner], str]
 
 
@@ -483,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     text = out.read_text() if out.exists() else PREAMBLE
     order = [t.name for t in TOPICS]
     spans = split_sections(text)
-    filled = {**{t.name: placeholder(t) for t in TOPICS if t.name not in spans and t.name not in new}, **new}
+    filled = {**{t.name: unmeasured_section(t) for t in TOPICS if t.name not in spans and t.name not in new}, **new}
     out.write_text(replace_sections(text, filled, order))
     print(f"wrote {out}: {', '.join(new) or 'no topic measured'}")
     return 0

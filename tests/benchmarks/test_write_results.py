@@ -36,7 +36,7 @@ def test_replacing_a_section_keeps_every_other_byte():
 
 def test_a_new_section_goes_between_its_neighbours_in_topic_order():
     text = _doc()
-    vpr = wr.placeholder(wr.BY_NAME["vpr-images"])
+    vpr = wr.unmeasured_section(wr.BY_NAME["vpr-images"])
     out = wr.replace_sections(text, {"vpr-images": vpr}, ORDER)
     spans = wr.split_sections(out)
     assert spans["laser"][1] <= spans["vpr-images"][0]
