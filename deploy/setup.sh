@@ -46,4 +46,19 @@ if [ -z "${POSEIDON_NO_ROS1:-}" ] && ! command -v roscore >/dev/null 2>&1 && [ "
     echo "ROS 1 could not be installed (see $ros_log); the bridge's live tests will skip" >&2
   fi
 fi
+# Optional: Survex from the system packages (Debian survex: cavern, survexport), for the test
+# that processes `poseidon export --survex` output (tests/products/test_map_exports.py). Same
+# rules as Chromium: root with apt-get, only when cavern is missing, a failure leaves that test
+# skipping with the reason. POSEIDON_NO_SURVEX=1 leaves it out.
+if [ -z "${POSEIDON_NO_SURVEX:-}" ] && ! command -v cavern >/dev/null 2>&1 && [ "$(id -u)" = 0 ] \
+   && command -v apt-get >/dev/null 2>&1; then
+  survex_log=$(mktemp /tmp/poseidon-survex-install.XXXXXX.log)
+  echo "installing survex (Debian package) for the Survex export's test; log: $survex_log" >&2
+  if DEBIAN_FRONTEND=noninteractive apt-get update -q >"$survex_log" 2>&1 \
+     && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends survex >>"$survex_log" 2>&1; then
+    echo "survex installed: $(cavern --version 2>/dev/null | head -n 1 || command -v cavern)" >&2
+  else
+    echo "survex could not be installed (see $survex_log); the Survex export's test will skip" >&2
+  fi
+fi
 echo "PoseidonSLAM installed in $(pwd)/.venv" >&2
