@@ -36,6 +36,10 @@ Subcommands:
   key is (description, type, default, unit, range; a section's fields; a renamed key's new
   name), or the effective configuration as YAML (:mod:`launcher.config_cmd`).  Exit 2 for an
   unknown key (the closest keys are named) or a bad configuration.
+- ``view [RUN.mcap] [--connect ENDPOINT] [--listen [HOST:]PORT] [--foxglove PORT]``: a read-only web
+  page of a running deployment (or of a finished run, with a time slider), optionally the same
+  streams for the Foxglove app (:mod:`services.viewer`).  Exit 2 when no hub answers at the
+  address, the recording holds no map, or the address cannot be served.
 - ``sim``, ``transform``, ``import``, ``export``, ``vpr``, ``deadreckon``, ``eval``, ``audit``, ``compare``, ``report``,
   ``path``: see their own ``--help``.
 
@@ -277,6 +281,51 @@ def _add_config_command(sub: Any) -> None:
     p.set_defaults(func=cmd_config)
 
 
+def _add_view_command(sub: Any) -> None:
+    """``poseidon view``: the live page over a deployment or a finished run (:mod:`services.viewer`)."""
+    p = sub.add_parser("view", help="serve a live web view of a running deployment, or of a finished run's "
+                       "recording with a time slider")
+    p.add_argument("recording", nargs="?", help="a run's recording (MCAP) to view instead of a live deployment")
+    p.add_argument("--connect", help="Zenoh endpoint of the deployment's hub (default: bus.connect)")
+    p.add_argument("--listen", help="[HOST:]PORT of the page (default: view.listen, loopback)")
+    p.add_argument("--foxglove", type=int, metavar="PORT", help="also serve the streams to the Foxglove app "
+                   "(WebSocket) on this port, on the page's host")
+    p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
+    _add_secure_args(p)
+    _add_config_args(p)
+    p.set_defaults(func=cmd_view)
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """``poseidon view``: serve until SIGINT/SIGTERM; exit 2 naming a bad input (no hub at the
+    address, a recording without a map, a bad configuration)."""
+    import signal
+    import threading
+
+    from common.config import ConfigError
+    from services.viewer.app import ViewError, serve_live, serve_recording
+    from system.config import load_config
+    from system.services import available_services, node_io
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        config = load_config(args.config, args.set)
+        if args.recording is not None:
+            if args.connect or args.foxglove is not None:
+                raise ValueError("a recording is viewed on its own: --connect and --foxglove are for a live deployment")
+            serve_recording(args.recording, config.view, stop, args.listen)
+            return 0
+        io = {n: node_io(n, config) for n in config.services or available_services(config)}
+        serve_live(config.view, args.namespace or config.bus.namespace, args.connect or config.bus.connect[0], stop,
+                   io, args.listen, args.foxglove, tls_dir=args.tls_dir, tls_host=args.tls_host,
+                   user=args.zenoh_user, password_file=args.zenoh_password_file)
+    except (ConfigError, ViewError, ValueError, KeyError, FileNotFoundError) as exc:
+        print(f"poseidon view: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="poseidon", description="PoseidonSLAM: underwater SLAM services")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -287,6 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_hub_command(sub)
     _add_info_command(sub)
     _add_config_command(sub)
+    _add_view_command(sub)
 
     for name in DELEGATED:
         sub.add_parser(name, help=f"see 'poseidon {name} --help'", add_help=False)

@@ -42,12 +42,13 @@ from services.posecells.config import PoseCellsConfig, VprGuardConfig
 from services.ratslam_lv.config import RatSlamLvConfig
 from services.recorder.config import RecorderConfig
 from services.robot_state.config import RobotStateConfig
+from services.viewer.config import ViewConfig
 
 __all__ = ["PoseidonConfig", "ConfigError", "load_config", "DEFAULT_CONFIG_PATH", "RENAMED_KEYS", "DebugConfig",
            "FieldDoc", "SectionDoc", "RenamedDoc", "UnknownKey", "explain_key", "section_docstring", "show_config",
            "SyncConfig", "BusConfig", "SuperviseConfig", "PlayerConfig", "RecorderConfig", "EncoderConfig",
            "HtmConfig", "RobotStateConfig", "RatSlamLvConfig", "PoseCellsConfig", "VprGuardConfig",
-           "ExpMapConfig", "ScanGraphConfig", "BridgeRos1Config"]
+           "ExpMapConfig", "ScanGraphConfig", "BridgeRos1Config", "ViewConfig"]
 
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "deploy" / "poseidon.yaml"
 
@@ -61,6 +62,7 @@ class PoseidonConfig(ConfigSection):
     recorder: RecorderConfig = Field(default_factory=RecorderConfig)
     supervise: SuperviseConfig = Field(default_factory=SuperviseConfig)
     live: LiveConfig = Field(default_factory=LiveConfig)
+    view: ViewConfig = Field(default_factory=ViewConfig)
     debug: DebugConfig = Field(default_factory=DebugConfig)
     encoder: EncoderConfig = Field(default_factory=EncoderConfig)
     htm: HtmConfig = Field(default_factory=HtmConfig)

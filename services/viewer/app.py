@@ -1,0 +1,95 @@
+"""``poseidon view``: serve the page over a running deployment or a finished recording.
+
+:func:`serve_live` joins the hub read-only (:class:`~services.viewer.live.LiveFeed`), optionally
+starts the Foxglove server (:class:`~services.viewer.foxglove_live.FoxgloveLive`), serves the page
+and returns when ``stop`` is set.  :func:`serve_recording` serves a recording with the page's
+time slider.  Both print the page's address on stderr (``ready`` gets it too).
+"""
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+from services.viewer.config import ViewConfig
+from services.viewer.live import LiveFeed, ViewError, connect_bus
+from services.viewer.recording import RecordingView
+from services.viewer.server import ViewServer, parse_listen
+
+__all__ = ["serve_live", "serve_recording", "ViewError"]
+
+log = logging.getLogger(__name__)
+
+
+def _server(source: RecordingView | LiveFeed, listen: str) -> ViewServer:
+    try:
+        host, port = parse_listen(listen)
+    except ValueError as exc:
+        raise ViewError(f"--listen {exc}") from None
+    try:
+        return ViewServer(source, host, port)
+    except OSError as exc:
+        raise ViewError(f"cannot serve the page on {host}:{port}: {exc.strerror or exc}") from None
+
+
+def _announce(text: str, ready: Callable[[str], None] | None, url: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+    if ready is not None:
+        ready(url)
+
+
+def serve_recording(path: str | Path, cfg: ViewConfig, stop: threading.Event, listen: str | None = None,
+                    ready: Callable[[str], None] | None = None) -> None:
+    """Serve the recording at ``path`` until ``stop`` is set (:class:`ViewError` on a bad file or address)."""
+    view = RecordingView(path, cfg)
+    server = _server(view, listen or cfg.listen)
+    server.start()
+    try:
+        _announce(f"poseidon view: {view.path.name} ({view.duration_s:.0f} s) at {server.url} -- Ctrl-C to stop",
+                  ready, server.url)
+        stop.wait()
+    finally:
+        server.stop()
+
+
+def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Event,
+               io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None, listen: str | None = None,
+               foxglove_port: int | None = None, ready: Callable[[str], None] | None = None,
+               **secure: str | None) -> None:
+    """Serve the deployment whose hub is at ``connect`` until ``stop`` is set (``io``: each
+    service's input and output keys, for its figures; ``secure``: the secured profile's
+    ``tls_dir``, ``tls_host``, ``user``, ``password_file``)."""
+    if foxglove_port is not None and not 0 <= foxglove_port <= 65535:
+        raise ViewError(f"--foxglove {foxglove_port}: not a port (0-65535)")
+    try:
+        host = parse_listen(listen or cfg.listen)[0]
+    except ValueError as exc:
+        raise ViewError(f"--listen {exc}") from None
+    bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
+    fox = None
+    try:
+        if foxglove_port is not None:
+            from services.viewer.foxglove_live import FoxgloveLive
+            try:
+                fox = FoxgloveLive(host, foxglove_port, cfg.foxglove_backlog)
+            except RuntimeError as exc:
+                raise ViewError(f"cannot start the Foxglove server on {host}:{foxglove_port}: {exc}") from None
+        feed = LiveFeed(bus, cfg, io, on_update=fox.update if fox is not None else None)
+        server = _server(feed, listen or cfg.listen)
+        feed.start()
+        server.start()
+        try:
+            extra = f"; Foxglove: ws://{host}:{fox.port}" if fox is not None else ""
+            _announce(f"poseidon view: {connect} ({namespace}) at {server.url}{extra} -- Ctrl-C to stop", ready,
+                      server.url)
+            stop.wait()
+        finally:
+            server.stop()
+            feed.stop()
+    finally:
+        if fox is not None:
+            fox.stop()
+        bus.close()
+        bus.session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated

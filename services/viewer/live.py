@@ -1,0 +1,329 @@
+"""The live feed: a read-only subscriber on a running deployment that keeps the view's model.
+
+Never slowing the SLAM:
+
+- Zenoh callbacks only count the frame and keep it: the latest frame of the camera and of the
+  map (each replaced by the next), the other displayed keys in a bounded queue whose oldest
+  entry goes when it is full (counted in ``view.dropped``).  Nothing waits for a browser:
+  a page that polls slowly, or none, only means fewer snapshots are built.
+- A pump thread wakes ``view.update_hz`` times a second, decodes what was kept, applies it
+  to the :class:`~services.viewer.model.ViewModel` and updates the per-service figures.
+- Each key has its own subscriber, undeclared at the key's end-of-stream: a finished
+  publisher waits until its consumers have left (:meth:`common.bus.Bus.drain`), and the view
+  must not be one it waits for.
+- The view publishes nothing: no publisher, no liveliness token (a token that disappears
+  would read as a dead service, :mod:`common.bus`), no progress report (the player's flow
+  control never waits for it).
+
+Per-service figures come from what the bus carries: input rate (data frames per second on the
+service's input keys), lag (event time between the newest source message and the service's
+``@progress`` report), gaps (transport indices missing in its output streams: frames that never
+reached the view), restarts (its ``@alive`` token declared again after it left) and latency
+p50/p99 (wall time from a source message reaching the view to the output of the same stamp
+reaching it, as :class:`common.live.LatencyTracker` measures at the source).  Frames dropped
+inside a live service's bounded queue are not on the bus; the run summary has them
+(``dropped``).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import struct
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common.bus import ALIVE, PROGRESS, Bus, zenoh_config
+from common.codec import DecodeError, decode_dict, decode_frame
+from common.ordering import END_OF_TIME
+from services.viewer.config import ViewConfig
+from services.viewer.model import MAP_KEY, ViewModel, view_keys
+
+__all__ = ["LiveFeed", "ViewError", "connect_bus", "ServiceFigures", "LatencyWindow"]
+
+log = logging.getLogger(__name__)
+
+
+class ViewError(RuntimeError):
+    """The view cannot start: the message names the bad input (an address, a file)."""
+
+
+def connect_bus(namespace: str, endpoint: str, timeout_s: float, config_file: str | None = None,
+                tls_dir: str | None = None, tls_host: str | None = None, user: str | None = None,
+                password_file: str | None = None) -> Bus:
+    """A client :class:`Bus` on the hub at ``endpoint``; :class:`ViewError` when no hub answers
+    within ``timeout_s`` (a service would wait forever; a view started by hand should not).
+    ``tls_dir``, ``tls_host``, ``user``, ``password_file``: the secured profile (:func:`common.bus.zenoh_config`)."""
+    conf = zenoh_config("client", connect=[endpoint], config_file=config_file, tls_dir=tls_dir, tls_host=tls_host,
+                        user=user, password_file=password_file)
+    conf.insert_json5("connect/timeout_ms", json.dumps(int(timeout_s * 1000)))
+    conf.insert_json5("connect/exit_on_failure", "true")
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError:
+        raise ViewError(f"no hub answers at {endpoint} within {timeout_s:.0f} s (start one with 'poseidon hub' "
+                        f"or 'poseidon run', or pass its address with --connect)") from None
+    return Bus(namespace, session=session)
+
+
+class LatencyWindow:
+    """Wall time from a source message to an output of the same stamp, per output key, over
+    the last ``window`` outputs (bounded memory for runs of hours)."""
+
+    def __init__(self, horizon: int = 20_000, window: int = 2_000):
+        self.horizon = horizon
+        self._arrival: OrderedDict[int, int] = OrderedDict()
+        self._seen: dict[str, OrderedDict[int, None]] = {}
+        self.samples: dict[str, deque[float]] = {}
+        self._window = window
+
+    def arrived(self, stamp: int, wall_ns: int) -> None:
+        if stamp not in self._arrival:
+            self._arrival[stamp] = wall_ns
+            if len(self._arrival) > self.horizon:
+                self._arrival.popitem(last=False)
+
+    def output(self, key: str, stamp: int, wall_ns: int) -> None:
+        seen = self._seen.setdefault(key, OrderedDict())
+        t0 = self._arrival.get(stamp)
+        if t0 is None or stamp in seen:
+            return
+        seen[stamp] = None
+        if len(seen) > self.horizon:
+            seen.popitem(last=False)
+        self.samples.setdefault(key, deque(maxlen=self._window)).append((wall_ns - t0) / 1e6)
+
+    def percentiles(self, keys: Sequence[str]) -> tuple[float | None, float | None]:
+        """p50 and p99 (ms) over the samples of ``keys`` (None without any)."""
+        values = [v for k in keys for v in self.samples.get(k, ())]
+        if not values:
+            return None, None
+        p50, p99 = np.percentile(np.asarray(values), [50, 99])
+        return round(float(p50), 1), round(float(p99), 1)
+
+
+class ServiceFigures:
+    """The bus-side counters behind the per-service table (thread-safe)."""
+
+    def __init__(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]):
+        self.io = {n: (tuple(i), tuple(o)) for n, (i, o) in io.items()}
+        self.produced = {k for _i, outs in self.io.values() for k in outs}
+        self.frames: dict[str, int] = {}
+        self.next_index: dict[str, int] = {}
+        self.gaps: dict[str, int] = {}
+        self.invalid: dict[str, int] = {}
+        self.declared: dict[str, int] = {}
+        self.alive: set[str] = set()
+        self.progress: dict[str, int] = {}
+        self.newest_source = -1
+        self.latency = LatencyWindow()
+        self._rate: dict[str, float] = {}
+        self._last: tuple[float, dict[str, int]] = (time.monotonic(), {})
+        self.lock = threading.Lock()
+
+    def data(self, key: str, index: int, stamp: int, wall_ns: int) -> None:
+        with self.lock:
+            self.frames[key] = self.frames.get(key, 0) + 1
+            if index >= 0:
+                expected = self.next_index.get(key, index)
+                if index > expected:
+                    self.gaps[key] = self.gaps.get(key, 0) + index - expected
+                if index >= expected:
+                    self.next_index[key] = index + 1
+            if stamp < 0:
+                return
+            if key in self.produced:
+                self.latency.output(key, stamp, wall_ns)
+            else:
+                self.newest_source = max(self.newest_source, stamp)
+                self.latency.arrived(stamp, wall_ns)
+
+    def token(self, service: str, present: bool) -> None:
+        with self.lock:
+            if present:
+                self.declared[service] = self.declared.get(service, 0) + 1
+                self.alive.add(service)
+            else:
+                self.alive.discard(service)
+
+    def progress_report(self, service: str, stamp: int) -> None:
+        with self.lock:
+            if stamp > self.progress.get(service, -2):
+                self.progress[service] = stamp
+
+    def table(self) -> dict[str, dict[str, Any]]:
+        """Per service: ``alive``, ``rate_hz``, ``lag_s``, ``done``, ``gaps``, ``restarts``, ``p50_ms``, ``p99_ms``."""
+        with self.lock:
+            now = time.monotonic()
+            t_last, counts = self._last
+            if now - t_last >= 1.0:  # rates over at least one second
+                for key, n in self.frames.items():
+                    self._rate[key] = (n - counts.get(key, 0)) / (now - t_last)
+                self._last = (now, dict(self.frames))
+            names = sorted(set(self.io) | set(self.progress) | set(self.declared))
+            out: dict[str, dict[str, Any]] = {}
+            for name in names:
+                ins, outs = self.io.get(name, ((), ()))
+                progress = self.progress.get(name)
+                done = progress == END_OF_TIME
+                lag = None
+                if progress is not None and not done and self.newest_source >= 0:
+                    lag = round(max(0, self.newest_source - progress) / 1e9, 2)
+                p50, p99 = self.latency.percentiles(outs)
+                out[name] = {"alive": name in self.alive, "rate_hz": round(sum(self._rate.get(k, 0.0) for k in ins), 1),
+                             "lag_s": lag, "done": done, "gaps": sum(self.gaps.get(k, 0) for k in outs),
+                             "restarts": max(0, self.declared.get(name, 0) - 1), "p50_ms": p50, "p99_ms": p99}
+            return out
+
+
+class LiveFeed:
+    """Subscribes to ``keys`` (default: :func:`~services.viewer.model.view_keys` and every key of
+    ``io``) on ``bus`` and keeps ``model`` current (see the module notes).  ``on_update`` is
+    called from the pump thread after each update, under :attr:`lock` (the Foxglove server)."""
+
+    def __init__(self, bus: Bus, cfg: ViewConfig, io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None,
+                 on_update: Callable[[ViewModel], None] | None = None, queue_frames: int = 5000):
+        self.bus = bus
+        self.cfg = cfg
+        self.model = ViewModel(cfg)
+        self.figures = ServiceFigures(io or {})
+        self.shown = set(view_keys(cfg))
+        self.keys = sorted(self.shown | {k for ins, outs in (io or {}).values() for k in (*ins, *outs)})
+        self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
+        self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map)
+        self._latest_keys = {cfg.camera_key, MAP_KEY}
+        self._queue: deque[tuple[str, bytes]] = deque(maxlen=queue_frames)
+        self._queued = 0
+        self._taken = 0
+        self.invalid = 0
+        self.ended: set[str] = set()
+        self._subs: dict[str, Any] = {}
+        self._undeclare: deque[str] = deque()
+        self._on_update = on_update
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.updates = 0
+
+    # ---- Zenoh callbacks (never block) ----------------------------------------------------
+    def _on_sample(self, key: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            data = sample.payload.to_bytes()
+            try:
+                frame = decode_frame(data)
+                if frame.kind == "eos":
+                    self.ended.add(key)
+                    self._undeclare.append(key)
+                    return
+                if frame.kind != "data":
+                    return
+                header = decode_dict(frame.payload).get("header")
+                stamp = header.get("stamp", -1) if isinstance(header, dict) else -1
+            except DecodeError as exc:
+                self.invalid += 1
+                log.error("view: bad frame on %s skipped: %s", key, exc)
+                return
+            self.figures.data(key, frame.index, stamp if isinstance(stamp, int) else -1, time.time_ns())
+            if key in self._latest_keys:
+                self._latest[key] = data
+            elif key in self.shown:
+                self._queue.append((key, data))
+                self._queued += 1
+        return on_sample
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        prefix = self.bus.full_key(ALIVE) + "/"
+        key = str(sample.key_expr)
+        if key.startswith(prefix):
+            self.figures.token(key[len(prefix):], sample.kind == zenoh.SampleKind.PUT)
+
+    def _on_progress(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        if len(data) != 8:
+            self.invalid += 1
+            log.error("view: progress report of %d bytes on %s skipped", len(data), sample.key_expr)
+            return
+        self.figures.progress_report(str(sample.key_expr).rsplit("/", 1)[-1], struct.unpack("<q", data)[0])
+
+    # ---- life -------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Declare the subscribers and start the pump."""
+        session = self.bus.session
+        for key in self.keys:
+            self._subs[key] = session.declare_subscriber(self.bus.full_key(key), self._on_sample(key))
+        self._subs["@alive"] = session.liveliness().declare_subscriber(self.bus.full_key(f"{ALIVE}/*"),
+                                                                      self._on_token, history=True)
+        self._subs["@progress"] = session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"), self._on_progress)
+        self._thread = threading.Thread(target=self._pump, name="view-pump", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        for sub in self._subs.values():
+            sub.undeclare()
+        self._subs.clear()
+
+    @property
+    def dropped(self) -> int:
+        """Displayed frames dropped because the pump was behind (the bounded queue was full)."""
+        return self._queued - self._taken - len(self._queue)
+
+    def _pump(self) -> None:
+        period = 1.0 / self.cfg.update_hz
+        while not self._stop.wait(period):
+            self.update()
+
+    def update(self) -> None:
+        """Undeclare ended keys, decode and apply what was kept, refresh the figures (the pump
+        calls it; tests call it directly)."""
+        while self._undeclare:
+            key = self._undeclare.popleft()
+            sub = self._subs.pop(key, None)
+            if sub is not None:
+                sub.undeclare()
+        batch: list[tuple[str, bytes]] = []
+        while self._queue:
+            try:
+                batch.append(self._queue.popleft())
+            except IndexError:  # emptied between the test and the pop: nothing more to take
+                break
+        self._taken += len(batch)
+        for key in list(self._latest):
+            data = self._latest.pop(key, None)
+            if data is not None:
+                batch.append((key, data))
+        with self.lock:
+            for key, data in batch:
+                try:
+                    msg = decode_frame(data).message()
+                except DecodeError as exc:
+                    self.invalid += 1
+                    log.error("view: message on %s skipped: %s", key, exc)
+                    continue
+                self.model.apply(key, msg)
+            self.updates += 1
+            if self._on_update is not None:
+                self._on_update(self.model)
+
+    def snapshot(self, have: Mapping[str, str], t_s: float = 0.0) -> dict[str, Any]:
+        """The model's snapshot for a client holding ``have``, with the live figures (``t_s``:
+        unused, a live view is always at its newest time)."""
+        with self.lock:
+            snap = self.model.snapshot(have)
+            camera_version = self.model.camera_version
+        snap["mode"] = "live"
+        snap["camera_version"] = camera_version
+        snap["services"] = self.figures.table()
+        snap["view"] = {"dropped": self.dropped, "invalid": self.invalid, "ended": sorted(self.ended),
+                        "keys": self.keys, "updates": self.updates}
+        return snap
+
+    def camera(self) -> tuple[int, bytes]:
+        with self.lock:
+            return self.model.camera_jpeg()

@@ -1,0 +1,280 @@
+"""What the page shows, built from the run's messages: :class:`ViewModel`.
+
+The same model serves a live run (fed by :mod:`services.viewer.live` with sampled messages)
+and a finished recording (fed by :mod:`services.viewer.recording` up to the slider's time).
+Everything it keeps is bounded: a trajectory or the LVC timeline drops every other point when
+full (:class:`Trail`), the sonar sweep keeps one beam per angle bin, the camera only its latest
+frame; the map is the latest published one.  :meth:`ViewModel.snapshot` answers with deltas:
+the page says which map version and how much of each trail it already holds, and gets only
+what changed (a trail that was thinned is sent whole again).
+"""
+from __future__ import annotations
+
+import base64
+import io
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from PIL import Image as PilImage
+
+from common.messages import (
+    ExperienceEvent,
+    ExperienceMap,
+    Image,
+    LaserScan,
+    LatencyReport,
+    LocalViewCells,
+    Message,
+    Odometry,
+    PoseStamped,
+    RangeImageBeam,
+)
+from services.viewer.config import ViewConfig
+
+__all__ = ["ViewModel", "Trail", "MapArrays", "map_arrays", "jpeg_of", "MAP_KEY", "LVC_KEY", "EVENT_KEY",
+           "DR_KEY", "ODOM_KEY", "LATENCY_KEY", "TRAILS", "SONAR_ANGLE_BINS", "view_keys"]
+
+MAP_KEY, LVC_KEY, EVENT_KEY, DR_KEY, ODOM_KEY = "map", "local_view_cells", "experience_event", "dead_reckoning", "Odometry"
+LATENCY_KEY = "live/latency"  # common.live.LATENCY_KEY (the live run's latency report)
+#: the trails the page draws
+TRAILS = ("dead_reckoning", "odometry", "truth", "posecells")
+#: angle bins of the sonar sweep (one beam kept per bin)
+SONAR_ANGLE_BINS = 200
+
+
+def view_keys(cfg: ViewConfig) -> list[str]:
+    """Every data key the view reads under ``cfg``."""
+    return sorted({MAP_KEY, LVC_KEY, EVENT_KEY, DR_KEY, ODOM_KEY, LATENCY_KEY, cfg.camera_key, cfg.sonar_key,
+                   cfg.scan_key, *cfg.truth_keys})
+
+
+class Trail:
+    """A bounded list of points: when full, every other point is dropped and ``epoch`` grows
+    (a client holding an older epoch gets the whole trail again)."""
+
+    def __init__(self, max_points: int, keep: int = 0):
+        self.max_points = max_points
+        self.points: list[list[float]] = []
+        self.epoch = 0
+        self._keep = keep  # index of a column whose truthy points survive thinning (LVC revisits)
+
+    def add(self, point: list[float]) -> None:
+        self.points.append(point)
+        if len(self.points) > self.max_points:
+            if self._keep:
+                k = self._keep
+                self.points = [p for i, p in enumerate(self.points) if i % 2 == 0 or p[k]]
+            else:
+                self.points = self.points[::2] + ([self.points[-1]] if len(self.points) % 2 == 0 else [])
+            self.epoch += 1
+
+    def since(self, have: str | None) -> dict[str, Any]:
+        """The points a client holding ``have`` (``"epoch.count"``) lacks."""
+        start = 0
+        if have:
+            epoch, _, count = have.partition(".")
+            if epoch.isdigit() and count.isdigit() and int(epoch) == self.epoch and int(count) <= len(self.points):
+                start = int(count)
+        return {"epoch": self.epoch, "start": start, "points": self.points[start:]}
+
+
+@dataclass
+class MapArrays:
+    """A published experience map, compact: node ids and positions, links (node indices) and
+    which links close a loop."""
+
+    stamp: int
+    ids: np.ndarray        # (n,) int64
+    xyz: np.ndarray        # (n, 3) float32
+    links: np.ndarray      # (m, 2) int32 indices into ids
+    loop: np.ndarray       # (m,) bool
+    current: int           # index of the current node, -1 if none
+    corrections: int
+
+    @property
+    def loop_closures(self) -> int:
+        return int(self.loop.sum())
+
+
+def map_arrays(msg: ExperienceMap) -> MapArrays:
+    ids = np.array([n.id for n in msg.nodes], dtype=np.int64)
+    xyz = np.array([n.position for n in msg.nodes], dtype=np.float32).reshape(-1, 3)
+    index = {int(i): k for k, i in enumerate(ids)}
+    pairs = [(index[lk.source], index[lk.target], lk.loop_closure) for lk in msg.links
+             if lk.source in index and lk.target in index]
+    links = np.array([(a, b) for a, b, _ in pairs], dtype=np.int32).reshape(-1, 2)
+    loop = np.array([c for _, _, c in pairs], dtype=bool)
+    return MapArrays(msg.header.stamp, ids, xyz, links, loop, index.get(msg.current, -1), msg.corrections)
+
+
+def _rgb(msg: Image) -> np.ndarray:
+    """An image's pixels as uint8 RGB or grey."""
+    data = np.asarray(msg.data)
+    enc = msg.encoding
+    if enc == "mono16":
+        return (data.reshape(msg.height, msg.width).astype(np.uint16) >> 8).astype(np.uint8)
+    if enc == "mono8":
+        return data.reshape(msg.height, msg.width).astype(np.uint8)
+    channels = 4 if enc in ("rgba8", "bgra8") else 3
+    px = data.reshape(msg.height, msg.width, channels)[:, :, :3]
+    return px[:, :, ::-1] if enc.startswith("bgr") else px
+
+
+def jpeg_of(msg: Image, width: int, quality: int) -> bytes:
+    """A small JPEG of a camera frame (at most ``width`` pixels wide)."""
+    img = PilImage.fromarray(np.ascontiguousarray(_rgb(msg)))
+    if img.width > width:
+        img = img.resize((width, max(1, round(img.height * width / img.width))), PilImage.Resampling.BILINEAR)
+    out = io.BytesIO()
+    img.save(out, format="JPEG", quality=quality)
+    return out.getvalue()
+
+
+def _r(v: float, nd: int = 2) -> float:
+    return round(float(v), nd)
+
+
+class ViewModel:
+    """The view's state (see the module notes).  Not thread-safe: one thread applies messages
+    and takes snapshots (the live feed's pump, or the recording's lock)."""
+
+    def __init__(self, cfg: ViewConfig):
+        self.cfg = cfg
+        self.t0: int | None = None
+        self.stamp = 0
+        self.map: MapArrays | None = None
+        self.map_version = 0
+        self.maps = 0
+        self.provisional: list[list[float]] = []  # experiences announced since the last published map
+        self.events = 0
+        self.trails = {name: Trail(cfg.trajectory_points) for name in TRAILS}
+        self.lvc = Trail(cfg.timeline_points, keep=2)
+        self.lvc_ids: set[int] = set()
+        self.lvc_frames = 0
+        self.last_lvc = -1
+        self.revisits = 0
+        self.pose: list[float] | None = None  # latest dead-reckoning pose x y z yaw
+        self.posecell: list[float] | None = None  # latest pose-cell estimate x y z yaw
+        self.truth_key: str | None = None
+        self.camera: Image | None = None
+        self.camera_version = 0
+        self._jpeg: tuple[int, bytes] = (0, b"")
+        self.sonar: dict[int, tuple[float, float, bytes]] = {}  # angle bin -> (angle rad, max range m, bins)
+        self.sonar_version = 0
+        self.scan: list[list[float]] = []
+        self.latency: dict[str, Any] | None = None
+
+    # ---- input ---------------------------------------------------------------------------
+    def apply(self, key: str, msg: Message) -> None:
+        """Take one message of ``key`` into the view."""
+        stamp = msg.header.stamp
+        if self.t0 is None:
+            self.t0 = stamp
+        self.stamp = max(self.stamp, stamp)
+        cfg = self.cfg
+        if key == MAP_KEY and isinstance(msg, ExperienceMap):
+            self.map = map_arrays(msg)
+            self.map_version += 1
+            self.maps += 1
+            self.provisional = []
+        elif key == LVC_KEY and isinstance(msg, LocalViewCells):
+            cell = msg.most_active_cell
+            # a revisit: an older place recognised again (not the place of the frame before)
+            revisit = not msg.is_new and cell in self.lvc_ids and cell != self.last_lvc
+            self.lvc_ids.add(cell)
+            self.lvc_frames += 1
+            self.last_lvc = cell
+            self.revisits += int(revisit)
+            self.lvc.add([self._t(stamp), cell, int(revisit)])
+        elif key == EVENT_KEY and isinstance(msg, ExperienceEvent):
+            self.events += 1
+            self.provisional.append([_r(v) for v in msg.odom_position])
+            self.posecell = [_r(v, 3) for v in msg.pc_centroid]
+            self.trails["posecells"].add(list(self.posecell))
+        elif key == DR_KEY and isinstance(msg, PoseStamped):
+            self.pose = [*(_r(v, 3) for v in msg.position), _r(msg.yaw, 3)]
+            self.trails["dead_reckoning"].add([_r(v) for v in msg.position])
+        elif key == ODOM_KEY and isinstance(msg, Odometry):
+            self.trails["odometry"].add([_r(v) for v in msg.position])
+        elif key in cfg.truth_keys and isinstance(msg, Odometry):
+            if self.truth_key is None or cfg.truth_keys.index(key) < cfg.truth_keys.index(self.truth_key):
+                if self.truth_key is not None:
+                    self.trails["truth"] = Trail(cfg.trajectory_points)
+                self.truth_key = key
+            if key == self.truth_key:
+                self.trails["truth"].add([_r(v) for v in msg.position])
+        elif key == cfg.camera_key and isinstance(msg, Image):
+            self.camera = msg
+            self.camera_version += 1
+        elif key in (cfg.sonar_key, cfg.scan_key) and isinstance(msg, RangeImageBeam):
+            self._beam(msg)
+        elif key in (cfg.sonar_key, cfg.scan_key) and isinstance(msg, LaserScan):
+            self._scan(msg)
+        elif key == LATENCY_KEY and isinstance(msg, LatencyReport):
+            self.latency = {k: v.model_dump() for k, v in msg.stages.items()}
+
+    def _t(self, stamp: int) -> float:
+        return _r((stamp - (self.t0 or stamp)) / 1e9, 2)
+
+    def _beam(self, msg: RangeImageBeam) -> None:
+        data = np.asarray(msg.beam_data, dtype=np.float32)
+        if data.size == 0:
+            return
+        n = self.cfg.sonar_bins
+        if data.size > n:  # the strongest echo of each group of bins
+            data = data[: data.size // n * n].reshape(n, -1).max(axis=1)
+        top = float(data.max())
+        scaled = (np.clip(data / top, 0, 1) * 255).astype(np.uint8) if top > 0 else np.zeros(data.size, np.uint8)
+        angle = float(msg.angle_rad)
+        k = int(round((angle % (2 * math.pi)) / (2 * math.pi) * SONAR_ANGLE_BINS)) % SONAR_ANGLE_BINS
+        self.sonar[k] = (angle, float(msg.max_range), scaled.tobytes())
+        self.sonar_version += 1
+
+    def _scan(self, msg: LaserScan) -> None:
+        r = np.asarray(msg.ranges, dtype=np.float64)
+        a = msg.angle_min + np.arange(r.size) * msg.angle_increment
+        ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max)
+        step = max(1, r.size // 360)
+        r, a = r[ok][::step], a[ok][::step]
+        self.scan = [[_r(x), _r(y)] for x, y in zip(r * np.cos(a), r * np.sin(a), strict=True)]
+        self.sonar_version += 1
+
+    # ---- output --------------------------------------------------------------------------
+    def counts(self) -> dict[str, Any]:
+        """The figures shown at the top of the page (and checked by the tests)."""
+        m = self.map
+        return {"nodes": int(m.ids.size) if m is not None else 0,
+                "loop_closures": m.loop_closures if m is not None else 0,
+                "corrections": m.corrections if m is not None else 0,
+                "maps": self.maps, "events": self.events, "lvc": len(self.lvc_ids), "last_lvc": self.last_lvc,
+                "lvc_frames": self.lvc_frames, "revisits": self.revisits, "pose": self.pose,
+                "posecell": self.posecell}
+
+    def camera_jpeg(self) -> tuple[int, bytes]:
+        """(version, JPEG) of the latest camera frame, encoded once per frame asked for."""
+        if self.camera is not None and self._jpeg[0] != self.camera_version:
+            self._jpeg = (self.camera_version, jpeg_of(self.camera, self.cfg.image_width, self.cfg.jpeg_quality))
+        return self._jpeg
+
+    def snapshot(self, have: Mapping[str, str]) -> dict[str, Any]:
+        """The state for a client that holds ``have`` (``map``: map version, ``sonar``: sonar
+        version, each trail name and ``lvc``: ``"epoch.count"``): only what it lacks."""
+        out: dict[str, Any] = {"stamp": self.stamp, "t": self._t(self.stamp) if self.t0 is not None else 0.0,
+                               "counts": self.counts(), "map_version": self.map_version,
+                               "camera_version": self.camera_version if self.camera is not None else 0,
+                               "sonar_version": self.sonar_version, "truth_key": self.truth_key,
+                               "provisional": self.provisional, "latency_report": self.latency,
+                               "update_hz": self.cfg.update_hz}
+        if self.map is not None and have.get("map") != str(self.map_version):
+            m = self.map
+            out["map"] = {"ids": m.ids.tolist(), "xyz": np.round(m.xyz.astype(np.float64), 2).tolist(),
+                          "links": m.links.tolist(), "loop": m.loop.astype(int).tolist(), "current": m.current}
+        out["trails"] = {name: t.since(have.get(name)) for name, t in self.trails.items()}
+        out["lvc"] = self.lvc.since(have.get("lvc"))
+        if have.get("sonar") != str(self.sonar_version):
+            beams = [[_r(a, 4), _r(rng, 1), base64.b64encode(b).decode()] for a, rng, b in self.sonar.values()]
+            out["sonar"] = {"beams": beams, "scan": self.scan}
+        return out

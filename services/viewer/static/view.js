@@ -1,0 +1,287 @@
+// PoseidonSLAM live view: polls /state.json (deltas against what it holds) and draws on canvases.
+"use strict";
+
+const TRAIL_COLOURS = {dead_reckoning: "#f39c3d", odometry: "#b07cf0", truth: "#4fd18b"};
+const view = {
+  map: null, mapVersion: "", sonarVersion: "", cameraVersion: 0, provisional: [], sonar: {beams: [], scan: []},
+  trails: {}, lvc: {epoch: -1, points: []}, state: null, yaw: 0.6, pitch: 0.9, dragging: null,
+  mode: "", t: 0, playing: false, rate: 4, duration: 0, lastTick: 0, pending: false,
+};
+
+function $(id) { return document.getElementById(id); }
+
+function merge(holder, delta) {
+  // a trail delta: points from `start` of epoch `epoch`
+  if (!delta) return holder;
+  if (!holder || holder.epoch !== delta.epoch || delta.start === 0) {
+    return {epoch: delta.epoch, points: delta.points.slice()};
+  }
+  holder.points.length = delta.start;
+  for (const p of delta.points) holder.points.push(p);
+  return holder;
+}
+
+function haveQuery() {
+  const q = new URLSearchParams();
+  if (view.mapVersion) q.set("map", view.mapVersion);
+  if (view.sonarVersion) q.set("sonar", view.sonarVersion);
+  for (const [name, t] of Object.entries(view.trails)) q.set(name, t.epoch + "." + t.points.length);
+  if (view.lvc.epoch >= 0) q.set("lvc", view.lvc.epoch + "." + view.lvc.points.length);
+  if (view.mode === "recording") q.set("t", view.t.toFixed(2));
+  return q.toString();
+}
+
+async function poll() {
+  if (view.pending) return;
+  view.pending = true;
+  try {
+    const r = await fetch("/state.json?" + haveQuery(), {cache: "no-store"});
+    if (!r.ok) throw new Error("state " + r.status);
+    const s = await r.json();
+    absorb(s);
+    draw();
+    $("status").textContent = "";
+  } catch (err) {
+    $("status").textContent = "no answer from the view server (" + err.message + "); retrying";
+  } finally {
+    view.pending = false;
+  }
+}
+
+function absorb(s) {
+  view.state = s;
+  if (view.mode !== s.mode) setMode(s);
+  if (s.map) { view.map = s.map; }
+  view.mapVersion = String(s.map_version);
+  view.provisional = s.provisional || [];
+  if (s.sonar) { view.sonar = s.sonar; }
+  view.sonarVersion = String(s.sonar_version);
+  for (const [name, delta] of Object.entries(s.trails || {})) view.trails[name] = merge(view.trails[name], delta);
+  view.lvc = merge(view.lvc, s.lvc);
+  if (s.camera_version !== view.cameraVersion) {
+    view.cameraVersion = s.camera_version;
+    if (s.camera_version > 0) $("camera").src = "/camera.jpg?v=" + s.camera_version;
+  }
+  const c = s.counts;
+  $("time").textContent = s.t.toFixed(1);
+  $("nodes").textContent = c.nodes;
+  $("loops").textContent = c.loop_closures;
+  $("lvc").textContent = c.lvc;
+  $("last-lvc").textContent = c.last_lvc >= 0 ? c.last_lvc : "-";
+  $("revisits").textContent = c.revisits;
+  $("events").textContent = c.events;
+  $("pose").textContent = c.pose ? c.pose.slice(0, 3).map(v => v.toFixed(1)).join(", ") : "-";
+  if (s.mode === "recording") {
+    view.duration = s.duration_s;
+    $("slider").max = s.duration_s;
+    $("slider-label").textContent = view.t.toFixed(1) + " / " + s.duration_s.toFixed(1) + " s";
+  }
+  services(s);
+}
+
+function setMode(s) {
+  view.mode = s.mode;
+  $("mode").textContent = s.mode === "recording" ? "recording " + s.recording : "live";
+  $("player").hidden = s.mode !== "recording";
+}
+
+function services(s) {
+  const body = $("services").tBodies[0];
+  const rows = [];
+  for (const [name, f] of Object.entries(s.services || {})) {
+    const cells = [name, f.alive ? "yes" : (f.done ? "done" : "no"), f.rate_hz, f.lag_s === null ? "-" : f.lag_s,
+                   f.gaps, f.restarts, f.p50_ms === null ? "-" : f.p50_ms, f.p99_ms === null ? "-" : f.p99_ms];
+    rows.push("<tr>" + cells.map(v => "<td>" + String(v).replace(/[<>&]/g, "") + "</td>").join("") + "</tr>");
+  }
+  body.innerHTML = rows.join("");
+  const v = s.view || {};
+  $("view-figures").textContent = "view: " + (v.dropped !== undefined ? v.dropped + " updates dropped, " : "") +
+    (v.bytes_sent !== undefined ? (v.bytes_sent / 1e6).toFixed(1) + " MB served" : "");
+}
+
+// ---- drawing ----------------------------------------------------------------------------------
+function bounds(lists) {
+  let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
+  for (const pts of lists) for (const p of pts) {
+    if (p[0] < x0) x0 = p[0]; if (p[0] > x1) x1 = p[0];
+    if (p[1] < y0) y0 = p[1]; if (p[1] > y1) y1 = p[1];
+  }
+  if (!isFinite(x0)) return [-1, 1, -1, 1];
+  const pad = Math.max(1, 0.05 * Math.max(x1 - x0, y1 - y0));
+  return [x0 - pad, x1 + pad, y0 - pad, y1 + pad];
+}
+
+function scaler(canvas, b) {
+  const s = Math.min(canvas.width / (b[1] - b[0]), canvas.height / (b[3] - b[2]));
+  const ox = (canvas.width - s * (b[1] - b[0])) / 2, oy = (canvas.height - s * (b[3] - b[2])) / 2;
+  return p => [ox + (p[0] - b[0]) * s, canvas.height - (oy + (p[1] - b[2]) * s)];
+}
+
+function line(ctx, pts, f, colour, width) {
+  if (pts.length < 2) return;
+  ctx.strokeStyle = colour; ctx.lineWidth = width; ctx.beginPath();
+  pts.forEach((p, i) => { const [x, y] = f(p); if (i) ctx.lineTo(x, y); else ctx.moveTo(x, y); });
+  ctx.stroke();
+}
+
+function drawMap() {
+  const canvas = $("map"), ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const nodes = view.map ? view.map.xyz : [];
+  const lists = [nodes, view.provisional];
+  for (const t of Object.values(view.trails)) lists.push(t.points);
+  const f = scaler(canvas, bounds(lists));
+  for (const [name, colour] of Object.entries(TRAIL_COLOURS)) {
+    if (view.trails[name]) line(ctx, view.trails[name].points, f, colour, name === "truth" ? 1.5 : 1.2);
+  }
+  if (view.map) {
+    view.map.links.forEach((l, i) => {
+      const loop = view.map.loop[i];
+      ctx.strokeStyle = loop ? "#ff4040" : "#56616e"; ctx.lineWidth = loop ? 2 : 1;
+      const a = f(nodes[l[0]]), b = f(nodes[l[1]]);
+      ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke();
+    });
+    ctx.fillStyle = "#4aa3ff";
+    for (const p of nodes) { const [x, y] = f(p); ctx.fillRect(x - 2, y - 2, 4, 4); }
+  }
+  ctx.strokeStyle = "#9fd3ff";
+  for (const p of view.provisional) { const [x, y] = f(p); ctx.beginPath(); ctx.arc(x, y, 3, 0, 7); ctx.stroke(); }
+  const pose = view.state && view.state.counts.pose;
+  if (pose) {
+    const [x, y] = f(pose);
+    ctx.fillStyle = "#fff"; ctx.beginPath(); ctx.arc(x, y, 4, 0, 7); ctx.fill();
+    ctx.strokeStyle = "#fff"; ctx.beginPath(); ctx.moveTo(x, y);
+    ctx.lineTo(x + 14 * Math.cos(pose[3]), y - 14 * Math.sin(pose[3])); ctx.stroke();
+  }
+}
+
+function drawMap3d() {
+  const canvas = $("map3d"), ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const nodes = view.map ? view.map.xyz : [];
+  const all = nodes.concat(...Object.values(view.trails).map(t => t.points));
+  if (!all.length) return;
+  const c = [0, 1, 2].map(k => all.reduce((s, p) => s + p[k], 0) / all.length);
+  const r = Math.max(1, ...all.map(p => Math.hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2])));
+  const cy = Math.cos(view.yaw), sy = Math.sin(view.yaw), cp = Math.cos(view.pitch), sp = Math.sin(view.pitch);
+  const s = 0.45 * Math.min(canvas.width, canvas.height) / r;
+  const f = p => {
+    const x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
+    const x1 = cy * x - sy * y, y1 = sy * x + cy * y;      // yaw about z
+    const y2 = cp * y1 - sp * z;                              // pitch about x (screen up = z when level)
+    return [canvas.width / 2 + s * x1, canvas.height / 2 + s * y2];
+  };
+  for (const [name, colour] of Object.entries(TRAIL_COLOURS)) {
+    if (view.trails[name]) line(ctx, view.trails[name].points, f, colour, 1);
+  }
+  if (view.map) {
+    view.map.links.forEach((l, i) => {
+      ctx.strokeStyle = view.map.loop[i] ? "#ff4040" : "#56616e"; ctx.lineWidth = 1;
+      const a = f(nodes[l[0]]), b = f(nodes[l[1]]);
+      ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke();
+    });
+    ctx.fillStyle = "#4aa3ff";
+    for (const p of nodes) { const [x, y] = f(p); ctx.fillRect(x - 1.5, y - 1.5, 3, 3); }
+  }
+}
+
+function drawSonar() {
+  const canvas = $("sonar"), ctx = canvas.getContext("2d");
+  const w = canvas.width, h = canvas.height, cx = w / 2, cy = h / 2, R = Math.min(w, h) / 2 - 4;
+  ctx.fillStyle = "#0b1016"; ctx.fillRect(0, 0, w, h);
+  const scan = view.sonar.scan || [];
+  if (scan.length) {
+    $("sonar-title").textContent = "Laser scan";
+    const m = Math.max(1, ...scan.map(p => Math.hypot(p[0], p[1])));
+    ctx.fillStyle = "#7fe0ff";
+    for (const p of scan) ctx.fillRect(cx + p[0] / m * R - 1, cy - p[1] / m * R - 1, 2, 2);
+    return;
+  }
+  for (const [angle, , b64] of view.sonar.beams || []) {
+    const bins = atob(b64);
+    for (let i = 0; i < bins.length; i++) {
+      const v = bins.charCodeAt(i);
+      if (v < 20) continue;
+      const rr = (i + 0.5) / bins.length * R;
+      ctx.fillStyle = "rgb(" + v + "," + Math.round(v * 0.8) + ",40)";
+      ctx.fillRect(cx + rr * Math.cos(angle) - 1.5, cy - rr * Math.sin(angle) - 1.5, 3, 3);
+    }
+  }
+  ctx.strokeStyle = "#2c3b4b"; ctx.beginPath(); ctx.arc(cx, cy, R, 0, 7); ctx.stroke();
+}
+
+function drawPoseCells() {
+  const pts = view.trails.posecells ? view.trails.posecells.points : [];
+  for (const [id, ix, iy] of [["pc-xy", 0, 1], ["pc-zyaw", 3, 2]]) {
+    const canvas = $(id), ctx = canvas.getContext("2d");
+    ctx.clearRect(0, 0, canvas.width, canvas.height);
+    const proj = pts.map(p => [p[ix], p[iy]]);
+    const f = scaler(canvas, bounds([proj]));
+    line(ctx, proj, f, "#58708a", 1);
+    if (proj.length) {
+      const [x, y] = f(proj[proj.length - 1]);
+      ctx.fillStyle = "#ffd84a"; ctx.beginPath(); ctx.arc(x, y, 4, 0, 7); ctx.fill();
+    }
+    ctx.fillStyle = "#8b97a5";
+    ctx.fillText(ix === 0 ? "x-y (m)" : "yaw (rad) - z (m)", 6, 12);
+  }
+}
+
+function drawLvc() {
+  const canvas = $("lvc-plot"), ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const pts = view.lvc.points;
+  if (!pts.length) return;
+  const f = scaler(canvas, bounds([pts.map(p => [p[0], p[1]])]));
+  for (const p of pts) {
+    const [x, y] = f(p);
+    ctx.fillStyle = p[2] ? "#ff4040" : "#4aa3ff";
+    const s = p[2] ? 4 : 2;
+    ctx.fillRect(x - s / 2, y - s / 2, s, s);
+  }
+}
+
+function draw() {
+  drawMap(); drawMap3d(); drawSonar(); drawPoseCells(); drawLvc();
+}
+
+// ---- interaction ----------------------------------------------------------------------------
+function setup() {
+  const c3 = $("map3d");
+  c3.addEventListener("mousedown", e => { view.dragging = [e.clientX, e.clientY]; });
+  window.addEventListener("mouseup", () => { view.dragging = null; });
+  window.addEventListener("mousemove", e => {
+    if (!view.dragging) return;
+    view.yaw += (e.clientX - view.dragging[0]) * 0.01;
+    view.pitch = Math.max(0, Math.min(Math.PI / 2, view.pitch + (e.clientY - view.dragging[1]) * 0.01));
+    view.dragging = [e.clientX, e.clientY];
+    drawMap3d();
+  });
+  $("slider").addEventListener("input", e => { view.t = parseFloat(e.target.value); poll(); });
+  $("play").addEventListener("click", () => {
+    view.playing = !view.playing;
+    $("play").textContent = view.playing ? "Pause" : "Play";
+    if (view.playing && view.t >= view.duration) view.t = 0;
+  });
+  $("rate").addEventListener("change", e => { view.rate = parseFloat(e.target.value); });
+}
+
+function tick(now) {
+  if (view.playing && view.lastTick) {
+    view.t = Math.min(view.duration, view.t + (now - view.lastTick) / 1000 * view.rate);
+    $("slider").value = view.t;
+    if (view.t >= view.duration) { view.playing = false; $("play").textContent = "Play"; }
+  }
+  view.lastTick = now;
+}
+
+function loop() {
+  tick(performance.now());
+  poll().finally(() => {
+    const hz = view.state ? view.state.update_hz : 4;
+    setTimeout(loop, 1000 / hz);
+  });
+}
+
+setup();
+loop();
