@@ -9,6 +9,9 @@ Default deny, then an allow-list per identity (Zenoh user = service name, see
 - ``player`` (and the sensor drivers, same user) may put the sensor and truth keys
   (:data:`services.player.player.SOURCE_KEYS`) and subscribe to no data;
 - ``recorder`` may subscribe to every data key (``NS/**``) and put no data;
+- ``viewer`` (``poseidon view``, :mod:`services.viewer`) is read-only: it may subscribe to every
+  data key and follow the consumers' progress and liveliness, and may put nothing at all (no data,
+  no control key, no liveliness token);
 - every identity gets the bus's control traffic listed in :data:`CONTROL_GRANTS`;
 - ``router`` (the other computers' hubs) may do everything on the namespace: a hub that opens
   a link authenticates as user ``router``; on the hub that accepted it, the link has no user,
@@ -64,14 +67,14 @@ VERBS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
 }
 
 #: the bus's control traffic (common.bus): (verb, key under the namespace, roles).  ``{name}`` is
-#: the identity's own name; roles: ``player``, ``recorder``, ``service`` (each algorithm service).
+#: the identity's own name; roles: ``player``, ``recorder``, ``viewer``, ``service`` (each algorithm service).
 CONTROL_GRANTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("token", "@alive/{name}", ("recorder", "service")),          # alive and ready (Bus.declare_alive)
     ("put", "@progress/{name}", ("recorder", "service")),         # flow control (ProgressReporter)
-    ("subscribe", "@abort", ("player", "recorder", "service")),  # stop when the run aborts (Bus.on_abort)
+    ("subscribe", "@abort", ("player", "recorder", "service", "viewer")),  # the run aborts (Bus.on_abort)
     ("put", "@abort", ("player", "service")),                    # abort the run (Bus.abort)
-    ("subscribe", "@progress/*", ("player",)),                   # the consumers' progress (watch_progress)
-    ("watch", "@alive/*", ("player",)),                          # who is alive (watch_alive)
+    ("subscribe", "@progress/*", ("player", "viewer")),          # the consumers' progress (watch_progress)
+    ("watch", "@alive/*", ("player", "viewer")),                 # who is alive (watch_alive)
     ("put", "@ckpt/{name}", ("recorder", "service")),             # checkpointed positions (common.resume)
     ("subscribe", "@ckpt/*", ("player", "service")),             # publishers trim their replay buffers
 )
@@ -89,10 +92,11 @@ class Grant:
 
 
 def identities(config: PoseidonConfig | None = None) -> dict[str, str]:
-    """Identity name -> role: ``player``, ``recorder``, then every service that can be built."""
+    """Identity name -> role: ``player``, ``recorder``, ``viewer``, then every service that can be built."""
     from system.services import ALGORITHM_SERVICES, OPTIONAL_SERVICES, available_services
     names = available_services(config) + [n for n in OPTIONAL_SERVICES if n not in ALGORITHM_SERVICES]
-    return {"player": "player", "recorder": "recorder", **{n: "service" for n in dict.fromkeys(names)}}
+    return {"player": "player", "recorder": "recorder", "viewer": "viewer",
+            **{n: "service" for n in dict.fromkeys(names)}}
 
 
 def identity_grants(config: PoseidonConfig | None = None) -> dict[str, list[Grant]]:
@@ -110,6 +114,8 @@ def identity_grants(config: PoseidonConfig | None = None) -> dict[str, list[Gran
             data = [Grant("put", k) for k in SOURCE_KEYS] + [Grant("subscribe", f"{REPLAY}/{k}") for k in SOURCE_KEYS]
         elif role == "recorder":
             data = [Grant("subscribe", "**"), Grant("put", f"{REPLAY}/**")]
+        elif role == "viewer":  # read-only: subscriptions, nothing it may put
+            data = [Grant("subscribe", "**")]
         else:
             ins, outs = node_io(name, config)
             data = ([Grant("put", k) for k in outs] + [Grant("subscribe", k) for k in ins]

@@ -41,7 +41,8 @@ HUB_COMMON_NAME = "poseidon-hub"
 
 #: users of the secured profile: every service (the identities of ``launcher.acl``), and
 #: ``router`` for router-to-router links
-USERS = ("router", "player", "recorder", "encoder", "htm", "robot_state", "posecells", "expmap", "ratslam_lv")
+USERS = ("router", "player", "recorder", "viewer", "encoder", "htm", "robot_state", "posecells", "expmap",
+         "ratslam_lv")
 
 
 def write_credentials(out: Path, users: tuple[str, ...] = USERS) -> None:

@@ -188,6 +188,10 @@ def _add_run_command(sub: Any) -> None:
     p.add_argument("--map-dir", help="load the map (LVC/HTM state, pose cells, experience map, embedding "
                    "statistics) from this folder when there, begin a new session in it, save the merged map "
                    "there at the end")
+    p.add_argument("--view", metavar="[HOST:]PORT", help="serve the live view of the run on this address "
+                   "(poseidon view beside the run; loopback when no HOST)")
+    p.add_argument("--foxglove", type=int, metavar="PORT", help="serve the run's streams to the Foxglove app "
+                   "(WebSocket) on this port")
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
 

@@ -1,6 +1,10 @@
 """``poseidon run``: the command line of a replay (:mod:`launcher.run`) or a live run
 (:mod:`launcher.live`), and the printing of its summary (:mod:`launcher.run_report`).
 
+``--view [HOST:]PORT`` / ``--foxglove PORT``: ``poseidon view`` (:mod:`services.viewer`) runs as
+one more process on the run's hub, read-only, and serves the page while the run lasts (and
+``view.linger_s`` after); it is no part of the run (never awaited, never counted).
+
 Exit codes: 0 on success, 2 on bad configuration/input, 3 when a service failed (its name and
 the partial recording are printed).  The flags are documented in :mod:`launcher.cli`.
 """
@@ -8,16 +12,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
+import subprocess
 import sys
-from collections.abc import Mapping
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from launcher.run import RunFailed
     from system.config import PoseidonConfig
 
-__all__ = ["cmd_run", "print_run", "services_arg", "flags_error"]
+__all__ = ["cmd_run", "print_run", "services_arg", "flags_error", "view_beside"]
 
 
 def print_run(result: Mapping[str, Any], as_json: bool, config: PoseidonConfig | None) -> None:
@@ -46,7 +54,56 @@ def flags_error(args: argparse.Namespace) -> str | None:
         return "give --input REC.mcap (a replay, or with --live mcap) or --live ros1"
     if args.live is not None and (args.embedded or (args.rate is not None and args.live != "mcap")):
         return f"--embedded{'' if args.live == 'mcap' else ' and --rate'} do not apply to --live {args.live}"
+    if args.embedded and (args.view is not None or args.foxglove is not None):
+        return "--view and --foxglove watch the run's hub; an --embedded run has none"
     return None
+
+
+@contextmanager
+def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> Iterator[None]:
+    """``--view``/``--foxglove``: the view process on the hub of the run started inside the block.
+
+    The run picks its hub's loopback port with :func:`launcher.run._free_port` (the live run
+    imports the same function) when it starts; the view needs that address first, so the port
+    is picked here and the run is handed it through that function for the time of the block.
+    After the block the view serves ``linger_s`` more seconds, then is stopped."""
+    if args.view is None and args.foxglove is None:
+        yield
+        return
+    import launcher.live as live_mod
+    import launcher.run as run_mod
+    from launcher.children import die_with_launcher
+    port = run_mod._free_port()
+    picked = run_mod._free_port
+
+    def hub_port() -> int:
+        return port
+    cmd = [sys.executable, "-m", "launcher.cli", "view", "--connect", f"tcp/127.0.0.1:{port}",
+           "--set", f"view.connect_timeout_s={startup_s}"]
+    cmd += ["--listen", args.view] if args.view is not None else []
+    cmd += ["--foxglove", str(args.foxglove)] if args.foxglove is not None else []
+    cmd += ["--config", args.config] if args.config else []
+    for item in args.set:
+        cmd += ["--set", item]
+    run_mod._free_port = hub_port
+    live_mod._free_port = hub_port  # type: ignore[attr-defined]  # imported there from launcher.run
+    proc = subprocess.Popen(cmd, stdout=2, preexec_fn=die_with_launcher(os.getpid()))
+    try:
+        yield
+    finally:
+        run_mod._free_port = picked
+        live_mod._free_port = picked  # type: ignore[attr-defined]
+        if proc.poll() is None and linger_s > 0:
+            print(f"poseidon run: the view serves the final state for {linger_s:.0f} s more (view.linger_s)",
+                  file=sys.stderr)
+            time.sleep(linger_s)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def _report_run_failed(args: argparse.Namespace, exc: RunFailed) -> int:
@@ -72,9 +129,10 @@ def _run_live(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config, args.set)
         services = services_arg(args)
-        result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop,
-                          input_path=args.input if args.live == "mcap" else None,
-                          rate=1.0 if args.rate is None else args.rate)
+        with view_beside(args, config.view.linger_s, config.live.startup_timeout_s):
+            result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop,
+                              input_path=args.input if args.live == "mcap" else None,
+                              rate=1.0 if args.rate is None else args.rate)
     except (ConfigError, RecordingError, ValueError, KeyError, TimeoutError, FileNotFoundError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
@@ -105,8 +163,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             use_map_dir(config, args.map_dir)
         services = services_arg(args)
         runner = run_embedded if args.embedded else run_distributed
-        result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
-                        progress=not args.json)
+        with view_beside(args, config.view.linger_s, config.bus.startup_timeout_s):
+            result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
+                            progress=not args.json)
     except (ConfigError, RecordingError, ValueError, KeyError, FileNotFoundError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2

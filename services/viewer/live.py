@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.bus import ALIVE, PROGRESS, Bus, zenoh_config
+from common.bus import ABORT, ALIVE, PROGRESS, Bus, zenoh_config
 from common.codec import DecodeError, decode_dict, decode_frame
 from common.ordering import END_OF_TIME
 from services.viewer.config import ViewConfig
@@ -201,6 +201,7 @@ class LiveFeed:
         self._queued = 0
         self._taken = 0
         self.invalid = 0
+        self.aborted = ""  # the reason of the run's abort, if one was published
         self.ended: set[str] = set()
         self._subs: dict[str, Any] = {}
         self._undeclare: deque[str] = deque()
@@ -241,6 +242,9 @@ class LiveFeed:
         if key.startswith(prefix):
             self.figures.token(key[len(prefix):], sample.kind == zenoh.SampleKind.PUT)
 
+    def _on_abort(self, sample: zenoh.Sample) -> None:
+        self.aborted = sample.payload.to_bytes().decode("utf-8", "replace")[:500]
+
     def _on_progress(self, sample: zenoh.Sample) -> None:
         data = sample.payload.to_bytes()
         if len(data) != 8:
@@ -257,6 +261,7 @@ class LiveFeed:
             self._subs[key] = session.declare_subscriber(self.bus.full_key(key), self._on_sample(key))
         self._subs["@alive"] = session.liveliness().declare_subscriber(self.bus.full_key(f"{ALIVE}/*"),
                                                                       self._on_token, history=True)
+        self._subs["@abort"] = session.declare_subscriber(self.bus.full_key(ABORT), self._on_abort)
         self._subs["@progress"] = session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"), self._on_progress)
         self._thread = threading.Thread(target=self._pump, name="view-pump", daemon=True)
         self._thread.start()
@@ -321,6 +326,7 @@ class LiveFeed:
         snap["camera_version"] = camera_version
         snap["services"] = self.figures.table()
         snap["view"] = {"dropped": self.dropped, "invalid": self.invalid, "ended": sorted(self.ended),
+                        "aborted": self.aborted,
                         "keys": self.keys, "updates": self.updates}
         return snap
 

@@ -78,7 +78,8 @@ def test_each_service_puts_exactly_its_outputs_and_reads_exactly_its_inputs(poli
     assert all(may_read(policy, "recorder", k) for k in data_keys)
     assert not any(may_read(policy, "player", k) for k in data_keys)
     camera_readers = {u for u in USERS if may_read(policy, u, "camera/image_raw")}
-    assert camera_readers == {"router", "recorder", "encoder", "expmap", "ratslam_lv"}
+    assert camera_readers == {"router", "recorder", "viewer", "encoder", "expmap", "ratslam_lv"}
+    assert not any(may_put(policy, "viewer", k) for k in data_keys)  # the view is read-only
     assert not may_put(policy, "nobody", "Odometry") and not may_read(policy, "nobody", "camera/image_raw")
 
 
@@ -101,7 +102,7 @@ def test_control_traffic(policy):
         assert allowed(policy, name, "ingress", "liveliness_token", f"poseidon/@alive/{name}") == consumer
         assert may_put(policy, name, f"@progress/{name}") == consumer
         assert may_read(policy, name, "@abort")
-        assert may_put(policy, name, "@abort") == (role != "recorder")
+        assert may_put(policy, name, "@abort") == (role not in ("recorder", "viewer"))
         assert not allowed(policy, name, "ingress", "liveliness_token", "poseidon/@alive/someone_else")
         assert not may_put(policy, name, "@progress/someone_else")
     assert may_read(policy, "player", "@progress/*")

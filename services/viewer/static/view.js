@@ -39,8 +39,8 @@ async function poll() {
     if (!r.ok) throw new Error("state " + r.status);
     const s = await r.json();
     absorb(s);
+    if (!(s.view && s.view.aborted)) $("status").textContent = "";
     draw();
-    $("status").textContent = "";
   } catch (err) {
     $("status").textContent = "no answer from the view server (" + err.message + "); retrying";
   } finally {
@@ -95,6 +95,7 @@ function services(s) {
   }
   body.innerHTML = rows.join("");
   const v = s.view || {};
+  if (v.aborted) $("status").textContent = "run aborted: " + v.aborted;
   $("view-figures").textContent = "view: " + (v.dropped !== undefined ? v.dropped + " updates dropped, " : "") +
     (v.bytes_sent !== undefined ? (v.bytes_sent / 1e6).toFixed(1) + " MB served" : "");
 }

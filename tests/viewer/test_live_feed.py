@@ -1,0 +1,75 @@
+"""The live feed on an in-process bus: it follows what is published, keeps only bounded buffers
+(a flood drops view updates, counted), leaves each key at its end-of-stream (a finished
+publisher's drain does not wait for the view), and publishes nothing."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from common.bus import Bus
+from common.mcap_io import read_messages
+from common.messages import Header, Image
+from services.viewer.config import ViewConfig
+from services.viewer.live import LiveFeed
+from tests.viewer.runs import write_run
+
+
+def _wait(cond, timeout_s: float = 10.0) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.02)
+
+
+def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_path: Path) -> None:
+    run = tmp_path / "run.mcap"
+    write_run(run, seconds=6.0)
+    feed = LiveFeed(bus, ViewConfig(), io={"expmap": (("experience_event",), ("map", "dead_reckoning"))})
+    feed.start()
+    try:
+        pubs = {}
+        for rec in read_messages(run):
+            pub = pubs.get(rec.key) or pubs.setdefault(rec.key, bus.publisher(rec.key))
+            pub.send_data(rec.type_name, rec.payload, rec.stamp)
+        expected = {k: p.sent for k, p in pubs.items()}
+        _wait(lambda: feed.figures.frames == expected)
+        feed.update()
+        counts = feed.snapshot({})["counts"]
+        assert counts["nodes"] == 3 and counts["events"] == 3 and counts["lvc"] == 8
+        assert counts["pose"] is not None and feed.dropped == 0
+        assert all(p.has_subscribers() for p in pubs.values())
+        for p in pubs.values():
+            p.send_eos()
+        _wait(lambda: feed.ended == set(pubs))
+        feed.update()  # undeclares the ended keys
+        _wait(lambda: not any(p.has_subscribers() for p in pubs.values()))
+        table = feed.snapshot({})["services"]
+        assert table["expmap"]["gaps"] == 0 and table["expmap"]["restarts"] == 0
+    finally:
+        feed.stop()
+
+
+def test_a_flood_drops_view_updates_never_blocks(bus: Bus) -> None:
+    cfg = ViewConfig()
+    feed = LiveFeed(bus, cfg, queue_frames=50)
+    feed.start()
+    try:
+        pub = bus.publisher("dead_reckoning")
+        cam = bus.publisher(cfg.camera_key)
+        from common.messages import PoseStamped
+        t0 = time.monotonic()
+        for i in range(2000):
+            pub.send(PoseStamped(header=Header(seq=i, stamp=1 + i), position=[float(i), 0.0, 0.0]))
+        for i in range(20):
+            cam.send(Image(header=Header(seq=i, stamp=1 + i), height=8, width=8,
+                           data=np.full((8, 8, 3), i, dtype=np.uint8)))
+        assert time.monotonic() - t0 < 10.0
+        _wait(lambda: feed.figures.frames.get(cfg.camera_key) == 20 and feed.figures.frames.get("dead_reckoning") == 2000)
+        feed.update()
+        assert feed.dropped == 2000 - 50  # only the newest 50 were kept for the view
+        assert feed.model.camera_version == 1  # latest-only: one frame decoded, the newest
+        assert feed.model.camera is not None and int(np.asarray(feed.model.camera.data)[0, 0, 0]) == 19
+    finally:
+        feed.stop()
