@@ -1,0 +1,119 @@
+"""The page in headless Chromium during a live run of a short simulated mission at 4x with
+``--view``: it loads without a console error, its map and camera panels change while the run
+goes on, and at the end the node, loop-closure and LVC counts it shows are the recording's."""
+from __future__ import annotations
+
+import base64
+import io
+import json
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import pytest
+from PIL import Image as PilImage
+
+from common.mcap_io import read_messages
+from common.messages import ExperienceMap, LocalViewCells
+from missions.sim.cli import main as sim_main
+from tests.conftest import REPO
+from tests.eval.report.browser import _console_errors
+from tests.eval.report.cdp import CHROMIUM, Browser
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _state(url: str) -> dict[str, Any] | None:
+    try:
+        return dict(json.loads(urllib.request.urlopen(url + "state.json", timeout=5).read()))
+    except OSError:
+        return None
+
+
+def _wait(what: str, cond: Any, timeout_s: float, proc: subprocess.Popen[bytes]) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert proc.poll() is None or what == "the run's end", f"the run ended before {what}"
+        assert time.monotonic() < deadline, f"no {what} within {timeout_s:.0f} s"
+        time.sleep(0.2)
+
+
+def _panel(b: Browser, s: str, element: str) -> bytes:
+    """A PNG of one element of the page."""
+    rect = b.call("Runtime.evaluate", {"expression": f"JSON.stringify(document.getElementById('{element}')"
+                                       ".getBoundingClientRect())", "returnByValue": True}, session=s)
+    r = json.loads(rect["result"]["value"])
+    shot = b.call("Page.captureScreenshot", {"format": "png", "clip": {"x": r["x"], "y": r["y"], "width": r["width"],
+                                                                       "height": r["height"], "scale": 1}}, session=s)
+    return base64.b64decode(shot["data"])
+
+
+def _differ(a: bytes, b: bytes) -> bool:
+    ia, ib = PilImage.open(io.BytesIO(a)).convert("RGB"), PilImage.open(io.BytesIO(b)).convert("RGB")
+    return ia.size != ib.size or ia.tobytes() != ib.tobytes()
+
+
+def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_path: Path) -> None:
+    if not CHROMIUM.exists():
+        pytest.skip(f"headless Chromium ({CHROMIUM}) is not installed")
+    mission = tmp_path / "sim.mcap"
+    assert sim_main(["--minutes", "0.5", "--seed", "3", "--out", str(mission), "--no-progress"]) == 0
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}/"
+    out = tmp_path / "run.mcap"
+    cmd = [sys.executable, "-m", "launcher.cli", "run", "--live", "mcap", "--input", str(mission), "--rate", "4",
+           "--out", str(out), "--json", "--view", str(port), "--set", "view.linger_s=30",
+           "--set", "expmap.map_publish_every=5", "--set", "live.lateness_ms=2000"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        _wait("page", lambda: _state(url) is not None, 120, proc)
+        with Browser(tmp_path / "chromium-profile") as b:
+            target = b.call("Target.createTarget", {"url": "about:blank"})
+            s = b.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})["sessionId"]
+            for method in ("Page.enable", "Runtime.enable", "Log.enable"):
+                b.call(method, session=s)
+            b.call("Emulation.setDeviceMetricsOverride", {"width": 1400, "height": 1100, "deviceScaleFactor": 1,
+                                                          "mobile": False}, session=s)
+            b.call("Page.navigate", {"url": url}, session=s)
+            _wait("camera frame and map", lambda: (st := _state(url)) is not None and st["camera_version"] > 0
+                  and st["counts"]["events"] > 0, 240, proc)
+            b.pump(1.0)
+            first = {p: _panel(b, s, p) for p in ("map", "camera")}
+            b.pump(2.5)
+            second = {p: _panel(b, s, p) for p in ("map", "camera")}
+            assert _differ(first["map"], second["map"]), "the map panel did not change during the run"
+            assert _differ(first["camera"], second["camera"]), "the camera panel did not change during the run"
+            _wait("the run's end", lambda: out.exists(), 300, proc)
+            b.pump(2.0)  # the page's next polls take the final state
+            shown = b.call("Runtime.evaluate", {"expression": "JSON.stringify(['nodes','loops','lvc'].map("
+                                                "id => +document.getElementById(id).textContent))",
+                                                "returnByValue": True}, session=s)
+            nodes, loops, lvcs = json.loads(shown["result"]["value"])
+            state = _state(url)
+            (tmp_path / "view_live.png").write_bytes(base64.b64decode(
+                b.call("Page.captureScreenshot", {"format": "png"}, session=s)["data"]))
+            errors = _console_errors(b.events)
+    finally:
+        proc.wait(timeout=120)
+    assert proc.returncode == 0, proc.stderr.read()[-3000:] if proc.stderr else ""
+    assert errors == []
+    maps = [m.message() for m in read_messages(out, keys=["map"])]
+    last = maps[-1]
+    assert isinstance(last, ExperienceMap) and len(maps) > 1
+    lvc = {m.message().most_active_cell for m in read_messages(out, keys=["local_view_cells"])  # type: ignore[attr-defined]
+           if isinstance(m.message(), LocalViewCells)}
+    expected = (len(last.nodes), sum(lk.loop_closure for lk in last.links), len(lvc))
+    assert (nodes, loops, lvcs) == expected
+    assert state is not None
+    counts = state["counts"]
+    assert (counts["nodes"], counts["loop_closures"], counts["lvc"]) == expected
