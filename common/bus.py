@@ -167,12 +167,13 @@ class BusPublisher:
         self.index += 1
         self.sent += 1
 
-    def bound(self, max_frames: int, max_bytes: int) -> list[int]:
-        """Forget the oldest retained frames beyond ``max_frames`` or ``max_bytes`` (the newest
-        frame is always kept); returns the indices forgotten."""
+    def bound(self, max_frames: int, max_bytes: int, below: int = 0) -> list[int]:
+        """Forget the oldest retained frames beyond ``max_frames`` or ``max_bytes``, and those with
+        an index below ``below`` (the newest frame is always kept); returns the indices forgotten."""
         gone: list[int] = []
         with self._lock:
-            while len(self.retained) > 1 and (len(self.retained) > max_frames or self.retained_bytes > max_bytes):
+            while len(self.retained) > 1 and (len(self.retained) > max_frames or self.retained_bytes > max_bytes
+                                              or self.retained[0][0] < below):
                 i, f = self.retained.popleft()
                 self.retained_bytes -= len(f)
                 gone.append(i)
@@ -210,23 +211,29 @@ class BusPublisher:
             while self.retained and self.retained[0][0] < below:
                 self.retained_bytes -= len(self.retained.popleft()[1])
 
-    def replay(self, start: int, frames: Iterable[bytes] | None = None, first: int | None = None) -> int:
+    def replay(self, start: int, frames: Iterable[bytes] | None = None, first: int | None = None,
+               by: str = "", mark: bool = True) -> int:
         """Send again every data frame from index ``start`` (``R`` frame first), then the last
         watermark and, if the stream ended, end-of-stream.  ``frames``/``first``: the frames
         from index ``first`` when they are kept elsewhere (the player re-reads its recording);
-        default: the retained ones.  Returns the index the replay started from (> ``start``
-        when frames before it were trimmed: the consumer then knows they are lost)."""
+        default: the retained ones.  ``by``: the consumer that asked (named in the ``R`` frame, so
+        that another consumer catching up on the same key does not take it for its own answer);
+        ``mark`` False: no ``R`` frame (frames sent again that nobody asked for).  Returns the index
+        the replay started from (> ``start`` when frames before it were trimmed: the consumer then
+        knows they are lost)."""
         if frames is None:
             with self._lock:
                 kept = [(i, f) for i, f in self.retained if i >= start]
                 first = self.retained[0][0] if self.retained else self.index
             begin = min(max(start, first), self.index)
-            self._pub.put(encode_replay_start(begin))
+            if mark:
+                self._pub.put(encode_replay_start(begin, by))
             for _i, frame in kept:
                 self._pub.put(frame)
         else:
             begin = min(max(start, first if first is not None else start), self.index)
-            self._pub.put(encode_replay_start(begin))
+            if mark:
+                self._pub.put(encode_replay_start(begin, by))
             for frame in frames:
                 self._pub.put(frame)
         if self.watermark >= 0:

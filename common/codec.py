@@ -128,9 +128,14 @@ def encode_sequenced(index: int, type_name: str | bytes, payload: bytes | memory
     return b"".join((_TAG_SEQ, _PACK_Q(index), bytes([len(name)]), name, payload))
 
 
-def encode_replay_start(index: int) -> bytes:
-    """Wire frame opening a replay: the next data frame on this key has transport index ``index``."""
-    return _TAG_REPLAY + struct.pack("<Q", index)
+def encode_replay_start(index: int, by: str = "") -> bytes:
+    """Wire frame opening a replay: the next data frame on this key has transport index ``index``;
+    ``by``: the consumer that asked for it (ASCII, at most 64 bytes; '' for a replay nobody asked
+    for).  Decoded, the asker is the frame's ``type_name``."""
+    name = by.encode("ascii")
+    if len(name) > 64:
+        raise ValueError(f"replay asker {by!r} longer than 64 bytes")
+    return _TAG_REPLAY + struct.pack("<Q", index) + name
 
 
 def encode_watermark(stamp: int) -> bytes:
@@ -220,12 +225,16 @@ def decode_frame(data: bytes | memoryview) -> Frame:
             raise DecodeError(f"{type_name} frame without a payload")
         return Frame("data", type_name, memoryview(buf)[start + 2 + n:], index=index)
     if tag == _T_REPLAY:
-        if size != 9:
-            raise DecodeError(f"replay frame of {size} bytes (expected 9)")
+        if size < 9 or size > 9 + 64:
+            raise DecodeError(f"replay frame of {size} bytes (expected 9, or up to 64 more naming its asker)")
         first = _UNPACK_Q(buf, 1)[0]
         if first >= 1 << 63:
             raise DecodeError(f"replay start {first} out of range")
-        return Frame("replay", index=first)
+        try:
+            by = bytes(buf[9:]).decode("ascii")
+        except UnicodeDecodeError:
+            raise DecodeError("replay frame: its asker is not ASCII") from None
+        return Frame("replay", type_name=by, index=first)
     if tag == _T_EOS:
         if size != 1:
             raise DecodeError(f"end-of-stream frame of {size} bytes (expected 1)")

@@ -131,6 +131,12 @@ class SuperviseConfig(ConfigSection):
                                   "after this long without an answer (wall clock) [s]")
     state_dir: str = Field("", description="checkpoint folder; empty: <out stem>.state next to the run's output "
                            "(removed after a successful run)")
+    health_interval_s: float = Field(1.0, gt=0, description="live runs: the launcher publishes every service's "
+                                     "health (alive, restarts, lag, checkpoint age) on live/health this often "
+                                     "(wall clock; the ROS 1 bridge republishes it on /diagnostics) [s]")
+    caught_up_lag_s: float = Field(2.0, gt=0, description="live runs: a service within this much EVENT time of "
+                                   "the source is caught up (a restarted one's recovery ends there; beyond it the "
+                                   "health says WARN) [s]")
 
 
 class LiveConfig(ConfigSection):
@@ -147,6 +153,13 @@ class LiveConfig(ConfigSection):
                                      "(each warmed up: numba kernels compiled) before the source starts [s]")
     stop_timeout_s: float = Field(120.0, gt=0, description="after the source stopped, wait this long for the "
                                   "services and the recorder to finish their inputs [s]")
+    retain_s: float = Field(300.0, gt=0, description="supervised live runs: a live source keeps each key's frames "
+                            "until every consumer checkpointed past them (supervise.checkpoint_interval_s), at most "
+                            "this much EVENT time, so that a restarted service catches up on what it missed; a "
+                            "restart that needs older frames counts them lost per key (run summary: lost) and "
+                            "continues [s]")
+    retain_mb: float = Field(256.0, gt=0, description="supervised live runs: at most this much kept per key by a "
+                             "live source for restarted consumers (see retain_s) [MB]")
 
 
 class DebugConfig(ConfigSection):

@@ -53,18 +53,19 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 
 from common.bus import Bus, BusPublisher
-from common.codec import encode
+from common.codec import encode, encode_frame
 from common.messages import Header, LatencyReport, LatencyStage, Message
+from common.resume import ReplayServer
 from common.worker import WAKE, Sink
 
-__all__ = ["LiveClock", "LiveSource", "LatencyTracker", "LATENCY_KEY", "publish_latency",
+__all__ = ["LiveClock", "LiveSource", "LatencyTracker", "LATENCY_KEY", "HEALTH_KEY", "publish_latency",
            "follow_outputs"]
 
 log = logging.getLogger(__name__)
@@ -77,6 +78,8 @@ def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
 
 #: the key of a live run's :class:`common.messages.LatencyReport`
 LATENCY_KEY = "live/latency"
+#: the key of a live run's health, a :class:`common.messages.DiagnosticArray` (``launcher/health.py``)
+HEALTH_KEY = "live/health"
 
 #: extra bound of a stream that has not had a message yet (ns; see the module doc)
 UNSEEN_GRACE_NS = 2_000_000_000
@@ -130,13 +133,19 @@ class LiveSource:
     ``watermarks`` (:meth:`counters`)."""
 
     def __init__(self, bus: Bus, lateness_ns: int, announce: Iterable[str] = (), outage_frames: int = 1000,
-                 outage_bytes: int = 64 << 20):
-        if outage_frames < 1 or outage_bytes < 1:
-            raise ValueError(f"the outage buffer needs >= 1 frame and byte, got {outage_frames}, {outage_bytes}")
+                 outage_bytes: int = 64 << 20, retain_ns: int = 0):
+        if outage_frames < 1 or outage_bytes < 1 or retain_ns < 0:
+            raise ValueError(f"the outage buffer needs >= 1 frame and byte and a retention >= 0 ns, got "
+                             f"{outage_frames}, {outage_bytes}, {retain_ns}")
         self.bus = bus
         self.clock = LiveClock(lateness_ns)
         self.announce = set(announce)
         self.outage_frames, self.outage_bytes = outage_frames, outage_bytes
+        self.retain_ns = retain_ns
+        self._stamps: dict[str, deque[tuple[int, int]]] = {}  # key -> (index, stamp) of the frames kept
+        self._replay: ReplayServer | None = None
+        self.retained_peak = 0  # bytes kept by all keys at once, at most
+        self.newest_stamp = -1  # the newest stamp published (event time, ns): a live run's health
         self.published: dict[str, int] = {}
         self.late: dict[str, int] = {}
         self.delivered_late: dict[str, int] = {}
@@ -159,7 +168,30 @@ class LiveSource:
             pub = self._pubs[key] = self.bus.publisher(key, retain=True)
             self._matching[key] = pub.has_subscribers()
             pub.on_matching(self._matching_callback(key))
+            if self._replay is not None:
+                self._replay.add(key, pub)
         return pub
+
+    def serve_replays(self, consumers: dict[str, list[str]]) -> None:
+        """Supervised live run: answer a restarted consumer's replay requests from the frames
+        kept (:mod:`common.resume`), and forget a frame once every consumer of its key
+        (``consumers``: key -> services) checkpointed past it; the bound (``outage_frames``,
+        ``outage_bytes`` per key, ``retain_ns`` of event time) holds all the same.  Requests
+        are answered by the publishing thread and the watermark ticker, under the lock."""
+        with self._lock:
+            for key in sorted(self.announce):
+                self._publisher(key)
+            self._replay = ReplayServer(self.bus, dict(self._pubs), consumers)
+
+    def serve_pending(self) -> None:
+        """Answer the replay requests queued (a source that ended and waits for its consumers)."""
+        with self._lock:
+            self._serve()
+
+    def _serve(self) -> None:
+        """Under the lock: answer the replay requests queued."""
+        if self._replay is not None and self._replay.pending():
+            self._replay.serve()
 
     def _matching_callback(self, key: str) -> Callable[[bool], None]:
         def on_matching(matching: bool) -> None:
@@ -186,8 +218,14 @@ class LiveSource:
             return False
         held_from = self._held_from.pop(key)
         kept = [i for i, _f in pub.retained]  # only this source (under its lock) changes them
+        supervised = self._replay is not None
+        if supervised:
+            # consumers ask for what was lost in flight themselves (a gap is asked for again,
+            # common/resume.py): only what was held is sent, as plain frames (no R frame, which a
+            # consumer catching up would take for the answer to its own request)
+            kept = [i for i in kept if i >= held_from]
         first = kept[0] if kept else pub.index
-        pub.replay(first)
+        pub.replay(first, mark=not supervised)
         late = sum(1 for i in kept if i >= held_from)
         _bump(self.delivered_late, key, late)
         _bump(self.resent, key, len(kept) - late)
@@ -195,9 +233,17 @@ class LiveSource:
                     len(kept) - late)
         return True
 
-    def _bound(self, key: str) -> None:
+    def _bound(self, key: str, stamp_ns: int) -> None:
         pub = self._pubs[key]
-        gone = pub.bound(self.outage_frames, self.outage_bytes)
+        below = 0
+        if self.retain_ns:
+            kept = self._stamps.setdefault(key, deque())
+            kept.append((pub.index - 1, stamp_ns))
+            while kept and kept[0][1] < stamp_ns - self.retain_ns:
+                kept.popleft()
+            below = kept[0][0] if kept else pub.index
+        gone = pub.bound(self.outage_frames, self.outage_bytes, below)
+        self.retained_peak = max(self.retained_peak, sum(p.retained_bytes for p in self._pubs.values()))
         held_from = self._held_from.get(key)
         if held_from is not None:
             _bump(self.dropped_outage, key, sum(1 for i in gone if i >= held_from))
@@ -217,13 +263,15 @@ class LiveSource:
             if self.ended:
                 return False
             late = self.clock.observe(key, stamp_ns, arrival)
+            self.newest_stamp = max(self.newest_stamp, stamp_ns)
             if late:
                 self.late[key] = self.late.get(key, 0) + 1
+            self._serve()
             if self._check_link(key):
                 self._publisher(key).send_data(type_name, payload, stamp_ns)
             else:
                 self._publisher(key).keep_data(type_name, payload)
-            self._bound(key)
+            self._bound(key, stamp_ns)
             self.published[key] = self.published.get(key, 0) + 1
             return late
 
@@ -233,7 +281,9 @@ class LiveSource:
         n = 0
         with self._lock:
             if self.ended:
+                self._serve()  # a restarted consumer may still catch up after the end
                 return 0
+            self._serve()
             for key in sorted(set(self._pubs) | self.announce):
                 if not self._check_link(key):
                     continue  # in an outage: no promise past the frames held
@@ -273,10 +323,15 @@ class LiveSource:
     def counters(self) -> dict[str, Any]:
         """The counters as JSON-ready values (per key; ``watermarks``: how many were sent)."""
         with self._lock:
-            return {"published": dict(self.published), "late": dict(self.late),
-                    "delivered_late": dict(self.delivered_late), "resent": dict(self.resent),
-                    "dropped_outage": dict(self.dropped_outage), "outages": dict(self.outages),
-                    "watermarks": self.watermarks}
+            out: dict[str, Any] = {
+                "published": dict(self.published), "late": dict(self.late),
+                "delivered_late": dict(self.delivered_late), "resent": dict(self.resent),
+                "dropped_outage": dict(self.dropped_outage), "outages": dict(self.outages),
+                "watermarks": self.watermarks, "retained_peak_bytes": self.retained_peak}
+            if self._replay is not None:
+                out["replays_served"] = self._replay.served
+                out["replay_short"] = dict(self._replay.short)
+            return out
 
     def publishers(self) -> list[BusPublisher]:
         with self._lock:
@@ -343,14 +398,19 @@ class LatencyTracker:
         return out
 
 
-def publish_latency(bus: Bus, report: LatencyReport, wait_s: float = 10.0) -> bool:
+def publish_latency(bus: Bus, report: LatencyReport, wait_s: float = 10.0,
+                    meanwhile: Callable[[], None] | None = None) -> bool:
     """Publish a live run's ``report`` on :data:`LATENCY_KEY` and its end-of-stream, then wait
     (at most ``wait_s``) until its consumers -- the run's recorder awaits that key
     (:mod:`launcher.live`) -- have left: closing the session earlier could discard it.  True
-    when they left (or there were none)."""
+    when they left (or there were none).  ``meanwhile``: called first, after the publication
+    (a supervised source keeps answering replays until its consumers finished).  The frame is
+    not numbered: a report is never replayed (a restarted recorder takes it as it comes)."""
     pub = bus.publisher(LATENCY_KEY)
-    pub.send(report)
+    pub.send_raw(encode_frame(report))
     pub.send_eos()
+    if meanwhile is not None:
+        meanwhile()
     return bus.drain([pub], wait_s)
 
 

@@ -80,12 +80,16 @@ class Supervision:
     rejoin_timeout_s: float = 60.0
     resume: bool = False  # this process is a restart: load the checkpoint, ask for replays
     recorder_checkpoint_interval_ns: int = 5_000_000_000
+    #: a live run: frames a live source no longer keeps are counted lost instead of failing the
+    #: consumer (:class:`SequenceGate` ``lossy``), and a gap in a stream is asked for again
+    live: bool = False
 
     def to_json(self) -> str:
         return json.dumps({"state_dir": str(self.state_dir), "consumers": self.consumers,
                            "checkpoint_interval_ns": self.checkpoint_interval_ns,
                            "replay_retry_s": self.replay_retry_s, "rejoin_timeout_s": self.rejoin_timeout_s,
-                           "recorder_checkpoint_interval_ns": self.recorder_checkpoint_interval_ns})
+                           "recorder_checkpoint_interval_ns": self.recorder_checkpoint_interval_ns,
+                           "live": self.live})
 
     @classmethod
     def from_file(cls, path: str | Path, resume: bool = False) -> Supervision:
@@ -93,7 +97,7 @@ class Supervision:
             d = json.loads(Path(path).read_text())
             return cls(Path(d["state_dir"]), {k: list(v) for k, v in d["consumers"].items()},
                        int(d["checkpoint_interval_ns"]), float(d["replay_retry_s"]), float(d["rejoin_timeout_s"]),
-                       resume, int(d["recorder_checkpoint_interval_ns"]))
+                       resume, int(d["recorder_checkpoint_interval_ns"]), bool(d.get("live", False)))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{path}: not a supervision file: {type(exc).__name__}: {exc}") from None
 
@@ -255,25 +259,41 @@ class SequenceGate:
 
     ``positions``: next expected index per key; keys in ``catch_up`` are out of step (a
     restarted consumer) until the expected frame or a replay starting at or before it arrives.
+    Live runs (``live``): a gap in a stream that the consumer's own bounded queue did not make
+    (``queue_dropped(key, lo, hi)``: how many of indices ``lo..hi-1`` it dropped) is frames lost
+    in transit -- a hub restarted, a link cut -- and puts the key back into catch-up, so the
+    frames are asked for again; a replay that starts past the expected index (the publisher no
+    longer keeps the frames: the retention bound, ``live.retain_s`` / ``live.retain_mb``) is
+    counted per key in ``lost`` (and ``missing``) and the stream continues from it, where a
+    replay fails the consumer (:class:`LostFrames`).
     """
 
     def __init__(self, positions: dict[str, int] | None = None, catch_up: Iterable[str] = (), owner: str = "",
-                 missing: dict[str, int] | None = None):
+                 missing: dict[str, int] | None = None, live: bool = False,
+                 queue_dropped: Callable[[str, int, int], int] | None = None,
+                 lost: dict[str, int] | None = None):
         self.expected: dict[str, int] = dict(positions or {})
         self.catch_up: set[str] = set(catch_up)
         self.owner = owner
+        self.live = live
+        self.queue_dropped = queue_dropped
         self.duplicates = 0
         self.skipped = 0  # frames of a key that is not in step yet
         self.gaps = 0
+        self.refetched = 0  # gaps asked for again (live)
         #: per key, how many numbered frames never arrived (the index jumped over them)
         self.missing: dict[str, int] = missing if missing is not None else {}
+        #: per key, frames that could not be caught up (live: no longer kept by the publisher)
+        self.lost: dict[str, int] = lost if lost is not None else {}
 
     def in_step(self, key: str) -> bool:
         return key not in self.catch_up
 
     def data(self, key: str, index: int) -> bool:
-        """Accept (True) or drop (False) a data frame with transport ``index`` (-1: unnumbered, accepted)."""
+        """Accept (True) or drop (False) a data frame with transport ``index`` (-1: unnumbered,
+        accepted, and its key in step: an unnumbered stream is never replayed)."""
         if index < 0:
+            self.catch_up.discard(key)
             return True
         exp = self.expected.get(key)
         if key in self.catch_up:
@@ -286,6 +306,14 @@ class SequenceGate:
             self.duplicates += 1
             return False
         elif exp is not None and index > exp:
+            dropped = self.queue_dropped(key, exp, index) if self.queue_dropped is not None else 0
+            if self.live and dropped < index - exp:
+                self.catch_up.add(key)
+                self.refetched += 1
+                self.skipped += 1
+                log.warning("%s: frames %d..%d of %s lost in transit; asking for them again", self.owner, exp,
+                            index - 1, key)
+                return False
             self.gaps += 1
             self.missing[key] = self.missing.get(key, 0) + index - exp
             log.warning("%s: frames %d..%d of %s never arrived", self.owner, exp, index - 1, key)
@@ -296,15 +324,27 @@ class SequenceGate:
         """Watermarks and end-of-stream count only once the key is in step."""
         return key not in self.catch_up
 
-    def replay(self, key: str, start: int) -> None:
-        """An ``R start`` frame: the publisher now sends every frame from ``start``."""
+    def replay(self, key: str, start: int, by: str = "") -> None:
+        """An ``R start`` frame: the publisher now sends every frame from ``start`` (``by``: the
+        consumer that asked for it; a replay another consumer asked for that starts after what
+        this one expects is not its answer: it keeps waiting for its own)."""
         if key not in self.catch_up:
             return
         exp = self.expected.get(key, 0)
+        if start > exp and by and by != self.owner:
+            return
         if start > exp:
-            raise LostFrames(f"{self.owner}: frames {exp}..{start - 1} of {key} are no longer kept by its publisher")
+            if not self.live:
+                raise LostFrames(f"{self.owner}: frames {exp}..{start - 1} of {key} are no longer kept by its publisher")
+            n = start - exp
+            self.lost[key] = self.lost.get(key, 0) + n
+            self.missing[key] = self.missing.get(key, 0) + n
+            self.expected[key] = start
+            log.error("%s: frames %d..%d of %s are no longer kept by its publisher (retention bound): %d lost; "
+                      "continuing from %d", self.owner, exp, start - 1, key, n, start)
         self.catch_up.discard(key)
-        log.info("%s: %s in step again (replay from %d, expecting %d)", self.owner, key, start, exp)
+        log.info("%s: %s in step again (replay from %d, expecting %d)", self.owner, key, start,
+                 self.expected.get(key, 0))
 
 
 class ReplayServer:
@@ -322,9 +362,18 @@ class ReplayServer:
         self._lock = threading.Lock()
         self._wake = wake
         self.served = 0
+        #: per key, frames asked for that the publisher no longer kept (the replay began after them)
+        self.short: dict[str, int] = {}
         for key in publishers:
             bus.subscribe_callback(f"{REPLAY}/{key}", self._on_request)
         bus.subscribe_callback(f"{CKPT}/*", self._on_ack)
+
+    def add(self, key: str, publisher: Any) -> None:
+        """Answer replays of ``key`` too (a publisher declared after the server)."""
+        if key in self.publishers:
+            return
+        self.publishers[key] = publisher
+        self.bus.subscribe_callback(f"{REPLAY}/{key}", self._on_request)
 
     def _on_request(self, key: str, payload: bytes) -> None:
         key = key.removeprefix(REPLAY + "/")
@@ -370,9 +419,13 @@ class ReplayServer:
             pub = self.publishers[key]
             if source is not None:
                 first, frames = source(key, start)
-                begin = pub.replay(start, frames, first)
+                begin = pub.replay(start, frames, first, by=by)
             else:
-                begin = pub.replay(start)
+                begin = pub.replay(start, by=by)
+            if begin > start:
+                self.short[key] = self.short.get(key, 0) + begin - start
+                log.warning("replay of %s asked from %d by %s: frames up to %d are no longer kept", key, start, by,
+                            begin - 1)
             log.info("replayed %s from %d (asked from %d by %s; next %d)", key, begin, start, by, pub.index)
             self.served += 1
         return len(requests)

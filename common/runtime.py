@@ -78,7 +78,8 @@ class RunnerStats(SinkStats):
                 "duplicates": self.duplicates, "checkpoints": self.checkpoints,
                 "checkpoint_ms": round(self.checkpoint_ms, 3), "checkpoint_bytes": self.checkpoint_bytes,
                 "checkpoint_written_bytes": self.checkpoint_written_bytes,
-                "replays_served": self.replays_served, "dropped": self.dropped}
+                "replays_served": self.replays_served, "dropped": self.dropped, "missing": self.missing,
+                "lost": self.lost}
 
 
 def _header_seq(payload: bytes | memoryview) -> str:
@@ -130,7 +131,7 @@ class NodeRunner(Sink, Source):
             log.error("%s: bad frame on %s skipped: %s", name, key, exc)
             return None
         if frame.kind == "replay":
-            self.gate.replay(key, frame.index)
+            self.gate.replay(key, frame.index, frame.type_name)
             return "replay"
         if frame.kind in ("watermark", "eos") and not self.gate.control(key):
             return "skipped"  # a restarted consumer out of step on this key: its replay brings them again

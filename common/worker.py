@@ -88,29 +88,43 @@ class SinkStats(WorkerStats):
     """A sink's counters: numbered frames dropped as already received, checkpoints written
     and the wall time they took (ms, total); ``dropped``: data frames dropped per key by a
     bounded (live) queue; ``missing``: numbered frames per key that never arrived (the
-    publisher's frame numbers jumped over them: lost on the way, see :mod:`common.live`)."""
+    publisher's frame numbers jumped over them: lost on the way, see :mod:`common.live`); ``lost``:
+    of those, the frames a supervised live run could not catch up on per key (the source no
+    longer kept them, :class:`common.resume.SequenceGate`)."""
 
     duplicates: int = 0
     checkpoints: int = 0
     checkpoint_ms: float = 0.0
     dropped: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)
+    lost: dict[str, int] = field(default_factory=dict)
 
 
 #: first byte of a data frame (plain or numbered, :mod:`common.codec`)
 _DATA_TAGS = (ord("D"), ord("S"))
+_SEQ_TAG = ord("S")
+#: dropped indices remembered per key (a consumer asks about a gap as soon as the next frame comes)
+_DROPPED_MEMORY = 100_000
+#: a bounded queue keeps every frame this long (wall s) after its sink caught up on every key
+LOSSLESS_GRACE_S = 2.0
 
 
 class DropOldestQueue:
     """A sink's receive queue holding at most ``max_data`` data frames: putting one more drops
     the oldest queued data frame, counted per key in ``dropped``.  Control frames (watermark,
-    end-of-stream, replay, wake) are always kept.  The put never blocks (Zenoh callbacks)."""
+    end-of-stream, replay, wake) are always kept.  The put never blocks (Zenoh callbacks).
+    The transport indices it dropped are remembered, so that a gap it made is told from frames
+    lost in transit (:meth:`dropped_between`)."""
 
     def __init__(self, max_data: int, dropped: dict[str, int] | None = None):
         if max_data < 1:
             raise ValueError(f"a bounded queue needs max_data >= 1, got {max_data}")
         self.max_data = max_data
         self.dropped = dropped if dropped is not None else {}
+        self._dropped_index: dict[str, set[int]] = {}
+        #: keep every frame, beyond ``max_data`` too: a restarted consumer catching up (its replays
+        #: must not be dropped; bounded by what its publishers keep, ``live.retain_s``/``retain_mb``)
+        self.lossless = False
         self._items: deque[tuple[str, bytes]] = deque()
         self._data = 0
         self._cond = threading.Condition()
@@ -122,12 +136,16 @@ class DropOldestQueue:
     def put_nowait(self, item: tuple[str, bytes]) -> None:
         with self._cond:
             if self._is_data(item):
-                if self._data >= self.max_data:
+                if self._data >= self.max_data and not self.lossless:
                     for i, old in enumerate(self._items):
                         if self._is_data(old):
                             del self._items[i]
                             self._data -= 1
                             self.dropped[old[0]] = self.dropped.get(old[0], 0) + 1
+                            if old[1][0] == _SEQ_TAG and len(old[1]) >= 9:
+                                kept = self._dropped_index.setdefault(old[0], set())
+                                if len(kept) < _DROPPED_MEMORY:
+                                    kept.add(int.from_bytes(old[1][1:9], "little"))
                             break
                 self._data += 1
             self._items.append(item)
@@ -146,6 +164,21 @@ class DropOldestQueue:
     def empty(self) -> bool:
         with self._cond:
             return not self._items
+
+    def data_frames(self) -> int:
+        """Data frames queued now."""
+        with self._cond:
+            return self._data
+
+    def dropped_between(self, key: str, lo: int, hi: int) -> int:
+        """How many of ``key``'s indices ``lo..hi-1`` this queue dropped (and forget those below ``hi``)."""
+        with self._cond:
+            kept = self._dropped_index.get(key)
+            if not kept:
+                return 0
+            n = sum(1 for i in kept if lo <= i < hi)
+            self._dropped_index[key] = {i for i in kept if i >= hi}
+            return n
 
     def qsize(self) -> int:
         with self._cond:
@@ -205,9 +238,12 @@ class Sink(Worker):
         self.queue: queue.SimpleQueue[tuple[str, bytes]] | DropOldestQueue = (
             DropOldestQueue(max_queue, self.stats.dropped) if max_queue > 0 else queue.SimpleQueue())
         self.progress = self.bus.progress_publisher(self.name)
-        self.gate = SequenceGate(owner=self.name, missing=self.stats.missing)
+        self.gate = self._gate({}, ())
+        if isinstance(self.queue, DropOldestQueue) and self.supervision is not None and self.supervision.resume:
+            self.queue.lossless = True  # a restart: nothing dropped before it caught up (tick)
         self._asked: dict[str, float] = {}
         self._ckpt_stamp: int | None = None
+        self._in_step_since: float | None = None
         for key in keys:
             self.bus.subscribe(key, self.queue)
 
@@ -225,10 +261,24 @@ class Sink(Worker):
         """Handle one received frame (any kind: data, watermark, end-of-stream, replay)."""
 
     def tick(self) -> None:
-        """Once per loop turn: ask (again) for the replays a restarted sink still needs."""
+        """Once per loop turn: ask (again) for the replays a restarted sink still needs.  A
+        bounded (live) queue keeps every frame while the sink catches up, and drops again once
+        it is in step on every key and back within its bound."""
         sup = self.supervision
         if sup is not None and self.gate.catch_up:
             request_replays(self.bus, self.gate, self.name, self._asked, sup.replay_retry_s)
+        q = self.queue
+        if isinstance(q, DropOldestQueue):
+            if self.gate.catch_up:
+                q.lossless = True
+                self._in_step_since = None
+            elif q.lossless:
+                # a replay's frames follow its R frame in a burst: drop again only once the burst
+                # is in (LOSSLESS_GRACE_S after the last key came in step) and the queue within bound
+                now = time.monotonic()
+                self._in_step_since = self._in_step_since or now
+                if now - self._in_step_since >= LOSSLESS_GRACE_S and q.data_frames() <= q.max_data:
+                    q.lossless = False
 
     def next_frame(self, timeout_s: float = 0.2) -> tuple[str, bytes] | None:
         """The next queued frame, or None after ``timeout_s`` (supervised: progress repeated,
@@ -288,8 +338,17 @@ class Sink(Worker):
         return load_checkpoint(self.state_path())
 
     def resume_gate(self, positions: dict[str, int], catch_up: Iterable[str]) -> None:
-        """Restarted: expect ``positions`` next; ``catch_up`` keys wait for their replay."""
-        self.gate = SequenceGate(positions, catch_up=catch_up, owner=self.name, missing=self.stats.missing)
+        """Restarted: expect ``positions`` next; ``catch_up`` keys wait for their replay (a
+        bounded queue keeps every frame until then: :meth:`tick`)."""
+        self.gate = self._gate(positions, catch_up)
+        if isinstance(self.queue, DropOldestQueue) and self.gate.catch_up:
+            self.queue.lossless = True
+
+    def _gate(self, positions: dict[str, int], catch_up: Iterable[str]) -> SequenceGate:
+        live = self.supervision is not None and self.supervision.live
+        dropped = self.queue.dropped_between if isinstance(self.queue, DropOldestQueue) else None
+        return SequenceGate(positions, catch_up=catch_up, owner=self.name, missing=self.stats.missing, live=live,
+                            queue_dropped=dropped, lost=self.stats.lost)
 
 
 class Source(Worker):

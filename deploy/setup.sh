@@ -30,17 +30,20 @@ if [ -z "${POSEIDON_NO_CHROMIUM:-}" ] && [ ! -x /usr/bin/chromium ] && [ "$(id -
 fi
 # Optional: ROS 1 from the system packages (Debian ros-core), for the live bridge
 # (`poseidon bridge ros1`, `poseidon run --live ros1`) and its tests (tests/bridge_ros1).
-# Same rules as Chromium: root with apt-get, only when roscore is missing, a failure leaves
-# the bridge's live tests skipping with the reason. POSEIDON_NO_ROS1=1 leaves it out. The
-# venv's python finds rospy by appending /usr/lib/python3/dist-packages to sys.path at run
-# time (services/bridge_ros1/ros_io.py); nothing is written into the venv.
-if [ -z "${POSEIDON_NO_ROS1:-}" ] && ! command -v roscore >/dev/null 2>&1 && [ "$(id -u)" = 0 ] \
+# Same rules as Chromium: root with apt-get, only when roscore (or the diagnostic messages that
+# `rostopic echo /diagnostics` needs) is missing, a failure leaves the bridge's live tests
+# skipping with the reason. POSEIDON_NO_ROS1=1 leaves it out. The venv's python finds rospy by
+# appending /usr/lib/python3/dist-packages to sys.path at run time
+# (services/bridge_ros1/ros_io.py); nothing is written into the venv.
+if [ -z "${POSEIDON_NO_ROS1:-}" ] && { ! command -v roscore >/dev/null 2>&1 \
+     || [ ! -d /usr/lib/python3/dist-packages/diagnostic_msgs ]; } && [ "$(id -u)" = 0 ] \
    && command -v apt-get >/dev/null 2>&1; then
   ros_log=$(mktemp /tmp/poseidon-ros1-install.XXXXXX.log)
   echo "installing ROS 1 (Debian ros-core and message packages) for the live bridge; log: $ros_log" >&2
   if DEBIAN_FRONTEND=noninteractive apt-get update -q >"$ros_log" 2>&1 \
      && DEBIAN_FRONTEND=noninteractive apt-get install -y -q ros-core python3-sensor-msgs python3-nav-msgs \
-        python3-geometry-msgs python3-visualization-msgs python3-std-msgs >>"$ros_log" 2>&1; then
+        python3-geometry-msgs python3-visualization-msgs python3-std-msgs python3-diagnostic-msgs \
+        >>"$ros_log" 2>&1; then
     echo "ROS 1 installed: $(command -v roscore)" >&2
   else
     echo "ROS 1 could not be installed (see $ros_log); the bridge's live tests will skip" >&2

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from common.config import apply_overrides
-from common.live import LATENCY_KEY
+from common.live import HEALTH_KEY, LATENCY_KEY
 from common.mcap_io import read_metadata, recording_keys
 from common.messages import KEYS, RAW_KEY_PREFIX
 from system.config import PoseidonConfig
@@ -57,7 +57,7 @@ def _unused_keys(recording: Mapping[str, str], io: Mapping[str, tuple[tuple[str,
     read = {k for ins, _o in io.values() for k in ins}
     made = {k for _i, outs in io.values() for k in outs}
     return {k: t for k, t in sorted(recording.items())
-            if k not in read and k not in made and k not in REFERENCE_KEYS and k != LATENCY_KEY
+            if k not in read and k not in made and k not in REFERENCE_KEYS and k not in (LATENCY_KEY, HEALTH_KEY)
             and not k.startswith(RAW_KEY_PREFIX)}
 
 

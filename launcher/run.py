@@ -54,7 +54,7 @@ from typing import Any
 import yaml
 
 from common.bus import Bus, open_hub, open_local_session
-from common.live import LATENCY_KEY
+from common.live import HEALTH_KEY, LATENCY_KEY
 from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
@@ -183,7 +183,8 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     rec_keys = list(recording_keys(input_path))
     if not rec_keys:
         raise RecordingError(f"{input_path}: no readable messages (not an MCAP recording, or damaged from its start)")
-    player_keys = sorted(k for k in rec_keys if k not in produced and k != LATENCY_KEY)  # a live run's report: not an input
+    # a live run's latency report and health samples are not inputs
+    player_keys = sorted(k for k in rec_keys if k not in produced and k not in (LATENCY_KEY, HEALTH_KEY))
     player_keys = replayed_keys(config.player, player_keys, {k for ins, _o in io.values() for k in ins})
     for n, (ins, _o) in io.items():
         for k in ins:
@@ -203,11 +204,16 @@ class RunResult:
     recording: dict[str, Any] = field(default_factory=dict)
     restarts: dict[str, int] = field(default_factory=dict)
     inputs: dict[str, Any] = field(default_factory=dict)
+    health: dict[str, Any] = field(default_factory=dict)        # live runs: launcher/health.py
+    recoveries: list[dict[str, Any]] = field(default_factory=list)  # live runs: one per restart
 
     def as_dict(self) -> dict[str, Any]:
-        return {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
-                "services": self.services, "recording": self.recording, "restarts": self.restarts,
-                "inputs": self.inputs}
+        out = {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
+               "services": self.services, "recording": self.recording, "restarts": self.restarts,
+               "inputs": self.inputs}
+        if self.mode == "live":
+            out.update(health=self.health, recoveries=self.recoveries)
+        return out
 
 
 def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:

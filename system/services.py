@@ -211,10 +211,15 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         from services.player.live import LivePlayer
         return LivePlayer(bus, spec.input, latency_stages(config), rate=1.0 if spec.rate is None else spec.rate,
                           keys=spec.keys, lateness_ms=config.live.lateness_ms,
-                          watermark_interval_ms=config.live.watermark_interval_ms, announce=spec.announce)
+                          watermark_interval_ms=config.live.watermark_interval_ms, announce=spec.announce,
+                          consumers=spec.supervision.consumers if spec.supervision is not None else None,
+                          retain_s=config.live.retain_s, retain_mb=config.live.retain_mb,
+                          end_wait_s=config.live.stop_timeout_s)
     if name == BRIDGE_ROS1:
         from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
-        return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s)
+        return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s,
+                          consumers=spec.supervision.consumers if spec.supervision is not None else None,
+                          retain_s=config.live.retain_s, retain_mb=config.live.retain_mb)
     node = spec.node if spec.node is not None else build_node(name, config)
     live, debug = config.live, config.debug
     # live: a message waits for a silent stream's watermark in wall time, so the live interval

@@ -15,7 +15,12 @@
   silent sensor does not stall the services' event-time merge.
 - Out: ``Odometry``, ``dead_reckoning``, ``map`` (Path + MarkerArray, latched, at most every
   ``map_period_s``), ``local_view_cells`` and ``experience_event`` are published on ROS topics
-  (table in :mod:`services.bridge_ros1.convert`).
+  (table in :mod:`services.bridge_ros1.convert`); a live run's health (``live/health``,
+  :mod:`launcher.health`) on ``diagnostics_topic`` (``/diagnostics``) as
+  ``diagnostic_msgs/DiagnosticArray``.
+- Supervised live runs (``consumers`` given): every key's frames are kept until each consumer
+  checkpointed past them, within ``live.retain_s`` / ``live.retain_mb``, and replayed to a
+  restarted consumer (:meth:`common.live.LiveSource.serve_replays`).
 - Outages: when no consumer of a key is reachable any more (its link to the hub, or the hub's
   to the consumers' computer, is down) the bridge keeps that key's frames (at most
   ``outage_buffer_frames`` / ``outage_buffer_mb``, drop-oldest) and sends them when a consumer
@@ -41,14 +46,22 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_frame
-from common.live import LatencyTracker, LiveSource, follow_outputs, publish_latency
-from common.messages import ExperienceEvent, ExperienceMap, LocalViewCells, Message, Odometry, PoseStamped
+from common.live import HEALTH_KEY, LatencyTracker, LiveSource, follow_outputs, publish_latency
+from common.messages import (
+    DiagnosticArray,
+    ExperienceEvent,
+    ExperienceMap,
+    LocalViewCells,
+    Message,
+    Odometry,
+    PoseStamped,
+)
 from common.worker import WAKE, Sink, SinkStats, Source
 from services.bridge_ros1.config import BridgeRos1Config
 from services.bridge_ros1.convert import Incoming, Outgoing
@@ -105,24 +118,30 @@ class Ros1Bridge(Sink, Source):
     stats: BridgeStats
 
     def __init__(self, bus: Bus, config: BridgeRos1Config, announce: Iterable[str] = (),
-                 drain_timeout_s: float = 0.0):
+                 drain_timeout_s: float = 0.0, consumers: Mapping[str, list[str]] | None = None,
+                 retain_s: float = 300.0, retain_mb: float = 256.0):
         super().__init__(BRIDGE_NAME, bus, BridgeStats(), None, drain_timeout_s)
         self.config = config
         self.announce = sorted(set(announce))
         self.incoming = Incoming(config.topics, config.discover)
         self.outgoing = Outgoing()
-        self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce, config.outage_buffer_frames,
-                                 int(config.outage_buffer_mb * 1e6))
+        if consumers is None:
+            self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce,
+                                     config.outage_buffer_frames, int(config.outage_buffer_mb * 1e6))
+        else:  # a supervised live run: frames kept for restarted consumers (common/live.py)
+            self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce, 1 << 62,
+                                     int(retain_mb * 1e6), int(retain_s * 1e9))
+            self.source.serve_replays({k: list(v) for k, v in consumers.items()})
         self.latency = LatencyTracker()
         self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
         self._out_keys = config.output_stages()
         self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
-                            config.markers_topic, config.lvc_topic, config.event_topic}
+                            config.markers_topic, config.lvc_topic, config.event_topic, config.diagnostics_topic}
         self._outputs_ended: set[str] = set()
         self._pending_map: ExperienceMap | None = None
         self._last_map_wall = 0.0
         self.link: RosLink | None = None
-        self.subscribe(sorted(self._out_keys))
+        self.subscribe(sorted({*self._out_keys, HEALTH_KEY}))
 
     # ---- ROS -> bus (rospy threads) -----------------------------------------------------------
     def on_ros(self, topic: str, ros_type: str, md5: str, definition: str, data: bytes, arrival_ns: int) -> None:
@@ -186,6 +205,8 @@ class Ros1Bridge(Sink, Source):
             topic, data = c.lvc_topic, self.outgoing.lvc_id(msg)
         elif key == c.event_key and isinstance(msg, ExperienceEvent):
             topic, data = c.event_topic, self.outgoing.event(msg)
+        elif key == HEALTH_KEY and isinstance(msg, DiagnosticArray):
+            topic, (_t, data) = c.diagnostics_topic, self.outgoing.standard(msg)
         else:
             _bump(self.stats.errors, key)
             log.error("bridge_ros1: %s on %s has no ROS form here (expected types: see convert.py)",
@@ -216,7 +237,8 @@ class Ros1Bridge(Sink, Source):
                                        (c.path_topic, "nav_msgs/Path", True),
                                        (c.markers_topic, "visualization_msgs/MarkerArray", True),
                                        (c.lvc_topic, "std_msgs/Int32", False),
-                                       (c.event_topic, "std_msgs/String", True)):
+                                       (c.event_topic, "std_msgs/String", True),
+                                       (c.diagnostics_topic, "diagnostic_msgs/DiagnosticArray", False)):
             link.advertise(topic, ros_type, *o.definition(ros_type), latch=latch)
 
     def discover(self, link: RosLink) -> None:
@@ -249,6 +271,7 @@ class Ros1Bridge(Sink, Source):
                 now = time.monotonic()
                 if now >= next_wm:
                     self.source.send_watermarks(time.time_ns())
+                    self.progress.report(self.source.newest_stamp)  # how far the source is: the run's health
                     self.flush_map()
                     next_wm = now + wm_every
                 if c.discover and now >= next_discover:

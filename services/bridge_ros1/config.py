@@ -69,6 +69,9 @@ class BridgeRos1Config(ConfigSection):
     lvc_topic: str = Field("/poseidon/lvc_id", description="ROS topic of lvc_key")
     event_key: str = Field("experience_event", description="our key published as std_msgs/String (JSON)")
     event_topic: str = Field("/poseidon/experience_event", description="ROS topic of event_key")
+    diagnostics_topic: str = Field("/diagnostics", description="a live run's health (live/health, one status "
+                                   "per service) as diagnostic_msgs/DiagnosticArray, the topic rqt_robot_monitor "
+                                   "reads")
 
     def output_stages(self) -> dict[str, str]:
         """Our output key -> its latency stage (:class:`common.live.LatencyTracker`): the outputs

@@ -35,6 +35,7 @@ from typing import Any
 from common.geometry import quaternion_of_yaw
 from common.messages import (
     RAW_KEY_PREFIX,
+    DiagnosticArray,
     ExperienceEvent,
     ExperienceMap,
     LocalViewCells,
@@ -145,8 +146,8 @@ class Outgoing:
     def _ser(self, obj: Any, ros_type: str) -> bytes:
         return bytes(self.store.serialize_ros1(obj, rosbags_type(ros_type)))
 
-    def standard(self, msg: Odometry | PoseStamped) -> tuple[str, bytes]:
-        """Odometry / PoseStamped as the exporter writes them."""
+    def standard(self, msg: Odometry | PoseStamped | DiagnosticArray) -> tuple[str, bytes]:
+        """Odometry / PoseStamped / DiagnosticArray as the exporter writes them."""
         name, obj = to_ros(self.store, False, msg)
         return normalise_type(name), self._ser(obj, name)
 

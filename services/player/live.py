@@ -34,8 +34,9 @@ import numpy as np
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_frame
-from common.live import LATENCY_KEY, LatencyTracker, LiveSource, follow_outputs, publish_latency
+from common.live import HEALTH_KEY, LATENCY_KEY, LatencyTracker, LiveSource, follow_outputs, publish_latency
 from common.mcap_io import read_messages, recording_keys
+from common.ordering import END_OF_TIME
 from common.worker import WAKE, Sink, SinkStats, Source
 from services.player.player import SOURCE_KEYS
 
@@ -78,22 +79,32 @@ class LivePlayer(Sink, Source):
 
     def __init__(self, bus: Bus, path: str | Path, stages: Mapping[str, str], rate: float = 1.0,
                  keys: Iterable[str] | None = None, lateness_ms: int = 200, watermark_interval_ms: int = 100,
-                 announce: Iterable[str] = (), report_wait_s: float = 10.0):
+                 announce: Iterable[str] = (), report_wait_s: float = 10.0,
+                 consumers: Mapping[str, list[str]] | None = None, retain_s: float = 300.0,
+                 retain_mb: float = 256.0, end_wait_s: float = 120.0):
         if not rate > 0:
             raise ValueError(f"live player: --rate must be > 0 (x real time), got {rate}")
         super().__init__(LIVE_PLAYER_NAME, bus, LivePlayerStats(input=str(path), rate=rate), None, 0.0)
         self.path = Path(path)
         self.rate = rate
-        have = [k for k in recording_keys(self.path) if k != LATENCY_KEY]
+        have = [k for k in recording_keys(self.path) if k not in (LATENCY_KEY, HEALTH_KEY)]
         self.keys = sorted(k for k in have if keys is None or k in set(keys))
         self.absent = sorted(k for k in set(announce) | set(SOURCE_KEYS) if k not in self.keys)
         self.interval_s = watermark_interval_ms / 1000
-        self.source = LiveSource(bus, lateness_ms * 1_000_000)
+        if consumers is None:
+            self.source = LiveSource(bus, lateness_ms * 1_000_000)
+        else:  # supervised: keep frames for restarted consumers (bounded by retain_s / retain_mb)
+            self.source = LiveSource(bus, lateness_ms * 1_000_000, announce=self.keys, outage_frames=1 << 62,
+                                     outage_bytes=int(retain_mb * 1e6), retain_ns=int(retain_s * 1e9))
+            self.source.serve_replays({k: list(v) for k, v in consumers.items()})
+        self.consumers = sorted({c for k in self.keys for c in (consumers or {}).get(k, [])})
+        self.end_wait_s = end_wait_s
         self.latency = LatencyTracker()
         self.stages = dict(stages)
         self.report_wait_s = report_wait_s
         self._ended: set[str] = set()
         self.subscribe(sorted(self.stages))
+        self._progress = bus.watch_progress(self.consumers)
 
     def finished(self) -> bool:
         return False  # ends when the recording is exhausted or on stop (run)
@@ -148,6 +159,7 @@ class LivePlayer(Sink, Source):
                 arrival = time.time_ns()
                 self.latency.arrived(rec.stamp, arrival)
                 self.source.publish_data(rec.key, rec.type_name, rec.payload, rec.stamp, arrival)
+                self.progress.report(self.source.newest_stamp)  # how far the source is: the run's health
             else:
                 self.stats.complete = True
         finally:
@@ -160,5 +172,24 @@ class LivePlayer(Sink, Source):
                 b = np.asarray(behind) * 1000
                 self.stats.behind_ms = {"p99": round(float(np.percentile(b, 99)), 3), "max": round(float(b.max()), 3)}
             self.stats.latency = self.latency.summary()
-            publish_latency(self.bus, self.latency.report(self.name, self.rate), self.report_wait_s)
+            publish_latency(self.bus, self.latency.report(self.name, self.rate), self.report_wait_s,
+                            meanwhile=self._await_consumers)
         return self.stats
+
+    def _await_consumers(self) -> None:
+        """Supervised: stay, answering replays, until every consumer of the played keys finished
+        (a service restarted near the end catches up from this source), at most ``end_wait_s``."""
+        if not self.consumers:
+            return
+        deadline = time.monotonic() + self.end_wait_s
+        while time.monotonic() < deadline and not self.stop_event.is_set():
+            self.source.serve_pending()
+            waiting = [c for c in self.consumers if self._progress.get(c) != END_OF_TIME]
+            if not waiting:
+                return
+            item = self.next_frame(0.1)
+            if item is not None and item[0] != WAKE:
+                self.on_frame(*item)
+        waiting = [c for c in self.consumers if self._progress.get(c) != END_OF_TIME]
+        if waiting:
+            log.warning("live player: consumers %s still not finished after %.0f s", waiting, self.end_wait_s)

@@ -63,7 +63,7 @@ class RecorderStats(SinkStats):
     def as_dict(self) -> dict[str, Any]:
         return {"service": "recorder", "path": self.path, "recorded": self.recorded, "invalid": self.invalid,
                 "ended": sorted(self.ended), "aborted": self.aborted, "duplicates": self.duplicates,
-                "missing": self.missing,
+                "missing": self.missing, "lost": self.lost,
                 "checkpoints": self.checkpoints, "checkpoint_ms": round(self.checkpoint_ms, 3),
                 "resumed_messages": self.resumed_messages}
 
@@ -198,7 +198,7 @@ class Recorder(Sink):
                 self._seen = frame.stamp
             return
         if kind == "replay":
-            self.gate.replay(key, frame.index)
+            self.gate.replay(key, frame.index, frame.type_name)
             return
         if kind == "eos":
             if self.gate.control(key) and key not in self._ended:

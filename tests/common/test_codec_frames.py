@@ -23,6 +23,7 @@ GOOD = [
     (encode_sequenced(41, MSG.type_name, encode(MSG)), ("data", "poseidon_msgs/Depth", encode(MSG), 0, 41)),
     (encode_watermark(123456789), ("watermark", "", b"", 123456789, -1)),
     (encode_replay_start(7), ("replay", "", b"", 0, 7)),
+    (encode_replay_start(7, "htm"), ("replay", "htm", b"", 0, 7)),
     (ENCODED_EOS, ("eos", "", b"", 0, -1)),
 ]
 
@@ -38,7 +39,8 @@ BAD = [
     (b"D" + bytes([len(NAME)]) + NAME, "poseidon_msgs/Depth frame without a payload"),
     (b"W" + b"\0" * 7, "watermark frame of 8 bytes (expected 9)"),
     (b"W" + struct.pack("<q", -1), "negative watermark -1"),
-    (b"R" + b"\0" * 9, "replay frame of 10 bytes (expected 9)"),
+    (b"R" + b"\0" * 74, "replay frame of 75 bytes (expected 9, or up to 64 more naming its asker)"),
+    (b"R" + b"\0" * 8 + b"\xff", "replay frame: its asker is not ASCII"),
     (b"R" + struct.pack("<Q", 1 << 63), f"replay start {1 << 63} out of range"),
     (b"EE", "end-of-stream frame of 2 bytes (expected 1)"),
     (b"Zjunk", "unknown frame tag b'Z'"),
