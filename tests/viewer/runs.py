@@ -1,10 +1,14 @@
-"""A small generated recording of a run, shaped like one ``poseidon run`` writes: camera frames,
+"""Helpers of the view's tests (and its benchmark).  A small generated recording of a run, shaped like one ``poseidon run`` writes: camera frames,
 sonar beams, local view cells with revisits, experience events, dead reckoning, truth and a map
 published every few events (a loop closure among its links)."""
 from __future__ import annotations
 
+import json
 import math
+import socket
+import urllib.request
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -78,3 +82,18 @@ def write_run(path: Path, seconds: float = 20.0, with_map: bool = True) -> dict[
                     w.write("map", ExperienceMap(header=hdr("map", stamp), nodes=list(nodes), links=list(links),
                                                  current=n))
     return {k: v + 1 for k, v in seq.items()}
+
+
+def free_port() -> int:
+    """A loopback port free now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def view_state(url: str) -> dict[str, Any] | None:
+    """The view's ``state.json`` at ``url``, or None while nothing answers there."""
+    try:
+        return dict(json.loads(urllib.request.urlopen(url + "state.json", timeout=5).read()))
+    except OSError:
+        return None

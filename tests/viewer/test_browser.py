@@ -6,11 +6,9 @@ from __future__ import annotations
 import base64
 import io
 import json
-import socket
 import subprocess
 import sys
 import time
-import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -23,21 +21,9 @@ from missions.sim.cli import main as sim_main
 from tests.conftest import REPO
 from tests.eval.report.browser import _console_errors
 from tests.eval.report.cdp import CHROMIUM, Browser
+from tests.viewer.runs import free_port, view_state
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _state(url: str) -> dict[str, Any] | None:
-    try:
-        return dict(json.loads(urllib.request.urlopen(url + "state.json", timeout=5).read()))
-    except OSError:
-        return None
 
 
 def _wait(what: str, cond: Any, timeout_s: float, proc: subprocess.Popen[bytes]) -> None:
@@ -68,7 +54,7 @@ def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_pa
         pytest.skip(f"headless Chromium ({CHROMIUM}) is not installed")
     mission = tmp_path / "sim.mcap"
     assert sim_main(["--minutes", "0.5", "--seed", "3", "--out", str(mission), "--no-progress"]) == 0
-    port = _free_port()
+    port = free_port()
     url = f"http://127.0.0.1:{port}/"
     out = tmp_path / "run.mcap"
     cmd = [sys.executable, "-m", "launcher.cli", "run", "--live", "mcap", "--input", str(mission), "--rate", "4",
@@ -76,7 +62,7 @@ def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_pa
            "--set", "expmap.map_publish_every=5", "--set", "live.lateness_ms=2000"]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        _wait("page", lambda: _state(url) is not None, 120, proc)
+        _wait("page", lambda: view_state(url) is not None, 120, proc)
         with Browser(tmp_path / "chromium-profile") as b:
             target = b.call("Target.createTarget", {"url": "about:blank"})
             s = b.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})["sessionId"]
@@ -85,7 +71,7 @@ def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_pa
             b.call("Emulation.setDeviceMetricsOverride", {"width": 1400, "height": 1100, "deviceScaleFactor": 1,
                                                           "mobile": False}, session=s)
             b.call("Page.navigate", {"url": url}, session=s)
-            _wait("camera frame and map", lambda: (st := _state(url)) is not None and st["camera_version"] > 0
+            _wait("camera frame and map", lambda: (st := view_state(url)) is not None and st["camera_version"] > 0
                   and st["counts"]["events"] > 0, 240, proc)
             b.pump(1.0)
             first = {p: _panel(b, s, p) for p in ("map", "camera")}
@@ -99,7 +85,7 @@ def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_pa
                                                 "id => +document.getElementById(id).textContent))",
                                                 "returnByValue": True}, session=s)
             nodes, loops, lvcs = json.loads(shown["result"]["value"])
-            state = _state(url)
+            state = view_state(url)
             (tmp_path / "view_live.png").write_bytes(base64.b64decode(
                 b.call("Page.captureScreenshot", {"format": "png"}, session=s)["data"]))
             errors = _console_errors(b.events)

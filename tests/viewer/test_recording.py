@@ -3,7 +3,6 @@ page and its files are served; bad inputs fail naming themselves (exit 2)."""
 from __future__ import annotations
 
 import json
-import socket
 import urllib.request
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from services.viewer.config import ViewConfig
 from services.viewer.live import ViewError
 from services.viewer.recording import RecordingView
 from services.viewer.server import ViewServer, parse_listen
-from tests.viewer.runs import T0, write_run
+from tests.viewer.runs import T0, free_port, write_run
 
 
 @pytest.fixture(scope="module")
@@ -82,12 +81,6 @@ def test_the_camera_frame_at_t_is_a_small_jpeg(run: Path) -> None:
     assert jpeg[:2] == b"\xff\xd8" and len(jpeg) < 20_000
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def test_the_server_serves_the_page_its_files_and_the_state_at_t(run: Path) -> None:
     view = RecordingView(run, ViewConfig())
     server = ViewServer(view, "127.0.0.1", 0)
@@ -116,7 +109,7 @@ def test_a_recording_without_a_map_is_refused_naming_it(tmp_path: Path, capsys: 
 
 
 def test_no_hub_at_the_address_exits_2_naming_it(capsys: pytest.CaptureFixture[str]) -> None:
-    port = _free_port()
+    port = free_port()
     assert poseidon(["view", "--connect", f"tcp/127.0.0.1:{port}", "--set", "view.connect_timeout_s=1"]) == 2
     assert f"no hub answers at tcp/127.0.0.1:{port} within 1 s" in capsys.readouterr().err
 

@@ -125,15 +125,25 @@ function line(ctx, pts, f, colour, width) {
   ctx.stroke();
 }
 
+function trailPoints(name) {
+  // the truth lives in its own world frame: shifted so that it starts where dead reckoning starts
+  const t = view.trails[name];
+  if (!t) return [];
+  const dr = view.trails.dead_reckoning;
+  if (name !== "truth" || !dr || !dr.points.length || !t.points.length) return t.points;
+  const d = [0, 1, 2].map(k => dr.points[0][k] - t.points[0][k]);
+  return t.points.map(p => [p[0] + d[0], p[1] + d[1], p[2] + d[2]]);
+}
+
 function drawMap() {
   const canvas = $("map"), ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   const nodes = view.map ? view.map.xyz : [];
   const lists = [nodes, view.provisional];
-  for (const t of Object.values(view.trails)) lists.push(t.points);
+  for (const name of Object.keys(TRAIL_COLOURS)) lists.push(trailPoints(name));
   const f = scaler(canvas, bounds(lists));
   for (const [name, colour] of Object.entries(TRAIL_COLOURS)) {
-    if (view.trails[name]) line(ctx, view.trails[name].points, f, colour, name === "truth" ? 1.5 : 1.2);
+    line(ctx, trailPoints(name), f, colour, name === "truth" ? 1.5 : 1.2);
   }
   if (view.map) {
     view.map.links.forEach((l, i) => {
@@ -160,7 +170,8 @@ function drawMap3d() {
   const canvas = $("map3d"), ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   const nodes = view.map ? view.map.xyz : [];
-  const all = nodes.concat(...Object.values(view.trails).map(t => t.points));
+  const trails = Object.keys(TRAIL_COLOURS).map(trailPoints);
+  const all = nodes.concat(...trails);
   if (!all.length) return;
   const c = [0, 1, 2].map(k => all.reduce((s, p) => s + p[k], 0) / all.length);
   const r = Math.max(1, ...all.map(p => Math.hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2])));
@@ -172,9 +183,7 @@ function drawMap3d() {
     const y2 = cp * y1 - sp * z;                              // pitch about x (screen up = z when level)
     return [canvas.width / 2 + s * x1, canvas.height / 2 + s * y2];
   };
-  for (const [name, colour] of Object.entries(TRAIL_COLOURS)) {
-    if (view.trails[name]) line(ctx, view.trails[name].points, f, colour, 1);
-  }
+  Object.values(TRAIL_COLOURS).forEach((colour, i) => line(ctx, trails[i], f, colour, 1));
   if (view.map) {
     view.map.links.forEach((l, i) => {
       ctx.strokeStyle = view.map.loop[i] ? "#ff4040" : "#56616e"; ctx.lineWidth = 1;

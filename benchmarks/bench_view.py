@@ -1,0 +1,163 @@
+"""The live view's cost: the same live run of a simulated mission with and without ``--view`` and a
+headless Chromium polling the page.
+
+- at 4x real time, without and with the view: frames dropped by the services' bounded queues
+  (run summary ``dropped``) and the live latency p50 per stage (the live player's report), and
+  their ratio with/without;
+- at 1x with the view: the view process's CPU seconds and peak RSS (``/proc``) and the bytes per
+  second it served to the browser;
+- screenshots: the page during the 1x run (``--shots DIR``/view_live.png) and ``poseidon view`` of
+  that run's recording (view_demo.png).
+
+    .venv/bin/python benchmarks/bench_view.py [--minutes 0.5] [--shots docs/images]
+"""
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from tests.eval.report.cdp import CHROMIUM, Browser  # noqa: E402
+from tests.viewer.runs import free_port, view_state  # noqa: E402
+
+CLI = [sys.executable, "-m", "launcher.cli"]
+
+
+def _view_pid(launcher: int) -> int | None:
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            cmd = (d / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if int(stat[1]) == launcher and b"view" in cmd:
+            return int(d.name)
+    return None
+
+
+def _usage(pid: int) -> tuple[float, float]:
+    """CPU seconds and peak RSS (MB) of ``pid``."""
+    stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    cpu = (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")
+    hwm = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("VmHWM"))
+    return cpu, int(hwm.split()[1]) / 1024
+
+
+def _page(b: Browser, url: str) -> str:
+    target = b.call("Target.createTarget", {"url": "about:blank"})
+    s: str = b.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})["sessionId"]
+    b.call("Page.enable", session=s)
+    b.call("Emulation.setDeviceMetricsOverride", {"width": 1400, "height": 1080, "deviceScaleFactor": 1,
+                                                  "mobile": False}, session=s)
+    b.call("Page.navigate", {"url": url}, session=s)
+    return s
+
+
+def _shot(b: Browser, s: str, path: Path) -> None:
+    path.write_bytes(base64.b64decode(b.call("Page.captureScreenshot", {"format": "png"}, session=s)["data"]))
+
+
+def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | None, work: Path) -> dict[str, Any]:
+    """One live run; with ``view``, Chromium polls the page throughout."""
+    cmd = [*CLI, "run", "--live", "mcap", "--input", str(mission), "--rate", str(rate), "--out", str(out), "--json",
+           "--set", "live.lateness_ms=2000"]
+    port = free_port()
+    url = f"http://127.0.0.1:{port}/"
+    if view:
+        cmd += ["--view", str(port), "--set", "view.linger_s=8"]
+    t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    row: dict[str, Any] = {"rate": rate, "view": view}
+    if view:
+        with Browser(work / f"chromium-{rate}") as b:
+            while view_state(url) is None and proc.poll() is None:
+                time.sleep(0.2)
+            s = _page(b, url)
+            first_t = None
+            while not out.exists() and proc.poll() is None:
+                st = view_state(url)
+                if st and st["t"] > 0 and first_t is None:
+                    first_t = time.monotonic()
+                if shots is not None and st and first_t and st["t"] > 0.6 * 30 and not (shots / "view_live.png").exists():
+                    _shot(b, s, shots / "view_live.png")
+                b.pump(0.5)
+            pid = _view_pid(proc.pid)
+            b.pump(3.0)
+            st = view_state(url) or {}
+            if pid is not None:
+                row["view_cpu_s"], row["view_peak_rss_mb"] = (round(v, 1) for v in _usage(pid))
+            served = st.get("view", {}).get("bytes_sent", 0)
+            span = time.monotonic() - (first_t or t0)
+            row["served_bytes"] = served
+            row["served_kb_per_s"] = round(served / 1e3 / span, 1)
+    stdout, _ = proc.communicate(timeout=600)
+    summary = json.loads(stdout)
+    row["wall_s"] = round(time.monotonic() - t0, 1)
+    row["dropped"] = {n: sum(v.get("dropped", {}).values()) for n, v in summary["services"].items()
+                      if isinstance(v.get("dropped"), dict)}
+    lat = summary["services"]["live_player"].get("latency", {})
+    row["p50_ms"] = {k: v.get("p50_ms") for k, v in lat.items()}
+    return row
+
+
+def demo_shot(run: Path, shots: Path, work: Path) -> None:
+    """``poseidon view RUN.mcap`` at 80 % of the run, played to there."""
+    port = free_port()
+    url = f"http://127.0.0.1:{port}/"
+    proc = subprocess.Popen([*CLI, "view", str(run), "--listen", str(port)], cwd=REPO, stderr=subprocess.DEVNULL)
+    try:
+        while view_state(url) is None:
+            time.sleep(0.2)
+        with Browser(work / "chromium-demo") as b:
+            s = _page(b, url)
+            b.pump(2.0)
+            b.call("Runtime.evaluate", {"expression": "view.t = 0.8 * view.duration; $('slider').value = view.t;"},
+                   session=s)
+            b.pump(2.0)
+            _shot(b, s, shots / "view_demo.png")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, default=0.5, help="simulated mission length")
+    ap.add_argument("--shots", type=Path, help="write view_live.png and view_demo.png here")
+    args = ap.parse_args()
+    if not CHROMIUM.exists():
+        print(f"bench_view: headless Chromium ({CHROMIUM}) is needed", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="bench-view-") as tmp:
+        work = Path(tmp)
+        mission = work / "sim.mcap"
+        subprocess.run([*CLI, "sim", "--minutes", str(args.minutes), "--seed", "3", "--out", str(mission),
+                        "--no-progress"], cwd=REPO, check=True, stderr=subprocess.DEVNULL)
+        if args.shots is not None:
+            args.shots.mkdir(parents=True, exist_ok=True)
+            (args.shots / "view_live.png").unlink(missing_ok=True)
+        rows = [live_run(mission, work / "plain4.mcap", 4.0, False, None, work),
+                live_run(mission, work / "view4.mcap", 4.0, True, None, work),
+                live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work)]
+        if args.shots is not None:
+            demo_shot(work / "view1.mcap", args.shots, work)
+    plain, viewed = rows[0]["p50_ms"], rows[1]["p50_ms"]
+    ratio = {k: round(viewed[k] / plain[k], 2) for k in plain if plain.get(k) and viewed.get(k)}
+    print(json.dumps({"rows": rows, "p50_ratio_with_over_without": ratio}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
