@@ -34,26 +34,36 @@ bridge_ros1:
 """
 
 
-def _live_run(tmp_path, core, bag, *extra):
+def _live_run(tmp_path, core, bag, *extra, diagnostics=False):
+    """The live run of ``bag``; with ``diagnostics``, what ``rostopic echo -n 1 /diagnostics``
+    printed while the bag played (else '')."""
     cfg = tmp_path / "live.yaml"
     cfg.write_text(CONFIG)
     out = tmp_path / "live.mcap"
     run = subprocess.Popen(CLI + ["run", "--live", "ros1", "--out", str(out), "--services", "robot_state",
                                   "--config", str(cfg), "--json", *extra], cwd=REPO, env=core.env,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    echoed = ""
     try:
         wait_subscribed(core.uri, TOPICS)
-        play = subprocess.run(PLAY + [str(bag)], env=core.env,
-                              stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
-        assert play.returncode == 0, play.stderr
+        play = subprocess.Popen(PLAY + [str(bag)], env=core.env, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        if diagnostics:
+            echo = subprocess.run(["rostopic", "echo", "-n", "1", "/diagnostics"], env=core.env,
+                                  stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+            assert echo.returncode == 0, echo.stderr
+            echoed = echo.stdout
+        _o, play_err = play.communicate(timeout=120)
+        assert play.returncode == 0, play_err
         run.send_signal(signal.SIGINT)  # Ctrl-C: the source ends its streams, the rest finishes
         stdout, stderr = run.communicate(timeout=120)
     finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+        for proc in (run, locals().get("play")):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
     assert run.returncode == 0, stderr[-3000:]
-    return out, cfg, json.loads(stdout)
+    return out, cfg, json.loads(stdout), echoed
 
 
 def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the_same_outputs(tmp_path):
@@ -61,13 +71,18 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     bag = require_bag()
     core = Roscore(tmp_path / "roshome")
     try:
-        out, cfg, result = _live_run(tmp_path, core, bag)
+        out, cfg, result, echoed = _live_run(tmp_path, core, bag, diagnostics=True)
     finally:
         core.stop()
     assert result["mode"] == "live"
+    # the run's health, as rqt_robot_monitor reads it: one status per process
+    for name in ("hub", "recorder", "robot_state", "bridge_ros1"):
+        assert f"name: \"poseidon/{name}\"" in echoed, echoed[:2000]
     rs = result["services"]["robot_state"]
-    assert result["recording"]["counts"] == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060,
-                                             "live/latency": 1}, (
+    counts = dict(result["recording"]["counts"])
+    assert counts.pop("live/health") >= 1  # one sample a second (supervise.health_interval_s)
+    assert counts == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060,
+                      "live/latency": 1}, (
         result["services"]["bridge_ros1"]["received"], result["services"]["bridge_ros1"]["late"], rs["rejected"],
         rs["dropped"])
     bridge = result["services"]["bridge_ros1"]
@@ -98,7 +113,7 @@ def test_a_service_slowed_on_purpose_drops_its_oldest_inputs_counted_and_the_rec
     bag = require_bag()
     core = Roscore(tmp_path / "roshome")
     try:
-        _out, _cfg, result = _live_run(tmp_path, core, bag, "--set", "debug.slow_service=robot_state",
+        _out, _cfg, result, _e = _live_run(tmp_path, core, bag, "--set", "debug.slow_service=robot_state",
                                        "--set", "debug.slow_ms=20", "--set", "live.queue_frames=20")
     finally:
         core.stop()
