@@ -267,10 +267,10 @@ def _outputs_of(plan: RunPlan, service: str) -> tuple[str, ...]:
 
 def run_live(config: PoseidonConfig, source: str, out: str | Path, services: list[str] | None = None,
              duration_s: float | None = None, stop: threading.Event | None = None,
-             input_path: str | Path | None = None, rate: float = 1.0) -> RunResult:
+             input_path: str | Path | None = None, rate: float = 1.0, hub_port: int | None = None) -> RunResult:
     """Run the services on the live ``source`` until ``stop`` is set or ``duration_s`` passed
-    (``mcap``: or the end of ``input_path``, played at ``rate``; see the module notes); returns
-    the run summary."""
+    (``mcap``: or the end of ``input_path``, played at ``rate``; see the module notes); the hub
+    listens on loopback ``hub_port`` (default a free port); returns the run summary."""
     if source not in LIVE_SOURCES:
         raise ValueError(f"--live {source}: unknown live source (known: {', '.join(LIVE_SOURCES)})")
     if (source == "mcap") != (input_path is not None):
@@ -286,7 +286,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
     plan.expect = sorted({*plan.expect, HEALTH_KEY})
     stop = stop or threading.Event()
     state_dir = state_dir_of(config, out) if config.supervise.max_restarts > 0 else None
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{hub_port or _free_port()}"
     t0 = time.monotonic()
     bridge = LIVE_SOURCES[source]
     with tempfile.TemporaryDirectory(prefix="poseidon-live-") as tmp_dir:

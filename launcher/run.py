@@ -289,15 +289,16 @@ def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path,
 
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                     services: list[str] | None = None, timeout_s: float | None = None,
-                    progress: bool = True) -> RunResult:
-    """Each service in its own process, connected over loopback Zenoh through a hub
-    (supervised when ``supervise.max_restarts`` > 0: see the module notes)."""
+                    progress: bool = True, hub_port: int | None = None) -> RunResult:
+    """Each service in its own process, connected over loopback Zenoh through a hub on
+    ``hub_port`` (default a free loopback port; supervised when ``supervise.max_restarts`` > 0:
+    see the module notes)."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
     calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
     max_restarts = config.supervise.max_restarts
     state_dir = state_dir_of(config, out) if max_restarts > 0 else None
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{hub_port or _free_port()}"
     t0 = time.monotonic()
     hub = open_hub(endpoint)
     procs: dict[str, subprocess.Popen[bytes]] = {}

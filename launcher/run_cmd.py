@@ -60,24 +60,19 @@ def flags_error(args: argparse.Namespace) -> str | None:
 
 
 @contextmanager
-def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> Iterator[None]:
+def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> Iterator[int | None]:
     """``--view``/``--foxglove``: the view process on the hub of the run started inside the block.
 
-    The run picks its hub's loopback port with :func:`launcher.run._free_port` (the live run
-    imports the same function) when it starts; the view needs that address first, so the port
-    is picked here and the run is handed it through that function for the time of the block.
-    After the block the view serves ``linger_s`` more seconds, then is stopped."""
+    Yields the loopback port the run's hub must listen on (``hub_port`` of
+    :func:`launcher.run.run_distributed` / :func:`launcher.live.run_live`), None without a view:
+    the view is started first and connects when the hub comes up.  After the block the view
+    serves ``linger_s`` more seconds, then is stopped."""
     if args.view is None and args.foxglove is None:
-        yield
+        yield None
         return
-    import launcher.live as live_mod
-    import launcher.run as run_mod
     from launcher.children import die_with_launcher
-    port = run_mod._free_port()
-    picked = run_mod._free_port
-
-    def hub_port() -> int:
-        return port
+    from launcher.run import _free_port
+    port = _free_port()
     cmd = [sys.executable, "-m", "launcher.cli", "view", "--connect", f"tcp/127.0.0.1:{port}",
            "--set", f"view.connect_timeout_s={startup_s}"]
     cmd += ["--listen", args.view] if args.view is not None else []
@@ -85,14 +80,10 @@ def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> 
     cmd += ["--config", args.config] if args.config else []
     for item in args.set:
         cmd += ["--set", item]
-    run_mod._free_port = hub_port
-    live_mod._free_port = hub_port  # type: ignore[attr-defined]  # imported there from launcher.run
     proc = subprocess.Popen(cmd, stdout=2, preexec_fn=die_with_launcher(os.getpid()))
     try:
-        yield
+        yield port
     finally:
-        run_mod._free_port = picked
-        live_mod._free_port = picked  # type: ignore[attr-defined]
         if proc.poll() is None and linger_s > 0:
             print(f"poseidon run: the view serves the final state for {linger_s:.0f} s more (view.linger_s)",
                   file=sys.stderr)
@@ -129,10 +120,10 @@ def _run_live(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config, args.set)
         services = services_arg(args)
-        with view_beside(args, config.view.linger_s, config.live.startup_timeout_s):
+        with view_beside(args, config.view.linger_s, config.live.startup_timeout_s) as hub_port:
             result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop,
                               input_path=args.input if args.live == "mcap" else None,
-                              rate=1.0 if args.rate is None else args.rate)
+                              rate=1.0 if args.rate is None else args.rate, hub_port=hub_port)
     except (ConfigError, RecordingError, ValueError, KeyError, TimeoutError, FileNotFoundError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
@@ -162,10 +153,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             from launcher.run import use_map_dir
             use_map_dir(config, args.map_dir)
         services = services_arg(args)
-        runner = run_embedded if args.embedded else run_distributed
-        with view_beside(args, config.view.linger_s, config.bus.startup_timeout_s):
-            result = runner(config, args.input, args.out, services=services, timeout_s=args.timeout,
-                            progress=not args.json)
+        with view_beside(args, config.view.linger_s, config.bus.startup_timeout_s) as hub_port:
+            if args.embedded:  # no hub: flags_error refuses --view with --embedded
+                result = run_embedded(config, args.input, args.out, services=services, timeout_s=args.timeout,
+                                      progress=not args.json)
+            else:
+                result = run_distributed(config, args.input, args.out, services=services, timeout_s=args.timeout,
+                                         progress=not args.json, hub_port=hub_port)
     except (ConfigError, RecordingError, ValueError, KeyError, FileNotFoundError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
