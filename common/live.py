@@ -53,7 +53,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -62,7 +62,7 @@ import numpy as np
 from common.bus import Bus, BusPublisher
 from common.codec import encode, encode_frame
 from common.messages import Header, LatencyReport, LatencyStage, Message
-from common.resume import ReplayServer
+from common.resume import ReplayServer, Retention
 from common.worker import WAKE, Sink
 
 __all__ = ["LiveClock", "LiveSource", "LatencyTracker", "LATENCY_KEY", "HEALTH_KEY", "publish_latency",
@@ -141,8 +141,7 @@ class LiveSource:
         self.clock = LiveClock(lateness_ns)
         self.announce = set(announce)
         self.outage_frames, self.outage_bytes = outage_frames, outage_bytes
-        self.retain_ns = retain_ns
-        self._stamps: dict[str, deque[tuple[int, int]]] = {}  # key -> (index, stamp) of the frames kept
+        self.retention = Retention(retain_ns, 0)  # the age bound; outage_* bound frames and bytes
         self._replay: ReplayServer | None = None
         self.retained_peak = 0  # bytes kept by all keys at once, at most
         self.newest_stamp = -1  # the newest stamp published (event time, ns): a live run's health
@@ -235,14 +234,7 @@ class LiveSource:
 
     def _bound(self, key: str, stamp_ns: int) -> None:
         pub = self._pubs[key]
-        below = 0
-        if self.retain_ns:
-            kept = self._stamps.setdefault(key, deque())
-            kept.append((pub.index - 1, stamp_ns))
-            while kept and kept[0][1] < stamp_ns - self.retain_ns:
-                kept.popleft()
-            below = kept[0][0] if kept else pub.index
-        gone = pub.bound(self.outage_frames, self.outage_bytes, below)
+        gone = self.retention.sent(pub, stamp_ns) + pub.bound(self.outage_frames, self.outage_bytes)
         self.retained_peak = max(self.retained_peak, sum(p.retained_bytes for p in self._pubs.values()))
         held_from = self._held_from.get(key)
         if held_from is not None:

@@ -46,6 +46,7 @@ import os
 import pickle
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +55,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import xxhash
 
-__all__ = ["Supervision", "SequenceGate", "LostFrames", "save_checkpoint", "load_checkpoint", "CheckpointSize", "ReplayServer",
+__all__ = ["Supervision", "SequenceGate", "LostFrames", "Retention", "save_checkpoint", "load_checkpoint", "CheckpointSize", "ReplayServer",
            "REPLAY", "CKPT", "checkpoint_path"]
 
 log = logging.getLogger(__name__)
@@ -83,13 +84,17 @@ class Supervision:
     #: a live run: frames a live source no longer keeps are counted lost instead of failing the
     #: consumer (:class:`SequenceGate` ``lossy``), and a gap in a stream is asked for again
     live: bool = False
+    #: live runs: what a publisher keeps for replays at most, per key (``live.retain_s`` of event
+    #: time, ``live.retain_mb``; 0: no bound but the consumers' checkpoints)
+    retain_ns: int = 0
+    retain_bytes: int = 0
 
     def to_json(self) -> str:
         return json.dumps({"state_dir": str(self.state_dir), "consumers": self.consumers,
                            "checkpoint_interval_ns": self.checkpoint_interval_ns,
                            "replay_retry_s": self.replay_retry_s, "rejoin_timeout_s": self.rejoin_timeout_s,
                            "recorder_checkpoint_interval_ns": self.recorder_checkpoint_interval_ns,
-                           "live": self.live})
+                           "live": self.live, "retain_ns": self.retain_ns, "retain_bytes": self.retain_bytes})
 
     @classmethod
     def from_file(cls, path: str | Path, resume: bool = False) -> Supervision:
@@ -97,7 +102,8 @@ class Supervision:
             d = json.loads(Path(path).read_text())
             return cls(Path(d["state_dir"]), {k: list(v) for k, v in d["consumers"].items()},
                        int(d["checkpoint_interval_ns"]), float(d["replay_retry_s"]), float(d["rejoin_timeout_s"]),
-                       resume, int(d["recorder_checkpoint_interval_ns"]), bool(d.get("live", False)))
+                       resume, int(d["recorder_checkpoint_interval_ns"]), bool(d.get("live", False)),
+                       int(d.get("retain_ns", 0)), int(d.get("retain_bytes", 0)))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{path}: not a supervision file: {type(exc).__name__}: {exc}") from None
 
@@ -345,6 +351,33 @@ class SequenceGate:
         self.catch_up.discard(key)
         log.info("%s: %s in step again (replay from %d, expecting %d)", self.owner, key, start,
                  self.expected.get(key, 0))
+
+
+class Retention:
+    """The bound on what a publisher keeps for replays in a live run, per key: frames older than
+    ``max_age_ns`` of event time behind the newest sent, and beyond ``max_bytes``, are forgotten
+    even before every consumer checkpointed past them (a consumer that needs them later counts
+    them lost, :class:`SequenceGate`).  0 leaves that limit out."""
+
+    def __init__(self, max_age_ns: int = 0, max_bytes: int = 0):
+        if max_age_ns < 0 or max_bytes < 0:
+            raise ValueError(f"a retention bound is >= 0, got {max_age_ns} ns, {max_bytes} bytes")
+        self.max_age_ns = max_age_ns
+        self.max_bytes = max_bytes
+        self._stamps: dict[str, deque[tuple[int, int]]] = {}  # key -> (index, stamp) of frames sent
+
+    def sent(self, pub: Any, stamp_ns: int) -> list[int]:
+        """``pub`` just numbered a frame stamped ``stamp_ns``: forget what falls outside the
+        bound; returns the indices forgotten."""
+        below = 0
+        if self.max_age_ns:
+            kept = self._stamps.setdefault(pub.key, deque())
+            kept.append((pub.index - 1, stamp_ns))
+            while kept and kept[0][1] < stamp_ns - self.max_age_ns:
+                kept.popleft()
+            below = kept[0][0] if kept else pub.index
+        gone: list[int] = pub.bound(1 << 62, self.max_bytes or 1 << 62, below)
+        return gone
 
 
 class ReplayServer:

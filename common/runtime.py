@@ -41,7 +41,7 @@ from common.codec import DecodeError, decode_dict, decode_frame
 from common.messages import Message
 from common.node import ServiceNode
 from common.ordering import END_OF_TIME, EventTimeMerger
-from common.resume import Supervision
+from common.resume import Retention, Supervision
 from common.worker import WAKE, Sink, SinkStats, Source
 
 __all__ = ["NodeRunner", "RunnerStats", "ServiceError"]
@@ -113,6 +113,9 @@ class NodeRunner(Sink, Source):
         self.heartbeat_ns = heartbeat_ms * 1_000_000
         self._merger = EventTimeMerger(list(node.inputs))
         self._consumer_progress = None
+        # a live run: what the outputs keep for restarted consumers is bounded (live.retain_s / retain_mb)
+        self._retention = (Retention(supervision.retain_ns, supervision.retain_bytes)
+                           if supervision is not None and supervision.live else None)
         if supervision is not None:
             self.serve_replays_for(self._publishers, wake=self.wake)
             self._consumer_progress = bus.watch_progress(supervision.consumers_of(node.outputs))
@@ -169,7 +172,10 @@ class NodeRunner(Sink, Source):
 
     def _publish_outbox(self) -> None:
         for key, msg in self.node.take_outbox():
-            self._publishers[key].send(msg)
+            pub = self._publishers[key]
+            pub.send(msg)
+            if self._retention is not None:
+                self._retention.sent(pub, msg.header.stamp)
             self.stats.published[key] = self.stats.published.get(key, 0) + 1
 
     def _forward_watermark(self, merger: EventTimeMerger, force: bool = False) -> None:

@@ -300,6 +300,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
             state_dir.mkdir(parents=True)
             sup = supervision_plan(config, plan, state_dir)
             sup.live = True
+            sup.retain_ns, sup.retain_bytes = int(config.live.retain_s * 1e9), int(config.live.retain_mb * 1e6)
             (tmp / "supervision.json").write_text(sup.to_json())
             supervise = ["--supervise", str(tmp / "supervision.json")]
         sv = _Supervisor(config, _commands(plan, bridge, tmp, endpoint, partial, inp, rate, supervise), bridge,

@@ -9,10 +9,13 @@ import pytest
 
 from common.bus import Bus, open_local_session
 from common.codec import decode_frame
+from common.codec import encode_sequenced
 from common.messages import Depth, Header
+from common.worker import DropOldestQueue
 from common.resume import (
     BLOCK_BYTES,
     LostFrames,
+    Retention,
     SequenceGate,
     Supervision,
     blocks_dir,
@@ -45,6 +48,57 @@ def test_replayed_duplicates_are_dropped_and_a_restarted_consumer_waits_for_its_
 
     with pytest.raises(LostFrames, match="frames 5..8 of k"):
         SequenceGate({"k": 5}, catch_up=["k"], owner="t").replay("k", 9)
+
+
+def test_a_live_consumer_asks_again_for_a_gap_in_transit_and_counts_what_its_publisher_no_longer_kept():
+    dropped = {"k": 0}
+    gate = SequenceGate(owner="htm", live=True, queue_dropped=lambda _k, lo, hi: dropped["k"])
+    assert [gate.data("k", i) for i in (0, 1)] == [True, True]
+    assert not gate.data("k", 4) and not gate.in_step("k")  # 2, 3 lost in flight: asked for again
+    gate.replay("k", 3, by="expmap")  # another consumer's answer, starting after what htm expects
+    assert not gate.in_step("k")
+    gate.replay("k", 2, by="htm")
+    assert [gate.data("k", i) for i in (2, 3, 4)] == [True, True, True] and gate.missing == {}
+
+    dropped["k"] = 2  # the gap is the consumer's own bounded queue dropping: counted, not asked for
+    assert gate.data("k", 7) and gate.missing == {"k": 2} and gate.in_step("k")
+
+    restarted = SequenceGate({"k": 5}, catch_up=["k"], owner="htm", live=True)
+    restarted.replay("k", 9, by="htm")  # frames 5..8 were no longer kept: counted, the stream goes on
+    assert restarted.in_step("k") and restarted.lost == {"k": 4} and restarted.missing == {"k": 4}
+    assert restarted.data("k", 9)
+
+    waiting = SequenceGate({"h": 3}, catch_up=["h"], owner="recorder")
+    assert waiting.data("h", -1) and waiting.in_step("h")  # an unnumbered stream is never replayed
+
+
+def test_retention_forgets_frames_older_than_its_age_or_beyond_its_bytes_and_the_queue_keeps_all_while_catching_up():
+    session = open_local_session()
+    bus = Bus(session=session)
+    try:
+        pub = bus.publisher("depth_sensor", retain=True)
+        bound = Retention(max_age_ns=10, max_bytes=0)
+        gone = []
+        for stamp in range(0, 30, 2):
+            pub.send(Depth(header=Header(seq=stamp, stamp=stamp), depth=0.0))
+            gone += bound.sent(pub, stamp)
+        assert [i for i, _f in pub.retained] == list(range(9, 15))  # stamps 18..28: within 10 ns of 28
+        assert gone == list(range(9))
+        size = len(pub.retained[-1][1])
+        assert Retention(0, 2 * size).sent(pub, 28) == [9, 10, 11, 12] and len(pub.retained) == 2
+    finally:
+        bus.close()
+        session.close()
+
+    q = DropOldestQueue(2)
+    frames = [("k", encode_sequenced(i, "poseidon_msgs/Depth", b"x")) for i in range(4)]
+    for f in frames:
+        q.put_nowait(f)
+    assert q.dropped == {"k": 2} and q.dropped_between("k", 0, 3) == 2 and q.dropped_between("k", 0, 3) == 0
+    q.lossless = True  # a sink catching up: nothing dropped, beyond the bound too
+    for f in frames:
+        q.put_nowait(f)
+    assert q.data_frames() == 6 and q.dropped == {"k": 2}
 
 
 def test_publisher_replays_what_it_kept_and_forgets_what_was_checkpointed(tmp_path):

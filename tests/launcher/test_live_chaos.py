@@ -117,3 +117,44 @@ def test_sigkill_of_every_service_the_recorder_and_the_hub_leaves_no_trace(work,
     for key in SLAM_KEYS:
         assert got[key] == expected[key], f"{key} differs from the uninterrupted live run (kills: {order})"
     assert got["map"][-1] == expected["map"][-1], f"the final map differs (kills: {order})"
+
+
+def test_a_kill_that_outlasts_the_retention_counts_its_gap_and_the_run_finishes(work, tmp_path):
+    """htm is killed and comes back only after 8 s of wall (restart_backoff_s), 32 s of event time
+    at 4x, while every publisher keeps 5 s of event time for replays (live.retain_s) and htm
+    checkpoints every 10 s: the frames it could not catch up on are counted per key, and the run
+    still ends normally."""
+    out = tmp_path / "gap.mcap"
+    cmd = [sys.executable, "-m", "launcher.cli", "run", "--live", "mcap", "--input", str(work / "cave.mcap"),
+           "--rate", "4", "--out", str(out), "--json", "--services", "encoder,robot_state,htm",
+           "--set", "supervise.checkpoint_interval_s=10", "--set", "supervise.restart_backoff_s=8",
+           "--set", "live.retain_s=5", "--set", "live.lateness_ms=2000",
+           "--set", f"encoder.lsbh.matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=open(out.with_suffix(".err"), "w"),
+                            text=True)
+    try:
+        ckpt = tmp_path / "gap.state" / "htm.ckpt"
+        deadline = time.monotonic() + 300
+        while not ckpt.exists():
+            assert proc.poll() is None, out.with_suffix(".err").read_text()[-3000:]
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        pid = _pid_of(proc.pid, "htm")
+        assert pid is not None
+        os.kill(pid, signal.SIGKILL)
+        stdout, _ = proc.communicate(timeout=600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = out.with_suffix(".err").read_text()
+    assert proc.returncode == 0, err[-4000:]
+    result = json.loads(stdout)
+    assert result["restarts"] == {"htm": 1}
+    lost = result["services"]["htm"]["lost"]
+    assert lost.get("neocortex/sdr", 0) > 0, result["services"]["htm"]
+    assert result["services"]["encoder"]["lost"] == {} and result["services"]["robot_state"]["lost"] == {}
+    assert "no longer kept by its publisher" in err
+    counts = result["recording"]["counts"]
+    # no LVC id for the frames htm could not get; the recording of everything else is complete
+    assert 0 < counts["local_view_cells"] <= counts["neocortex/sdr"] - lost["neocortex/sdr"]
+    assert counts["camera/image_raw"] == result["services"]["live_player"]["published"]["camera/image_raw"]
