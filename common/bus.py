@@ -149,8 +149,7 @@ class BusPublisher:
         :meth:`heartbeat`; -1 when unknown)."""
         frame = encode_sequenced(self.index, type_name, payload)
         self._pub.put(frame)
-        if stamp > self.data_stamp:
-            self.data_stamp = stamp
+        self.data_stamp = max(self.data_stamp, stamp)
         if self.retain:
             with self._lock:
                 self.retained.append((self.index, frame))
@@ -168,8 +167,8 @@ class BusPublisher:
         self.sent += 1
 
     def bound(self, max_frames: int, max_bytes: int, below: int = 0) -> list[int]:
-        """Forget the oldest retained frames beyond ``max_frames`` or ``max_bytes``, and those with
-        an index below ``below`` (the newest frame is always kept); returns the indices forgotten."""
+        """Forget the oldest retained frames beyond ``max_frames`` or ``max_bytes`` or below index
+        ``below`` (the newest is always kept); returns the indices forgotten."""
         gone: list[int] = []
         with self._lock:
             while len(self.retained) > 1 and (len(self.retained) > max_frames or self.retained_bytes > max_bytes
@@ -193,10 +192,8 @@ class BusPublisher:
 
         A data frame stamped t already promises W >= t to every consumer's merger
         (:mod:`common.ordering`), so a key with data at least every ``interval_ns`` needs
-        no separate watermark: the sonar beams and the IMU send none.  Only the release of
-        other streams' messages can wait (at most ``interval_ns`` of event time); what is
-        released, and in which order, does not change.
-        """
+        no separate watermark: the sonar beams and the IMU send none.  Only the release of other
+        streams' messages can wait (at most ``interval_ns`` of event time), not what or in which order."""
         last = max(self.watermark, self.data_stamp)
         if last < 0 or stamp >= last + interval_ns:
             self.send_watermark(stamp)
@@ -212,28 +209,23 @@ class BusPublisher:
                 self.retained_bytes -= len(self.retained.popleft()[1])
 
     def replay(self, start: int, frames: Iterable[bytes] | None = None, first: int | None = None,
-               by: str = "", mark: bool = True) -> int:
+               by: str = "") -> int:
         """Send again every data frame from index ``start`` (``R`` frame first), then the last
         watermark and, if the stream ended, end-of-stream.  ``frames``/``first``: the frames
         from index ``first`` when they are kept elsewhere (the player re-reads its recording);
-        default: the retained ones.  ``by``: the consumer that asked (named in the ``R`` frame, so
-        that another consumer catching up on the same key does not take it for its own answer);
-        ``mark`` False: no ``R`` frame (frames sent again that nobody asked for).  Returns the index
-        the replay started from (> ``start`` when frames before it were trimmed: the consumer then
-        knows they are lost)."""
+        default: the retained ones; ``by``: the consumer that asked (named in the ``R`` frame).
+        Returns the index the replay started from (> ``start``: frames before it are lost)."""
         if frames is None:
             with self._lock:
                 kept = [(i, f) for i, f in self.retained if i >= start]
                 first = self.retained[0][0] if self.retained else self.index
             begin = min(max(start, first), self.index)
-            if mark:
-                self._pub.put(encode_replay_start(begin, by))
+            self._pub.put(encode_replay_start(begin, by))
             for _i, frame in kept:
                 self._pub.put(frame)
         else:
             begin = min(max(start, first if first is not None else start), self.index)
-            if mark:
-                self._pub.put(encode_replay_start(begin, by))
+            self._pub.put(encode_replay_start(begin, by))
             for frame in frames:
                 self._pub.put(frame)
         if self.watermark >= 0:

@@ -224,7 +224,12 @@ class LiveSource:
             # consumer catching up would take for the answer to its own request)
             kept = [i for i in kept if i >= held_from]
         first = kept[0] if kept else pub.index
-        pub.replay(first, mark=not supervised)
+        if supervised:
+            for i, frame in list(pub.retained):
+                if i >= first:
+                    pub.send_raw(frame)
+        else:
+            pub.replay(first)
         late = sum(1 for i in kept if i >= held_from)
         _bump(self.delivered_late, key, late)
         _bump(self.resent, key, len(kept) - late)

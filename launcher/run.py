@@ -183,8 +183,7 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     rec_keys = list(recording_keys(input_path))
     if not rec_keys:
         raise RecordingError(f"{input_path}: no readable messages (not an MCAP recording, or damaged from its start)")
-    # a live run's latency report and health samples are not inputs
-    player_keys = sorted(k for k in rec_keys if k not in produced and k not in (LATENCY_KEY, HEALTH_KEY))
+    player_keys = sorted(k for k in rec_keys if k not in produced and k not in (LATENCY_KEY, HEALTH_KEY))  # not inputs
     player_keys = replayed_keys(config.player, player_keys, {k for ins, _o in io.values() for k in ins})
     for n, (ins, _o) in io.items():
         for k in ins:
@@ -208,12 +207,9 @@ class RunResult:
     recoveries: list[dict[str, Any]] = field(default_factory=list)  # live runs: one per restart
 
     def as_dict(self) -> dict[str, Any]:
-        out = {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3),
-               "services": self.services, "recording": self.recording, "restarts": self.restarts,
-               "inputs": self.inputs}
-        if self.mode == "live":
-            out.update(health=self.health, recoveries=self.recoveries)
-        return out
+        live = {"health": self.health, "recoveries": self.recoveries} if self.mode == "live" else {}
+        return {"output": self.output, "mode": self.mode, "wall_s": round(self.wall_s, 3), "services": self.services,
+                "recording": self.recording, "restarts": self.restarts, "inputs": self.inputs, **live}
 
 
 def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:
@@ -290,9 +286,8 @@ def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path,
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                     services: list[str] | None = None, timeout_s: float | None = None,
                     progress: bool = True, hub_port: int | None = None) -> RunResult:
-    """Each service in its own process, connected over loopback Zenoh through a hub on
-    ``hub_port`` (default a free loopback port; supervised when ``supervise.max_restarts`` > 0:
-    see the module notes)."""
+    """Each service in its own process, connected through a hub on loopback ``hub_port`` (default a
+    free port); supervised when ``supervise.max_restarts`` > 0 (see the module notes)."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
     calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
