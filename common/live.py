@@ -330,6 +330,17 @@ class LiveSource:
                 out["replay_short"] = dict(self._replay.short)
             return out
 
+    def retention_summary(self) -> dict[str, Any]:
+        """Supervised (:meth:`serve_replays`): the bound (``retain_s`` of event time, ``retain_mb``
+        per key), the most kept at once (``peak_mb``), ``replays`` answered and, per key, frames
+        asked for that were no longer kept (``short``); {} unsupervised."""
+        with self._lock:
+            if self._replay is None:
+                return {}
+            return {"retain_s": self.retention.max_age_ns / 1e9, "retain_mb": self.outage_bytes / 1e6,
+                    "peak_mb": round(self.retained_peak / 1e6, 3), "replays": self._replay.served,
+                    "short": dict(self._replay.short)}
+
     def publishers(self) -> list[BusPublisher]:
         with self._lock:
             return list(self._pubs.values())

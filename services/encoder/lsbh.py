@@ -13,6 +13,7 @@ the first tied indices) -- never ``v >= threshold``, which sets extra bits on ti
 from __future__ import annotations
 
 import logging
+import os
 import zlib
 from pathlib import Path
 
@@ -121,7 +122,7 @@ def load_or_create_projection(path: Path | None, d: int, half: int, seed: int, m
     p = make_projection(d, half, seed, modality)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npy")
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npy")  # processes making it at once: one file each
         np.save(tmp, p, allow_pickle=False)
         tmp.replace(path)
         log.debug("encoder: LSBH projection for %s (%d x %d, seed %d) saved to %s", modality, d, half, seed, path)

@@ -52,7 +52,8 @@ class LivePlayerStats(SinkStats):
     """``input``, ``rate``; ``published`` / ``late`` per key (:mod:`common.live`); ``watermarks``
     sent; ``behind_ms``: ``p99`` / ``max`` of how late each message left against its schedule;
     ``latency``: per stage (:meth:`common.live.LatencyTracker.summary`); ``complete``: the whole
-    recording was published (False when stopped before its end)."""
+    recording was published (False when stopped before its end); ``retention`` (supervised):
+    :meth:`common.live.LiveSource.retention_summary`."""
 
     input: str = ""
     rate: float = 1.0
@@ -62,12 +63,13 @@ class LivePlayerStats(SinkStats):
     behind_ms: dict[str, float] = field(default_factory=dict)
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
     complete: bool = False
+    retention: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": LIVE_PLAYER_NAME, "input": self.input, "rate": self.rate, "published": self.published,
                 "late": self.late, "watermarks": self.watermarks, "behind_ms": self.behind_ms,
                 "latency": self.latency, "complete": self.complete, "dropped": self.dropped,
-                "aborted": self.aborted}
+                "aborted": self.aborted, "retention": self.retention}
 
 
 class LivePlayer(Sink, Source):
@@ -168,6 +170,7 @@ class LivePlayer(Sink, Source):
             counters = self.source.counters()
             self.stats.published, self.stats.late = counters["published"], counters["late"]
             self.stats.watermarks = counters["watermarks"]
+            self.stats.retention = self.source.retention_summary()
             if behind:
                 b = np.asarray(behind) * 1000
                 self.stats.behind_ms = {"p99": round(float(np.percentile(b, 99)), 3), "max": round(float(b.max()), 3)}

@@ -111,6 +111,8 @@ def test_sigkill_of_every_service_the_recorder_and_the_hub_leaves_no_trace(work,
 
     counts = result["recording"]["counts"]
     player = result["services"]["live_player"]
+    kept = player["retention"]
+    assert kept["replays"] >= 6 and kept["short"] == {} and 0 < kept["peak_mb"] <= 7 * kept["retain_mb"], kept
     for key in SOURCE_KEYS:  # every source message is in the recording, once
         assert counts[key] == player["published"][key] == plain_result["recording"]["counts"][key], key
     expected, got = payloads_by_key(plain), payloads_by_key(out)
