@@ -40,10 +40,12 @@ def work(tmp_path_factory):
 
 def _launch(work: Path, out: Path) -> subprocess.Popen:
     # checkpoints every 10 s of event time (2.5 s of wall at 4x): several per run; a lateness bound
-    # of 2 s: a loaded 2-core machine can stall a process for longer than the default 200 ms, and a
-    # late frame would (rightly) make the two runs differ
+    # of 2 s and input queues that never drop: a loaded 2-core machine (the test suite runs two
+    # files at once) can stall a process for longer than the default 200 ms and let a queue of 500
+    # overflow, and a late or dropped frame would (rightly) make the two runs differ
     cmd = [sys.executable, "-m", "launcher.cli", "run", "--live", "mcap", "--input", str(work / "cave.mcap"),
            "--rate", "4", "--out", str(out), "--json", "--set", "supervise.checkpoint_interval_s=10",
+           "--set", "live.queue_frames=1000000",
            "--set", "supervise.recorder_checkpoint_interval_s=5", "--set", "supervise.restart_backoff_s=0.2",
            "--set", "live.lateness_ms=2000", "--set", f"encoder.lsbh.matrix_path={work}/lsbh_{{backbone}}_{{modality}}.npy"]
     return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=open(out.with_suffix(".err"), "w"),
@@ -72,6 +74,7 @@ def uninterrupted(work):
     assert proc.returncode == 0, out.with_suffix(".err").read_text()[-3000:]
     result = json.loads(stdout)
     assert result["restarts"] == {} and result["recoveries"] == []
+    assert all(not s.get("dropped") for s in result["services"].values()), result["services"]
     return out, result
 
 
