@@ -51,16 +51,18 @@ from tests.bridge_ros1.ros1 import ROS_PY, Roscore
 CLI = [sys.executable, "-m", "launcher.cli"]
 
 
-def _loop_stamps(run: Path) -> list[int]:
-    """Stamps of the experience events that closed a loop."""
+def _loop_closures(run: Path) -> list[tuple[int, int, int]]:
+    """The loop-closure links of the run's final map: (stamp of the later node, source, target)."""
     from common.codec import decode
-    from common.messages import ExperienceEvent
-    out = []
-    for rec in read_messages(run, keys=["experience_event"]):
-        ev = decode(rec.payload, ExperienceEvent)
-        if ev.loop_closure:
-            out.append(ev.header.stamp)
-    return out
+    from common.messages import ExperienceMap
+    last = None
+    for rec in read_messages(run, keys=["map"]):
+        last = rec.payload
+    if last is None:
+        return []
+    m = decode(last, ExperienceMap)
+    stamp = {n.id: n.stamp for n in m.nodes}
+    return sorted((max(stamp[lk.source], stamp[lk.target]), lk.source, lk.target) for lk in m.links if lk.loop_closure)
 
 
 def _pid_of(launcher_pid: int, name: str) -> int | None:
@@ -125,7 +127,7 @@ def _run(core: Roscore, bag: Path, out: Path, rate: float, kills: list[tuple[str
     result = json.loads(stdout)
     ate = evaluate_run(out)["ate_rmse_m"]["map"]
     services = result["services"]
-    return {"wall_s": result["wall_s"], "loop_closures": len(_loop_stamps(out)), "ate_m": ate,
+    return {"wall_s": result["wall_s"], "loop_closures": len(_loop_closures(out)), "ate_m": ate,
             "restarts": result["restarts"], "recoveries": result["recoveries"],
             "peak_rss_mb": {n: services.get(n, {}).get("peak_rss_mb") for n in ("bridge_ros1", "recorder")},
             "lost": {n: s.get("lost") for n, s in services.items() if s.get("lost")}}
@@ -161,15 +163,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         print(f"baseline: {bag} at {args.rate:g}x", file=sys.stderr)
         base = _run(core, bag, cache / "baseline.mcap", args.rate, [], args.lateness_ms)
-        loops = _loop_stamps(cache / "baseline.mcap")
+        loops = _loop_closures(cache / "baseline.mcap")
         if not loops:
             raise RuntimeError("the baseline closed no loop: nothing to kill in the middle of")
-        mid = (loops[len(loops) // 2] - first) / 1e9 / args.rate
+        mid = (loops[len(loops) // 2][0] - first) / 1e9 / args.rate
         names = [n for n in args.kill.split(",") if n]
         kills = [(n, mid + (i * 2 - 1) * args.lead / args.rate) for i, n in enumerate(names)]
         print(f"killed: {kills}", file=sys.stderr)
         killed = _run(core, bag, cache / "killed.mcap", args.rate, kills, args.lateness_ms)
-        same = _loop_stamps(cache / "killed.mcap") == loops
+        same = _loop_closures(cache / "killed.mcap") == loops
     finally:
         core.stop()
     rec = killed["recoveries"]
@@ -185,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         ate = f"{r['ate_m']:.3f}" if r["ate_m"] is not None else "-"
         print(f"{name:10} {r['loop_closures']:>14} {ate:>12} {json.dumps(r['restarts']):>20} "
               f"{r['peak_rss_mb']['bridge_ros1']!s:>14} {r['peak_rss_mb']['recorder']!s:>16}")
-    print(f"same loop closures (stamps) as the baseline: {same}")
+    print(f"same loop closures (the final map's loop links) as the baseline: {same}")
     for k, v in out["recovery"].items():
         print(f"  {k:12} p50 {v['p50']} s, max {v['max']} s")
     return 0
