@@ -365,18 +365,19 @@ class Retention:
         self.max_age_ns = max_age_ns
         self.max_bytes = max_bytes
         self._stamps: dict[str, deque[tuple[int, int]]] = {}  # key -> (index, stamp) of frames sent
+        self._aged: dict[str, int] = {}  # key -> the index after the newest frame that aged out
 
     def sent(self, pub: Any, stamp_ns: int) -> list[int]:
         """``pub`` just numbered a frame stamped ``stamp_ns``: forget what falls outside the
-        bound; returns the indices forgotten."""
-        below = 0
+        bound; returns the indices forgotten.  Only frames seen here age out (with everything
+        numbered before them): frames a restarted publisher restored from its checkpoint stay
+        until a newer frame ages out, or its consumers checkpoint past them."""
         if self.max_age_ns:
             kept = self._stamps.setdefault(pub.key, deque())
             kept.append((pub.index - 1, stamp_ns))
             while kept and kept[0][1] < stamp_ns - self.max_age_ns:
-                kept.popleft()
-            below = kept[0][0] if kept else pub.index
-        gone: list[int] = pub.bound(1 << 62, self.max_bytes or 1 << 62, below)
+                self._aged[pub.key] = kept.popleft()[0] + 1
+        gone: list[int] = pub.bound(1 << 62, self.max_bytes or 1 << 62, self._aged.get(pub.key, 0))
         return gone
 
 

@@ -86,6 +86,11 @@ def test_retention_forgets_frames_older_than_its_age_or_beyond_its_bytes_and_the
         assert gone == list(range(9))
         size = len(pub.retained[-1][1])
         assert Retention(0, 2 * size).sent(pub, 28) == [9, 10, 11, 12] and len(pub.retained) == 2
+
+        restarted = bus.publisher("depth_restored", retain=True)  # frames restored from a checkpoint stay
+        restarted.restore({"index": 5, "retained": [(i, b"S") for i in range(5)], "watermark": -1})
+        restarted.send(Depth(header=Header(seq=5, stamp=1000), depth=0.0))
+        assert Retention(max_age_ns=10).sent(restarted, 1000) == [] and len(restarted.retained) == 6
     finally:
         bus.close()
         session.close()
