@@ -72,3 +72,36 @@ def test_a_live_run_of_a_missing_recording_fails_naming_it(tmp_path):
     proc = _cli("run", "--live", "mcap", "--input", str(tmp_path / "none.mcap"), "--out", str(tmp_path / "o.mcap"),
                 timeout=60)
     assert proc.returncode == 2 and "none.mcap" in proc.stderr
+
+
+def test_a_live_crash_loop_ends_the_run_naming_the_service_with_a_complete_recording_that_replays(tmp_path):
+    """A service that dies at the same input every time (tests.common.nodes:Boom) uses its
+    restarts; the run ends with exit 3 naming it, the other service finishes its inputs, and
+    the partial recording is complete (its summary written) and replays."""
+    src = tmp_path / "mission.mcap"
+    six_stream_recording(src, 1500, image_every=50)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text('{"service_classes": {"boom": "tests.common.nodes:Boom"}, '
+                   '"supervise": {"max_restarts": 2, "restart_backoff_s": 0.05}, "live": {"lateness_ms": 2000}}')
+    out = tmp_path / "live.mcap"
+    proc = _cli("run", "--live", "mcap", "--input", str(src), "--rate", "2", "--services", "boom,robot_state",
+                "--config", str(cfg), "--out", str(out))
+    assert proc.returncode == 3, proc.stderr[-3000:]
+    assert "service 'boom' failed: exit code 1 after 2 restart(s) (supervise.max_restarts)" in proc.stderr
+    assert "supervise: boom died (exit code 1); restart 2 of 2" in proc.stderr
+    partial = tmp_path / "live.partial.mcap"
+    assert not out.exists() and partial.exists()
+    info = _cli("info", str(partial), "--json")
+    assert info.returncode == 0, info.stderr[-2000:]  # a complete file: summary and every chunk readable
+    odometry = [m.payload for m in read_messages(partial, keys=["Odometry"])]
+    assert len(odometry) == counts_of(partial)["Odometry"] > 0  # robot_state's outputs are all kept
+    replay = _cli("run", "--input", str(partial), "--services", "robot_state", "--out", str(tmp_path / "again.mcap"))
+    assert replay.returncode == 0, replay.stderr[-3000:]
+    assert [m.payload for m in read_messages(tmp_path / "again.mcap", keys=["Odometry"])] == odometry
+
+
+def counts_of(path):
+    out: dict[str, int] = {}
+    for m in read_messages(path):
+        out[m.key] = out.get(m.key, 0) + 1
+    return out
