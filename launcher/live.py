@@ -48,7 +48,8 @@ under ``services.bridge_ros1`` / ``services.live_player``: ``published``/``late`
 player's ``input``, ``rate``, ``complete`` and ``behind_ms`` (``p99``/``max``: how late it
 published against its schedule); the source's ``retention`` (supervised: the bound ``retain_s``,
 ``retain_mb``, the most kept at once ``peak_mb``, ``replays`` answered, ``short``: frames per key
-asked for that were no longer kept); and ``latency`` -- per stage (``lvc``, ``event``, ``map``,
+asked for that were no longer kept), the live player's ``outages``/``delivered_late`` per key (a
+restarted hub: the outage rule of :mod:`common.live`); and ``latency`` -- per stage (``lvc``, ``event``, ``map``,
 ``odometry``, ``dead_reckoning``) ``n``, ``p50_ms``, ``p95_ms``, ``p99_ms``, ``max_ms``,
 ``unmatched``: the wall time from a sensor message's arrival at the source to the output it
 caused (matched by stamp) arriving back at the source.

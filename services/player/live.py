@@ -53,7 +53,9 @@ class LivePlayerStats(SinkStats):
     sent; ``behind_ms``: ``p99`` / ``max`` of how late each message left against its schedule;
     ``latency``: per stage (:meth:`common.live.LatencyTracker.summary`); ``complete``: the whole
     recording was published (False when stopped before its end); ``retention`` (supervised):
-    :meth:`common.live.LiveSource.retention_summary`."""
+    :meth:`common.live.LiveSource.retention_summary`; ``outages`` / ``delivered_late`` per key:
+    the outage rule of :mod:`common.live` (a hub that restarted: every key's consumers were gone
+    for a while, its frames held and sent when they were back)."""
 
     input: str = ""
     rate: float = 1.0
@@ -64,12 +66,15 @@ class LivePlayerStats(SinkStats):
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
     complete: bool = False
     retention: dict[str, Any] = field(default_factory=dict)
+    outages: dict[str, int] = field(default_factory=dict)
+    delivered_late: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": LIVE_PLAYER_NAME, "input": self.input, "rate": self.rate, "published": self.published,
                 "late": self.late, "watermarks": self.watermarks, "behind_ms": self.behind_ms,
                 "latency": self.latency, "complete": self.complete, "dropped": self.dropped,
-                "aborted": self.aborted, "retention": self.retention}
+                "aborted": self.aborted, "retention": self.retention, "outages": self.outages,
+                "delivered_late": self.delivered_late}
 
 
 class LivePlayer(Sink, Source):
@@ -171,6 +176,7 @@ class LivePlayer(Sink, Source):
             self.stats.published, self.stats.late = counters["published"], counters["late"]
             self.stats.watermarks = counters["watermarks"]
             self.stats.retention = self.source.retention_summary()
+            self.stats.outages, self.stats.delivered_late = counters["outages"], counters["delivered_late"]
             if behind:
                 b = np.asarray(behind) * 1000
                 self.stats.behind_ms = {"p99": round(float(np.percentile(b, 99)), 3), "max": round(float(b.max()), 3)}

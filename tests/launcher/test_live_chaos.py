@@ -116,6 +116,7 @@ def test_sigkill_of_every_service_the_recorder_and_the_hub_leaves_no_trace(work,
     player = result["services"]["live_player"]
     kept = player["retention"]
     assert kept["replays"] >= 6 and kept["short"] == {} and 0 < kept["peak_mb"] <= 7 * kept["retain_mb"], kept
+    assert player["outages"].get("camera/image_raw", 0) >= 1  # the hub's restart, counted as a cut link
     for key in SOURCE_KEYS:  # every source message is in the recording, once
         assert counts[key] == player["published"][key] == plain_result["recording"]["counts"][key], key
     expected, got = payloads_by_key(plain), payloads_by_key(out)
