@@ -212,6 +212,29 @@ def render_live(d: dict[str, Any]) -> str:
                      "dropped, late", "LVC ids, events"], rows))
 
 
+def render_recovery(d: dict[str, Any]) -> str:
+    """Recovery from kills in a live run, from ``benchmarks/bench_recovery.py --json``."""
+    rows = []
+    for name in ("baseline", "killed"):
+        r = d.get(name, {})
+        rss = r.get("peak_rss_mb") or {}
+        rows.append([name, fmt(r.get("loop_closures")), fmt(r.get("ate_m")), json.dumps(r.get("restarts") or {}),
+                     fmt(rss.get("bridge_ros1"), 0), fmt(rss.get("recorder"), 0)])
+    rec = d.get("recovery") or {}
+    times = [[k.removesuffix("_s").replace("_", " "), fmt((rec.get(k) or {}).get("p50"), 2),
+              fmt((rec.get(k) or {}).get("max"), 2)] for k in ("restarted_s", "resumed_s", "caught_up_s")]
+    kills = ", ".join(f"{k['service']} at {fmt(k['at_s'], 1)} s" for k in d.get("kills", []))
+    return (f"The demo mission through ROS 1 (`rosbag play` at {fmt(d.get('rate'), 0)}x into `poseidon run --live "
+            f"ros1`), once without a fault and once with {kills} of the mission (SIGKILL, in the middle of the loop "
+            f"the baseline closed at mid-mission). Same loop closures (the final map's loop links) as the baseline: "
+            f"**{d.get('same_loop_closures')}**.\n\n"
+            + table(["run", "loop closures", "map ATE (m)", "restarts", "bridge peak RSS (MB)",
+                     "recorder peak RSS (MB)"], rows)
+            + "\n\nWall seconds from a kill to the restart, to the restarted service's first input done "
+            "(`resumed`) and to the end of its catch-up (`caught up`: within `supervise.caught_up_lag_s` of the "
+            "source):\n\n" + table(["from the kill to", "p50 (s)", "max (s)"], times))
+
+
 def render_soak(d: dict[str, Any]) -> str:
     """Speed, CPU and drops from ``benchmarks/bench_soak.py --json``."""
     p, t = d.get("pipeline", {}), d.get("transport_only", {})
@@ -398,6 +421,11 @@ def measure_live(r: Runner) -> str:
                                str(r.work / "live"), "--json"]))
 
 
+def measure_recovery(r: Runner) -> str:
+    return render_recovery(r.json([sys.executable, "benchmarks/bench_recovery.py", "--cache-dir",
+                                   str(r.work / "recovery"), "--json"]))
+
+
 def soak(minutes: int, seed: int) -> Callable[[Runner], str]:
     def measure(r: Runner) -> str:
         return render_soak(r.json([sys.executable, "benchmarks/bench_soak.py", "--minutes", str(minutes), "--seed",
@@ -436,6 +464,8 @@ TOPICS = (
           measure_vpr_missions),
     Topic("live", "Live latency", 10, (),
           ("python benchmarks/bench_live.py --rates 1,4,8 --cache-dir WORK/live --json",), measure_live),
+    Topic("recovery", "Live recovery from crashes", 35, (),
+          ("python benchmarks/bench_recovery.py --cache-dir WORK/recovery --json",), measure_recovery),
     Topic("soak-60", "Speed: a 60-minute mission", 30, (),
           ("python benchmarks/bench_soak.py --minutes 60 --seed 11 --cache-dir WORK/soak --json",), soak(60, 11)),
     Topic("soak-180", "Speed: a 3-hour mission", 90, (),
