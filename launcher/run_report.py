@@ -29,6 +29,8 @@ class RunReport(TypedDict):
     recording: dict[str, Any]
     restarts: NotRequired[dict[str, int]]
     inputs: NotRequired[dict[str, Any]]
+    health: NotRequired[dict[str, Any]]       # live runs: launcher/health.py
+    recoveries: NotRequired[list[dict[str, Any]]]
     evaluation: RunSummary
     places: dict[str, Any] | None
     log: str | None
@@ -81,6 +83,12 @@ def format_service(name: str, st: Mapping[str, Any]) -> list[str]:
                      f"{st.get('dropped_outage') or {}}")
     if st.get("missing"):
         extra.append(f"missing (never arrived) {st['missing']}")
+    if st.get("lost"):
+        extra.append(f"lost (no longer kept for its catch-up) {st['lost']}")
+    if st.get("retention"):
+        r = st["retention"]
+        extra.append(f"kept for restarted consumers at most {r['peak_mb']:.1f} MB (bound {r['retain_s']:.0f} s, "
+                     f"{r['retain_mb']:.0f} MB per key), {r['replays']} replays")
     if st.get("raw"):
         extra.append(f"carried raw {st['raw']}")
     lines = [f"  [{name}] " + "; ".join(extra) if extra else f"  [{name}] ok"]
@@ -104,6 +112,11 @@ def format_run(report: RunReport) -> list[str]:
     lines += [f"  {key:<24} {n:>8}" for key, n in sorted(rec["counts"].items())]
     for name, st in report["services"].items():
         lines += format_service(name, st)
+    if report.get("restarts"):
+        lines.append("restarts: " + ", ".join(f"{n} {k}" for n, k in sorted(report["restarts"].items())))
+    for r in report.get("recoveries") or []:
+        lines.append(f"  {r['service']} ({r['cause']}): restarted after {r['restarted_s']} s, first input done "
+                     f"after {r['resumed_s']} s, caught up after {r['caught_up_s']} s")
     lines += format_inputs(report.get("inputs") or {})
     lines += format_summary(report["evaluation"])
     lines += format_places(report["places"])
