@@ -28,3 +28,10 @@ def bus():
     yield b
     b.close()
     session.close()
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The tests marked ``slow`` (multi-process runs of a minute or more) first, each file's tests
+    kept together: the two workers (``-n 2 --dist loadfile``, pyproject.toml) take the long files
+    early and fill the end with short ones, instead of one worker finishing a long file alone."""
+    items.sort(key=lambda item: 0 if item.get_closest_marker("slow") else 1)

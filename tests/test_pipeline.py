@@ -7,7 +7,7 @@ from system.config import load_config
 from system.services import available_services
 from tests.common.recordings import payloads_by_key
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.timeout(600), pytest.mark.slow]
 
 OUTPUT_KEYS = ("neocortex/sdr", "local_view_cells", "Odometry", "ground_truth", "experience_event", "map",
                "experience_image", "dead_reckoning")

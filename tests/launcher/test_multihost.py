@@ -18,7 +18,7 @@ import pytest
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.slow]
 
 
 def _ip(*args: str) -> None:

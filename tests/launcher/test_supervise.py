@@ -26,7 +26,7 @@ from system.services import build_node
 from tests.common.recordings import payloads_by_key
 from tests.conftest import REPO
 
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]
 # services.encoder.node is imported up front: a kill test unpickles the service's first checkpoint
 # mid-run, and the encoder's pulls in torch (~1.5 s on first import), about as long as what is left
 # of the run after that checkpoint once the encoder is fast (encoder.runtime openvino)
