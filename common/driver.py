@@ -28,7 +28,7 @@ Example: ``deploy/examples/stream_images.py`` streams a folder of images at a gi
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from types import TracebackType
 from typing import Any
 
@@ -98,9 +98,19 @@ class SensorDriver:
     """A live source of sensor records for a vendor's driver (see the module notes)."""
 
     def __init__(self, bus: Bus, announce: Iterable[str] = (), lateness_ms: int = 200,
-                 watermark_interval_ms: int = 100, outage_frames: int = 1000, outage_bytes: int = 64 << 20):
+                 watermark_interval_ms: int = 100, outage_frames: int = 1000, outage_bytes: int = 64 << 20,
+                 consumers: Mapping[str, list[str]] | None = None, retain_s: float = 300.0):
+        """``consumers`` (key -> the services that read it, the recorder included): a supervised
+        deployment, where the driver keeps each key's frames for a restarted consumer until every
+        consumer checkpointed past them, at most ``retain_s`` of event time and ``outage_bytes``
+        per key (:meth:`common.live.LiveSource.serve_replays`)."""
         self.bus = bus
-        self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, outage_frames, outage_bytes)
+        if consumers is None:
+            self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, outage_frames, outage_bytes)
+        else:
+            self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, 1 << 62, outage_bytes,
+                                     int(retain_s * 1e9))
+            self.source.serve_replays({k: list(v) for k, v in consumers.items()})
         self.source.start_watermarks(watermark_interval_ms / 1000)
         self._seq: dict[str, int] = {}
 

@@ -128,3 +128,43 @@ def test_the_example_streams_a_folder_of_images_on_its_schedule(bus, tmp_path):
     assert [m.stamp - rec[0].stamp for m in rec] == [i * 50_000_000 for i in range(5)]  # 20 frames/s
     with pytest.raises(ValueError, match="rate"):
         mod.stream_folder(drv, folder, rate_hz=0)
+
+
+def test_a_supervised_driver_replays_what_a_restarted_consumer_missed_and_forgets_what_all_checkpointed(bus):
+    import json
+
+    from common.messages import Depth, Header
+    got: queue.SimpleQueue = queue.SimpleQueue()
+    bus.subscribe_callback("depth_sensor", lambda _k, data: got.put(decode_frame(data)))
+    driver = SensorDriver(bus, consumers={"depth_sensor": ["robot_state", "recorder"]}, retain_s=60.0)
+    try:
+        time.sleep(0.2)
+        for i in range(6):
+            driver.publish("depth_sensor", Depth(header=Header(seq=i, stamp=1_000_000_000 + i), depth=float(i)))
+        bus.session.put(bus.full_key("@replay/depth_sensor"), json.dumps({"from": 2, "by": "robot_state"}).encode())
+        deadline = time.monotonic() + 10
+        frames = []
+        while time.monotonic() < deadline and not any(f.kind == "replay" for f in frames):
+            driver.source.send_watermarks()  # the ticker answers too; this makes it now
+            try:
+                frames.append(got.get(timeout=0.2))
+            except queue.Empty:
+                pass
+        until = time.monotonic() + 1.0  # the replay's frames follow its R frame (watermarks keep coming)
+        while time.monotonic() < until:
+            try:
+                frames.append(got.get(timeout=0.2))
+            except queue.Empty:
+                pass
+        start = next(i for i, f in enumerate(frames) if f.kind == "replay")
+        assert (frames[start].index, frames[start].type_name) == (2, "robot_state")
+        assert [f.index for f in frames[start + 1:] if f.kind == "data"] == [2, 3, 4, 5]
+        for who in ("robot_state", "recorder"):  # both checkpointed past 4: frames 0..3 are forgotten
+            bus.session.put(bus.full_key(f"@ckpt/{who}"), json.dumps({"depth_sensor": 4}).encode())
+        deadline = time.monotonic() + 10
+        pub = driver.source.publishers()[0]
+        while time.monotonic() < deadline and pub.retained[0][0] != 4:
+            time.sleep(0.05)
+        assert [i for i, _f in pub.retained] == [4, 5]
+    finally:
+        driver.close()
