@@ -8,10 +8,8 @@ import numpy as np
 import pytest
 
 from common.bus import Bus, open_local_session
-from common.codec import decode_frame
-from common.codec import encode_sequenced
+from common.codec import decode_frame, encode_sequenced
 from common.messages import Depth, Header
-from common.worker import DropOldestQueue
 from common.resume import (
     BLOCK_BYTES,
     LostFrames,
@@ -22,6 +20,7 @@ from common.resume import (
     load_checkpoint,
     save_checkpoint,
 )
+from common.worker import DropOldestQueue
 from tests.common.recordings import six_stream_recording
 from tests.conftest import REPO
 
