@@ -99,6 +99,10 @@ class ScanGraphConfig(ConfigSection):
     loop_max_residual: float = Field(3.0, ge=0, description="take back a closure whose loop edges keep a larger "
                                      "Mahalanobis residual after relaxation (0: off) [sigma]")
     huber: float = Field(3.0, ge=0, description="Huber threshold on an edge's Mahalanobis residual (0: off) [sigma]")
+    optimizer: Literal["gauss_newton", "gtsam_lm"] = Field(
+        "gauss_newton", description="solver of the relaxation: gauss_newton (ours, services/expmap/pose_graph.py) or "
+        "gtsam_lm (GTSAM's Levenberg-Marquardt on Pose2 between factors, the same objective; "
+        "services/expmap/gtsam_graph.py; docs/DECISIONS.md 'Pose-graph optimiser: ours and GTSAM')")
 
 
 class VisualScaleConfig(ConfigSection):
@@ -161,6 +165,10 @@ class CorrectionsConfig(ConfigSection):
                                     "[s]")
     iterations_per_event: int = Field(10, ge=1, description="relaxation iterations per accepted event, each "
                                       "moving a node by at most max_step [iterations]")
+    optimizer: Literal["series_reduction", "gtsam_lm"] = Field(
+        "series_reduction", description="solver of Eq. 4.20's optimum: series_reduction (ours, exact, "
+        "services/expmap/relaxation.py) or gtsam_lm (GTSAM's Levenberg-Marquardt on Point3 between factors over "
+        "every node, the same objective; services/expmap/gtsam_graph.py)")
 
 
 class ExperienceImageConfig(ConfigSection):

@@ -86,8 +86,9 @@ import numpy as np
 
 from services.expmap.candidates import candidate_nodes, choose_match, lattice_geometry, match_scores, pc_distance_cells
 from services.expmap.config import ExpMapConfig
+from services.expmap.gtsam_graph import relaxation_optimum
 from services.expmap.loop_policy import EventResult, LoopEdges, link_displacement, loop_displacement
-from services.expmap.relaxation import plan_correction, relax_fraction, rescale_edges, solve_optimum
+from services.expmap.relaxation import plan_correction, relax_fraction, rescale_edges
 from services.expmap.routes import quickest_path, quickest_path_links
 from services.expmap.scans import Registration
 from services.expmap.session_link import SESSION_BREAK_WEIGHT, SessionLink, backfill, move_component, rot2
@@ -446,11 +447,11 @@ class ExperienceMap:
             self._phi, self._peak = 0.0, 0.0
 
     def optimum(self) -> np.ndarray:
-        """Node positions minimising Eq. 4.20 with node 0 fixed (exact, by series reduction)."""
+        """Node positions minimising Eq. 4.20 with node 0 fixed (exact; ``expmap.corrections.optimizer``)."""
         if self.n_nodes == 0:
             return np.zeros((0, 3))
-        target, solved = solve_optimum(self._a("cum"), self._a("cumres"), self.loops, self.loop_deltas,
-                                       self._position(0))
+        target, solved = relaxation_optimum(self.cfg.corrections.optimizer, self._a("cum"), self._a("cumres"),
+                                            self.loops, self.loop_deltas, self._position(0))
         self.solves += int(solved)
         return target
 

@@ -62,8 +62,9 @@ import numpy as np
 
 from services.expmap.config import ScanGraphConfig
 from services.expmap.graph import EventResult, read_map_file
+from services.expmap.gtsam_graph import relax_planar
 from services.expmap.laser_match import ScanMatch, free_space_fraction, match_scan, transform_points, voxel_filter
-from services.expmap.pose_graph import compose, relative_pose, relax_se2, wrap_angle
+from services.expmap.pose_graph import compose, relative_pose, wrap_angle
 
 __all__ = ["ScanGraph"]
 
@@ -342,8 +343,8 @@ class ScanGraph:
             worst_deg = max(worst_deg, abs(math.degrees(float(wrap_angle(e[2])))))
         if worst_m > c.relax_threshold_m or worst_deg > c.relax_threshold_deg:
             before = np.asarray(self._pose)
-            after, it = relax_se2(before, np.asarray(self.ei), np.asarray(self.ej), np.asarray(self.z),
-                                  np.asarray(self.w), huber=c.huber, iterations=c.relax_iterations)
+            after, it = relax_planar(c.optimizer, before, np.asarray(self.ei), np.asarray(self.ej), np.asarray(self.z),
+                                     np.asarray(self.w), huber=c.huber, iterations=c.relax_iterations)
             self.solves += 1
             # the rest of the map must agree: loop edges the relaxed map still cannot satisfy
             # (Mahalanobis residual > loop_max_residual) were a wrong place; take them back
