@@ -124,13 +124,15 @@ def relax_se2_gtsam(poses: np.ndarray, ei: np.ndarray, ej: np.ndarray, z: np.nda
 
 def solve_optimum_gtsam(cum: np.ndarray, cumres: np.ndarray, loops: Sequence[tuple[int, int, float, int]],
                         loop_deltas: Sequence[np.ndarray], fixed: np.ndarray, *,
-                        iterations: int = 10, tol: float = 1e-9) -> tuple[np.ndarray, bool]:
+                        iterations: int = 10, tol: float = 1e-9,
+                        stats: dict[str, int] | None = None) -> tuple[np.ndarray, bool]:
     """GTSAM's LM on Eq. 4.20 over positions, node 0 at ``fixed``: drop-in for
     :func:`services.expmap.relaxation.solve_optimum` (same arguments and return).
 
     Minimises ``sum_i ||p_i - p_{i-1} - (cum_i - cum_{i-1})||^2 / (cumres_i - cumres_{i-1}) +
     sum_loops w ||p_n - p_m - Delta_mn||^2`` over every node's position (m); the start is the
-    odometry chain ``fixed + cum - cum_0``.  Returns (N x 3 positions, whether a system was solved)."""
+    odometry chain ``fixed + cum - cum_0``.  Returns (N x 3 positions, whether a system was solved);
+    ``stats``, when given, receives the LM steps run (``steps``)."""
     cum = np.asarray(cum, np.float64).reshape(-1, 3)
     n = cum.shape[0]
     fixed = np.asarray(fixed, np.float64).reshape(3)
@@ -154,7 +156,9 @@ def solve_optimum_gtsam(cum: np.ndarray, cumres: np.ndarray, loops: Sequence[tup
         s = 1.0 / np.sqrt(max(float(wl), _MIN_SIGMA ** 2))
         graph.add(gtsam.BetweenFactorPoint3(int(m), int(j), np.asarray(d, np.float64).reshape(3),
                                             gtsam.noiseModel.Isotropic.Sigma(3, float(s))))
-    x, _steps = _iterate(gtsam, graph, initial, gtsam.utilities.extractPoint3, iterations, tol)
+    x, steps = _iterate(gtsam, graph, initial, gtsam.utilities.extractPoint3, iterations, tol)
+    if stats is not None:
+        stats["steps"] = steps
     x = x.reshape(-1, 3)
     x[0] = fixed
     return x, True
