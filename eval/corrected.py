@@ -25,6 +25,8 @@ per ``Odometry`` stamp t:
    shifted by the blended p_map.z - p_odom.z.  At a node's stamp the pose is the node's;
    between nodes the dead reckoning is corrected by a correction that moves smoothly from
    one experience's to the next (why blended: docs/DECISIONS.md, "The corrected trajectory").
+   The arithmetic is :func:`common.map_correction.blend_corrections` (the ROS 1 bridge's live
+   grid uses it too).
 
 Without a map message (or with an empty map) the trajectory is the dead reckoning itself.
 
@@ -40,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.geometry import normalise_quaternions, quat_multiply, wrap_angle
+from common.map_correction import blend_corrections
 from common.mcap_io import RecordingError
 from common.messages import ExperienceNode
 from common.stamps import ns_to_text, seconds_to_ns
@@ -56,27 +58,9 @@ def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> P
     if not nodes or not len(odom):
         return odom
     ns = sorted(nodes, key=lambda n: (n.stamp, n.id))
-    nt = np.array([n.stamp for n in ns], dtype=np.int64)
-    at_nodes = odom.interpolate(nt)
-    dpsi = np.array([n.yaw for n in ns], dtype=float) - at_nodes.yaws
-    m_pos = np.array([n.position for n in ns], dtype=float)
-
-    def through(e: np.ndarray) -> np.ndarray:
-        """Odometry positions corrected by node e's correction."""
-        c, s = np.cos(dpsi[e]), np.sin(dpsi[e])
-        d = odom.positions - at_nodes.positions[e]
-        corrected: np.ndarray = np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]]) + m_pos[e]
-        return corrected
-
-    e = np.clip(np.searchsorted(nt, odom.stamps, side="right") - 1, 0, len(ns) - 1)
-    e1 = np.minimum(e + 1, len(ns) - 1)
-    span = (nt[e1] - nt[e]).astype(np.float64)
-    f = np.where(span > 0, (odom.stamps - nt[e]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
-    f = np.clip(f, 0.0, 1.0)
-    p = (1.0 - f)[:, None] * through(e) + f[:, None] * through(e1)
-    psi = dpsi[e] + f * wrap_angle(dpsi[e1] - dpsi[e])
-    qz = np.column_stack([np.zeros(len(e)), np.zeros(len(e)), np.sin(psi / 2), np.cos(psi / 2)])
-    return PoseSeries(odom.stamps.copy(), p, normalise_quaternions(quat_multiply(qz, odom.quaternions)))
+    p, q = blend_corrections(odom.stamps, odom.positions, odom.quaternions, np.array([n.stamp for n in ns]),
+                             np.array([n.position for n in ns], dtype=float), np.array([n.yaw for n in ns]))
+    return PoseSeries(odom.stamps.copy(), p, q)
 
 
 def corrected_from_recording(path: str | Path) -> tuple[PoseSeries, bool]:

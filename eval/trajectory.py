@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.geometry import normalise_quaternions, slerp, yaws_of_quaternions
+from common.geometry import normalise_quaternions, yaws_of_quaternions
+from common.map_correction import interpolate_poses
 from common.messages import Odometry
 
 __all__ = ["NS", "Trajectory", "PoseSeries", "pose_series", "align_rigid", "align_trajectory", "ate", "rpe",
@@ -211,15 +212,8 @@ class PoseSeries:
         if not len(self):
             raise ValueError("PoseSeries is empty")
         q = np.asarray(stamps, dtype=np.int64).reshape(-1)
-        if len(self) == 1:
-            return PoseSeries(q, np.repeat(self.positions, len(q), 0), np.repeat(self.quaternions, len(q), 0))
-        i = np.clip(np.searchsorted(self.stamps, q, side="right") - 1, 0, len(self) - 2)
-        t0, t1 = self.stamps[i], self.stamps[i + 1]
-        span = (t1 - t0).astype(np.float64)
-        f = np.where(span > 0, (q - t0).astype(np.float64) / np.where(span > 0, span, 1.0), 1.0)
-        f = np.clip(f, 0.0, 1.0)
-        p = self.positions[i] + f[:, None] * (self.positions[i + 1] - self.positions[i])
-        return PoseSeries(q, p, slerp(self.quaternions[i], self.quaternions[i + 1], f))
+        p, quat = interpolate_poses(self.stamps, self.positions, self.quaternions, q)
+        return PoseSeries(q, p, quat)
 
 
 def pose_series(messages: Iterable[Odometry]) -> PoseSeries:

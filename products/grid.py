@@ -2,8 +2,9 @@
 horizontal returns (laser ``scan``, else the ``sonar_micron`` sweeps; :mod:`products.mapsource`)
 as a ROS ``map_server`` map: ``DIR/map.pgm`` + ``DIR/map.yaml``.
 
-Grid.  Square cells of ``resolution`` m (default 0.05 m) over the bounding box of every sensor
-origin and return, grown by 1 m; cell (i, j) covers x in [origin_x + i r, origin_x + (i+1) r),
+Grid (:mod:`common.occupancy`, which the ROS 1 bridge's live ``/map`` uses too).  Square cells
+of ``resolution`` m (default 0.05 m) over the bounding box of every sensor origin and return,
+grown by 1 m; cell (i, j) covers x in [origin_x + i r, origin_x + (i+1) r),
 likewise y.  Every return is a ray from its sensor origin to its end point, traced through the
 cells by Bresenham's line (numba): the end cell gets a hit, each cell before it a miss.  A cell's
 log-odds is ``hits * logit(0.7) + misses * logit(0.4)`` (the usual sensor model of OctoMap), its
@@ -33,49 +34,27 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numba import njit
 from scipy.ndimage import maximum_filter
-from scipy.special import expit
 
+from common.occupancy import (
+    DEFAULT_RESOLUTION_M,
+    FREE_THRESH,
+    MAX_CELLS,
+    OCCUPIED_THRESH,
+    accumulate,
+    frame_of,
+    probability,
+    trinary,
+)
 from products.mapsource import MapSource, Returns, write_outputs
 from products.rosbag import ExportError
 
 __all__ = ["Grid", "make_grid", "sharpness", "export_grid", "grid_yaml", "DEFAULT_RESOLUTION_M",
            "OCCUPIED_THRESH", "FREE_THRESH", "SHARP_COVER_M"]
 
-DEFAULT_RESOLUTION_M = 0.05
-OCCUPIED_THRESH = 0.65
-FREE_THRESH = 0.196
 #: a half's occupied cell counts for the sharpness only where the other half observed within this (m)
 SHARP_COVER_M = 0.5
-L_HIT = math.log(0.7 / 0.3)
-L_MISS = math.log(0.4 / 0.6)
-MARGIN_M = 1.0
-MAX_CELLS = 200_000_000
 PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN = 0, 254, 205
-
-
-@njit(cache=True)
-def _trace(i0: np.ndarray, j0: np.ndarray, i1: np.ndarray, j1: np.ndarray, hits: np.ndarray,
-           misses: np.ndarray) -> None:  # pragma: no cover - numba
-    """Bresenham rays (i0, j0) -> (i1, j1) (column, row from the bottom): misses before the end cell, a hit in it."""
-    for k in range(i0.shape[0]):
-        x, y, x1, y1 = i0[k], j0[k], i1[k], j1[k]
-        dx = abs(x1 - x)
-        dy = -abs(y1 - y)
-        sx = 1 if x < x1 else -1
-        sy = 1 if y < y1 else -1
-        err = dx + dy
-        while x != x1 or y != y1:
-            misses[y, x] += 1
-            e2 = 2 * err
-            if e2 >= dy:
-                err += dy
-                x += sx
-            if e2 <= dx:
-                err += dx
-                y += sy
-        hits[y1, x1] += 1
 
 
 @dataclass
@@ -96,11 +75,9 @@ class Grid:
 
     def probability(self, half: int | None = None) -> np.ndarray:
         """Occupancy probability per cell (0.5 where never observed); ``half`` 0 or 1: that half alone."""
-        hs = self.hits if half is None else (self.hits[half],)
-        ms = self.misses if half is None else (self.misses[half],)
-        lo = sum(h.astype(np.float64) for h in hs) * L_HIT + sum(m.astype(np.float64) for m in ms) * L_MISS
-        p: np.ndarray = expit(lo)
-        return p
+        if half is None:
+            return probability(self.hits[0] + self.hits[1], self.misses[0] + self.misses[1])
+        return probability(self.hits[half], self.misses[half])
 
     def occupied(self, half: int | None = None) -> np.ndarray:
         """Cells with p > :data:`OCCUPIED_THRESH`."""
@@ -114,45 +91,29 @@ class Grid:
 
     def image(self) -> np.ndarray:
         """The trinary map_server image (uint8, row 0 at the top)."""
-        p = self.probability()
-        img = np.full(p.shape, PIXEL_UNKNOWN, dtype=np.uint8)
-        img[p > OCCUPIED_THRESH] = PIXEL_OCCUPIED
-        img[p < FREE_THRESH] = PIXEL_FREE
+        img = trinary(self.probability(), PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN)
         out: np.ndarray = img[::-1].copy()
         return out
 
 
 def make_grid(ret: Returns, resolution: float = DEFAULT_RESOLUTION_M) -> Grid:
-    """Trace ``ret`` (sorted by stamp) into a grid of ``resolution`` m cells (module docstring).
+    """Trace ``ret`` (sorted by stamp) into a grid of ``resolution`` m cells (module docstring;
+    :mod:`common.occupancy`), each half of the run counted apart.
 
     :raises ExportError: a resolution that is not positive, or a grid of more than 2e8 cells.
     """
-    if not (resolution > 0 and math.isfinite(resolution)):
-        raise ExportError(f"--resolution must be a positive number of metres, got {resolution}")
-    xy = np.vstack([ret.origins[:, :2], ret.points[:, :2]])
-    lo = np.floor((xy.min(axis=0) - MARGIN_M) / resolution) * resolution
-    hi = xy.max(axis=0) + MARGIN_M
-    w, h = (int(v) for v in np.ceil((hi - lo) / resolution))
-    if w * h > MAX_CELLS:
-        raise ExportError(f"a {w} x {h} grid at --resolution {resolution} m is over {MAX_CELLS} cells: give a "
-                          "coarser --resolution")
-
-    def cells(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        ij = np.floor((p[:, :2] - lo) / resolution).astype(np.int64)
-        return np.clip(ij[:, 0], 0, w - 1), np.clip(ij[:, 1], 0, h - 1)
-
-    oi, oj = cells(ret.origins)
-    ei, ej = cells(ret.points)
+    try:
+        frame = frame_of(np.vstack([ret.origins[:, :2], ret.points[:, :2]]), resolution, MAX_CELLS)
+    except ValueError as exc:
+        msg = str(exc).replace("resolution", "--resolution")
+        raise ExportError(msg + (": give a coarser --resolution" if "cells" in msg else "")) from None
     mid = ret.stamps[len(ret) // 2] if len(ret) else 0
     hits, misses = [], []
     for part in (ret.stamps < mid, ret.stamps >= mid):
-        hh = np.zeros((h, w), dtype=np.int32)
-        mm = np.zeros((h, w), dtype=np.int32)
-        _trace(oi[part], oj[part], ei[part], ej[part], hh, mm)
+        hh, mm = accumulate(frame, ret.origins[part], ret.points[part])
         hits.append(hh)
         misses.append(mm)
-    return Grid(float(resolution), (float(lo[0]), float(lo[1])), (hits[0], hits[1]), (misses[0], misses[1]),
-                len(ret))
+    return Grid(frame.resolution, frame.origin, (hits[0], hits[1]), (misses[0], misses[1]), len(ret))
 
 
 def sharpness(g: Grid) -> float | None:

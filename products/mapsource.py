@@ -11,9 +11,9 @@ Returns (one per beam at most), each placed at the pose interpolated at its own 
 returns outside the trajectory's time span are left out:
 
 - laser (key ``scan``, :class:`~common.messages.LaserScan`): the beam end points of
-  :func:`eval.report.benchmark.scan_endpoints` (no return at or beyond ``range_max``, nothing
+  :func:`common.occupancy.scan_endpoints` (no return at or beyond ``range_max``, nothing
   beyond 30 m), the laser at the offset the import measured, turned by the pose's yaw
-  (:func:`eval.report.benchmark._world_points`, the report's point map); z = the pose's z;
+  (:func:`common.occupancy.laser_points`, as the report's point map); z = the pose's z;
   intensity = the scan's ``intensities`` value of the beam (0 when the scan has none);
 - sonar (``sonar_micron`` horizontal, ``sonar_seaking`` vertical profiler,
   :class:`~common.messages.RangeImageBeam`): the beam's wall echo, :func:`services.expmap.scans.echo_range`
@@ -21,8 +21,9 @@ returns outside the trajectory's time span are left out:
   bin beyond the ring-down if it is strong enough), intensity = that bin's echo.  Head angles as
   the simulator and the Cala Viuda data define them (Micron: from body +x towards +y, SeaKing: from
   body +y towards +z, FRD body); the published body's y and z are FRD's times
-  ``robot_state.axis_sign_z``; the point is turned by the pose's full orientation; the sonar at
-  the body origin (lever arm neglected).  The ``*_ros`` copies of the beams are not read.
+  ``robot_state.axis_sign_z`` (:func:`common.occupancy.sonar_body`); the point is turned by the
+  pose's full orientation; the sonar at the body origin (lever arm neglected).  The ``*_ros``
+  copies of the beams are not read.
 
 The horizontal returns (laser, or ``sonar_micron``) make the grid; every return makes the cloud.
 """
@@ -40,8 +41,9 @@ import numpy as np
 from common.geometry import published_to_ned
 from common.mcap_io import read_messages, recording_keys
 from common.messages import ExperienceMap, LaserScan, RangeImageBeam
+from common.occupancy import rotate, scan_endpoints, sonar_body
 from eval.corrected import map_corrected
-from eval.report.benchmark import _laser_offset, _world_points, scan_endpoints
+from eval.report.benchmark import _laser_offset, _world_points
 from eval.rundata import load_run
 from eval.trajectory import PoseSeries
 from products.rosbag import ExportError
@@ -194,22 +196,10 @@ class MapSource:
     def _sonar_returns(self, key: str, b: _Beams, poses: PoseSeries) -> Returns:
         ok = np.flatnonzero(np.isfinite(b.ranges) & (b.stamps >= poses.stamps[0]) & (b.stamps <= poses.stamps[-1]))
         at = poses.interpolate(b.stamps[ok])
-        r, a = b.ranges[ok], b.angles[ok]
-        if SONAR_KEYS[key]:
-            body = np.column_stack([r * np.cos(a), self.head_sign * r * np.sin(a), np.zeros(len(r))])
-        else:
-            body = np.column_stack([np.zeros(len(r)), self.head_sign * r * np.cos(a), self.head_sign * r * np.sin(a)])
-        pts = at.positions + _rotate(at.quaternions, body)
+        body = sonar_body(b.ranges[ok], b.angles[ok], self.head_sign, SONAR_KEYS[key])
+        pts = at.positions + rotate(at.quaternions, body)
         return Returns(b.stamps[ok], at.positions, pts, b.intensity[ok].astype(np.float32), ok,
                        np.full(len(ok), key))
-
-
-def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Vectors v (n, 3) turned by unit quaternions q (n, 4) ``[x, y, z, w]``."""
-    u, w = q[:, :3], q[:, 3:4]
-    t = 2.0 * np.cross(u, v)
-    out: np.ndarray = v + w * t + np.cross(u, t)
-    return out
 
 
 def _read_sensors(src: MapSource) -> None:

@@ -38,6 +38,7 @@ import plotly.graph_objects as go
 
 from common.mcap_io import read_messages, read_metadata
 from common.messages import LaserScan
+from common.occupancy import MAX_LASER_RANGE_M, laser_points, scan_endpoints
 from eval.corrected import map_corrected
 from eval.report.style import FONT, RUN_COLORS, FigureSpec
 from eval.rundata import RunData
@@ -47,7 +48,7 @@ __all__ = ["PUBLISHED", "MAX_DRAW_RANGE_M", "MAX_PIXELS", "benchmark_figures", "
            "raster_png", "raster_resolution", "dataset_of"]
 
 #: beams longer than this are not drawn (m): far returns blur indoor maps
-MAX_DRAW_RANGE_M = 30.0
+MAX_DRAW_RANGE_M = MAX_LASER_RANGE_M
 #: pixels along the longer side of a point-map raster
 MAX_PIXELS = 900
 
@@ -101,18 +102,6 @@ def relations_table(result: Mapping[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def scan_endpoints(scans: list[LaserScan], max_range: float = MAX_DRAW_RANGE_M) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Stamps (ns) and, per scan, the valid beam end points (k, 2) in the laser frame (m)."""
-    stamps = np.array([s.header.stamp for s in scans], dtype=np.int64)
-    pts: list[np.ndarray] = []
-    for s in scans:
-        r = np.asarray(s.ranges, dtype=np.float64)
-        a = s.angle_min + s.angle_increment * np.arange(len(r))
-        ok = np.isfinite(r) & (r > s.range_min) & (r < s.range_max) & (r <= max_range)
-        pts.append(np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])]))
-    return stamps, pts
-
-
 def _world_points(stamps: np.ndarray, local: list[np.ndarray], poses: PoseSeries,
                   offset: tuple[float, float, float]) -> np.ndarray:
     """End points in the world frame, each scan at the pose interpolated at its stamp (laser at
@@ -121,19 +110,7 @@ def _world_points(stamps: np.ndarray, local: list[np.ndarray], poses: PoseSeries
     if not inside.any():
         return np.zeros((0, 2))
     at = poses.interpolate(stamps[inside])
-    yaw = at.yaws
-    out = []
-    for k, idx in enumerate(np.flatnonzero(inside)):
-        p = local[idx]
-        if not len(p):
-            continue
-        c, s = math.cos(yaw[k]), math.sin(yaw[k])
-        lx = at.positions[k, 0] + c * offset[0] - s * offset[1]
-        ly = at.positions[k, 1] + s * offset[0] + c * offset[1]
-        la = yaw[k] + offset[2]
-        ca, sa = math.cos(la), math.sin(la)
-        out.append(np.column_stack([lx + ca * p[:, 0] - sa * p[:, 1], ly + sa * p[:, 0] + ca * p[:, 1]]))
-    return np.concatenate(out) if out else np.zeros((0, 2))
+    return laser_points(at.positions, at.yaws, [local[i] for i in np.flatnonzero(inside)], offset)
 
 
 def raster_resolution(points: np.ndarray, max_pixels: int = MAX_PIXELS) -> float:
