@@ -217,9 +217,12 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
                           end_wait_s=config.live.stop_timeout_s)
     if name == BRIDGE_ROS1:
         from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
+        from services.bridge_ros1.grid import SonarModel
+        sonar = SonarModel(config.expmap.scan.min_range_m, config.expmap.scan.echo_threshold,
+                           float(config.robot_state.axis_sign_z))
         return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s,
                           consumers=spec.supervision.consumers if spec.supervision is not None else None,
-                          retain_s=config.live.retain_s, retain_mb=config.live.retain_mb)
+                          retain_s=config.live.retain_s, retain_mb=config.live.retain_mb, sonar=sonar)
     node = spec.node if spec.node is not None else build_node(name, config)
     live, debug = config.live, config.debug
     # live: a message waits for a silent stream's watermark in wall time, so the live interval

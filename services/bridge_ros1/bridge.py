@@ -15,9 +15,11 @@
   silent sensor does not stall the services' event-time merge.
 - Out: ``Odometry``, ``dead_reckoning``, ``map`` (Path + MarkerArray, latched, at most every
   ``map_period_s``), ``local_view_cells`` and ``experience_event`` are published on ROS topics
-  (table in :mod:`services.bridge_ros1.convert`); a live run's health (``live/health``,
-  :mod:`launcher.health`) on ``diagnostics_topic`` (``/diagnostics``) as
-  ``diagnostic_msgs/DiagnosticArray``.
+  (table in :mod:`services.bridge_ros1.convert`); the occupancy grid of the laser (else sonar)
+  returns it bridges in, at the poses ``Odometry`` and ``map`` give, on ``grid_topic`` (``/map``,
+  latched, at most every ``grid_period_s`` of event time: :mod:`services.bridge_ros1.grid`); a
+  live run's health (``live/health``, :mod:`launcher.health`) on ``diagnostics_topic``
+  (``/diagnostics``) as ``diagnostic_msgs/DiagnosticArray``.
 - Supervised live runs (``consumers`` given): every key's frames are kept until each consumer
   checkpointed past them, within ``live.retain_s`` / ``live.retain_mb``, and replayed to a
   restarted consumer (:meth:`common.live.LiveSource.serve_replays`).
@@ -57,14 +59,17 @@ from common.messages import (
     DiagnosticArray,
     ExperienceEvent,
     ExperienceMap,
+    LaserScan,
     LocalViewCells,
     Message,
     Odometry,
     PoseStamped,
+    RangeImageBeam,
 )
 from common.worker import WAKE, Sink, SinkStats, Source
 from services.bridge_ros1.config import BridgeRos1Config
 from services.bridge_ros1.convert import Incoming, Outgoing
+from services.bridge_ros1.grid import LASER_KEY, SONAR_KEY, LiveGrid, SonarModel
 from services.bridge_ros1.ros_io import RosLink
 
 __all__ = ["Ros1Bridge", "BridgeStats", "BRIDGE_NAME"]
@@ -84,7 +89,9 @@ class BridgeStats(SinkStats):
     back / frames sent again that a consumer may already have / held frames never delivered /
     outages seen); ``latency``: per stage (:meth:`LatencyTracker.summary`); ``errors``: conversion failures
     per topic (logged with the reason); ``retention``: supervised, what was kept for restarted
-    consumers (:meth:`common.live.LiveSource.retention_summary`)."""
+    consumers (:meth:`common.live.LiveSource.retention_summary`); ``grid``: the ``/map`` grid's
+    ``published``, ``returns`` (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``,
+    ``too_large`` and ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`)."""
 
     received: dict[str, int] = field(default_factory=dict)
     published: dict[str, int] = field(default_factory=dict)
@@ -101,6 +108,7 @@ class BridgeStats(SinkStats):
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
     master_uri: str = ""
     retention: dict[str, Any] = field(default_factory=dict)
+    grid: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": BRIDGE_NAME, "master_uri": self.master_uri, "received": self.received,
@@ -108,7 +116,7 @@ class BridgeStats(SinkStats):
                 "to_ros": self.to_ros, "errors": self.errors, "watermarks": self.watermarks,
                 "delivered_late": self.delivered_late, "resent": self.resent, "dropped_outage": self.dropped_outage,
                 "outages": self.outages, "latency": self.latency, "aborted": self.aborted,
-                "retention": self.retention}
+                "retention": self.retention, "grid": self.grid}
 
 
 def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
@@ -122,7 +130,7 @@ class Ros1Bridge(Sink, Source):
 
     def __init__(self, bus: Bus, config: BridgeRos1Config, announce: Iterable[str] = (),
                  drain_timeout_s: float = 0.0, consumers: Mapping[str, list[str]] | None = None,
-                 retain_s: float = 300.0, retain_mb: float = 256.0):
+                 retain_s: float = 300.0, retain_mb: float = 256.0, sonar: SonarModel | None = None):
         super().__init__(BRIDGE_NAME, bus, BridgeStats(), None, drain_timeout_s)
         self.config = config
         self.announce = sorted(set(announce))
@@ -139,7 +147,10 @@ class Ros1Bridge(Sink, Source):
         self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
         self._out_keys = config.output_stages()
         self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
-                            config.markers_topic, config.lvc_topic, config.event_topic, config.diagnostics_topic}
+                            config.markers_topic, config.lvc_topic, config.event_topic, config.diagnostics_topic,
+                            config.grid_topic}
+        self.grid = LiveGrid(config.grid_period_s, config.grid_resolution_m, config.grid_max_returns,
+                             config.grid_max_poses, config.grid_max_cells, sonar)
         self._outputs_ended: set[str] = set()
         self._pending_map: ExperienceMap | None = None
         self._last_map_wall = 0.0
@@ -168,6 +179,11 @@ class Ros1Bridge(Sink, Source):
                 _bump(self.stats.raw_reasons, why.split(":")[0])
             self.latency.arrived(msg.header.stamp, arrival_ns)
         self.source.publish(key, msg, arrival_ns)
+        if self.grid.enabled:  # the returns the /map grid is made of (grid.py: thread-safe)
+            if key == LASER_KEY and isinstance(msg, LaserScan):
+                self.grid.add_scan(msg)
+            elif key == SONAR_KEY and isinstance(msg, RangeImageBeam):
+                self.grid.add_sonar(msg)
 
     # ---- bus -> ROS --------------------------------------------------------------------------
     def finished(self) -> bool:
@@ -190,6 +206,12 @@ class Ros1Bridge(Sink, Source):
             with self._lock:
                 self.latency.output(stage, msg.header.stamp, time.time_ns())
         self.to_ros(key, msg)
+        if self.grid.enabled:
+            if key == self.config.odometry_key and isinstance(msg, Odometry):
+                self.grid.add_odometry(msg)
+            elif key == self.config.map_key and isinstance(msg, ExperienceMap):
+                self.grid.set_map(msg)
+            self.flush_grid()
 
     def to_ros(self, key: str, msg: Message) -> None:
         """Publish one of our outputs on its ROS topic(s) (the map at most every ``map_period_s``)."""
@@ -232,6 +254,22 @@ class Ros1Bridge(Sink, Source):
         _bump(self.stats.to_ros, self.config.path_topic)
         _bump(self.stats.to_ros, self.config.markers_topic)
 
+    def flush_grid(self, force: bool = False) -> None:
+        """Rebuild and publish the ``/map`` grid when due (``grid_period_s`` of event time) or ``force``."""
+        link = self.link
+        if link is None or not (force or self.grid.due()):
+            return
+        t0 = time.monotonic()
+        g = self.grid.build(force)
+        ms = (time.monotonic() - t0) * 1000
+        st = self.stats.grid
+        st["build_ms_max"] = round(max(st.get("build_ms_max", 0.0), ms), 1)
+        if g is None:
+            return
+        link.publish(self.config.grid_topic, self.outgoing.occupancy_grid(g))
+        _bump(self.stats.to_ros, self.config.grid_topic)
+        st["published"], st["returns"] = st.get("published", 0) + 1, g.returns
+
     # ---- run --------------------------------------------------------------------------------
     def _advertise(self, link: RosLink) -> None:
         c, o = self.config, self.outgoing
@@ -243,6 +281,8 @@ class Ros1Bridge(Sink, Source):
                                        (c.event_topic, "std_msgs/String", True),
                                        (c.diagnostics_topic, "diagnostic_msgs/DiagnosticArray", False)):
             link.advertise(topic, ros_type, *o.definition(ros_type), latch=latch)
+        if self.grid.enabled:
+            link.advertise(c.grid_topic, "nav_msgs/OccupancyGrid", *o.definition("nav_msgs/OccupancyGrid"), latch=True)
 
     def discover(self, link: RosLink) -> None:
         """Subscribe to the configured topics, and with ``discover`` to every other published one."""
@@ -260,6 +300,7 @@ class Ros1Bridge(Sink, Source):
         c = self.config
         link = self.link = RosLink(c.master_uri, c.node_name, c.ros_python_path, self.on_ros, c.ros_queue_size)
         self.stats.master_uri = link.master_uri
+        self.grid.warm_up()  # the /map grid's first build would otherwise stall the bridge mid-run
         link.connect(c.master_timeout_s)  # no master: RosUnavailable, nothing was published
         try:
             self._advertise(link)
@@ -276,6 +317,7 @@ class Ros1Bridge(Sink, Source):
                     self.source.send_watermarks(time.time_ns())
                     self.progress.report(self.source.newest_stamp)  # how far the source is: the run's health
                     self.flush_map()
+                    self.flush_grid()
                     next_wm = now + wm_every
                 if c.discover and now >= next_discover:
                     self.discover(link)
@@ -284,6 +326,10 @@ class Ros1Bridge(Sink, Source):
             self.source.end()
             follow_outputs(self, self._out_keys, self._outputs_ended, self.on_frame)  # forwarded to ROS
             self.flush_map(force=True)
+            self.flush_grid(force=True)
+            g = self.grid
+            self.stats.grid.update(thinned=g.thinned, dropped=g.dropped, too_large=g.too_large,
+                                   bad_odometry=g.bad_odometry)
             with self._lock:
                 self.stats.latency = self.latency.summary()
                 report = self.latency.report(BRIDGE_NAME)

@@ -65,6 +65,20 @@ class BridgeRos1Config(ConfigSection):
     markers_topic: str = Field("/poseidon/map_markers",
                                description="experience map as visualization_msgs/MarkerArray (latched)")
     map_period_s: float = Field(1.0, ge=0, description="publish the map to ROS at most this often (wall clock) [s]")
+    grid_topic: str = Field("/map", description="the occupancy grid of the horizontal returns (laser scan, else "
+                            "sonar_micron) at the map-corrected poses, as nav_msgs/OccupancyGrid (latched); "
+                            "services/bridge_ros1/grid.py")
+    grid_period_s: float = Field(5.0, ge=0, description="rebuild and publish the grid at most this often, in event "
+                                 "time (the stamps of the returns, Odometry and map); 0 = no grid [s]")
+    grid_resolution_m: float = Field(0.05, gt=0, description="the grid's cell size, as poseidon export --grid's "
+                                     "default [m]")
+    grid_max_returns: int = Field(2_000_000, ge=1000, description="returns kept for the grid; beyond it they are "
+                                  "thinned to one per experience and cell (services/bridge_ros1/grid.py) [returns]")
+    grid_max_poses: int = Field(500_000, ge=1000, description="Odometry samples kept for the grid; beyond it every "
+                                "other sample of the older half that its neighbours interpolate within half a cell "
+                                "is dropped (services/bridge_ros1/grid.py) [samples]")
+    grid_max_cells: int = Field(16_000_000, ge=1, description="a larger grid is not built (logged): about 200 m x "
+                                "200 m at 0.05 m [cells]")
     lvc_key: str = Field("local_view_cells", description="our key published as std_msgs/Int32 (the LVC id)")
     lvc_topic: str = Field("/poseidon/lvc_id", description="ROS topic of lvc_key")
     event_key: str = Field("experience_event", description="our key published as std_msgs/String (JSON)")

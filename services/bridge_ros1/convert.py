@@ -19,18 +19,24 @@ our key (default)   ROS topic (default)            ROS type
 ``map``             ``/poseidon/map_markers``      visualization_msgs/MarkerArray, latched: DELETEALL, then
                                                    ``experiences`` (SPHERE_LIST), ``links`` (LINE_LIST, grey),
                                                    ``loop_closures`` (LINE_LIST, red), ``current`` (SPHERE)
+``scan``            ``/map``                       nav_msgs/OccupancyGrid, latched: the grid of the laser
+``sonar_micron``                                   (else sonar) returns at the poses ``Odometry`` and ``map``
+                                                   give (:mod:`services.bridge_ros1.grid`)
 ``local_view_cells`` ``/poseidon/lvc_id``          std_msgs/Int32: the frame's LVC id (``most_active_cell``)
 ``experience_event`` ``/poseidon/experience_event`` std_msgs/String: JSON ``{"stamp", "lvc_id", "gate",
                                                    "vpr_count", "odom_position", "odom_yaw", "pc_centroid"}``
 =================== ============================== =====================================================
 
 Headers keep our stamp (the input that caused the output) and frame id; Path and markers use the
-map message's frame id, ``odom`` when it has none.
+map message's frame id, ``odom`` when it has none; the grid the same (before the first map,
+``Odometry``'s), stamped with the newest input stamp it has seen.
 """
 from __future__ import annotations
 
 import json
 from typing import Any
+
+import numpy as np
 
 from common.geometry import quaternion_of_yaw
 from common.messages import (
@@ -55,6 +61,7 @@ from common.ros_convert import (
 )
 from common.ros_encode import to_ros
 from services.bridge_ros1.config import TopicRoute
+from services.bridge_ros1.grid import GridUpdate
 
 __all__ = ["Incoming", "Outgoing", "Converted"]
 
@@ -205,6 +212,16 @@ class Outgoing:
             cur = items[-1]
             cur.pose.position.x, cur.pose.position.y, cur.pose.position.z = (float(v) for v in pos[m.current])
         return self._ser(T["visualization_msgs/msg/MarkerArray"](markers=items), "visualization_msgs/MarkerArray")
+
+    def occupancy_grid(self, g: GridUpdate) -> bytes:
+        """nav_msgs/OccupancyGrid of ``g``: origin = lower-left corner of cell (0, 0), yaw 0, map_load_time = stamp."""
+        T, f = self.T, g.frame
+        info = T["nav_msgs/msg/MapMetaData"](map_load_time=self._time(g.stamp), resolution=float(f.resolution),
+                                             width=f.width, height=f.height,
+                                             origin=self._pose([f.origin[0], f.origin[1], 0.0], 0.0))
+        msg = T["nav_msgs/msg/OccupancyGrid"](header=self._header(g.stamp, g.frame_id), info=info,
+                                             data=np.ascontiguousarray(g.data, dtype=np.int8))
+        return self._ser(msg, "nav_msgs/OccupancyGrid")
 
     def lvc_id(self, m: LocalViewCells) -> bytes:
         return self._ser(self.T["std_msgs/msg/Int32"](data=int(m.most_active_cell)), "std_msgs/Int32")
