@@ -146,7 +146,8 @@ def rerun_expmap(source: Path, optimizer: str, cache: Path, label: str) -> tuple
     field = FIELDS[kind][0]
     out, map_path = cache / f"{label}_{optimizer}_expmap.mcap", cache / f"{label}_{optimizer}_map.npz"
     map_path.unlink(missing_ok=True)     # the service would load it at start
-    cfg = cfg.updated({field: optimizer, "expmap.map_path": str(map_path)})
+    # only the keys a service reads (and the truth) are replayed: the outputs stay small
+    cfg = cfg.updated({field: optimizer, "expmap.map_path": str(map_path), "player.replay": "consumed"})
     log = SolveLog()
     saved = scan_graph_mod.relax_planar, graph_mod.relaxation_optimum
     scan_graph_mod.relax_planar, graph_mod.relaxation_optimum = log.planar, log.relaxation  # type: ignore[assignment]
@@ -234,7 +235,7 @@ def replay_experience_map(map_path: Path, cfg: PoseidonConfig) -> dict[str, Any]
 def one_graph(label: str, source: Path, cache: Path, relations: Path | None) -> dict[str, Any]:
     kind = recorded_config(source).expmap.graph
     _field, ours, theirs = FIELDS[kind]
-    out: dict[str, Any] = {"source": str(source), "graph": kind}
+    out: dict[str, Any] = {"source": str(source), "graph": kind, "source_run": map_error(source, relations)}
     for opt in (ours, theirs):
         _say(f"{label}: expmap alone with {opt}")
         run, map_path, solves = rerun_expmap(source, opt, cache, label)
