@@ -32,7 +32,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSeriali
 __all__ = [
     "NDArray", "Header", "Message", "Image", "RangeImageBeam", "LaserScan", "LinkquestDvl",
     "Imu", "Depth", "Odometry", "Sdr", "NeocortexSdr", "LocalViewCell", "LocalViewCells",
-    "ExperienceEvent", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
+    "ExperienceEvent", "PoseCellActivity", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
     "PoseStamped", "RevisitTruth", "NavSatFix", "FluidPressure", "Temperature", "MagneticField",
     "PoseWithCovarianceStamped", "TwistStamped", "TransformStamped", "TFMessage", "KeyValue", "DiagnosticStatus",
     "DiagnosticArray", "RawMessage", "LatencyReport", "LatencyStage", "RAW_KEY_PREFIX", "IMAGE_CHANNELS", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
@@ -338,6 +338,28 @@ class ExperienceEvent(Message):
     vpr_count: int = Field(ge=0, description="C_t of Eq. 4.11")
 
 
+class PoseCellActivity(Message):
+    """``posecells/activity``: the pose-cell activity summed over (z, yaw) and over (x, y), as
+    uint8 images (activity of a pixel = value * scale), with the centroid (Section 4.2.4)."""
+
+    xy: NDArray = Field(description="uint8 (nx, ny): activity summed over z and yaw, times 1 / xy_scale")
+    xy_scale: float = Field(ge=0, allow_inf_nan=False, description="activity per unit of xy")
+    zyaw: NDArray = Field(description="uint8 (nz, n_yaw): activity summed over x and y, times 1 / zyaw_scale")
+    zyaw_scale: float = Field(ge=0, allow_inf_nan=False, description="activity per unit of zyaw")
+    centroid: list[float] = Field(min_length=4, max_length=4, description="x y z (m, in [0, n * spacing)) and "
+                                  "yaw (rad, in [-pi, pi))")
+    spacing: list[float] = Field(min_length=3, max_length=3, description="cell spacing along x, y, z (m); a "
+                                 "yaw cell is 2 pi / n_yaw rad")
+    steps: int = Field(ge=0, description="pose-cell steps (LVC frames) so far")
+
+    @model_validator(mode="after")
+    def _images(self) -> PoseCellActivity:
+        for name, img in (("xy", self.xy), ("zyaw", self.zyaw)):
+            _require(img.ndim == 2 and img.dtype == np.uint8, f"{name} must be a 2-D uint8 image, got "
+                     f"{img.dtype.str} {img.shape}")
+        return self
+
+
 class ExperienceNode(BaseModel):
     model_config = ConfigDict(extra="forbid")
     id: int = Field(ge=0)
@@ -580,6 +602,7 @@ KEYS: dict[str, type[Message]] = {
     "Odometry": Odometry,
     "ground_truth": Odometry,
     "experience_event": ExperienceEvent,
+    "posecells/activity": PoseCellActivity,
     "map": ExperienceMap,
     "dead_reckoning": PoseStamped,
     "experience_image": ExperienceImage,
@@ -592,7 +615,8 @@ KEYS: dict[str, type[Message]] = {
 MESSAGE_TYPES: dict[str, type[Message]] = {
     t.type_name: t
     for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
-              NeocortexSdr, LocalViewCells, ExperienceEvent, ExperienceMap, ExperienceImage, MapSessions, RevisitTruth,
+              NeocortexSdr, LocalViewCells, ExperienceEvent, PoseCellActivity, ExperienceMap, ExperienceImage,
+              MapSessions, RevisitTruth,
               NavSatFix, FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
               TFMessage, DiagnosticArray, RawMessage, LatencyReport)
 }

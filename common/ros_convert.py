@@ -68,6 +68,7 @@ DiagnosticArray             diagnostic_msgs/msg/DiagnosticArray                 
 NeocortexSdr                poseidon_msgs/msg/NeocortexSdr (+ Sdr)                 -
 LocalViewCells              poseidon_msgs/msg/LocalViewCells (+ LocalViewCell)     -
 ExperienceEvent             poseidon_msgs/msg/ExperienceEvent                      -
+PoseCellActivity            poseidon_msgs/msg/PoseCellActivity (images flattened)  -
 ExperienceMap               poseidon_msgs/msg/ExperienceMap (+ Node, Link)         -
 RevisitTruth                poseidon_msgs/msg/RevisitTruth                         -
 =========================== ====================================================== =====================

@@ -28,6 +28,7 @@ from common.messages import (
     NavSatFix,
     NeocortexSdr,
     Odometry,
+    PoseCellActivity,
     PoseStamped,
     PoseWithCovarianceStamped,
     RangeImageBeam,
@@ -201,6 +202,13 @@ class _Build:
             header=self.header(m.header), lvc_id=m.lvc_id, pc_centroid=self.f64(m.pc_centroid),
             odom_position=self.f64(m.odom_position), odom_yaw=m.odom_yaw, gate=m.gate, vpr_count=m.vpr_count)
 
+    def activity(self, m: PoseCellActivity) -> Any:
+        (nx, ny), (nz, n_yaw) = m.xy.shape, m.zyaw.shape
+        return self.T["poseidon_msgs/msg/PoseCellActivity"](
+            header=self.header(m.header), nx=nx, ny=ny, xy=np.ascontiguousarray(m.xy, np.uint8).reshape(-1),
+            xy_scale=m.xy_scale, nz=nz, n_yaw=n_yaw, zyaw=np.ascontiguousarray(m.zyaw, np.uint8).reshape(-1),
+            zyaw_scale=m.zyaw_scale, centroid=self.f64(m.centroid), spacing=self.f64(m.spacing), steps=m.steps)
+
     def exp_map(self, m: ExperienceMap) -> Any:
         N, L = self.T["poseidon_msgs/msg/ExperienceNode"], self.T["poseidon_msgs/msg/ExperienceLink"]
         return self.T["poseidon_msgs/msg/ExperienceMap"](
@@ -238,6 +246,7 @@ _TABLE: list[tuple[type[Message], str, Callable[[_Build, Any], Any]]] = [
     (NeocortexSdr, "poseidon_msgs/msg/NeocortexSdr", _Build.neocortex),
     (LocalViewCells, "poseidon_msgs/msg/LocalViewCells", _Build.lvc),
     (ExperienceEvent, "poseidon_msgs/msg/ExperienceEvent", _Build.event),
+    (PoseCellActivity, "poseidon_msgs/msg/PoseCellActivity", _Build.activity),
     (ExperienceMap, "poseidon_msgs/msg/ExperienceMap", _Build.exp_map),
     (RevisitTruth, "poseidon_msgs/msg/RevisitTruth", _Build.revisits),
 ]

@@ -18,14 +18,14 @@ GOLDEN = Path(__file__).resolve().parent / "data" / "recording_digests.json"
 
 
 @pytest.mark.slow
-def test_a_one_minute_mission_publishes_the_stored_bytes_on_all_20_keys(tmp_path: Path) -> None:
+def test_a_one_minute_mission_publishes_the_stored_bytes_on_all_21_keys(tmp_path: Path) -> None:
     mission = tmp_path / "sim.mcap"
     assert sim_main(["--minutes", "1", "--seed", "23", "--out", str(mission), "--no-progress"]) == 0
     run = tmp_path / "run.mcap"
     assert poseidon(["run", "--embedded", "--input", str(mission), "--out", str(run), "--rate", "0"]) == 0
     expected = json.loads(GOLDEN.read_text())
     got = key_digests(run)
-    assert len(expected) == 20
+    assert len(expected) == 21
     assert sorted(got) == sorted(expected), "keys differ"
     moved = [f"{k}: {got[k]['messages']} messages (stored {expected[k]['messages']})"
              for k in expected if got[k] != expected[k]]

@@ -43,6 +43,9 @@ class PoseCellsConfig(ConfigSection):
                                     "been absent this many frames (DolphinSLAM's L_mat; 0: literal Eq. 4.19) [frames]")
     max_odometry_step: float = Field(2.0, gt=0, description="an Odometry increment longer than this is a "
                                      "discontinuity (restarted odometry, later mission), not motion [m]")
+    activity_period_s: float = Field(0.5, ge=0, allow_inf_nan=False, description="publish the activity's x-y and "
+                                     "z-yaw projections and centroid on posecells/activity at most once per this "
+                                     "much event time, after a pose-cell step (0: off) [s]")
     state_path: str = Field("", description="load pose cells, associations and gates from this .npz at start "
                             "and save at end (empty: off)")
     state_new_odometry_frame: bool = Field(False, description="the state loaded from state_path comes from another "

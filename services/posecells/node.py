@@ -1,4 +1,5 @@
-"""Pose-cell service: ``Odometry`` + ``local_view_cells`` -> ``experience_event`` (Sections 4.2.3-4.2.4).
+"""Pose-cell service: ``Odometry`` + ``local_view_cells`` -> ``experience_event`` and
+``posecells/activity`` (Sections 4.2.3-4.2.4).
 
 Inputs, in priority order for equal stamps: ``Odometry`` first, then ``local_view_cells``, so
 a camera frame sees the odometry of its own instant ("latest odometry at or before the
@@ -27,6 +28,11 @@ frame's stamp").
   A frame before any odometry still enters the VPR window but creates no event
   (``lvc_before_odometry``).
 
+Every ``posecells.activity_period_s`` of event time (0: off), a pose-cell step also publishes
+``posecells/activity`` (:mod:`services.posecells.activity`): the activity summed over (z, yaw)
+and over (x, y) as uint8 images with their scales, and the centroid; header stamp and frame_id
+are the LVC message's.
+
 Counters: ``events``, ``events_vpr`` / ``events_leak`` / ``events_off``, ``rejected_motion``,
 ``rejected_vpr``, ``lvc_before_odometry``, ``odometry_discontinuities``, ``odometry_non_finite``.
 
@@ -46,6 +52,7 @@ from pathlib import Path
 from common.geometry import yaw_of_quaternion
 from common.messages import ExperienceEvent, LocalViewCell, LocalViewCells, Message, Odometry
 from common.node import ServiceNode
+from services.posecells.activity import ACTIVITY_KEY, ActivityClock, activity_message
 from services.posecells.config import PoseCellsConfig, VprGuardConfig
 from services.posecells.core import PoseCellsCore
 from services.posecells.gates import EventGate
@@ -61,7 +68,13 @@ class PoseCellsNode(ServiceNode[PoseCellsConfig]):
 
     name = "posecells"
     inputs = ("Odometry", "local_view_cells")
-    outputs = ("experience_event",)
+    outputs = ("experience_event", ACTIVITY_KEY)
+
+    @classmethod
+    def io_keys(cls, config: PoseCellsConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """``posecells/activity`` only when ``activity_period_s`` > 0."""
+        outs = ("experience_event", ACTIVITY_KEY) if config.activity_period_s > 0 else ("experience_event",)
+        return tuple(cls.inputs), outs
 
     def __init__(self, config: PoseCellsConfig, guard: VprGuardConfig):
         """``config``: the ``posecells`` section; ``guard``: the ``vpr_guard`` section."""
@@ -71,6 +84,7 @@ class PoseCellsNode(ServiceNode[PoseCellsConfig]):
         self.core = PoseCellsCore(self.cfg, guard)
         self.state_path = Path(self.cfg.state_path) if self.cfg.state_path else None
         self._dirty = False
+        self.activity_clock = ActivityClock(self.cfg.activity_period_s)
         if self.state_path is not None:
             if self.state_path.exists():
                 self.core.load(self.state_path)
@@ -131,6 +145,9 @@ class PoseCellsNode(ServiceNode[PoseCellsConfig]):
         if decision is None:
             self.count("lvc_before_odometry")
             return
+        if self.activity_clock.due(msg.header.stamp):
+            self.publish(ACTIVITY_KEY, activity_message(
+                self.net, self.header(ACTIVITY_KEY, msg.header.stamp, msg.header.frame_id)))
         if not decision.accepted:
             self.count(f"rejected_{decision.gate}")
             return

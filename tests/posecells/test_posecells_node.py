@@ -80,7 +80,7 @@ def test_events_only_when_the_gates_pass_with_the_lvc_headers() -> None:
     msgs = stream()
     node = build_node("posecells", config())
     out = run_offline(node, msgs)
-    assert all(k == "experience_event" for k, _ in out)
+    assert {k for k, _ in out} == {"experience_event", "posecells/activity"}
     evs = events(out)
     frames: dict[int, Any] = {m.header.stamp: m for k, m in msgs if k == "local_view_cells"}
     # the same decisions, recomputed from Eqs. 4.11-4.12 and the motion gate by hand
