@@ -2,10 +2,11 @@
 
 Never slowing the SLAM:
 
-- Zenoh callbacks only count the frame and keep it: the latest frame of the camera and of the
-  map (each replaced by the next), the other displayed keys in a bounded queue whose oldest
-  entry goes when it is full (counted in ``view.dropped``).  Nothing waits for a browser:
-  a page that polls slowly, or none, only means fewer snapshots are built.
+- Zenoh callbacks only count the frame and keep it: the latest frame of the camera, the map
+  and the pose-cell activity (each replaced by the next), the other displayed keys in a
+  bounded queue whose oldest entry goes when it is full (counted in ``view.dropped``).
+  Nothing waits for a browser: a page that polls slowly, or none, only means fewer snapshots
+  are built.
 - A pump thread wakes ``view.update_hz`` times a second, decodes what was kept, applies it
   to the :class:`~services.viewer.model.ViewModel` and updates the per-service figures.
 - Each key has its own subscriber, undeclared at the key's end-of-stream: a finished
@@ -42,7 +43,7 @@ from common.bus import ABORT, ALIVE, PROGRESS, Bus, zenoh_config
 from common.codec import DecodeError, decode_dict, decode_frame
 from common.ordering import END_OF_TIME
 from services.viewer.config import ViewConfig
-from services.viewer.model import MAP_KEY, ViewModel, view_keys
+from services.viewer.model import ACTIVITY_KEY, MAP_KEY, ViewModel, view_keys
 
 __all__ = ["LiveFeed", "ViewError", "connect_bus", "ServiceFigures", "LatencyWindow"]
 
@@ -195,8 +196,8 @@ class LiveFeed:
         self.shown = set(view_keys(cfg))
         self.keys = sorted(self.shown | {k for ins, outs in (io or {}).values() for k in (*ins, *outs)})
         self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
-        self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map)
-        self._latest_keys = {cfg.camera_key, MAP_KEY}
+        self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity)
+        self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY}
         self._queue: deque[tuple[str, bytes]] = deque(maxlen=queue_frames)
         self._queued = 0
         self._taken = 0

@@ -4,9 +4,11 @@ The same model serves a live run (fed by :mod:`services.viewer.live` with sample
 and a finished recording (fed by :mod:`services.viewer.recording` up to the slider's time).
 Everything it keeps is bounded: a trajectory or the LVC timeline drops every other point when
 full (:class:`Trail`), the sonar sweep keeps one beam per angle bin, the camera only its latest
-frame; the map is the latest published one.  :meth:`ViewModel.snapshot` answers with deltas:
-the page says which map version and how much of each trail it already holds, and gets only
-what changed (a trail that was thinned is sent whole again).
+frame; the map and the pose-cell activity (``posecells/activity``: x-y and z-yaw projections,
+uint8, with the centroid) are the latest published ones.  :meth:`ViewModel.snapshot` answers
+with deltas: the page says which map version and how much of each trail it already holds, and
+gets only what changed (a trail that was thinned is sent whole again; the activity when its
+version moved).
 """
 from __future__ import annotations
 
@@ -29,13 +31,16 @@ from common.messages import (
     LocalViewCells,
     Message,
     Odometry,
+    PoseCellActivity,
     PoseStamped,
     RangeImageBeam,
 )
+from services.posecells.activity import ACTIVITY_KEY
 from services.viewer.config import ViewConfig
 
 __all__ = ["ViewModel", "Trail", "MapArrays", "map_arrays", "jpeg_of", "MAP_KEY", "LVC_KEY", "EVENT_KEY",
-           "DR_KEY", "ODOM_KEY", "LATENCY_KEY", "TRAILS", "SONAR_ANGLE_BINS", "view_keys"]
+           "DR_KEY", "ODOM_KEY", "LATENCY_KEY", "ACTIVITY_KEY", "TRAILS", "SONAR_ANGLE_BINS", "view_keys",
+           "activity_json"]
 
 MAP_KEY, LVC_KEY, EVENT_KEY, DR_KEY, ODOM_KEY = "map", "local_view_cells", "experience_event", "dead_reckoning", "Odometry"
 LATENCY_KEY = "live/latency"  # common.live.LATENCY_KEY (the live run's latency report)
@@ -47,8 +52,8 @@ SONAR_ANGLE_BINS = 200
 
 def view_keys(cfg: ViewConfig) -> list[str]:
     """Every data key the view reads under ``cfg``."""
-    return sorted({MAP_KEY, LVC_KEY, EVENT_KEY, DR_KEY, ODOM_KEY, LATENCY_KEY, cfg.camera_key, cfg.sonar_key,
-                   cfg.scan_key, *cfg.truth_keys})
+    return sorted({MAP_KEY, LVC_KEY, EVENT_KEY, DR_KEY, ODOM_KEY, LATENCY_KEY, ACTIVITY_KEY, cfg.camera_key,
+                   cfg.sonar_key, cfg.scan_key, *cfg.truth_keys})
 
 
 class Trail:
@@ -137,6 +142,22 @@ def _r(v: float, nd: int = 2) -> float:
     return round(float(v), nd)
 
 
+def _image_json(img: np.ndarray, scale: float) -> dict[str, Any]:
+    return {"shape": list(img.shape), "scale": float(scale),
+            "data": base64.b64encode(np.ascontiguousarray(img, np.uint8).tobytes()).decode()}
+
+
+def activity_json(msg: PoseCellActivity) -> dict[str, Any]:
+    """The page's form of a pose-cell activity message: both images (uint8, base64, row-major)
+    with their scales, the centroid (m, rad) and the centroid in cells of each image's axes."""
+    n_yaw = int(msg.zyaw.shape[1])
+    x, y, z, yaw = (float(v) for v in msg.centroid)
+    cells = [x / msg.spacing[0], y / msg.spacing[1], z / msg.spacing[2], (yaw % (2 * math.pi)) / (2 * math.pi / n_yaw)]
+    return {"stamp": msg.header.stamp, "xy": _image_json(msg.xy, msg.xy_scale),
+            "zyaw": _image_json(msg.zyaw, msg.zyaw_scale), "centroid": [_r(v, 3) for v in msg.centroid],
+            "centroid_cells": [_r(v, 2) for v in cells], "steps": msg.steps}
+
+
 class ViewModel:
     """The view's state (see the module notes).  Not thread-safe: one thread applies messages
     and takes snapshots (the live feed's pump, or the recording's lock)."""
@@ -164,8 +185,12 @@ class ViewModel:
         self._jpeg: tuple[int, bytes] = (0, b"")
         self.sonar: dict[int, tuple[float, float, bytes]] = {}  # angle bin -> (angle rad, max range m, bins)
         self.sonar_version = 0
-        self.scan: list[list[float]] = []
+        self._scan_msg: LaserScan | None = None  # latest laser scan, turned into points when asked for
+        self._scan_points: tuple[int, list[list[float]]] = (-1, [])
         self.latency: dict[str, Any] | None = None
+        self._activity: tuple[PoseCellActivity, float] | None = None  # latest activity and its time (s)
+        self._activity_json: tuple[int, dict[str, Any]] = (-1, {})
+        self.activity_version = 0
 
     # ---- input ---------------------------------------------------------------------------
     def apply(self, key: str, msg: Message) -> None:
@@ -213,6 +238,9 @@ class ViewModel:
             self._beam(msg)
         elif key in (cfg.sonar_key, cfg.scan_key) and isinstance(msg, LaserScan):
             self._scan(msg)
+        elif key == ACTIVITY_KEY and isinstance(msg, PoseCellActivity):
+            self._activity = (msg, self._t(stamp))
+            self.activity_version += 1
         elif key == LATENCY_KEY and isinstance(msg, LatencyReport):
             self.latency = {k: v.model_dump() for k, v in msg.stages.items()}
 
@@ -234,13 +262,36 @@ class ViewModel:
         self.sonar_version += 1
 
     def _scan(self, msg: LaserScan) -> None:
-        r = np.asarray(msg.ranges, dtype=np.float64)
-        a = msg.angle_min + np.arange(r.size) * msg.angle_increment
-        ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max)
-        step = max(1, r.size // 360)
-        r, a = r[ok][::step], a[ok][::step]
-        self.scan = [[_r(x), _r(y)] for x, y in zip(r * np.cos(a), r * np.sin(a), strict=True)]
+        self._scan_msg = msg
         self.sonar_version += 1
+
+    @property
+    def scan(self) -> list[list[float]]:
+        """The latest laser scan as at most about 360 points (x, y m, sensor frame; valid ranges
+        only), computed once per scan and only when asked for (a recording seeks over thousands)."""
+        msg = self._scan_msg
+        if msg is None:
+            return []
+        if self._scan_points[0] != self.sonar_version:
+            r = np.asarray(msg.ranges, dtype=np.float64)
+            a = msg.angle_min + np.arange(r.size) * msg.angle_increment
+            ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max)
+            step = max(1, r.size // 360)
+            r, a = r[ok][::step], a[ok][::step]
+            points: list[list[float]] = np.round(np.column_stack([r * np.cos(a), r * np.sin(a)]), 2).tolist()
+            self._scan_points = (self.sonar_version, points)
+        return self._scan_points[1]
+
+    @property
+    def activity(self) -> dict[str, Any] | None:
+        """The latest pose-cell activity in the page's form (:func:`activity_json` and ``t``, s),
+        computed once per message and only when asked for."""
+        if self._activity is None:
+            return None
+        if self._activity_json[0] != self.activity_version:
+            msg, t = self._activity
+            self._activity_json = (self.activity_version, {**activity_json(msg), "t": t})
+        return self._activity_json[1]
 
     # ---- output --------------------------------------------------------------------------
     def counts(self) -> dict[str, Any]:
@@ -261,17 +312,20 @@ class ViewModel:
 
     def snapshot(self, have: Mapping[str, str]) -> dict[str, Any]:
         """The state for a client that holds ``have`` (``map``: map version, ``sonar``: sonar
-        version, each trail name and ``lvc``: ``"epoch.count"``): only what it lacks."""
+        version, ``activity``: activity version, each trail name and ``lvc``: ``"epoch.count"``):
+        only what it lacks."""
         out: dict[str, Any] = {"stamp": self.stamp, "t": self._t(self.stamp) if self.t0 is not None else 0.0,
                                "counts": self.counts(), "map_version": self.map_version,
                                "camera_version": self.camera_version if self.camera is not None else 0,
                                "sonar_version": self.sonar_version, "truth_key": self.truth_key,
                                "provisional": self.provisional, "latency_report": self.latency,
-                               "update_hz": self.cfg.update_hz}
+                               "update_hz": self.cfg.update_hz, "activity_version": self.activity_version}
         if self.map is not None and have.get("map") != str(self.map_version):
             m = self.map
             out["map"] = {"ids": m.ids.tolist(), "xyz": np.round(m.xyz.astype(np.float64), 2).tolist(),
                           "links": m.links.tolist(), "loop": m.loop.astype(int).tolist(), "current": m.current}
+        if self._activity is not None and have.get("activity") != str(self.activity_version):
+            out["activity"] = self.activity
         out["trails"] = {name: t.since(have.get(name)) for name, t in self.trails.items()}
         out["lvc"] = self.lvc.since(have.get("lvc"))
         if have.get("sonar") != str(self.sonar_version):

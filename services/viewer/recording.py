@@ -4,7 +4,9 @@ The displayed streams except the camera are read once and kept decoded (a run of
 tens of thousands of small messages); the model is advanced message by message to the asked
 time and rebuilt from the start only when the slider goes back.  Camera frames are read one
 at a time from the file's chunk index when the page asks for the frame of the current time,
-so the camera stream is never held in memory.
+so the camera stream is never held in memory.  The snapshot's ``streams`` says which of the
+page's sources the recording has at all (``camera``, ``sonar``, ``scan``, ``activity``,
+``truth``), so the page can say why a panel is empty.
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ from common.mcap_io import RecordingError, read_messages, recording_keys
 from common.messages import Image, Message
 from services.viewer.config import ViewConfig
 from services.viewer.live import ViewError
-from services.viewer.model import MAP_KEY, ViewModel, jpeg_of, view_keys
+from services.viewer.model import ACTIVITY_KEY, MAP_KEY, ViewModel, jpeg_of, view_keys
 
 __all__ = ["RecordingView"]
 
@@ -43,6 +45,8 @@ class RecordingView:
             raise ViewError(f"{self.path} holds no experience map (no '{MAP_KEY}' key): it is not the recording of a "
                             f"run; run it through the services first (poseidon run --input {self.path.name} "
                             f"--out RUN.mcap) and view RUN.mcap")
+        self.streams = {"camera": cfg.camera_key in keys, "sonar": cfg.sonar_key in keys, "scan": cfg.scan_key in keys,
+                        "activity": ACTIVITY_KEY in keys, "truth": any(k in keys for k in cfg.truth_keys)}
         wanted = [k for k in view_keys(cfg) if k in keys and k != cfg.camera_key]
         self.messages: list[tuple[int, str, Message]] = []
         try:
@@ -88,6 +92,7 @@ class RecordingView:
         snap["mode"] = "recording"
         snap["duration_s"] = round(self.duration_s, 3)
         snap["recording"] = self.path.name
+        snap["streams"] = self.streams
         return snap
 
     def camera(self) -> tuple[int, bytes]:

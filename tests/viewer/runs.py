@@ -1,6 +1,6 @@
 """Helpers of the view's tests (and its benchmark).  A small generated recording of a run, shaped like one ``poseidon run`` writes: camera frames,
-sonar beams, local view cells with revisits, experience events, dead reckoning, truth and a map
-published every few events (a loop closure among its links)."""
+sonar beams, local view cells with revisits, pose-cell activity, experience events, dead reckoning,
+truth and a map published every few events (a loop closure among its links)."""
 from __future__ import annotations
 
 import json
@@ -23,6 +23,7 @@ from common.messages import (
     LocalViewCell,
     LocalViewCells,
     Odometry,
+    PoseCellActivity,
     PoseStamped,
     RangeImageBeam,
 )
@@ -36,7 +37,20 @@ def _pos(t_s: float) -> list[float]:
     return [10 * math.cos(a), 10 * math.sin(a), -5.0]
 
 
-def write_run(path: Path, seconds: float = 20.0, with_map: bool = True) -> dict[str, int]:
+def activity(header: Header, t_s: float) -> PoseCellActivity:
+    """A pose-cell activity message: a packet on the 15 x 15 x 15 x 8 lattice that drifts with ``t_s``."""
+    cx, cy, cz, cq = (3 + t_s) % 15, (7 + 0.5 * t_s) % 15, 5.0, (2 + 0.2 * t_s) % 8
+    d = [np.minimum(abs(np.arange(n) - c), n - abs(np.arange(n) - c)) for n, c in ((15, cx), (15, cy), (15, cz), (8, cq))]
+    g = [np.exp(-v ** 2 / 2) for v in d]
+    xy, zyaw = np.outer(g[0], g[1]), np.outer(g[2], g[3])
+    xy, zyaw = xy / xy.sum(), zyaw / zyaw.sum()
+    return PoseCellActivity(header=header, xy=np.rint(xy / xy.max() * 255).astype(np.uint8), xy_scale=xy.max() / 255,
+                            zyaw=np.rint(zyaw / zyaw.max() * 255).astype(np.uint8), zyaw_scale=zyaw.max() / 255,
+                            centroid=[cx * 0.1, cy * 0.1, cz * 0.1, (cq * math.pi / 4 + math.pi) % (2 * math.pi) - math.pi],
+                            spacing=[0.1, 0.1, 0.1], steps=int(t_s * 2))
+
+
+def write_run(path: Path, seconds: float = 20.0, with_map: bool = True, with_activity: bool = True) -> dict[str, int]:
     """Write the recording; returns the message count per key."""
     rng = np.random.default_rng(3)
     seq: dict[str, int] = {}
@@ -66,6 +80,8 @@ def write_run(path: Path, seconds: float = 20.0, with_map: bool = True) -> dict[
                 w.write("local_view_cells", LocalViewCells(
                     header=hdr("local_view_cells", stamp), most_active_cell=cell,
                     active_cells=[LocalViewCell(id=cell, rate=0.5)], is_new=k < 8, intersection=3))
+            if with_activity and i % 5 == 2:  # pose-cell activity at 2 Hz, from 0.2 s
+                w.write("posecells/activity", activity(hdr("posecells/activity", stamp), t))
             if i % 20 == 10:  # an experience every 2 s
                 n = len(nodes)
                 nodes.append(ExperienceNode(id=n, lvc_id=n % 8, position=p, yaw=0.0, stamp=stamp))

@@ -1,6 +1,7 @@
 """The page in headless Chromium during a live run of a short simulated mission at 4x with
 ``--view``: it loads without a console error, its map and camera panels change while the run
-goes on, and at the end the node, loop-closure and LVC counts it shows are the recording's."""
+goes on, the pose-cell activity panel draws its two heatmaps, and at the end the node,
+loop-closure and LVC counts it shows are the recording's."""
 from __future__ import annotations
 
 import base64
@@ -12,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from PIL import Image as PilImage
 
@@ -44,6 +46,12 @@ def _panel(b: Browser, s: str, element: str) -> bytes:
     return base64.b64decode(shot["data"])
 
 
+def _drawn(png: bytes) -> int:
+    """Pixels of a panel's PNG that differ from its dark background (#0b1016) by more than a little."""
+    px = np.asarray(PilImage.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
+    return int((np.abs(px - np.array([11, 16, 22])).sum(axis=2) > 40).sum())
+
+
 def _differ(a: bytes, b: bytes) -> bool:
     ia, ib = PilImage.open(io.BytesIO(a)).convert("RGB"), PilImage.open(io.BytesIO(b)).convert("RGB")
     return ia.size != ib.size or ia.tobytes() != ib.tobytes()
@@ -71,14 +79,16 @@ def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_pa
             b.call("Emulation.setDeviceMetricsOverride", {"width": 1400, "height": 1100, "deviceScaleFactor": 1,
                                                           "mobile": False}, session=s)
             b.call("Page.navigate", {"url": url}, session=s)
-            _wait("camera frame and map", lambda: (st := view_state(url)) is not None and st["camera_version"] > 0
-                  and st["counts"]["events"] > 0, 240, proc)
+            _wait("camera frame, events and pose-cell activity", lambda: (st := view_state(url)) is not None
+                  and st["camera_version"] > 0 and st["counts"]["events"] > 0 and st["activity_version"] > 0, 240, proc)
             b.pump(1.0)
-            first = {p: _panel(b, s, p) for p in ("map", "camera")}
+            first = {p: _panel(b, s, p) for p in ("map", "camera", "pc-act-xy", "pc-act-zyaw")}
             b.pump(2.5)
             second = {p: _panel(b, s, p) for p in ("map", "camera")}
             assert _differ(first["map"], second["map"]), "the map panel did not change during the run"
             assert _differ(first["camera"], second["camera"]), "the camera panel did not change during the run"
+            for heat in ("pc-act-xy", "pc-act-zyaw"):  # the packet and the centroid mark: not a blank canvas
+                assert _drawn(first[heat]) > 100, f"the {heat} heatmap is blank"
             _wait("the run's end", lambda: out.exists(), 300, proc)
             b.pump(2.0)  # the page's next polls take the final state
             shown = b.call("Runtime.evaluate", {"expression": "JSON.stringify(['nodes','loops','lvc'].map("

@@ -1,15 +1,18 @@
-"""``poseidon view RUN.mcap``: the state served at time t is what the recording holds at t; the
-page and its files are served; bad inputs fail naming themselves (exit 2)."""
+"""``poseidon view RUN.mcap``: the state served at time t is what the recording holds at t (the
+counts and the pose-cell activity); the page and its files are served; bad inputs fail naming
+themselves (exit 2)."""
 from __future__ import annotations
 
+import base64
 import json
+import math
 import urllib.request
 from pathlib import Path
 
 import pytest
 
 from common.mcap_io import read_messages
-from common.messages import ExperienceMap, LocalViewCells, PoseStamped
+from common.messages import ExperienceMap, LocalViewCells, PoseCellActivity, PoseStamped
 from launcher.cli import main as poseidon
 from services.viewer.config import ViewConfig
 from services.viewer.live import ViewError
@@ -50,12 +53,43 @@ def test_the_state_at_t_is_what_the_recording_holds_at_t(run: Path, t_s: float) 
     assert shown == _held_at(run, t_s)
 
 
+@pytest.mark.parametrize("t_s", [0.0, 0.2, 3.05, 12.0, 19.9])
+def test_the_activity_at_t_is_the_recording_s_at_t(run: Path, t_s: float) -> None:
+    view = RecordingView(run, ViewConfig())
+    snap = view.snapshot({}, t_s)
+    held = [m.message() for m in read_messages(run, keys=["posecells/activity"], end_ns=T0 + int(round(t_s * 1e9)) + 1)]
+    assert snap["streams"]["activity"] is True
+    if not held:  # before the first one
+        assert snap["activity_version"] == 0 and "activity" not in snap
+        return
+    last = held[-1]
+    assert isinstance(last, PoseCellActivity)
+    got = snap["activity"]
+    assert snap["activity_version"] == len(held) and got["stamp"] == last.header.stamp and got["steps"] == last.steps
+    for name, img, scale in (("xy", last.xy, last.xy_scale), ("zyaw", last.zyaw, last.zyaw_scale)):
+        assert got[name]["shape"] == list(img.shape) and got[name]["scale"] == scale
+        assert base64.b64decode(got[name]["data"]) == img.tobytes()
+    assert got["centroid"] == [round(v, 3) for v in last.centroid]
+    x, y, z, yaw = last.centroid
+    assert got["centroid_cells"] == [round(x / 0.1, 2), round(y / 0.1, 2), round(z / 0.1, 2),
+                                     round((yaw % (2 * math.pi)) / (math.pi / 4), 2)]
+    again = view.snapshot({"activity": str(snap["activity_version"])}, t_s)
+    assert "activity" not in again  # the client holds it: not sent again
+
+
+def test_a_run_without_activity_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "old.mcap"
+    write_run(path, seconds=7.0, with_activity=False)  # a map at 5 s
+    snap = RecordingView(path, ViewConfig()).snapshot({}, 6.5)
+    assert snap["streams"]["activity"] is False and snap["activity_version"] == 0 and "activity" not in snap
+
+
 def test_scrubbing_back_and_forth_gives_the_same_state(run: Path) -> None:
     view = RecordingView(run, ViewConfig())
     late = view.snapshot({}, 18.0)
     view.snapshot({}, 2.0)
     again = view.snapshot({}, 18.0)
-    assert again["counts"] == late["counts"] and again["map"] == late["map"]
+    assert again["counts"] == late["counts"] and again["map"] == late["map"] and again["activity"] == late["activity"]
     assert late["counts"]["loop_closures"] == 1 and late["counts"]["revisits"] > 0
     fresh = RecordingView(run, ViewConfig()).snapshot({}, 18.0)
     assert fresh["trails"] == late["trails"] and fresh["lvc"] == late["lvc"]

@@ -4,6 +4,7 @@
 const TRAIL_COLOURS = {dead_reckoning: "#f39c3d", odometry: "#b07cf0", truth: "#4fd18b"};
 const view = {
   map: null, mapVersion: "", sonarVersion: "", cameraVersion: 0, provisional: [], sonar: {beams: [], scan: []},
+  activity: null, activityVersion: "",
   trails: {}, lvc: {epoch: -1, points: []}, state: null, yaw: 0.6, pitch: 0.9, dragging: null,
   mode: "", t: 0, playing: false, rate: 4, duration: 0, lastTick: 0, pending: false,
 };
@@ -25,6 +26,7 @@ function haveQuery() {
   const q = new URLSearchParams();
   if (view.mapVersion) q.set("map", view.mapVersion);
   if (view.sonarVersion) q.set("sonar", view.sonarVersion);
+  if (view.activityVersion) q.set("activity", view.activityVersion);
   for (const [name, t] of Object.entries(view.trails)) q.set(name, t.epoch + "." + t.points.length);
   if (view.lvc.epoch >= 0) q.set("lvc", view.lvc.epoch + "." + view.lvc.points.length);
   if (view.mode === "recording") q.set("t", view.t.toFixed(2));
@@ -51,17 +53,21 @@ async function poll() {
 function absorb(s) {
   view.state = s;
   if (view.mode !== s.mode) setMode(s);
-  if (s.map) { view.map = s.map; }
+  // version 0: nothing yet (a recording scrubbed back before the first message drops what it held)
+  if (s.map) view.map = s.map; else if (s.map_version === 0) view.map = null;
   view.mapVersion = String(s.map_version);
   view.provisional = s.provisional || [];
-  if (s.sonar) { view.sonar = s.sonar; }
+  if (s.sonar) view.sonar = s.sonar;
   view.sonarVersion = String(s.sonar_version);
+  if (s.activity) view.activity = s.activity; else if (s.activity_version === 0) view.activity = null;
+  view.activityVersion = String(s.activity_version);
   for (const [name, delta] of Object.entries(s.trails || {})) view.trails[name] = merge(view.trails[name], delta);
   view.lvc = merge(view.lvc, s.lvc);
   if (s.camera_version !== view.cameraVersion) {
     view.cameraVersion = s.camera_version;
     if (s.camera_version > 0) $("camera").src = "/camera.jpg?v=" + s.camera_version;
   }
+  $("camera").hidden = s.camera_version === 0;
   const c = s.counts;
   $("time").textContent = s.t.toFixed(1);
   $("nodes").textContent = c.nodes;
@@ -70,13 +76,45 @@ function absorb(s) {
   $("last-lvc").textContent = c.last_lvc >= 0 ? c.last_lvc : "-";
   $("revisits").textContent = c.revisits;
   $("events").textContent = c.events;
-  $("pose").textContent = c.pose ? c.pose.slice(0, 3).map(v => v.toFixed(1)).join(", ") : "-";
+  $("pose").textContent = c.pose ? c.pose.slice(0, 3).map(v => (Math.abs(v) < 0.05 ? 0 : v).toFixed(1)).join(", ") : "-";
   if (s.mode === "recording") {
     view.duration = s.duration_s;
     $("slider").max = s.duration_s;
     $("slider-label").textContent = view.t.toFixed(1) + " / " + s.duration_s.toFixed(1) + " s";
   }
   services(s);
+  notes(s);
+}
+
+function notes(s) {
+  // a panel without data says why: the recording has no such stream, or nothing has arrived yet
+  const st = s.streams || null, yet = s.mode === "recording" ? " at this time" : " yet";
+  const none = (what, has) => has ? "" : st ? "no " + what + " in this run" : "";
+  const sonar = (view.sonar.scan || []).length || (view.sonar.beams || []).length;
+  const laser = st ? st.scan && !st.sonar : (view.sonar.scan || []).length > 0;
+  $("sonar-title").textContent = laser ? "Laser scan" : "Sonar sweep";
+  const pc = view.trails.posecells ? view.trails.posecells.points.length : 0;
+  const text = {
+    "map-note": view.map || view.provisional.length ? none("ground truth", st ? st.truth : true)
+      : "no experience map" + yet,
+    "camera-note": s.camera_version > 0 ? "" : none("camera", st ? st.camera : true) || "no camera frame" + yet,
+    "sonar-note": sonar ? "" : none("sonar or laser scan", st ? st.sonar || st.scan : true) ||
+      "no sonar beam or laser scan" + yet,
+    "pc-act-note": view.activity ? activityCaption(view.activity) :
+      none("pose-cell activity (recorded before the posecells service published it, or posecells." +
+           "activity_period_s was 0)", st ? st.activity : true) || "no pose-cell activity" + yet,
+    "pc-note": pc ? "" : "no experience event" + yet,
+    "lvc-note": view.lvc.points.length ? "" : "no local view cells" + yet,
+    "services-note": Object.keys(s.services || {}).length ? "" : s.mode === "recording"
+      ? "per-service figures are measured on the bus: a live run only" : "no service seen yet",
+  };
+  for (const [id, t] of Object.entries(text)) $(id).textContent = t;
+}
+
+function activityCaption(a) {
+  const c = a.centroid;
+  return "t " + a.t.toFixed(1) + " s, step " + a.steps + ": centroid x " + c[0].toFixed(2) + " y " +
+    c[1].toFixed(2) + " z " + c[2].toFixed(2) + " m, yaw " + (c[3] * 180 / Math.PI).toFixed(0) + " deg";
 }
 
 function setMode(s) {
@@ -201,7 +239,6 @@ function drawSonar() {
   ctx.fillStyle = "#0b1016"; ctx.fillRect(0, 0, w, h);
   const scan = view.sonar.scan || [];
   if (scan.length) {
-    $("sonar-title").textContent = "Laser scan";
     const m = Math.max(1, ...scan.map(p => Math.hypot(p[0], p[1])));
     ctx.fillStyle = "#7fe0ff";
     for (const p of scan) ctx.fillRect(cx + p[0] / m * R - 1, cy - p[1] / m * R - 1, 2, 2);
@@ -237,6 +274,54 @@ function drawPoseCells() {
   }
 }
 
+// dark blue -> magenta -> orange -> yellow
+const HEAT = [[11, 16, 22], [40, 34, 96], [150, 42, 112], [232, 96, 60], [255, 224, 90]];
+
+function heat(v) {
+  const x = Math.max(0, Math.min(1, v)) * (HEAT.length - 1), i = Math.min(HEAT.length - 2, Math.floor(x)), f = x - i;
+  return HEAT[i].map((c, k) => Math.round(c + f * (HEAT[i + 1][k] - c)));
+}
+
+function heatmap(canvas, img, across, mark, labels) {
+  // img: row-major uint8 (shape [n0, n1]); `across` = the image axis drawn left to right, the other
+  // bottom to top; mark: the centroid in cells along (across, up)
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const [n0, n1] = img.shape, bytes = atob(img.data);
+  const w = across === 0 ? n0 : n1, h = across === 0 ? n1 : n0;
+  const off = document.createElement("canvas");
+  off.width = w; off.height = h;
+  const octx = off.getContext("2d"), px = octx.createImageData(w, h);
+  for (let i = 0; i < n0; i++) for (let j = 0; j < n1; j++) {
+    const col = across === 0 ? i : j, up = across === 0 ? j : i;
+    const o = 4 * ((h - 1 - up) * w + col), rgb = heat(bytes.charCodeAt(i * n1 + j) / 255);
+    px.data[o] = rgb[0]; px.data[o + 1] = rgb[1]; px.data[o + 2] = rgb[2]; px.data[o + 3] = 255;
+  }
+  octx.putImageData(px, 0, 0);
+  ctx.imageSmoothingEnabled = false;
+  ctx.drawImage(off, 0, 0, canvas.width, canvas.height);
+  const x = (mark[0] + 0.5) * canvas.width / w, y = canvas.height - (mark[1] + 0.5) * canvas.height / h;
+  ctx.strokeStyle = "#3ff0ff"; ctx.lineWidth = 2;
+  ctx.beginPath(); ctx.arc(x, y, 6, 0, 7); ctx.moveTo(x - 10, y); ctx.lineTo(x + 10, y);
+  ctx.moveTo(x, y - 10); ctx.lineTo(x, y + 10); ctx.stroke();
+  ctx.fillStyle = "#dde3ea";
+  ctx.fillText(labels, 4, 12);
+}
+
+function drawActivity() {
+  const a = view.activity;
+  const xy = $("pc-act-xy"), zyaw = $("pc-act-zyaw");
+  if (!a) {
+    for (const c of [xy, zyaw]) c.getContext("2d").clearRect(0, 0, c.width, c.height);
+    return;
+  }
+  const [nz, nyaw] = a.zyaw.shape, width = Math.max(48, Math.min(240, Math.round(240 * nyaw / nz)));
+  if (zyaw.width !== width) zyaw.width = width;
+  const c = a.centroid_cells;
+  heatmap(xy, a.xy, 0, [c[0], c[1]], "x-y");
+  heatmap(zyaw, a.zyaw, 1, [c[3], c[2]], "yaw-z");
+}
+
 function drawLvc() {
   const canvas = $("lvc-plot"), ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
@@ -252,7 +337,7 @@ function drawLvc() {
 }
 
 function draw() {
-  drawMap(); drawMap3d(); drawSonar(); drawPoseCells(); drawLvc();
+  drawMap(); drawMap3d(); drawSonar(); drawActivity(); drawPoseCells(); drawLvc();
 }
 
 // ---- interaction ----------------------------------------------------------------------------
