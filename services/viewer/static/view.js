@@ -242,6 +242,10 @@ function drawSonar() {
     const m = Math.max(1, ...scan.map(p => Math.hypot(p[0], p[1])));
     ctx.fillStyle = "#7fe0ff";
     for (const p of scan) ctx.fillRect(cx + p[0] / m * R - 1, cy - p[1] / m * R - 1, 2, 2);
+    ctx.fillStyle = "#fff";  // the sensor, facing right (x forward)
+    ctx.beginPath(); ctx.moveTo(cx + 8, cy); ctx.lineTo(cx - 5, cy - 5); ctx.lineTo(cx - 5, cy + 5); ctx.fill();
+    ctx.fillStyle = "#8b97a5";
+    ctx.fillText("sensor frame, x forward; " + m.toFixed(1) + " m to the edge", 4, h - 6);
     return;
   }
   for (const [angle, , b64] of view.sonar.beams || []) {
@@ -318,8 +322,8 @@ function drawActivity() {
   const [nz, nyaw] = a.zyaw.shape, width = Math.max(48, Math.min(240, Math.round(240 * nyaw / nz)));
   if (zyaw.width !== width) zyaw.width = width;
   const c = a.centroid_cells;
-  heatmap(xy, a.xy, 0, [c[0], c[1]], "x-y");
-  heatmap(zyaw, a.zyaw, 1, [c[3], c[2]], "yaw-z");
+  heatmap(xy, a.xy, 0, [c[0], c[1]], "x \u2192  y \u2191");
+  heatmap(zyaw, a.zyaw, 1, [c[3], c[2]], "yaw \u2192  z \u2191");
 }
 
 function drawLvc() {
@@ -327,7 +331,11 @@ function drawLvc() {
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   const pts = view.lvc.points;
   if (!pts.length) return;
-  const f = scaler(canvas, bounds([pts.map(p => [p[0], p[1]])]));
+  // time across, LVC id up, each axis filling the canvas (a run of hours has hundreds of ids)
+  const t1 = Math.max(1, pts[pts.length - 1][0]), id1 = Math.max(1, ...pts.map(p => p[1])), m = 6;
+  const f = p => [m + p[0] / t1 * (canvas.width - 2 * m), canvas.height - m - p[1] / id1 * (canvas.height - 2 * m)];
+  ctx.fillStyle = "#8b97a5";
+  ctx.fillText("0 - " + t1.toFixed(0) + " s, ids 0 - " + id1, 6, 12);
   for (const p of pts) {
     const [x, y] = f(p);
     ctx.fillStyle = p[2] ? "#ff4040" : "#4aa3ff";
