@@ -49,7 +49,7 @@ MAX_CELLS = 200_000_000
 MAX_LASER_RANGE_M = 30.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _trace(i0: np.ndarray, j0: np.ndarray, i1: np.ndarray, j1: np.ndarray, w: np.ndarray, hits: np.ndarray,
            misses: np.ndarray) -> None:  # pragma: no cover - numba
     """Bresenham rays (i0, j0) -> (i1, j1) (column, row from the bottom): ``w`` misses before the end cell,

@@ -17,7 +17,8 @@
   ``map_period_s``), ``local_view_cells`` and ``experience_event`` are published on ROS topics
   (table in :mod:`services.bridge_ros1.convert`); the occupancy grid of the laser (else sonar)
   returns it bridges in, at the poses ``Odometry`` and ``map`` give, on ``grid_topic`` (``/map``,
-  latched, at most every ``grid_period_s`` of event time: :mod:`services.bridge_ros1.grid`); a
+  latched, at most every ``grid_period_s`` of event time, built on a thread of its own:
+  :mod:`services.bridge_ros1.grid`); a
   live run's health (``live/health``, :mod:`launcher.health`) on ``diagnostics_topic``
   (``/diagnostics``) as ``diagnostic_msgs/DiagnosticArray``.
 - Supervised live runs (``consumers`` given): every key's frames are kept until each consumer
@@ -153,6 +154,7 @@ class Ros1Bridge(Sink, Source):
                              config.grid_max_poses, config.grid_max_cells, sonar)
         self._outputs_ended: set[str] = set()
         self._pending_map: ExperienceMap | None = None
+        self._grid_thread: threading.Thread | None = None
         self._last_map_wall = 0.0
         self.link: RosLink | None = None
         self.subscribe(sorted({*self._out_keys, HEALTH_KEY}))
@@ -255,20 +257,35 @@ class Ros1Bridge(Sink, Source):
         _bump(self.stats.to_ros, self.config.markers_topic)
 
     def flush_grid(self, force: bool = False) -> None:
-        """Rebuild and publish the ``/map`` grid when due (``grid_period_s`` of event time) or ``force``."""
-        link = self.link
-        if link is None or not (force or self.grid.due()):
+        """Rebuild and publish the ``/map`` grid when due (``grid_period_s`` of event time) on a thread
+        of its own, so a large grid never holds up the bridge; with ``force`` (the end) here, after
+        the one running."""
+        if self.link is None or not (force or self.grid.due()):
             return
+        running = self._grid_thread
+        if force:
+            if running is not None:
+                running.join()
+            self._publish_grid(True)
+        elif running is None or not running.is_alive():
+            self._grid_thread = threading.Thread(target=self._publish_grid, args=(False,), name="bridge_ros1-grid",
+                                                 daemon=True)
+            self._grid_thread.start()
+
+    def _publish_grid(self, force: bool) -> None:
+        link = self.link
         t0 = time.monotonic()
         g = self.grid.build(force)
         ms = (time.monotonic() - t0) * 1000
-        st = self.stats.grid
-        st["build_ms_max"] = round(max(st.get("build_ms_max", 0.0), ms), 1)
-        if g is None:
+        with self._lock:
+            st = self.stats.grid
+            st["build_ms_max"] = round(max(st.get("build_ms_max", 0.0), ms), 1)
+        if g is None or link is None:
             return
         link.publish(self.config.grid_topic, self.outgoing.occupancy_grid(g))
-        _bump(self.stats.to_ros, self.config.grid_topic)
-        st["published"], st["returns"] = st.get("published", 0) + 1, g.returns
+        with self._lock:
+            _bump(self.stats.to_ros, self.config.grid_topic)
+            st["published"], st["returns"] = st.get("published", 0) + 1, g.returns
 
     # ---- run --------------------------------------------------------------------------------
     def _advertise(self, link: RosLink) -> None:
