@@ -148,10 +148,11 @@ class Ros1Bridge(Sink, Source):
         self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
         self._out_keys = config.output_stages()
         self._own_topics = {config.odometry_topic, config.dead_reckoning_topic, config.path_topic,
-                            config.markers_topic, config.lvc_topic, config.event_topic, config.diagnostics_topic,
-                            config.grid_topic}
+                            config.markers_topic, config.lvc_topic, config.event_topic, config.diagnostics_topic}
         self.grid = LiveGrid(config.grid_period_s, config.grid_resolution_m, config.grid_max_returns,
                              config.grid_max_poses, config.grid_max_cells, sonar)
+        if self.grid.enabled:  # off, a /map of someone else's is bridged in like any topic
+            self._own_topics.add(config.grid_topic)
         self._outputs_ended: set[str] = set()
         self._pending_map: ExperienceMap | None = None
         self._grid_thread: threading.Thread | None = None
