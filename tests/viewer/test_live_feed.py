@@ -36,8 +36,13 @@ def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_p
         expected = {k: p.sent for k, p in pubs.items()}
         _wait(lambda: feed.figures.frames == expected)
         feed.update()
-        counts = feed.snapshot({})["counts"]
+        snap = feed.snapshot({})
+        counts = snap["counts"]
         assert counts["nodes"] == 3 and counts["events"] == 3 and counts["lvc"] == 8
+        # the pose-cell activity is latest-only, like the camera and the map: at most one decoded per update
+        activity = [r.stamp for r in read_messages(run, keys=["posecells/activity"])]
+        assert 1 <= snap["activity_version"] <= min(feed.updates, len(activity))
+        assert snap["activity"]["stamp"] == activity[-1]
         assert counts["pose"] is not None and feed.dropped == 0
         assert all(p.has_subscribers() for p in pubs.values())
         for p in pubs.values():
