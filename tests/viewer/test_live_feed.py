@@ -73,8 +73,9 @@ def test_a_flood_drops_view_updates_never_blocks(bus: Bus) -> None:
         assert time.monotonic() - t0 < 10.0
         _wait(lambda: feed.figures.frames.get(cfg.camera_key) == 20 and feed.figures.frames.get("dead_reckoning") == 2000)
         feed.update()
-        assert feed.dropped == 2000 - 50  # only the newest 50 were kept for the view
-        assert feed.model.camera_version == 1  # latest-only: one frame decoded, the newest
+        # at most the newest 50 are kept between two updates (the pump may have run during the flood)
+        assert 2000 - 50 * feed.updates <= feed.dropped <= 2000 - 50
+        assert 1 <= feed.model.camera_version <= min(20, feed.updates)  # latest-only: at most one frame per update
         assert feed.model.camera is not None and int(np.asarray(feed.model.camera.data)[0, 0, 0]) == 19
     finally:
         feed.stop()
