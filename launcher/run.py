@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import shutil
 import signal
@@ -55,16 +54,17 @@ import yaml
 
 from common.bus import Bus, open_hub, open_local_session
 from common.live import HEALTH_KEY, LATENCY_KEY
-from common.mcap_io import RecordingError, code_revision, file_sha256, read_metadata, recording_keys, recording_summary
+from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
 from launcher.children import check_batch_scheduling, die_with_launcher
 from launcher.inputs import input_report
 from services.player.player import SOURCE_KEYS, replayed_keys
+from system.calibration import calibrate_from_input
 from system.config import PoseidonConfig
 from system.services import WorkerSpec, available_services, build_node, build_worker, node_io
 
-__all__ = ["RunFailed", "ServiceStartError", "MAP_DIR_FILES", "use_map_dir", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "run_distributed", "run_embedded", "node_io"]
+__all__ = ["RunFailed", "ServiceStartError", "MAP_DIR_FILES", "use_map_dir", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "calibrate_from_input", "run_distributed", "run_embedded", "node_io"]
 
 log = logging.getLogger(__name__)
 
@@ -152,27 +152,6 @@ class RunPlan:
     player_keys: list[str]
     expect: list[str]
     io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]]
-
-
-def calibrate_from_input(config: PoseidonConfig, input_path: str | Path) -> None:
-    """Take what the input recording says about its own sensors where the configuration
-    leaves it open: ``expmap.scan_graph.sensor_offset`` null (the default) becomes the offset
-    of ``expmap.scan.topic``'s sensor that the import measured (``poseidon`` metadata
-    ``laser_offsets``: dx, dy m, dtheta rad), else 0 0 0.  Logged at INFO."""
-    sg = config.expmap.scan_graph
-    if config.expmap.graph != "scan_graph" or sg.sensor_offset is not None:
-        return
-    offset = [0.0, 0.0, 0.0]
-    raw = read_metadata(input_path).get("poseidon", {}).get("laser_offsets")
-    if raw:
-        try:
-            entry = json.loads(raw).get(config.expmap.scan.topic)
-        except (json.JSONDecodeError, AttributeError) as exc:
-            raise RecordingError(f"{input_path}: metadata poseidon.laser_offsets is not a JSON object ({exc})") from None
-        if entry:
-            offset = [float(entry["dx"]), float(entry["dy"]), math.degrees(float(entry["dtheta"]))]
-            log.info("expmap.scan_graph.sensor_offset from %s: %.3f m, %.3f m, %.2f deg", input_path, *offset)
-    sg.sensor_offset = offset
 
 
 def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None) -> RunPlan:

@@ -47,6 +47,9 @@ class ScanGraphConfig(ConfigSection):
     fine_cell_m: float = Field(0.025, gt=0, description="fine grid of every registration [m]")
     fine_sigma_m: float = Field(0.05, gt=0, description="likelihood-field sigma of the fine grid [m]")
     fine_yaw_step_deg: float = Field(0.25, gt=0, description="heading step of the fine search [deg]")
+    odometry_at_stamps: bool = Field(True, description="place each scan, and each experience's frame, at the "
+                                     "odometry interpolated to its own stamp (an experience waits for the next "
+                                     "Odometry); false: at the newest Odometry before it (services/expmap/laser_input.py)")
     scan_sigma_m: float = Field(0.05, gt=0, description="std of a registered edge's translation [m]")
     scan_sigma_deg: float = Field(1.0, gt=0, description="std of a registered edge's heading [deg]")
     odom_sigma_m: float = Field(0.1, gt=0, description="std of an odometry edge's translation [m]")

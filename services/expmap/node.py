@@ -47,10 +47,13 @@ subscribed.
 
 - range scans (``expmap.graph: scan_graph``, the laser preset): ``expmap.scan.topic`` carries
   ``LaserScan``; each scan's returns (``scan_graph.min_range_m`` .. ``max_range_m``) become
-  points in the dead-reckoning frame with the latest ``Odometry`` pose (after
-  ``scan_graph.sensor_offset``, the sensor's pose on the robot), and an experience keeps
-  the latest scan expressed in its own frame (motion between the scan and the event
-  compensated by the odometry); :class:`services.expmap.scan_graph.ScanGraph` registers the
+  points in the dead-reckoning frame with the ``Odometry`` pose interpolated to the scan's
+  stamp (after ``scan_graph.sensor_offset``, the sensor's pose on the robot), and an
+  experience's frame is the ``Odometry`` pose interpolated to its own stamp (the event waits
+  for the next ``Odometry``; ``scan_graph.odometry_at_stamps``, false: the newest pose
+  before each, :mod:`services.expmap.laser_input`); it keeps the latest scan expressed in its
+  own frame (motion between the scan and the event compensated by the odometry);
+  :class:`services.expmap.scan_graph.ScanGraph` registers the
   scans for every edge.  Its counters (``chain_scan``, ``chain_odometry``, ``loop_tried``,
   ``loop_verified``, ``loop_rejected_score``, ``loop_rejected_ambiguous``, ``loop_from_lvc``)
   are added to the node's at the end.
@@ -188,6 +191,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self._since_map = 0
         self._map_owed = False     # a loop closure or a settled correction not in a published map yet
         self._dirty = False
+        self._waiting_events: list[ExperienceEvent] = []   # laser map: events waiting for the pose after them
         self.scan_key = cfg.scan.topic if (cfg.loops.scan_matching or self.scan_graph) else None
         sg = cfg.scan_graph
         self.laser = LaserScans(sg.min_range_m, sg.max_range_m, sg.sensor_offset)
@@ -228,6 +232,31 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             raise KeyError(f"expmap: unexpected input key {key!r} (inputs {self.inputs})")
 
     def _on_event(self, ev: ExperienceEvent) -> None:
+        if self.scan_graph and self.cfg.scan_graph.odometry_at_stamps:
+            # the experience's frame is the odometry at its own stamp: wait for the pose after it
+            if self.laser.covers(ev.header.stamp) or self.laser.odom_pose is None:
+                self._add_event(self._at_own_stamp(ev))
+            else:
+                self._waiting_events.append(ev)
+            return
+        self._add_event(ev)
+
+    def _at_own_stamp(self, ev: ExperienceEvent) -> ExperienceEvent:
+        """The event with its odometry pose replaced by the odometry at its stamp (laser map)."""
+        pose = self.laser.pose_at(ev.header.stamp)
+        if pose is None:
+            return ev
+        return ev.model_copy(update={"odom_position": [float(pose[0]), float(pose[1]), ev.odom_position[2]],
+                                     "odom_yaw": float(pose[2])})
+
+    def _release_events(self, until: int | None) -> None:
+        """Add the waiting events stamped at or before ``until`` (None: all) at their own stamps."""
+        ready = [e for e in self._waiting_events if until is None or e.header.stamp <= until]
+        self._waiting_events = [e for e in self._waiting_events if until is not None and e.header.stamp > until]
+        for ev in ready:
+            self._add_event(self._at_own_stamp(ev))
+
+    def _add_event(self, ev: ExperienceEvent) -> None:
         if self.visual is not None and isinstance(self.graph, ExperienceMap):
             self._follow_scale()
         try:
@@ -315,7 +344,11 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             self.visual.add_odometry(od.header.stamp, od.position[0], od.position[1])
         if self.scan_graph:
             if np.all(np.isfinite(od.position)) and any(od.orientation):
-                self.laser.set_pose(od.position[0], od.position[1], yaw_of_quaternion(od.orientation))
+                at_stamps = self.cfg.scan_graph.odometry_at_stamps
+                self.laser.set_pose(od.position[0], od.position[1], yaw_of_quaternion(od.orientation),
+                                    od.header.stamp if at_stamps else None)
+                if self._waiting_events:
+                    self._release_events(od.header.stamp)
         elif self.scan_key is not None:
             try:
                 self.sweeps.add_pose(od.position, quaternion_to_matrix(od.orientation))
@@ -344,8 +377,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         """Keep the scan's returns in the odometry frame (latest pose at or before its stamp)."""
         if not self.scan_graph:
             raise ConfigError(f"expmap: {self.scan_key} carries LaserScan; range scans need expmap.graph=scan_graph")
+        stamp = scan.header.stamp if self.cfg.scan_graph.odometry_at_stamps else None
         if not self.laser.add_scan(scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min,
-                                   scan.range_max):
+                                   scan.range_max, stamp):
             self.count("scans_before_odometry")
             return
         self.count("scans")
@@ -408,6 +442,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
                      getattr(self.graph, "odometry_scale", 1.0))
         if self.visual is not None and isinstance(self.graph, ExperienceMap):
             self._follow_scale()
+        if self.scan_graph:
+            self.laser.flush()
+            self._release_events(None)
         if isinstance(self.graph, ScanGraph):
             for k, v in self.graph.counters.items():
                 self.count(k, v - self.counters.get(k, 0))

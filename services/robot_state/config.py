@@ -83,6 +83,11 @@ class RobotStateConfig(ConfigSection):
     source: Literal["dvl_imu_depth", "wheel_odometry"] = Field(
         "dvl_imu_depth", description="dvl_imu_depth: the EKF of DVL, IMU and depth; wheel_odometry: a ground "
         "robot's odometry (key wheel_odometry, e.g. an imported CARMEN log) republished as Odometry")
+    wheel_time_offset_s: float | None = Field(
+        0.0, ge=-0.5, le=0.5, description="source wheel_odometry: each Odometry is stamped this much after the "
+        "wheel odometry's own stamp, putting it on the range sensor's clock (the scan stamp minus the odometry "
+        "stamp of the same instant; services/expmap/scan_clock.py); null: measured from the input recording at "
+        "the start of a run (laser preset), 0 where it cannot be (live runs) [s]")
     axis_remap: str = Field("yxz", pattern=r"^[xyz]{3}$", description="dead-reckoning frame alignment: the "
                             "published x y z are these NED axes")
     axis_sign_z: float = Field(-1.0, description="sign applied to z of the published position (1 or -1)")

@@ -40,9 +40,11 @@ passed by the launcher as ``fault_jump_at_s`` / ``fault_jump_m``): with ``fault_
 
 Ground robots (``robot_state.source: wheel_odometry``, the laser preset): the only input
 besides ``odometry`` is ``wheel_odometry`` (e.g. a CARMEN log's ODOM records) and each of
-its messages is republished as ``Odometry`` with the same stamp, pose and velocities (frame
-``odom_wheel``, status ``wheel_odometry``): wheel odometry is already a pose, and its own
-stamps are the finest time base there is.  A message with a non-finite pose or a zero
+its messages is republished as ``Odometry`` with the same pose and velocities (frame
+``odom_wheel``, status ``wheel_odometry``), stamped ``wheel_time_offset_s`` after its own
+stamp: wheel odometry is already a pose, and the offset puts it on the range sensor's clock
+(measured by :mod:`services.expmap.scan_clock`; a negative offset lowers the node's
+watermark by as much, since its outputs are then stamped before its inputs).  A message with a non-finite pose or a zero
 quaternion is logged, counted (``wheel_odometry_invalid``) and skipped.
 """
 from __future__ import annotations
@@ -133,6 +135,10 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
         self._gyro_sigma = float(np.radians(cfg.imu.gyro_sigma_deg_s))
         self._first_pub: int | None = None   # stamp of the first published Odometry (fault injection clock)
         self._jumped = False
+        if cfg.source == "wheel_odometry" and cfg.wheel_time_offset_s is None:
+            # null is resolved from the input at the start of a replay (system.calibration); a live run has none
+            log.warning("robot_state: wheel_time_offset_s is null and was not measured from an input: 0 s")
+        self._wheel_offset_ns = int(round((cfg.wheel_time_offset_s or 0.0) * NS))
 
     # ------------------------------------------------------------------ publishing
     def warm_up(self) -> None:
@@ -211,7 +217,8 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
             return
         self.count("wheel_odometry")
         self.publish("Odometry", msg.model_copy(update={
-            "header": self.header("Odometry", msg.header.stamp, "odom_wheel"), "child_frame_id": "base_link",
+            "header": self.header("Odometry", msg.header.stamp + self._wheel_offset_ns, "odom_wheel"),
+            "child_frame_id": "base_link",
             "status": ["wheel_odometry"]}))
 
     def finish(self) -> None:
@@ -219,6 +226,8 @@ class RobotStateNode(ServiceNode[RobotStateConfig]):
             self._publish_until(self._last_input, inclusive=True)
 
     def output_watermark(self, input_watermark: int) -> int:
+        if self.cfg.source == "wheel_odometry":
+            return input_watermark + min(0, self._wheel_offset_ns)
         if self._next_pub is not None:
             return min(input_watermark, self._next_pub)
         if self._last_input is not None:

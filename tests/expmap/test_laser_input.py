@@ -41,3 +41,38 @@ def test_range_limits_of_the_map_and_of_the_scan_both_apply() -> None:
     assert scans.scan_odom is not None and len(scans.scan_odom) == 2          # 0.3 too near, 6.0 beyond 5 m
     scans.add_scan(ranges, 0.0, 0.1, 0.0, 4.0)                              # the scan's own max: 4 m (exclusive)
     assert scans.scan_odom is not None and len(scans.scan_odom) == 1
+
+
+def test_a_scan_is_placed_at_the_odometry_of_its_own_stamp() -> None:
+    scans = LaserScans(0.05, 20.0, None)
+    scans.set_pose(0.0, 0.0, 0.0, stamp=0)
+    # the scan is stamped between two poses: it waits for the second and is placed between them
+    assert scans.add_scan(_one_return(2.0), -math.pi / 2, math.pi / 180, 0.0, 30.0, stamp=25)
+    assert scans.scan_odom is None
+    scans.set_pose(1.0, 0.0, math.radians(40.0), stamp=100)
+    assert scans.scan_odom is not None and scans.scan_stamp == 25
+    # a quarter of the way: x 0.25 m, heading 10 degrees; the return is 2 m ahead of it
+    a = math.radians(10.0)
+    np.testing.assert_allclose(scans.scan_odom, [[0.25 + 2 * math.cos(a), 2 * math.sin(a)]], atol=1e-9)
+    pose = scans.pose_at(50)
+    assert pose is not None
+    np.testing.assert_allclose(pose, [0.5, 0.0, math.radians(20.0)], atol=1e-12)
+    assert scans.covers(100) and not scans.covers(101)
+
+
+def test_headings_are_interpolated_the_short_way_across_pi() -> None:
+    scans = LaserScans(0.05, 20.0, None)
+    scans.set_pose(0.0, 0.0, math.radians(170.0), stamp=0)
+    scans.set_pose(0.0, 0.0, math.radians(-170.0), stamp=10)
+    pose = scans.pose_at(5)
+    assert pose is not None and abs(abs(pose[2]) - math.pi) < 1e-9
+
+
+def test_a_scan_still_waiting_at_the_end_is_placed_at_the_newest_pose() -> None:
+    scans = LaserScans(0.05, 20.0, None)
+    scans.set_pose(3.0, 0.0, 0.0, stamp=0)
+    scans.add_scan(_one_return(2.0), -math.pi / 2, math.pi / 180, 0.0, 30.0, stamp=50)
+    assert scans.scan_odom is None
+    scans.flush()
+    assert scans.scan_odom is not None
+    np.testing.assert_allclose(scans.scan_odom, [[5.0, 0.0]], atol=1e-9)

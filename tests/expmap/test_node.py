@@ -285,6 +285,9 @@ def test_laser_sensor_offset_places_returns_in_the_robot_frame() -> None:
         header=Header(seq=0, stamp=30, frame_id="map"), lvc_id=0, pc_centroid=[0.0] * 4,
         odom_position=[2.0, 3.0, 0.0], odom_yaw=math.pi / 2, gate="off", vpr_count=1))
     assert isinstance(node.graph, ScanGraph)
+    assert node.graph.n_nodes == 0          # the experience waits for the odometry after its stamp
+    node.process("Odometry", odometry(1, 40, (2.0, 3.0, 0.0), math.pi / 2))
+    assert node.graph.n_nodes == 1
     kept = node.graph.scan(0)
     assert kept is not None and kept.shape == (1, 2)
     np.testing.assert_allclose(kept[0], [0.5, 1.0], atol=1e-9)
@@ -314,3 +317,31 @@ def test_a_correction_map_waits_for_nodes_over_divisor_events() -> None:
     for i in (stamp_of[m.header.stamp] for m in maps0[:-1]):
         assert any(i <= j <= i + (j + 1) // D + 1 for j in at20), i
     assert [n.position for n in maps20[-1].nodes] == [n.position for n in maps0[-1].nodes]
+
+
+def test_a_laser_experience_takes_the_odometry_at_its_own_stamp() -> None:
+    """The robot turns 20 degrees between two Odometry poses; the event halfway between them
+    gets the pose halfway (10 degrees), not the older pose the event carries."""
+    from services.expmap.scan_graph import ScanGraph
+
+    cfg = PoseidonConfig().model_copy(deep=True)
+    cfg.expmap.graph = "scan_graph"
+    cfg.expmap.scan.topic = "scan"
+    cfg.expmap.loops.scan_matching = False
+    cfg.expmap.image.publish_experience = False
+    node = build_node("expmap", cfg)
+    node.process("Odometry", odometry(0, 100, (0.0, 0.0, 0.0), 0.0))
+    node.process("experience_event", ExperienceEvent(
+        header=Header(seq=0, stamp=150, frame_id="map"), lvc_id=0, pc_centroid=[0.0] * 4,
+        odom_position=[0.0, 0.0, 0.0], odom_yaw=0.0, gate="off", vpr_count=1))
+    node.process("Odometry", odometry(1, 200, (1.0, 0.0, 0.0), math.radians(20.0)))
+    assert isinstance(node.graph, ScanGraph) and node.graph.n_nodes == 1
+    np.testing.assert_allclose(node.graph._odom[0], [0.5, 0.0, math.radians(10.0)], atol=1e-12)
+    cfg.expmap.scan_graph.odometry_at_stamps = False       # the previous rule: the pose the event carries
+    old = build_node("expmap", cfg)
+    old.process("Odometry", odometry(0, 100, (0.0, 0.0, 0.0), 0.0))
+    old.process("experience_event", ExperienceEvent(
+        header=Header(seq=0, stamp=150, frame_id="map"), lvc_id=0, pc_centroid=[0.0] * 4,
+        odom_position=[0.0, 0.0, 0.0], odom_yaw=0.0, gate="off", vpr_count=1))
+    assert isinstance(old.graph, ScanGraph) and old.graph.n_nodes == 1
+    np.testing.assert_allclose(old.graph._odom[0], [0.0, 0.0, 0.0], atol=1e-12)

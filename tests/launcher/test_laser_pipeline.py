@@ -105,3 +105,18 @@ def test_sensor_offset_comes_from_the_input_unless_configured(tmp_path):
     sonar = load_config()                     # the underwater map is left alone
     calibrate_from_input(sonar, rec)
     assert sonar.expmap.scan_graph.sensor_offset is None
+
+
+def test_the_wheel_time_offset_is_measured_from_the_input_only_when_left_null(tmp_path):
+    from launcher.run import calibrate_from_input
+    rec = _recording_with_offsets(tmp_path / "a.mcap", None)     # odometry, no scans: nothing to measure
+    cfg = load_config(PRESET)
+    assert cfg.robot_state.wheel_time_offset_s is None
+    calibrate_from_input(cfg, rec)
+    assert cfg.robot_state.wheel_time_offset_s == 0.0
+    mine = load_config(PRESET, overrides=["robot_state.wheel_time_offset_s=0.1"])
+    calibrate_from_input(mine, rec)
+    assert mine.robot_state.wheel_time_offset_s == 0.1
+    sonar = load_config()                     # the underwater robot_state keeps its default
+    calibrate_from_input(sonar, rec)
+    assert sonar.robot_state.wheel_time_offset_s == 0.0

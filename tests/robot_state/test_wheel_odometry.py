@@ -47,3 +47,16 @@ def test_a_zero_quaternion_is_counted_and_skipped():
     out = run_offline(node, msgs)
     assert [m.header.stamp for k, m in out if k == "Odometry"] == [10, 30]
     assert node.counters["wheel_odometry_invalid"] == 1
+
+
+def test_the_wheel_time_offset_moves_every_stamp_onto_the_scans_clock():
+    msgs = [("wheel_odometry", wheel(k, 1_000_000_000 + 200_000_000 * k, 0.1 * k, 0.0, 0.0)) for k in range(4)]
+    for offset in (0.085, -0.05):
+        cfg = config()
+        cfg.robot_state.wheel_time_offset_s = offset
+        node = build_node("robot_state", cfg)
+        out = run_offline(node, msgs)
+        shift = round(offset * 1e9)
+        assert [m.header.stamp for k, m in out if k == "Odometry"] == [m.header.stamp + shift for _k, m in msgs]
+        # outputs stamped before their inputs lower the promise by as much; later ones keep it
+        assert node.output_watermark(5_000_000_000) == 5_000_000_000 + min(0, shift)
