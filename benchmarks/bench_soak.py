@@ -21,16 +21,19 @@ The two run recordings (player + recorder alone, full pipeline) are each deleted
 the first before the second run starts (``--keep-outputs`` keeps them: ~12 GB for the 60-min
 mission); the simulated mission stays cached (~5 GB per mission hour).
 
-``--json``: ``{"minutes", "mission", "pipeline": {"wall_s", "mission_s", "real_time_factor"},
+``--json``: ``{"minutes", "mission", "overrides" (``--set``), "pipeline": {"wall_s", "mission_s", "real_time_factor"},
 "transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
 {"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
 "peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second},
 "cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended)},
 "cpu_s_per_sixth": {service: [CPU s used in each sixth of the wall time]},
-"per_mission_part": [{"mission_s": [from, to], "wall_s", "real_time_factor", "cpu_s": {service: CPU s}}]
+"per_mission_part": [{"mission_s": [from, to], "wall_s", "real_time_factor", "cpu_s": {service: CPU s},
+"peak_rss_mib": {service: MiB}}]
 (``--parts`` equal parts of the mission time, default 3: the hours of a 3-hour mission; where
 the pipeline was is read from the recorder's checkpoint once a second), "last_vs_first":
-{"wall": last part's wall s / first's, "cpu_s": {service: last part's CPU s / first's}}}``.
+{"wall": last part's wall s / first's, "cpu_s": {service: last part's CPU s / first's},
+"peak_rss_mib": {service: last part's peak RSS - first's}}}``.  The readable output ends each run
+with a table per service: CPU seconds and peak RSS in the mission's first part against its last.
 """
 from __future__ import annotations
 
@@ -172,7 +175,8 @@ class RssSampler:
     def per_mission_part(self, parts: int, start_ns: int, mission_s: float, wall_s: float) -> list[dict[str, Any]]:
         """Per ``parts`` equal parts of the mission time: the wall time the pipeline took for it
         (from the recorder's progress, interpolated between samples; the last part ends with
-        the run), its real-time factor, and the CPU seconds each service used in it."""
+        the run), its real-time factor, the CPU seconds each service used in it and each
+        service's peak RSS (MiB) over the samples taken in it."""
         ts = np.array([t for t, _ in self.mission_samples] + [wall_s])
         ms = np.array([(s - start_ns) / 1e9 for _, s in self.mission_samples] + [mission_s])
         ms = np.maximum.accumulate(ms)
@@ -185,10 +189,15 @@ class RssSampler:
         out = []
         for k in range(parts):
             w = bounds[k + 1] - bounds[k]
+            rss: dict[str, float] = {}
+            for t, name, mib in self.samples:
+                if bounds[k] <= t < bounds[k + 1] or (k == parts - 1 and t >= bounds[k]):
+                    rss[name] = max(rss.get(name, 0.0), round(mib, 1))
             out.append({"mission_s": [round(mission_s * k / parts, 1), round(mission_s * (k + 1) / parts, 1)],
                         "wall_s": round(w, 1), "real_time_factor": round(mission_s / parts / w, 2) if w > 0 else None,
                         "cpu_s": {n: round(float(np.interp(bounds[k + 1], t_, c_) - np.interp(bounds[k], t_, c_)), 1)
-                                  for n, (t_, c_) in sorted(cpu.items())}})
+                                  for n, (t_, c_) in sorted(cpu.items())},
+                        "peak_rss_mib": dict(sorted(rss.items()))})
         return out
 
 
@@ -200,6 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parts", type=int, default=3,
                     help="split the mission into this many equal parts for the per-part speed and CPU (default 3: "
                          "hours of a 3-hour mission)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override one configuration field of the full pipeline's run (repeatable), e.g. to "
+                         "measure a default against its predecessor on the same cached mission")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--keep-outputs", action="store_true",
                     help="keep the two run recordings (about 12 GB for 60 min) in --cache-dir")
@@ -209,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     cache.mkdir(parents=True, exist_ok=True)
     mission = simulate_cached(cache / f"soak_{args.minutes:g}min_seed{args.seed}.mcap", args.minutes, args.seed)
     inp = recording_summary(mission)
-    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
+    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy", *args.set])
 
     print("transport only: player -> recorder", file=sys.stderr)
     base = run_distributed(cfg, mission, cache / "soak_transport.mcap", services=[], progress=False)
@@ -227,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     mission_s = float(res.recording["duration_s"])
     peaks = sampler.peaks(res.wall_s)
     out = {
-        "minutes": args.minutes, "mission": str(mission),
+        "minutes": args.minutes, "mission": str(mission), "overrides": args.set,
         "pipeline": {"wall_s": round(res.wall_s, 1), "mission_s": round(mission_s, 1),
                      "real_time_factor": round(mission_s / res.wall_s, 2)},
         "transport_only": {"wall_s": round(base.wall_s, 1), "mission_s": round(mission_s, 1),
@@ -248,12 +260,35 @@ def main(argv: list[str] | None = None) -> int:
     first, last = parts[0], parts[-1]
     out["last_vs_first"] = {"wall": round(last["wall_s"] / first["wall_s"], 2) if first["wall_s"] > 0 else None,
                             "cpu_s": {n: round(v / first["cpu_s"][n], 2) if first["cpu_s"].get(n) else None
-                                      for n, v in last["cpu_s"].items()}}
+                                      for n, v in last["cpu_s"].items()},
+                            "peak_rss_mib": {n: round(v - first["peak_rss_mib"][n], 1)
+                                             if n in first["peak_rss_mib"] else None
+                                             for n, v in last["peak_rss_mib"].items()}}
     if args.json:
         print(json.dumps(out, indent=1))
         return 0
     print_report(out, args.minutes, args.parts)
     return 0
+
+
+def print_first_last(first: dict[str, Any], last: dict[str, Any], n_parts: int) -> None:
+    """Per service: CPU s and peak RSS of the mission's first part against its last."""
+    a, b = first["mission_s"], last["mission_s"]
+    print(f"first 1/{n_parts} of the mission ({a[0]:.0f}-{a[1]:.0f} s) against the last ({b[0]:.0f}-{b[1]:.0f} s), "
+          "per service:")
+    print(f"  {'service':<12} {'CPU s first':>11} {'last':>7} {'last/first':>10}   {'peak RSS MiB first':>18} "
+          f"{'last':>7} {'last-first':>10}")
+    names = sorted(set(first["cpu_s"]) | set(last["cpu_s"]) | set(first["peak_rss_mib"]) | set(last["peak_rss_mib"]))
+    for n in names:
+        c0, c1 = first["cpu_s"].get(n), last["cpu_s"].get(n)
+        r0, r1 = first["peak_rss_mib"].get(n), last["peak_rss_mib"].get(n)
+        ratio = f"{c1 / c0:.2f}x" if c0 and c1 is not None else "-"
+        grow = f"{r1 - r0:+.1f}" if r0 is not None and r1 is not None else "-"
+        print(f"  {n:<12} {_num(c0):>11} {_num(c1):>7} {ratio:>10}   {_num(r0):>18} {_num(r1):>7} {grow:>10}")
+
+
+def _num(v: float | None) -> str:
+    return "-" if v is None else f"{v:.1f}"
 
 
 def print_report(out: dict[str, Any], minutes: float, n_parts: int) -> None:
@@ -274,13 +309,13 @@ def print_report(out: dict[str, Any], minutes: float, n_parts: int) -> None:
     for part in parts:
         print(f"  {part['mission_s'][0]:>7.0f}-{part['mission_s'][1]:<7.0f} s: {part['wall_s']:7.1f} s "
               f"({part['real_time_factor']}x)  " + ", ".join(f"{n} {v:.1f}" for n, v in part["cpu_s"].items()))
-    print("  last / first CPU: " + ", ".join(f"{n} {v}x" for n, v in out["last_vs_first"]["cpu_s"].items()))
     print("CPU seconds per sixth of the run (the first includes start-up):")
     for name, row in sorted(out["cpu_s_per_sixth"].items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row))
     print("peak RSS per sixth of the run (MiB):")
     for name, row in sorted(peaks.items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row) + f"   growth 2nd->6th {out['rss_growth_mib'][name]:+.1f}")
+    print_first_last(parts[0], parts[-1], n_parts)
 
 
 if __name__ == "__main__":

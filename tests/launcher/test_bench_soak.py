@@ -60,3 +60,19 @@ def test_per_mission_part_follows_the_recorders_progress(tmp_path):
     assert [p["real_time_factor"] for p in parts] == [10.0, 10.0, 3.33]
     assert [p["cpu_s"]["htm"] for p in parts] == [4.0, 5.0, 21.0]
     assert parts[2]["mission_s"] == [200.0, 300.0]
+    s.samples = [(5.0, "htm", 100.0), (9.9, "htm", 110.0), (15.0, "htm", 120.0), (49.0, "htm", 180.0),
+                 (50.5, "htm", 190.0), (12.0, "expmap", 70.0)]
+    parts = s.per_mission_part(3, start, 300.0, wall_s=50.0)
+    assert [p["peak_rss_mib"] for p in parts] == [{"htm": 110.0}, {"expmap": 70.0, "htm": 120.0}, {"htm": 190.0}]
+
+
+def test_the_report_shows_first_part_against_last_per_service(capsys):
+    first = {"mission_s": [0.0, 1200.0], "cpu_s": {"htm": 20.0, "encoder": 30.0},
+             "peak_rss_mib": {"htm": 300.0, "encoder": 400.0}}
+    last = {"mission_s": [2400.0, 3600.0], "cpu_s": {"htm": 25.0, "encoder": 30.0},
+            "peak_rss_mib": {"htm": 350.5, "encoder": 400.0}}
+    bench_soak.print_first_last(first, last, 3)
+    lines = capsys.readouterr().out.splitlines()
+    assert "0-1200 s" in lines[0] and "2400-3600 s" in lines[0]
+    assert lines[2].split() == ["encoder", "30.0", "30.0", "1.00x", "400.0", "400.0", "+0.0"]
+    assert lines[3].split() == ["htm", "20.0", "25.0", "1.25x", "300.0", "350.5", "+50.5"]
