@@ -25,7 +25,8 @@ mission); the simulated mission stays cached (~5 GB per mission hour).
 "transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
 {"camera_frames", "sdr", "local_view_cells", "events", "experience_images"},
 "peak_rss_mib": {service: [peak per sixth]}, "rss_growth_mib": {service: last - second},
-"cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended)},
+"cpu_s": {service: user + system CPU seconds at its last sample (<= 1 s before it ended; a restarted
+service's processes summed)},
 "cpu_s_per_sixth": {service: [CPU s used in each sixth of the wall time]},
 "per_mission_part": [{"mission_s": [from, to], "wall_s", "real_time_factor", "cpu_s": {service: CPU s},
 "peak_rss_mib": {service: MiB}}]
@@ -122,6 +123,8 @@ class RssSampler:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._t0 = 0.0
+        self.elapsed_s = 0.0   # wall s from the sampler's start to its stop (start-up included)
+        self._procs: dict[str, tuple[int, float, float]] = {}  # service -> (pid, CPU s of its ended pids, last)
 
     def _loop(self) -> None:
         me = os.getpid()
@@ -133,11 +136,21 @@ class RssSampler:
                     self.samples.append((t, name, rss))
                 cpu = _cpu_s(pid)
                 if cpu is not None:
+                    cpu = self._carried(name, pid, cpu)
                     self.cpu_s[name] = cpu
                     self.cpu_samples.append((t, name, cpu))
             seen = _recorder_seen_ns(self.recorder_ckpt) if self.recorder_ckpt is not None else None
             if seen is not None:
                 self.mission_samples.append((t, seen))
+
+    def _carried(self, name: str, pid: int, cpu: float) -> float:
+        """CPU s of service ``name`` over all its processes: a restarted service (a new pid) adds
+        its predecessor's last sample, so the series never drops."""
+        old_pid, offset, last = self._procs.get(name, (pid, 0.0, 0.0))
+        if old_pid != pid:
+            offset += last
+        self._procs[name] = (pid, offset, cpu)
+        return offset + cpu
 
     def __enter__(self) -> RssSampler:
         self._t0 = time.monotonic()
@@ -147,6 +160,7 @@ class RssSampler:
     def __exit__(self, *exc: Any) -> None:
         self._stop.set()
         self._thread.join()
+        self.elapsed_s = time.monotonic() - self._t0
 
     def peaks(self, wall_s: float) -> dict[str, list[float]]:
         out: dict[str, list[float]] = {}
@@ -237,7 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     played = [k for k in inp["counts"] if k not in ("neocortex/sdr", "local_view_cells")]
     dropped = {k: inp["counts"][k] - counts.get(k, 0) for k in played}
     mission_s = float(res.recording["duration_s"])
-    peaks = sampler.peaks(res.wall_s)
+    # the sampler's clock starts before the services do (their start-up is in the run's first
+    # part, not in res.wall_s): its samples are binned on its own elapsed time
+    peaks = sampler.peaks(sampler.elapsed_s)
     out = {
         "minutes": args.minutes, "mission": str(mission), "overrides": args.set,
         "pipeline": {"wall_s": round(res.wall_s, 1), "mission_s": round(mission_s, 1),
@@ -253,9 +269,9 @@ def main(argv: list[str] | None = None) -> int:
         "peak_rss_mib": peaks,
         "rss_growth_mib": {n: round(v[-1] - v[1], 1) for n, v in peaks.items()},
         "cpu_s": {n: round(v, 1) for n, v in sorted(sampler.cpu_s.items())},
-        "cpu_s_per_sixth": sampler.cpu_per_sixth(res.wall_s),
+        "cpu_s_per_sixth": sampler.cpu_per_sixth(sampler.elapsed_s),
     }
-    parts = sampler.per_mission_part(args.parts, int(inp["start_ns"]), mission_s, res.wall_s)
+    parts = sampler.per_mission_part(args.parts, int(inp["start_ns"]), mission_s, sampler.elapsed_s)
     out["per_mission_part"] = parts
     first, last = parts[0], parts[-1]
     out["last_vs_first"] = {"wall": round(last["wall_s"] / first["wall_s"], 2) if first["wall_s"] > 0 else None,

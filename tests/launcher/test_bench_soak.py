@@ -76,3 +76,12 @@ def test_the_report_shows_first_part_against_last_per_service(capsys):
     assert "0-1200 s" in lines[0] and "2400-3600 s" in lines[0]
     assert lines[2].split() == ["encoder", "30.0", "30.0", "1.00x", "400.0", "400.0", "+0.0"]
     assert lines[3].split() == ["htm", "20.0", "25.0", "1.25x", "300.0", "350.5", "+50.5"]
+
+
+def test_a_restarted_service_keeps_the_cpu_of_its_first_process():
+    s = bench_soak.RssSampler()
+    assert s._carried("player", 100, 2.0) == 2.0
+    assert s._carried("player", 100, 5.0) == 5.0
+    assert s._carried("player", 200, 0.5) == 5.5     # restarted: a new pid counting from 0
+    assert s._carried("player", 200, 1.0) == 6.0
+    assert s._carried("htm", 300, 1.0) == 1.0
