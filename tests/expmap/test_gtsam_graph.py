@@ -1,7 +1,9 @@
 """GTSAM's relaxations (services/expmap/gtsam_graph.py) against ours on graphs with a known truth."""
 from __future__ import annotations
 
+import importlib.util
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +15,8 @@ from services.expmap.gtsam_graph import relax_planar, relax_se2_gtsam, relaxatio
 from services.expmap.pose_graph import compose, relative_pose, relax_se2, wrap_angle
 from services.expmap.relaxation import solve_optimum
 from services.expmap.scan_graph import ScanGraph
+from system.config import PoseidonConfig
+from tests.conftest import REPO
 
 SEC = 1_000_000_000
 INFO = np.array([1e4, 1e4, 1.0 / 0.005 ** 2])   # 1 cm, 0.29 deg
@@ -149,3 +153,31 @@ def test_scan_graph_closes_a_loop_by_gtsam_when_configured() -> None:
     dm, dr = pose_gap(out["gauss_newton"], out["gtsam_lm"])
     assert dm < 1e-4 and dr < 1e-5, (dm, dr)
     np.testing.assert_array_equal(out["gtsam_lm"][0], truth[0])
+
+
+def test_benchmark_offline_replay_on_small_maps(tmp_path: Path) -> None:
+    """benchmarks/bench_optimizers.py re-solves a saved laser map and a saved 3D map by both."""
+    spec = importlib.util.spec_from_file_location("bench_optimizers", REPO / "benchmarks" / "bench_optimizers.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    cfg = PoseidonConfig()
+    truth, _init, _ei, _ej, z, _w = drifting_loop(None, n=40)
+    g = ScanGraph(cfg.expmap.scan_graph)
+    odom = [truth[0]]
+    for k in range(39):
+        odom.append(compose(odom[-1], z[k]))
+    for k, o in enumerate(odom):
+        g.add_event(k * SEC, k, [0, 0, 0, 0], [o[0], o[1], 0.0], float(o[2]))
+    g._close([(0, 39, relative_pose(truth[0], truth[39])), (2, 37, relative_pose(truth[2], truth[37]))],
+             EventResult(node=39))
+    g.save(tmp_path / "laser.npz")
+    laser = bench.replay_scan_graph(tmp_path / "laser.npz", cfg)
+    assert laser["loop_edges"] == 2 and laser["optima_differ_m"] < 1e-4 and laser["optima_differ_deg"] < 1e-3
+    em = ExperienceMap(cfg.expmap.updated({"min_experience_age": 10_000}))
+    for i in range(30):
+        em.add_event(i * SEC, i, [0, 0, 0, 0], [i + 0.1 * (i % 3), 0.0, 0.0], 0.0)
+    em.add_loop_edge(0, 25, 1.0, 0)
+    em.save(tmp_path / "map.npz")
+    sim = bench.replay_experience_map(tmp_path / "map.npz", cfg)
+    assert sim["loop_edges"] == 1 and sim["optima_differ_m"] < 1e-6
