@@ -44,6 +44,7 @@ import numpy as np
 
 from common.mcap_io import read_messages
 from eval.run_eval import evaluate_run
+from launcher.children import child_pid
 from launcher.demo import ensure_mission
 from products.rosbag import export_rosbag
 from tests.bridge_ros1.ros1 import ROS_PY, Roscore
@@ -63,18 +64,6 @@ def _loop_closures(run: Path) -> list[tuple[int, int, int]]:
     m = decode(last, ExperienceMap)
     stamp = {n.id: n.stamp for n in m.nodes}
     return sorted((max(stamp[lk.source], stamp[lk.target]), lk.source, lk.target) for lk in m.links if lk.loop_closure)
-
-
-def _pid_of(launcher_pid: int, name: str) -> int | None:
-    for task in Path(f"/proc/{launcher_pid}/task").iterdir():
-        for child in (task / "children").read_text().split():
-            try:
-                argv = Path(f"/proc/{child}/cmdline").read_bytes().decode(errors="replace").split("\0")
-            except FileNotFoundError:
-                continue
-            if "service" in argv and argv[argv.index("service") + 1] == name:
-                return int(child)
-    return None
 
 
 def _wait_bridge(uri: str, timeout_s: float = 180.0) -> None:
@@ -106,7 +95,7 @@ def _run(core: Roscore, bag: Path, out: Path, rate: float, kills: list[tuple[str
         t0 = time.monotonic() + delay
         for name, at_s in sorted(kills, key=lambda k: k[1]):
             time.sleep(max(0.0, t0 + at_s - time.monotonic()))
-            pid = _pid_of(run.pid, name)
+            pid = child_pid(run.pid, name)
             if pid is None:
                 raise RuntimeError(f"{name} is not running at {at_s:.1f} s")
             os.kill(pid, signal.SIGKILL)

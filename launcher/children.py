@@ -8,9 +8,10 @@ import logging
 import os
 import signal
 import subprocess
+from pathlib import Path
 from typing import Any
 
-__all__ = ["check_batch_scheduling", "die_with_launcher"]
+__all__ = ["check_batch_scheduling", "die_with_launcher", "child_pid"]
 
 log = logging.getLogger(__name__)
 
@@ -55,3 +56,20 @@ def check_batch_scheduling(name: str, proc: subprocess.Popen[Any]) -> None:
     if policy != _SCHED_BATCH:
         log.warning("bus.batch_scheduling: service %s did not get SCHED_BATCH (policy %d); it runs with the "
                     "default scheduling", name, policy)
+
+
+def child_pid(launcher_pid: int, name: str) -> int | None:
+    """The pid of the launcher's child running service ``name`` (``... service NAME ...``; the
+    hub: ``... hub ...``), read from ``/proc`` (Linux); None when there is none right now.
+    For tests and benchmarks that stop one process of a run."""
+    for task in Path(f"/proc/{launcher_pid}/task").iterdir():
+        for child in (task / "children").read_text().split():
+            try:
+                argv = Path(f"/proc/{child}/cmdline").read_bytes().decode(errors="replace").split("\0")
+            except FileNotFoundError:      # the child ended between the two reads
+                continue
+            if name == "hub" and "hub" in argv:
+                return int(child)
+            if "service" in argv and argv.index("service") + 1 < len(argv) and argv[argv.index("service") + 1] == name:
+                return int(child)
+    return None

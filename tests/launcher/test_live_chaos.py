@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from launcher.children import child_pid
 from missions.sim.cli import main as sim_main
 from tests.common.recordings import payloads_by_key
 from tests.conftest import REPO
@@ -52,20 +53,6 @@ def _launch(work: Path, out: Path) -> subprocess.Popen:
                             text=True)
 
 
-def _pid_of(launcher_pid: int, name: str) -> int | None:
-    for task in Path(f"/proc/{launcher_pid}/task").iterdir():
-        for child in (task / "children").read_text().split():
-            try:
-                argv = Path(f"/proc/{child}/cmdline").read_bytes().decode(errors="replace").split("\0")
-            except FileNotFoundError:
-                continue
-            if name == "hub" and "hub" in argv:
-                return int(child)
-            if "service" in argv and argv[argv.index("service") + 1] == name:
-                return int(child)
-    return None
-
-
 @pytest.fixture(scope="module")
 def uninterrupted(work):
     out = work / "plain.mcap"
@@ -95,7 +82,7 @@ def test_sigkill_of_every_service_the_recorder_and_the_hub_leaves_no_trace(work,
             time.sleep(0.05)
         for name, gap in zip(order, gaps):
             time.sleep(gap)
-            pid = _pid_of(proc.pid, name)
+            pid = child_pid(proc.pid, name)
             assert pid is not None, f"{name} not running (killed so far: {killed})"
             os.kill(pid, signal.SIGKILL)
             killed.append(name)
@@ -145,7 +132,7 @@ def test_a_kill_that_outlasts_the_retention_counts_its_gap_and_the_run_finishes(
             assert proc.poll() is None, out.with_suffix(".err").read_text()[-3000:]
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        pid = _pid_of(proc.pid, "htm")
+        pid = child_pid(proc.pid, "htm")
         assert pid is not None
         os.kill(pid, signal.SIGKILL)
         stdout, _ = proc.communicate(timeout=600)

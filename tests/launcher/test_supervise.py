@@ -20,6 +20,7 @@ from common.codec import encode
 from common.mcap_io import read_messages
 from common.ordering import EventTimeMerger
 from common.resume import load_checkpoint, save_checkpoint
+from launcher.children import child_pid
 from missions.sim.cli import main as sim_main
 from system.config import load_config
 from system.services import build_node
@@ -71,18 +72,6 @@ def uninterrupted(work):
     return out
 
 
-def _service_pid(launcher_pid: int, name: str) -> int | None:
-    for task in Path(f"/proc/{launcher_pid}/task").iterdir():
-        for child in (task / "children").read_text().split():
-            try:
-                argv = Path(f"/proc/{child}/cmdline").read_bytes().decode(errors="replace").split("\0")
-            except FileNotFoundError:
-                continue
-            if "service" in argv and argv[argv.index("service") + 1] == name:
-                return int(child)
-    return None
-
-
 VICTIMS = ["encoder", "htm", "robot_state", "posecells", "expmap", "recorder", "player"]
 
 
@@ -105,7 +94,7 @@ def test_sigkill_of_every_process_mid_run_resumes_to_the_uninterrupted_streams(w
                 if name in killed or not ckpt.exists():
                     continue
                 assert not load_checkpoint(ckpt).get("finished"), f"{name}: killed after its end, not mid-run"
-                pid = _service_pid(proc.pid, name)
+                pid = child_pid(proc.pid, name)
                 assert pid is not None, f"{name} not running"
                 os.kill(pid, signal.SIGKILL)
                 killed.append(name)
