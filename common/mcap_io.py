@@ -43,10 +43,10 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import _chunks_matching_topics, make_reader
-from mcap.records import Channel, Chunk, MessageIndex, Metadata, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, MessageIndex, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import CRCValidationError, StreamReader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 from zstandard import ZstdError
 
 from common.codec import decode, encode
@@ -61,6 +61,11 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+#: zstd level of the chunks :class:`RecordingWriter` writes.  mcap's writer uses zstd's default (3);
+#: on a run's chunks level 1 takes 0.39x its CPU on camera frames (2.1 against 5.4 ns per byte,
+#: ratio 1.200 against 1.206) and the same on the small messages (3.0 against 2.9-3.2 ns per
+#: byte, ratio 1.78 against 1.79)
+ZSTD_LEVEL = 1
 
 
 class RecordingError(RuntimeError):
@@ -90,6 +95,12 @@ def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
 
 _MESSAGE_OPCODE = int(Opcode.MESSAGE)
 _MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
+
+
+_CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start, end, uncompressed size, crc, compression name length
+#: the mcap writer's private state :meth:`RecordingWriter._end_chunk` uses
+_CHUNK_STATE = ("enable_crcs", "enable_data_crcs", "flush", "stream", "record_builder", "index_types",
+                "chunk_indices")
 
 
 class _MessageIndex(MessageIndex):
@@ -132,6 +143,14 @@ class RecordingWriter:
         self._finalize_chunk: Any = getattr(self._writer, "_Writer__finalize_chunk", None)
         self._fast = (self._stats is not None and hasattr(self._writer, "_Writer__chunk_builder")
                       and hasattr(self._writer, "_Writer__finalize_chunk"))
+        self._compression = compression
+        self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+        mcap: Any = self._writer
+        if (self._fast and all(hasattr(mcap, f"_Writer__{a}") for a in _CHUNK_STATE)
+                and not mcap._Writer__enable_data_crcs):
+            # mcap's own chunk ends (its flush, finish and size check) run this one instead
+            mcap._Writer__finalize_chunk = self._end_chunk
+            self._finalize_chunk = self._end_chunk
 
     def _channel(self, key: str, type_name: str) -> int:
         cid = self._channels.get(key)
@@ -156,8 +175,8 @@ class RecordingWriter:
     def write_encoded(self, key: str, type_name: str, payload: bytes | memoryview, stamp: int, seq: int) -> None:
         """Record an already encoded payload (the recorder stores what it received, byte for byte)."""
         cid = self._channel(key, type_name)
-        if self._fast:
-            self._add_message(cid, stamp, bytes(payload), seq & 0xFFFFFFFF)
+        if self._fast:   # the payload is copied into the chunk once, never to a bytes object first
+            self._add_message(cid, stamp, payload, seq & 0xFFFFFFFF)
         else:
             self._writer.add_message(cid, log_time=stamp, data=bytes(payload), publish_time=stamp,
                                      sequence=seq & 0xFFFFFFFF)
@@ -167,12 +186,13 @@ class RecordingWriter:
             if self._since_flush >= self._flush_every:
                 self.flush()
 
-    def _add_message(self, cid: int, stamp: int, data: bytes, seq: int) -> None:
+    def _add_message(self, cid: int, stamp: int, data: bytes | memoryview, seq: int) -> None:
         """What ``mcap.writer.Writer.add_message(cid, stamp, data, stamp, seq)`` does -- the same
         statistics, chunk bounds, message index entry and Message record, byte for byte
         (``tests/common/test_mcap_fast.py`` compares the files) -- with one ``struct.pack``
         instead of a record object and a write call per field."""
-        head = _MESSAGE_RECORD.pack(_MESSAGE_OPCODE, 22 + len(data), cid, seq, stamp, stamp)
+        size = data.nbytes if isinstance(data, memoryview) else len(data)
+        head = _MESSAGE_RECORD.pack(_MESSAGE_OPCODE, 22 + size, cid, seq, stamp, stamp)
         st = self._stats
         if st.message_count == 0 or stamp < st.message_start_time:
             st.message_start_time = stamp
@@ -195,6 +215,48 @@ class RecordingWriter:
         buf.write(data)
         if buf.tell() > self._chunk_size:
             self._finalize_chunk()
+
+    def _end_chunk(self) -> None:
+        """What mcap's ``Writer.__finalize_chunk`` does -- the same Chunk record, chunk index and
+        message indexes -- with zstd at :data:`ZSTD_LEVEL` through one reused context, and the
+        chunk written to the file without being copied into a record buffer first."""
+        w: Any = self._writer
+        cb = self._chunk_builder
+        if cb.num_messages == 0:
+            return
+        self._stats.chunk_count += 1
+        data = cb.end()
+        if self._compression == "zstd":
+            packed: bytes = self._zstd.compress(data)
+        elif self._compression == "lz4":
+            import lz4.frame
+            packed = lz4.frame.compress(data)
+        else:
+            packed = data
+        name = {"zstd": b"zstd", "lz4": b"lz4", "none": b""}[self._compression]
+        crc = zlib.crc32(data) if w._Writer__enable_crcs else 0
+        flush = w._Writer__flush
+        flush()
+        stream = w._Writer__stream
+        start = stream.tell()
+        length = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(packed)
+        stream.write(_CHUNK_HEAD.pack(Opcode.CHUNK, length, cb.message_start_time, cb.message_end_time, len(data),
+                                      crc, len(name)) + name + struct.pack("<Q", len(packed)))
+        stream.write(packed)
+        index = ChunkIndex(message_start_time=cb.message_start_time, message_end_time=cb.message_end_time,
+                           chunk_start_offset=start, chunk_length=9 + length, message_index_offsets={},
+                           message_index_length=0, compression=name.decode(), compressed_size=len(packed),
+                           uncompressed_size=len(data))
+        records = w._Writer__record_builder
+        index_start = stream.tell()
+        if w._Writer__index_types & IndexType.MESSAGE:
+            for cid, mi in cb.message_indices.items():
+                index.message_index_offsets[cid] = index_start + records.count
+                mi.write(records)
+        index.message_index_length = records.count
+        flush()
+        w._Writer__chunk_indices.append(index)
+        cb.reset()
 
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         """Add a metadata record; values that are not strings are stored as JSON."""

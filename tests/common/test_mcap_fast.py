@@ -9,11 +9,15 @@ from common.messages import Depth, Header, Image
 KEYS = ["depth_sensor", "odometry_depth", "camera/image_raw", "other_depth"]
 
 
-def _shuffled_recording(path, n=600, chunk_size=700, seed=3, fast=True):
+def _shuffled_recording(path, n=600, chunk_size=700, seed=3, fast=True, compression="zstd", mcap_chunks=False):
     """Messages written out of stamp order, many stamps shared across keys, chunks of a few
-    messages (they overlap in time), a few forced chunk ends; returns the writer's counts."""
+    messages (they overlap in time), a few forced chunk ends; returns the writer's counts.
+    ``mcap_chunks``: the chunks ended by mcap's own writer (its compression level)."""
     rng = np.random.default_rng(seed)
-    w = RecordingWriter(path, chunk_size=chunk_size)
+    w = RecordingWriter(path, chunk_size=chunk_size, compression=compression)
+    if mcap_chunks:
+        del w._writer._Writer__finalize_chunk
+        w._finalize_chunk = w._writer._Writer__finalize_chunk
     w._fast = fast and w._fast
     w.add_metadata("poseidon", {"seed": seed})
     seqs = {}
@@ -115,3 +119,38 @@ def test_recording_summary_of_a_file_without_summary(tmp_path):
     empty = tmp_path / "empty.mcap"
     RecordingWriter(empty).close()
     assert recording_summary(empty) == {"counts": {}, "types": {}, "start_ns": None, "end_ns": None, "duration_s": 0.0}
+
+
+def _chunks(path):
+    """(chunk index without compressed size, decompressed records, message indexes) of each chunk."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+
+    from common.mcap_io import _chunk_records
+    out = []
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        for ci in summary.chunk_indexes:
+            f.seek(ci.chunk_start_offset + 9)
+            chunk = Chunk.read(ReadDataStream(f))
+            f.seek(ci.chunk_start_offset + ci.chunk_length)
+            indexes = f.read(ci.message_index_length)
+            offsets = {k: v - ci.chunk_start_offset - ci.chunk_length for k, v in ci.message_index_offsets.items()}
+            out.append((ci.message_start_time, ci.message_end_time, ci.chunk_length - len(chunk.data), offsets,
+                        ci.compression, ci.uncompressed_size, chunk.uncompressed_crc,
+                        _chunk_records(chunk, validate_crc=True), indexes))
+    return out
+
+
+def test_chunks_are_mcaps_own_but_for_the_zstd_level(tmp_path):
+    for compression in ("none", "lz4"):
+        a, b = tmp_path / f"mcap_{compression}.mcap", tmp_path / f"ours_{compression}.mcap"
+        _shuffled_recording(a, compression=compression, mcap_chunks=True)
+        _shuffled_recording(b, compression=compression)
+        assert a.read_bytes() == b.read_bytes(), compression
+    a, b = tmp_path / "mcap_zstd.mcap", tmp_path / "ours_zstd.mcap"
+    _shuffled_recording(a, mcap_chunks=True)
+    _shuffled_recording(b)
+    ours = _chunks(b)
+    assert len(ours) > 20 and _chunks(a) == ours      # every record the same once decompressed
+    assert _mcap_order(a) == _mcap_order(b) == _ours(b)
