@@ -124,8 +124,12 @@ class VisualScaleConfig(ConfigSection):
     min_clearance_m: float = Field(0.3, gt=0, description="pairs where the camera is nearer the floor are not "
                                    "measured [m]")
     altitude_max_age_s: float = Field(2.0, gt=0, description="an altitude older than this is not used [s]")
-    pair_every: int = Field(2, ge=1, description="measure one consecutive frame pair in this many (each measured "
-                            "pair costs two frames' FFTs) [pairs]")
+    pair_every: int = Field(4, ge=1, description="measure one consecutive frame pair in this many (each measured "
+                            "pair costs two frames' FFTs; 4 with downsample 2: a fifth of the CPU of 2 at full "
+                            "resolution, held-out map ATE in docs/DECISIONS.md) [pairs]")
+    downsample: int = Field(2, ge=1, le=8, description="frames are reduced to means of downsample x downsample "
+                            "pixel blocks before the shift is measured (its filters scaled alike; 1: full "
+                            "resolution) [pixels]")
     min_step_m: float = Field(0.02, gt=0, description="pairs over which the odometry moved less are not used [m]")
     inlier_band: float = Field(0.1, gt=0, lt=1, description="a pair counts when its camera/odometry ratio is within "
                                "this fraction of the median ratio of every pair so far [fraction]")

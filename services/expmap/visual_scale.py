@@ -10,10 +10,12 @@ camera over the floor does:
 - between two consecutive frames the floor's texture shifts by ``d_px = f d / h`` pixels
   (pinhole over a locally flat floor; f = ``focal_px``, h = the camera's height over the
   floor = the DVL's altitude minus ``camera_height_m``, the camera's offset below the DVL);
-- the shift comes from phase correlation of the two frames, each high-passed (a 13-px box
-  mean removed), contrast-normalised (divided by the 25-px box mean of its magnitude, so
-  the lamp's bright spot does not dominate) and Hann-windowed, refined to a tenth of a
-  pixel by a parabola through the peak;
+- the shift comes from phase correlation of the two frames, each reduced to the means of
+  ``downsample`` x ``downsample`` pixel blocks (1: full resolution), high-passed (a 13-px
+  box mean removed), contrast-normalised (divided by the 25-px box mean of its magnitude, so
+  the lamp's bright spot does not dominate; both boxes in full-resolution pixels, the nearest
+  odd size at the reduced one) and Hann-windowed, refined to a tenth of a pixel by a parabola
+  through the peak, and scaled back to full-resolution pixels;
 - the pair's metric displacement ``|d_px| h / f`` is compared with the odometry's
   horizontal displacement between the same two stamps (interpolated):
   ``s = sum(d_camera) / sum(d_odometry)`` over the pairs whose ratio lies within
@@ -26,8 +28,9 @@ camera over the floor does:
 The map multiplies its odometry edges' horizontal displacements by ``s``
 (:meth:`services.expmap.graph.ExperienceMap.set_odometry_scale`); the depth channel is
 absolute and keeps its own scale.  Only every ``pair_every``-th frame pair is measured
-(the estimate needs hundreds, not every one; 2.5 ms per frame).  Everything is
-deterministic: the inputs' stamps decide every choice.
+(the estimate needs hundreds, not every one), by default on 2 x 2 block means: ~1 ms per
+measured frame instead of ~3 ms at full resolution (``docs/DECISIONS.md``, "The odometry's
+scale from the camera").  Everything is deterministic: the inputs' stamps decide every choice.
 """
 from __future__ import annotations
 
@@ -42,6 +45,8 @@ from scipy.ndimage import uniform_filter
 from services.expmap.config import VisualScaleConfig
 
 _REESTIMATE_EVERY = 16      # pairs between two estimates (each costs a median over every pair)
+_HIGHPASS_PX = 13           # box of the high-pass (full-resolution pixels)
+_CONTRAST_PX = 25           # box of the contrast normalisation (full-resolution pixels)
 
 __all__ = ["VisualScale", "image_shift"]
 
@@ -54,11 +59,34 @@ def _window(h: int, w: int) -> np.ndarray:
     return win
 
 
-def _prepare(image: np.ndarray) -> np.ndarray:
-    """Spectrum of the high-passed, contrast-normalised, Hann-windowed frame."""
-    img = np.asarray(image, np.float32)
-    hp = img - uniform_filter(img, 13)
-    hp /= uniform_filter(np.abs(hp), 25) + 1e-3
+def _odd(px: float) -> int:
+    """The odd box size nearest ``px`` (at least 1)."""
+    n = max(int(round(px)), 1)
+    return n if n % 2 else n + 1
+
+
+def _reduce(image: np.ndarray, factor: int) -> np.ndarray:
+    """The frame as float32, reduced to the means of ``factor`` x ``factor`` pixel blocks (rows
+    and columns beyond the last whole block dropped)."""
+    a = np.asarray(image)
+    if factor == 1:
+        return np.asarray(a, np.float32)
+    h, w = a.shape[0] // factor * factor, a.shape[1] // factor * factor
+    full = a[:h, :w].astype(np.float32)
+    out: np.ndarray = full[::factor, ::factor].copy()   # strided sums: ~10x faster than a reshaped sum
+    for i in range(factor):
+        for j in range(factor):
+            if i or j:
+                out += full[i::factor, j::factor]
+    out *= np.float32(1.0 / factor ** 2)
+    return out
+
+
+def _prepare(image: np.ndarray, factor: int = 1) -> np.ndarray:
+    """Spectrum of the reduced, high-passed, contrast-normalised, Hann-windowed frame."""
+    img = _reduce(image, factor)
+    hp = img - uniform_filter(img, _odd(_HIGHPASS_PX / factor))
+    hp /= uniform_filter(np.abs(hp), _odd(_CONTRAST_PX / factor)) + 1e-3
     hp *= _window(*img.shape)
     out: np.ndarray = sfft.rfft2(hp)
     return out
@@ -81,12 +109,17 @@ def _shift(spec_a: np.ndarray, spec_b: np.ndarray, shape: tuple[int, int]) -> tu
     return (y - h if y > h / 2 else y), (x - w if x > w / 2 else x)
 
 
-def image_shift(first: np.ndarray, second: np.ndarray) -> tuple[float, float]:
-    """Pixels (rows, columns) the floor's texture moved from ``first`` to ``second`` (2-D arrays)."""
+def image_shift(first: np.ndarray, second: np.ndarray, downsample: int = 1) -> tuple[float, float]:
+    """Pixels (rows, columns) the floor's texture moved from ``first`` to ``second`` (2-D arrays),
+    measured on ``downsample`` x ``downsample`` block means."""
     a, b = np.asarray(first), np.asarray(second)
     if a.ndim != 2 or a.shape != b.shape:
         raise ValueError(f"image_shift needs two 2-D frames of one shape, got {a.shape} and {b.shape}")
-    return _shift(_prepare(b), _prepare(a), (int(a.shape[0]), int(a.shape[1])))
+    f = int(downsample)
+    if f < 1 or a.shape[0] < 2 * f or a.shape[1] < 2 * f:
+        raise ValueError(f"image_shift: downsample {downsample} does not fit frames of {a.shape}")
+    dy, dx = _shift(_prepare(b, f), _prepare(a, f), (a.shape[0] // f, a.shape[1] // f))
+    return dy * f, dx * f
 
 
 class VisualScale:
@@ -133,7 +166,8 @@ class VisualScale:
         if every > 1 and k % every not in (0, every - 1):
             self._prev = None
             return
-        spec = _prepare(image)
+        f = cfg.downsample
+        spec = _prepare(image, f)
         prev, self._prev = self._prev, (int(stamp), spec)
         if prev is not None and prev[1].shape != spec.shape:     # the camera's resolution changed
             self.counts["resized"] += 1
@@ -144,8 +178,8 @@ class VisualScale:
         if alt is None or stamp - alt[0] > cfg.altitude_max_age_s * 1e9 or alt[1] - cfg.camera_height_m < cfg.min_clearance_m:
             self.counts["no_altitude"] += 1
             return
-        dy, dx = _shift(spec, prev[1], (int(image.shape[0]), int(image.shape[1])))
-        metres = math.hypot(dy, dx) * (alt[1] - cfg.camera_height_m) / cfg.focal_px
+        dy, dx = _shift(spec, prev[1], (int(image.shape[0]) // f, int(image.shape[1]) // f))
+        metres = math.hypot(dy, dx) * f * (alt[1] - cfg.camera_height_m) / cfg.focal_px
         self._pending.append((prev[0], int(stamp), metres))
 
     def _odom_at(self, t: int) -> np.ndarray | None:

@@ -10,7 +10,7 @@ from services.expmap.config import VisualScaleConfig
 from services.expmap.graph import ExperienceMap
 from services.expmap.node import ExpMapNode
 from services.expmap.session_link import SESSION_BREAK_WEIGHT
-from services.expmap.visual_scale import VisualScale, image_shift
+from services.expmap.visual_scale import VisualScale, _reduce, image_shift
 from tests.expmap.helpers import SEC, pc_of, small_cfg
 
 H, W = 96, 128            # small frames: the measurement does not depend on the size
@@ -40,6 +40,25 @@ def test_image_shift_finds_a_known_displacement() -> None:
         assert rows == pytest.approx(-dr, abs=0.15) and cols == pytest.approx(-dc, abs=0.15)
 
 
+def test_image_shift_on_block_means_finds_it_in_full_resolution_pixels() -> None:
+    tex = floor_texture()
+    a = frame_at(tex, 500, 500)
+    for dr, dc in ((7, -3), (-12, 5), (0, 9), (5, 0)):
+        b = frame_at(tex, 500 + dr, 500 + dc)
+        rows, cols = image_shift(a, b, downsample=2)
+        assert rows == pytest.approx(-dr, abs=0.3) and cols == pytest.approx(-dc, abs=0.3)
+    with pytest.raises(ValueError, match="does not fit"):
+        image_shift(a[:3, :3], b[:3, :3], downsample=2)
+
+
+def test_block_means_are_the_means_of_whole_blocks() -> None:
+    img = np.arange(7 * 9, dtype=np.uint8).reshape(7, 9)
+    got = _reduce(img, 2)
+    assert got.dtype == np.float32 and got.shape == (3, 4)
+    assert np.array_equal(got, img[:6, :8].astype(np.float64).reshape(3, 2, 4, 2).mean(axis=(1, 3)))
+    assert np.array_equal(_reduce(img, 1), img.astype(np.float32))
+
+
 def test_image_shift_refuses_frames_of_two_shapes() -> None:
     with pytest.raises(ValueError, match="one shape"):
         image_shift(np.zeros((10, 12)), np.zeros((12, 10)))
@@ -66,14 +85,14 @@ def fly(vs: VisualScale, odometry_gain: float, n: int = 400, bad_every: int = 7,
 
 
 def test_the_estimate_recovers_an_odometry_that_reads_long() -> None:
-    vs = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=1, min_pairs=100))
+    vs = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=1, min_pairs=100, downsample=1))
     fly(vs, odometry_gain=1.02)
     assert vs.scale is not None
     # the Hann window stays while the floor moves under it: the phase correlation reads ~0.2 %
     # short on frames this small (image_shift test: 6.984 px for 7), hence the tolerance
     assert vs.scale == pytest.approx(1 / 1.02, abs=0.004)
     assert vs.counts["outliers"] > 0, "the murky frames must be left out, not averaged in"
-    exact = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=1, min_pairs=100))
+    exact = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=1, min_pairs=100, downsample=1))
     fly(exact, odometry_gain=1.0)
     assert exact.scale == pytest.approx(1.0, abs=0.004)
 
@@ -91,10 +110,18 @@ def test_no_estimate_before_enough_pairs_nor_without_altitude() -> None:
 
 
 def test_pair_every_measures_one_pair_in_n() -> None:
-    vs = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=4, min_pairs=20))
+    vs = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=4, min_pairs=20, downsample=1))
     fly(vs, odometry_gain=1.02, n=200, bad_every=0)
     assert vs.counts["pairs"] == 49          # pairs (3, 4), (7, 8), ... of 200 frames
     assert vs.scale == pytest.approx(1 / 1.02, abs=0.004)
+
+
+def test_the_estimate_on_block_means_matches_full_resolution() -> None:
+    half = VisualScale(VisualScaleConfig(focal_px=FOCAL, camera_height_m=0.2, pair_every=1, min_pairs=100,
+                                         downsample=2))
+    fly(half, odometry_gain=1.02)
+    assert half.scale == pytest.approx(1 / 1.02, abs=0.006)
+    assert half.counts["outliers"] > 0
 
 
 def straight_run(em: ExperienceMap, t0: int, n: int, gain: float, origin: float = 0.0) -> None:
