@@ -18,7 +18,7 @@ best with the registered turns (least median of absolute differences).  The pair
 evenly over the recording (every k-th candidate, at most ``max_pairs``): deterministic.
 
 ``robot_state.wheel_time_offset_s`` (null: measured by this at the start of a run,
-``launcher.run.calibrate_from_input``) shifts the published ``Odometry`` onto the scans' clock.
+``system.calibration.calibrate_from_input``) shifts the published ``Odometry`` onto the scans' clock.
 """
 from __future__ import annotations
 
