@@ -8,6 +8,7 @@ time slider.  Both print the page's address on stderr (``ready`` gets it too).
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import threading
 from collections.abc import Callable, Mapping, Sequence
@@ -54,6 +55,18 @@ def serve_recording(path: str | Path, cfg: ViewConfig, stop: threading.Event, li
         server.stop()
 
 
+def _lowest_priority() -> None:
+    """This process and the threads it starts from now on run under SCHED_IDLE (``view.idle_priority``)."""
+    policy = getattr(os, "SCHED_IDLE", None)
+    if policy is None:
+        log.warning("view.idle_priority: this system has no SCHED_IDLE; the view runs with the default scheduling")
+        return
+    try:
+        os.sched_setscheduler(0, policy, os.sched_param(0))
+    except OSError as exc:
+        log.warning("view.idle_priority: SCHED_IDLE refused (%s); the view runs with the default scheduling", exc)
+
+
 def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Event,
                io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None, listen: str | None = None,
                foxglove_port: int | None = None, ready: Callable[[str], None] | None = None,
@@ -67,6 +80,8 @@ def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Ev
         host = parse_listen(listen or cfg.listen)[0]
     except ValueError as exc:
         raise ViewError(f"--listen {exc}") from None
+    if cfg.idle_priority:
+        _lowest_priority()
     bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
     fox = None
     try:

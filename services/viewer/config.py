@@ -29,6 +29,9 @@ class ViewConfig(ConfigSection):
     sonar_bins: int = Field(64, ge=8, le=512, description="range bins kept per sonar beam in the sweep [bins]")
     linger_s: float = Field(0.0, ge=0.0, description="poseidon run --view: keep serving the final state this "
                             "long after the run ended (0: stop with the run) [s]")
+    idle_priority: bool = Field(True, description="poseidon view of a running deployment: the view runs at the "
+                                "lowest CPU priority (Linux SCHED_IDLE), so on a vehicle computer it only uses "
+                                "time the SLAM leaves (false: the default scheduling)")
     connect_timeout_s: float = Field(5.0, gt=0, description="poseidon view --connect: give up (exit 2) when no "
                                      "hub answers at the address within this time [s]")
     foxglove_backlog: int = Field(64, ge=1, description="Foxglove server: messages buffered per client; beyond, "

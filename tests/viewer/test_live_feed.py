@@ -79,3 +79,13 @@ def test_a_flood_drops_view_updates_never_blocks(bus: Bus) -> None:
         assert feed.model.camera is not None and int(np.asarray(feed.model.camera.data)[0, 0, 0]) == 19
     finally:
         feed.stop()
+
+
+def test_the_live_view_drops_to_the_lowest_cpu_priority() -> None:
+    """view.idle_priority: a view on a vehicle computer takes only the CPU time the SLAM leaves."""
+    import subprocess
+    import sys
+    code = ("import os; from services.viewer.app import _lowest_priority; _lowest_priority(); "
+            "print(os.sched_getscheduler(0) == os.SCHED_IDLE)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True", out.stderr
