@@ -80,9 +80,14 @@ def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Ev
         host = parse_listen(listen or cfg.listen)[0]
     except ValueError as exc:
         raise ViewError(f"--listen {exc}") from None
-    if cfg.idle_priority:
+    before = os.sched_getscheduler(0)
+    if cfg.idle_priority:     # before connecting: the bus's threads inherit it
         _lowest_priority()
-    bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
+    try:
+        bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
+    except ViewError:         # no hub: the caller (a test, a script) gets its own priority back
+        os.sched_setscheduler(0, before, os.sched_param(0))
+        raise
     fox = None
     try:
         if foxglove_port is not None:
