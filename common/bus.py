@@ -6,7 +6,9 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
   launcher's hub is a session in ``router`` mode listening on loopback; services are
   ``client`` sessions connected to it (``peer`` is available for multi-host set-ups, see
   ``deploy/``).  A client retries its endpoints forever, so services may start before or
-  after the hub.
+  after the hub.  Retries back off from 0.25 s to at most 1 s (Zenoh's default grows to
+  4 s): a link to the hub that comes back after an outage is used again within a second,
+  not up to 4 s later, while every frame published meanwhile waits in the sender.
 - Keys are ``<namespace>/<key>`` (namespace per vehicle, default ``poseidon``); liveliness
   tokens are ``<namespace>/@alive/<service>``.
 - Publishers are reliable with ``CongestionControl.BLOCK``: Zenoh never drops a frame.
@@ -49,6 +51,9 @@ log = logging.getLogger(__name__)
 ALIVE = "@alive"
 PROGRESS = "@progress"
 ABORT = "@abort"
+
+
+CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 
 
 def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iterable[str] = (),
@@ -95,6 +100,7 @@ def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iter
     if mode != "router":
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
+        conf.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     return conf
 
 

@@ -91,6 +91,31 @@ def test_services_may_start_before_the_hub(tmp_path):
     assert payloads_by_key(out) == payloads_by_key(src)
 
 
+def test_a_client_is_back_within_a_second_of_its_hub(tmp_path):
+    """The hub goes away for 3.3 s.  Zenoh's default retry would next try at 7 s (1, 2, 4 s
+    apart) and leave the client silent for 3.7 s after the hub is back; ours retries at most
+    every second."""
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    hub = open_hub(endpoint)
+    sender = Bus(connect=[endpoint])
+    hub.close()
+    time.sleep(3.3)
+    hub = open_hub(endpoint)
+    back = time.monotonic()
+    receiver = Bus(connect=[endpoint])
+    arrivals: list[float] = []
+    receiver.subscribe_callback("probe", lambda _k, _d: arrivals.append(time.monotonic()))
+    try:
+        while not arrivals and time.monotonic() - back < 10:
+            sender.session.put(sender.full_key("probe"), b"1")
+            time.sleep(0.02)
+    finally:
+        receiver.close()
+        sender.close()
+        hub.close()
+    assert arrivals and arrivals[0] - back < 1.5
+
+
 def test_failing_service_is_named_and_recording_kept(tmp_path):
     src = tmp_path / "small.mcap"
     six_stream_recording(src, 600, image_every=20)
