@@ -27,6 +27,11 @@ class ViewConfig(ConfigSection):
     timeline_points: int = Field(4000, ge=100, description="the LVC timeline keeps at most this many frames "
                                  "(every other one dropped when full; revisits are always kept) [frames]")
     sonar_bins: int = Field(64, ge=8, le=512, description="range bins kept per sonar beam in the sweep [bins]")
+    sample_bytes: int = Field(65536, ge=1024, description="a key whose data frames are larger (camera images) "
+                              "is sampled, not followed frame by frame: the hub copies only about sample_hz "
+                              "of its frames a second to the view [bytes]")
+    sample_hz: float = Field(2.0, gt=0, le=20.0, description="frames a second taken of each sampled key (the "
+                             "camera panel's refresh rate in a live view) [Hz]")
     linger_s: float = Field(0.0, ge=0.0, description="poseidon run --view: keep serving the final state this "
                             "long after the run ended (0: stop with the run) [s]")
     idle_priority: bool = Field(True, description="poseidon view of a running deployment: the view runs at the "

@@ -7,6 +7,12 @@ Never slowing the SLAM:
   bounded queue whose oldest entry goes when it is full (counted in ``view.dropped``).
   Nothing waits for a browser: a page that polls slowly, or none, only means fewer snapshots
   are built.
+- A heavy key (a data frame larger than ``view.sample_bytes``: camera images, evidence
+  images) is not followed frame by frame: the hub would copy every frame to the view, and
+  its reliable, blocking forwarding would wait on a view starved of CPU.  A heavy key that
+  is displayed or a service's input is sampled, about ``view.sample_hz`` frames a second
+  (:class:`~services.viewer.sampler.KeySampler`); any other (a service output shown nowhere)
+  is left after its first frame, the service's other outputs carry its figures.
 - A pump thread wakes ``view.update_hz`` times a second, decodes what was kept, applies it
   to the :class:`~services.viewer.model.ViewModel` and updates the per-service figures.
 - Each key has its own subscriber, undeclared at the key's end-of-stream: a finished
@@ -17,11 +23,12 @@ Never slowing the SLAM:
   control never waits for it).
 
 Per-service figures come from what the bus carries: input rate (data frames per second on the
-service's input keys), lag (event time between the newest source message and the service's
+service's input keys; on a sampled key, from the transport indices of the frames sampled), lag (event time between the newest source message and the service's
 ``@progress`` report), gaps (transport indices missing in its output streams: frames that never
 reached the view), restarts (its ``@alive`` token declared again after it left) and latency
 p50/p99 (wall time from a source message reaching the view to the output of the same stamp
-reaching it, as :class:`common.live.LatencyTracker` measures at the source).  Frames dropped
+reaching it, as :class:`common.live.LatencyTracker` measures at the source; on a sampled
+source key, from the frames sampled).  Gaps are not counted on sampled keys.  Frames dropped
 inside a live service's bounded queue are not on the bus; the run summary has them
 (``dropped``).
 """
@@ -44,6 +51,7 @@ from common.codec import DecodeError, decode_dict, decode_frame
 from common.ordering import END_OF_TIME
 from services.viewer.config import ViewConfig
 from services.viewer.model import ACTIVITY_KEY, MAP_KEY, ViewModel, view_keys
+from services.viewer.sampler import KeySampler
 
 __all__ = ["LiveFeed", "ViewError", "connect_bus", "ServiceFigures", "LatencyWindow"]
 
@@ -112,8 +120,8 @@ class ServiceFigures:
     """The bus-side counters behind the per-service table (thread-safe)."""
 
     def __init__(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]):
-        self.io = {n: (tuple(i), tuple(o)) for n, (i, o) in io.items()}
-        self.produced = {k for _i, outs in self.io.values() for k in outs}
+        self.io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {}
+        self.produced: set[str] = set()
         self.frames: dict[str, int] = {}
         self.next_index: dict[str, int] = {}
         self.gaps: dict[str, int] = {}
@@ -123,14 +131,26 @@ class ServiceFigures:
         self.progress: dict[str, int] = {}
         self.newest_source = -1
         self.latency = LatencyWindow()
+        self.sampled: set[str] = set()  # keys seen through samples only: no gaps, rate from indices
+        self._mark: dict[str, tuple[int, float]] = {}  # key -> (newest index, monotonic time it arrived)
+        self._mark_ref: dict[str, tuple[int, float]] = {}  # the marks at the last rate update
         self._rate: dict[str, float] = {}
         self._last: tuple[float, dict[str, int]] = (time.monotonic(), {})
         self.lock = threading.Lock()
+        self.add_io(io)
+
+    def add_io(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]) -> None:
+        """Services and their input and output keys, added to the table."""
+        with self.lock:
+            self.io.update({n: (tuple(i), tuple(o)) for n, (i, o) in io.items()})
+            self.produced = {k for _i, outs in self.io.values() for k in outs}
 
     def data(self, key: str, index: int, stamp: int, wall_ns: int) -> None:
         with self.lock:
             self.frames[key] = self.frames.get(key, 0) + 1
             if index >= 0:
+                self._mark[key] = (index, time.monotonic())
+            if index >= 0 and key not in self.sampled:
                 expected = self.next_index.get(key, index)
                 if index > expected:
                     self.gaps[key] = self.gaps.get(key, 0) + index - expected
@@ -157,6 +177,20 @@ class ServiceFigures:
             if stamp > self.progress.get(service, -2):
                 self.progress[service] = stamp
 
+    def _sampled_rate(self, key: str, now: float) -> None:
+        """A sampled key's rate: transport indices over arrival times between two samples
+        (0 once no sample came for 3 s)."""
+        mark, ref = self._mark.get(key), self._mark_ref.get(key)
+        if mark is None:
+            self._rate[key] = 0.0
+            return
+        if ref is not None and mark[1] > ref[1] and mark[0] >= ref[0]:
+            self._rate[key] = (mark[0] - ref[0]) / (mark[1] - ref[1])
+        elif now - mark[1] > 3.0:
+            self._rate[key] = 0.0
+        if ref is None or mark[1] > ref[1]:
+            self._mark_ref[key] = mark
+
     def table(self) -> dict[str, dict[str, Any]]:
         """Per service: ``alive``, ``rate_hz``, ``lag_s``, ``done``, ``gaps``, ``restarts``, ``p50_ms``, ``p99_ms``."""
         with self.lock:
@@ -164,7 +198,10 @@ class ServiceFigures:
             t_last, counts = self._last
             if now - t_last >= 1.0:  # rates over at least one second
                 for key, n in self.frames.items():
-                    self._rate[key] = (n - counts.get(key, 0)) / (now - t_last)
+                    if key not in self.sampled:
+                        self._rate[key] = (n - counts.get(key, 0)) / (now - t_last)
+                for key in self.sampled:
+                    self._sampled_rate(key, now)
                 self._last = (now, dict(self.frames))
             names = sorted(set(self.io) | set(self.progress) | set(self.declared))
             out: dict[str, dict[str, Any]] = {}
@@ -183,18 +220,24 @@ class ServiceFigures:
 
 
 class LiveFeed:
-    """Subscribes to ``keys`` (default: :func:`~services.viewer.model.view_keys` and every key of
-    ``io``) on ``bus`` and keeps ``model`` current (see the module notes).  ``on_update`` is
-    called from the pump thread after each update, under :attr:`lock` (the Foxglove server)."""
+    """Subscribes to ``keys`` (:func:`~services.viewer.model.view_keys` and every key of ``io``,
+    which :meth:`add_io` may extend after the start) on ``bus`` and keeps ``model`` current (see
+    the module notes).  ``on_update`` is called from the pump thread after each update, under
+    :attr:`lock` (the Foxglove server)."""
 
     def __init__(self, bus: Bus, cfg: ViewConfig, io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None,
                  on_update: Callable[[ViewModel], None] | None = None, queue_frames: int = 5000):
         self.bus = bus
         self.cfg = cfg
         self.model = ViewModel(cfg)
-        self.figures = ServiceFigures(io or {})
+        self.figures = ServiceFigures({})
         self.shown = set(view_keys(cfg))
-        self.keys = sorted(self.shown | {k for ins, outs in (io or {}).values() for k in (*ins, *outs)})
+        self.inputs: set[str] = set()
+        self.keys = sorted(self.shown)
+        self._started = False
+        self.heavy: set[str] = set()  # keys whose frames exceed cfg.sample_bytes (see the module notes)
+        self.sampler = KeySampler(self._declare, cfg.sample_hz)
+        self.received_bytes = 0  # bytes of data keys the hub delivered to the view
         self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
         self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity)
         self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY}
@@ -205,24 +248,33 @@ class LiveFeed:
         self.aborted = ""  # the reason of the run's abort, if one was published
         self.ended: set[str] = set()
         self._subs: dict[str, Any] = {}
+        self._subs_lock = threading.Lock()  # _subs and keys: start, stop, add_io and the pump's undeclaring
         self._undeclare: deque[str] = deque()
         self._on_update = on_update
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.updates = 0
+        if io:
+            self.add_io(io)
 
     # ---- Zenoh callbacks (never block) ----------------------------------------------------
     def _on_sample(self, key: str) -> Callable[[zenoh.Sample], None]:
         def on_sample(sample: zenoh.Sample) -> None:
             data = sample.payload.to_bytes()
+            self.received_bytes += len(data)
             try:
                 frame = decode_frame(data)
                 if frame.kind == "eos":
                     self.ended.add(key)
                     self._undeclare.append(key)
+                    self.sampler.remove(key)
                     return
                 if frame.kind != "data":
                     return
+                if key in self.heavy:
+                    self.sampler.got(key)
+                elif len(data) > self.cfg.sample_bytes:
+                    self._heavy(key)
                 header = decode_dict(frame.payload).get("header")
                 stamp = header.get("stamp", -1) if isinstance(header, dict) else -1
             except DecodeError as exc:
@@ -236,6 +288,20 @@ class LiveFeed:
                 self._queue.append((key, data))
                 self._queued += 1
         return on_sample
+
+    def _heavy(self, key: str) -> None:
+        """``key`` carries heavy frames: leave its subscription; sample it if it is shown or an input."""
+        self.heavy.add(key)
+        self._undeclare.append(key)
+        if key in self.shown or key in self.inputs:
+            with self.figures.lock:
+                self.figures.sampled.add(key)
+            self.sampler.add(key)
+        log.debug("view: %s carries frames over %d bytes; %s", key, self.cfg.sample_bytes,
+                  "sampled" if key in self.figures.sampled else "left")
+
+    def _declare(self, key: str) -> Any:
+        return self.bus.session.declare_subscriber(self.bus.full_key(key), self._on_sample(key))
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         prefix = self.bus.full_key(ALIVE) + "/"
@@ -258,22 +324,39 @@ class LiveFeed:
     def start(self) -> None:
         """Declare the subscribers and start the pump."""
         session = self.bus.session
-        for key in self.keys:
-            self._subs[key] = session.declare_subscriber(self.bus.full_key(key), self._on_sample(key))
+        with self._subs_lock:
+            self._started = True
+            for key in self.keys:
+                self._subs[key] = self._declare(key)
         self._subs["@alive"] = session.liveliness().declare_subscriber(self.bus.full_key(f"{ALIVE}/*"),
                                                                       self._on_token, history=True)
         self._subs["@abort"] = session.declare_subscriber(self.bus.full_key(ABORT), self._on_abort)
         self._subs["@progress"] = session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"), self._on_progress)
         self._thread = threading.Thread(target=self._pump, name="view-pump", daemon=True)
         self._thread.start()
+        self.sampler.start()
 
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
-        for sub in self._subs.values():
-            sub.undeclare()
-        self._subs.clear()
+        self.sampler.stop()
+        with self._subs_lock:
+            for sub in self._subs.values():
+                sub.undeclare()
+            self._subs.clear()
+
+    def add_io(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]) -> None:
+        """Follow the services of ``io`` too: their figures, and their keys (subscribed at once
+        when the feed runs)."""
+        self.figures.add_io(io)
+        with self._subs_lock:
+            self.inputs |= {k for ins, _outs in io.values() for k in ins}
+            new = sorted((self.inputs | self.figures.produced) - set(self.keys))
+            self.keys = sorted({*self.keys, *new})
+            if self._started and not self._stop.is_set():
+                for key in new:
+                    self._subs[key] = self._declare(key)
 
     @property
     def dropped(self) -> int:
@@ -290,7 +373,8 @@ class LiveFeed:
         calls it; tests call it directly)."""
         while self._undeclare:
             key = self._undeclare.popleft()
-            sub = self._subs.pop(key, None)
+            with self._subs_lock:
+                sub = self._subs.pop(key, None)
             if sub is not None:
                 sub.undeclare()
         batch: list[tuple[str, bytes]] = []
@@ -327,8 +411,8 @@ class LiveFeed:
         snap["camera_version"] = camera_version
         snap["services"] = self.figures.table()
         snap["view"] = {"dropped": self.dropped, "invalid": self.invalid, "ended": sorted(self.ended),
-                        "aborted": self.aborted,
-                        "keys": self.keys, "updates": self.updates}
+                        "aborted": self.aborted, "keys": self.keys, "sampled": self.sampler.keys,
+                        "received_bytes": self.received_bytes, "updates": self.updates}
         return snap
 
     def camera(self) -> tuple[int, bytes]:

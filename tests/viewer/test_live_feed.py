@@ -89,3 +89,37 @@ def test_the_live_view_drops_to_the_lowest_cpu_priority() -> None:
             "print(os.sched_getscheduler(0) == os.SCHED_IDLE)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "True", out.stderr
+
+
+def test_a_heavy_key_is_sampled_not_followed(bus: Bus) -> None:
+    """Frames over view.sample_bytes: the feed leaves the key's subscription and takes about
+    view.sample_hz frames a second; the input rate still counts every frame (transport indices)."""
+    cfg = ViewConfig(sample_bytes=2048, sample_hz=4.0)
+    feed = LiveFeed(bus, cfg, io={"encoder": ((cfg.camera_key,), ("neocortex/sdr",))})
+    feed.start()
+    try:
+        cam = bus.publisher(cfg.camera_key)
+        t0 = time.monotonic()
+        i = 0
+        while time.monotonic() - t0 < 3.0:  # 50 frames a second of 48 kB
+            cam.send(Image(header=Header(seq=i, stamp=1 + i), height=128, width=128,
+                           data=np.full((128, 128, 3), i % 255, dtype=np.uint8)))
+            i += 1
+            time.sleep(0.02)
+            if i % 25 == 0:  # the page polls
+                feed.update()
+                feed.snapshot({})
+        _wait(lambda: feed.sampler.keys == [cfg.camera_key])
+        seen = feed.figures.frames[cfg.camera_key]
+        assert seen < i / 3, (seen, i)  # about 4 a second and the frames before the subscription was left
+        assert feed.model.camera is not None and feed.model.camera_version >= 3
+        rate = feed.snapshot({})["services"]["encoder"]["rate_hz"]
+        assert 25 < rate < 60, rate
+        assert feed.snapshot({})["view"]["sampled"] == [cfg.camera_key]
+        cam.send_eos()
+        deadline = time.monotonic() + 3.0  # the publisher finds the key without subscribers (the sampler's gap)
+        while cam.has_subscribers():
+            assert time.monotonic() < deadline, "the view never leaves the ended key"
+            time.sleep(0.05)
+    finally:
+        feed.stop()
