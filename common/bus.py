@@ -6,9 +6,8 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
   launcher's hub is a session in ``router`` mode listening on loopback; services are
   ``client`` sessions connected to it (``peer`` is available for multi-host set-ups, see
   ``deploy/``).  A client retries its endpoints forever, so services may start before or
-  after the hub.  Retries back off from 0.25 s to at most 1 s (Zenoh's default grows to
-  4 s): a link to the hub that comes back after an outage is used again within a second,
-  not up to 4 s later, while every frame published meanwhile waits in the sender.
+  after the hub, every 0.25-1 s (Zenoh's default backs off to 4 s): a hub back after an
+  outage is used again within a second.
 - Keys are ``<namespace>/<key>`` (namespace per vehicle, default ``poseidon``); liveliness
   tokens are ``<namespace>/@alive/<service>``.
 - Publishers are reliable with ``CongestionControl.BLOCK``: Zenoh never drops a frame.
@@ -51,8 +50,6 @@ log = logging.getLogger(__name__)
 ALIVE = "@alive"
 PROGRESS = "@progress"
 ABORT = "@abort"
-
-
 CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 
 
