@@ -1,15 +1,18 @@
 """The live view's cost: the same live run of a simulated mission with and without ``--view`` and a
 headless Chromium polling the page.
 
-- at 4x real time, without and with the view: frames dropped by the services' bounded queues
-  (run summary ``dropped``) and the live latency p50 per stage (the live player's report), and
-  their ratio with/without;
-- at 1x with the view: the view process's CPU seconds and peak RSS (``/proc``) and the bytes per
-  second it served to the browser;
+- at 4x real time, ``--pairs`` times without and with the view, interleaved: frames dropped by
+  the services' bounded queues (run summary ``dropped``) and the live latency p50 per stage (the
+  live player's report); per stage, the ratio of the median p50 with the view over the median
+  without, and the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
+  2-core machine);
+- at 1x with the view (unless ``--no-1x``): the view process's CPU seconds and peak RSS
+  (``/proc``), the bytes per second the hub delivered to it and the bytes per second it served
+  to the browser;
 - screenshots: the page during the 1x run (``--shots DIR``/view_live.png) and ``poseidon view`` of
   that run's recording (view_demo.png).
 
-    .venv/bin/python benchmarks/bench_view.py [--minutes 0.5] [--shots docs/images]
+    .venv/bin/python benchmarks/bench_view.py [--minutes 0.5] [--pairs 3] [--no-1x] [--shots docs/images]
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ import argparse
 import base64
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -114,9 +118,12 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
             if pid is not None:
                 row["view_cpu_s"], row["view_peak_rss_mb"] = (round(v, 1) for v in _usage(pid))
             served = st.get("view", {}).get("bytes_sent", 0)
+            received = st.get("view", {}).get("received_bytes", 0)
             span = time.monotonic() - (first_t or t0)
             row["served_bytes"] = served
             row["served_kb_per_s"] = round(served / 1e3 / span, 1)
+            row["bus_kb_per_s"] = round(received / 1e3 / span, 1)
+            row["sampled_keys"] = st.get("view", {}).get("sampled", [])
     stdout, _ = proc.communicate(timeout=600)
     summary = json.loads(stdout)
     row["wall_s"] = round(time.monotonic() - t0, 1)
@@ -124,7 +131,23 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
                       if isinstance(v.get("dropped"), dict)}
     lat = summary["services"]["live_player"].get("latency", {})
     row["p50_ms"] = {k: v.get("p50_ms") for k, v in lat.items()}
+    row["load_1min"] = round(os.getloadavg()[0], 2)
     return row
+
+
+def ratios(plain: list[dict[str, Any]], viewed: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per stage: ``median`` (median p50 with the view over median p50 without) and ``min``/``max``
+    of the pairs' own ratios."""
+    out: dict[str, dict[str, float]] = {}
+    for stage in plain[0]["p50_ms"]:
+        a = [r["p50_ms"][stage] for r in plain if r["p50_ms"].get(stage)]
+        b = [r["p50_ms"][stage] for r in viewed if r["p50_ms"].get(stage)]
+        if not a or not b:
+            continue
+        pairs = [y / x for x, y in zip(a, b, strict=False)]
+        out[stage] = {"median": round(statistics.median(b) / statistics.median(a), 3),
+                      "min": round(min(pairs), 2), "max": round(max(pairs), 2)}
+    return out
 
 
 def demo_shot(run: Path, shots: Path, work: Path) -> None:
@@ -150,6 +173,8 @@ def demo_shot(run: Path, shots: Path, work: Path) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=0.5, help="simulated mission length")
+    ap.add_argument("--pairs", type=int, default=3, help="4x runs without and with the view, interleaved")
+    ap.add_argument("--no-1x", action="store_true", help="skip the 1x run (view CPU, RSS and bytes)")
     ap.add_argument("--shots", type=Path, help="write view_live.png and view_demo.png here")
     args = ap.parse_args()
     if not CHROMIUM.exists():
@@ -163,14 +188,21 @@ def main() -> int:
         if args.shots is not None:
             args.shots.mkdir(parents=True, exist_ok=True)
             (args.shots / "view_live.png").unlink(missing_ok=True)
-        rows = [live_run(mission, work / "plain4.mcap", 4.0, False, None, work),
-                live_run(mission, work / "view4.mcap", 4.0, True, None, work),
-                live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work)]
-        if args.shots is not None:
-            demo_shot(work / "view1.mcap", args.shots, work)
-    plain, viewed = rows[0]["p50_ms"], rows[1]["p50_ms"]
-    ratio = {k: round(viewed[k] / plain[k], 2) for k in plain if plain.get(k) and viewed.get(k)}
-    print(json.dumps({"rows": rows, "p50_ratio_with_over_without": ratio}, indent=1))
+        rows = []
+        for i in range(args.pairs):
+            for view in (False, True):
+                out = work / f"run4-{i}-{int(view)}.mcap"
+                rows.append(live_run(mission, out, 4.0, view, None, work))
+                out.unlink(missing_ok=True)
+        if not args.no_1x:
+            rows.append(live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work))
+            if args.shots is not None:
+                demo_shot(work / "view1.mcap", args.shots, work)
+    fast = [r for r in rows if r["rate"] == 4.0]
+    ratio = ratios([r for r in fast if not r["view"]], [r for r in fast if r["view"]])
+    drops = {mode: sum(sum(r["dropped"].values()) for r in fast if r["view"] == view)
+             for mode, view in (("without", False), ("with", True))}
+    print(json.dumps({"rows": rows, "p50_ratio_with_over_without": ratio, "dropped_at_4x": drops}, indent=1))
     return 0
 
 

@@ -4,12 +4,10 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
 
 - Multicast scouting is off everywhere; sessions connect to explicit endpoints.  The
   launcher's hub is a session in ``router`` mode listening on loopback; services are
-  ``client`` sessions connected to it (``peer`` is available for multi-host set-ups, see
-  ``deploy/``).  A client retries its endpoints forever, so services may start before or
-  after the hub, every 0.25-1 s (Zenoh's default backs off to 4 s): a hub back after an
-  outage is used again within a second.
-- Keys are ``<namespace>/<key>`` (namespace per vehicle, default ``poseidon``); liveliness
-  tokens are ``<namespace>/@alive/<service>``.
+  ``client`` sessions connected to it (``peer``: multi-host set-ups, ``deploy/``).  A client
+  retries its endpoints forever (services may start before the hub), every 0.25-1 s, not
+  Zenoh's 1-4 s: a hub back after an outage is used again within a second.
+- Keys: ``<namespace>/<key>`` (default ``poseidon``); liveliness: ``<namespace>/@alive/<service>``.
 - Publishers are reliable with ``CongestionControl.BLOCK``: Zenoh never drops a frame.
 - Flow control is end to end, in event time, not inside Zenoh: every consumer reports how
   far it has got on ``<namespace>/@progress/<service>`` and a replaying player keeps at most
