@@ -147,7 +147,7 @@ def _read_mission(path: Path, node: Any, sonar_key: str, robot_state: Any = None
     (when given) the navigation sensors through the ``robot_state`` node (its ``Odometry``)."""
     from common.codec import DecodeError
     from common.mcap_io import RecordingError, read_messages
-    from services.encoder.encoder import image_to_rgb
+    from services.encoder.images import image_to_rgb
 
     rd = _MissionRead()
     nav = set(robot_state.inputs) if robot_state is not None else set()

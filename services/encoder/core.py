@@ -37,7 +37,7 @@ import numpy as np
 from common.messages import Image, LaserScan, RangeImageBeam
 
 from .clock import SonarClock
-from .encoder import image_to_rgb
+from .images import image_to_rgb
 
 __all__ = ["EncoderCore", "EncoderOutput", "SdrEncoder"]
 

@@ -27,11 +27,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from common.messages import Image
 from services.encoder.config import EncoderConfig
 
 from .backbones import LoadedBackbone, fold_batchnorm, load_backbone
 from .fusion import fuse as fuse_sdrs
+from .images import image_to_rgb
 from .lsbh import LsbhEncoder, load_or_create_projection, projection_path
 from .runtime import make_features
 from .standardize import EmbeddingStandardizer, norm_path
@@ -43,29 +43,6 @@ log = logging.getLogger(__name__)
 INPUT_SIZE = 224  # the dissertation's input; encoder.input_size sets the one used
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
-
-
-def image_to_rgb(msg: Image) -> np.ndarray:
-    """An :class:`Image` message as an (H, W, 3) RGB array: uint8 for the 8-bit encodings,
-    float32 in [0, 1] for ``mono16``."""
-    data = np.asarray(msg.data)
-    enc = msg.encoding
-    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "mono16": 1}[enc]
-    expected = (msg.height, msg.width) if channels == 1 else (msg.height, msg.width, channels)
-    if data.shape != expected and not (channels == 1 and data.shape == (msg.height, msg.width, 1)):
-        raise ValueError(f"Image seq {msg.header.seq}: data shape {data.shape} does not match "
-                         f"{msg.height}x{msg.width} {enc} (expected {expected})")
-    if enc == "mono16":
-        img = data.astype(np.float32).reshape(msg.height, msg.width, 1) / 65535.0
-    else:
-        img = data.astype(np.uint8, copy=False)
-    if channels == 1:
-        img = img.reshape(msg.height, msg.width, 1).repeat(3, axis=2)
-    elif enc in ("bgr8", "bgra8"):
-        img = img[:, :, 2::-1]
-    else:
-        img = img[:, :, :3]
-    return np.ascontiguousarray(img)
 
 
 class MultimodalEncoder:

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -55,8 +55,10 @@ from services.encoder.config import EncoderConfig
 
 from .clock import SonarClock
 from .core import EncoderCore, EncoderOutput
-from .encoder import MultimodalEncoder
 from .sonar import SonarRaster
+
+if TYPE_CHECKING:  # torch is imported only by a node that builds its encoder, not by run planning
+    from .encoder import MultimodalEncoder
 
 __all__ = ["EncoderNode"]
 
@@ -85,7 +87,10 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         super().__init__(config)
         cfg = config
         self.sonar_key = cfg.sonar.topic
-        self.encoder = encoder if encoder is not None else MultimodalEncoder(cfg)
+        if encoder is None:
+            from .encoder import MultimodalEncoder
+            encoder = MultimodalEncoder(cfg)
+        self.encoder = encoder
         self.mode = cfg.fusion_mode
         if lvc_map_persisted and cfg.embedding_norm.mode == "running" and not cfg.embedding_norm.path:
             log.warning("encoder: htm.state_path keeps the LVC map across runs but encoder.embedding_norm.path is "

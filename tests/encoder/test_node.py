@@ -160,7 +160,7 @@ def test_sonar_topic_from_config(config: PoseidonConfig, encoder: MultimodalEnco
 
 
 def test_image_to_rgb_encodings() -> None:
-    from services.encoder.encoder import image_to_rgb
+    from services.encoder.images import image_to_rgb
     rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
     h = Header(seq=0, stamp=0)
     assert np.array_equal(image_to_rgb(Image(header=h, height=2, width=3, encoding="rgb8", data=rgb)), rgb)
