@@ -29,27 +29,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
 import numpy as np
+from ros1_live import Roscore, demo_bag, live_run
 
 from common.mcap_io import read_messages
 from eval.run_eval import evaluate_run
-from launcher.children import child_pid
-from launcher.demo import ensure_mission
-from products.rosbag import export_rosbag
-from tests.bridge_ros1.ros1 import ROS_PY, Roscore
-
-CLI = [sys.executable, "-m", "launcher.cli"]
 
 
 def _loop_closures(run: Path) -> list[tuple[int, int, int]]:
@@ -66,54 +54,10 @@ def _loop_closures(run: Path) -> list[tuple[int, int, int]]:
     return sorted((max(stamp[lk.source], stamp[lk.target]), lk.source, lk.target) for lk in m.links if lk.loop_closure)
 
 
-def _wait_bridge(uri: str, timeout_s: float = 180.0) -> None:
-    """Until the bridge advertised its outputs on the master (it is up and subscribed)."""
-    import rosgraph
-    master = rosgraph.Master("/poseidon_bench", master_uri=uri)
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        pubs, _s, _v = master.getSystemState()
-        if any(t == "/poseidon/odom" for t, _n in pubs):
-            return
-        time.sleep(0.2)
-    raise TimeoutError("the bridge did not come up")
-
-
 def _run(core: Roscore, bag: Path, out: Path, rate: float, kills: list[tuple[str, float]],
          lateness_ms: int) -> dict[str, Any]:
     """One live run of ``bag``; ``kills``: (service, wall seconds after the first message)."""
-    err = open(out.with_suffix(".err"), "w")
-    run = subprocess.Popen(CLI + ["run", "--live", "ros1", "--out", str(out), "--json",
-                                  "--set", f"bridge_ros1.lateness_ms={lateness_ms}"], cwd=REPO, env=core.env,
-                           stdout=subprocess.PIPE, stderr=err, text=True)
-    try:
-        _wait_bridge(core.uri)
-        delay = 5.0
-        play = subprocess.Popen(["rosbag", "play", "-q", "-d", str(delay), "--queue", "100000", "-r", repr(rate),
-                                 str(bag)], env=core.env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.PIPE, text=True)
-        t0 = time.monotonic() + delay
-        for name, at_s in sorted(kills, key=lambda k: k[1]):
-            time.sleep(max(0.0, t0 + at_s - time.monotonic()))
-            pid = child_pid(run.pid, name)
-            if pid is None:
-                raise RuntimeError(f"{name} is not running at {at_s:.1f} s")
-            os.kill(pid, signal.SIGKILL)
-            print(f"  killed {name} at {at_s:.1f} s", file=sys.stderr)
-        _o, play_err = play.communicate()
-        if play.returncode != 0:
-            raise RuntimeError(f"rosbag play failed: {play_err[-2000:]}")
-        time.sleep(3.0)
-        run.send_signal(signal.SIGINT)
-        stdout, _ = run.communicate(timeout=600)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
-        err.close()
-    if run.returncode != 0:
-        raise RuntimeError(f"live run failed ({run.returncode}): {out.with_suffix('.err').read_text()[-3000:]}")
-    result = json.loads(stdout)
+    result = live_run(core, bag, out, rate, kills, [f"bridge_ros1.lateness_ms={lateness_ms}"])
     ate = evaluate_run(out)["ate_rmse_m"]["map"]
     services = result["services"]
     return {"wall_s": result["wall_s"], "loop_closures": len(_loop_closures(out)), "ate_m": ate,
@@ -139,14 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default="/tmp/poseidon-recovery-bench")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    if ROS_PY not in sys.path:
-        sys.path.append(ROS_PY)
     cache = Path(args.cache_dir)
-    cache.mkdir(parents=True, exist_ok=True)
-    mission, _cached = ensure_mission(cache, args.seed)
-    bag = cache / f"{mission.stem}.bag"
-    if not bag.exists():
-        export_rosbag(mission, bag, ros2=False)
+    mission, bag = demo_bag(cache, args.seed)
     first = next(iter(read_messages(mission))).stamp
     core = Roscore(cache / "roshome")
     try:

@@ -1,0 +1,107 @@
+"""Live through ROS 1 at increasing rates: where frames start to drop.
+
+The demo's mission (``poseidon demo``'s cave, seed ``--seed``; made or reused in
+``--cache-dir``) is exported as a ROS 1 bag and played with ``rosbag play -r RATE`` into
+``poseidon run --live ros1`` (every service, its own process, against a private ``roscore``)
+at each of ``--rates``.  In the same run of this script, the baseline: the same mission
+replayed from its recording (``poseidon run --input``, no live queues, nothing can drop).
+
+Per rate: wall time; frames dropped by each service's bounded live queue (run summary
+``dropped``, per key); source messages missing from the recording (bag count minus recorded);
+LVC ids, experiences, loop closures and map ATE beside the replay's; the first rate with a
+drop.  Nothing else should run on the machine meanwhile (drops follow the load).
+
+    .venv/bin/python benchmarks/bench_live_ros1.py                    # 8, 12, 16, 20x: ~8 min
+    .venv/bin/python benchmarks/bench_live_ros1.py --rates 16 --json
+
+``--json``: ``{"mission", "replay": RUN, "rates": {"<rate>": RUN}, "drops_start_at": rate or
+null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "missing": {key: source
+messages not recorded}, "lvc_ids", "experiences", "loop_closures", "ate_m"}`` (``dropped`` and
+``missing`` empty for the replay).  Needs ROS 1 (``deploy/setup.sh`` installs it).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from ros1_live import CLI, REPO, Roscore, demo_bag, live_run
+
+from common.mcap_io import read_messages
+from eval.run_eval import evaluate_run
+
+SOURCE_KEYS = ("camera/image_raw", "depth_sensor", "dvl_linkquest", "imu_adis", "odometry", "sonar_micron",
+               "sonar_seaking")
+
+
+def _counts(path: Path) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for rec in read_messages(path):
+        counts[rec.key] = counts.get(rec.key, 0) + 1
+    return counts
+
+
+def _figures(out: Path, wall_s: float, dropped: dict[str, Any], missing: dict[str, int]) -> dict[str, Any]:
+    ev = evaluate_run(out)
+    counts = _counts(out)
+    return {"wall_s": round(wall_s, 1), "dropped": dropped, "missing": missing,
+            "lvc_ids": counts.get("local_view_cells", 0), "experiences": counts.get("experience_event", 0),
+            "loop_closures": ev["loop_closures"]["accepted"], "ate_m": ev["ate_rmse_m"]["map"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seed", type=int, default=1, help="the demo mission's seed")
+    ap.add_argument("--rates", default="8,12,16,20", help="comma-separated rosbag play -r values")
+    ap.add_argument("--cache-dir", default="/tmp/poseidon-live-ros1-bench")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    rates = [float(r) for r in args.rates.split(",") if r]
+    if not rates or min(rates) <= 0:
+        ap.error(f"--rates {args.rates}: give rates > 0")
+    cache = Path(args.cache_dir)
+    mission, bag = demo_bag(cache, args.seed)
+    source = {k: n for k, n in _counts(mission).items() if k in SOURCE_KEYS}
+    print(f"replay of {mission.name} (the baseline)", file=sys.stderr)
+    replay_out = cache / "replay.mcap"
+    proc = subprocess.run(CLI + ["run", "--input", str(mission), "--out", str(replay_out), "--json"], cwd=REPO,
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"replay failed: {proc.stderr[-3000:]}")
+    out: dict[str, Any] = {"mission": str(mission), "source_messages": source,
+                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}), "rates": {}}
+    core = Roscore(cache / "roshome")
+    try:
+        for rate in rates:
+            print(f"{rate:g}x: rosbag play into run --live ros1", file=sys.stderr)
+            run_out = cache / f"live_{rate:g}x.mcap"
+            result = live_run(core, bag, run_out, rate)
+            dropped = {n: st["dropped"] for n, st in result["services"].items() if st.get("dropped")}
+            recorded = result["recording"]["counts"]
+            missing = {k: n - recorded.get(k, 0) for k, n in source.items() if recorded.get(k, 0) != n}
+            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, missing)
+    finally:
+        core.stop()
+    out["drops_start_at"] = next((float(r) for r, v in out["rates"].items() if v["dropped"] or v["missing"]), None)
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    print(f"demo mission ({sum(source.values())} source messages) through ROS 1, every service in its own process")
+    print(f"{'run':>10} {'wall s':>7} {'LVC ids':>8} {'exps':>6} {'loops':>6} {'map ATE m':>10}  dropped / missing")
+    rows = [("replay", out["replay"])] + [(f"{r}x live", v) for r, v in out["rates"].items()]
+    for name, v in rows:
+        ate = f"{v['ate_m']:.3f}" if v["ate_m"] is not None else "-"
+        lost = (f"{json.dumps(v['dropped'])} / {json.dumps(v['missing'])}" if v["dropped"] or v["missing"]
+                else "none")
+        print(f"{name:>10} {v['wall_s']:>7} {v['lvc_ids']:>8} {v['experiences']:>6} {v['loop_closures']:>6} "
+              f"{ate:>10}  {lost}")
+    start = out["drops_start_at"]
+    print(f"drops start at {start:g}x" if start is not None else f"no drop up to {max(rates):g}x")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
