@@ -56,7 +56,7 @@ def serve_recording(path: str | Path, cfg: ViewConfig, stop: threading.Event, li
 
 
 def _lowest_priority() -> None:
-    """This process and the threads it starts from now on run under SCHED_IDLE (``view.idle_priority``)."""
+    """The calling thread and the threads it starts from now on run under SCHED_IDLE (``view.idle_priority``)."""
     policy = getattr(os, "SCHED_IDLE", None)
     if policy is None:
         log.warning("view.idle_priority: this system has no SCHED_IDLE; the view runs with the default scheduling")
@@ -96,14 +96,11 @@ def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Ev
         host = parse_listen(listen or cfg.listen)[0]
     except ValueError as exc:
         raise ViewError(f"--listen {exc}") from None
-    before = os.sched_getscheduler(0)
-    if cfg.idle_priority:     # before connecting: the bus's threads inherit it
+    # Zenoh's threads start with the session, at the caller's priority: they only move bytes into
+    # the feed's bounded rings, and a starved reader there would hold up the hub's forwarding
+    bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
+    if cfg.idle_priority:     # this thread and every thread it starts from now on
         _lowest_priority()
-    try:
-        bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
-    except ViewError:         # no hub: the caller (a test, a script) gets its own priority back
-        os.sched_setscheduler(0, before, os.sched_param(0))
-        raise
     fox = None
     try:
         if foxglove_port is not None:

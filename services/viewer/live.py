@@ -2,19 +2,22 @@
 
 Never slowing the SLAM:
 
-- Zenoh callbacks only count the frame and keep it: the latest frame of the camera, the map
-  and the pose-cell activity (each replaced by the next), the other displayed keys in a
-  bounded queue whose oldest entry goes when it is full (counted in ``view.dropped``).
-  Nothing waits for a browser: a page that polls slowly, or none, only means fewer snapshots
-  are built.
+- No Python code runs on Zenoh's threads: each key's subscriber keeps its samples in Zenoh's
+  own ring buffer (the newest few for the camera, the map and the pose-cell activity; up to
+  ``queue_frames`` for the other displayed keys, the oldest overwritten when it is full and
+  counted in ``view.dropped`` from the transport indices), so Zenoh's threads, which keep the
+  caller's priority (:func:`services.viewer.app.serve_live`), never wait for the interpreter
+  and the hub never waits for the view.  Nothing waits for a browser: a page that polls slowly,
+  or none, only means fewer snapshots are built.
 - A heavy key (a data frame larger than ``view.sample_bytes``: camera images, evidence
   images) is not followed frame by frame: the hub would copy every frame to the view, and
   its reliable, blocking forwarding would wait on a view starved of CPU.  A heavy key that
   is displayed or a service's input is sampled, about ``view.sample_hz`` frames a second
   (:class:`~services.viewer.sampler.KeySampler`); any other (a service output shown nowhere)
   is left after its first frame, the service's other outputs carry its figures.
-- A pump thread wakes ``view.update_hz`` times a second, decodes what was kept, applies it
-  to the :class:`~services.viewer.model.ViewModel` and updates the per-service figures.
+- A pump thread wakes ``view.update_hz`` times a second, takes what the rings hold, decodes
+  it, applies it to the :class:`~services.viewer.model.ViewModel` and updates the per-service
+  figures (latency from the hub's timestamps of the samples, when it stamps them).
 - Each key has its own subscriber, undeclared at the key's end-of-stream: a finished
   publisher waits until its consumers have left (:meth:`common.bus.Bus.drain`), and the view
   must not be one it waits for.
@@ -23,13 +26,14 @@ Never slowing the SLAM:
   control never waits for it).
 
 Per-service figures come from what the bus carries: input rate (data frames per second on the
-service's input keys; on a sampled key, from the transport indices of the frames sampled), lag (event time between the newest source message and the service's
-``@progress`` report), gaps (transport indices missing in its output streams: frames that never
-reached the view), restarts (its ``@alive`` token declared again after it left) and latency
-p50/p99 (wall time from a source message reaching the view to the output of the same stamp
-reaching it, as :class:`common.live.LatencyTracker` measures at the source; on a sampled
-source key, from the frames sampled).  Gaps are not counted on sampled keys.  Frames dropped
-inside a live service's bounded queue are not on the bus; the run summary has them
+service's input keys, from their transport indices, so frames the view skipped count too), lag
+(event time between the newest source message and the service's ``@progress`` report), gaps
+(transport indices missing in its output streams that the view follows whole: frames that never
+reached the view, or that its ring overwrote), restarts (its ``@alive`` token declared again
+after it left) and latency p50/p99 (wall time from a source message to the output of the same
+stamp, as :class:`common.live.LatencyTracker` measures at the source; the hub's timestamps when
+it stamps, else the view's clock; on a sampled source key, from the frames sampled).  Frames
+dropped inside a live service's bounded queue are not on the bus; the run summary has them
 (``dropped``).
 """
 from __future__ import annotations
@@ -56,6 +60,10 @@ from services.viewer.sampler import KeySampler
 __all__ = ["LiveFeed", "ViewError", "connect_bus", "ServiceFigures", "LatencyWindow"]
 
 log = logging.getLogger(__name__)
+
+#: ring capacity of a latest-only key: its newest data frame survives the watermarks and the
+#: end-of-stream that follow it until the pump takes it
+LATEST_RING = 16
 
 
 class ViewError(RuntimeError):
@@ -131,7 +139,7 @@ class ServiceFigures:
         self.progress: dict[str, int] = {}
         self.newest_source = -1
         self.latency = LatencyWindow()
-        self.sampled: set[str] = set()  # keys seen through samples only: no gaps, rate from indices
+        self.partial: set[str] = set()  # keys the view takes only some frames of (latest-only, sampled): no gaps
         self._mark: dict[str, tuple[int, float]] = {}  # key -> (newest index, monotonic time it arrived)
         self._mark_ref: dict[str, tuple[int, float]] = {}  # the marks at the last rate update
         self._rate: dict[str, float] = {}
@@ -150,7 +158,7 @@ class ServiceFigures:
             self.frames[key] = self.frames.get(key, 0) + 1
             if index >= 0:
                 self._mark[key] = (index, time.monotonic())
-            if index >= 0 and key not in self.sampled:
+            if index >= 0 and key not in self.partial:
                 expected = self.next_index.get(key, index)
                 if index > expected:
                     self.gaps[key] = self.gaps.get(key, 0) + index - expected
@@ -177,9 +185,14 @@ class ServiceFigures:
             if stamp > self.progress.get(service, -2):
                 self.progress[service] = stamp
 
-    def _sampled_rate(self, key: str, now: float) -> None:
-        """A sampled key's rate: transport indices over arrival times between two samples
-        (0 once no sample came for 3 s)."""
+    def newest_index(self, key: str) -> int:
+        """Transport index of the newest frame of ``key`` taken (-1: none)."""
+        with self.lock:
+            return self._mark.get(key, (-1, 0.0))[0]
+
+    def _index_rate(self, key: str, now: float) -> None:
+        """A key's rate from its transport indices over the times the view took them (0 once
+        none came for 3 s)."""
         mark, ref = self._mark.get(key), self._mark_ref.get(key)
         if mark is None:
             self._rate[key] = 0.0
@@ -198,10 +211,10 @@ class ServiceFigures:
             t_last, counts = self._last
             if now - t_last >= 1.0:  # rates over at least one second
                 for key, n in self.frames.items():
-                    if key not in self.sampled:
+                    if key in self._mark:
+                        self._index_rate(key, now)
+                    else:
                         self._rate[key] = (n - counts.get(key, 0)) / (now - t_last)
-                for key in self.sampled:
-                    self._sampled_rate(key, now)
                 self._last = (now, dict(self.frames))
             names = sorted(set(self.io) | set(self.progress) | set(self.declared))
             out: dict[str, dict[str, Any]] = {}
@@ -226,7 +239,7 @@ class LiveFeed:
     :attr:`lock` (the Foxglove server)."""
 
     def __init__(self, bus: Bus, cfg: ViewConfig, io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None,
-                 on_update: Callable[[ViewModel], None] | None = None, queue_frames: int = 5000):
+                 on_update: Callable[[ViewModel], None] | None = None, queue_frames: int = 1000):
         self.bus = bus
         self.cfg = cfg
         self.model = ViewModel(cfg)
@@ -236,18 +249,20 @@ class LiveFeed:
         self.keys = sorted(self.shown)
         self._started = False
         self.heavy: set[str] = set()  # keys whose frames exceed cfg.sample_bytes (see the module notes)
-        self.sampler = KeySampler(self._declare, cfg.sample_hz)
+        self.sampler = KeySampler(self._declare_latest, self._take_latest, cfg.sample_hz)
         self.received_bytes = 0  # bytes of data keys the hub delivered to the view
         self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
-        self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity)
+        self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity, sampled keys)
         self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY}
-        self._queue: deque[tuple[str, bytes]] = deque(maxlen=queue_frames)
-        self._queued = 0
-        self._taken = 0
+        self.figures.partial |= self._latest_keys
+        self._ring = queue_frames
+        self._taken_index: dict[str, int] = {}  # displayed key -> transport index of the newest frame taken
+        self.dropped = 0  # displayed frames overwritten in a ring before the pump took them
         self.invalid = 0
         self.aborted = ""  # the reason of the run's abort, if one was published
         self.ended: set[str] = set()
         self._subs: dict[str, Any] = {}
+        self._control: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # @alive, @abort, @progress
         self._subs_lock = threading.Lock()  # _subs and keys: start, stop, add_io and the pump's undeclaring
         self._undeclare: deque[str] = deque()
         self._on_update = on_update
@@ -257,51 +272,63 @@ class LiveFeed:
         if io:
             self.add_io(io)
 
-    # ---- Zenoh callbacks (never block) ----------------------------------------------------
-    def _on_sample(self, key: str) -> Callable[[zenoh.Sample], None]:
-        def on_sample(sample: zenoh.Sample) -> None:
-            data = sample.payload.to_bytes()
-            self.received_bytes += len(data)
-            try:
-                frame = decode_frame(data)
-                if frame.kind == "eos":
-                    self.ended.add(key)
-                    self._undeclare.append(key)
-                    self.sampler.remove(key)
-                    return
-                if frame.kind != "data":
-                    return
-                if key in self.heavy:
-                    self.sampler.got(key)
-                elif len(data) > self.cfg.sample_bytes:
-                    self._heavy(key)
-                header = decode_dict(frame.payload).get("header")
-                stamp = header.get("stamp", -1) if isinstance(header, dict) else -1
-            except DecodeError as exc:
-                self.invalid += 1
-                log.error("view: bad frame on %s skipped: %s", key, exc)
-                return
-            self.figures.data(key, frame.index, stamp if isinstance(stamp, int) else -1, time.time_ns())
-            if key in self._latest_keys:
-                self._latest[key] = data
-            elif key in self.shown:
-                self._queue.append((key, data))
-                self._queued += 1
-        return on_sample
+    # ---- taking samples out of the rings (the pump and the sampler's threads) -------------
+    def _declare(self, key: str) -> Any:
+        capacity = LATEST_RING if key in self._latest_keys else self._ring
+        return self.bus.session.declare_subscriber(self.bus.full_key(key), zenoh.handlers.RingChannel(capacity))
+
+    def _declare_latest(self, key: str) -> Any:
+        return self.bus.session.declare_subscriber(self.bus.full_key(key), zenoh.handlers.RingChannel(LATEST_RING))
+
+    def _take(self, key: str, sample: zenoh.Sample) -> bytes | None:
+        """Count one sample of ``key``; its frame if it is a data frame the page shows."""
+        data = sample.payload.to_bytes()
+        self.received_bytes += len(data)
+        try:
+            frame = decode_frame(data)
+            if frame.kind == "eos":
+                self.ended.add(key)
+                self._undeclare.append(key)
+                self.sampler.remove(key)
+                return None
+            if frame.kind != "data":
+                return None
+            if key not in self.heavy and len(data) > self.cfg.sample_bytes:
+                self._heavy(key)
+            header = decode_dict(frame.payload).get("header")
+            stamp = header.get("stamp", -1) if isinstance(header, dict) else -1
+        except DecodeError as exc:
+            self.invalid += 1
+            log.error("view: bad frame on %s skipped: %s", key, exc)
+            return None
+        ts = sample.timestamp  # the hub's time of routing it, when the hub stamps (a router does)
+        wall_ns = int(ts.get_time().timestamp() * 1e9) if ts is not None else time.time_ns()
+        self.figures.data(key, frame.index, stamp if isinstance(stamp, int) else -1, wall_ns)
+        if key not in self.shown:
+            return None
+        if frame.index >= 0 and key not in self._latest_keys and key not in self.heavy:
+            last = self._taken_index.get(key, frame.index - 1)
+            self.dropped += max(0, frame.index - last - 1)
+            self._taken_index[key] = frame.index
+        return data
+
+    def _take_latest(self, key: str, sample: zenoh.Sample) -> bool:
+        """Keep ``sample`` of a sampled key as its latest frame; whether it was a data frame."""
+        data = self._take(key, sample)
+        if data is not None:
+            self._latest[key] = data
+        return data is not None
 
     def _heavy(self, key: str) -> None:
         """``key`` carries heavy frames: leave its subscription; sample it if it is shown or an input."""
         self.heavy.add(key)
         self._undeclare.append(key)
-        if key in self.shown or key in self.inputs:
+        sampled = key in self.shown or key in self.inputs
+        if sampled:
             with self.figures.lock:
-                self.figures.sampled.add(key)
+                self.figures.partial.add(key)
             self.sampler.add(key)
-        log.debug("view: %s carries frames over %d bytes; %s", key, self.cfg.sample_bytes,
-                  "sampled" if key in self.figures.sampled else "left")
-
-    def _declare(self, key: str) -> Any:
-        return self.bus.session.declare_subscriber(self.bus.full_key(key), self._on_sample(key))
+        log.debug("view: %s carries frames over %d bytes; %s", key, self.cfg.sample_bytes, "sampled" if sampled else "left")
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         prefix = self.bus.full_key(ALIVE) + "/"
@@ -328,10 +355,13 @@ class LiveFeed:
             self._started = True
             for key in self.keys:
                 self._subs[key] = self._declare(key)
-        self._subs["@alive"] = session.liveliness().declare_subscriber(self.bus.full_key(f"{ALIVE}/*"),
-                                                                      self._on_token, history=True)
-        self._subs["@abort"] = session.declare_subscriber(self.bus.full_key(ABORT), self._on_abort)
-        self._subs["@progress"] = session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"), self._on_progress)
+        self._control = [
+            (session.liveliness().declare_subscriber(self.bus.full_key(f"{ALIVE}/*"),
+                                                     zenoh.handlers.RingChannel(self._ring), history=True),
+             self._on_token),
+            (session.declare_subscriber(self.bus.full_key(ABORT), zenoh.handlers.RingChannel(8)), self._on_abort),
+            (session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"), zenoh.handlers.RingChannel(self._ring)),
+             self._on_progress)]
         self._thread = threading.Thread(target=self._pump, name="view-pump", daemon=True)
         self._thread.start()
         self.sampler.start()
@@ -345,6 +375,9 @@ class LiveFeed:
             for sub in self._subs.values():
                 sub.undeclare()
             self._subs.clear()
+            for sub, _handle in self._control:
+                sub.undeclare()
+            self._control = []
 
     def add_io(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]) -> None:
         """Follow the services of ``io`` too: their figures, and their keys (subscribed at once
@@ -358,32 +391,42 @@ class LiveFeed:
                 for key in new:
                     self._subs[key] = self._declare(key)
 
-    @property
-    def dropped(self) -> int:
-        """Displayed frames dropped because the pump was behind (the bounded queue was full)."""
-        return self._queued - self._taken - len(self._queue)
-
     def _pump(self) -> None:
         period = 1.0 / self.cfg.update_hz
         while not self._stop.wait(period):
             self.update()
 
+    def _drain(self) -> list[tuple[str, bytes]]:
+        """Everything the rings hold: control reports handled, displayed frames returned (the
+        newest only of a latest-only key)."""
+        with self._subs_lock:
+            control = list(self._control)
+            subs = list(self._subs.items())
+        for sub, handle in control:
+            while (sample := sub.try_recv()) is not None:
+                handle(sample)
+        batch: list[tuple[str, bytes]] = []
+        for key, sub in subs:
+            while (sample := sub.try_recv()) is not None:
+                data = self._take(key, sample)
+                if data is None:
+                    continue
+                if key in self._latest_keys:
+                    self._latest[key] = data
+                else:
+                    batch.append((key, data))
+        return batch
+
     def update(self) -> None:
-        """Undeclare ended keys, decode and apply what was kept, refresh the figures (the pump
-        calls it; tests call it directly)."""
+        """Take what the rings hold, undeclare ended keys, decode and apply what was kept,
+        refresh the figures (the pump calls it; tests call it directly)."""
+        batch = self._drain()
         while self._undeclare:
             key = self._undeclare.popleft()
             with self._subs_lock:
                 sub = self._subs.pop(key, None)
             if sub is not None:
                 sub.undeclare()
-        batch: list[tuple[str, bytes]] = []
-        while self._queue:
-            try:
-                batch.append(self._queue.popleft())
-            except IndexError:  # emptied between the test and the pop: nothing more to take
-                break
-        self._taken += len(batch)
         for key in list(self._latest):
             data = self._latest.pop(key, None)
             if data is not None:

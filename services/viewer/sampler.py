@@ -10,8 +10,10 @@ period later: the hub forwards about one frame per window.
 - A window that sees no frame within ``window_s`` closes anyway and reopens after ``gap_s``:
   a publisher draining at its end waits until no subscriber matches (:meth:`common.bus.Bus.drain`,
   polled every 50 ms), and finds the gap.
-- The Zenoh callback only marks the key (:meth:`KeySampler.got`, lock-free); declaring and
-  undeclaring happen on the sampler's own thread.
+- A window's subscriber holds its samples in Zenoh's own bounded ring buffer (no Python
+  callback, so Zenoh's threads never wait for the interpreter); the sampler's thread polls the
+  open windows, hands each sample to ``take`` and closes the window at the first data frame
+  (watermarks and the like do not count).
 """
 from __future__ import annotations
 
@@ -35,19 +37,23 @@ class _Window:
 class KeySampler:
     """Transient subscriptions on the keys given to :meth:`add` (see the module notes).
 
-    :param declare: declares a subscriber on a key (relative); the result has ``undeclare()``
+    :param declare: declares a subscriber on a key (relative); the result has ``try_recv()``
+        (a sample or None) and ``undeclare()``
+    :param take: gets ``(key, sample)`` of each sample, on the sampler's thread; True for a data frame
     :param hz: windows opened per second and key [Hz]
     :param window_s: longest a window stays open without a frame [s]
     :param gap_s: pause after a window that saw no frame [s]
     """
 
-    def __init__(self, declare: Callable[[str], Any], hz: float, window_s: float = 1.0, gap_s: float = 0.15):
+    def __init__(self, declare: Callable[[str], Any], take: Callable[[str, Any], bool], hz: float,
+                 window_s: float = 1.0, gap_s: float = 0.15, poll_s: float = 0.02):
         self._declare = declare
+        self._take = take
+        self.poll_s = poll_s
         self.period = 1.0 / hz
         self.window_s = window_s
         self.gap_s = gap_s
         self._windows: dict[str, _Window] = {}
-        self._got: set[str] = set()
         self._requests: deque[tuple[str, bool]] = deque()  # (key, add) from callbacks and other threads
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -67,11 +73,6 @@ class KeySampler:
     def remove(self, key: str) -> None:
         """Stop sampling ``key`` (its stream ended; any thread, never blocks)."""
         self._requests.append((key, False))
-        self._wake.set()
-
-    def got(self, key: str) -> None:
-        """A data frame of ``key`` arrived (the Zenoh callback; never blocks)."""
-        self._got.add(key)
         self._wake.set()
 
     def start(self) -> None:
@@ -96,7 +97,8 @@ class KeySampler:
             self._wake.wait(timeout)
 
     def step(self, now: float) -> float:
-        """Take the requests, open and close windows due at ``now``; the seconds until the next is due."""
+        """Take the requests, poll the open windows, open and close those due at ``now``; the
+        seconds until the next poll or opening."""
         while self._requests:
             key, add = self._requests.popleft()
             if add:
@@ -108,13 +110,15 @@ class KeySampler:
         due = now + self.period
         for key, w in self._windows.items():
             if w.sub is None and now >= w.next_open:
-                self._got.discard(key)
                 w.sub, w.opened = self._declare(key), now
                 self.windows += 1
-            elif w.sub is not None and (key in self._got or now - w.opened >= self.window_s):
-                got = key in self._got
-                w.sub.undeclare()
-                w.sub = None
-                w.next_open = max(w.opened + self.period, now + self.gap_s) if got else now + self.gap_s
-            due = min(due, w.opened + self.window_s if w.sub is not None else w.next_open)
+            elif w.sub is not None:
+                got = False
+                while not got and (sample := w.sub.try_recv()) is not None:
+                    got = self._take(key, sample)
+                if got or now - w.opened >= self.window_s:
+                    w.sub.undeclare()
+                    w.sub = None
+                    w.next_open = max(w.opened + self.period, now + self.gap_s) if got else now + self.gap_s
+            due = min(due, now + self.poll_s if w.sub is not None else w.next_open)
         return max(0.005, due - now)

@@ -1,6 +1,6 @@
 """The live feed on an in-process bus: it follows what is published, keeps only bounded buffers
-(a flood drops view updates, counted), leaves each key at its end-of-stream (a finished
-publisher's drain does not wait for the view), and publishes nothing."""
+(a flood drops view updates, counted), samples heavy keys, leaves each key at its end-of-stream
+(a finished publisher's drain does not wait for the view), and publishes nothing."""
 from __future__ import annotations
 
 import time
@@ -33,8 +33,10 @@ def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_p
         for rec in read_messages(run):
             pub = pubs.get(rec.key) or pubs.setdefault(rec.key, bus.publisher(rec.key))
             pub.send_data(rec.type_name, rec.payload, rec.stamp)
-        expected = {k: p.sent for k, p in pubs.items()}
-        _wait(lambda: feed.figures.frames == expected)
+        expected = {k: p.sent - 1 for k, p in pubs.items()}
+        _wait(lambda: {k: feed.figures.newest_index(k) for k in pubs} == expected)
+        # the latest-only keys (camera, map, activity) keep their newest frame; every other is taken
+        assert all(feed.figures.frames[k] == n + 1 for k, n in expected.items() if k not in feed.figures.partial)
         feed.update()
         snap = feed.snapshot({})
         counts = snap["counts"]
@@ -58,23 +60,27 @@ def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_p
 
 def test_a_flood_drops_view_updates_never_blocks(bus: Bus) -> None:
     cfg = ViewConfig()
-    feed = LiveFeed(bus, cfg, queue_frames=50)
+    feed = LiveFeed(bus, cfg, io={"robot_state": ((), ("dead_reckoning",))}, queue_frames=50)
     feed.start()
     try:
         pub = bus.publisher("dead_reckoning")
         cam = bus.publisher(cfg.camera_key)
         from common.messages import PoseStamped
+        pub.send(PoseStamped(header=Header(seq=0, stamp=1), position=[0.0, 0.0, 0.0]))
+        _wait(lambda: (feed.update(), feed.figures.newest_index("dead_reckoning") == 0)[1])
+        updates = feed.updates
         t0 = time.monotonic()
-        for i in range(2000):
+        for i in range(1, 2000):
             pub.send(PoseStamped(header=Header(seq=i, stamp=1 + i), position=[float(i), 0.0, 0.0]))
         for i in range(20):
             cam.send(Image(header=Header(seq=i, stamp=1 + i), height=8, width=8,
                            data=np.full((8, 8, 3), i, dtype=np.uint8)))
         assert time.monotonic() - t0 < 10.0
-        _wait(lambda: feed.figures.frames.get(cfg.camera_key) == 20 and feed.figures.frames.get("dead_reckoning") == 2000)
-        feed.update()
+        newest = feed.figures.newest_index
+        _wait(lambda: (feed.update(), newest(cfg.camera_key) == 19 and newest("dead_reckoning") == 1999)[1])
         # at most the newest 50 are kept between two updates (the pump may have run during the flood)
-        assert 2000 - 50 * feed.updates <= feed.dropped <= 2000 - 50
+        assert 1999 - 50 * (feed.updates - updates) <= feed.dropped <= 1999 - 50
+        assert feed.figures.frames["dead_reckoning"] + feed.dropped == 2000
         assert 1 <= feed.model.camera_version <= min(20, feed.updates)  # latest-only: at most one frame per update
         assert feed.model.camera is not None and int(np.asarray(feed.model.camera.data)[0, 0, 0]) == 19
     finally:
