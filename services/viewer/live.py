@@ -5,13 +5,14 @@ Never slowing the SLAM:
 - No Python code runs on Zenoh's threads: each key's subscriber keeps its samples in Zenoh's
   own ring buffer (the newest few for the camera, the map and the pose-cell activity; up to
   ``queue_frames`` for the other displayed keys, the oldest overwritten when it is full and
-  counted in ``view.dropped`` from the transport indices), so Zenoh's threads, which keep the
-  caller's priority (:func:`services.viewer.app.serve_live`), never wait for the interpreter
-  and the hub never waits for the view.  Nothing waits for a browser: a page that polls slowly,
-  or none, only means fewer snapshots are built.
+  counted in ``view.dropped`` from the transport indices; :data:`FIGURES_RING` for a key read
+  for the figures only), so Zenoh's threads, which keep the caller's priority
+  (:func:`services.viewer.app.serve_live`), never wait for the interpreter and the hub never
+  waits for the view.  Nothing waits for a browser: a page that polls slowly, or none, only
+  means fewer snapshots are built.
 - A heavy key (a data frame larger than ``view.sample_bytes``: camera images, evidence
-  images) is not followed frame by frame: the hub would copy every frame to the view, and
-  its reliable, blocking forwarding would wait on a view starved of CPU.  A heavy key that
+  images) is not followed frame by frame: the hub would copy every frame to the view (and the
+  view's rings would hold megabytes).  A heavy key that
   is displayed or a service's input is sampled, about ``view.sample_hz`` frames a second
   (:class:`~services.viewer.sampler.KeySampler`); any other (a service output shown nowhere)
   is left after its first frame, the service's other outputs carry its figures.
@@ -64,6 +65,9 @@ log = logging.getLogger(__name__)
 #: ring capacity of a latest-only key: its newest data frame survives the watermarks and the
 #: end-of-stream that follow it until the pump takes it
 LATEST_RING = 16
+#: ring capacity of a key read for the per-service figures only (frames of any size, until the
+#: first one shows it heavy)
+FIGURES_RING = 64
 
 
 class ViewError(RuntimeError):
@@ -274,7 +278,7 @@ class LiveFeed:
 
     # ---- taking samples out of the rings (the pump and the sampler's threads) -------------
     def _declare(self, key: str) -> Any:
-        capacity = LATEST_RING if key in self._latest_keys else self._ring
+        capacity = LATEST_RING if key in self._latest_keys else self._ring if key in self.shown else FIGURES_RING
         return self.bus.session.declare_subscriber(self.bus.full_key(key), zenoh.handlers.RingChannel(capacity))
 
     def _declare_latest(self, key: str) -> Any:
