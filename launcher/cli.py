@@ -320,10 +320,9 @@ def cmd_view(args: argparse.Namespace) -> int:
                 raise ValueError("a recording is viewed on its own: --connect and --foxglove are for a live deployment")
             serve_recording(args.recording, config.view, stop, args.listen)
             return 0
-        # the services' keys are found at the view's own (idle) priority: it imports every service
+        io = {n: node_io(n, config) for n in config.services or available_services(config)}
         serve_live(config.view, args.namespace or config.bus.namespace, args.connect or config.bus.connect[0], stop,
-                   lambda: {n: node_io(n, config) for n in config.services or available_services(config)},
-                   args.listen, args.foxglove, tls_dir=args.tls_dir, tls_host=args.tls_host,
+                   io, args.listen, args.foxglove, tls_dir=args.tls_dir, tls_host=args.tls_host,
                    user=args.zenoh_user, password_file=args.zenoh_password_file)
     except (ConfigError, ViewError, ValueError, KeyError, FileNotFoundError) as exc:
         print(f"poseidon view: {exc}", file=sys.stderr)

@@ -67,29 +67,13 @@ def _lowest_priority() -> None:
         log.warning("view.idle_priority: SCHED_IDLE refused (%s); the view runs with the default scheduling", exc)
 
 
-ServiceIO = Mapping[str, tuple[Sequence[str], Sequence[str]]]
-
-
-def _add_io(feed: LiveFeed, io: Callable[[], ServiceIO]) -> None:
-    """The services' keys, found, given to ``feed`` (logged when they cannot be: the page then
-    has no per-service figures)."""
-    try:
-        found = io()
-    except (KeyError, ImportError, ValueError) as exc:
-        log.error("view: the services' keys are unknown (%s); the page shows no per-service figures", exc)
-        return
-    feed.add_io(found)
-
-
 def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Event,
-               io: ServiceIO | Callable[[], ServiceIO] | None = None, listen: str | None = None,
+               io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None, listen: str | None = None,
                foxglove_port: int | None = None, ready: Callable[[str], None] | None = None,
                **secure: str | None) -> None:
     """Serve the deployment whose hub is at ``connect`` until ``stop`` is set (``io``: each
-    service's input and output keys, for its figures, or a function computing them, called
-    on a thread of its own once the page is served: finding them imports every service, seconds
-    of CPU the view's panels need not wait for; ``secure``:
-    the secured profile's ``tls_dir``, ``tls_host``, ``user``, ``password_file``)."""
+    service's input and output keys, for its figures; ``secure``: the secured profile's
+    ``tls_dir``, ``tls_host``, ``user``, ``password_file``)."""
     if foxglove_port is not None and not 0 <= foxglove_port <= 65535:
         raise ViewError(f"--foxglove {foxglove_port}: not a port (0-65535)")
     try:
@@ -109,12 +93,10 @@ def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Ev
                 fox = FoxgloveLive(host, foxglove_port, cfg.foxglove_backlog)
             except RuntimeError as exc:
                 raise ViewError(f"cannot start the Foxglove server on {host}:{foxglove_port}: {exc}") from None
-        feed = LiveFeed(bus, cfg, None if callable(io) else io, on_update=fox.update if fox is not None else None)
+        feed = LiveFeed(bus, cfg, io, on_update=fox.update if fox is not None else None)
         server = _server(feed, listen or cfg.listen)
         feed.start()
         server.start()
-        if callable(io):
-            threading.Thread(target=_add_io, args=(feed, io), name="view-io", daemon=True).start()
         try:
             extra = f"; Foxglove: ws://{host}:{fox.port}" if fox is not None else ""
             _announce(f"poseidon view: {connect} ({namespace}) at {server.url}{extra} -- Ctrl-C to stop", ready,
