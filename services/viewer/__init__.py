@@ -5,7 +5,8 @@ running deployment, ``poseidon view RUN.mcap`` over a finished run (time slider)
 ``poseidon run ... --view [HOST:]PORT`` beside a replay or a live run.
 
 - :mod:`services.viewer.model`: what the page shows, bounded (:class:`ViewModel`);
-- :mod:`services.viewer.live`: the bus subscriber (latest-only buffers, never slows the SLAM);
+- :mod:`services.viewer.live`: the bus subscriber (Zenoh ring buffers, never slows the SLAM);
+- :mod:`services.viewer.sampler`: heavy keys (camera images) taken a few frames a second;
 - :mod:`services.viewer.recording`: a recording at the slider's time;
 - :mod:`services.viewer.server`: the HTTP server and why the page polls JSON snapshots;
 - :mod:`services.viewer.foxglove_live`: the same streams over Foxglove's WebSocket protocol;
