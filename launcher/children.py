@@ -1,61 +1,71 @@
 """How the launcher starts a service process: it dies with the launcher, and a replay's
 services run under Linux ``SCHED_BATCH`` (``bus.batch_scheduling``; why:
-``docs/DECISIONS.md``, "Replays under SCHED_BATCH")."""
+``docs/DECISIONS.md``, "Replays under SCHED_BATCH").
+
+Both are set up by the child itself, first thing in ``poseidon`` (:func:`adopt_launcher`), from
+the environment :func:`child_env` gives it, never in a ``preexec_fn``: the launcher has Zenoh
+threads running when it starts (and restarts) its services, and code run between ``fork`` and
+``exec`` of a multi-threaded process can block for ever on a lock one of those threads held at
+the fork (loading libc for ``prctl`` takes the dynamic loader's lock), with the launcher
+blocked in ``Popen`` waiting for the ``exec``.  Without ``preexec_fn`` Python starts the child
+with ``vfork``/``exec``, where nothing runs in between."""
 from __future__ import annotations
 
 import ctypes
 import logging
 import os
 import signal
-import subprocess
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
-__all__ = ["check_batch_scheduling", "die_with_launcher", "child_pid"]
+__all__ = ["adopt_launcher", "child_env", "child_pid", "LAUNCHER_PID_ENV", "BATCH_ENV"]
 
 log = logging.getLogger(__name__)
 
 PR_SET_PDEATHSIG = 1
 _SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
+#: the launcher's pid, in a child's environment: the child dies with that process
+LAUNCHER_PID_ENV = "POSEIDON_LAUNCHER_PID"
+#: "1" in a child's environment: the child (and every thread it starts) runs under SCHED_BATCH
+BATCH_ENV = "POSEIDON_SCHED_BATCH"
 
 
-def die_with_launcher(launcher_pid: int, batch_scheduling: bool = False) -> Any:
-    """``preexec_fn`` of every child: the kernel sends it SIGTERM when the launcher dies, even
-    by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a service never outlives its run as an
-    orphan; SIGTERM lets the recorder close its file with a summary.
-
-    ``batch_scheduling`` (replays, ``bus.batch_scheduling``): the child and every thread it
-    starts run under Linux ``SCHED_BATCH``.  A refusal is not raised here (the launcher
-    checks the policy each child got, :func:`check_batch_scheduling`)."""
-    def setup() -> None:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
-            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
-        if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
-            os.kill(os.getpid(), signal.SIGTERM)
-        if batch_scheduling and _SCHED_BATCH is not None:
-            try:
-                os.sched_setscheduler(0, _SCHED_BATCH, os.sched_param(0))
-            except OSError:  # reported by the launcher, which reads the policy the child got
-                pass
-    return setup
+def child_env(base: Mapping[str, str] | None = None, batch_scheduling: bool = False) -> dict[str, str]:
+    """The environment of a child the launcher starts (``base``: default this process's): the
+    child dies with this process, and runs under ``SCHED_BATCH`` if ``batch_scheduling``."""
+    env = dict(os.environ if base is None else base)
+    env[LAUNCHER_PID_ENV] = str(os.getpid())
+    env[BATCH_ENV] = "1" if batch_scheduling else "0"
+    return env
 
 
-
-def check_batch_scheduling(name: str, proc: subprocess.Popen[Any]) -> None:
-    """Warn when a child asked for ``SCHED_BATCH`` did not get it (it runs, only slower)."""
+def adopt_launcher(what: str = "poseidon") -> None:
+    """In a child started with :func:`child_env`, before it starts any thread: the kernel sends
+    it SIGTERM when the launcher dies, even by SIGKILL (``prctl(PR_SET_PDEATHSIG)``), so a
+    service never outlives its run as an orphan (SIGTERM lets the recorder close its file with a
+    summary); asked to, it takes ``SCHED_BATCH``, and says so on stderr when refused (it runs,
+    only slower).  The variables are removed, so the child's own children are not bound to the
+    launcher.  Without them (a process started by hand): nothing."""
+    pid = os.environ.pop(LAUNCHER_PID_ENV, None)
+    batch = os.environ.pop(BATCH_ENV, "0") == "1"
+    if pid is None:
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    if os.getppid() != int(pid):  # the launcher died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+    if not batch:
+        return
     if _SCHED_BATCH is None:
-        log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; service %s runs with the "
-                    "default scheduling", name)
+        log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; %s runs with the default scheduling",
+                    what)
         return
     try:
-        policy = os.sched_getscheduler(proc.pid)
-    except OSError as exc:  # the child already exited: its exit code tells the rest
-        log.debug("bus.batch_scheduling: cannot read the policy of %s: %s", name, exc)
-        return
-    if policy != _SCHED_BATCH:
-        log.warning("bus.batch_scheduling: service %s did not get SCHED_BATCH (policy %d); it runs with the "
-                    "default scheduling", name, policy)
+        os.sched_setscheduler(0, _SCHED_BATCH, os.sched_param(0))
+    except OSError as exc:
+        log.warning("bus.batch_scheduling: %s did not get SCHED_BATCH (%s); it runs with the default scheduling",
+                    what, exc)
 
 
 def child_pid(launcher_pid: int, name: str) -> int | None:

@@ -349,12 +349,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    import faulthandler
+    import signal
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 PID`: every thread's stack
+    from launcher.children import adopt_launcher
     if argv and argv[0] in DELEGATED:
         from launcher import logs
         logs.setup(logs.console_level_of(None, False), service=argv[0])
+        adopt_launcher(argv[0])
         return int(_delegate(argv[0])(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     _setup_logging(args)
+    adopt_launcher(" ".join(argv[:2]) if argv[:1] == ["service"] else args.command)  # before any thread starts
     return int(args.func(args) or 0)
 
 

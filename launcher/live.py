@@ -78,7 +78,7 @@ from common.codec import encode_frame
 from common.live import HEALTH_KEY, LATENCY_KEY
 from common.mcap_io import code_revision
 from common.ordering import END_OF_TIME
-from launcher.children import die_with_launcher
+from launcher.children import child_env
 from launcher.health import Recovery, ServiceHealth, checkpoint_ages, diagnostics, snapshot
 from launcher.inputs import input_report
 from launcher.run import (
@@ -216,8 +216,7 @@ class _Supervisor:
 
     def start(self, name: str, resume: bool = False) -> None:
         cmd = self.cmds[name] + (["--resume"] if resume and name != HUB else [])
-        self.procs[name] = subprocess.Popen(cmd, env=self.env, stdout=2, start_new_session=True,
-                                            preexec_fn=die_with_launcher(os.getpid()))
+        self.procs[name] = subprocess.Popen(cmd, env=child_env(self.env), stdout=2, start_new_session=True)
 
     def check(self, now: float, progress: Callable[[str], int]) -> list[str]:
         """Handle the processes that ended since the last call: a restartable one that failed is
@@ -388,6 +387,8 @@ def _live_phases(config: PoseidonConfig, plan: RunPlan, sv: _Supervisor, bridge:
                 health_ended = True
             if sv.done(everyone[1:]):
                 break
+            if stopping_at is None and sv.done(consumers):
+                stopping_at = now  # everyone else finished: the source has stop_timeout_s to leave
             if stopping_at is not None and now - stopping_at > config.live.stop_timeout_s:
                 still = [n for n in everyone[1:] if n not in sv._ended]
                 failed = failed or (still[0], f"did not finish within {config.live.stop_timeout_s:.0f} s after "

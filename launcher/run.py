@@ -57,7 +57,7 @@ from common.live import HEALTH_KEY, LATENCY_KEY
 from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
-from launcher.children import check_batch_scheduling, die_with_launcher
+from launcher.children import child_env
 from launcher.inputs import input_report
 from services.player.player import SOURCE_KEYS, replayed_keys
 from system.calibration import calibrate_from_input
@@ -299,10 +299,7 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         batch = config.bus.batch_scheduling
 
         def _start(name: str, cmd: list[str]) -> subprocess.Popen[bytes]:
-            proc = subprocess.Popen(cmd, env=env, stdout=2, preexec_fn=die_with_launcher(os.getpid(), batch))
-            if batch:
-                check_batch_scheduling(name, proc)
-            return proc
+            return subprocess.Popen(cmd, env=child_env(env, batch), stdout=2)
 
         def restart(name: str, rc: int) -> subprocess.Popen[bytes] | None:
             """Supervision: start ``name`` again (resuming) unless it used its restarts."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -70,7 +69,7 @@ def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> 
     if args.view is None and args.foxglove is None:
         yield None
         return
-    from launcher.children import die_with_launcher
+    from launcher.children import child_env
     from launcher.run import _free_port
     port = _free_port()
     cmd = [sys.executable, "-m", "launcher.cli", "view", "--connect", f"tcp/127.0.0.1:{port}",
@@ -80,7 +79,7 @@ def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> 
     cmd += ["--config", args.config] if args.config else []
     for item in args.set:
         cmd += ["--set", item]
-    proc = subprocess.Popen(cmd, stdout=2, preexec_fn=die_with_launcher(os.getpid()))
+    proc = subprocess.Popen(cmd, stdout=2, env=child_env())
     try:
         yield port
     finally:

@@ -20,6 +20,7 @@ import pytest
 
 from launcher.children import child_pid
 from missions.sim.cli import main as sim_main
+from tests.common.processes import finish
 from tests.common.recordings import payloads_by_key
 from tests.conftest import REPO
 
@@ -57,7 +58,7 @@ def _launch(work: Path, out: Path) -> subprocess.Popen:
 def uninterrupted(work):
     out = work / "plain.mcap"
     proc = _launch(work, out)
-    stdout, _ = proc.communicate(timeout=600)
+    stdout = finish(proc, 600, out.with_suffix(".err"), out.with_suffix(".log"))
     assert proc.returncode == 0, out.with_suffix(".err").read_text()[-3000:]
     result = json.loads(stdout)
     assert result["restarts"] == {} and result["recoveries"] == []
@@ -86,7 +87,7 @@ def test_sigkill_of_every_service_the_recorder_and_the_hub_leaves_no_trace(work,
             assert pid is not None, f"{name} not running (killed so far: {killed})"
             os.kill(pid, signal.SIGKILL)
             killed.append(name)
-        stdout, _ = proc.communicate(timeout=600)
+        stdout = finish(proc, 600, out.with_suffix(".err"), out.with_suffix(".log"))
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -135,7 +136,7 @@ def test_a_kill_that_outlasts_the_retention_counts_its_gap_and_the_run_finishes(
         pid = child_pid(proc.pid, "htm")
         assert pid is not None
         os.kill(pid, signal.SIGKILL)
-        stdout, _ = proc.communicate(timeout=600)
+        stdout = finish(proc, 600, out.with_suffix(".err"), out.with_suffix(".log"))
     finally:
         if proc.poll() is None:
             proc.kill()

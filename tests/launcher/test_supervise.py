@@ -24,6 +24,7 @@ from launcher.children import child_pid
 from missions.sim.cli import main as sim_main
 from system.config import load_config
 from system.services import build_node
+from tests.common.processes import finish
 from tests.common.recordings import payloads_by_key
 from tests.conftest import REPO
 
@@ -61,7 +62,7 @@ def _launch(work: Path, out: Path) -> subprocess.Popen:
 def uninterrupted(work):
     out = work / "uninterrupted.mcap"
     proc = _launch(work, out)
-    stdout, _ = proc.communicate(timeout=400)
+    stdout = finish(proc, 400, out.with_suffix(".err"), out.with_suffix(".log"))
     assert proc.returncode == 0, out.with_suffix(".err").read_text()[-3000:]
     result = json.loads(stdout)
     assert result["restarts"] == {}
@@ -99,7 +100,7 @@ def test_sigkill_of_every_process_mid_run_resumes_to_the_uninterrupted_streams(w
                 os.kill(pid, signal.SIGKILL)
                 killed.append(name)
             time.sleep(0.02)
-        stdout, _ = proc.communicate(timeout=400)
+        stdout = finish(proc, 400, out.with_suffix(".err"), out.with_suffix(".log"))
     finally:
         if proc.poll() is None:
             proc.kill()
