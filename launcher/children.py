@@ -12,15 +12,13 @@ with ``vfork``/``exec``, where nothing runs in between."""
 from __future__ import annotations
 
 import ctypes
-import logging
 import os
 import signal
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 
 __all__ = ["adopt_launcher", "child_env", "child_pid", "LAUNCHER_PID_ENV", "BATCH_ENV"]
-
-log = logging.getLogger(__name__)
 
 PR_SET_PDEATHSIG = 1
 _SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
@@ -57,15 +55,16 @@ def adopt_launcher(what: str = "poseidon") -> None:
         os.kill(os.getpid(), signal.SIGTERM)
     if not batch:
         return
+    # on stderr (the launcher's console): logging is not set up yet
     if _SCHED_BATCH is None:
-        log.warning("bus.batch_scheduling: this system has no SCHED_BATCH; %s runs with the default scheduling",
-                    what)
+        print(f"poseidon {what}: bus.batch_scheduling: this system has no SCHED_BATCH; running with the "
+              "default scheduling", file=sys.stderr)
         return
     try:
         os.sched_setscheduler(0, _SCHED_BATCH, os.sched_param(0))
     except OSError as exc:
-        log.warning("bus.batch_scheduling: %s did not get SCHED_BATCH (%s); it runs with the default scheduling",
-                    what, exc)
+        print(f"poseidon {what}: bus.batch_scheduling: did not get SCHED_BATCH ({exc}); running with the default "
+              "scheduling", file=sys.stderr)
 
 
 def child_pid(launcher_pid: int, name: str) -> int | None:

@@ -349,18 +349,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    import faulthandler
-    import signal
-    faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 PID`: every thread's stack
-    from launcher.children import adopt_launcher
     if argv and argv[0] in DELEGATED:
         from launcher import logs
         logs.setup(logs.console_level_of(None, False), service=argv[0])
-        adopt_launcher(argv[0])
         return int(_delegate(argv[0])(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     _setup_logging(args)
-    adopt_launcher(" ".join(argv[:2]) if argv[:1] == ["service"] else args.command)  # before any thread starts
     return int(args.func(args) or 0)
 
 
@@ -399,8 +393,9 @@ def isolate_stdout() -> None:
 
 
 def entry() -> None:
-    """The ``poseidon`` console script (and ``python -m launcher.cli``): :func:`main`, then leave
-    without interpreter finalisation.
+    """The ``poseidon`` console script (and ``python -m launcher.cli``): a child of a launcher binds
+    itself to it (:func:`launcher.children.adopt_launcher`, before any thread starts), ``SIGUSR1``
+    prints every thread's stack, then :func:`main`, then leave without interpreter finalisation.
 
     Zenoh's Rust threads call into Python.  If the interpreter finalises while one of them
     waits for the GIL, CPython ends that thread with ``pthread_exit``; its forced unwind meets
@@ -409,6 +404,12 @@ def entry() -> None:
     Every command has closed its sessions, recordings and files when :func:`main` returns, so
     the process flushes logging and stdio and ends with ``os._exit`` (no finalisation, no abort).
     """
+    import faulthandler
+    import signal
+
+    from launcher.children import adopt_launcher
+    adopt_launcher(" ".join(sys.argv[1:3]) if sys.argv[1:2] == ["service"] else " ".join(sys.argv[1:2]))
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 PID`: every thread's stack
     isolate_stdout()
     try:
         code = _main_profiled() if os.environ.get("POSEIDON_PROFILE_DIR") else main()

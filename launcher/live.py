@@ -387,8 +387,7 @@ def _live_phases(config: PoseidonConfig, plan: RunPlan, sv: _Supervisor, bridge:
                 health_ended = True
             if sv.done(everyone[1:]):
                 break
-            if stopping_at is None and sv.done(consumers):
-                stopping_at = now  # everyone else finished: the source has stop_timeout_s to leave
+            stopping_at = stopping_at or (now if sv.done(consumers) else None)  # the source's stop_timeout_s
             if stopping_at is not None and now - stopping_at > config.live.stop_timeout_s:
                 still = [n for n in everyone[1:] if n not in sv._ended]
                 failed = failed or (still[0], f"did not finish within {config.live.stop_timeout_s:.0f} s after "
