@@ -18,7 +18,7 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["adopt_launcher", "child_env", "child_pid", "LAUNCHER_PID_ENV", "BATCH_ENV"]
+__all__ = ["adopt_launcher", "child_env", "child_pid", "children", "LAUNCHER_PID_ENV", "BATCH_ENV"]
 
 PR_SET_PDEATHSIG = 1
 _SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
@@ -67,18 +67,32 @@ def adopt_launcher(what: str = "poseidon") -> None:
               "scheduling", file=sys.stderr)
 
 
+def children(pid: int) -> list[int]:
+    """The pids of process ``pid``'s children, read from ``/proc`` (Linux); [] once it ended."""
+    out: list[int] = []
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except FileNotFoundError:
+        return out
+    for task in tasks:
+        try:
+            out += [int(c) for c in (task / "children").read_text().split()]
+        except FileNotFoundError:  # the thread ended between the two reads
+            continue
+    return out
+
+
 def child_pid(launcher_pid: int, name: str) -> int | None:
     """The pid of the launcher's child running service ``name`` (``... service NAME ...``; the
     hub: ``... hub ...``), read from ``/proc`` (Linux); None when there is none right now.
     For tests and benchmarks that stop one process of a run."""
-    for task in Path(f"/proc/{launcher_pid}/task").iterdir():
-        for child in (task / "children").read_text().split():
-            try:
-                argv = Path(f"/proc/{child}/cmdline").read_bytes().decode(errors="replace").split("\0")
-            except FileNotFoundError:      # the child ended between the two reads
-                continue
-            if name == "hub" and "hub" in argv:
-                return int(child)
-            if "service" in argv and argv.index("service") + 1 < len(argv) and argv[argv.index("service") + 1] == name:
-                return int(child)
+    for child in children(launcher_pid):
+        try:
+            argv = Path(f"/proc/{child}/cmdline").read_bytes().decode(errors="replace").split("\0")
+        except FileNotFoundError:      # the child ended between the two reads
+            continue
+        if name == "hub" and "hub" in argv:
+            return child
+        if "service" in argv and argv.index("service") + 1 < len(argv) and argv[argv.index("service") + 1] == name:
+            return child
     return None

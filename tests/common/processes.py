@@ -15,21 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from launcher.children import children
+
 __all__ = ["finish"]
-
-
-def _children(pid: int) -> list[int]:
-    out: list[int] = []
-    try:
-        tasks = list(Path(f"/proc/{pid}/task").iterdir())
-    except FileNotFoundError:
-        return out
-    for task in tasks:
-        try:
-            out += [int(c) for c in (task / "children").read_text().split()]
-        except FileNotFoundError:
-            continue
-    return out
 
 
 def _tail(path: Path | None, chars: int) -> str:
@@ -47,7 +35,7 @@ def finish(proc: subprocess.Popen, timeout_s: float, err: Path, log: Path | None
         return str(stdout)
     except subprocess.TimeoutExpired:
         pass
-    for pid in [proc.pid, *_children(proc.pid)]:  # one after another: they share the stderr
+    for pid in [proc.pid, *children(proc.pid)]:  # one after another: they share the stderr
         try:
             os.kill(pid, signal.SIGUSR1)
         except ProcessLookupError:

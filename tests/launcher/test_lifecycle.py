@@ -12,6 +12,7 @@ import pytest
 from mcap.reader import make_reader
 
 from common.node import ServiceNode
+from launcher.children import children
 from launcher.run import node_io, plan_run
 from system.config import load_config
 from tests.common.recordings import six_stream_recording
@@ -24,14 +25,6 @@ CLI = [sys.executable, "-m", "launcher.cli"]
 def _standard_reader_count(path: Path) -> int:
     with open(path, "rb") as f:
         return sum(1 for _ in make_reader(f).iter_messages())
-
-
-def _children(pid: int) -> list[int]:
-    out = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        text = (task / "children").read_text().split()
-        out += [int(c) for c in text]
-    return out
 
 
 def _running(pid: int) -> bool:
@@ -55,7 +48,7 @@ def test_children_die_with_a_launcher_killed_by_sigkill(tmp_path):
         kids: list[int] = []
         while time.monotonic() < deadline and len(kids) < 3:  # recorder, stall, player
             time.sleep(0.3)
-            kids = _children(launcher.pid)
+            kids = children(launcher.pid)
         assert len(kids) == 3, kids
         while not (tmp_path / "run.partial.mcap").exists() and time.monotonic() < deadline:
             time.sleep(0.2)  # the recorder is up
@@ -137,7 +130,7 @@ def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tm
         deadline = time.monotonic() + 60
         while stall is None and time.monotonic() < deadline:
             time.sleep(0.3)
-            for k in _children(launcher.pid):
+            for k in children(launcher.pid):
                 try:
                     argv = Path(f"/proc/{k}/cmdline").read_bytes().decode(errors="replace").split("\0")
                 except FileNotFoundError:   # a child that ended between the listing and the read
