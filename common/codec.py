@@ -33,6 +33,7 @@ from common.messages import MESSAGE_TYPES, Message
 __all__ = [
     "encode", "decode", "decode_dict", "pack_obj", "unpack_obj", "encode_frame", "encode_watermark",
     "ENCODED_EOS", "decode_frame", "Frame", "DecodeError", "encode_sequenced", "encode_replay_start",
+    "decode_header",
 ]
 
 
@@ -95,6 +96,33 @@ def decode_dict(data: bytes | memoryview) -> dict[str, Any]:
     if not isinstance(obj, dict):
         raise DecodeError(f"expected a map, got {type(obj).__name__}")
     return obj
+
+
+#: bytes of a payload read for its header first: every message's first field, a few dozen bytes
+_HEADER_WINDOW = 256
+
+
+def decode_header(data: bytes | memoryview) -> dict[str, Any]:
+    """The ``header`` map of an encoded message, without decoding the rest of it.
+
+    Every message is packed with ``header`` as its first field (:class:`common.messages.Message`),
+    so only the payload's first :data:`_HEADER_WINDOW` bytes are read; a payload laid out
+    otherwise (or with a longer header) is decoded whole.  Only the header is checked:
+    the body is checked by the receivers that decode it (:func:`decode`).  Raises
+    :class:`DecodeError` when there is no header map."""
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False, max_buffer_size=_HEADER_WINDOW)
+    unpacker.feed(data[:_HEADER_WINDOW])
+    try:
+        unpacker.read_map_header()
+        first = unpacker.unpack()
+        header = unpacker.unpack() if first == "header" else None
+    except Exception:  # msgpack raises several unrelated types (OutOfData, ExtraData, ValueError ...)
+        header = None
+    if header is None:
+        header = decode_dict(data).get("header")
+    if not isinstance(header, dict):
+        raise DecodeError("no header")
+    return header
 
 
 def decode(data: bytes | memoryview, cls: type[M]) -> M:

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from common.bus import Bus
-from common.codec import DecodeError, decode_dict, decode_frame
+from common.codec import DecodeError, decode_frame, decode_header
 from common.mcap_io import RecordingError, RecordingWriter, iter_file_order
 from common.ordering import END_OF_TIME
 from common.resume import Supervision
@@ -210,9 +210,7 @@ class Recorder(Sink):
             self.progress.repeat()  # a restarted player learns how far the recorder is
             return
         try:
-            header = decode_dict(frame.payload).get("header")
-            if not isinstance(header, dict):
-                raise DecodeError("no header")
+            header = decode_header(frame.payload)  # the body is the readers' to check
             stamp, seq = header.get("stamp"), header.get("seq")
             if not (isinstance(stamp, int) and 0 <= stamp <= END_OF_TIME and isinstance(seq, int) and seq >= 0):
                 raise DecodeError(f"header stamp {stamp!r} / seq {seq!r} are not non-negative int64")

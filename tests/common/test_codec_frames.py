@@ -62,3 +62,26 @@ def test_every_malformation_names_what_is_wrong(form):
         with pytest.raises(DecodeError) as err:
             decode_frame(form(data))
         assert str(err.value) == text
+
+
+def test_decode_header_reads_the_header_alone_and_falls_back_to_the_whole_payload():
+    """The recorder's header read: equal to the whole decode's header, for a short message, an
+    image (the body far beyond the read window), a header longer than the window and a map whose
+    first field is not the header; no header map is a DecodeError."""
+    import msgpack
+    import numpy as np
+
+    from common.codec import decode_dict, decode_header, pack_obj
+    from common.messages import Image
+
+    image = Image(header=Header(seq=9, stamp=5, frame_id="camera"), height=64, width=64, encoding="rgb8",
+                  data=np.zeros((64, 64, 3), np.uint8))
+    long_id = Depth(header=Header(seq=1, stamp=2, frame_id="x" * 600), depth=0.5)
+    for payload in (encode(MSG), encode(image), encode(long_id)):
+        assert decode_header(payload) == decode_dict(payload)["header"]
+        assert decode_header(memoryview(payload)) == decode_dict(payload)["header"]
+    reordered = pack_obj({"depth": 1.0, "header": {"seq": 4, "stamp": 8, "frame_id": ""}})
+    assert decode_header(reordered) == {"seq": 4, "stamp": 8, "frame_id": ""}
+    for bad in (b"", b"\x80", b"\xc1", b"\x81\xa6header\x05", msgpack.packb([1, 2]), pack_obj({"depth": 1.0})):
+        with pytest.raises(DecodeError):
+            decode_header(bad)
