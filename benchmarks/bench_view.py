@@ -6,9 +6,11 @@ headless Chromium polling the page.
   live player's report); per stage, the ratio of the median p50 with the view over the median
   without, and the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
   2-core machine);
-- at 1x with the view (unless ``--no-1x``): the view process's CPU seconds and peak RSS
-  (``/proc``), the bytes per second the hub delivered to it and the bytes per second it served
-  to the browser;
+- in every run with the view: the CPU seconds of the view process (``view_cpu_s``: all of it,
+  start-up included; ``view_stream_cpu_s``: from the first data to the run's end) and of the
+  browser's processes over the same span (``browser_stream_cpu_s``), the view's peak RSS
+  (``/proc``), the bytes per second the hub delivered to it (per key when the view reports
+  them) and the bytes per second it served to the browser;
 - screenshots: the page during the 1x run (``--shots DIR``/view_live.png) and ``poseidon view`` of
   that run's recording (view_demo.png).
 
@@ -59,6 +61,20 @@ def _usage(pid: int) -> tuple[float, float]:
     return cpu, int(hwm.split()[1]) / 1024
 
 
+def _tree_cpu(root: int) -> float:
+    """CPU seconds of ``root`` and its descendants alive now."""
+    total, todo = 0.0, [root]
+    while todo:
+        pid = todo.pop()
+        try:
+            total += _usage(pid)[0]
+            for task in Path(f"/proc/{pid}/task").iterdir():
+                todo += [int(c) for c in (task / "children").read_text().split()]
+        except (OSError, StopIteration):   # the process ended meanwhile
+            continue
+    return total
+
+
 def _page(b: Browser, url: str) -> str:
     target = b.call("Target.createTarget", {"url": "about:blank"})
     s: str = b.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})["sessionId"]
@@ -105,14 +121,20 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
                 time.sleep(0.2)
             s = _page(b, url)
             first_t = None
+            first_cpu = (0.0, 0.0)  # view, browser
             while not out.exists() and proc.poll() is None:
                 st = view_state(url)
                 if st and st["t"] > 0 and first_t is None:
                     first_t = time.monotonic()
+                    pid = _view_pid(proc.pid)
+                    first_cpu = (_usage(pid)[0] if pid is not None else 0.0, _tree_cpu(b.proc.pid))
                 if shots is not None and st and first_t and st["t"] > 0.6 * 30 and not (shots / "view_live.png").exists():
                     _shot(b, s, shots / "view_live.png")
                 b.pump(0.5)
             pid = _view_pid(proc.pid)
+            if pid is not None:
+                row["view_stream_cpu_s"] = round(_usage(pid)[0] - first_cpu[0], 2)
+            row["browser_stream_cpu_s"] = round(_tree_cpu(b.proc.pid) - first_cpu[1], 2)
             b.pump(3.0)
             st = view_state(url) or {}
             if pid is not None:
@@ -123,6 +145,8 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
             row["served_bytes"] = served
             row["served_kb_per_s"] = round(served / 1e3 / span, 1)
             row["bus_kb_per_s"] = round(received / 1e3 / span, 1)
+            by_key = st.get("view", {}).get("received_by_key", {})
+            row["bus_kb_per_s_by_key"] = {k: round(v / 1e3 / span, 1) for k, v in sorted(by_key.items(), key=lambda kv: -kv[1])}
             row["sampled_keys"] = st.get("view", {}).get("sampled", [])
     stdout, _ = proc.communicate(timeout=600)
     summary = json.loads(stdout)
@@ -202,7 +226,10 @@ def main() -> int:
     ratio = ratios([r for r in fast if not r["view"]], [r for r in fast if r["view"]])
     drops = {mode: sum(sum(r["dropped"].values()) for r in fast if r["view"] == view)
              for mode, view in (("without", False), ("with", True))}
-    print(json.dumps({"rows": rows, "p50_ratio_with_over_without": ratio, "dropped_at_4x": drops}, indent=1))
+    cost = {k: [r[k] for r in fast if k in r] for k in ("view_stream_cpu_s", "browser_stream_cpu_s", "view_cpu_s",
+                                                          "bus_kb_per_s", "served_kb_per_s")}
+    print(json.dumps({"rows": rows, "p50_ratio_with_over_without": ratio, "dropped_at_4x": drops, "cost_at_4x": cost},
+                     indent=1))
     return 0
 
 

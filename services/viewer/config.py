@@ -17,8 +17,9 @@ class ViewConfig(ConfigSection):
 
     listen: str = Field("127.0.0.1:8080", description="HOST:PORT the page is served on; loopback unless told "
                         "otherwise (port 0: any free port)")
-    update_hz: float = Field(4.0, ge=0.5, le=20.0, description="the view's state is rebuilt from the latest "
-                             "samples this often; the page polls at the same rate [Hz]")
+    update_hz: float = Field(2.0, ge=0.5, le=20.0, description="the view's state is rebuilt from the latest "
+                             "samples this often; the page polls at the same rate (each poll costs the browser "
+                             "a request and the view a snapshot, see docs/DECISIONS.md, Live view) [Hz]")
     image_width: int = Field(320, ge=32, le=1280, description="camera frames are shrunk to at most this width "
                              "before JPEG encoding [px]")
     jpeg_quality: int = Field(70, ge=10, le=95, description="JPEG quality of the camera frame sent to the page")

@@ -102,6 +102,8 @@ class LatencyWindow:
         self._seen: dict[str, OrderedDict[int, None]] = {}
         self.samples: dict[str, deque[float]] = {}
         self._window = window
+        self._added = 0  # samples added so far
+        self._cache: dict[tuple[str, ...], tuple[int, tuple[float | None, float | None]]] = {}
 
     def arrived(self, stamp: int, wall_ns: int) -> None:
         if stamp not in self._arrival:
@@ -118,14 +120,21 @@ class LatencyWindow:
         if len(seen) > self.horizon:
             seen.popitem(last=False)
         self.samples.setdefault(key, deque(maxlen=self._window)).append((wall_ns - t0) / 1e6)
+        self._added += 1
 
     def percentiles(self, keys: Sequence[str]) -> tuple[float | None, float | None]:
-        """p50 and p99 (ms) over the samples of ``keys`` (None without any)."""
+        """p50 and p99 (ms) over the samples of ``keys`` (None without any), computed again only
+        after a sample was added."""
+        cached = self._cache.get(tuple(keys))
+        if cached is not None and cached[0] == self._added:
+            return cached[1]
         values = [v for k in keys for v in self.samples.get(k, ())]
-        if not values:
-            return None, None
-        p50, p99 = np.percentile(np.asarray(values), [50, 99])
-        return round(float(p50), 1), round(float(p99), 1)
+        result: tuple[float | None, float | None] = (None, None)
+        if values:
+            p50, p99 = np.percentile(np.asarray(values), [50, 99])
+            result = (round(float(p50), 1), round(float(p99), 1))
+        self._cache[tuple(keys)] = (self._added, result)
+        return result
 
 
 class ServiceFigures:
@@ -255,6 +264,7 @@ class LiveFeed:
         self.heavy: set[str] = set()  # keys whose frames exceed cfg.sample_bytes (see the module notes)
         self.sampler = KeySampler(self._declare_latest, self._take_latest, cfg.sample_hz)
         self.received_bytes = 0  # bytes of data keys the hub delivered to the view
+        self.received_by_key: dict[str, int] = {}  # the same per key
         self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
         self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity, sampled keys)
         self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY}
@@ -288,6 +298,7 @@ class LiveFeed:
         """Count one sample of ``key``; its frame if it is a data frame the page shows."""
         data = sample.payload.to_bytes()
         self.received_bytes += len(data)
+        self.received_by_key[key] = self.received_by_key.get(key, 0) + len(data)
         try:
             frame = decode_frame(data)
             if frame.kind == "eos":
@@ -459,7 +470,8 @@ class LiveFeed:
         snap["services"] = self.figures.table()
         snap["view"] = {"dropped": self.dropped, "invalid": self.invalid, "ended": sorted(self.ended),
                         "aborted": self.aborted, "keys": self.keys, "sampled": self.sampler.keys,
-                        "received_bytes": self.received_bytes, "updates": self.updates}
+                        "received_bytes": self.received_bytes, "received_by_key": dict(self.received_by_key),
+                        "updates": self.updates}
         return snap
 
     def camera(self) -> tuple[int, bytes]:

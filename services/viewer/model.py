@@ -6,15 +6,17 @@ Everything it keeps is bounded: a trajectory or the LVC timeline drops every oth
 full (:class:`Trail`), the sonar sweep keeps one beam per angle bin, the camera only its latest
 frame; the map and the pose-cell activity (``posecells/activity``: x-y and z-yaw projections,
 uint8, with the centroid) are the latest published ones.  :meth:`ViewModel.snapshot` answers
-with deltas: the page says which map version and how much of each trail it already holds, and
-gets only what changed (a trail that was thinned is sent whole again; the activity when its
-version moved).
+with deltas: the page says which map version, which sonar sweep and how much of each trail it
+already holds, and gets only what changed (a trail that was thinned is sent whole again; the
+activity when its version moved; of the sweep, the angle bins written since the page's version).
 """
 from __future__ import annotations
 
 import base64
 import io
+import itertools
 import math
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -48,6 +50,9 @@ LATENCY_KEY = "live/latency"  # common.live.LATENCY_KEY (the live run's latency 
 TRAILS = ("dead_reckoning", "odometry", "truth", "posecells")
 #: angle bins of the sonar sweep (one beam kept per bin)
 SONAR_ANGLE_BINS = 200
+#: a model's identity in the sonar version the page holds ("ident.version"): a page that held the sweep
+#: of another model (a recording scrubbed back and rebuilt, a view restarted) gets the whole sweep
+_MODEL_IDS = itertools.count(int(time.time()) % 100_000 * 1000)
 
 
 def view_keys(cfg: ViewConfig) -> list[str]:
@@ -185,6 +190,8 @@ class ViewModel:
         self._jpeg: tuple[int, bytes] = (0, b"")
         self.sonar: dict[int, tuple[float, float, bytes]] = {}  # angle bin -> (angle rad, max range m, bins)
         self.sonar_version = 0
+        self._sonar_at: dict[int, int] = {}  # angle bin -> sonar_version that wrote it
+        self.ident = next(_MODEL_IDS)
         self._scan_msg: LaserScan | None = None  # latest laser scan, turned into points when asked for
         self._scan_points: tuple[int, list[list[float]]] = (-1, [])
         self.latency: dict[str, Any] | None = None
@@ -260,6 +267,7 @@ class ViewModel:
         k = int(round((angle % (2 * math.pi)) / (2 * math.pi) * SONAR_ANGLE_BINS)) % SONAR_ANGLE_BINS
         self.sonar[k] = (angle, float(msg.max_range), scaled.tobytes())
         self.sonar_version += 1
+        self._sonar_at[k] = self.sonar_version
 
     def _scan(self, msg: LaserScan) -> None:
         self._scan_msg = msg
@@ -311,8 +319,8 @@ class ViewModel:
         return self._jpeg
 
     def snapshot(self, have: Mapping[str, str]) -> dict[str, Any]:
-        """The state for a client that holds ``have`` (``map``: map version, ``sonar``: sonar
-        version, ``activity``: activity version, each trail name and ``lvc``: ``"epoch.count"``):
+        """The state for a client that holds ``have`` (``map``: map version, ``sonar``: the
+        ``sonar_have`` it was given (:meth:`sonar_since`), ``activity``: activity version, each trail name and ``lvc``: ``"epoch.count"``):
         only what it lacks."""
         out: dict[str, Any] = {"stamp": self.stamp, "t": self._t(self.stamp) if self.t0 is not None else 0.0,
                                "counts": self.counts(), "map_version": self.map_version,
@@ -328,7 +336,20 @@ class ViewModel:
             out["activity"] = self.activity
         out["trails"] = {name: t.since(have.get(name)) for name, t in self.trails.items()}
         out["lvc"] = self.lvc.since(have.get("lvc"))
-        if have.get("sonar") != str(self.sonar_version):
-            beams = [[_r(a, 4), _r(rng, 1), base64.b64encode(b).decode()] for a, rng, b in self.sonar.values()]
-            out["sonar"] = {"beams": beams, "scan": self.scan}
+        out["sonar_have"] = f"{self.ident}.{self.sonar_version}"
+        if have.get("sonar") != out["sonar_have"]:
+            out["sonar"] = self.sonar_since(have.get("sonar"))
         return out
+
+    def sonar_since(self, have: str | None) -> dict[str, Any]:
+        """The sweep for a page holding ``have`` (``"ident.version"`` of :meth:`snapshot`'s
+        ``sonar_have``): ``beams`` ``[bin, angle rad, max range m, base64 uint8 bins]`` written
+        since that version, all of them (``full``) when it is not this model's or is unknown;
+        ``scan``: the latest laser scan's points."""
+        since = -1
+        ident, _, version = (have or "").partition(".")
+        if ident == str(self.ident) and version.isdigit() and int(version) <= self.sonar_version:
+            since = int(version)
+        beams = [[k, _r(a, 4), _r(rng, 1), base64.b64encode(b).decode()] for k, (a, rng, b) in self.sonar.items()
+                 if self._sonar_at[k] > since]
+        return {"full": since < 0, "beams": beams, "scan": self.scan}

@@ -1,7 +1,8 @@
 """The page in headless Chromium during a live run of a short simulated mission at 4x with
 ``--view``: it loads without a console error, its map and camera panels change while the run
 goes on, the pose-cell activity panel draws its two heatmaps, and at the end the node,
-loop-closure and LVC counts it shows are the recording's."""
+loop-closure and LVC counts it shows are the recording's.  Over a recording: it polls twice a
+second and draws a panel again only when its data changed."""
 from __future__ import annotations
 
 import base64
@@ -20,10 +21,13 @@ from PIL import Image as PilImage
 from common.mcap_io import read_messages
 from common.messages import ExperienceMap, LocalViewCells
 from missions.sim.cli import main as sim_main
+from services.viewer.config import ViewConfig
+from services.viewer.recording import RecordingView
+from services.viewer.server import ViewServer
 from tests.conftest import REPO
 from tests.eval.report.browser import _console_errors
 from tests.eval.report.cdp import CHROMIUM, Browser
-from tests.viewer.runs import free_port, view_state
+from tests.viewer.runs import free_port, view_state, write_run
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -113,3 +117,44 @@ def test_the_page_follows_a_live_run_and_ends_with_the_recording_s_counts(tmp_pa
     assert state is not None
     counts = state["counts"]
     assert (counts["nodes"], counts["loop_closures"], counts["lvc"]) == expected
+
+
+PANELS = ("drawMap", "drawMap3d", "drawSonar", "drawActivity", "drawPoseCells", "drawLvc")
+
+
+def _evaluate(b: Browser, s: str, expression: str) -> Any:
+    return b.call("Runtime.evaluate", {"expression": expression, "returnByValue": True}, session=s)["result"].get("value")
+
+
+def test_the_page_polls_twice_a_second_and_draws_a_panel_only_when_its_data_changed(tmp_path: Path) -> None:
+    """The browser is the view's largest CPU cost beside the SLAM: a paused recording (nothing
+    changes) is polled on time but not drawn again; a seek draws each panel once."""
+    if not CHROMIUM.exists():
+        pytest.skip(f"headless Chromium ({CHROMIUM}) is not installed")
+    run = tmp_path / "run.mcap"
+    write_run(run)
+    server = ViewServer(RecordingView(run, ViewConfig()), "127.0.0.1", 0)
+    server.start()
+    try:
+        with Browser(tmp_path / "chromium-profile") as b:
+            target = b.call("Target.createTarget", {"url": "about:blank"})
+            s = b.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})["sessionId"]
+            b.call("Page.navigate", {"url": server.url}, session=s)
+            deadline = time.monotonic() + 60
+            while not _evaluate(b, s, "typeof view === 'object' && view.state !== null && view.mode === 'recording'"):
+                assert time.monotonic() < deadline, "the page never took a state"
+                b.pump(0.2)
+            b.pump(1.0)
+            wrap = "; ".join(f"{{ const g = {f}; window.{f} = (...a) => {{ draws.{f} = (draws.{f} || 0) + 1; "
+                             f"return g(...a); }}; }}" for f in PANELS)
+            _evaluate(b, s, f"window.draws = {{}}; {wrap}; 1")
+            polls = server.requests
+            b.pump(4.0)
+            polls = server.requests - polls
+            assert polls >= 6, f"{polls} polls in 4 s (view.update_hz 2)"
+            assert _evaluate(b, s, "JSON.stringify(draws)") == "{}", "a panel was drawn again without a change"
+            _evaluate(b, s, "view.t = 12; 1")  # the slider moved: every panel has new data
+            b.pump(2.0)
+            assert json.loads(_evaluate(b, s, "JSON.stringify(draws)")) == {f: 1 for f in PANELS}
+    finally:
+        server.stop()

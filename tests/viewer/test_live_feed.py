@@ -12,7 +12,7 @@ from common.bus import Bus
 from common.mcap_io import read_messages
 from common.messages import Header, Image
 from services.viewer.config import ViewConfig
-from services.viewer.live import LiveFeed
+from services.viewer.live import LatencyWindow, LiveFeed
 from tests.viewer.runs import write_run
 
 
@@ -46,6 +46,9 @@ def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_p
         assert 1 <= snap["activity_version"] <= min(feed.updates, len(activity))
         assert snap["activity"]["stamp"] == activity[-1]
         assert counts["pose"] is not None and feed.dropped == 0
+        # what the hub delivered, per key (the view's cost on the hub, in its state for the benchmark)
+        by_key = snap["view"]["received_by_key"]
+        assert set(by_key) == set(pubs) and sum(by_key.values()) == snap["view"]["received_bytes"]
         assert all(p.has_subscribers() for p in pubs.values())
         for p in pubs.values():
             p.send_eos()
@@ -129,3 +132,17 @@ def test_a_heavy_key_is_sampled_not_followed(bus: Bus) -> None:
             time.sleep(0.05)
     finally:
         feed.stop()
+
+
+def test_latency_percentiles_follow_new_samples() -> None:
+    """The per-service p50/p99 are computed again after a new sample (and only then)."""
+    window = LatencyWindow()
+    for stamp in range(10):
+        window.arrived(stamp, 0)
+        window.output("dead_reckoning", stamp, 10_000_000)  # 10 ms
+    assert window.percentiles(["dead_reckoning"]) == (10.0, 10.0)
+    for stamp in range(10, 40):
+        window.arrived(stamp, 0)
+        window.output("dead_reckoning", stamp, 50_000_000)  # 50 ms
+    assert window.percentiles(["dead_reckoning"]) == (50.0, 50.0)
+    assert window.percentiles(["map"]) == (None, None)

@@ -1,15 +1,47 @@
-// PoseidonSLAM live view: polls /state.json (deltas against what it holds) and draws on canvases.
+// PoseidonSLAM live view: polls /state.json (deltas against what it holds) and draws on canvases;
+// a panel is drawn again only when what it shows changed (drawn: each panel's last signature).
 "use strict";
 
 const TRAIL_COLOURS = {dead_reckoning: "#f39c3d", odometry: "#b07cf0", truth: "#4fd18b"};
 const view = {
-  map: null, mapVersion: "", sonarVersion: "", cameraVersion: 0, provisional: [], sonar: {beams: [], scan: []},
+  map: null, mapVersion: "", sonarVersion: "", cameraVersion: 0, provisional: [], sonar: {beams: new Map(), scan: []},
+  drawn: {}, texts: {}, servicesHtml: "",
   activity: null, activityVersion: "",
   trails: {}, lvc: {epoch: -1, points: []}, state: null, yaw: 0.6, pitch: 0.9, dragging: null,
   mode: "", t: 0, playing: false, rate: 4, duration: 0, lastTick: 0, pending: false,
 };
 
 function $(id) { return document.getElementById(id); }
+
+function setText(id, text) {
+  // an element's text, written only when it changed (a write costs a style and layout pass)
+  if (view.texts[id] === text) return;
+  view.texts[id] = text;
+  $(id).textContent = text;
+}
+
+function changed(panel, signature) {
+  // whether `panel` must be drawn again: its signature differs from the one it was last drawn with
+  if (view.drawn[panel] === signature) return false;
+  view.drawn[panel] = signature;
+  return true;
+}
+
+function trailSig(t) { return t ? t.epoch + "." + t.points.length : ""; }
+
+function absorbSonar(s) {
+  // the sweep's delta: beams [bin, angle, max range, base64 bins] written since the version held
+  if (s.sonar) {
+    if (s.sonar.full) view.sonar.beams = new Map();
+    for (const [k, angle, , b64] of s.sonar.beams) {
+      const raw = atob(b64), bins = new Uint8Array(raw.length);
+      for (let i = 0; i < raw.length; i++) bins[i] = raw.charCodeAt(i);
+      view.sonar.beams.set(k, [angle, bins]);
+    }
+    view.sonar.scan = s.sonar.scan;
+  }
+  view.sonarVersion = s.sonar_have || String(s.sonar_version);
+}
 
 function merge(holder, delta) {
   // a trail delta: points from `start` of epoch `epoch`
@@ -41,10 +73,10 @@ async function poll() {
     if (!r.ok) throw new Error("state " + r.status);
     const s = await r.json();
     absorb(s);
-    if (!(s.view && s.view.aborted)) $("status").textContent = "";
+    if (!(s.view && s.view.aborted)) setText("status", "");
     draw();
   } catch (err) {
-    $("status").textContent = "no answer from the view server (" + err.message + "); retrying";
+    setText("status", "no answer from the view server (" + err.message + "); retrying");
   } finally {
     view.pending = false;
   }
@@ -57,8 +89,7 @@ function absorb(s) {
   if (s.map) view.map = s.map; else if (s.map_version === 0) view.map = null;
   view.mapVersion = String(s.map_version);
   view.provisional = s.provisional || [];
-  if (s.sonar) view.sonar = s.sonar;
-  view.sonarVersion = String(s.sonar_version);
+  absorbSonar(s);
   if (s.activity) view.activity = s.activity; else if (s.activity_version === 0) view.activity = null;
   view.activityVersion = String(s.activity_version);
   for (const [name, delta] of Object.entries(s.trails || {})) view.trails[name] = merge(view.trails[name], delta);
@@ -67,20 +98,20 @@ function absorb(s) {
     view.cameraVersion = s.camera_version;
     if (s.camera_version > 0) $("camera").src = "/camera.jpg?v=" + s.camera_version;
   }
-  $("camera").hidden = s.camera_version === 0;
+  if ($("camera").hidden !== (s.camera_version === 0)) $("camera").hidden = s.camera_version === 0;
   const c = s.counts;
-  $("time").textContent = s.t.toFixed(1);
-  $("nodes").textContent = c.nodes;
-  $("loops").textContent = c.loop_closures;
-  $("lvc").textContent = c.lvc;
-  $("last-lvc").textContent = c.last_lvc >= 0 ? c.last_lvc : "-";
-  $("revisits").textContent = c.revisits;
-  $("events").textContent = c.events;
-  $("pose").textContent = c.pose ? c.pose.slice(0, 3).map(v => (Math.abs(v) < 0.05 ? 0 : v).toFixed(1)).join(", ") : "-";
+  setText("time", s.t.toFixed(1));
+  setText("nodes", String(c.nodes));
+  setText("loops", String(c.loop_closures));
+  setText("lvc", String(c.lvc));
+  setText("last-lvc", c.last_lvc >= 0 ? String(c.last_lvc) : "-");
+  setText("revisits", String(c.revisits));
+  setText("events", String(c.events));
+  setText("pose", c.pose ? c.pose.slice(0, 3).map(v => (Math.abs(v) < 0.05 ? 0 : v).toFixed(1)).join(", ") : "-");
   if (s.mode === "recording") {
     view.duration = s.duration_s;
-    $("slider").max = s.duration_s;
-    $("slider-label").textContent = view.t.toFixed(1) + " / " + s.duration_s.toFixed(1) + " s";
+    if ($("slider").max !== String(s.duration_s)) $("slider").max = s.duration_s;
+    setText("slider-label", view.t.toFixed(1) + " / " + s.duration_s.toFixed(1) + " s");
   }
   services(s);
   notes(s);
@@ -90,9 +121,9 @@ function notes(s) {
   // a panel without data says why: the recording has no such stream, or nothing has arrived yet
   const st = s.streams || null, yet = s.mode === "recording" ? " at this time" : " yet";
   const none = (what, has) => has ? "" : st ? "no " + what + " in this run" : "";
-  const sonar = (view.sonar.scan || []).length || (view.sonar.beams || []).length;
+  const sonar = (view.sonar.scan || []).length || view.sonar.beams.size;
   const laser = st ? st.scan && !st.sonar : (view.sonar.scan || []).length > 0;
-  $("sonar-title").textContent = laser ? "Laser scan" : "Sonar sweep";
+  setText("sonar-title", laser ? "Laser scan" : "Sonar sweep");
   const pc = view.trails.posecells ? view.trails.posecells.points.length : 0;
   const text = {
     "map-note": view.map || view.provisional.length ? none("ground truth", st ? st.truth : true)
@@ -108,7 +139,7 @@ function notes(s) {
     "services-note": Object.keys(s.services || {}).length ? "" : s.mode === "recording"
       ? "per-service figures are measured on the bus: a live run only" : "no service seen yet",
   };
-  for (const [id, t] of Object.entries(text)) $(id).textContent = t;
+  for (const [id, t] of Object.entries(text)) setText(id, t);
 }
 
 function activityCaption(a) {
@@ -131,11 +162,12 @@ function services(s) {
                    f.gaps, f.restarts, f.p50_ms === null ? "-" : f.p50_ms, f.p99_ms === null ? "-" : f.p99_ms];
     rows.push("<tr>" + cells.map(v => "<td>" + String(v).replace(/[<>&]/g, "") + "</td>").join("") + "</tr>");
   }
-  body.innerHTML = rows.join("");
+  const html = rows.join("");
+  if (html !== view.servicesHtml) { view.servicesHtml = html; body.innerHTML = html; }
   const v = s.view || {};
-  if (v.aborted) $("status").textContent = "run aborted: " + v.aborted;
-  $("view-figures").textContent = "view: " + (v.dropped !== undefined ? v.dropped + " updates dropped, " : "") +
-    (v.bytes_sent !== undefined ? (v.bytes_sent / 1e6).toFixed(1) + " MB served" : "");
+  if (v.aborted) setText("status", "run aborted: " + v.aborted);
+  setText("view-figures", "view: " + (v.dropped !== undefined ? v.dropped + " updates dropped, " : "") +
+    (v.bytes_sent !== undefined ? (v.bytes_sent / 1e6).toFixed(1) + " MB served" : ""));
 }
 
 // ---- drawing ----------------------------------------------------------------------------------
@@ -248,16 +280,24 @@ function drawSonar() {
     ctx.fillText("sensor frame, x forward; " + m.toFixed(1) + " m to the edge", 4, h - 6);
     return;
   }
-  for (const [angle, , b64] of view.sonar.beams || []) {
-    const bins = atob(b64);
+  // one 3 x 3 pixel square per echo, written into the canvas's pixels (not one fillRect each)
+  const img = ctx.getImageData(0, 0, w, h), px = img.data;
+  for (const [angle, bins] of view.sonar.beams.values()) {
+    const ca = Math.cos(angle), sa = Math.sin(angle);
     for (let i = 0; i < bins.length; i++) {
-      const v = bins.charCodeAt(i);
+      const v = bins[i];
       if (v < 20) continue;
       const rr = (i + 0.5) / bins.length * R;
-      ctx.fillStyle = "rgb(" + v + "," + Math.round(v * 0.8) + ",40)";
-      ctx.fillRect(cx + rr * Math.cos(angle) - 1.5, cy - rr * Math.sin(angle) - 1.5, 3, 3);
+      const x0 = Math.round(cx + rr * ca) - 1, y0 = Math.round(cy - rr * sa) - 1;
+      for (let y = Math.max(0, y0); y < Math.min(h, y0 + 3); y++) {
+        for (let x = Math.max(0, x0); x < Math.min(w, x0 + 3); x++) {
+          const o = 4 * (y * w + x);
+          px[o] = v; px[o + 1] = Math.round(v * 0.8); px[o + 2] = 40; px[o + 3] = 255;
+        }
+      }
     }
   }
+  ctx.putImageData(img, 0, 0);
   ctx.strokeStyle = "#2c3b4b"; ctx.beginPath(); ctx.arc(cx, cy, R, 0, 7); ctx.stroke();
 }
 
@@ -293,8 +333,9 @@ function heatmap(canvas, img, across, mark, labels) {
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   const [n0, n1] = img.shape, bytes = atob(img.data);
   const w = across === 0 ? n0 : n1, h = across === 0 ? n1 : n0;
-  const off = document.createElement("canvas");
-  off.width = w; off.height = h;
+  const off = canvas.offscreen || (canvas.offscreen = document.createElement("canvas"));
+  if (off.width !== w) off.width = w;
+  if (off.height !== h) off.height = h;
   const octx = off.getContext("2d"), px = octx.createImageData(w, h);
   for (let i = 0; i < n0; i++) for (let j = 0; j < n1; j++) {
     const col = across === 0 ? i : j, up = across === 0 ? j : i;
@@ -345,7 +386,16 @@ function drawLvc() {
 }
 
 function draw() {
-  drawMap(); drawMap3d(); drawSonar(); drawActivity(); drawPoseCells(); drawLvc();
+  // each panel only when its data changed since it was last drawn
+  const trails = Object.keys(TRAIL_COLOURS).map(name => trailSig(view.trails[name])).join(",");
+  const pose = view.state && view.state.counts.pose;
+  const mapSig = [view.mapVersion, view.map ? 1 : 0, view.provisional.length, trails].join("|");
+  if (changed("map", mapSig + "|" + (pose ? pose.join(",") : ""))) drawMap();
+  if (changed("map3d", mapSig)) drawMap3d();
+  if (changed("sonar", view.sonarVersion + "|" + view.sonar.beams.size)) drawSonar();
+  if (changed("activity", view.activityVersion + "|" + (view.activity ? 1 : 0))) drawActivity();
+  if (changed("posecells", trailSig(view.trails.posecells))) drawPoseCells();
+  if (changed("lvc", trailSig(view.lvc))) drawLvc();
 }
 
 // ---- interaction ----------------------------------------------------------------------------
@@ -379,10 +429,12 @@ function tick(now) {
 }
 
 function loop() {
-  tick(performance.now());
+  // one poll every 1 / update_hz s, counted from the start of the last one (not from its answer)
+  const start = performance.now();
+  tick(start);
   poll().finally(() => {
-    const hz = view.state ? view.state.update_hz : 4;
-    setTimeout(loop, 1000 / hz);
+    const hz = view.state ? view.state.update_hz : 2;
+    setTimeout(loop, Math.max(0, 1000 / hz - (performance.now() - start)));
   });
 }
 
