@@ -148,6 +148,7 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
             by_key = st.get("view", {}).get("received_by_key", {})
             row["bus_kb_per_s_by_key"] = {k: round(v / 1e3 / span, 1) for k, v in sorted(by_key.items(), key=lambda kv: -kv[1])}
             row["sampled_keys"] = st.get("view", {}).get("sampled", [])
+            row["progress_reports"] = st.get("view", {}).get("progress_reports")
     stdout, _ = proc.communicate(timeout=600)
     summary = json.loads(stdout)
     row["wall_s"] = round(time.monotonic() - t0, 1)

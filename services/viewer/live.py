@@ -25,17 +25,12 @@ Never slowing the SLAM:
 - The view publishes nothing: no publisher, no liveliness token (a token that disappears
   would read as a dead service, :mod:`common.bus`), no progress report (the player's flow
   control never waits for it).
+- The lag of each service comes from the services' ``@progress`` reports (one per input a
+  service finished: the busiest stream the view reads) until the launcher's ``live/health``
+  report arrives (once a second in a supervised live run, with every service's lag); from
+  then on from that report, and the view leaves ``@progress``.
 
-Per-service figures come from what the bus carries: input rate (data frames per second on the
-service's input keys, from their transport indices, so frames the view skipped count too), lag
-(event time between the newest source message and the service's ``@progress`` report), gaps
-(transport indices missing in its output streams that the view follows whole: frames that never
-reached the view, or that its ring overwrote), restarts (its ``@alive`` token declared again
-after it left) and latency p50/p99 (wall time from a source message to the output of the same
-stamp, as :class:`common.live.LatencyTracker` measures at the source; the hub's timestamps when
-it stamps, else the view's clock; on a sampled source key, from the frames sampled).  Frames
-dropped inside a live service's bounded queue are not on the bus; the run summary has them
-(``dropped``).
+The per-service figures: :mod:`services.viewer.figures`.
 """
 from __future__ import annotations
 
@@ -44,17 +39,18 @@ import logging
 import struct
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from common.bus import ABORT, ALIVE, PROGRESS, Bus, zenoh_config
 from common.codec import DecodeError, decode_dict, decode_frame
-from common.ordering import END_OF_TIME
+from common.live import HEALTH_KEY
+from common.messages import DiagnosticArray
 from services.viewer.config import ViewConfig
+from services.viewer.figures import LatencyWindow, ServiceFigures, health_lags
 from services.viewer.model import ACTIVITY_KEY, MAP_KEY, ViewModel, view_keys
 from services.viewer.sampler import KeySampler
 
@@ -92,159 +88,6 @@ def connect_bus(namespace: str, endpoint: str, timeout_s: float, config_file: st
     return Bus(namespace, session=session)
 
 
-class LatencyWindow:
-    """Wall time from a source message to an output of the same stamp, per output key, over
-    the last ``window`` outputs (bounded memory for runs of hours)."""
-
-    def __init__(self, horizon: int = 20_000, window: int = 2_000):
-        self.horizon = horizon
-        self._arrival: OrderedDict[int, int] = OrderedDict()
-        self._seen: dict[str, OrderedDict[int, None]] = {}
-        self.samples: dict[str, deque[float]] = {}
-        self._window = window
-        self._added = 0  # samples added so far
-        self._cache: dict[tuple[str, ...], tuple[int, tuple[float | None, float | None]]] = {}
-
-    def arrived(self, stamp: int, wall_ns: int) -> None:
-        if stamp not in self._arrival:
-            self._arrival[stamp] = wall_ns
-            if len(self._arrival) > self.horizon:
-                self._arrival.popitem(last=False)
-
-    def output(self, key: str, stamp: int, wall_ns: int) -> None:
-        seen = self._seen.setdefault(key, OrderedDict())
-        t0 = self._arrival.get(stamp)
-        if t0 is None or stamp in seen:
-            return
-        seen[stamp] = None
-        if len(seen) > self.horizon:
-            seen.popitem(last=False)
-        self.samples.setdefault(key, deque(maxlen=self._window)).append((wall_ns - t0) / 1e6)
-        self._added += 1
-
-    def percentiles(self, keys: Sequence[str]) -> tuple[float | None, float | None]:
-        """p50 and p99 (ms) over the samples of ``keys`` (None without any), computed again only
-        after a sample was added."""
-        cached = self._cache.get(tuple(keys))
-        if cached is not None and cached[0] == self._added:
-            return cached[1]
-        values = [v for k in keys for v in self.samples.get(k, ())]
-        result: tuple[float | None, float | None] = (None, None)
-        if values:
-            p50, p99 = np.percentile(np.asarray(values), [50, 99])
-            result = (round(float(p50), 1), round(float(p99), 1))
-        self._cache[tuple(keys)] = (self._added, result)
-        return result
-
-
-class ServiceFigures:
-    """The bus-side counters behind the per-service table (thread-safe)."""
-
-    def __init__(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]):
-        self.io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {}
-        self.produced: set[str] = set()
-        self.frames: dict[str, int] = {}
-        self.next_index: dict[str, int] = {}
-        self.gaps: dict[str, int] = {}
-        self.invalid: dict[str, int] = {}
-        self.declared: dict[str, int] = {}
-        self.alive: set[str] = set()
-        self.progress: dict[str, int] = {}
-        self.newest_source = -1
-        self.latency = LatencyWindow()
-        self.partial: set[str] = set()  # keys the view takes only some frames of (latest-only, sampled): no gaps
-        self._mark: dict[str, tuple[int, float]] = {}  # key -> (newest index, monotonic time it arrived)
-        self._mark_ref: dict[str, tuple[int, float]] = {}  # the marks at the last rate update
-        self._rate: dict[str, float] = {}
-        self._last: tuple[float, dict[str, int]] = (time.monotonic(), {})
-        self.lock = threading.Lock()
-        self.add_io(io)
-
-    def add_io(self, io: Mapping[str, tuple[Sequence[str], Sequence[str]]]) -> None:
-        """Services and their input and output keys, added to the table."""
-        with self.lock:
-            self.io.update({n: (tuple(i), tuple(o)) for n, (i, o) in io.items()})
-            self.produced = {k for _i, outs in self.io.values() for k in outs}
-
-    def data(self, key: str, index: int, stamp: int, wall_ns: int) -> None:
-        with self.lock:
-            self.frames[key] = self.frames.get(key, 0) + 1
-            if index >= 0:
-                self._mark[key] = (index, time.monotonic())
-            if index >= 0 and key not in self.partial:
-                expected = self.next_index.get(key, index)
-                if index > expected:
-                    self.gaps[key] = self.gaps.get(key, 0) + index - expected
-                if index >= expected:
-                    self.next_index[key] = index + 1
-            if stamp < 0:
-                return
-            if key in self.produced:
-                self.latency.output(key, stamp, wall_ns)
-            else:
-                self.newest_source = max(self.newest_source, stamp)
-                self.latency.arrived(stamp, wall_ns)
-
-    def token(self, service: str, present: bool) -> None:
-        with self.lock:
-            if present:
-                self.declared[service] = self.declared.get(service, 0) + 1
-                self.alive.add(service)
-            else:
-                self.alive.discard(service)
-
-    def progress_report(self, service: str, stamp: int) -> None:
-        with self.lock:
-            if stamp > self.progress.get(service, -2):
-                self.progress[service] = stamp
-
-    def newest_index(self, key: str) -> int:
-        """Transport index of the newest frame of ``key`` taken (-1: none)."""
-        with self.lock:
-            return self._mark.get(key, (-1, 0.0))[0]
-
-    def _index_rate(self, key: str, now: float) -> None:
-        """A key's rate from its transport indices over the times the view took them (0 once
-        none came for 3 s)."""
-        mark, ref = self._mark.get(key), self._mark_ref.get(key)
-        if mark is None:
-            self._rate[key] = 0.0
-            return
-        if ref is not None and mark[1] > ref[1] and mark[0] >= ref[0]:
-            self._rate[key] = (mark[0] - ref[0]) / (mark[1] - ref[1])
-        elif now - mark[1] > 3.0:
-            self._rate[key] = 0.0
-        if ref is None or mark[1] > ref[1]:
-            self._mark_ref[key] = mark
-
-    def table(self) -> dict[str, dict[str, Any]]:
-        """Per service: ``alive``, ``rate_hz``, ``lag_s``, ``done``, ``gaps``, ``restarts``, ``p50_ms``, ``p99_ms``."""
-        with self.lock:
-            now = time.monotonic()
-            t_last, counts = self._last
-            if now - t_last >= 1.0:  # rates over at least one second
-                for key, n in self.frames.items():
-                    if key in self._mark:
-                        self._index_rate(key, now)
-                    else:
-                        self._rate[key] = (n - counts.get(key, 0)) / (now - t_last)
-                self._last = (now, dict(self.frames))
-            names = sorted(set(self.io) | set(self.progress) | set(self.declared))
-            out: dict[str, dict[str, Any]] = {}
-            for name in names:
-                ins, outs = self.io.get(name, ((), ()))
-                progress = self.progress.get(name)
-                done = progress == END_OF_TIME
-                lag = None
-                if progress is not None and not done and self.newest_source >= 0:
-                    lag = round(max(0, self.newest_source - progress) / 1e9, 2)
-                p50, p99 = self.latency.percentiles(outs)
-                out[name] = {"alive": name in self.alive, "rate_hz": round(sum(self._rate.get(k, 0.0) for k in ins), 1),
-                             "lag_s": lag, "done": done, "gaps": sum(self.gaps.get(k, 0) for k in outs),
-                             "restarts": max(0, self.declared.get(name, 0) - 1), "p50_ms": p50, "p99_ms": p99}
-            return out
-
-
 class LiveFeed:
     """Subscribes to ``keys`` (:func:`~services.viewer.model.view_keys` and every key of ``io``,
     which :meth:`add_io` may extend after the start) on ``bus`` and keeps ``model`` current (see
@@ -259,7 +102,7 @@ class LiveFeed:
         self.figures = ServiceFigures({})
         self.shown = set(view_keys(cfg))
         self.inputs: set[str] = set()
-        self.keys = sorted(self.shown)
+        self.keys = sorted({*self.shown, HEALTH_KEY})
         self._started = False
         self.heavy: set[str] = set()  # keys whose frames exceed cfg.sample_bytes (see the module notes)
         self.sampler = KeySampler(self._declare_latest, self._take_latest, cfg.sample_hz)
@@ -267,7 +110,7 @@ class LiveFeed:
         self.received_by_key: dict[str, int] = {}  # the same per key
         self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
         self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity, sampled keys)
-        self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY}
+        self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY, HEALTH_KEY}
         self.figures.partial |= self._latest_keys
         self._ring = queue_frames
         self._taken_index: dict[str, int] = {}  # displayed key -> transport index of the newest frame taken
@@ -277,6 +120,8 @@ class LiveFeed:
         self.ended: set[str] = set()
         self._subs: dict[str, Any] = {}
         self._control: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # @alive, @abort, @progress
+        self._progress_sub: Any = None  # @progress, until a live/health report gives the lags
+        self.progress_reports = 0  # @progress samples the hub delivered
         self._subs_lock = threading.Lock()  # _subs and keys: start, stop, add_io and the pump's undeclaring
         self._undeclare: deque[str] = deque()
         self._on_update = on_update
@@ -316,6 +161,8 @@ class LiveFeed:
             self.invalid += 1
             log.error("view: bad frame on %s skipped: %s", key, exc)
             return None
+        if key == HEALTH_KEY:  # read for the lags only: neither a source nor an output
+            return data
         ts = sample.timestamp  # the hub's time of routing it, when the hub stamps (a router does)
         wall_ns = int(ts.get_time().timestamp() * 1e9) if ts is not None else time.time_ns()
         self.figures.data(key, frame.index, stamp if isinstance(stamp, int) else -1, wall_ns)
@@ -355,6 +202,7 @@ class LiveFeed:
         self.aborted = sample.payload.to_bytes().decode("utf-8", "replace")[:500]
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
+        self.progress_reports += 1
         data = sample.payload.to_bytes()
         if len(data) != 8:
             self.invalid += 1
@@ -370,13 +218,14 @@ class LiveFeed:
             self._started = True
             for key in self.keys:
                 self._subs[key] = self._declare(key)
+        self._progress_sub = session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"),
+                                                        zenoh.handlers.RingChannel(self._ring))
         self._control = [
             (session.liveliness().declare_subscriber(self.bus.full_key(f"{ALIVE}/*"),
                                                      zenoh.handlers.RingChannel(self._ring), history=True),
              self._on_token),
             (session.declare_subscriber(self.bus.full_key(ABORT), zenoh.handlers.RingChannel(8)), self._on_abort),
-            (session.declare_subscriber(self.bus.full_key(f"{PROGRESS}/*"), zenoh.handlers.RingChannel(self._ring)),
-             self._on_progress)]
+            (self._progress_sub, self._on_progress)]
         self._thread = threading.Thread(target=self._pump, name="view-pump", daemon=True)
         self._thread.start()
         self.sampler.start()
@@ -454,10 +303,25 @@ class LiveFeed:
                     self.invalid += 1
                     log.error("view: message on %s skipped: %s", key, exc)
                     continue
-                self.model.apply(key, msg)
+                if key == HEALTH_KEY:
+                    self._health(msg)
+                else:
+                    self.model.apply(key, msg)
             self.updates += 1
             if self._on_update is not None:
                 self._on_update(self.model)
+
+    def _health(self, msg: Any) -> None:
+        """A ``live/health`` report: the services' lags from it, and leave ``@progress``."""
+        if not isinstance(msg, DiagnosticArray):
+            return
+        self.figures.health_report(health_lags(msg))
+        with self._subs_lock:
+            sub, self._progress_sub = self._progress_sub, None
+            self._control = [c for c in self._control if c[0] is not sub]
+        if sub is not None:
+            sub.undeclare()
+            log.debug("view: the lags come from %s; @progress left", HEALTH_KEY)
 
     def snapshot(self, have: Mapping[str, str], t_s: float = 0.0) -> dict[str, Any]:
         """The model's snapshot for a client holding ``have``, with the live figures (``t_s``:
@@ -471,6 +335,8 @@ class LiveFeed:
         snap["view"] = {"dropped": self.dropped, "invalid": self.invalid, "ended": sorted(self.ended),
                         "aborted": self.aborted, "keys": self.keys, "sampled": self.sampler.keys,
                         "received_bytes": self.received_bytes, "received_by_key": dict(self.received_by_key),
+                        "lag_from": HEALTH_KEY if self.figures.health_lag is not None else "@progress",
+                        "progress_reports": self.progress_reports,
                         "updates": self.updates}
         return snap
 

@@ -146,3 +146,35 @@ def test_latency_percentiles_follow_new_samples() -> None:
         window.output("dead_reckoning", stamp, 50_000_000)  # 50 ms
     assert window.percentiles(["dead_reckoning"]) == (50.0, 50.0)
     assert window.percentiles(["map"]) == (None, None)
+
+
+def test_the_lags_come_from_live_health_once_it_arrives_and_progress_is_left(bus: Bus) -> None:
+    """@progress (one report per input a service finished) is the busiest stream the view reads;
+    a supervised live run's launcher publishes every service's lag once a second on live/health."""
+    import struct
+
+    from common.bus import PROGRESS
+    from common.live import HEALTH_KEY
+    from common.messages import Odometry
+    from launcher.health import ServiceHealth, diagnostics
+    feed = LiveFeed(bus, ViewConfig(), io={"htm": (("Odometry",), ("local_view_cells",))})
+    feed.start()
+    try:
+        def lag() -> float | None:
+            feed.update()
+            return feed.snapshot({})["services"]["htm"]["lag_s"]  # type: ignore[no-any-return]
+
+        bus.publisher("Odometry").send(Odometry(header=Header(seq=0, stamp=10_000_000_000), position=[0.0, 0.0, 0.0],
+                                                orientation=[0.0, 0.0, 0.0, 1.0]))
+        bus.session.put(bus.full_key(f"{PROGRESS}/htm"), struct.pack("<q", 8_000_000_000))
+        _wait(lambda: lag() == 2.0)
+        assert feed.snapshot({})["view"]["lag_from"] == "@progress"
+        health = {"htm": ServiceHealth(alive=True, restarts=0, lag_s=0.5, checkpoint_age_s=None)}
+        bus.publisher(HEALTH_KEY).send(diagnostics(health, 10_000_000_000, 0, 2.0))
+        _wait(lambda: lag() == 0.5)
+        assert feed.snapshot({})["view"]["lag_from"] == HEALTH_KEY
+        bus.session.put(bus.full_key(f"{PROGRESS}/htm"), struct.pack("<q", 9_000_000_000))
+        time.sleep(0.5)
+        assert lag() == 0.5 and feed.figures.progress["htm"] == 8_000_000_000  # @progress left
+    finally:
+        feed.stop()
