@@ -55,7 +55,7 @@ from services.encoder.config import EncoderConfig
 
 from .clock import SonarClock
 from .core import EncoderCore, EncoderOutput
-from .sonar import SonarRaster
+from .sonar import SonarRaster, warm_up_kernels
 
 if TYPE_CHECKING:  # torch is imported only by a node that builds its encoder, not by run planning
     from .encoder import MultimodalEncoder
@@ -105,6 +105,10 @@ class EncoderNode(ServiceNode[EncoderConfig]):
         self.core = EncoderCore(self.encoder, clock, hold, max(cfg.embedding_norm.warmup, 1),
                                 int(round(max(hold_max_s, 1e-3) * 1e9)))
         self.length = cfg.sp_columns
+
+    def warm_up(self) -> None:
+        """The sonar beam kernel compiled before the first beam arrives."""
+        warm_up_kernels()
 
     # ------------------------------------------------------------------ inputs
     def process(self, key: str, msg: Message) -> None:

@@ -31,13 +31,40 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from common.messages import LaserScan, RangeImageBeam
 
-__all__ = ["SonarRaster"]
+__all__ = ["SonarRaster", "warm_up_kernels"]
 
 TWO_PI = 2.0 * math.pi
+
+
+@numba.njit(cache=True)
+def _intensity_profile(data: np.ndarray, max_range: float, rmax: float, scale: np.float32,
+                       prof: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Row maxima of one beam's intensities (``prof``, float32, zeroed by the caller): bin ``i``
+    of ``n`` centred at ``(i + 0.5) * max_range / n`` m, value ``clip(data[i] / scale, 0, 1)``
+    in float32; bins outside ``[0, rmax)`` dropped.  The same float32 / float64 operations, in
+    the same order, as the array expression it replaces, so the raster is bit for bit the same."""
+    n = data.size
+    height = prof.size
+    step = max_range / n
+    for i in range(n):
+        centre = (i + 0.5) * step
+        if centre < 0.0 or centre >= rmax:
+            continue
+        row = min(int(centre / rmax * height), height - 1)
+        v = np.float32(data[i]) / scale
+        v = min(max(v, np.float32(0.0)), np.float32(1.0))
+        if v > prof[row]:
+            prof[row] = v
+
+
+def warm_up_kernels() -> None:
+    """Compile (or load from numba's cache) the beam kernel for the int32 beams of the bus."""
+    _intensity_profile(np.zeros(2, np.int32), 1.0, 1.0, np.float32(1.0), np.zeros(2, np.float32))
 
 
 class SonarRaster:
@@ -124,11 +151,10 @@ class SonarRaster:
             raise ValueError(f"RangeImageBeam seq {msg.header.seq}: angle_rad is {msg.angle_rad}")
         prof = np.zeros(self.height, dtype=np.float32)
         if data.size and msg.max_range > 0:
-            centres = (np.arange(data.size) + 0.5) * (float(msg.max_range) / data.size)
             if self.use_intensities:
-                vals = np.clip(data.astype(np.float32) / self.intensity_scale, 0.0, 1.0)
-                prof = self._profile_from_bins(vals, centres)
+                _intensity_profile(data, float(msg.max_range), self.rmax, np.float32(self.intensity_scale), prof)
             elif data.max() > 0:
+                centres = (np.arange(data.size) + 0.5) * (float(msg.max_range) / data.size)
                 strongest = int(np.argmax(data))
                 r = self.row(float(centres[strongest]))
                 if r >= 0:

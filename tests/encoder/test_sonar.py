@@ -119,3 +119,21 @@ def test_laserscan_multi_bearing_scan() -> None:
     # each ray fills the columns back to the previous bearing (10 deg <= max_fill): the inf return
     # clears columns 1-10, the 25 m return lights columns 11-20
     assert img.sum() == 11.0 and img[ras.row(25.0), 15] == 1.0 and not img[:, 1:11].any()
+
+
+def test_beam_profile_kernel_is_bit_for_bit_the_array_expression() -> None:
+    """The compiled beam profile equals the numpy expression it replaced (float32 intensities /
+    scale clipped, row = bin centre / rmax * height, maximum per row), bit for bit, over
+    random beams: long and short, ranges beyond rmax, intensities above the scale."""
+    rng = np.random.default_rng(5)
+    raster = SonarRaster(width=224, height=224, rmax=30.0, intensity_scale=255.0)
+    for _ in range(300):
+        n = int(rng.integers(1, 600))
+        max_range = int(rng.integers(1, 80))
+        data = rng.integers(0, 400, n).astype(np.int32)
+        centres = (np.arange(n) + 0.5) * (float(max_range) / n)
+        vals = np.clip(data.astype(np.float32) / raster.intensity_scale, 0.0, 1.0)
+        want = raster._profile_from_bins(vals, centres)
+        raster.add_beam(RangeImageBeam(header=Header(seq=0, stamp=1), angle_grad=0.0, angle_rad=0.0, nbins=n,
+                                       max_range=max_range, beam_data=data))
+        assert np.array_equal(raster.polar[:, 0].view(np.uint32), want.view(np.uint32))
