@@ -6,6 +6,7 @@ running deployment, ``poseidon view RUN.mcap`` over a finished run (time slider)
 
 - :mod:`services.viewer.model`: what the page shows, bounded (:class:`ViewModel`);
 - :mod:`services.viewer.live`: the bus subscriber (Zenoh ring buffers, never slows the SLAM);
+- :mod:`services.viewer.figures`: the per-service figures (rate, lag, gaps, restarts, latency);
 - :mod:`services.viewer.sampler`: heavy keys (camera images) taken a few frames a second;
 - :mod:`services.viewer.recording`: a recording at the slider's time;
 - :mod:`services.viewer.server`: the HTTP server and why the page polls JSON snapshots;

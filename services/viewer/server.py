@@ -10,7 +10,8 @@ Why the page polls JSON snapshots rather than receiving Server-Sent Events or We
 pushes: a poll asks for the newest state only, so a slow or hidden browser simply asks less
 often and nothing queues anywhere -- no per-client buffer to bound, no writer thread blocked
 on a slow socket, no backlog to drop.  The price is one request per update (a few hundred
-bytes of headers at 2-4 Hz), and the deltas (map version, trail lengths) keep each answer small.
+bytes of headers at ``view.update_hz``, 2 Hz), and the deltas (map version, trail lengths, the
+sonar bins written since the page's version) keep each answer small.
 """
 from __future__ import annotations
 
