@@ -62,9 +62,64 @@ def _intensity_profile(data: np.ndarray, max_range: float, rmax: float, scale: n
             prof[row] = v
 
 
+@numba.njit(cache=True)
+def _column(angle: float, width: int) -> int:  # pragma: no cover - compiled
+    a = angle % TWO_PI
+    return min(int(a / TWO_PI * width), width - 1)
+
+
+@numba.njit(cache=True)
+def _scan_into_ring(ranges: np.ndarray, inten: np.ndarray, angle_min: float, angle_increment: float,
+                    range_min: float, range_max: float, rmax: float, scale: float, use_intensities: bool,
+                    max_fill_rad: float, last_angle: float, polar: np.ndarray, filled: np.ndarray,
+                    angles: np.ndarray) -> None:  # pragma: no cover - compiled
+    """A multi-bearing scan written bearing by bearing into the ring, as :meth:`SonarRaster._write`
+    does one profile at a time (``last_angle`` NaN: none yet): each bearing's columns (those
+    since the previous bearing, within ``max_fill_rad``) get its profile -- zero but at the
+    row of its range, which holds its intensity / ``scale`` clipped to [0, 1] (1 without
+    intensities).  ``angles`` receives the bearings.  The same float64 operations as the
+    per-bearing code, so the ring is bit for bit the same."""
+    height, width = polar.shape
+    with_values = use_intensities and inten.size > 0
+    for i in range(ranges.size):
+        angle = angle_min + i * angle_increment
+        angles[i] = angle
+        r = ranges[i]
+        row = -1
+        if np.isfinite(r) and range_min <= r <= range_max and 0.0 <= r < rmax:
+            row = min(int(r / rmax * height), height - 1)
+        value = 1.0
+        if with_values:  # clipped as np.clip does (a NaN stays NaN)
+            value = inten[i] / scale
+            if value < 0.0:
+                value = 0.0
+            elif value > 1.0:
+                value = 1.0
+        col = _column(angle, width)
+        first, count, sign = col, 1, 1
+        if not np.isnan(last_angle):
+            step = (angle - last_angle + math.pi) % TWO_PI - math.pi
+            if abs(step) <= max_fill_rad:
+                prev = _column(last_angle, width)
+                n = (col - prev) % width if step >= 0 else (prev - col) % width
+                if n > 0:
+                    sign = 1 if step >= 0 else -1
+                    first, count = (prev + sign) % width, n
+        for k in range(count):
+            c = (first + sign * k) % width
+            polar[:, c] = 0.0
+            if row >= 0:
+                polar[row, c] = value
+            filled[c] = True
+        last_angle = angle
+
+
 def warm_up_kernels() -> None:
     """Compile (or load from numba's cache) the beam kernel for the int32 beams of the bus."""
     _intensity_profile(np.zeros(2, np.int32), 1.0, 1.0, np.float32(1.0), np.zeros(2, np.float32))
+    one = np.ones(1)
+    _scan_into_ring(one, one, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, True, 1.0, math.nan, np.zeros((2, 2), np.float32),
+                    np.zeros(2, np.bool_), np.zeros(1))
 
 
 class SonarRaster:
@@ -190,20 +245,17 @@ class SonarRaster:
                     prof[r] = 1.0
             self._write(msg.angle_min, prof, msg.header.stamp)
             return [float(msg.angle_min)]
-        angles = []
-        for i, rng_i in enumerate(ranges):
-            angle = msg.angle_min + i * msg.angle_increment
-            prof = np.zeros(self.height, dtype=np.float32)
-            in_range = math.isfinite(rng_i) and msg.range_min <= rng_i <= msg.range_max
-            row = self.row(float(rng_i)) if in_range else -1
-            if row >= 0:
-                if self.use_intensities and inten.size:
-                    prof[row] = float(np.clip(inten[i] / self.intensity_scale, 0.0, 1.0))
-                else:
-                    prof[row] = 1.0
-            self._write(angle, prof, msg.header.stamp)
-            angles.append(float(angle))
-        return angles
+        if not ranges.size:
+            return []
+        angles = np.empty(ranges.size)
+        _scan_into_ring(ranges, inten, float(msg.angle_min), float(msg.angle_increment), float(msg.range_min),
+                        float(msg.range_max), self.rmax, self.intensity_scale, self.use_intensities,
+                        self.max_fill_rad, math.nan if self.last_angle is None else self.last_angle,
+                        self.polar, self.filled, angles)
+        self.last_angle = float(angles[-1])
+        self.last_stamp = int(msg.header.stamp)
+        self.beams += ranges.size
+        return angles.tolist()
 
     def _write(self, angle: float, profile: np.ndarray, stamp: int) -> None:
         cols = self._columns_for(angle)
