@@ -66,9 +66,27 @@ from services.expmap.gtsam_graph import relax_planar
 from services.expmap.laser_match import ScanMatch, free_space_fraction, match_scan, transform_points, voxel_filter
 from services.expmap.pose_graph import compose, relative_pose, wrap_angle
 
-__all__ = ["ScanGraph"]
+__all__ = ["ScanGraph", "local_points"]
 
 FORMAT_VERSION = 1
+
+
+def local_points(scans: Sequence[np.ndarray | None], poses: Sequence[np.ndarray], nodes: Iterable[int], frame: int,
+                 voxel_m: float) -> np.ndarray | None:
+    """The scans of ``nodes`` (points in their own frames) placed at their ``poses``, in the frame of
+    experience ``frame``, one point per ``voxel_m`` square; None when none of them has a scan.
+
+    Overlapping scans see the same walls, and one point per voxel keeps the likelihood field's cost
+    flat; the point kept is the one of the experience nearest ``frame`` along the chain (the newer
+    of two as near): the scans nearest the frame carry the least of the map's accumulated error, so
+    they, not the oldest scan of the window, decide where a wall lies.
+    """
+    parts = []
+    for k in sorted(nodes, key=lambda k: (abs(k - frame), -k)):
+        s = scans[k]
+        if s is not None:
+            parts.append(transform_points(s, relative_pose(poses[frame], poses[k])))
+    return voxel_filter(np.concatenate(parts), voxel_m) if parts else None
 
 
 class ScanGraph:
@@ -229,13 +247,7 @@ class ScanGraph:
 
     def _local_points(self, nodes: Iterable[int], frame: int) -> np.ndarray | None:
         """Scans of ``nodes`` placed by the map, in the frame of experience ``frame``."""
-        parts = []
-        for k in nodes:
-            s = self._scans[k]
-            if s is not None:
-                parts.append(transform_points(s, relative_pose(self._pose[frame], self._pose[k])))
-        # overlapping scans see the same walls: one point per voxel keeps the field's cost flat
-        return voxel_filter(np.concatenate(parts), self.cfg.voxel_m) if parts else None
+        return local_points(self._scans, self._pose, nodes, frame, self.cfg.voxel_m)
 
     # ---- loops ------------------------------------------------------------------------
     def _loop_step(self, n: int, res: EventResult) -> None:

@@ -12,7 +12,7 @@ import pytest
 from services.expmap.config import ScanGraphConfig
 from services.expmap.laser_match import scan_points
 from services.expmap.pose_graph import compose, relative_pose, wrap_angle
-from services.expmap.scan_graph import ScanGraph
+from services.expmap.scan_graph import ScanGraph, local_points
 from tests.expmap.laser_world import drifting_odometry, raycast, ring_route, ring_world
 
 SEC = 1_000_000_000
@@ -84,12 +84,22 @@ def other_building() -> np.ndarray:
     return np.asarray(segs, np.float64)
 
 
-def test_another_building_gives_no_loop() -> None:
+def _preset_scan_graph() -> ScanGraphConfig:
+    from system.config import load_config
+    return load_config(Path(__file__).resolve().parents[2] / "deploy/presets/laser2d.yaml", []).expmap.scan_graph
+
+
+@pytest.mark.parametrize("which", ["default", "laser preset"])
+def test_another_building_gives_no_loop(which: str) -> None:
     """The second lap runs through another building: its candidates are tried and every one
-    is rejected by the registration (or its confirmation), so no loop edge is made."""
+    is rejected by the registration (or its confirmation), so no loop edge is made; also with
+    the laser preset's looser free-space check (10 % of the points, not 5 %)."""
     truth = ring_route(laps=2, step=0.5)[:170]
     odo = drifting_odometry(truth, yaw_drift_deg_per_m=0.05, scale=1.0)
-    g = ScanGraph(ScanGraphConfig())
+    cfg = ScanGraphConfig() if which == "default" else _preset_scan_graph()
+    if which != "default":
+        assert cfg.loop_max_free_space > ScanGraphConfig().loop_max_free_space
+    g = ScanGraph(cfg)
     rng = np.random.default_rng(2)
     for k, (t, o) in enumerate(zip(truth, odo)):
         world = ring_world() if k < 128 else other_building()
@@ -150,8 +160,7 @@ def test_laser_preset_follows_the_scans_when_the_odometry_reports_the_wrong_dire
     """deploy/presets/laser2d.yaml (as FR079 needs): no translation prior and a 0.8 m window let the
     scans decide a step the odometry got backwards; the default chain (0.3 m window, 0.2 m prior)
     keeps the odometry's error."""
-    from system.config import load_config
-    preset = load_config(Path(__file__).resolve().parents[2] / "deploy/presets/laser2d.yaml", []).expmap.scan_graph
+    preset = _preset_scan_graph()
     truth, odo = _backing_up_route()
     worst = {}
     for name, cfg in (("preset", preset), ("default", ScanGraphConfig())):
@@ -161,3 +170,18 @@ def test_laser_preset_follows_the_scans_when_the_odometry_reports_the_wrong_dire
     assert errors(odo, truth)[0] > 5.0                 # the odometry went 6 m the wrong way
     assert worst["preset"] < 0.15, worst
     assert worst["default"] > 1.0, worst
+
+
+def test_local_map_keeps_the_wall_of_the_experience_nearest_the_frame() -> None:
+    """Three experiences saw the same wall; the map put the oldest 2 cm off.  In every voxel the
+    local map keeps the point of the experience nearest the frame, so the wall stays where the
+    newest scan puts it (the oldest scan of the window would otherwise decide it)."""
+    wall = np.column_stack([np.full(40, 2.0), np.linspace(-1.0, 1.0, 40)])     # x = 2 m, seen from each
+    poses = [np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])]
+    scans = [wall + [0.02, 0.0], wall, wall]            # experience 0 placed 2 cm off by the map
+    for frame, others in ((2, [0, 1, 2]), (1, [0, 1, 2]), (0, [2, 1, 0])):
+        pts = local_points(scans, poses, others, frame, voxel_m=0.05)
+        assert pts is not None
+        expect = 2.02 if frame == 0 else 2.0
+        assert np.allclose(pts[:, 0], expect), (frame, np.unique(np.round(pts[:, 0], 3)))
+    assert local_points([None, None], poses[:2], [0, 1], 1, voxel_m=0.05) is None
