@@ -2,9 +2,10 @@
 
 Routes: ``/`` the page, ``/static/NAME`` its script and style (package files of
 ``services/viewer/static``: nothing from the network), ``/state.json`` the view's state as
-JSON (query: what the page already holds -- ``map``, ``sonar``, each trail and ``lvc`` -- and,
-over a recording, ``t``: the slider's time in seconds), ``/camera.jpg`` the current camera
-frame, ``/health``.
+JSON (query: what the page already holds -- ``map``, ``sonar``, ``camera``, each trail and
+``lvc`` -- and, over a recording, ``t``: the slider's time in seconds; a camera frame the page
+does not hold comes in it as ``camera_jpeg``, base64: one request per update, not two),
+``/camera.jpg`` the current camera frame, ``/health``.
 
 Why the page polls JSON snapshots rather than receiving Server-Sent Events or WebSocket
 pushes: a poll asks for the newest state only, so a slow or hidden browser simply asks less
@@ -15,6 +16,7 @@ sonar bins written since the page's version) keep each answer small.
 """
 from __future__ import annotations
 
+import base64
 import json
 import logging
 import re
@@ -107,6 +109,11 @@ class ViewServer:
                     self._send(400, "text/plain", f"t={query.get('t')!r} is not a time in seconds\n".encode())
                     return
                 snap = server.source.snapshot(have, t_s)
+                if snap.get("camera_version", 0) > 0 and have.get("camera") != str(snap["camera_version"]):
+                    version, jpeg = server.source.camera()
+                    if jpeg:
+                        snap["camera_version"] = version
+                        snap["camera_jpeg"] = base64.b64encode(jpeg).decode()
                 with server._lock:
                     snap.setdefault("view", {}).update(bytes_sent=server.bytes_sent, requests=server.requests)
                 self._send(200, "application/json", json.dumps(snap, separators=(",", ":")).encode())

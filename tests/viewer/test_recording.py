@@ -134,6 +134,19 @@ def test_the_server_serves_the_page_its_files_and_the_state_at_t(run: Path) -> N
         server.stop()
 
 
+def test_the_state_carries_the_camera_frame_the_page_lacks(run: Path) -> None:
+    """The page gets a new camera frame inside its state poll (no second request per frame)."""
+    server = ViewServer(RecordingView(run, ViewConfig()), "127.0.0.1", 0)
+    server.start()
+    try:
+        state = json.loads(urllib.request.urlopen(server.url + "state.json?t=4.2", timeout=10).read())
+        assert state["camera_version"] == 9 and base64.b64decode(state["camera_jpeg"])[:2] == b"\xff\xd8"
+        held = json.loads(urllib.request.urlopen(server.url + "state.json?t=4.2&camera=9", timeout=10).read())
+        assert held["camera_version"] == 9 and "camera_jpeg" not in held
+    finally:
+        server.stop()
+
+
 def test_a_recording_without_a_map_is_refused_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "sensors.mcap"
     write_run(path, seconds=3.0, with_map=False)

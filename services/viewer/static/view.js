@@ -59,6 +59,7 @@ function haveQuery() {
   if (view.mapVersion) q.set("map", view.mapVersion);
   if (view.sonarVersion) q.set("sonar", view.sonarVersion);
   if (view.activityVersion) q.set("activity", view.activityVersion);
+  if (view.cameraVersion) q.set("camera", String(view.cameraVersion));
   for (const [name, t] of Object.entries(view.trails)) q.set(name, t.epoch + "." + t.points.length);
   if (view.lvc.epoch >= 0) q.set("lvc", view.lvc.epoch + "." + view.lvc.points.length);
   if (view.mode === "recording") q.set("t", view.t.toFixed(2));
@@ -96,7 +97,7 @@ function absorb(s) {
   view.lvc = merge(view.lvc, s.lvc);
   if (s.camera_version !== view.cameraVersion) {
     view.cameraVersion = s.camera_version;
-    if (s.camera_version > 0) $("camera").src = "/camera.jpg?v=" + s.camera_version;
+    if (s.camera_jpeg) $("camera").src = "data:image/jpeg;base64," + s.camera_jpeg;
   }
   if ($("camera").hidden !== (s.camera_version === 0)) $("camera").hidden = s.camera_version === 0;
   const c = s.counts;
