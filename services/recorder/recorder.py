@@ -12,7 +12,8 @@ launcher passes the player's keys and every service output), or when stopped.
 Frames it cannot read (malformed, unknown type, no readable header, a key already
 carrying another type) are logged with their key, counted and skipped: nothing a publisher
 sends can stop the recorder.  Of a payload only the header is read
-(:func:`common.codec.decode_header`): the services that decode the message check the rest.  An ``@abort`` on the bus (a service died, see
+(:func:`common.codec.decode_header`): the services that decode the message check the rest.
+An ``@abort`` on the bus (a service died, see
 :mod:`common.bus`) stops it after writing what has arrived; the file is then closed with
 its summary and ``RecorderStats.aborted`` says why.  On a normal end it reports progress
 ``END_OF_TIME`` so the player knows it finished.
