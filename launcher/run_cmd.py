@@ -15,6 +15,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -104,18 +105,26 @@ def _report_run_failed(args: argparse.Namespace, exc: RunFailed) -> int:
     return 3
 
 
+def stop_on_signals(what: str) -> threading.Event:
+    """An event set by the first SIGTERM/SIGINT; a second one (more than a second later) exits
+    at once with exit code 4, and a stop still running 75 s after the first prints every thread's
+    stack (:class:`launcher.service_cmd._Signals`, as every service does).  Called off the main
+    thread (an in-process caller), where signals cannot be taken: an event nothing sets."""
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        from launcher.service_cmd import _Signals
+        _Signals(what).on_stop(stop.set)
+    return stop
+
+
 def _run_live(args: argparse.Namespace) -> int:
     """``run --live SOURCE``: stop on SIGINT/SIGTERM or ``--duration`` (:mod:`launcher.live`)."""
-    import threading
-
     from common.config import ConfigError
     from common.mcap_io import RecordingError
     from launcher.live import run_live
     from launcher.run import RunFailed
     from system.config import load_config
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = stop_on_signals("poseidon run")
     try:
         config = load_config(args.config, args.set)
         services = services_arg(args)

@@ -262,3 +262,20 @@ def test_the_launcher_starts_no_child_with_a_preexec_fn():
                 pytest.fail(f"{path.name}:{node.value.lineno}: a child started with preexec_fn")
 
 
+
+
+def test_a_live_run_stops_at_the_first_signal_and_exits_at_the_second():
+    """``poseidon run --live``'s stop: the first SIGTERM sets it (the run ends its streams), a
+    second one a while later exits at once with exit code 4 -- a launcher whose stop hangs does
+    not need SIGKILL."""
+    code = (
+        "import os, signal, time\n"
+        "from launcher.run_cmd import stop_on_signals\n"
+        "stop = stop_on_signals('probe')\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "print('stop seen' if stop.wait(5) else 'stop missed', flush=True)\n"
+        "time.sleep(1.3); os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(5); print('not reached', flush=True)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert proc.stdout == "stop seen\n", (proc.stdout, proc.stderr)
+    assert proc.returncode == 4, proc.stderr
