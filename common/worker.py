@@ -59,7 +59,7 @@ from common.resume import (
     save_checkpoint,
 )
 
-__all__ = ["Worker", "WorkerStats", "Sink", "SinkStats", "Source", "WAKE", "DropOldestQueue"]
+__all__ = ["Worker", "WorkerStats", "Sink", "SinkStats", "Source", "WAKE", "DropOldestQueue", "FrameQueue"]
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +107,41 @@ _SEQ_TAG = ord("S")
 _DROPPED_MEMORY = 100_000
 #: a bounded queue keeps every frame this long (wall s) after its sink caught up on every key
 LOSSLESS_GRACE_S = 2.0
+
+
+class FrameQueue:
+    """A sink's unbounded receive queue: ``put_nowait`` never blocks (Zenoh callbacks), ``get``
+    waits at most ``timeout`` seconds.  Not :class:`queue.SimpleQueue`: in CPython 3.11 its
+    ``get(timeout)`` recomputes the time left after taking its lock on an empty queue, and a
+    thread descheduled past the deadline in between waits with a negative timeout, which is
+    for ever (seen under load: a live player blocked in ``get`` with -924 us while nothing was
+    left to put, so the run never ended).  Here the wait is :meth:`threading.Condition.wait_for`."""
+
+    def __init__(self) -> None:
+        self._items: deque[tuple[str, bytes]] = deque()
+        self._cond = threading.Condition(threading.Lock())
+
+    def put_nowait(self, item: tuple[str, bytes]) -> None:
+        with self._cond:
+            self._items.append(item)
+            self._cond.notify()
+
+    def get(self, timeout: float | None = None) -> tuple[str, bytes]:
+        """The oldest item; :class:`queue.Empty` after ``timeout`` seconds without one."""
+        try:
+            return self._items.popleft()  # one consumer: the common case takes no lock
+        except IndexError:
+            pass
+        with self._cond:
+            if not self._cond.wait_for(lambda: bool(self._items), timeout):
+                raise queue.Empty
+            return self._items.popleft()
+
+    def empty(self) -> bool:
+        return not self._items
+
+    def qsize(self) -> int:
+        return len(self._items)
 
 
 class DropOldestQueue:
@@ -235,8 +270,8 @@ class Sink(Worker):
     def subscribe(self, keys: Iterable[str], max_queue: int = 0) -> None:
         """Subscribe to ``keys`` (key expressions) into the sink's queue; progress publisher, gate.
         ``max_queue`` > 0: a :class:`DropOldestQueue` of that many data frames (live runs)."""
-        self.queue: queue.SimpleQueue[tuple[str, bytes]] | DropOldestQueue = (
-            DropOldestQueue(max_queue, self.stats.dropped) if max_queue > 0 else queue.SimpleQueue())
+        self.queue: FrameQueue | DropOldestQueue = (
+            DropOldestQueue(max_queue, self.stats.dropped) if max_queue > 0 else FrameQueue())
         self.progress = self.bus.progress_publisher(self.name)
         self.gate = self._gate({}, ())
         if isinstance(self.queue, DropOldestQueue) and self.supervision is not None and self.supervision.resume:
