@@ -159,6 +159,11 @@ def test_service_killed_mid_run_is_named_and_the_recording_is_complete_so_far(tm
     assert n > 0
 
 
+def _probe(code: str) -> subprocess.CompletedProcess[str]:
+    """``code`` run by a fresh interpreter in the repository (a signal probe: it may exit at once)."""
+    return subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+
+
 def test_a_signal_delivered_twice_at_once_is_one_stop_and_a_later_one_exits():
     """The kernel delivers the parent-death SIGTERM again on each re-parenting of an orphan: two
     SIGTERMs at once must stop a service once (the recorder still closes its file); a second
@@ -172,7 +177,7 @@ def test_a_signal_delivered_twice_at_once_is_one_stop_and_a_later_one_exits():
         "time.sleep(0.2); print('alive after two at once, stops', len(stops), flush=True)\n"
         "time.sleep(s.DUPLICATE_S + 0.2); os.kill(os.getpid(), signal.SIGTERM)\n"
         "time.sleep(5); print('not reached', flush=True)\n")
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+    proc = _probe(code)
     assert "alive after two at once, stops 1" in proc.stdout
     assert "not reached" not in proc.stdout
     assert proc.returncode == 4, proc.stderr
@@ -192,7 +197,7 @@ def test_signals_are_seen_while_the_main_thread_is_held_in_native_code():
         "    threading.Timer(delay, os.kill, (os.getpid(), sig)).start()\n"
         "libc.pthread_mutex_lock(mutex)\n"
         "print('not reached', flush=True)\n")
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+    proc = _probe(code)
     assert proc.stdout == "stop seen\n", (proc.stdout, proc.stderr)
     assert proc.returncode == 4, proc.stderr
     assert "signal 15, stopping" in proc.stderr and "second signal 15: exiting now" in proc.stderr
@@ -262,8 +267,6 @@ def test_the_launcher_starts_no_child_with_a_preexec_fn():
                 pytest.fail(f"{path.name}:{node.value.lineno}: a child started with preexec_fn")
 
 
-
-
 def test_a_live_run_stops_at_the_first_signal_and_exits_at_the_second():
     """``poseidon run --live``'s stop: the first SIGTERM sets it (the run ends its streams), a
     second one a while later exits at once with exit code 4 -- a launcher whose stop hangs does
@@ -276,6 +279,6 @@ def test_a_live_run_stops_at_the_first_signal_and_exits_at_the_second():
         "print('stop seen' if stop.wait(5) else 'stop missed', flush=True)\n"
         "time.sleep(1.3); os.kill(os.getpid(), signal.SIGTERM)\n"
         "time.sleep(5); print('not reached', flush=True)\n")
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=30)
+    proc = _probe(code)
     assert proc.stdout == "stop seen\n", (proc.stdout, proc.stderr)
     assert proc.returncode == 4, proc.stderr
