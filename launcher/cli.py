@@ -295,6 +295,10 @@ def _add_view_command(sub: Any) -> None:
     p.add_argument("--foxglove", type=int, metavar="PORT", help="also serve the streams to the Foxglove app "
                    "(WebSocket) on this port, on the page's host")
     p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
+    p.add_argument("--io", metavar="FILE", help="each service's input and output keys, JSON {name: [[inputs], "
+                   "[outputs]]} (poseidon run --view writes it; default: read from the services' configuration)")
+    p.add_argument("--ready-file", metavar="FILE", help="write the page's address into FILE once the view is "
+                   "subscribed and serves the page (poseidon run --view waits for it)")
     _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_view)
@@ -307,9 +311,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     import threading
 
     from common.config import ConfigError
-    from services.viewer.app import ViewError, serve_live, serve_recording
+    from services.viewer.app import ViewError, lower_niceness, read_io, ready_file, serve_live, serve_recording
     from system.config import load_config
-    from system.services import available_services, node_io
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -320,10 +323,16 @@ def cmd_view(args: argparse.Namespace) -> int:
                 raise ValueError("a recording is viewed on its own: --connect and --foxglove are for a live deployment")
             serve_recording(args.recording, config.view, stop, args.listen)
             return 0
-        io = {n: node_io(n, config) for n in config.services or available_services(config)}
+        lower_niceness(config.view.nice)  # before the imports of the services' keys, too
+        if args.io is not None:
+            io = read_io(args.io)
+        else:
+            from system.services import available_services, node_io
+            io = {n: node_io(n, config) for n in config.services or available_services(config)}
         serve_live(config.view, args.namespace or config.bus.namespace, args.connect or config.bus.connect[0], stop,
-                   io, args.listen, args.foxglove, tls_dir=args.tls_dir, tls_host=args.tls_host,
-                   user=args.zenoh_user, password_file=args.zenoh_password_file)
+                   io, args.listen, args.foxglove, ready=ready_file(args.ready_file) if args.ready_file else None,
+                   tls_dir=args.tls_dir, tls_host=args.tls_host, user=args.zenoh_user,
+                   password_file=args.zenoh_password_file)
     except (ConfigError, ViewError, ValueError, KeyError, FileNotFoundError) as exc:
         print(f"poseidon view: {exc}", file=sys.stderr)
         return 2

@@ -263,16 +263,28 @@ class _Supervisor:
         return all(n in self._ended for n in names)
 
 
+def _hub_up(sv: _Supervisor, before_services: Callable[[], None] | None) -> str:
+    """Wait until the hub listens, then call ``before_services``; '' when the hub is up, else
+    what went wrong with it."""
+    problem = _wait_listening(sv.endpoint, sv.procs[HUB])
+    if not problem and before_services is not None:
+        before_services()
+    return problem
+
+
 def _outputs_of(plan: RunPlan, service: str) -> tuple[str, ...]:
     return plan.io[service][1] if service in plan.io else ()
 
 
 def run_live(config: PoseidonConfig, source: str, out: str | Path, services: list[str] | None = None,
              duration_s: float | None = None, stop: threading.Event | None = None,
-             input_path: str | Path | None = None, rate: float = 1.0, hub_port: int | None = None) -> RunResult:
+             input_path: str | Path | None = None, rate: float = 1.0, hub_port: int | None = None,
+             before_services: Callable[[], None] | None = None) -> RunResult:
     """Run the services on the live ``source`` until ``stop`` is set or ``duration_s`` passed
     (``mcap``: or the end of ``input_path``, played at ``rate``; see the module notes); the hub
-    listens on loopback ``hub_port`` (default a free port); returns the run summary."""
+    listens on loopback ``hub_port`` (default a free port); ``before_services`` is called once
+    it listens, before any other process starts (``poseidon run --view``: until the view is
+    ready, so its start-up is not inside the run's data); returns the run summary."""
     if source not in LIVE_SOURCES:
         raise ValueError(f"--live {source}: unknown live source (known: {', '.join(LIVE_SOURCES)})")
     if (source == "mcap") != (input_path is not None):
@@ -307,7 +319,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
             supervise = ["--supervise", str(tmp / "supervision.json")]
         sv = _Supervisor(config, _commands(plan, bridge, tmp, endpoint, partial, inp, rate, supervise), bridge,
                          state_dir, endpoint)
-        failed = _live_phases(config, plan, sv, bridge, stop, duration_s, inp is not None)
+        failed = _live_phases(config, plan, sv, bridge, stop, duration_s, before_services)
         if failed:
             raise RunFailed(failed[0], failed[1], str(partial))
         os.replace(partial, out)
@@ -326,7 +338,7 @@ def run_live(config: PoseidonConfig, source: str, out: str | Path, services: lis
 
 
 def _live_phases(config: PoseidonConfig, plan: RunPlan, sv: _Supervisor, bridge: str, stop: threading.Event,
-                 duration_s: float | None, from_recording: bool) -> tuple[str, str] | None:
+                 duration_s: float | None, before_services: Callable[[], None] | None) -> tuple[str, str] | None:
     """Start the hub, the recorder, the services and then the source; supervise them through
     the live phase and the end (module notes); the failure to report, or None."""
     sup = config.supervise
@@ -336,7 +348,7 @@ def _live_phases(config: PoseidonConfig, plan: RunPlan, sv: _Supervisor, bridge:
     sv.start(HUB)
     watcher: Bus | None = None
     try:
-        problem = _wait_listening(sv.endpoint, sv.procs[HUB])
+        problem = _hub_up(sv, before_services)
         if problem:
             return HUB, problem
         watcher = Bus(config.bus.namespace, connect=[sv.endpoint])

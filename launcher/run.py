@@ -46,6 +46,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -264,9 +265,11 @@ def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path,
 
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                     services: list[str] | None = None, timeout_s: float | None = None,
-                    progress: bool = True, hub_port: int | None = None) -> RunResult:
+                    progress: bool = True, hub_port: int | None = None,
+                    before_services: Callable[[], None] | None = None) -> RunResult:
     """Each service in its own process, connected through a hub on loopback ``hub_port`` (default a
-    free port); supervised when ``supervise.max_restarts`` > 0 (see the module notes)."""
+    free port); supervised when ``supervise.max_restarts`` > 0 (see the module notes); once the
+    hub listens, ``before_services()`` returns before any process starts (``run --view``: the view)."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
     calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
@@ -290,7 +293,6 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             sup_file = Path(tmp) / "supervision.json"
             sup_file.write_text(supervision_plan(config, plan, state_dir).to_json())
             supervise_args = ["--supervise", str(sup_file)]
-
         cmds = _service_commands(plan, input_path, partial, Path(tmp), [*common, *supervise_args], progress)
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
@@ -317,6 +319,8 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             return _start(name, cmds[name] + ["--resume"])
 
         try:
+            if before_services is not None:
+                before_services()
             for name, cmd in cmds.items():
                 # a service's stdout (and any native library writing there) goes to our stderr: our
                 # stdout carries only this command's own output (``run --json``)

@@ -3,7 +3,8 @@
 
 ``--view [HOST:]PORT`` / ``--foxglove PORT``: ``poseidon view`` (:mod:`services.viewer`) runs as
 one more process on the run's hub, read-only, and serves the page while the run lasts (and
-``view.linger_s`` after); it is no part of the run (never awaited, never counted).
+``view.linger_s`` after); the run's services start once it is ready, and it is otherwise no part
+of the run (:mod:`launcher.view_beside`).
 
 Exit codes: 0 on success, 2 on bad configuration/input, 3 when a service failed (its name and
 the partial recording are printed).  The flags are documented in :mod:`launcher.cli`.
@@ -12,20 +13,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
-import subprocess
 import sys
 import threading
-import time
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from launcher.run import RunFailed
     from system.config import PoseidonConfig
 
-__all__ = ["cmd_run", "print_run", "services_arg", "flags_error", "view_beside"]
+__all__ = ["cmd_run", "print_run", "services_arg", "flags_error"]
 
 
 def print_run(result: Mapping[str, Any], as_json: bool, config: PoseidonConfig | None) -> None:
@@ -59,44 +56,6 @@ def flags_error(args: argparse.Namespace) -> str | None:
     return None
 
 
-@contextmanager
-def view_beside(args: argparse.Namespace, linger_s: float, startup_s: float) -> Iterator[int | None]:
-    """``--view``/``--foxglove``: the view process on the hub of the run started inside the block.
-
-    Yields the loopback port the run's hub must listen on (``hub_port`` of
-    :func:`launcher.run.run_distributed` / :func:`launcher.live.run_live`), None without a view:
-    the view is started first and connects when the hub comes up.  After the block the view
-    serves ``linger_s`` more seconds, then is stopped."""
-    if args.view is None and args.foxglove is None:
-        yield None
-        return
-    from launcher.children import child_env
-    from launcher.run import _free_port
-    port = _free_port()
-    cmd = [sys.executable, "-m", "launcher.cli", "view", "--connect", f"tcp/127.0.0.1:{port}",
-           "--set", f"view.connect_timeout_s={startup_s}"]
-    cmd += ["--listen", args.view] if args.view is not None else []
-    cmd += ["--foxglove", str(args.foxglove)] if args.foxglove is not None else []
-    cmd += ["--config", args.config] if args.config else []
-    for item in args.set:
-        cmd += ["--set", item]
-    proc = subprocess.Popen(cmd, stdout=2, env=child_env())
-    try:
-        yield port
-    finally:
-        if proc.poll() is None and linger_s > 0:
-            print(f"poseidon run: the view serves the final state for {linger_s:.0f} s more (view.linger_s)",
-                  file=sys.stderr)
-            time.sleep(linger_s)
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def _report_run_failed(args: argparse.Namespace, exc: RunFailed) -> int:
     """Exit 3 naming the failed service and where the partial recording is."""
     from launcher.logs import log_file
@@ -123,16 +82,19 @@ def _run_live(args: argparse.Namespace) -> int:
     from common.mcap_io import RecordingError
     from launcher.live import run_live
     from launcher.run import RunFailed
+    from launcher.view_beside import ViewStartError, view_beside
     from system.config import load_config
     stop = stop_on_signals("poseidon run")
     try:
         config = load_config(args.config, args.set)
         services = services_arg(args)
-        with view_beside(args, config.view.linger_s, config.live.startup_timeout_s) as hub_port:
+        with view_beside(args, config, config.live.startup_timeout_s) as (hub_port, view_ready):
             result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop,
                               input_path=args.input if args.live == "mcap" else None,
-                              rate=1.0 if args.rate is None else args.rate, hub_port=hub_port)
-    except (ConfigError, RecordingError, ValueError, KeyError, TimeoutError, FileNotFoundError) as exc:
+                              rate=1.0 if args.rate is None else args.rate, hub_port=hub_port,
+                              before_services=view_ready)
+    except (ConfigError, RecordingError, ValueError, KeyError, TimeoutError, FileNotFoundError,
+            ViewStartError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
@@ -146,6 +108,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from common.config import ConfigError
     from common.mcap_io import RecordingError
     from launcher.run import RunFailed, run_distributed, run_embedded
+    from launcher.view_beside import ViewStartError, view_beside
     from system.config import load_config
     error = flags_error(args)
     if error is not None:
@@ -161,14 +124,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             from launcher.run import use_map_dir
             use_map_dir(config, args.map_dir)
         services = services_arg(args)
-        with view_beside(args, config.view.linger_s, config.bus.startup_timeout_s) as hub_port:
+        with view_beside(args, config, config.bus.startup_timeout_s) as (hub_port, view_ready):
             if args.embedded:  # no hub: flags_error refuses --view with --embedded
                 result = run_embedded(config, args.input, args.out, services=services, timeout_s=args.timeout,
                                       progress=not args.json)
             else:
                 result = run_distributed(config, args.input, args.out, services=services, timeout_s=args.timeout,
-                                         progress=not args.json, hub_port=hub_port)
-    except (ConfigError, RecordingError, ValueError, KeyError, FileNotFoundError) as exc:
+                                         progress=not args.json, hub_port=hub_port, before_services=view_ready)
+    except (ConfigError, RecordingError, ValueError, KeyError, FileNotFoundError, ViewStartError) as exc:
         print(f"poseidon run: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:

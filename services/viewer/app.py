@@ -7,6 +7,7 @@ time slider.  Both print the page's address on stderr (``ready`` gets it too).
 """
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
@@ -19,7 +20,7 @@ from services.viewer.live import LiveFeed, ViewError, connect_bus
 from services.viewer.recording import RecordingView
 from services.viewer.server import ViewServer, parse_listen
 
-__all__ = ["serve_live", "serve_recording", "ViewError"]
+__all__ = ["serve_live", "serve_recording", "lower_niceness", "read_io", "ready_file", "ViewError"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,53 @@ def _lowest_priority() -> None:
         log.warning("view.idle_priority: SCHED_IDLE refused (%s); the view runs with the default scheduling", exc)
 
 
+def read_io(path: str | Path) -> dict[str, tuple[tuple[str, ...], tuple[str, ...]]]:
+    """Each service's input and output keys from the JSON file ``path`` (``{"name": [[inputs],
+    [outputs]]}``, as ``poseidon run --view`` writes it: the view then imports no service to
+    find them).
+
+    :raises ViewError: the file cannot be read or is not of that shape (the message names it)
+    """
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ViewError(f"--io {path}: {exc}") from None
+    shape = isinstance(data, dict) and all(
+        isinstance(v, list) and len(v) == 2 and all(isinstance(ks, list) and all(isinstance(k, str) for k in ks)
+                                                    for ks in v) for v in data.values())
+    if not shape:
+        raise ViewError(f"--io {path}: not a map of service -> [[input keys], [output keys]]")
+    return {str(n): (tuple(ins), tuple(outs)) for n, (ins, outs) in data.items()}
+
+
+def ready_file(path: str | Path) -> Callable[[str], None]:
+    """A ``ready`` callback of :func:`serve_live` that writes the page's address into ``path``
+    (whole or not at all: written beside it, then renamed)."""
+    target = Path(path)
+
+    def write(url: str) -> None:
+        part = target.with_name(target.name + ".part")
+        part.write_text(url + "\n")
+        os.replace(part, target)
+    return write
+
+
+def lower_niceness(level: int) -> int:
+    """Raise the calling thread's niceness to ``level`` (``view.nice``) unless it is that high
+    already; the threads it starts from now on inherit it (Linux keeps a niceness per thread).
+    Returns the niceness the thread then has.
+
+    :param level: the niceness to run at, 0-19 (0: leave it as it was)
+    :raises ValueError: ``level`` outside 0-19
+    """
+    if not 0 <= level <= 19:
+        raise ValueError(f"view.nice {level}: a niceness is 0-19")
+    current = os.nice(0)
+    if level > current:
+        current = os.nice(level - current)
+    return current
+
+
 def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Event,
                io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None, listen: str | None = None,
                foxglove_port: int | None = None, ready: Callable[[str], None] | None = None,
@@ -80,8 +128,10 @@ def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Ev
         host = parse_listen(listen or cfg.listen)[0]
     except ValueError as exc:
         raise ViewError(f"--listen {exc}") from None
-    # Zenoh's threads start with the session, at the caller's priority: they only move bytes into
-    # the feed's bounded rings, and a starved reader there would hold up the hub's forwarding
+    # Zenoh's threads start with the session and inherit the niceness (not SCHED_IDLE: they only
+    # move bytes into the feed's bounded rings, and a starved reader there would hold up the
+    # hub's forwarding)
+    lower_niceness(cfg.nice)
     bus = connect_bus(namespace, connect, cfg.connect_timeout_s, **secure)
     if cfg.idle_priority:     # this thread and every thread it starts from now on
         _lowest_priority()

@@ -38,6 +38,9 @@ class ViewConfig(ConfigSection):
     idle_priority: bool = Field(True, description="poseidon view of a running deployment: the view runs at the "
                                 "lowest CPU priority (Linux SCHED_IDLE), so on a vehicle computer it only uses "
                                 "time the SLAM leaves (false: the default scheduling)")
+    nice: int = Field(10, ge=0, le=19, description="poseidon view of a running deployment: the view process, "
+                      "Zenoh's threads included, runs at least at this niceness, so the SLAM's processes preempt "
+                      "it on a vehicle computer (0: the niceness it was started with)")
     connect_timeout_s: float = Field(5.0, gt=0, description="poseidon view --connect: give up (exit 2) when no "
                                      "hub answers at the address within this time [s]")
     foxglove_backlog: int = Field(64, ge=1, description="Foxglove server: messages buffered per client; beyond, "

@@ -6,9 +6,9 @@ Never slowing the SLAM:
   own ring buffer (the newest few for the camera, the map and the pose-cell activity; up to
   ``queue_frames`` for the other displayed keys, the oldest overwritten when it is full and
   counted in ``view.dropped`` from the transport indices; :data:`FIGURES_RING` for a key read
-  for the figures only), so Zenoh's threads, which keep the caller's priority
-  (:func:`services.viewer.app.serve_live`), never wait for the interpreter and the hub never
-  waits for the view.  Nothing waits for a browser: a page that polls slowly, or none, only
+  for the figures only), so Zenoh's threads, which keep the caller's scheduling (niced by
+  ``view.nice``, never SCHED_IDLE: :func:`services.viewer.app.serve_live`), never wait for
+  the interpreter and the hub never waits for the view.  Nothing waits for a browser: a page that polls slowly, or none, only
   means fewer snapshots are built.
 - A heavy key (a data frame larger than ``view.sample_bytes``: camera images, evidence
   images) is not followed frame by frame: the hub would copy every frame to the view (and the
@@ -64,6 +64,8 @@ LATEST_RING = 16
 #: ring capacity of a key read for the per-service figures only (frames of any size, until the
 #: first one shows it heavy)
 FIGURES_RING = 64
+#: while no hub answers, the view tries to connect again this often [ms]
+RETRY_MS = 100
 
 
 class ViewError(RuntimeError):
@@ -80,6 +82,9 @@ def connect_bus(namespace: str, endpoint: str, timeout_s: float, config_file: st
                         user=user, password_file=password_file)
     conf.insert_json5("connect/timeout_ms", json.dumps(int(timeout_s * 1000)))
     conf.insert_json5("connect/exit_on_failure", "true")
+    # a view started before its hub (poseidon run --view) connects within RETRY_MS of it listening
+    conf.insert_json5("connect/retry", json.dumps({"period_init_ms": RETRY_MS, "period_max_ms": RETRY_MS,
+                                                   "period_increase_factor": 1.0}))
     try:
         session = zenoh.open(conf)
     except zenoh.ZError:
