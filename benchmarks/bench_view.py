@@ -15,6 +15,7 @@ headless Chromium polling the page.
   that run's recording (view_demo.png).
 
     .venv/bin/python benchmarks/bench_view.py [--minutes 0.5] [--pairs 3] [--no-1x] [--shots docs/images]
+        [--view-set view.nice=0]
 """
 from __future__ import annotations
 
@@ -103,14 +104,18 @@ def _idle_tree(root: int) -> None:
                 continue
 
 
-def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | None, work: Path) -> dict[str, Any]:
-    """One live run; with ``view``, Chromium polls the page throughout."""
+def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | None, work: Path,
+             view_set: list[str] | None = None) -> dict[str, Any]:
+    """One live run; with ``view``, Chromium polls the page throughout (``view_set``: more
+    ``--set KEY=VALUE`` of the run with the view, e.g. ``view.nice=0``)."""
     cmd = [*CLI, "run", "--live", "mcap", "--input", str(mission), "--rate", str(rate), "--out", str(out), "--json",
            "--set", "live.lateness_ms=2000"]
     port = free_port()
     url = f"http://127.0.0.1:{port}/"
     if view:
         cmd += ["--view", str(port), "--set", "view.linger_s=8"]
+        for item in view_set or []:
+            cmd += ["--set", item]
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     row: dict[str, Any] = {"rate": rate, "view": view}
@@ -201,6 +206,8 @@ def main() -> int:
     ap.add_argument("--pairs", type=int, default=3, help="4x runs without and with the view, interleaved")
     ap.add_argument("--no-1x", action="store_true", help="skip the 1x run (view CPU, RSS and bytes)")
     ap.add_argument("--shots", type=Path, help="write view_live.png and view_demo.png here")
+    ap.add_argument("--view-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a setting of the runs with the view only, e.g. view.nice=0 (repeatable)")
     args = ap.parse_args()
     if not CHROMIUM.exists():
         print(f"bench_view: headless Chromium ({CHROMIUM}) is needed", file=sys.stderr)
@@ -217,10 +224,10 @@ def main() -> int:
         for i in range(args.pairs):
             for view in (False, True):
                 out = work / f"run4-{i}-{int(view)}.mcap"
-                rows.append(live_run(mission, out, 4.0, view, None, work))
+                rows.append(live_run(mission, out, 4.0, view, None, work, args.view_set))
                 out.unlink(missing_ok=True)
         if not args.no_1x:
-            rows.append(live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work))
+            rows.append(live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work, args.view_set))
             if args.shots is not None:
                 demo_shot(work / "view1.mcap", args.shots, work)
     fast = [r for r in rows if r["rate"] == 4.0]

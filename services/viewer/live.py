@@ -46,7 +46,7 @@ from typing import Any
 import zenoh
 
 from common.bus import ABORT, ALIVE, PROGRESS, Bus, zenoh_config
-from common.codec import DecodeError, decode_dict, decode_frame
+from common.codec import DecodeError, Frame, decode_frame, decode_header
 from common.live import HEALTH_KEY
 from common.messages import DiagnosticArray
 from services.viewer.config import ViewConfig
@@ -114,7 +114,7 @@ class LiveFeed:
         self.received_bytes = 0  # bytes of data keys the hub delivered to the view
         self.received_by_key: dict[str, int] = {}  # the same per key
         self.lock = threading.Lock()  # the model: the pump applies, the server's threads take snapshots
-        self._latest: dict[str, bytes] = {}  # key -> latest data frame (camera, map, activity, sampled keys)
+        self._latest: dict[str, Frame] = {}  # key -> latest data frame (camera, map, activity, sampled keys)
         self._latest_keys = {cfg.camera_key, MAP_KEY, ACTIVITY_KEY, HEALTH_KEY}
         self.figures.partial |= self._latest_keys
         self._ring = queue_frames
@@ -144,7 +144,7 @@ class LiveFeed:
     def _declare_latest(self, key: str) -> Any:
         return self.bus.session.declare_subscriber(self.bus.full_key(key), zenoh.handlers.RingChannel(LATEST_RING))
 
-    def _take(self, key: str, sample: zenoh.Sample) -> bytes | None:
+    def _take(self, key: str, sample: zenoh.Sample) -> Frame | None:
         """Count one sample of ``key``; its frame if it is a data frame the page shows."""
         data = sample.payload.to_bytes()
         self.received_bytes += len(data)
@@ -160,14 +160,13 @@ class LiveFeed:
                 return None
             if key not in self.heavy and len(data) > self.cfg.sample_bytes:
                 self._heavy(key)
-            header = decode_dict(frame.payload).get("header")
-            stamp = header.get("stamp", -1) if isinstance(header, dict) else -1
+            stamp = decode_header(frame.payload).get("stamp", -1)  # the body only if the page shows it
         except DecodeError as exc:
             self.invalid += 1
             log.error("view: bad frame on %s skipped: %s", key, exc)
             return None
         if key == HEALTH_KEY:  # read for the lags only: neither a source nor an output
-            return data
+            return frame
         ts = sample.timestamp  # the hub's time of routing it, when the hub stamps (a router does)
         wall_ns = int(ts.get_time().timestamp() * 1e9) if ts is not None else time.time_ns()
         self.figures.data(key, frame.index, stamp if isinstance(stamp, int) else -1, wall_ns)
@@ -177,14 +176,14 @@ class LiveFeed:
             last = self._taken_index.get(key, frame.index - 1)
             self.dropped += max(0, frame.index - last - 1)
             self._taken_index[key] = frame.index
-        return data
+        return frame
 
     def _take_latest(self, key: str, sample: zenoh.Sample) -> bool:
         """Keep ``sample`` of a sampled key as its latest frame; whether it was a data frame."""
-        data = self._take(key, sample)
-        if data is not None:
-            self._latest[key] = data
-        return data is not None
+        frame = self._take(key, sample)
+        if frame is not None:
+            self._latest[key] = frame
+        return frame is not None
 
     def _heavy(self, key: str) -> None:
         """``key`` carries heavy frames: leave its subscription; sample it if it is shown or an input."""
@@ -265,7 +264,7 @@ class LiveFeed:
         while not self._stop.wait(period):
             self.update()
 
-    def _drain(self) -> list[tuple[str, bytes]]:
+    def _drain(self) -> list[tuple[str, Frame]]:
         """Everything the rings hold: control reports handled, displayed frames returned (the
         newest only of a latest-only key)."""
         with self._subs_lock:
@@ -274,16 +273,16 @@ class LiveFeed:
         for sub, handle in control:
             while (sample := sub.try_recv()) is not None:
                 handle(sample)
-        batch: list[tuple[str, bytes]] = []
+        batch: list[tuple[str, Frame]] = []
         for key, sub in subs:
             while (sample := sub.try_recv()) is not None:
-                data = self._take(key, sample)
-                if data is None:
+                frame = self._take(key, sample)
+                if frame is None:
                     continue
                 if key in self._latest_keys:
-                    self._latest[key] = data
+                    self._latest[key] = frame
                 else:
-                    batch.append((key, data))
+                    batch.append((key, frame))
         return batch
 
     def update(self) -> None:
@@ -297,13 +296,13 @@ class LiveFeed:
             if sub is not None:
                 sub.undeclare()
         for key in list(self._latest):
-            data = self._latest.pop(key, None)
-            if data is not None:
-                batch.append((key, data))
+            latest = self._latest.pop(key, None)
+            if latest is not None:
+                batch.append((key, latest))
         with self.lock:
-            for key, data in batch:
+            for key, frame in batch:
                 try:
-                    msg = decode_frame(data).message()
+                    msg = frame.message()
                 except DecodeError as exc:
                     self.invalid += 1
                     log.error("view: message on %s skipped: %s", key, exc)
