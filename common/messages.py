@@ -32,7 +32,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSeriali
 __all__ = [
     "NDArray", "Header", "Message", "Image", "RangeImageBeam", "LaserScan", "LinkquestDvl",
     "Imu", "Depth", "Odometry", "Sdr", "NeocortexSdr", "LocalViewCell", "LocalViewCells",
-    "ExperienceEvent", "PoseCellActivity", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage",
+    "ExperienceEvent", "PoseCellActivity", "ExperienceNode", "ExperienceLink", "ExperienceMap", "ExperienceImage", "ScanPose",
     "PoseStamped", "RevisitTruth", "NavSatFix", "FluidPressure", "Temperature", "MagneticField",
     "PoseWithCovarianceStamped", "TwistStamped", "TransformStamped", "TFMessage", "KeyValue", "DiagnosticStatus",
     "DiagnosticArray", "RawMessage", "LatencyReport", "LatencyStage", "RAW_KEY_PREFIX", "IMAGE_CHANNELS", "KEYS", "MESSAGE_TYPES", "message_type", "key_type",
@@ -388,6 +388,16 @@ class ExperienceMap(Message):
     corrections: int = 0
 
 
+class ScanPose(Message):
+    """``scan_pose``: where one range scan was taken, registered against the local map of an
+    experience (laser map, services/expmap/scan_poses.py); stamp = the scan's."""
+
+    experience_id: int = Field(ge=0, description="the map node whose frame ``pose`` is in")
+    pose: list[float] = Field(min_length=3, max_length=3, description="x m forward, y m left, yaw rad of the "
+                              "robot at the scan, in the experience's frame")
+    score: float = Field(ge=0, le=1, description="the registration's mean likelihood (0..1)")
+
+
 class SessionLinkInfo(BaseModel):
     """One link between two sessions of the map (see ``MapSessions``)."""
 
@@ -607,6 +617,7 @@ KEYS: dict[str, type[Message]] = {
     "dead_reckoning": PoseStamped,
     "experience_image": ExperienceImage,
     "map_sessions": MapSessions,
+    "scan_pose": ScanPose,
     "truth/pose": Odometry,
     "truth/revisits": RevisitTruth,
     "live/latency": LatencyReport,
@@ -616,7 +627,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
     t.type_name: t
     for t in (Image, RangeImageBeam, LaserScan, LinkquestDvl, Imu, Depth, Odometry, PoseStamped, Sdr,
               NeocortexSdr, LocalViewCells, ExperienceEvent, PoseCellActivity, ExperienceMap, ExperienceImage,
-              MapSessions, RevisitTruth,
+              MapSessions, ScanPose, RevisitTruth,
               NavSatFix, FluidPressure, Temperature, MagneticField, PoseWithCovarianceStamped, TwistStamped,
               TFMessage, DiagnosticArray, RawMessage, LatencyReport)
 }

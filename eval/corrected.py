@@ -28,6 +28,15 @@ per ``Odometry`` stamp t:
    The arithmetic is :func:`common.map_correction.blend_corrections` (the ROS 1 bridge's live
    grid uses it too).
 
+5. with scan poses (``scan_pose``, a laser map's registration of every scan against the local map
+   of an experience, :mod:`services.expmap.scan_poses`): each scan pose whose experience is in the
+   final map and whose stamp is not an experience's becomes one more correction node, with the
+   heading the registration measured (the experience's map yaw plus the pose's yaw) and the
+   position of steps 1-4 at its stamp; steps 1-4 then run again over experiences and scan poses.
+   Between experiences the heading is the scans', not the odometry's; the position stays the
+   experiences' (a single scan's registered translation is noisier than the two experiences'
+   blend: docs/LASER.md, "Scan poses").
+
 Without a map message (or with an empty map) the trajectory is the dead reckoning itself.
 
 TUM file (:func:`write_tum`): one line ``t x y z qx qy qz qw`` per pose, t = stamp / 1e9 in
@@ -42,9 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
-from common.map_correction import blend_corrections
+from common.geometry import wrap_angle
+from common.map_correction import blend_corrections, interpolate_poses
 from common.mcap_io import RecordingError
-from common.messages import ExperienceNode
+from common.messages import ExperienceNode, ScanPose
 from common.stamps import ns_to_text, seconds_to_ns
 from eval.rundata import load_run
 from eval.trajectory import PoseSeries
@@ -52,28 +62,42 @@ from eval.trajectory import PoseSeries
 __all__ = ["map_corrected", "corrected_from_recording", "write_tum", "read_tum"]
 
 
-def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None) -> PoseSeries:
-    """The map-corrected pose at every odometry stamp (module docstring); ``odom`` itself
-    when there are no nodes."""
+def map_corrected(odom: PoseSeries, nodes: Sequence[ExperienceNode] | None,
+                  scan_poses: Sequence[ScanPose] = ()) -> PoseSeries:
+    """The map-corrected pose at every odometry stamp (module docstring, steps 1-5); ``odom``
+    itself when there are no nodes."""
     if not nodes or not len(odom):
         return odom
     ns = sorted(nodes, key=lambda n: (n.stamp, n.id))
-    p, q = blend_corrections(odom.stamps, odom.positions, odom.quaternions, np.array([n.stamp for n in ns]),
-                             np.array([n.position for n in ns], dtype=float), np.array([n.yaw for n in ns]))
+    nt = np.array([n.stamp for n in ns], dtype=np.int64)
+    npos = np.array([n.position for n in ns], dtype=float)
+    nyaw = np.array([n.yaw for n in ns], dtype=float)
+    p, q = blend_corrections(odom.stamps, odom.positions, odom.quaternions, nt, npos, nyaw)
+    yaw_of = {n.id: n.yaw for n in ns}
+    at_nodes = set(nt.tolist())
+    sel = sorted((s for s in scan_poses if s.experience_id in yaw_of and s.header.stamp not in at_nodes),
+                 key=lambda s: s.header.stamp)
+    if sel:
+        st = np.array([s.header.stamp for s in sel], dtype=np.int64)
+        sp, _ = interpolate_poses(odom.stamps, p, q, st)
+        syaw = wrap_angle(np.array([yaw_of[s.experience_id] + s.pose[2] for s in sel]))
+        order = np.argsort(np.r_[nt, st], kind="stable")
+        p, q = blend_corrections(odom.stamps, odom.positions, odom.quaternions, np.r_[nt, st][order],
+                                 np.r_[npos, sp][order], np.r_[nyaw, syaw][order])
     return PoseSeries(odom.stamps.copy(), p, q)
 
 
 def corrected_from_recording(path: str | Path) -> tuple[PoseSeries, bool]:
     """(:func:`map_corrected` of the run at ``path``, whether it had a map message); the
-    recording is read by :func:`eval.rundata.load_run` (``Odometry`` and ``map`` only).
+    recording is read by :func:`eval.rundata.load_run` (``Odometry``, ``map`` and ``scan_pose`` only).
 
     :raises RecordingError: unreadable recording, or no ``Odometry`` messages in it.
     """
-    run = load_run(path, keys=("Odometry", "map"))
+    run = load_run(path, keys=("Odometry", "map", "scan_pose"))
     if run.odometry_poses is None:
         raise RecordingError(f"{run.path}: no 'Odometry' messages: nothing to export (is it a run recording?)")
     nodes = run.final_map.nodes if run.final_map is not None else None
-    return map_corrected(run.odometry_poses, nodes), run.final_map is not None
+    return map_corrected(run.odometry_poses, nodes, run.scan_poses), run.final_map is not None
 
 
 def write_tum(path: str | Path, poses: PoseSeries) -> int:

@@ -368,7 +368,8 @@ def relations_block(run: RunData, relations: str | Path) -> RelationsBlock:
     out: RelationsBlock = {"relations_file": str(relations), "relations_in_file": len(rel), "relations": None,
                            "relations_odometry": None}
     if run.odometry_poses is not None and run.final_map is not None and run.final_map.nodes:
-        out["relations"] = _scored("map_corrected", map_corrected(run.odometry_poses, run.final_map.nodes), rel)
+        out["relations"] = _scored("map_corrected", map_corrected(run.odometry_poses, run.final_map.nodes,
+                                                                      run.scan_poses), rel)
     if run.wheel_odometry is not None:
         out["relations_odometry"] = _scored("wheel_odometry", run.wheel_odometry, rel)
     elif run.odometry_poses is not None:

@@ -49,6 +49,7 @@ from common.messages import (
     Odometry,
     PoseStamped,
     RevisitTruth,
+    ScanPose,
     message_type,
 )
 from eval.trajectory import PoseSeries, Trajectory, pose_series
@@ -60,7 +61,7 @@ __all__ = ["RunData", "EvidenceRecord", "SdrRecord", "DECODED", "load_run", "con
 #: keys decoded into messages (every other key is only counted and its header seq kept; ``map`` is
 #: decoded for its last message only, like ``map_sessions``; ``experience_image`` without keeping its pixels)
 DECODED = ("truth/pose", "truth/revisits", "local_view_cells", "Odometry", "experience_event", "wheel_odometry",
-           "dead_reckoning", "neocortex/sdr")
+           "dead_reckoning", "neocortex/sdr", "scan_pose")
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,7 @@ class RunData:
     sdrs: list[SdrRecord] = field(default_factory=list)
     final_map: ExperienceMap | None = None
     map_messages: int = 0
+    scan_poses: list[ScanPose] = field(default_factory=list)  # scan_pose (a laser map's registered scans)
     final_sessions: MapSessions | None = None  # the last map_sessions (a map of several sessions)
     latency: LatencyReport | None = None  # live/latency: a live run's latency per stage (common.live)
     truth_yaw: np.ndarray | None = None  # truth/pose yaw (NED, rad) at ``truth`` stamps
@@ -225,6 +227,8 @@ class _Reader:
             run.lvcs.append(m)  # type: ignore[arg-type]
         elif key == "experience_event":
             run.events.append(m)  # type: ignore[arg-type]
+        elif key == "scan_pose":
+            run.scan_poses.append(m)  # type: ignore[arg-type]
         elif key == "neocortex/sdr":
             assert isinstance(m, NeocortexSdr)
             run.sdrs.append(SdrRecord(m.header.stamp, np.asarray(m.fused.active, dtype=np.int64), m.fused.size))

@@ -40,7 +40,7 @@ import numpy as np
 
 from common.geometry import published_to_ned
 from common.mcap_io import read_messages, recording_keys
-from common.messages import ExperienceMap, LaserScan, RangeImageBeam
+from common.messages import ExperienceMap, LaserScan, RangeImageBeam, ScanPose
 from common.occupancy import rotate, scan_endpoints, sonar_body
 from eval.corrected import map_corrected
 from eval.report.benchmark import _laser_offset, _world_points
@@ -109,6 +109,7 @@ class MapSource:
     notes: list[str] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     cache: dict[Any, Any] = field(default_factory=dict)
+    scan_poses: list[ScanPose] = field(default_factory=list)
 
     @property
     def sensor_name(self) -> str:
@@ -133,7 +134,7 @@ class MapSource:
         nodes = self.require_map("a map-corrected product").nodes
         if self.odometry is None:
             raise ExportError(f"{self.path}: no 'Odometry' messages: the map correction needs the dead reckoning")
-        return map_corrected(self.odometry, nodes)
+        return map_corrected(self.odometry, nodes, self.scan_poses)
 
     def experience_of(self, stamps: np.ndarray) -> np.ndarray:
         """Per stamp the experience id its pose belongs to (the latest node with stamp <= t, the first
@@ -248,7 +249,7 @@ def load_map_source(path: str | Path) -> MapSource:
 
     :raises RecordingError: unreadable recording.
     """
-    run = load_run(path, keys=("Odometry", "wheel_odometry", "map", "map_sessions"))
+    run = load_run(path, keys=("Odometry", "wheel_odometry", "map", "map_sessions", "scan_pose"))
     raw, raw_name = ((run.wheel_odometry, "wheel_odometry") if run.wheel_odometry is not None
                      else (run.odometry_poses, "Odometry"))
     m = run.final_map
@@ -265,7 +266,7 @@ def load_map_source(path: str | Path) -> MapSource:
     src = MapSource(path=Path(path), metadata=run.metadata, odometry=run.odometry_poses,
                     raw=raw, raw_name=raw_name, final_map=m, node_session=node_session, head_sign=float(rs.axis_sign_z),
                     axis=(rs.axis_remap, float(rs.axis_sign_z)), start_ns=run.start_ns, config=run.config, notes=notes,
-                    counts=dict(run.counts))
+                    counts=dict(run.counts), scan_poses=run.scan_poses)
     _read_sensors(src)
     return src
 

@@ -189,7 +189,8 @@ def fig_scan_maps(run: RunData) -> FigureSpec:
                      else (run.odometry_poses, "Odometry"))
     panels: list[tuple[str, PoseSeries]] = []
     if run.odometry_poses is not None and run.final_map is not None and run.final_map.nodes:
-        panels.append(("map-corrected (final map)", map_corrected(run.odometry_poses, run.final_map.nodes)))
+        panels.append(("map-corrected (final map)", map_corrected(run.odometry_poses, run.final_map.nodes,
+                                                                            run.scan_poses)))
     else:
         spec.notes.append("no map message (or no Odometry): only the raw odometry map is drawn")
     if raw is not None:

@@ -50,6 +50,13 @@ class ScanGraphConfig(ConfigSection):
     odometry_at_stamps: bool = Field(True, description="place each scan, and each experience's frame, at the "
                                      "odometry interpolated to its own stamp (an experience waits for the next "
                                      "Odometry); false: at the newest Odometry before it (services/expmap/laser_input.py)")
+    scan_poses: bool = Field(True, description="register every scan against the newest experience's local map and "
+                             "publish its pose in that experience's frame (scan_pose); the map-corrected trajectory "
+                             "takes its heading between experiences from them (services/expmap/scan_poses.py)")
+    scan_pose_window_m: float = Field(0.2, gt=0, description="scan pose search window around the odometry [m]")
+    scan_pose_window_deg: float = Field(4.0, ge=0, description="scan pose heading window around the odometry [deg]")
+    scan_pose_prior_sigma_m: float = Field(0.05, ge=0, description="odometry prior of a scan pose (0: none) [m]")
+    scan_pose_prior_sigma_deg: float = Field(20.0, ge=0, description="odometry prior of a scan pose (0: none) [deg]")
     scan_sigma_m: float = Field(0.05, gt=0, description="std of a registered edge's translation [m]")
     scan_sigma_deg: float = Field(1.0, gt=0, description="std of a registered edge's heading [deg]")
     odom_sigma_m: float = Field(0.1, gt=0, description="std of an odometry edge's translation [m]")

@@ -15,6 +15,10 @@ so every registered edge, would carry that error (docs/LASER.md, "Time").
 way, and :meth:`LaserScans.sweep_for` the latest placed scan in the experience's frame, so
 the motion between the scan and the event is compensated by the odometry.  A scan before
 the first pose is not placed (:meth:`add_scan` returns False).
+
+With ``keep_placed``, every placed scan is also kept, as (stamp, odometry pose, points in the
+robot frame), until :meth:`take_placed` hands them on (the scan poses of
+:mod:`services.expmap.scan_poses`); a scan replaced before an experience took it is still there.
 """
 from __future__ import annotations
 
@@ -32,7 +36,8 @@ __all__ = ["LaserScans"]
 class LaserScans:
     """Odometry poses and the latest scan (points in the odometry frame)."""
 
-    def __init__(self, min_range_m: float, max_range_m: float, sensor_offset: Sequence[float] | None):
+    def __init__(self, min_range_m: float, max_range_m: float, sensor_offset: Sequence[float] | None,
+                 keep_placed: bool = False):
         self.min_range_m = float(min_range_m)
         self.max_range_m = float(max_range_m)
         self.sensor_offset = tuple(float(v) for v in (sensor_offset or (0.0, 0.0, 0.0)))
@@ -42,6 +47,23 @@ class LaserScans:
         self.scan_odom: np.ndarray | None = None     # latest placed scan's points in the odometry frame
         self.scan_stamp: int | None = None
         self._waiting: list[tuple[int, np.ndarray]] = []   # scans newer than the newest pose (robot frame)
+        self.keep_placed = keep_placed
+        self._placed: list[tuple[int | None, np.ndarray, np.ndarray]] = []
+
+    @property
+    def oldest_waiting(self) -> int | None:
+        """Stamp (ns) of the oldest scan waiting for a pose after it, or None."""
+        return min((t for t, _ in self._waiting), default=None)
+
+    def take_placed(self) -> list[tuple[int | None, np.ndarray, np.ndarray]]:
+        """The scans placed since the last call (``keep_placed``): (stamp, odometry pose x y yaw,
+        points k x 2 in the robot frame), in the order they were placed."""
+        out, self._placed = self._placed, []
+        return out
+
+    def _keep(self, stamp: int | None, pose: np.ndarray, pts: np.ndarray) -> None:
+        if self.keep_placed:
+            self._placed.append((stamp, pose.copy(), pts))
 
     def set_pose(self, x: float, y: float, yaw: float, stamp: int | None = None) -> None:
         """The newest odometry pose (m, m, rad) and its stamp (ns); places the scans waiting for it."""
@@ -87,6 +109,7 @@ class LaserScans:
             pts = transform_points(pts, (off[0], off[1], math.radians(off[2])))
         if stamp is None or self.odom_stamp is None:
             self.scan_odom, self.scan_stamp = transform_points(pts, self.odom_pose), stamp
+            self._keep(stamp, self.odom_pose, pts)
         elif self.covers(stamp):
             self._place(pts, stamp)
         else:
@@ -98,6 +121,7 @@ class LaserScans:
         if self.odom_pose is not None:
             for t, pts in self._waiting:
                 self.scan_odom, self.scan_stamp = transform_points(pts, self.odom_pose), t
+                self._keep(t, self.odom_pose, pts)
         self._waiting = []
 
     def _place(self, pts: np.ndarray, stamp: int) -> None:
@@ -105,6 +129,7 @@ class LaserScans:
         assert pose is not None
         if self.scan_stamp is None or stamp >= self.scan_stamp:
             self.scan_odom, self.scan_stamp = transform_points(pts, pose), stamp
+            self._keep(stamp, pose, pts)
 
     def sweep_for(self, x: float, y: float, yaw: float) -> np.ndarray | None:
         """The latest placed scan in the frame of the odometry pose (x, y, yaw) of an experience, or None."""

@@ -38,7 +38,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-__all__ = ["LikelihoodField", "ScanMatch", "match_scan", "scan_points", "voxel_filter", "transform_points",
+__all__ = ["LikelihoodField", "ScanMatch", "match_scan", "match_in_fields", "scan_points", "voxel_filter", "transform_points",
            "free_space_fraction"]
 
 
@@ -215,9 +215,28 @@ def match_scan(ref: np.ndarray, query: np.ndarray, prior: npt.ArrayLike, *, wind
     if ref.shape[0] == 0:
         return ScanMatch(pose=prior.copy(), score=0.0, spread_m=math.inf, spread_yaw_deg=math.inf,
                          n_points=int(q.shape[0]), second_ratio=1.0)
+    coarse = LikelihoodField(ref, coarse_cell_m, coarse_sigma_m, margin_m=3 * coarse_sigma_m)
+    fine = LikelihoodField(ref, fine_cell_m, fine_sigma_m, margin_m=3 * fine_sigma_m)
+    return match_in_fields(coarse, fine, q, prior, window_xy_m=window_xy_m, window_yaw_deg=window_yaw_deg,
+                           coarse_yaw_step_deg=coarse_yaw_step_deg, fine_yaw_step_deg=fine_yaw_step_deg,
+                           refine_peaks=refine_peaks, ambiguity_ratio=ambiguity_ratio, second_peak_m=second_peak_m,
+                           prior_sigma_xy_m=prior_sigma_xy_m, prior_sigma_yaw_deg=prior_sigma_yaw_deg,
+                           coarse_query_voxel_m=coarse_query_voxel_m)
+
+
+def match_in_fields(coarse: LikelihoodField, fine: LikelihoodField, query: np.ndarray, prior: npt.ArrayLike, *,
+                    window_xy_m: float, window_yaw_deg: float, coarse_yaw_step_deg: float = 1.0,
+                    fine_yaw_step_deg: float = 0.25, refine_peaks: int = 3, ambiguity_ratio: float = 0.95,
+                    second_peak_m: float = 0.5, prior_sigma_xy_m: float = 0.0, prior_sigma_yaw_deg: float = 0.0,
+                    coarse_query_voxel_m: float = 0.0) -> ScanMatch:
+    """:func:`match_scan`'s search (steps 1-3 of the module doc) in likelihood fields built beforehand,
+    so that several queries against one reference build its fields once."""
+    q = np.ascontiguousarray(np.asarray(query, np.float64).reshape(-1, 2))
+    prior = np.asarray(prior, np.float64)
+    coarse_cell_m = coarse.cell
+    fine_cell_m = fine.cell
     sxy = float(prior_sigma_xy_m)
     syaw = math.radians(prior_sigma_yaw_deg) if prior_sigma_yaw_deg > 0 else 1.0
-    coarse = LikelihoodField(ref, coarse_cell_m, coarse_sigma_m, margin_m=3 * coarse_sigma_m)
     w = max(1, int(math.ceil(window_xy_m / coarse_cell_m)))
     na = max(0, int(math.ceil(window_yaw_deg / coarse_yaw_step_deg)))
     yaws = prior[2] + np.radians(coarse_yaw_step_deg) * np.arange(-na, na + 1)
@@ -235,7 +254,6 @@ def match_scan(ref: np.ndarray, query: np.ndarray, prior: npt.ArrayLike, *, wind
     ii, jj = np.meshgrid(np.arange(sc.shape[1]), np.arange(sc.shape[2]), indexing="ij")
     far = np.hypot(ii - i0, jj - j0) * coarse_cell_m > second_peak_m
     second = float(sc.max(axis=0)[far].max()) / best if np.any(far) and best > 0 else 0.0
-    fine = LikelihoodField(ref, fine_cell_m, fine_sigma_m, margin_m=3 * fine_sigma_m)
     wf = max(1, int(math.ceil(coarse_cell_m / fine_cell_m)))
     nf = max(1, int(math.ceil(coarse_yaw_step_deg / fine_yaw_step_deg)))
     best_pose, best_val, best_raw = prior.copy(), -1.0, 0.0

@@ -100,6 +100,7 @@ from common.messages import (
     Odometry,
     PoseStamped,
     RangeImageBeam,
+    ScanPose,
     SessionLinkInfo,
 )
 from common.messages import ExperienceMap as ExperienceMapMsg
@@ -109,6 +110,7 @@ from services.expmap.config import ExpMapConfig
 from services.expmap.graph import ExperienceMap
 from services.expmap.laser_input import LaserScans
 from services.expmap.scan_graph import ScanGraph
+from services.expmap.scan_poses import ScanPoses
 from services.expmap.scans import SweepBuffer, echo_range
 from services.expmap.visual_scale import VisualScale
 
@@ -134,6 +136,11 @@ def _visual_scale_on(cfg: ExpMapConfig) -> bool:
     return cfg.visual_scale.enabled and cfg.graph == "experience_map"
 
 
+def _scan_poses_on(cfg: ExpMapConfig) -> bool:
+    """Every scan registered and published (``expmap.scan_graph.scan_poses``; laser map, scans at their stamps)."""
+    return cfg.graph == "scan_graph" and cfg.scan_graph.scan_poses and cfg.scan_graph.odometry_at_stamps
+
+
 class ExpMapNode(ServiceNode[ExpMapConfig]):
     """Transport wrapper of :class:`ExperienceMap` (or :class:`ScanGraph`) and :class:`EventImageAssociator`."""
 
@@ -151,7 +158,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             ins += (cfg.scan.topic,)
         if vs:
             ins += (cfg.visual_scale.dvl_topic,)
-        return ins, cls.outputs
+        return ins, cls.outputs + (("scan_pose",) if _scan_poses_on(cfg) else ())
 
     def __init__(self, config: ExpMapConfig, *, sync_stale_sec: float, pose_cell_shape: Sequence[int],
                  pose_cell_spacing: Sequence[float], odometry_axis_remap: str = "yxz",
@@ -194,7 +201,8 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         self._waiting_events: list[ExperienceEvent] = []   # laser map: events waiting for the pose after them
         self.scan_key = cfg.scan.topic if (cfg.loops.scan_matching or self.scan_graph) else None
         sg = cfg.scan_graph
-        self.laser = LaserScans(sg.min_range_m, sg.max_range_m, sg.sensor_offset)
+        self.laser = LaserScans(sg.min_range_m, sg.max_range_m, sg.sensor_offset, keep_placed=_scan_poses_on(cfg))
+        self.scan_poses = ScanPoses(sg) if _scan_poses_on(cfg) else None
         if self.scan_key is not None and odometry_axis_remap[2] != "z":
             raise ConfigError(f"expmap.loops.scan_matching needs a vertical published z axis, but "
                               f"robot_state.axis_remap={odometry_axis_remap!r}; set "
@@ -230,6 +238,8 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             self.visual.add_altitude(msg.header.stamp, float(alt))
         else:
             raise KeyError(f"expmap: unexpected input key {key!r} (inputs {self.inputs})")
+        if self.scan_poses is not None:
+            self._publish_scan_poses()
 
     def _on_event(self, ev: ExperienceEvent) -> None:
         if self.scan_graph and self.cfg.scan_graph.odometry_at_stamps:
@@ -405,6 +415,17 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
                 header=a.header.model_copy(), height=best.height, width=best.width, encoding=best.encoding,
                 data=best.data, source_stamp=best.header.stamp))
 
+    def _publish_scan_poses(self) -> None:
+        """Register the scans placed since the last input against the newest experience
+        (:mod:`services.expmap.scan_poses`) and publish their poses."""
+        assert self.scan_poses is not None and isinstance(self.graph, ScanGraph)
+        for stamp, odom_pose, pts in self.laser.take_placed():
+            sp = self.scan_poses.place(self.graph, pts, odom_pose)
+            if sp is None or stamp is None:
+                continue
+            self.publish("scan_pose", ScanPose(header=self.header("scan_pose", stamp), experience_id=sp.experience,
+                                               pose=[float(v) for v in sp.pose], score=min(1.0, max(0.0, sp.score))))
+
     def output_watermark(self, input_watermark: int) -> int:
         """Hold the promise at the oldest event still waiting for its image, and never past
         the newest input processed: the final map is stamped with that input's stamp, which
@@ -414,6 +435,9 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         oldest = self.images.oldest_waiting
         if oldest is not None:
             out = min(out, oldest)
+        waiting_scan = self.laser.oldest_waiting if self.scan_poses is not None else None
+        if waiting_scan is not None:
+            out = min(out, waiting_scan)
         self._promised = max(self._promised, out)
         return out
 
@@ -445,8 +469,11 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         if self.scan_graph:
             self.laser.flush()
             self._release_events(None)
+        if self.scan_poses is not None:
+            self._publish_scan_poses()
         if isinstance(self.graph, ScanGraph):
-            for k, v in self.graph.counters.items():
+            counters = dict(self.graph.counters, **(self.scan_poses.counters if self.scan_poses is not None else {}))
+            for k, v in counters.items():
                 self.count(k, v - self.counters.get(k, 0))
         self._publish_images(self.images.flush())
         if self.graph.pending:

@@ -174,6 +174,15 @@ class ScanGraph:
         """The scan kept with experience i (k x 2, its own frame), or None."""
         return self._scans[i]
 
+    def local_map(self, frame: int) -> np.ndarray | None:
+        """The chain's local map of experience ``frame``: its scan and those of its
+        ``local_map_experiences - 1`` predecessors, placed by the map, in its frame; None without scans."""
+        return self._local_points(range(max(0, frame - self.cfg.local_map_experiences + 1), frame + 1), frame)
+
+    def odometry_pose(self, i: int) -> np.ndarray:
+        """Experience i's odometry pose (x m, y m, yaw rad)."""
+        return self._odom[i].copy()
+
     # ---- the event ----------------------------------------------------------------
     def add_event(self, stamp: int, lvc_id: int, pc_centroid: np.ndarray | Sequence[float],
                   odom_position: np.ndarray | Sequence[float], odom_yaw: float,

@@ -9,7 +9,7 @@ import pytest
 
 from common.geometry import quaternion_to_matrix, slerp
 from common.mcap_io import RecordingWriter
-from common.messages import ExperienceMap, ExperienceNode, Header, Odometry
+from common.messages import ExperienceMap, ExperienceNode, Header, Odometry, ScanPose
 from common.stamps import ns_to_text
 from eval.corrected import map_corrected, read_tum, write_tum
 from eval.trajectory import PoseSeries, pose_series
@@ -146,3 +146,35 @@ def test_tum_reader_names_bad_lines(tmp_path):
     f.write_text(f.read_text() + "1.0 2 3\n")
     with pytest.raises(ValueError, match=r"t.txt:13: 3 fields, expected 8"):
         read_tum(f)
+
+
+def _scan_pose(stamp: int, experience: int, yaw: float) -> ScanPose:
+    return ScanPose(header=Header(seq=0, stamp=stamp), experience_id=experience, pose=[0.3, 0.0, yaw], score=0.8)
+
+
+def test_scan_poses_give_the_heading_between_experiences_and_keep_the_position():
+    """Step 5: a scan pose at t = 4 s says the robot faced node 0's yaw + 0.2 rad; there the
+    heading is that, the position the experiences' blend; poses at a node's stamp or of an
+    experience not in the map are not used."""
+    odo = pose_series(_odometry())
+    plain = map_corrected(odo, NODES)
+    poses = [_scan_pose(T0 + 4 * NS, 0, 0.2), _scan_pose(T0 + 2 * NS, 0, 1.0), _scan_pose(T0 + 3 * NS, 7, 1.0)]
+    got = map_corrected(odo, NODES, poses)
+    assert got.yaws[4] == pytest.approx(0.2, abs=1e-12) and got.positions[4] == pytest.approx(plain.positions[4], abs=1e-12)
+    # between node 0 (t = 2 s) and the scan pose (t = 4 s) the heading blends from 0 to 0.2
+    assert got.yaws[3] == pytest.approx(0.1, abs=1e-12) and got.yaws[2] == pytest.approx(0.0, abs=1e-12)
+    # between the scan pose and node 1 (t = 5.5 s): from 0.2 to pi/2 over 1.5 s
+    assert got.yaws[5] == pytest.approx(0.2 + (math.pi / 2 - 0.2) / 1.5, abs=1e-12)
+    assert got.positions[6:] == pytest.approx(plain.positions[6:], abs=1e-12)
+    assert map_corrected(odo, NODES, [_scan_pose(T0 + 3 * NS, 7, 1.0)]).positions == pytest.approx(plain.positions)
+
+
+def test_tum_export_takes_the_recorded_scan_poses(tmp_path):
+    with RecordingWriter(tmp_path / "with_poses.mcap") as w:
+        for m in _odometry():
+            w.write("Odometry", m)
+        w.write("scan_pose", _scan_pose(T0 + 4 * NS, 0, 0.2))
+        w.write("map", ExperienceMap(header=Header(seq=1, stamp=T0 + 10 * NS), nodes=NODES, links=[]))
+    out = tmp_path / "traj.txt"
+    assert export_main([str(tmp_path / "with_poses.mcap"), "--tum", str(out)]) == 0
+    assert read_tum(out).yaws[4] == pytest.approx(0.2, abs=1e-8)

@@ -245,6 +245,17 @@ def test_laser_scans_make_a_scan_graph_map() -> None:
     yaw_err = [abs(math.remainder(n.yaw - truth[n.id, 2] + truth[0, 2] - final.nodes[0].yaw, 2 * math.pi))
                for n in final.nodes]
     assert max(yaw_err) < math.radians(2.0)
+    # every scan after the first experience is registered against the newest experience's local map
+    assert "scan_pose" in ExpMapNode.io_keys(cfg.expmap)[1]
+    poses = outputs(out, "scan_pose")
+    scan_stamps = {m.header.stamp for k, m in msgs if k == "scan"}
+    assert len(poses) == node.counters["scan_pose"] >= 140
+    assert all(p.header.stamp in scan_stamps for p in poses)
+    for p in poses:   # scan k is taken 1 ms before experience k, from the same place
+        assert p.experience_id == (p.header.stamp + MS) // 1_000_000_000 - 1
+        assert abs(math.degrees(p.pose[2])) < 0.5 and math.hypot(p.pose[0], p.pose[1]) < 0.05
+    cfg.expmap.scan_graph.scan_poses = False
+    assert "scan_pose" not in ExpMapNode.io_keys(cfg.expmap)[1]
 
 
 def test_laser_scan_without_scan_graph_is_a_configuration_error() -> None:
