@@ -319,9 +319,11 @@ def cmd_view(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config, args.set)
         if args.recording is not None:
-            if args.connect or args.foxglove is not None:
-                raise ValueError("a recording is viewed on its own: --connect and --foxglove are for a live deployment")
-            serve_recording(args.recording, config.view, stop, args.listen)
+            if args.connect or args.foxglove is not None or args.io is not None:
+                raise ValueError("a recording is viewed on its own: --connect, --foxglove and --io are for a live "
+                                 "deployment")
+            serve_recording(args.recording, config.view, stop, args.listen,
+                            ready=ready_file(args.ready_file) if args.ready_file else None)
             return 0
         lower_niceness(config.view.nice)  # before the imports of the services' keys, too
         if args.io is not None:

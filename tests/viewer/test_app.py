@@ -16,7 +16,7 @@ from common.config import ConfigError
 from services.viewer.app import ViewError, read_io
 from system.config import load_config
 from tests.conftest import REPO
-from tests.viewer.runs import free_port, view_state
+from tests.viewer.runs import free_port, view_state, write_run
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -95,3 +95,26 @@ def test_a_live_view_says_when_it_is_ready_and_runs_niced_with_every_thread(tmp_
     imported = {line.rsplit("|", 1)[-1].strip() for line in log.read_text().splitlines() if line.startswith("import")}
     assert "services.viewer.live" in imported
     assert not imported & {"numba", "services.posecells.core", "services.encoder.core"}  # no service's module
+
+
+def test_a_recording_s_view_says_when_it_is_ready_and_refuses_io(tmp_path: Path) -> None:
+    run = tmp_path / "run.mcap"
+    write_run(run)
+    page_port = free_port()
+    ready = tmp_path / "ready"
+    cli = [sys.executable, "-m", "launcher.cli", "view", str(run)]
+    proc = subprocess.Popen([*cli, "--listen", str(page_port), "--ready-file", str(ready)], cwd=REPO,
+                            stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "the view never wrote its ready file"
+            time.sleep(0.05)
+        state = view_state(ready.read_text().strip())
+        assert state is not None and state["mode"] == "recording"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+    refused = subprocess.run([*cli, "--io", str(tmp_path / "io.json")], cwd=REPO, capture_output=True, text=True,
+                             timeout=60)
+    assert refused.returncode == 2 and "--io are for a live deployment" in refused.stderr
