@@ -65,6 +65,8 @@ PUBLISHED: dict[str, list[tuple[str, str, str]]] = {
               ("Cartographer [published, Hess 2016]", "0.0452 ± 0.0354", "0.54 ± 0.72")],
 }
 LASER_LOGS = ("aces", "fr079")
+#: the laser preset's previous default, run beside it: the trajectory without scan poses
+LASER_BASELINE = "expmap.scan_graph.scan_poses=false"
 VPR_SEEDS = (4101, 4102, 4103, 4104, 4105)
 VPR_CHAINS = ("sdr_seqmem", "no_tm", "no_dr_gate", "no_seqmem")
 IMAGE_SETS = {  # name -> (label, poseidon vpr arguments)
@@ -134,23 +136,39 @@ def render_demo(d: dict[str, Any]) -> str:
 
 
 def render_laser(results: dict[str, dict[str, Any]]) -> str:
-    """Per log ``{"eval": poseidon eval --relations --json, "run": poseidon run --json}``."""
+    """Per log ``{"eval": poseidon eval --relations --json, "run": poseidon run --json}`` of the preset,
+    and ``"base_eval"`` / ``"base_run"`` of the previous default (no scan poses) when measured."""
     out = []
     for log, res in results.items():
         ev, run = res["eval"], res.get("run", {})
         rel, odo = ev.get("relations") or {}, ev.get("relations_odometry") or {}
-        wall, span = run.get("wall_s"), (run.get("recording") or {}).get("duration_s")
         rows = [["**this preset, map-corrected**", f"**{mean_std(rel, 'trans_abs_m', 3)}**",
-                 f"**{mean_std(rel, 'rot_abs_deg', 2)}**"],
-                ["raw odometry (same run)", mean_std(odo, "trans_abs_m", 3), mean_std(odo, "rot_abs_deg", 2)]]
+                 f"**{mean_std(rel, 'rot_abs_deg', 3)}**"]]
+        base = (res.get("base_eval") or {}).get("relations")
+        if base:
+            rows.append([f"previous default, `{LASER_BASELINE}` (same run)", mean_std(base, "trans_abs_m", 3),
+                         mean_std(base, "rot_abs_deg", 3)])
+        rows.append(["raw odometry (same run)", mean_std(odo, "trans_abs_m", 3), mean_std(odo, "rot_abs_deg", 2)])
         rows += [list(row) for row in PUBLISHED.get(log, [])]
         lc = ev.get("loop_closures") or {}
-        speed = (f"; the log's {span:.0f} s ran in {wall:.0f} s, {span / wall:.1f}x real time (no baseline in this run)"
-                 if span and wall else "")
         out.append(f"**{log.upper()}** ({fmt(rel.get('count', odo.get('count')))} relations; {fmt(ev.get('nodes'))} "
-                   f"experiences, {fmt(lc.get('accepted'))} loop closures{speed})\n\n"
+                   f"experiences, {fmt(lc.get('accepted'))} loop closures{_laser_speed(run, res.get('base_run'))})\n\n"
                    + table(["method", "translation (m)", "heading (deg)"], rows))
     return "\n".join(out)
+
+
+def _laser_speed(run: dict[str, Any], base: dict[str, Any] | None) -> str:
+    """The run's real-time factor and expmap CPU, beside the previous default's when measured."""
+    def one(d: dict[str, Any]) -> str:
+        wall, span = d.get("wall_s"), (d.get("recording") or {}).get("duration_s")
+        cpu = ((d.get("services") or {}).get("expmap") or {}).get("cpu_s")
+        return (f"{span / wall:.1f}x real time" if span and wall else "n/a") + \
+            (f", expmap {cpu:.1f} CPU s" if cpu is not None else "")
+    if not run:
+        return ""
+    span = (run.get("recording") or {}).get("duration_s")
+    text = f"; the log's {span:.0f} s: {one(run)}" if span else f"; {one(run)}"
+    return text + (f"; previous default {one(base)}" if base else " (no baseline in this run)")
 
 
 def render_vpr_images(results: dict[str, dict[str, Any]]) -> str:
@@ -390,13 +408,16 @@ def measure_demo(r: Runner) -> str:
 def measure_laser(r: Runner) -> str:
     res = {}
     for log in LASER_LOGS:
-        rec, run = r.work / f"{log}.mcap", r.work / f"{log}_run.mcap"
+        rec = r.work / f"{log}.mcap"
         r.json([poseidon(), "import", str(DATA / "radish" / f"{log}.clf.bz2"), "--out", str(rec), "--json"])
-        run.unlink(missing_ok=True)
-        summary = r.json([poseidon(), "run", "--input", str(rec), "--out", str(run), "--config",
-                          "deploy/presets/laser2d.yaml", "--rate", "0", "--json"])
-        ev = r.json([poseidon(), "eval", str(run), "--relations", str(DATA / "radish" / f"{log}.relations"), "--json"])
-        res[log] = {"eval": ev, "run": summary}
+        res[log] = {}
+        for tag, extra in (("", []), ("base_", ["--set", LASER_BASELINE])):
+            run = r.work / f"{log}_{tag}run.mcap"
+            run.unlink(missing_ok=True)
+            res[log][f"{tag}run"] = r.json([poseidon(), "run", "--input", str(rec), "--out", str(run), "--config",
+                                           "deploy/presets/laser2d.yaml", "--rate", "0", "--json"] + extra)
+            res[log][f"{tag}eval"] = r.json([poseidon(), "eval", str(run), "--relations",
+                                            str(DATA / "radish" / f"{log}.relations"), "--json"])
     return render_laser(res)
 
 
@@ -451,10 +472,11 @@ class Topic:
 TOPICS = (
     Topic("demo", "Demo", 5, (),
           ("poseidon demo --json --out WORK/demo",), measure_demo),
-    Topic("laser", "Laser logs", 15, ("radish",),
+    Topic("laser", "Laser logs", 25, ("radish",),
           ("poseidon import ../shared/data/radish/LOG.clf.bz2 --out WORK/LOG.mcap --json",
            "poseidon run --input WORK/LOG.mcap --out WORK/LOG_run.mcap --config deploy/presets/laser2d.yaml --rate 0 --json",
            "poseidon eval WORK/LOG_run.mcap --relations ../shared/data/radish/LOG.relations --json",
+           "# the same two with --set expmap.scan_graph.scan_poses=false (the previous default): WORK/LOG_base_run.mcap",
            "# LOG = aces, fr079"), measure_laser),
     Topic("vpr-images", "Place recognition: image sets", 20, ("vprbench_corridor", "nordland_trimmed"),
           ("poseidon vpr --ref ../shared/data/vprbench_corridor/ref --query ../shared/data/vprbench_corridor/query "

@@ -57,6 +57,11 @@ subscribed.
   scans for every edge.  Its counters (``chain_scan``, ``chain_odometry``, ``loop_tried``,
   ``loop_verified``, ``loop_rejected_score``, ``loop_rejected_ambiguous``, ``loop_from_lvc``)
   are added to the node's at the end.
+- ``scan_pose`` (key; laser map with ``scan_graph.scan_poses`` and ``odometry_at_stamps``):
+  every placed scan, after the inputs of its message are handled, is registered against the
+  newest experience's local map (:mod:`services.expmap.scan_poses`) and published with the
+  scan's stamp (counters ``scan_pose``, ``scan_pose_weak``, ``scan_pose_unplaced``); a scan
+  waiting for the pose after it holds :meth:`output_watermark` at its stamp.
 
 - odometry scale (``expmap.visual_scale.enabled``; off by default): the camera frames and the
   DVL's altitude (``visual_scale.dvl_topic``) feed :class:`services.expmap.visual_scale.VisualScale`;

@@ -70,17 +70,27 @@ def test_the_demo_table_renders_from_its_json():
     assert "audit_f1_is_1 PASS" in body and "no_false_loop_closure_on FAIL" in body
 
 
-def test_the_laser_table_puts_the_run_beside_raw_odometry_and_the_published_rows():
-    rel = {"count": 1279, "trans_abs_m": {"mean": 0.0481, "std": 0.0479}, "rot_abs_deg": {"mean": 0.921, "std": 1.012}}
+def test_the_laser_table_puts_the_run_beside_the_previous_default_raw_odometry_and_the_published_rows():
+    rel = {"count": 1279, "trans_abs_m": {"mean": 0.0361, "std": 0.0337}, "rot_abs_deg": {"mean": 0.3651, "std": 0.354}}
+    base = {"count": 1279, "trans_abs_m": {"mean": 0.0362, "std": 0.034}, "rot_abs_deg": {"mean": 0.417, "std": 0.423}}
     odo = {"count": 1279, "trans_abs_m": {"mean": 0.549, "std": 2.681}, "rot_abs_deg": {"mean": 2.22, "std": 6.17}}
-    body = wr.render_laser({"aces": {"eval": {"relations": rel, "relations_odometry": odo, "nodes": 1121,
-                                              "loop_closures": {"accepted": 22}},
-                                     "run": {"wall_s": 100.0, "recording": {"duration_s": 1366.0}}}})
-    assert "| **this preset, map-corrected** | **0.048 ± 0.048** | **0.92 ± 1.01** |" in body
+    res = {"eval": {"relations": rel, "relations_odometry": odo, "nodes": 1101, "loop_closures": {"accepted": 19}},
+           "run": {"wall_s": 100.0, "recording": {"duration_s": 1366.0}, "services": {"expmap": {"cpu_s": 69.4}}}}
+    body = wr.render_laser({"aces": res})
+    assert "| **this preset, map-corrected** | **0.036 ± 0.034** | **0.365 ± 0.354** |" in body
     assert "| raw odometry (same run) | 0.549 ± 2.681 | 2.22 ± 6.17 |" in body
     assert "| graph mapping [published, Kümmerle 2009] | 0.044 ± 0.044 | 0.4 ± 0.4 |" in body
     assert "| GMapping [published, Kümmerle 2009] | 0.060 ± 0.049 |  |" in body
-    assert "1279 relations; 1121 experiences, 22 loop closures; the log's 1366 s ran in 100 s, 13.7x" in body
+    assert "1279 relations; 1101 experiences, 19 loop closures; the log's 1366 s: 13.7x real time, expmap 69.4 " \
+        "CPU s (no baseline in this run)" in body
+    res.update(base_eval={"relations": base}, base_run={"wall_s": 80.0, "recording": {"duration_s": 1366.0},
+                                                         "services": {"expmap": {"cpu_s": 55.0}}})
+    body = wr.render_laser({"aces": res})
+    assert f"| previous default, `{wr.LASER_BASELINE}` (same run) | 0.036 ± 0.034 | 0.417 ± 0.423 |" in body
+    assert "expmap 69.4 CPU s; previous default 17.1x real time, expmap 55.0 CPU s" in body
+    rows = [ln for ln in body.splitlines() if ln.startswith("| ")]
+    assert rows[1].startswith("| **this preset") and rows[2].startswith("| previous default") and \
+        rows[3].startswith("| raw odometry")
 
 
 def test_the_mission_recognition_table_has_a_mean_row_with_the_lowest_precision():
