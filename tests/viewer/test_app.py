@@ -59,7 +59,10 @@ def _threads_nice(pid: int) -> set[int]:
     """The niceness of every thread of ``pid`` (``/proc/PID/task/TID/stat`` field 19)."""
     out = set()
     for task in Path(f"/proc/{pid}/task").iterdir():
-        out.add(int((task / "stat").read_text().rsplit(")", 1)[1].split()[16]))
+        try:
+            out.add(int((task / "stat").read_text().rsplit(")", 1)[1].split()[16]))
+        except FileNotFoundError:  # a thread that ended since the listing has no niceness to check
+            continue
     return out
 
 
