@@ -56,7 +56,10 @@ def transform_points(pts: np.ndarray, pose: npt.ArrayLike) -> np.ndarray:
     x, y, yaw = (float(v) for v in np.asarray(pose, np.float64)[:3])
     c, s = math.cos(yaw), math.sin(yaw)
     p = np.asarray(pts, np.float64).reshape(-1, 2)
-    return np.stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]], axis=1)
+    out = np.empty_like(p)
+    out[:, 0] = x + c * p[:, 0] - s * p[:, 1]
+    out[:, 1] = y + s * p[:, 0] + c * p[:, 1]
+    return out
 
 
 def voxel_filter(pts: np.ndarray, cell: float) -> np.ndarray:
@@ -181,9 +184,15 @@ class ScanMatch:
 
 def _peaks(scores: np.ndarray, k: int, sep: int) -> list[tuple[int, int, int]]:
     """Up to k best cells of a (yaw, x, y) score volume, at least ``sep`` cells apart in x/y."""
-    order = np.argsort(-scores, axis=None, kind="stable")
+    flat_scores = -scores.reshape(-1)
+    m = min(max(50 * k, 200), flat_scores.size)
+    # the first m of a stable sort, without sorting the whole volume: every cell scoring at
+    # least the m-th best, in index order, then stably sorted by score
+    kth = np.partition(flat_scores, m - 1)[m - 1]
+    head = np.flatnonzero(flat_scores <= kth)
+    order = head[np.argsort(flat_scores[head], kind="stable")]
     out: list[tuple[int, int, int]] = []
-    for flat in order[: max(50 * k, 200)]:
+    for flat in order[:m]:
         a, i, j = np.unravel_index(int(flat), scores.shape)
         if all(abs(i - i2) > sep or abs(j - j2) > sep for _a, i2, j2 in out):
             out.append((int(a), int(i), int(j)))
