@@ -152,15 +152,22 @@ def _search(grid: np.ndarray, ox: float, oy: float, cell: float, pts: np.ndarray
         for k in range(n):
             ii[k] = int(math.floor((c * pts[k, 0] - s * pts[k, 1] + cx - ox) / cell))
             jj[k] = int(math.floor((s * pts[k, 0] + c * pts[k, 1] + cy - oy) / cell))
+        # point by point, each point's (2w+1)^2 block of the grid added to the block of sums:
+        # every sum still adds its points in order k = 0..n-1 (the same bits as summing each
+        # translation over the points), and the grid is read row by row
+        acc = np.zeros((2 * w + 1, 2 * w + 1))
+        for k in range(n):
+            i0 = max(ii[k] - w, 0)
+            i1 = min(ii[k] + w + 1, nx)
+            j0 = max(jj[k] - w, 0)
+            j1 = min(jj[k] + w + 1, ny)
+            for i in range(i0, i1):
+                r = i - ii[k] + w
+                for j in range(j0, j1):
+                    acc[r, j - jj[k] + w] += grid[i, j]
         for di in range(-w, w + 1):
             for dj in range(-w, w + 1):
-                acc = 0.0
-                for k in range(n):
-                    i = ii[k] + di
-                    j = jj[k] + dj
-                    if 0 <= i < nx and 0 <= j < ny:
-                        acc += grid[i, j]
-                v = acc / max(n, 1)
+                v = acc[di + w, dj + w] / max(n, 1)
                 if sxy > 0.0:
                     ex = cx + di * cell - px
                     ey = cy + dj * cell - py
