@@ -96,7 +96,11 @@ def _idle_tree(root: int) -> None:
     todo = [root]
     while todo:
         pid = todo.pop()
-        for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            tasks = list(Path(f"/proc/{pid}/task").iterdir())
+        except (FileNotFoundError, ProcessLookupError):   # the process ended before it was listed
+            continue
+        for task in tasks:
             try:
                 os.sched_setscheduler(int(task.name), os.SCHED_IDLE, os.sched_param(0))
                 todo += [int(c) for c in (task / "children").read_text().split()]
