@@ -425,8 +425,10 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
         (:mod:`services.expmap.scan_poses`) and publish their poses."""
         assert self.scan_poses is not None and isinstance(self.graph, ScanGraph)
         for stamp, odom_pose, pts in self.laser.take_placed():
+            if stamp is None:    # only a scan placed without odometry_at_stamps, which turns scan poses off
+                continue
             sp = self.scan_poses.place(self.graph, pts, odom_pose)
-            if sp is None or stamp is None:
+            if sp is None:
                 continue
             self.publish("scan_pose", ScanPose(header=self.header("scan_pose", stamp), experience_id=sp.experience,
                                                pose=[float(v) for v in sp.pose], score=min(1.0, max(0.0, sp.score))))

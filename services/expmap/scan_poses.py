@@ -24,7 +24,6 @@ Deterministic: the same scans, odometry and experiences in the same order give t
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,5 +88,4 @@ class ScanPoses:
             self.counters["scan_pose_weak"] += 1
             return None
         self.counters["scan_pose"] += 1
-        yaw = (float(m.pose[2]) + math.pi) % (2 * math.pi) - math.pi
-        return ScanPose(e, np.array([m.pose[0], m.pose[1], yaw]), m.score)
+        return ScanPose(e, m.pose.copy(), m.score)   # yaw already wrapped to [-pi, pi)

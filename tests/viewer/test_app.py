@@ -93,7 +93,7 @@ def test_a_live_view_says_when_it_is_ready_and_runs_niced_with_every_thread(tmp_
     finally:
         proc.terminate()
         proc.wait(timeout=20)
-        hub.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
+        hub.close()
     assert proc.returncode == 0
     imported = {line.rsplit("|", 1)[-1].strip() for line in log.read_text().splitlines() if line.startswith("import")}
     assert "services.viewer.live" in imported
