@@ -31,8 +31,11 @@ def test_watch_progress_of_named_services_follows_only_those():
     for name, stamp in [("htm", 10), ("recorder", 20), ("expmap", 30)]:
         bus.progress_publisher(name).report(stamp, force=True)
     deadline = time.monotonic() + 5.0
-    while (every.get("expmap") != 30 or named.get("recorder") != 20) and time.monotonic() < deadline:
-        time.sleep(0.01)  # each subscriber's callbacks arrive on their own: wait for both
+    def arrived() -> bool:   # each subscription's callbacks arrive on their own thread: wait for all five
+        return (every.get("htm"), every.get("recorder"), every.get("expmap"), named.get("htm"),
+                named.get("recorder")) == (10, 20, 30, 10, 20)
+    while not arrived() and time.monotonic() < deadline:
+        time.sleep(0.01)
     assert every.get("expmap") == 30 and every.slowest(["htm", "recorder"], default=-2) == 10
     assert named.get("htm") == 10 and named.get("recorder") == 20
     assert named.get("expmap") == -2  # not followed
