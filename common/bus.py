@@ -8,7 +8,13 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
   retries its endpoints forever (services may start before the hub), every 0.25-1 s, not
   Zenoh's 1-4 s: a hub back after an outage is used again within a second.
 - Keys: ``<namespace>/<key>`` (default ``poseidon``); liveliness: ``<namespace>/@alive/<service>``.
-- Publishers are reliable with ``CongestionControl.BLOCK``: Zenoh never drops a frame.
+- Publishers are reliable with ``CongestionControl.BLOCK``: Zenoh never drops a frame -- except
+  to a viewer.  :data:`VIEWER_IDS` are Zenoh ids reserved for read-only viewers (``poseidon
+  view``); a hub or peer session forwards to them with congestion control DROP
+  (:data:`VIEWER_QOS`, Zenoh's egress QoS overwrite).  A viewer whose link backs up (a suspended
+  laptop, a stalled radio link, a view starved of CPU) then loses frames, which it counts from
+  the transport indices, instead of holding every other consumer's frames on the hub until
+  Zenoh gives up on its link (``block.wait_before_close``, 5 s).
 - Flow control is end to end, in event time, not inside Zenoh: every consumer reports how
   far it has got on ``<namespace>/@progress/<service>`` and a replaying player keeps at most
   ``bus.flow_window_ms`` of event time in flight ahead of the slowest one.  Subscriber
@@ -41,7 +47,7 @@ from common.codec import ENCODED_EOS, encode, encode_replay_start, encode_sequen
 from common.messages import Message
 
 __all__ = ["zenoh_config", "open_local_session", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher",
-           "AliveWatcher", "open_hub", "ALIVE", "PROGRESS", "ABORT"]
+           "AliveWatcher", "open_hub", "ALIVE", "PROGRESS", "ABORT", "VIEWER_IDS", "VIEWER_QOS"]
 
 log = logging.getLogger(__name__)
 
@@ -49,12 +55,21 @@ ALIVE = "@alive"
 PROGRESS = "@progress"
 ABORT = "@abort"
 CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
+#: Zenoh ids reserved for read-only viewers, "view" and an index in hex; a viewer takes the first
+#: one free (:func:`services.viewer.live.connect_bus`), so at most this many at once per hub
+VIEWER_IDS: tuple[str, ...] = tuple(f"76696577{i:08x}" for i in range(1, 9))
+#: the QoS overwrite every hub and peer session applies to what it sends to a viewer (see the module notes)
+VIEWER_QOS: dict[str, Any] = {"id": "poseidon-viewers", "zids": list(VIEWER_IDS), "flows": ["egress"],
+                              "messages": ["put", "delete"], "overwrite": {"congestion_control": "drop"}}
 
 
 def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iterable[str] = (),
                  config_file: str | None = None, tls_dir: str | None = None, tls_host: str | None = None,
-                 user: str | None = None, password_file: str | None = None) -> zenoh.Config:
-    """A Zenoh configuration with explicit endpoints and multicast scouting off.
+                 user: str | None = None, password_file: str | None = None,
+                 zenoh_id: str | None = None) -> zenoh.Config:
+    """A Zenoh configuration with explicit endpoints and multicast scouting off; a router or
+    peer forwards to viewers under :data:`VIEWER_QOS` (added to a ``config_file``'s own QoS
+    overwrites); ``zenoh_id``: the session's Zenoh id (a viewer's, from :data:`VIEWER_IDS`).
 
     Secured profile (``deploy/zenoh/secured-*.json5``): ``tls_dir``/``tls_host`` point the
     mutual-TLS settings at ``DIR/ca.pem``, ``DIR/HOST.pem``, ``DIR/HOST.key`` (and a router's
@@ -92,6 +107,11 @@ def zenoh_config(mode: str = "client", connect: Iterable[str] = (), listen: Iter
     if listen or mode == "router":
         conf.insert_json5("listen/endpoints", json.dumps(listen))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if zenoh_id is not None:
+        conf.insert_json5("id", json.dumps(zenoh_id))
+    if mode != "client":
+        overwrites = [q for q in json.loads(conf.get_json("qos/network")) if q.get("id") != VIEWER_QOS["id"]]
+        conf.insert_json5("qos/network", json.dumps([*overwrites, VIEWER_QOS]))
     if mode != "router":
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")

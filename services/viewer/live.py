@@ -10,6 +10,12 @@ Never slowing the SLAM:
   ``view.nice``, never SCHED_IDLE: :func:`services.viewer.app.serve_live`), never wait for
   the interpreter and the hub never waits for the view.  Nothing waits for a browser: a page that polls slowly, or none, only
   means fewer snapshots are built.
+- The view connects under a viewer id (:data:`common.bus.VIEWER_IDS`, :func:`connect_bus`): the
+  hub forwards to it with congestion control DROP, so a view that stops reading (a suspended
+  laptop, a stalled radio link, a view starved of CPU) loses frames, counted in
+  ``view.dropped`` from the transport indices, and never holds a frame of the SLAM's consumers
+  on the hub (with BLOCK the hub held every key it routed through the view's link until Zenoh
+  closed that link, 5 s later: tested in ``tests/viewer/test_viewer_ids.py``).
 - A heavy key (a data frame larger than ``view.sample_bytes``: camera images, evidence
   images) is not followed frame by frame: the hub would copy every frame to the view (and the
   view's rings would hold megabytes).  A heavy key that
@@ -45,7 +51,7 @@ from typing import Any
 
 import zenoh
 
-from common.bus import ABORT, ALIVE, PROGRESS, Bus, zenoh_config
+from common.bus import ABORT, ALIVE, PROGRESS, VIEWER_IDS, Bus, zenoh_config
 from common.codec import DecodeError, Frame, decode_frame, decode_header
 from common.live import HEALTH_KEY
 from common.messages import DiagnosticArray
@@ -66,6 +72,10 @@ LATEST_RING = 16
 FIGURES_RING = 64
 #: while no hub answers, the view tries to connect again this often [ms]
 RETRY_MS = 100
+#: longest wait for the hub to take one viewer id, once it answered: this many times its first
+#: answer took, and at least ID_TIMEOUT_MIN_S [s] (a taken id is refused by a timeout)
+ID_TIMEOUT_FACTOR = 5.0
+ID_TIMEOUT_MIN_S = 0.3
 
 
 class ViewError(RuntimeError):
@@ -75,22 +85,42 @@ class ViewError(RuntimeError):
 def connect_bus(namespace: str, endpoint: str, timeout_s: float, config_file: str | None = None,
                 tls_dir: str | None = None, tls_host: str | None = None, user: str | None = None,
                 password_file: str | None = None) -> Bus:
-    """A client :class:`Bus` on the hub at ``endpoint``; :class:`ViewError` when no hub answers
-    within ``timeout_s`` (a service would wait forever; a view started by hand should not).
-    ``tls_dir``, ``tls_host``, ``user``, ``password_file``: the secured profile (:func:`common.bus.zenoh_config`)."""
-    conf = zenoh_config("client", connect=[endpoint], config_file=config_file, tls_dir=tls_dir, tls_host=tls_host,
-                        user=user, password_file=password_file)
-    conf.insert_json5("connect/timeout_ms", json.dumps(int(timeout_s * 1000)))
-    conf.insert_json5("connect/exit_on_failure", "true")
-    # a view started before its hub (poseidon run --view) connects within RETRY_MS of it listening
-    conf.insert_json5("connect/retry", json.dumps({"period_init_ms": RETRY_MS, "period_max_ms": RETRY_MS,
-                                                   "period_increase_factor": 1.0}))
+    """A client :class:`Bus` on the hub at ``endpoint`` under the first free viewer id
+    (:data:`common.bus.VIEWER_IDS`: the hub drops what the view's link cannot take instead of
+    holding the SLAM's frames); :class:`ViewError` when no hub answers within ``timeout_s`` (a
+    service would wait forever; a view started by hand should not) or every viewer id is taken.
+
+    Zenoh answers a session whose id is taken as it answers an absent hub, by a timeout, so a
+    session under a passing id first asks whether the hub answers at all, and how long it takes
+    to; then each viewer id gets :data:`ID_TIMEOUT_FACTOR` times that, at least
+    :data:`ID_TIMEOUT_MIN_S`.  ``tls_dir``, ``tls_host``, ``user``, ``password_file``: the
+    secured profile (:func:`common.bus.zenoh_config`)."""
+    def conf(zenoh_id: str | None, wait_s: float) -> zenoh.Config:
+        c = zenoh_config("client", connect=[endpoint], config_file=config_file, tls_dir=tls_dir, tls_host=tls_host,
+                         user=user, password_file=password_file, zenoh_id=zenoh_id)
+        c.insert_json5("connect/timeout_ms", json.dumps(int(wait_s * 1000)))
+        c.insert_json5("connect/exit_on_failure", "true")
+        # a view started before its hub (poseidon run --view) connects within RETRY_MS of it listening
+        c.insert_json5("connect/retry", json.dumps({"period_init_ms": RETRY_MS, "period_max_ms": RETRY_MS,
+                                                    "period_increase_factor": 1.0}))
+        return c
+
+    t0 = time.monotonic()
     try:
-        session = zenoh.open(conf)
+        zenoh.open(conf(None, timeout_s)).close()  # type: ignore[no-untyped-call]  # close() is unannotated
     except zenoh.ZError:
         raise ViewError(f"no hub answers at {endpoint} within {timeout_s:.0f} s (start one with 'poseidon hub' "
                         f"or 'poseidon run', or pass its address with --connect)") from None
-    return Bus(namespace, session=session)
+    id_timeout_s = max(ID_TIMEOUT_MIN_S, ID_TIMEOUT_FACTOR * (time.monotonic() - t0))
+    for zenoh_id in VIEWER_IDS:
+        try:
+            session = zenoh.open(conf(zenoh_id, id_timeout_s))
+        except zenoh.ZError:
+            log.info("view: viewer id %s taken on %s (or the hub left); trying the next", zenoh_id, endpoint)
+            continue
+        return Bus(namespace, session=session)
+    raise ViewError(f"the hub at {endpoint} answers but takes none of the {len(VIEWER_IDS)} viewer ids: "
+                    f"that many views are connected already (or the hub left meanwhile)")
 
 
 class LiveFeed:
