@@ -3,7 +3,7 @@ headless Chromium polling the page.
 
 - at 4x real time, ``--pairs`` times without and with the view, interleaved: frames dropped by
   the services' bounded queues (run summary ``dropped``) and the live latency p50 per stage (the
-  live player's report); per stage, the ratio of the median p50 with the view over the median
+  live player's report; ``latency_n``: the outputs each p50 is taken over, a handful for ``map``); per stage, the ratio of the median p50 with the view over the median
   without, and the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
   2-core machine);
 - in every run with the view: the CPU seconds of the view process (``view_cpu_s``: all of it,
@@ -165,6 +165,7 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
                       if isinstance(v.get("dropped"), dict)}
     lat = summary["services"]["live_player"].get("latency", {})
     row["p50_ms"] = {k: v.get("p50_ms") for k, v in lat.items()}
+    row["latency_n"] = {k: v.get("n") for k, v in lat.items()}
     row["load_1min"] = round(os.getloadavg()[0], 2)
     return row
 
