@@ -10,7 +10,7 @@ Never slowing the SLAM:
   ``view.nice``, never SCHED_IDLE: :func:`services.viewer.app.serve_live`), never wait for
   the interpreter and the hub never waits for the view.  Nothing waits for a browser: a page that polls slowly, or none, only
   means fewer snapshots are built.
-- The view connects under a viewer id (:data:`common.bus.VIEWER_IDS`, :func:`connect_bus`): the
+- The view connects under a viewer id (:data:`common.sessions.VIEWER_IDS`, :func:`connect_bus`): the
   hub forwards to it with congestion control DROP, so a view that stops reading (a suspended
   laptop, a stalled radio link, a view starved of CPU) loses frames, counted in
   ``view.dropped`` from the transport indices, and never holds a frame of the SLAM's consumers
@@ -51,10 +51,11 @@ from typing import Any
 
 import zenoh
 
-from common.bus import ABORT, ALIVE, PROGRESS, VIEWER_IDS, Bus, zenoh_config
+from common.bus import ABORT, ALIVE, PROGRESS, Bus
 from common.codec import DecodeError, Frame, decode_frame, decode_header
 from common.live import HEALTH_KEY
 from common.messages import DiagnosticArray
+from common.sessions import VIEWER_IDS, zenoh_config
 from services.viewer.config import ViewConfig
 from services.viewer.figures import LatencyWindow, ServiceFigures, health_lags
 from services.viewer.model import ACTIVITY_KEY, MAP_KEY, ViewModel, view_keys
@@ -86,7 +87,7 @@ def connect_bus(namespace: str, endpoint: str, timeout_s: float, config_file: st
                 tls_dir: str | None = None, tls_host: str | None = None, user: str | None = None,
                 password_file: str | None = None) -> Bus:
     """A client :class:`Bus` on the hub at ``endpoint`` under the first free viewer id
-    (:data:`common.bus.VIEWER_IDS`: the hub drops what the view's link cannot take instead of
+    (:data:`common.sessions.VIEWER_IDS`: the hub drops what the view's link cannot take instead of
     holding the SLAM's frames); :class:`ViewError` when no hub answers within ``timeout_s`` (a
     service would wait forever; a view started by hand should not) or every viewer id is taken.
 
@@ -94,7 +95,7 @@ def connect_bus(namespace: str, endpoint: str, timeout_s: float, config_file: st
     session under a passing id first asks whether the hub answers at all, and how long it takes
     to; then each viewer id gets :data:`ID_TIMEOUT_FACTOR` times that, at least
     :data:`ID_TIMEOUT_MIN_S`.  ``tls_dir``, ``tls_host``, ``user``, ``password_file``: the
-    secured profile (:func:`common.bus.zenoh_config`)."""
+    secured profile (:func:`common.sessions.zenoh_config`)."""
     def conf(zenoh_id: str | None, wait_s: float) -> zenoh.Config:
         c = zenoh_config("client", connect=[endpoint], config_file=config_file, tls_dir=tls_dir, tls_host=tls_host,
                          user=user, password_file=password_file, zenoh_id=zenoh_id)

@@ -1,5 +1,5 @@
 """A view takes a reserved viewer id, and the hub drops what a stalled view cannot take instead of
-holding every other consumer's frames (:data:`common.bus.VIEWER_QOS`)."""
+holding every other consumer's frames (:data:`common.sessions.VIEWER_QOS`)."""
 from __future__ import annotations
 
 import os
@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import VIEWER_IDS, Bus, open_hub
+from common.bus import Bus
+from common.sessions import VIEWER_IDS, open_hub
 from services.viewer.live import ViewError, connect_bus
 from tests.viewer.runs import free_port
 
