@@ -3,8 +3,9 @@ headless Chromium polling the page.
 
 - at 4x real time, ``--pairs`` times without and with the view, interleaved: frames dropped by
   the services' bounded queues (run summary ``dropped``) and the live latency p50 per stage (the
-  live player's report; ``latency_n``: the outputs each p50 is taken over, a handful for ``map``); per stage, the ratio of the median p50 with the view over the median
-  without, and the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
+  live player's report; ``latency_n``: the outputs each p50 is taken over, a handful for
+  ``map``); per stage, the ratio of the median p50 with the view over the median without, and
+  the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
   2-core machine);
 - in every run with the view: the CPU seconds of the view process (``view_cpu_s``: all of it,
   start-up included; ``view_stream_cpu_s``: from the first data to the run's end) and of the

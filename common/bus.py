@@ -34,10 +34,10 @@ import zenoh
 
 from common.codec import ENCODED_EOS, encode, encode_replay_start, encode_sequenced, encode_watermark
 from common.messages import Message
-from common.sessions import VIEWER_IDS, VIEWER_QOS, open_hub, open_local_session, zenoh_config
+from common.sessions import open_hub, open_local_session, zenoh_config  # re-exported: services import them from here
 
 __all__ = ["zenoh_config", "open_local_session", "Bus", "BusPublisher", "ProgressReporter", "ProgressWatcher",
-           "AliveWatcher", "open_hub", "ALIVE", "PROGRESS", "ABORT", "VIEWER_IDS", "VIEWER_QOS"]
+           "AliveWatcher", "open_hub", "ALIVE", "PROGRESS", "ABORT"]
 
 log = logging.getLogger(__name__)
 

@@ -19,8 +19,9 @@ from tests.viewer.runs import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 
-#: a view process: connects as a viewer, subscribes to every key into a small ring it never reads
+#: frames of 200 kB sent while the view is stopped: 100 MB, far more than its link and socket hold
 N = 500
+#: a view process: connects as a viewer, subscribes to every key into a small ring it never reads
 VIEW_PROCESS = """
 import sys, time, zenoh
 from services.viewer.live import connect_bus
@@ -75,7 +76,7 @@ def test_a_stopped_view_never_holds_the_other_consumers_frames() -> None:
         os.kill(view.pid, signal.SIGSTOP)   # a suspended laptop: its link backs up at once
         payload = bytes(200_000)
         t0 = time.monotonic()
-        for _ in range(N):   # 40 MB: far more than the view's link and socket hold
+        for _ in range(N):
             pub.send_raw(payload)
         # with BLOCK towards the view the hub would hold these until Zenoh closes its link (5 s)
         assert done.wait(3.0), f"the consumer got {len(got)} of {N} frames while the view was stopped"
