@@ -299,6 +299,9 @@ def _add_view_command(sub: Any) -> None:
                    "[outputs]]} (poseidon run --view writes it; default: read from the services' configuration)")
     p.add_argument("--ready-file", metavar="FILE", help="write the page's address into FILE once the view is "
                    "subscribed and serves the page (poseidon run --view waits for it)")
+    p.add_argument("--final-recording", metavar="FILE", help="on SIGUSR1, show the final state of the finished "
+                   "run's recording FILE instead of the live one (poseidon run --view sends it once the run's "
+                   "recording is complete: what the view dropped while the run went on is then shown too)")
     _add_secure_args(p)
     _add_config_args(p)
     p.set_defaults(func=cmd_view)
@@ -316,12 +319,17 @@ def cmd_view(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
+    final = None
+    if args.final_recording is not None:
+        final_asked = threading.Event()
+        final = (final_asked, Path(args.final_recording))
+        signal.signal(signal.SIGUSR1, lambda *_: final_asked.set())
     try:
         config = load_config(args.config, args.set)
         if args.recording is not None:
-            if args.connect or args.foxglove is not None or args.io is not None:
-                raise ValueError("a recording is viewed on its own: --connect, --foxglove and --io are for a live "
-                                 "deployment")
+            if args.connect or args.foxglove is not None or args.io is not None or final is not None:
+                raise ValueError("a recording is viewed on its own: --connect, --foxglove, --io and "
+                                 "--final-recording are for a live deployment")
             serve_recording(args.recording, config.view, stop, args.listen,
                             ready=ready_file(args.ready_file) if args.ready_file else None)
             return 0
@@ -333,6 +341,7 @@ def cmd_view(args: argparse.Namespace) -> int:
             io = {n: node_io(n, config) for n in config.services or available_services(config)}
         serve_live(config.view, args.namespace or config.bus.namespace, args.connect or config.bus.connect[0], stop,
                    io, args.listen, args.foxglove, ready=ready_file(args.ready_file) if args.ready_file else None,
+                   final=final,
                    tls_dir=args.tls_dir, tls_host=args.tls_host, user=args.zenoh_user,
                    password_file=args.zenoh_password_file)
     except (ConfigError, ViewError, ValueError, KeyError, FileNotFoundError) as exc:

@@ -88,7 +88,7 @@ def _run_live(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config, args.set)
         services = services_arg(args)
-        with view_beside(args, config, config.live.startup_timeout_s) as (hub_port, view_ready):
+        with view_beside(args, config, config.live.startup_timeout_s, stop) as (hub_port, view_ready):
             result = run_live(config, args.live, args.out, services=services, duration_s=args.duration, stop=stop,
                               input_path=args.input if args.live == "mcap" else None,
                               rate=1.0 if args.rate is None else args.rate, hub_port=hub_port,

@@ -10,7 +10,10 @@ is not inside the run's data.  The launcher passes the view each service's input
 
 A view that ends before it is ready (a page address already in use, say: its own message comes
 first) or is not ready within the run's start-up timeout stops the run before any service started
-(:class:`ViewStartError`, exit 2).  After the run the view serves ``view.linger_s`` more seconds.
+(:class:`ViewStartError`, exit 2).  After the run the view serves ``view.linger_s`` more seconds:
+when the run ended well, the final state of its recording (``poseidon view --final-recording``,
+asked by SIGUSR1 once the recording is complete), so the page ends with the recording's counts
+even when the view, slowed or starved of CPU, dropped frames while the run went on.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -75,12 +79,22 @@ class ViewProcess:
             time.sleep(0.05)
         self.url = self.ready_file.read_text().strip()
 
-    def stop(self, linger_s: float = 0.0) -> None:
-        """Let it serve ``linger_s`` more seconds if it runs, then stop it (SIGTERM; killed after 10 s)."""
+    def stop(self, linger_s: float = 0.0, final: bool = False, interrupt: threading.Event | None = None) -> None:
+        """Let it serve ``linger_s`` more seconds if it runs (``final``: the run's recording's final
+        state, asked by SIGUSR1; ``interrupt``: an event that ends the wait early, when it was not
+        set already), then stop it (SIGTERM; killed after 10 s)."""
         if self.proc.poll() is None and linger_s > 0:
-            print(f"poseidon run: the view serves the final state for {linger_s:.0f} s more (view.linger_s)",
-                  file=sys.stderr)
-            time.sleep(linger_s)
+            if final:
+                self.proc.send_signal(signal.SIGUSR1)
+            print(f"poseidon run: the view serves the final state for {linger_s:.0f} s more (view.linger_s; "
+                  f"Ctrl-C ends it)", file=sys.stderr)
+            if interrupt is not None and not interrupt.is_set():
+                interrupt.wait(linger_s)
+            else:
+                try:
+                    time.sleep(linger_s)
+                except KeyboardInterrupt:  # the run is over: Ctrl-C ends the linger, not the command
+                    print("poseidon run: the view's linger ended by Ctrl-C", file=sys.stderr)
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
         try:
@@ -96,6 +110,7 @@ def view_command(args: argparse.Namespace, hub_port: int, startup_s: float, io_f
     cmd = [sys.executable, "-m", "launcher.cli", "view", "--connect", f"tcp/127.0.0.1:{hub_port}",
            "--io", str(io_file), "--ready-file", str(ready_file), "--set", f"view.connect_timeout_s={startup_s}"]
     cmd += ["--listen", args.view] if args.view is not None else []
+    cmd += ["--final-recording", str(args.out)]
     cmd += ["--foxglove", str(args.foxglove)] if args.foxglove is not None else []
     cmd += ["--config", args.config] if args.config else []
     for item in args.set:
@@ -111,8 +126,8 @@ def _io_json(config: PoseidonConfig) -> str:
 
 
 @contextmanager
-def view_beside(args: argparse.Namespace, config: PoseidonConfig,
-                startup_s: float) -> Iterator[tuple[int | None, Callable[[], None] | None]]:
+def view_beside(args: argparse.Namespace, config: PoseidonConfig, startup_s: float,
+                interrupt: threading.Event | None = None) -> Iterator[tuple[int | None, Callable[[], None] | None]]:
     """``--view``/``--foxglove``: the view process on the hub of the run started inside the block.
 
     Yields ``(hub_port, before_services)`` for :func:`launcher.run.run_distributed` /
@@ -121,6 +136,7 @@ def view_beside(args: argparse.Namespace, config: PoseidonConfig,
     a view.  After the block the view serves ``view.linger_s`` more seconds, then is stopped.
 
     :param startup_s: the view's readiness timeout and its hub connection timeout [s]
+    :param interrupt: the run's stop event (SIGINT/SIGTERM): set during the linger, it ends it
     """
     if args.view is None and args.foxglove is None:
         yield None, None
@@ -134,5 +150,7 @@ def view_beside(args: argparse.Namespace, config: PoseidonConfig,
         view = ViewProcess(view_command(args, port, startup_s, io_file, ready_file), ready_file, what, startup_s)
         try:
             yield port, view.wait_ready
-        finally:
-            view.stop(config.view.linger_s)
+        except BaseException:
+            view.stop(config.view.linger_s, interrupt=interrupt)
+            raise
+        view.stop(config.view.linger_s, final=True, interrupt=interrupt)

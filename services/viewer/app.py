@@ -20,7 +20,7 @@ from services.viewer.live import LiveFeed, ViewError, connect_bus
 from services.viewer.recording import RecordingView
 from services.viewer.server import ViewServer, parse_listen
 
-__all__ = ["serve_live", "serve_recording", "lower_niceness", "read_io", "ready_file", "ViewError"]
+__all__ = ["serve_live", "serve_recording", "show_final", "lower_niceness", "read_io", "ready_file", "ViewError"]
 
 log = logging.getLogger(__name__)
 
@@ -115,13 +115,30 @@ def lower_niceness(level: int) -> int:
     return current
 
 
+def show_final(feed: LiveFeed, recording: Path) -> bool:
+    """Show the final state of the finished run's ``recording`` on ``feed`` (:meth:`LiveFeed.finish`):
+    ``poseidon run --view`` asks for it once the recording is complete.  A recording that cannot
+    be read leaves the live state shown, and says why on stderr; returns whether it was taken."""
+    try:
+        view = RecordingView(recording, feed.cfg)
+    except ViewError as exc:
+        print(f"poseidon view: the live state stays shown, the run's recording cannot be read: {exc}",
+              file=sys.stderr, flush=True)
+        return False
+    view.seek(view.duration_s)
+    feed.finish(view.model, view.path.name)
+    print(f"poseidon view: the final state of {view.path.name} is shown", file=sys.stderr, flush=True)
+    return True
+
+
 def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Event,
                io: Mapping[str, tuple[Sequence[str], Sequence[str]]] | None = None, listen: str | None = None,
                foxglove_port: int | None = None, ready: Callable[[str], None] | None = None,
-               **secure: str | None) -> None:
+               final: tuple[threading.Event, Path] | None = None, **secure: str | None) -> None:
     """Serve the deployment whose hub is at ``connect`` until ``stop`` is set (``io``: each
-    service's input and output keys, for its figures; ``secure``: the secured profile's
-    ``tls_dir``, ``tls_host``, ``user``, ``password_file``)."""
+    service's input and output keys, for its figures; ``final``: an event and a recording, the
+    recording's final state replaces the live one once the event is set (:func:`show_final`);
+    ``secure``: the secured profile's ``tls_dir``, ``tls_host``, ``user``, ``password_file``)."""
     if foxglove_port is not None and not 0 <= foxglove_port <= 65535:
         raise ViewError(f"--foxglove {foxglove_port}: not a port (0-65535)")
     try:
@@ -151,7 +168,10 @@ def serve_live(cfg: ViewConfig, namespace: str, connect: str, stop: threading.Ev
             extra = f"; Foxglove: ws://{host}:{fox.port}" if fox is not None else ""
             _announce(f"poseidon view: {connect} ({namespace}) at {server.url}{extra} -- Ctrl-C to stop", ready,
                       server.url)
-            stop.wait()
+            while not stop.wait(0.1):
+                if final is not None and final[0].is_set():
+                    final[0].clear()
+                    show_final(feed, final[1])
         finally:
             server.stop()
             feed.stop()

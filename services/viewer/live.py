@@ -164,6 +164,7 @@ class LiveFeed:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.updates = 0
+        self.final = ""  # the recording whose final state replaced the live one (:meth:`finish`)
         if io:
             self.add_io(io)
 
@@ -331,6 +332,8 @@ class LiveFeed:
             if latest is not None:
                 batch.append((key, latest))
         with self.lock:
+            if self.final:  # the recording's final state is shown: late frames no longer change it
+                batch = [(k, f) for k, f in batch if k == HEALTH_KEY]
             for key, frame in batch:
                 try:
                     msg = frame.message()
@@ -342,6 +345,21 @@ class LiveFeed:
                     self._health(msg)
                 else:
                     self.model.apply(key, msg)
+            self.updates += 1
+            if self._on_update is not None:
+                self._on_update(self.model)
+
+    def finish(self, model: ViewModel, recording: str) -> None:
+        """The run ended and ``model`` holds its recording's final state: show that from now on.
+
+        A view that fell behind lost frames (``view.dropped``, and the map's and the activity's
+        superseded frames), so its own final state can miss the last map or LVC frames; the
+        recording has every message.  The versions continue the live ones, so a page and the
+        Foxglove server draw the new state; the last camera frame received stays shown."""
+        with self.lock:
+            model.continue_from(self.model)
+            self.model = model
+            self.final = recording
             self.updates += 1
             if self._on_update is not None:
                 self._on_update(self.model)
@@ -371,7 +389,7 @@ class LiveFeed:
                         "aborted": self.aborted, "keys": self.keys, "sampled": self.sampler.keys,
                         "received_bytes": self.received_bytes, "received_by_key": dict(self.received_by_key),
                         "lag_from": HEALTH_KEY if self.figures.health_lag is not None else "@progress",
-                        "progress_reports": self.progress_reports,
+                        "progress_reports": self.progress_reports, "final": self.final,
                         "updates": self.updates}
         return snap
 

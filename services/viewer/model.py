@@ -199,6 +199,21 @@ class ViewModel:
         self._activity_json: tuple[int, dict[str, Any]] = (-1, {})
         self.activity_version = 0
 
+    def continue_from(self, old: ViewModel) -> None:
+        """Take the place of ``old`` on a page that showed it: every version and trail epoch moves
+        past ``old``'s (so each panel is fetched whole and drawn again), and ``old``'s camera frame is kept when this model has
+        none (a recording's model reads no camera frames)."""
+        self.map_version += old.map_version + 1
+        self.activity_version += old.activity_version + 1
+        self.sonar_version += old.sonar_version + 1
+        for name, trail in self.trails.items():  # a page holding old's trails gets them whole
+            trail.epoch += old.trails[name].epoch + 1
+        self.lvc.epoch += old.lvc.epoch + 1
+        if self.camera is None:
+            self.camera, self.camera_version = old.camera, old.camera_version
+        else:
+            self.camera_version += old.camera_version + 1
+
     # ---- input ---------------------------------------------------------------------------
     def apply(self, key: str, msg: Message) -> None:
         """Take one message of ``key`` into the view."""

@@ -35,6 +35,21 @@ def test_wait_ready_returns_once_the_view_wrote_its_address(tmp_path: Path) -> N
     assert view.proc.returncode is not None
 
 
+def test_after_a_run_that_ended_well_the_view_is_asked_for_the_recording_s_final_state(tmp_path: Path) -> None:
+    """SIGUSR1 (``poseidon view --final-recording``) before the linger; none after a failed run."""
+    ready, asked = tmp_path / "ready", tmp_path / "asked"
+    code = ("import pathlib, signal, sys, time; a = pathlib.Path(sys.argv[2]); "
+            "signal.signal(signal.SIGUSR1, lambda *_: a.write_text(a.read_text() + 'final\\n' if a.exists() else 'final\\n')); "
+            "pathlib.Path(sys.argv[1]).write_text('http://h:1/\\n'); time.sleep(60)")
+    for final in (True, False):
+        asked.unlink(missing_ok=True)
+        view = ViewProcess(_python(code, str(ready), str(asked)), ready, "--view 1", 30.0)
+        view.wait_ready()
+        view.stop(linger_s=0.5, final=final)
+        assert (asked.read_text() if asked.exists() else "") == ("final\n" if final else "")
+        ready.unlink()
+
+
 def test_a_view_that_ends_before_it_is_ready_is_named_with_its_exit_code(tmp_path: Path) -> None:
     view = ViewProcess(_python("raise SystemExit(2)"), tmp_path / "ready", "--view 8080", 30.0)
     with pytest.raises(ViewStartError, match=r"--view 8080: the view exited with code 2 before it served its page"):

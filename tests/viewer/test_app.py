@@ -120,4 +120,4 @@ def test_a_recording_s_view_says_when_it_is_ready_and_refuses_io(tmp_path: Path)
         proc.wait(timeout=20)
     refused = subprocess.run([*cli, "--io", str(tmp_path / "io.json")], cwd=REPO, capture_output=True, text=True,
                              timeout=60)
-    assert refused.returncode == 2 and "--io are for a live deployment" in refused.stderr
+    assert refused.returncode == 2 and "--io and --final-recording are for a live deployment" in refused.stderr

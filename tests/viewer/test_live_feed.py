@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from common.bus import Bus
 from common.mcap_io import read_messages
@@ -178,3 +179,67 @@ def test_the_lags_come_from_live_health_once_it_arrives_and_progress_is_left(bus
         assert lag() == 0.5 and feed.figures.progress["htm"] == 8_000_000_000  # @progress left
     finally:
         feed.stop()
+
+
+def test_the_finished_run_s_recording_replaces_a_live_state_that_dropped_frames(bus: Bus, tmp_path: Path) -> None:
+    """``poseidon run --view`` after the run: the page ends with the recording's counts even when
+    the view dropped frames, and every panel is fetched whole again (versions and trail epochs
+    move past the live ones); frames arriving later no longer change what is shown."""
+    from services.viewer.app import show_final
+    from services.viewer.recording import RecordingView
+    run = tmp_path / "run.mcap"
+    write_run(run, seconds=20.0)
+    cfg = ViewConfig()
+    feed = LiveFeed(bus, cfg, io={"vpr": (("camera/image_raw",), ("local_view_cells",))}, queue_frames=5)
+    feed.start()
+    try:
+        pubs = {}
+        recs = list(read_messages(run))
+        for rec in recs[:20]:  # a view counts drops from the first frame it took of a key
+            pub = pubs.get(rec.key) or pubs.setdefault(rec.key, bus.publisher(rec.key))
+            pub.send_data(rec.type_name, rec.payload, rec.stamp)
+        _wait(lambda: (feed.update(), feed.figures.newest_index("local_view_cells") >= 0)[1])
+        for rec in recs[20: len(recs) * 3 // 4]:  # a burst; the last quarter never reaches the view
+            pub = pubs.get(rec.key) or pubs.setdefault(rec.key, bus.publisher(rec.key))
+            pub.send_data(rec.type_name, rec.payload, rec.stamp)
+        _wait(lambda: (feed.update(), feed.figures.newest_index("local_view_cells") == pubs["local_view_cells"].sent - 1
+                       and feed.model.map is not None)[1])
+        live = feed.snapshot({})
+        assert feed.dropped > 0  # the small rings overflowed during the burst
+        expected = RecordingView(run, cfg)
+        expected.seek(expected.duration_s)
+        want = expected.model.counts()
+        assert live["counts"] != want
+        have = {"map": str(live["map_version"]), "activity": str(live["activity_version"]),
+                **{name: f"{live[name]['epoch']}.{len(live[name]['points'])}" for name in (*feed.model.trails, "lvc")
+                   if name in live}}
+        camera = feed.model.camera
+
+        assert show_final(feed, run)
+        final = feed.snapshot(have)
+        assert final["counts"] == want and final["view"]["final"] == "run.mcap"
+        assert final["map_version"] > live["map_version"] and final["activity_version"] > live["activity_version"]
+        assert "map" in final and "activity" in final  # sent again to a page that held the live ones
+        assert final["lvc"]["start"] == 0 and final["lvc"]["epoch"] > live["lvc"]["epoch"]
+        assert feed.model.camera is camera and final["camera_version"] == live["camera_version"]
+        for rec in recs[len(recs) * 3 // 4:]:  # late frames: counted, not shown
+            pub = pubs.get(rec.key) or pubs.setdefault(rec.key, bus.publisher(rec.key))
+            pub.send_data(rec.type_name, rec.payload, rec.stamp)
+        _wait(lambda: (feed.update(), feed.figures.newest_index("dead_reckoning") == len(
+            [r for r in recs if r.key == "dead_reckoning"]) - 1)[1])
+        assert feed.snapshot({})["counts"] == want
+    finally:
+        feed.stop()
+
+
+def test_an_unreadable_recording_leaves_the_live_state_shown(bus: Bus, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    from services.viewer.app import show_final
+    bad = tmp_path / "run.mcap"
+    bad.write_bytes(b"not an mcap")
+    feed = LiveFeed(bus, ViewConfig())
+    before = feed.snapshot({})["counts"]
+    assert not show_final(feed, bad)
+    assert feed.final == "" and feed.snapshot({})["counts"] == before
+    err = capsys.readouterr().err
+    assert "the live state stays shown" in err and "run.mcap" in err
