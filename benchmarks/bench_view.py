@@ -3,8 +3,7 @@ headless Chromium polling the page.
 
 - at 4x real time, ``--pairs`` times without and with the view, interleaved: frames dropped by
   the services' bounded queues (run summary ``dropped``) and the live latency p50 per stage (the
-  live player's report; ``latency_n``: the outputs each p50 is taken over, a handful for
-  ``map``); per stage, the ratio of the median p50 with the view over the median without, and
+  live player's report; ``latency_n``: the outputs each p50 is taken over); per stage, the ratio of the median p50 with the view over the median without, and
   the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
   2-core machine);
 - in every run with the view: the CPU seconds of the view process (``view_cpu_s``: all of it,
@@ -12,11 +11,15 @@ headless Chromium polling the page.
   browser's processes over the same span (``browser_stream_cpu_s``), the view's peak RSS
   (``/proc``), the bytes per second the hub delivered to it (per key when the view reports
   them) and the bytes per second it served to the browser;
+- every run, with and without the view, takes ``--run-set`` settings; by default
+  ``expmap.map_publish_every=10``: the default (a map every 100 events at least) publishes 3 maps
+  in a 2-minute mission, too few for a p50, where 10 gives about 20 (and the view more maps to
+  decode and send);
 - screenshots: the page during the 1x run (``--shots DIR``/view_live.png) and ``poseidon view`` of
   that run's recording (view_demo.png).
 
     .venv/bin/python benchmarks/bench_view.py [--minutes 0.5] [--pairs 3] [--no-1x] [--shots docs/images]
-        [--view-set view.nice=0]
+        [--view-set view.nice=0] [--run-set expmap.map_publish_every=100]
 """
 from __future__ import annotations
 
@@ -110,11 +113,13 @@ def _idle_tree(root: int) -> None:
 
 
 def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | None, work: Path,
-             view_set: list[str] | None = None) -> dict[str, Any]:
+             view_set: list[str] | None = None, run_set: list[str] | None = None) -> dict[str, Any]:
     """One live run; with ``view``, Chromium polls the page throughout (``view_set``: more
-    ``--set KEY=VALUE`` of the run with the view, e.g. ``view.nice=0``)."""
+    ``--set KEY=VALUE`` of the run with the view, e.g. ``view.nice=0``; ``run_set``: of every run)."""
     cmd = [*CLI, "run", "--live", "mcap", "--input", str(mission), "--rate", str(rate), "--out", str(out), "--json",
            "--set", "live.lateness_ms=2000"]
+    for item in run_set or []:
+        cmd += ["--set", item]
     port = free_port()
     url = f"http://127.0.0.1:{port}/"
     if view:
@@ -214,7 +219,11 @@ def main() -> int:
     ap.add_argument("--shots", type=Path, help="write view_live.png and view_demo.png here")
     ap.add_argument("--view-set", action="append", default=[], metavar="KEY=VALUE",
                     help="a setting of the runs with the view only, e.g. view.nice=0 (repeatable)")
+    ap.add_argument("--run-set", action="append", metavar="KEY=VALUE",
+                    help="a setting of every run, with and without the view (repeatable; default: "
+                         "expmap.map_publish_every=10)")
     args = ap.parse_args()
+    run_set = args.run_set if args.run_set is not None else ["expmap.map_publish_every=10"]
     if not CHROMIUM.exists():
         print(f"bench_view: headless Chromium ({CHROMIUM}) is needed", file=sys.stderr)
         return 2
@@ -230,10 +239,10 @@ def main() -> int:
         for i in range(args.pairs):
             for view in (False, True):
                 out = work / f"run4-{i}-{int(view)}.mcap"
-                rows.append(live_run(mission, out, 4.0, view, None, work, args.view_set))
+                rows.append(live_run(mission, out, 4.0, view, None, work, args.view_set, run_set))
                 out.unlink(missing_ok=True)
         if not args.no_1x:
-            rows.append(live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work, args.view_set))
+            rows.append(live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work, args.view_set, run_set))
             if args.shots is not None:
                 demo_shot(work / "view1.mcap", args.shots, work)
     fast = [r for r in rows if r["rate"] == 4.0]
@@ -242,7 +251,7 @@ def main() -> int:
              for mode, view in (("without", False), ("with", True))}
     cost = {k: [r[k] for r in fast if k in r] for k in ("view_stream_cpu_s", "browser_stream_cpu_s", "view_cpu_s",
                                                           "bus_kb_per_s", "served_kb_per_s")}
-    print(json.dumps({"rows": rows, "p50_ratio_with_over_without": ratio, "dropped_at_4x": drops, "cost_at_4x": cost},
+    print(json.dumps({"run_set": run_set, "rows": rows, "p50_ratio_with_over_without": ratio, "dropped_at_4x": drops, "cost_at_4x": cost},
                      indent=1))
     return 0
 
