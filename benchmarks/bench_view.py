@@ -113,9 +113,11 @@ def _idle_tree(root: int) -> None:
 
 
 def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | None, work: Path,
-             view_set: list[str] | None = None, run_set: list[str] | None = None) -> dict[str, Any]:
-    """One live run; with ``view``, Chromium polls the page throughout (``view_set``: more
-    ``--set KEY=VALUE`` of the run with the view, e.g. ``view.nice=0``; ``run_set``: of every run)."""
+             view_set: list[str] | None = None, run_set: list[str] | None = None,
+             browser: bool = True) -> dict[str, Any]:
+    """One live run; with ``view``, Chromium polls the page throughout unless not ``browser``
+    (``view_set``: more ``--set KEY=VALUE`` of the run with the view, e.g. ``view.nice=0``;
+    ``run_set``: of every run)."""
     cmd = [*CLI, "run", "--live", "mcap", "--input", str(mission), "--rate", str(rate), "--out", str(out), "--json",
            "--set", "live.lateness_ms=2000"]
     for item in run_set or []:
@@ -128,13 +130,15 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
             cmd += ["--set", item]
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
-    row: dict[str, Any] = {"rate": rate, "view": view}
+    row: dict[str, Any] = {"rate": rate, "view": view, "browser": view and browser}
     if view:
-        with Browser(work / f"chromium-{rate}") as b:
-            _idle_tree(b.proc.pid)      # the browser stands for the operator's own computer
+        page: Any = Browser(work / f"chromium-{rate}") if browser else _NoBrowser()
+        with page as b:
+            if browser:
+                _idle_tree(b.proc.pid)      # the browser stands for the operator's own computer
             while view_state(url) is None and proc.poll() is None:
                 time.sleep(0.2)
-            s = _page(b, url)
+            s = _page(b, url) if browser else ""
             first_t = None
             first_cpu = (0.0, 0.0)  # view, browser
             while not out.exists() and proc.poll() is None:
@@ -142,14 +146,15 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
                 if st and st["t"] > 0 and first_t is None:
                     first_t = time.monotonic()
                     pid = _view_pid(proc.pid)
-                    first_cpu = (_usage(pid)[0] if pid is not None else 0.0, _tree_cpu(b.proc.pid))
+                    first_cpu = (_usage(pid)[0] if pid is not None else 0.0, _tree_cpu(b.proc.pid) if browser else 0.0)
                 if shots is not None and st and first_t and st["t"] > 0.6 * 30 and not (shots / "view_live.png").exists():
                     _shot(b, s, shots / "view_live.png")
                 b.pump(0.5)
             pid = _view_pid(proc.pid)
             if pid is not None:
                 row["view_stream_cpu_s"] = round(_usage(pid)[0] - first_cpu[0], 2)
-            row["browser_stream_cpu_s"] = round(_tree_cpu(b.proc.pid) - first_cpu[1], 2)
+            if browser:
+                row["browser_stream_cpu_s"] = round(_tree_cpu(b.proc.pid) - first_cpu[1], 2)
             b.pump(3.0)
             st = view_state(url) or {}
             if pid is not None:
@@ -174,6 +179,19 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
     row["latency_n"] = {k: v.get("n") for k, v in lat.items()}
     row["load_1min"] = round(os.getloadavg()[0], 2)
     return row
+
+
+class _NoBrowser:
+    """``--no-browser``: the view runs and only the benchmark's own state polls read it."""
+
+    def __enter__(self) -> _NoBrowser:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def pump(self, seconds: float) -> None:
+        time.sleep(seconds)
 
 
 def ratios(plain: list[dict[str, Any]], viewed: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
@@ -219,6 +237,8 @@ def main() -> int:
     ap.add_argument("--shots", type=Path, help="write view_live.png and view_demo.png here")
     ap.add_argument("--view-set", action="append", default=[], metavar="KEY=VALUE",
                     help="a setting of the runs with the view only, e.g. view.nice=0 (repeatable)")
+    ap.add_argument("--no-browser", action="store_true", help="the runs with the view without a browser on the "
+                    "page (the benchmark's own state polls only): the view's cost apart from the page's")
     ap.add_argument("--run-set", action="append", metavar="KEY=VALUE",
                     help="a setting of every run, with and without the view (repeatable; default: "
                          "expmap.map_publish_every=10)")
@@ -239,7 +259,8 @@ def main() -> int:
         for i in range(args.pairs):
             for view in (False, True):
                 out = work / f"run4-{i}-{int(view)}.mcap"
-                rows.append(live_run(mission, out, 4.0, view, None, work, args.view_set, run_set))
+                rows.append(live_run(mission, out, 4.0, view, None, work, args.view_set, run_set,
+                                     browser=not args.no_browser))
                 out.unlink(missing_ok=True)
         if not args.no_1x:
             rows.append(live_run(mission, work / "view1.mcap", 1.0, True, args.shots, work, args.view_set, run_set))
