@@ -17,7 +17,7 @@ from pathlib import Path
 
 from services.viewer.config import ViewConfig
 from services.viewer.live import LiveFeed, ViewError, connect_bus
-from services.viewer.recording import RecordingView
+from services.viewer.recording import RecordingView, final_model
 from services.viewer.server import ViewServer, parse_listen
 
 __all__ = ["serve_live", "serve_recording", "show_final", "lower_niceness", "read_io", "ready_file", "ViewError"]
@@ -120,14 +120,13 @@ def show_final(feed: LiveFeed, recording: Path) -> bool:
     ``poseidon run --view`` asks for it once the recording is complete.  A recording that cannot
     be read leaves the live state shown, and says why on stderr; returns whether it was taken."""
     try:
-        view = RecordingView(recording, feed.cfg)
+        model = final_model(recording, feed.cfg)
     except ViewError as exc:
         print(f"poseidon view: the live state stays shown, the run's recording cannot be read: {exc}",
               file=sys.stderr, flush=True)
         return False
-    view.seek(view.duration_s)
-    feed.finish(view.model, view.path.name)
-    print(f"poseidon view: the final state of {view.path.name} is shown", file=sys.stderr, flush=True)
+    feed.finish(model, recording.name)
+    print(f"poseidon view: the final state of {recording.name} is shown", file=sys.stderr, flush=True)
     return True
 
 

@@ -23,7 +23,26 @@ from services.viewer.config import ViewConfig
 from services.viewer.live import ViewError
 from services.viewer.model import ACTIVITY_KEY, MAP_KEY, ViewModel, jpeg_of, view_keys
 
-__all__ = ["RecordingView"]
+__all__ = ["RecordingView", "final_model"]
+
+
+def final_model(path: str | Path, cfg: ViewConfig) -> ViewModel:
+    """The view's model at the end of the recording at ``path``: its displayed streams but the
+    camera applied in order, streamed (memory bounded like the live view's, whatever the run's
+    length; a :class:`RecordingView` keeps every message for its slider).
+
+    :raises ViewError: the file is not a readable recording (the message names it)"""
+    path = Path(path)
+    model = ViewModel(cfg)
+    try:
+        keys = recording_keys(path)
+        for rec in read_messages(path, keys=[k for k in view_keys(cfg) if k in keys and k != cfg.camera_key]):
+            model.apply(rec.key, rec.message())
+    except (RecordingError, DecodeError) as exc:
+        raise ViewError(f"{path}: {exc}") from None
+    if not keys:
+        raise ViewError(f"{path}: no readable messages (not an MCAP recording, or damaged from its start)")
+    return model
 
 
 class RecordingView:
