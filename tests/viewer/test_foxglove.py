@@ -61,3 +61,28 @@ def test_a_foxglove_client_receives_map_trajectory_and_images(tmp_path: Path) ->
     assert got["/camera"] == counts["camera/image_raw"] == updates  # a new frame at every update
     assert got["/map"] == fox.sent["map"] == counts["map"]  # one scene per published map
     assert got["/trajectory/dead_reckoning"] == updates and got["/scan"] == swept == updates - 1
+
+
+def test_the_recording_s_final_state_reaches_foxglove_once(tmp_path: Path) -> None:
+    """After ``poseidon run --view``'s run the recording's final state replaces the live one
+    (:meth:`LiveFeed.finish`): the Foxglove server logs its map and trajectories again, not the
+    camera frame it already sent."""
+    from services.viewer.recording import final_model
+    run = tmp_path / "run.mcap"
+    write_run(run, seconds=10.0)
+    live = ViewModel(ViewConfig())
+    for rec in read_messages(run, end_ns=min(r.stamp for r in read_messages(run, keys=["map"])) + 1):
+        live.apply(rec.key, rec.message())  # the live view saw up to the first map
+    fox = FoxgloveLive("127.0.0.1", 0, backlog=10)
+    try:
+        fox.update(live)
+        fox.update(live)
+        before = dict(fox.sent)
+        assert before["map"] == 1 and before["camera"] == 1
+        final = final_model(run, ViewConfig())
+        final.continue_from(live)
+        fox.update(final)
+        assert fox.sent["map"] == 2 and fox.sent["trajectory/dead_reckoning"] == 2
+        assert fox.sent["camera"] == 1  # the final state keeps the frame already shown
+    finally:
+        fox.stop()
