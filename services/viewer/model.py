@@ -201,8 +201,8 @@ class ViewModel:
 
     def continue_from(self, old: ViewModel) -> None:
         """Take the place of ``old`` on a page that showed it: every version and trail epoch moves
-        past ``old``'s (so each panel is fetched whole and drawn again), and ``old``'s camera frame is kept when this model has
-        none (a recording's model reads no camera frames)."""
+        past ``old``'s (so each panel is fetched whole and drawn again), and ``old``'s camera frame
+        is kept when this model has none (a recording's model reads no camera frames)."""
         self.map_version += old.map_version + 1
         self.activity_version += old.activity_version + 1
         self.sonar_version += old.sonar_version + 1

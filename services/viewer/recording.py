@@ -35,14 +35,29 @@ def final_model(path: str | Path, cfg: ViewConfig) -> ViewModel:
     path = Path(path)
     model = ViewModel(cfg)
     try:
-        keys = recording_keys(path)
-        for rec in read_messages(path, keys=[k for k in view_keys(cfg) if k in keys and k != cfg.camera_key]):
+        keys = _readable_keys(path)
+        for rec in read_messages(path, keys=_model_keys(cfg, keys)):
             model.apply(rec.key, rec.message())
     except (RecordingError, DecodeError) as exc:
         raise ViewError(f"{path}: {exc}") from None
+    return model
+
+
+def _readable_keys(path: Path) -> dict[str, str]:
+    """The recording's keys; :class:`ViewError` when it has none readable."""
+    try:
+        keys = recording_keys(path)
+    except RecordingError as exc:
+        raise ViewError(str(exc)) from None
     if not keys:
         raise ViewError(f"{path}: no readable messages (not an MCAP recording, or damaged from its start)")
-    return model
+    return keys
+
+
+def _model_keys(cfg: ViewConfig, keys: dict[str, str]) -> list[str]:
+    """The recorded keys the model is built from: the displayed ones but the camera (read a frame
+    at a time when shown)."""
+    return [k for k in view_keys(cfg) if k in keys and k != cfg.camera_key]
 
 
 class RecordingView:
@@ -54,19 +69,14 @@ class RecordingView:
     def __init__(self, path: str | Path, cfg: ViewConfig):
         self.path = Path(path)
         self.cfg = cfg
-        try:
-            keys = recording_keys(self.path)
-        except RecordingError as exc:
-            raise ViewError(str(exc)) from None
-        if not keys:
-            raise ViewError(f"{self.path}: no readable messages (not an MCAP recording, or damaged from its start)")
+        keys = _readable_keys(self.path)
         if MAP_KEY not in keys:
             raise ViewError(f"{self.path} holds no experience map (no '{MAP_KEY}' key): it is not the recording of a "
                             f"run; run it through the services first (poseidon run --input {self.path.name} "
                             f"--out RUN.mcap) and view RUN.mcap")
         self.streams = {"camera": cfg.camera_key in keys, "sonar": cfg.sonar_key in keys, "scan": cfg.scan_key in keys,
                         "activity": ACTIVITY_KEY in keys, "truth": any(k in keys for k in cfg.truth_keys)}
-        wanted = [k for k in view_keys(cfg) if k in keys and k != cfg.camera_key]
+        wanted = _model_keys(cfg, keys)
         self.messages: list[tuple[int, str, Message]] = []
         try:
             for rec in read_messages(self.path, keys=wanted):
