@@ -14,8 +14,9 @@ drop.  Nothing else should run on the machine meanwhile (drops follow the load).
     .venv/bin/python benchmarks/bench_live_ros1.py                    # 8, 12, 16, 20x: ~8 min
     .venv/bin/python benchmarks/bench_live_ros1.py --rates 16 --json
 
-``--json``: ``{"mission", "replay": RUN, "rates": {"<rate>": RUN}, "drops_start_at": rate or
-null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "missing": {key: source
+``--set KEY=VALUE`` (repeatable) applies to the live runs, not the replay.  ``--json``:
+``{"mission", "settings": those values, "replay": RUN, "rates": {"<rate>": RUN}, "drops_start_at":
+rate or null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "missing": {key: source
 messages not recorded}, "lvc_ids", "experiences", "loop_closures", "ate_m"}`` (``dropped`` and
 ``missing`` empty for the replay).  Needs ROS 1 (``deploy/setup.sh`` installs it).
 """
@@ -57,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="the demo mission's seed")
     ap.add_argument("--rates", default="8,12,16,20", help="comma-separated rosbag play -r values")
     ap.add_argument("--cache-dir", default="/tmp/poseidon-live-ros1-bench")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
+                    help="a configuration field of the live runs (repeatable), e.g. live.queue_frames=500 to "
+                         "measure a default against its predecessor")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     rates = [float(r) for r in args.rates.split(",") if r]
@@ -71,14 +75,14 @@ def main(argv: list[str] | None = None) -> int:
                           capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"replay failed: {proc.stderr[-3000:]}")
-    out: dict[str, Any] = {"mission": str(mission), "source_messages": source,
+    out: dict[str, Any] = {"mission": str(mission), "settings": args.settings, "source_messages": source,
                            "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}), "rates": {}}
     core = Roscore(cache / "roshome")
     try:
         for rate in rates:
             print(f"{rate:g}x: rosbag play into run --live ros1", file=sys.stderr)
             run_out = cache / f"live_{rate:g}x.mcap"
-            result = live_run(core, bag, run_out, rate)
+            result = live_run(core, bag, run_out, rate, settings=args.settings)
             dropped = {n: st["dropped"] for n, st in result["services"].items() if st.get("dropped")}
             recorded = result["recording"]["counts"]
             missing = {k: n - recorded.get(k, 0) for k, n in source.items() if recorded.get(k, 0) != n}

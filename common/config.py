@@ -142,8 +142,12 @@ class SuperviseConfig(ConfigSection):
 class LiveConfig(ConfigSection):
     """Live runs (``poseidon run --live``, launcher/live.py): what differs from a replay."""
 
-    queue_frames: int = Field(500, ge=1, description="a service's input queue holds at most this many data frames; "
-                              "beyond, the oldest is dropped and counted per key (run summary: dropped) [frames]")
+    queue_frames: int = Field(2000, ge=1, description="a service's input queue holds at most this many data "
+                              "frames; beyond, the oldest is dropped and counted per key (run summary: dropped). "
+                              "At 16x real time 2000 frames are ~3 s of the map service's inputs on the demo mission, "
+                              "~4 s of the encoder's (docs/DECISIONS.md, Live queues) [frames]")
+    queue_mb: float = Field(256.0, gt=0, description="and at most this many MB of data frames: the bound on a "
+                            "service's queue memory (the simulated camera's frames are 0.33 MB each) [MB]")
     lateness_ms: int = Field(200, ge=0, description="the live player's lateness bound (--live mcap; the rule: "
                              "common/live.py); the ROS bridge has its own, bridge_ros1.lateness_ms [ms]")
     watermark_interval_ms: int = Field(100, ge=1, description="the live player sends wall-clock watermarks this "

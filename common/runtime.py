@@ -17,8 +17,9 @@ the key, seq and stamp of the input being processed.  On a normal end the runner
 progress ``END_OF_TIME`` (the service finished, see :mod:`common.bus`); an ``@abort`` on
 the bus stops it (``RunnerStats.aborted`` says why).
 
-Live runs: ``max_queue`` > 0 bounds the input queue (drop oldest, counted per key in
-``RunnerStats.dropped``; :class:`common.worker.DropOldestQueue`), and ``delay_s`` > 0 -- a *test
+Live runs: ``max_queue`` > 0 bounds the input queue's data frames, ``max_queue_bytes`` > 0 their
+bytes (drop oldest, counted per key in ``RunnerStats.dropped``;
+:class:`common.worker.DropOldestQueue`), and ``delay_s`` > 0 -- a *test
 setting* only (``debug.slow_service``, ``debug.slow_ms``) -- makes the runner sleep that long
 before each input it hands to the node, to show what happens when a service falls behind.
 
@@ -97,7 +98,8 @@ class NodeRunner(Sink, Source):
     stats: RunnerStats
 
     def __init__(self, node: ServiceNode[Any], bus: Bus, heartbeat_ms: int = 100, drain_timeout_s: float = 0.0,
-                 supervision: Supervision | None = None, max_queue: int = 0, delay_s: float = 0.0):
+                 supervision: Supervision | None = None, max_queue: int = 0, delay_s: float = 0.0,
+                 max_queue_bytes: int = 0):
         self.node = node
         declared = type(node).io_keys(node.config)
         if (tuple(node.inputs), tuple(node.outputs)) != (tuple(declared[0]), tuple(declared[1])):
@@ -106,7 +108,7 @@ class NodeRunner(Sink, Source):
                         type(node).__name__, *declared)
         self._publishers = {k: bus.publisher(k, retain=supervision is not None) for k in node.outputs}
         super().__init__(node.name, bus, RunnerStats(node.name), supervision, drain_timeout_s)
-        self.subscribe(node.inputs, max_queue)
+        self.subscribe(node.inputs, max_queue, max_queue_bytes)
         self.delay_s = delay_s
         self._index_of: dict[int, tuple[str, int]] = {}  # id(message in the merger) -> (key, transport index)
         self._last_stamp: int | None = None  # stamp of the last processed input

@@ -25,8 +25,8 @@ meanwhile); in its own process (``drain_timeout_s`` > 0), until no subscriber is
 (:meth:`common.bus.Bus.drain`: closing a session earlier discards queued frames).
 
 Live runs (``poseidon run --live``) bound a sink's queue (:class:`DropOldestQueue`,
-``live.queue_frames``): when a service falls behind a live source, the oldest queued data
-frame is dropped, counted per key (``SinkStats.dropped``, in the run summary), so memory
+``live.queue_frames``, ``live.queue_mb``): when a service falls behind a live source, the oldest
+queued data frame is dropped, counted per key (``SinkStats.dropped``, in the run summary), so memory
 stays flat and the newest data flows; watermarks, end-of-stream and replay frames are never
 dropped.  Replays keep the unbounded queue: their flow control loses nothing.
 
@@ -145,16 +145,21 @@ class FrameQueue:
 
 
 class DropOldestQueue:
-    """A sink's receive queue holding at most ``max_data`` data frames: putting one more drops
-    the oldest queued data frame, counted per key in ``dropped``.  Control frames (watermark,
-    end-of-stream, replay, wake) are always kept.  The put never blocks (Zenoh callbacks).
-    The transport indices it dropped are remembered, so that a gap it made is told from frames
-    lost in transit (:meth:`dropped_between`)."""
+    """A sink's receive queue holding at most ``max_data`` data frames and ``max_bytes`` bytes of
+    them (0: no byte bound): a frame that would pass either bound first drops the oldest queued
+    data frames, counted per key in ``dropped``; the newest frame is always kept.  Control frames
+    (watermark, end-of-stream, replay, wake) are always kept.  The put never blocks (Zenoh
+    callbacks).  The transport indices it dropped are remembered, so that a gap it made is told
+    from frames lost in transit (:meth:`dropped_between`)."""
 
-    def __init__(self, max_data: int, dropped: dict[str, int] | None = None):
+    def __init__(self, max_data: int, dropped: dict[str, int] | None = None, max_bytes: int = 0):
         if max_data < 1:
             raise ValueError(f"a bounded queue needs max_data >= 1, got {max_data}")
+        if max_bytes < 0:
+            raise ValueError(f"max_bytes must be >= 0 (0: no byte bound), got {max_bytes}")
         self.max_data = max_data
+        self.max_bytes = max_bytes
+        self._bytes = 0
         self.dropped = dropped if dropped is not None else {}
         self._dropped_index: dict[str, set[int]] = {}
         #: keep every frame, beyond ``max_data`` too: a restarted consumer catching up (its replays
@@ -168,21 +173,33 @@ class DropOldestQueue:
     def _is_data(item: tuple[str, bytes]) -> bool:
         return bool(item[1]) and item[1][0] in _DATA_TAGS and item[0] != WAKE
 
+    def _over(self, size: int) -> bool:
+        """Would one more data frame of ``size`` bytes pass a bound?"""
+        if self._data == 0:
+            return False
+        return self._data >= self.max_data or (self.max_bytes > 0 and self._bytes + size > self.max_bytes)
+
+    def _drop_oldest_data(self) -> None:
+        for i, old in enumerate(self._items):
+            if self._is_data(old):
+                del self._items[i]
+                self._data -= 1
+                self._bytes -= len(old[1])
+                self.dropped[old[0]] = self.dropped.get(old[0], 0) + 1
+                if old[1][0] == _SEQ_TAG and len(old[1]) >= 9:
+                    kept = self._dropped_index.setdefault(old[0], set())
+                    if len(kept) < _DROPPED_MEMORY:
+                        kept.add(int.from_bytes(old[1][1:9], "little"))
+                return
+
     def put_nowait(self, item: tuple[str, bytes]) -> None:
         with self._cond:
             if self._is_data(item):
-                if self._data >= self.max_data and not self.lossless:
-                    for i, old in enumerate(self._items):
-                        if self._is_data(old):
-                            del self._items[i]
-                            self._data -= 1
-                            self.dropped[old[0]] = self.dropped.get(old[0], 0) + 1
-                            if old[1][0] == _SEQ_TAG and len(old[1]) >= 9:
-                                kept = self._dropped_index.setdefault(old[0], set())
-                                if len(kept) < _DROPPED_MEMORY:
-                                    kept.add(int.from_bytes(old[1][1:9], "little"))
-                            break
+                if not self.lossless:
+                    while self._over(len(item[1])):
+                        self._drop_oldest_data()
                 self._data += 1
+                self._bytes += len(item[1])
             self._items.append(item)
             self._cond.notify()
 
@@ -194,6 +211,7 @@ class DropOldestQueue:
             item = self._items.popleft()
             if self._is_data(item):
                 self._data -= 1
+                self._bytes -= len(item[1])
             return item
 
     def empty(self) -> bool:
@@ -204,6 +222,11 @@ class DropOldestQueue:
         """Data frames queued now."""
         with self._cond:
             return self._data
+
+    def data_bytes(self) -> int:
+        """Bytes of the data frames queued now."""
+        with self._cond:
+            return self._bytes
 
     def dropped_between(self, key: str, lo: int, hi: int) -> int:
         """How many of ``key``'s indices ``lo..hi-1`` this queue dropped (and forget those below ``hi``)."""
@@ -267,11 +290,12 @@ class Sink(Worker):
     #: on a stop, True: leave at once; False: first handle what has already arrived
     stop_at_once = True
 
-    def subscribe(self, keys: Iterable[str], max_queue: int = 0) -> None:
+    def subscribe(self, keys: Iterable[str], max_queue: int = 0, max_queue_bytes: int = 0) -> None:
         """Subscribe to ``keys`` (key expressions) into the sink's queue; progress publisher, gate.
-        ``max_queue`` > 0: a :class:`DropOldestQueue` of that many data frames (live runs)."""
+        ``max_queue`` > 0: a :class:`DropOldestQueue` of that many data frames and at most
+        ``max_queue_bytes`` of them (0: no byte bound; live runs)."""
         self.queue: FrameQueue | DropOldestQueue = (
-            DropOldestQueue(max_queue, self.stats.dropped) if max_queue > 0 else FrameQueue())
+            DropOldestQueue(max_queue, self.stats.dropped, max_queue_bytes) if max_queue > 0 else FrameQueue())
         self.progress = self.bus.progress_publisher(self.name)
         self.gate = self._gate({}, ())
         if isinstance(self.queue, DropOldestQueue) and self.supervision is not None and self.supervision.resume:

@@ -229,4 +229,5 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
     heartbeat_ms = live.watermark_interval_ms if spec.live else config.bus.heartbeat_interval_ms
     return NodeRunner(node, bus, heartbeat_ms, drain_timeout_s=drain_s,
                       supervision=spec.supervision, max_queue=live.queue_frames if spec.live else 0,
+                      max_queue_bytes=int(live.queue_mb * 1e6) if spec.live else 0,
                       delay_s=debug.slow_ms / 1000 if spec.live and debug.slow_service == name else 0.0)
