@@ -1,14 +1,15 @@
 """The live view's cost: the same live run of a simulated mission with and without ``--view`` and a
 headless Chromium polling the page.
 
-- at 4x real time, ``--pairs`` times without and with the view, interleaved: frames dropped by
+- at 4x real time, ``--pairs`` times without and with the view, interleaved (the pairs alternate
+  which goes first): frames dropped by
   the services' bounded queues (run summary ``dropped``) and the live latency p50 per stage (the
   live player's report; ``latency_n``: the outputs each p50 is taken over); per stage, the ratio of the median p50 with the view over the median without, and
   the range of the pairs' own ratios (one pair alone varies by 10-30 % on a
   2-core machine);
 - in every run with the view: the CPU seconds of the view process (``view_cpu_s``: all of it,
   start-up included; ``view_stream_cpu_s``: from the first data to the run's end) and of the
-  browser's processes over the same span (``browser_stream_cpu_s``), the view's peak RSS
+  browser's processes (all under SCHED_IDLE) over the same span (``browser_stream_cpu_s``), the view's peak RSS
   (``/proc``), the bytes per second the hub delivered to it (per key when the view reports
   them) and the bytes per second it served to the browser;
 - every run, with and without the view, takes ``--run-set`` settings; by default
@@ -94,24 +95,6 @@ def _shot(b: Browser, s: str, path: Path) -> None:
     path.write_bytes(base64.b64decode(b.call("Page.captureScreenshot", {"format": "png"}, session=s)["data"]))
 
 
-def _idle_tree(root: int) -> None:
-    """Every thread of ``root`` and its descendants under SCHED_IDLE: on this one machine, the
-    browser (on the operator's laptop in the field) takes only time the SLAM leaves."""
-    todo = [root]
-    while todo:
-        pid = todo.pop()
-        try:
-            tasks = list(Path(f"/proc/{pid}/task").iterdir())
-        except (FileNotFoundError, ProcessLookupError):   # the process ended before it was listed
-            continue
-        for task in tasks:
-            try:
-                os.sched_setscheduler(int(task.name), os.SCHED_IDLE, os.sched_param(0))
-                todo += [int(c) for c in (task / "children").read_text().split()]
-            except (FileNotFoundError, ProcessLookupError):   # the thread or process ended meanwhile
-                continue
-
-
 def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | None, work: Path,
              view_set: list[str] | None = None, run_set: list[str] | None = None,
              browser: bool = True) -> dict[str, Any]:
@@ -132,10 +115,10 @@ def live_run(mission: Path, out: Path, rate: float, view: bool, shots: Path | No
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     row: dict[str, Any] = {"rate": rate, "view": view, "browser": view and browser}
     if view:
-        page: Any = Browser(work / f"chromium-{rate}") if browser else _NoBrowser()
+        # the browser stands for the operator's own computer: under SCHED_IDLE from its start, every
+        # process and thread it makes takes only CPU time the SLAM leaves
+        page: Any = Browser(work / f"chromium-{rate}", idle=True) if browser else _NoBrowser()
         with page as b:
-            if browser:
-                _idle_tree(b.proc.pid)      # the browser stands for the operator's own computer
             while view_state(url) is None and proc.poll() is None:
                 time.sleep(0.2)
             s = _page(b, url) if browser else ""
@@ -257,7 +240,7 @@ def main() -> int:
             (args.shots / "view_live.png").unlink(missing_ok=True)
         rows = []
         for i in range(args.pairs):
-            for view in (False, True):
+            for view in ((False, True) if i % 2 == 0 else (True, False)):   # ABBA: neither goes first always
                 out = work / f"run4-{i}-{int(view)}.mcap"
                 rows.append(live_run(mission, out, 4.0, view, None, work, args.view_set, run_set,
                                      browser=not args.no_browser))

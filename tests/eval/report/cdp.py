@@ -33,11 +33,16 @@ class CdpError(RuntimeError):
 class Browser:
     """One headless Chromium process driven through the DevTools pipe."""
 
-    def __init__(self, user_data_dir: Path, executable: Path = CHROMIUM, extra_flags: list[str] | None = None):
+    def __init__(self, user_data_dir: Path, executable: Path = CHROMIUM, extra_flags: list[str] | None = None,
+                 idle: bool = False):
+        """``idle``: Chromium runs under Linux's SCHED_IDLE policy from its first instruction, so
+        every process and thread it ever starts inherits it (it only takes CPU nothing else wants)."""
         to_child_r, self._to_child_w = os.pipe()
         self._from_child_r, from_child_w = os.pipe()
 
         def wire() -> None:  # in the child: the pipe ends become fds 3 (in) and 4 (out)
+            if idle:
+                os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
             high_r = fcntl.fcntl(to_child_r, fcntl.F_DUPFD, 10)  # out of the way of 3 and 4 first
             high_w = fcntl.fcntl(from_child_w, fcntl.F_DUPFD, 10)
             os.dup2(high_r, 3)  # dup2 makes them inheritable; every other fd of ours is not
