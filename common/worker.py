@@ -228,6 +228,11 @@ class DropOldestQueue:
         with self._cond:
             return self._bytes
 
+    def within_bounds(self) -> bool:
+        """Are the data frames queued now within ``max_data`` and ``max_bytes``?"""
+        with self._cond:
+            return self._data <= self.max_data and (self.max_bytes == 0 or self._bytes <= self.max_bytes)
+
     def dropped_between(self, key: str, lo: int, hi: int) -> int:
         """How many of ``key``'s indices ``lo..hi-1`` this queue dropped (and forget those below ``hi``)."""
         with self._cond:
@@ -336,7 +341,7 @@ class Sink(Worker):
                 # is in (LOSSLESS_GRACE_S after the last key came in step) and the queue within bound
                 now = time.monotonic()
                 self._in_step_since = self._in_step_since or now
-                if now - self._in_step_since >= LOSSLESS_GRACE_S and q.data_frames() <= q.max_data:
+                if now - self._in_step_since >= LOSSLESS_GRACE_S and q.within_bounds():
                     q.lossless = False
 
     def next_frame(self, timeout_s: float = 0.2) -> tuple[str, bytes] | None:

@@ -72,3 +72,13 @@ def test_a_frame_larger_than_the_byte_bound_is_still_kept():
 def test_the_byte_bound_must_not_be_negative():
     with pytest.raises(ValueError, match="max_bytes"):
         DropOldestQueue(1, max_bytes=-1)
+
+
+def test_a_lossless_queue_past_its_bounds_is_not_within_them():
+    q = DropOldestQueue(2, max_bytes=2 * len(_data(0)))
+    q.lossless = True                               # a restarted consumer catching up keeps every frame
+    for i in range(3):
+        q.put_nowait(("a", _data(i)))
+    assert q.dropped == {} and not q.within_bounds()
+    q.get(0.1)
+    assert q.within_bounds()
