@@ -12,14 +12,15 @@ replayed as fast as the services take it (player rate 0), every service in its o
   mission) -- flat memory means the last sixth's peak is close to the second's;
 - speed: real-time factor (mission seconds per wall second) of the full pipeline, next to
   the baseline measured in the same run: the player and the recorder alone on the same
-  input (the transport's ceiling).
+  input (the transport's ceiling: with no service started every key goes over the bus,
+  whatever ``player.replay`` says).
 
     .venv/bin/python benchmarks/bench_soak.py                   # 60 min (~4 min to simulate, ~10 to run)
     .venv/bin/python benchmarks/bench_soak.py --minutes 10 --json
 
 The two run recordings (player + recorder alone, full pipeline) are each deleted once measured,
-the first before the second run starts (``--keep-outputs`` keeps them: ~12 GB for the 60-min
-mission); the simulated mission stays cached (~5 GB per mission hour).
+the first before the second run starts (``--keep-outputs`` keeps them: ~13 GB for the 60-min
+mission); the simulated mission stays cached (~6.2 GB per mission hour).
 
 ``--json``: ``{"minutes", "mission", "overrides" (``--set``), "pipeline": {"wall_s", "mission_s", "real_time_factor"},
 "transport_only": {same}, "rtf_ratio", "dropped": {key: input - recorded}, "outputs":
@@ -228,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
                          "measure a default against its predecessor on the same cached mission")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--keep-outputs", action="store_true",
-                    help="keep the two run recordings (about 12 GB for 60 min) in --cache-dir")
+                    help="keep the two run recordings (about 13 GB for 60 min) in --cache-dir")
     args = ap.parse_args(argv)
     isolate_stdout()  # the in-process hub's native log lines go to stderr, not into --json
     cache = Path(args.cache_dir)

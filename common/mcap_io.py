@@ -121,10 +121,12 @@ class RecordingWriter:
     """
 
     def __init__(self, path: str | Path, compression: str = "zstd", chunk_size: int = 1 << 20,
-                 profile: str = "poseidon", flush_every: int = 0):
+                 profile: str = "poseidon", flush_every: int = 0, zstd_level: int = ZSTD_LEVEL):
         self.path = Path(path)
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
+        if not -7 <= zstd_level <= 22:
+            raise ValueError(f"zstd level must be in [-7, 22], got {zstd_level}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file: IO[bytes] = open(self.path, "wb")
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=_COMPRESSION[compression])
@@ -145,7 +147,7 @@ class RecordingWriter:
         self._fast = (self._stats is not None and hasattr(self._writer, "_Writer__chunk_builder")
                       and hasattr(self._writer, "_Writer__finalize_chunk"))
         self._compression = compression
-        self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+        self._zstd = zstandard.ZstdCompressor(level=zstd_level)
         mcap: Any = self._writer
         if (self._fast and all(hasattr(mcap, f"_Writer__{a}") for a in _CHUNK_STATE)
                 and not mcap._Writer__enable_data_crcs):
@@ -219,7 +221,7 @@ class RecordingWriter:
 
     def _end_chunk(self) -> None:
         """What mcap's ``Writer.__finalize_chunk`` does -- the same Chunk record, chunk index and
-        message indexes -- with zstd at :data:`ZSTD_LEVEL` through one reused context, and the
+        message indexes -- with zstd at the writer's level through one reused context, and the
         chunk written to the file without being copied into a record buffer first."""
         w: Any = self._writer
         cb = self._chunk_builder

@@ -228,6 +228,9 @@ def _add_service_command(sub: Any) -> None:
     p.add_argument("--out", help="recorder: output MCAP")
     p.add_argument("--expect", help="recorder: keys whose end-of-stream ends the recording")
     p.add_argument("--metadata", help="recorder: JSON file with the run's metadata record")
+    p.add_argument("--copy-from", help="recorder: input recording whose --copy-keys it copies into its output "
+                   "(player.replay copied)")
+    p.add_argument("--copy-keys", help="recorder: comma-separated keys of --copy-from to copy")
     p.add_argument("--supervise", metavar="FILE", help="supervised run: checkpoints, replays (written by the "
                    "launcher, see common/resume.py)")
     p.add_argument("--resume", action="store_true", help="with --supervise: this is a restart, resume from the "

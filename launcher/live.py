@@ -128,7 +128,7 @@ def plan_live(config: PoseidonConfig, services: list[str] | None = None) -> RunP
 def plan_live_mcap(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None) -> RunPlan:
     """The plan of a replay (:func:`launcher.run.plan_run`: the recording's keys no service
     produces), whose recorder also awaits the live player's latency report."""
-    plan = plan_run(config, input_path, services)
+    plan = plan_run(config, input_path, services, live=True)
     plan.expect = sorted({*plan.expect, LATENCY_KEY})
     return plan
 

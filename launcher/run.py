@@ -60,7 +60,7 @@ from common.resume import Supervision
 from common.worker import Worker
 from launcher.children import child_env
 from launcher.inputs import input_report
-from services.player.player import SOURCE_KEYS, replayed_keys
+from services.player.player import SOURCE_KEYS, TRUTH_KEYS, replayed_keys
 from system.calibration import calibrate_from_input
 from system.config import PoseidonConfig
 from system.services import WorkerSpec, available_services, build_node, build_worker, node_io
@@ -149,29 +149,45 @@ def _publish_output(partial: Path, out: Path) -> None:
 
 @dataclass
 class RunPlan:
+    """``copy_keys``: the input keys the recorder copies from the input itself (``player.replay``
+    copied); the player publishes ``player_keys``, the recorder awaits the end of ``expect``."""
+
     services: list[str]
     player_keys: list[str]
     expect: list[str]
     io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]]
+    copy_keys: list[str] = field(default_factory=list)
 
 
-def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None) -> RunPlan:
-    """Decide which services run, what the player publishes and what the recorder awaits."""
+def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None,
+             live: bool = False) -> RunPlan:
+    """Decide which services run, what the player publishes, what the recorder copies from the
+    input (a replay's ``player.replay`` copied; ``live``: a live run replays every key instead)
+    and what it awaits.  When no started service reads any of the input's keys (``--services
+    none``: player and recorder alone), every key goes over the bus whatever ``player.replay``
+    says: the run is a test of the transport, and nothing would otherwise keep the recorder
+    waiting for the player."""
     names = list(services) if services is not None else list(config.services or available_services(config))
     io = {n: node_io(n, config) for n in names}
     produced = {k: n for n, (_i, outs) in io.items() for k in outs}
     rec_keys = list(recording_keys(input_path))
     if not rec_keys:
         raise RecordingError(f"{input_path}: no readable messages (not an MCAP recording, or damaged from its start)")
-    player_keys = sorted(k for k in rec_keys if k not in produced and k not in (LATENCY_KEY, HEALTH_KEY))  # not inputs
-    player_keys = replayed_keys(config.player, player_keys, {k for ins, _o in io.values() for k in ins})
+    inputs = sorted(k for k in rec_keys if k not in produced and k not in (LATENCY_KEY, HEALTH_KEY))  # not inputs
+    replay = "all" if live and config.player.replay == "copied" else config.player.replay
+    read = {k for ins, _o in io.values() for k in ins}
+    if not names or not read & set(inputs) - set(TRUTH_KEYS):
+        replay = "all"  # nothing started reads the input: a transport run, every key over the bus
+    player_keys = replayed_keys(config.player.model_copy(update={"replay": replay}), inputs, read)
+    copy_keys = [k for k in inputs if k not in player_keys and (not config.player.keys or k in config.player.keys)]
+    copy_keys = copy_keys if replay == "copied" else []
     for n, (ins, _o) in io.items():
         for k in ins:
             if k not in produced and k not in player_keys and k not in SOURCE_KEYS:
                 raise ValueError(f"service {n!r} needs key {k!r}, which neither the recording nor any started "
                                  f"service produces (services: {names})")
     expect = sorted(set(player_keys) | set(produced))
-    return RunPlan(names, player_keys, expect, io)
+    return RunPlan(names, player_keys, expect, io, copy_keys)
 
 
 @dataclass
@@ -254,6 +270,8 @@ def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path,
     base = [sys.executable, "-m", "launcher.cli", "service"]
     cmds = {"recorder": base + ["recorder", *common, "--out", str(partial), "--expect", ",".join(plan.expect),
                                 "--metadata", str(tmp / "metadata.json"), "--stats", str(_stats_file(tmp, "recorder"))]}
+    if plan.copy_keys:
+        cmds["recorder"] += ["--copy-from", str(input_path), "--copy-keys", ",".join(plan.copy_keys)]
     for name in plan.services:
         cmds[name] = base + [name, *common, "--stats", str(_stats_file(tmp, name))]
     cmds["player"] = base + ["player", *common, "--input", str(input_path), "--keys", ",".join(plan.player_keys),
@@ -431,7 +449,8 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                  "player": WorkerSpec(input=input_path, keys=plan.player_keys, wait_for=["recorder", *plan.services],
                                       progress=progress),
                  "recorder": WorkerSpec(out=partial, expect=plan.expect,
-                                        metadata=run_metadata(config, input_path, "embedded", plan.services))}
+                                        metadata=run_metadata(config, input_path, "embedded", plan.services),
+                                        copy_from=input_path if plan.copy_keys else None, copy_keys=plan.copy_keys)}
         built: dict[str, Worker] = {}
         for name, spec in specs.items():
             built[name] = build_worker(name, config, bus, spec)

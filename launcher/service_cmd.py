@@ -169,7 +169,8 @@ def worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: S
                       keys=args.keys.split(",") if args.keys else None,
                       announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
                       wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
-                      out=args.out, expect=[k for k in (args.expect or "").split(",") if k] or None)
+                      out=args.out, expect=None if args.expect is None else [k for k in args.expect.split(",") if k],
+                      copy_from=args.copy_from, copy_keys=[k for k in (args.copy_keys or "").split(",") if k])
     if args.name == RECORDER:
         spec.metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
             "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}

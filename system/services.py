@@ -161,7 +161,8 @@ class WorkerSpec:
     ``player.keys``, else every key of the recording), ``rate`` (None: ``player.rate``),
     ``wait_for`` (services it waits for and watches), ``progress`` (bar on stderr).
     Recorder: ``out`` (required), ``expect`` (keys whose end-of-stream ends the recording),
-    ``metadata`` (the ``poseidon`` metadata record).  ROS 1 bridge: ``announce`` (source keys
+    ``metadata`` (the ``poseidon`` metadata record), ``copy_from`` and ``copy_keys`` (input keys it
+    copies from the input recording itself: ``player.replay`` copied).  ROS 1 bridge: ``announce`` (source keys
     it keeps alive with wall-clock watermarks and ends at its stop).  ``live``: a service of a
     live run (bounded input queue ``live.queue_frames``; ``debug.slow_service`` is slowed).  Service: ``node`` already built (None:
     built here).
@@ -177,6 +178,8 @@ class WorkerSpec:
     out: str | Path | None = None
     expect: Sequence[str] | None = None
     metadata: dict[str, Any] | None = None
+    copy_from: str | Path | None = None
+    copy_keys: Sequence[str] = ()
     node: ServiceNode[Any] | None = None
     announce: Sequence[str] = ()
     live: bool = False
@@ -204,7 +207,8 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
             raise ValueError("the recorder needs an output file")
         return Recorder(bus, spec.out, expect=spec.expect, metadata=spec.metadata,
                         compression=config.recorder.compression, chunk_size=config.recorder.chunk_size,
-                        supervision=spec.supervision)
+                        supervision=spec.supervision, copy_from=spec.copy_from, copy_keys=spec.copy_keys,
+                        zstd_level=config.recorder.zstd_level)
     if name == LIVE_PLAYER:
         if spec.input is None:
             raise ValueError("the live player needs an input recording")

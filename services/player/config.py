@@ -19,9 +19,10 @@ class PlayerConfig(ConfigSection):
 
     rate: float = Field(0.0, ge=0, description="replay speed: 1 = real time, N = N x, 0 = as fast as taken [x real time]")
     keys: list[str] = Field(default_factory=list, description="keys to publish (empty: every key)")
-    replay: Literal["all", "consumed"] = Field(
-        "all", description="what a poseidon run replays from its input: all = every key of the recording (the "
-        "run's recording holds the whole input again); consumed = only the keys a started service subscribes to, "
-        "plus the ground truth evaluation reads (truth/pose, truth/revisits); the other sensor streams (e.g. the "
-        "sim's sonar_seaking, sonar_*_ros, imu_adis, 2/3 of its messages) stay in the input recording only. "
-        "player.keys still narrows either")
+    replay: Literal["copied", "all", "consumed"] = Field(
+        "copied", description="what a poseidon run replays from its input: copied = the keys a started service "
+        "subscribes to, plus the ground truth evaluation reads (truth/pose, truth/revisits), go over the bus; the "
+        "recorder copies the other input keys (e.g. the sim's sonar_seaking, sonar_*_ros, imu_adis, 2/3 of its "
+        "messages) from the input recording itself, so the run's recording holds the whole input again; all = "
+        "every key over the bus (what a live run does: there copied means all); consumed = as copied, but the "
+        "other keys stay in the input recording only. player.keys still narrows each")

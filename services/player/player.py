@@ -66,14 +66,15 @@ TRUTH_KEYS = ("truth/pose", "truth/revisits")
 
 def replayed_keys(cfg: PlayerConfig, keys: list[str], read: set[str]) -> list[str]:
     """The keys of ``keys`` (sorted) a run's player publishes: narrowed to ``player.keys`` when
-    set, and with ``player.replay`` consumed to the keys some service ``read``s plus
-    :data:`TRUTH_KEYS` (the others are logged as left out)."""
+    set, and with ``player.replay`` consumed or copied to the keys some service ``read``s plus
+    :data:`TRUTH_KEYS` (the others are logged: left out, or copied by the recorder)."""
     out = sorted(k for k in keys if not cfg.keys or k in cfg.keys)
-    if cfg.replay == "consumed":
+    if cfg.replay in ("consumed", "copied"):
         left = [k for k in out if k not in read and k not in TRUTH_KEYS]
         out = [k for k in out if k not in left]
         if left:
-            log.info("player.replay consumed: not replayed (no service reads them): %s", ", ".join(left))
+            what = "not replayed" if cfg.replay == "consumed" else "copied by the recorder from the input, not replayed"
+            log.info("player.replay %s: %s (no service reads them): %s", cfg.replay, what, ", ".join(left))
     return out
 
 

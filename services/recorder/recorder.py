@@ -29,6 +29,14 @@ keeping, per key, exactly the messages its checkpoint counted (anything written 
 checkpoint is received again), continues it, and asks every publisher for a replay from
 its checkpoint: the final file holds every message exactly once.
 
+Copied keys (``copy_from``, ``copy_keys``: ``player.replay: copied``, the default of a replay): the
+input recording's keys that no service reads do not travel over the bus; the recorder reads them
+from the input itself and writes each message once the event time it has received passes the
+message's stamp, and the rest at the end of the run, so the run's recording holds them byte for byte
+as the input does, without their publishing, routing and receiving (2/3 of the simulator's
+messages).  Its checkpoint counts them with the rest; restarted, it continues them after its
+checkpoint's event time.  An aborted or stopped run copies nothing more.
+
 The recorder is a :class:`common.worker.Sink` (receive loop, de-duplication, replay
 requests, checkpoints and abort handling are shared with the services' runner).
 """
@@ -37,14 +45,14 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_frame, decode_header
-from common.mcap_io import RecordingError, RecordingWriter, iter_file_order
+from common.mcap_io import RecordedMessage, RecordingError, RecordingWriter, iter_file_order, read_messages
 from common.ordering import END_OF_TIME
 from common.resume import Supervision
 from common.worker import Sink, SinkStats
@@ -78,16 +86,23 @@ class Recorder(Sink):
 
     def __init__(self, bus: Bus, out: str | Path, expect: Iterable[str] | None = None,
                  metadata: dict[str, Any] | None = None, compression: str = "zstd", chunk_size: int = 1 << 20,
-                 flush_interval_s: float = 0.5, name: str = "recorder", supervision: Supervision | None = None):
+                 flush_interval_s: float = 0.5, name: str = "recorder", supervision: Supervision | None = None,
+                 copy_from: str | Path | None = None, copy_keys: Iterable[str] = (), zstd_level: int = -1):
         self.out = Path(out)
+        self.copy_from = Path(copy_from) if copy_from is not None else None
+        self.copy_keys = sorted(copy_keys) if copy_from is not None else []
+        if self.copy_from is not None and self.copy_from.resolve() == self.out.resolve():
+            raise ValueError(f"recorder: copy_from {self.copy_from} is the output recording itself")
+        self._copy: Iterator[RecordedMessage] | None = None
+        self._copy_next: RecordedMessage | None = None
         self.expect = set(expect) if expect is not None else None
         self.metadata = metadata or {}
         self._seen = -1
-        self._compression, self._chunk_size = compression, chunk_size
+        self._compression, self._chunk_size, self._zstd_level = compression, chunk_size, zstd_level
         self._resume = supervision is not None and supervision.resume
         # a restarted recorder continues its file (run() rewrites it); never truncate it here
         self._writer = None if self._resume else RecordingWriter(self.out, compression=compression,
-                                                                  chunk_size=chunk_size)
+                                                                  chunk_size=chunk_size, zstd_level=zstd_level)
         self.flush_interval_s = flush_interval_s
         self._last_flush = 0.0
         self._ended: set[str] = set()  # = set(stats.ended)
@@ -114,7 +129,8 @@ class Recorder(Sink):
 
     def _new_file(self, path: Path) -> RecordingWriter:
         """A recording at ``path`` holding the run's metadata record."""
-        writer = RecordingWriter(path, compression=self._compression, chunk_size=self._chunk_size)
+        writer = RecordingWriter(path, compression=self._compression, chunk_size=self._chunk_size,
+                                 zstd_level=self._zstd_level)
         writer.add_metadata("poseidon", self.metadata)
         return writer
 
@@ -165,19 +181,45 @@ class Recorder(Sink):
             self._resume_file()
         else:
             self.writer.add_metadata("poseidon", self.metadata)
+        self._start_copy()
         self.writer.flush()
         self.bus.declare_alive(self.name)
         self._last_flush = time.monotonic()
         try:
-            self.receive()
+            if self.receive() and not self.stats.aborted:
+                self._copy_until(END_OF_TIME)
         finally:
             self.writer.close()
         if self.finished():
             self.progress.report(END_OF_TIME, force=True)  # finished normally (see common.bus)
         return self.stats
 
+    def _start_copy(self) -> None:
+        """Open the copied keys of the input after what the file already holds (a resumed file:
+        every copied message up to the checkpoint's event time)."""
+        if self.copy_from is None or not self.copy_keys:
+            return
+        start = self._seen + 1 if self._seen >= 0 else None
+        self._copy = read_messages(self.copy_from, keys=self.copy_keys, strict=True, start_ns=start)
+        self._copy_next = next(self._copy, None)
+
+    def _copy_until(self, stamp: int) -> None:
+        """Write the copied keys' messages stamped at or before ``stamp``."""
+        m = self._copy_next
+        if m is None or m.stamp > stamp:
+            return
+        it, recorded, write = self._copy, self.stats.recorded, self.writer.write_encoded
+        assert it is not None
+        while m is not None and m.stamp <= stamp:
+            write(m.key, m.type_name, m.payload, m.stamp, m.seq)
+            recorded[m.key] = recorded.get(m.key, 0) + 1
+            m = next(it, None)
+        self._copy_next = m
+
     def on_frame(self, key: str, data: bytes) -> None:
         self._handle(key, data)
+        if self._copy_next is not None:
+            self._copy_until(self._seen)
         if self._seen >= 0:
             self.progress.report(self._seen, force=self.queue.empty())
         if time.monotonic() - self._last_flush > self.flush_interval_s:

@@ -81,3 +81,23 @@ def test_iter_file_order_streams_the_intact_messages_of_a_damaged_file(tmp_path)
     streamed = [first, *it]
     assert 0 < len(streamed) == len(listed)
     assert [(m.key, m.stamp, m.payload) for m in streamed] == [(m.key, m.stamp, m.payload) for m in listed]
+
+
+def test_the_zstd_level_changes_the_file_not_the_messages(tmp_path):
+    """recorder.zstd_level: level -1 (the default) and 19 hold the same messages; -1 is larger
+    on compressible payloads; a level outside [-7, 22] is refused."""
+    from common.mcap_io import RecordingWriter, read_messages
+    from common.messages import Depth, Header
+
+    sizes = {}
+    for level in (-1, 19):
+        path = tmp_path / f"l{level}.mcap"
+        with RecordingWriter(path, zstd_level=level) as w:
+            for i in range(3000):
+                w.write("depth_sensor", Depth(header=Header(seq=i, stamp=1000 + i), depth=float(i % 7)))
+        sizes[level] = path.stat().st_size
+    a, b = list(read_messages(tmp_path / "l-1.mcap")), list(read_messages(tmp_path / "l19.mcap"))
+    assert [(m.stamp, m.payload) for m in a] == [(m.stamp, m.payload) for m in b] and len(a) == 3000
+    assert sizes[-1] > sizes[19]
+    with pytest.raises(ValueError, match="zstd level must be in"):
+        RecordingWriter(tmp_path / "bad.mcap", zstd_level=30)

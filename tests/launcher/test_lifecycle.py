@@ -205,7 +205,9 @@ def test_signals_are_seen_while_the_main_thread_is_held_in_native_code():
 
 
 def test_player_replay_consumed_replays_what_services_read_and_the_truth(tmp_path):
-    """player.replay consumed: only keys a started service subscribes to, plus truth/*; all: every key."""
+    """player.replay copied (default): keys a started service subscribes to, plus truth/*, over the
+    bus, the others copied by the recorder (a live run: every key over the bus); consumed: the same
+    keys, nothing copied; all: every key."""
     import numpy as np
 
     from common.mcap_io import RecordingWriter
@@ -219,14 +221,26 @@ def test_player_replay_consumed_replays_what_services_read_and_the_truth(tmp_pat
         w.write("sonar_micron", RangeImageBeam(header=Header(seq=0, stamp=2), **beam))
         w.write("sonar_seaking", RangeImageBeam(header=Header(seq=0, stamp=3), **beam))
         w.write("truth/pose", Odom(header=Header(seq=0, stamp=4), position=[0, 0, 0], orientation=[0, 0, 0, 1]))
-    everything = plan_run(load_config(), rec, services=["encoder"])
+    copied = plan_run(load_config(), rec, services=["encoder"])
+    assert copied.player_keys == ["camera/image_raw", "sonar_micron", "truth/pose"]
+    assert copied.copy_keys == ["sonar_seaking"] and "sonar_seaking" not in copied.expect
+    live = plan_run(load_config(), rec, services=["encoder"], live=True)
+    assert live.player_keys == ["camera/image_raw", "sonar_micron", "sonar_seaking", "truth/pose"]
+    assert live.copy_keys == []
+    alone = plan_run(load_config(), rec, services=[])  # player and recorder alone: a transport run
+    assert alone.player_keys == live.player_keys and alone.copy_keys == []
+    everything = plan_run(load_config(overrides=["player.replay=all"]), rec, services=["encoder"])
     assert everything.player_keys == ["camera/image_raw", "sonar_micron", "sonar_seaking", "truth/pose"]
+    assert everything.copy_keys == []
     consumed = plan_run(load_config(overrides=["player.replay=consumed"]), rec, services=["encoder"])
     assert consumed.player_keys == ["camera/image_raw", "sonar_micron", "truth/pose"]
-    assert "sonar_seaking" not in consumed.expect  # the recorder does not wait for it
+    assert "sonar_seaking" not in consumed.expect and consumed.copy_keys == []  # nor copies it
     narrowed = plan_run(load_config(overrides=["player.replay=consumed", "player.keys=[camera/image_raw]"]), rec,
                         services=["encoder"])
     assert narrowed.player_keys == ["camera/image_raw"]
+    narrowed = plan_run(load_config(overrides=["player.keys=[camera/image_raw,sonar_seaking]"]), rec,
+                        services=["encoder"])
+    assert narrowed.player_keys == ["camera/image_raw"] and narrowed.copy_keys == ["sonar_seaking"]
 
 
 def test_replay_children_run_under_sched_batch_die_with_the_launcher_and_a_refusal_is_reported():

@@ -136,7 +136,9 @@ def test_secured_pipeline_on_two_hosts(two_hosts, tmp_path, short_mission):
             "expmap": intruder(host_b, tls, "expmap", "--subscribe", "camera/image_raw"),
         }
         first = {name: p.stdout.readline().strip() for name, p in intruders.items()}  # "ready", or its report
-        procs["recorder"] = run_service(host_b, "recorder", "--out", str(out), "--expect", ",".join(plan.expect))
+        copy = ["--copy-from", str(short_mission), "--copy-keys", ",".join(plan.copy_keys)] if plan.copy_keys else []
+        procs["recorder"] = run_service(host_b, "recorder", "--out", str(out), "--expect", ",".join(plan.expect),
+                                        *copy)
         for name in plan.services:
             procs[name] = run_service(host_a if name == "robot_state" else host_b, name)
         procs["player"] = run_service(host_a, "player", "--input", str(short_mission), "--keys",

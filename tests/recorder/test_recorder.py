@@ -2,7 +2,8 @@
 
 It ends on end-of-stream of every expected key, writes what has already arrived when
 stopped or aborted and closes a complete file, survives hostile frames, checkpoints when
-supervised, and a SIGKILL leaves every flushed chunk readable."""
+supervised, a SIGKILL leaves every flushed chunk readable, and keys copied from the input
+(player.replay copied) reach the file exactly once, restarted or not."""
 import json
 import signal
 import subprocess
@@ -17,13 +18,13 @@ from mcap.reader import make_reader
 
 from common.bus import Bus, open_hub
 from common.codec import encode_frame
-from common.mcap_io import read_messages
+from common.mcap_io import read_file_order, read_messages
 from common.messages import Depth, Header
 from common.ordering import END_OF_TIME
 from common.resume import Supervision, load_checkpoint
 from services.player.player import Player
 from services.recorder.recorder import Recorder
-from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording
+from tests.common.recordings import HOSTILE, inconsistent_image, payloads_by_key, six_stream_recording
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.timeout(180)
@@ -196,3 +197,65 @@ def test_recorder_killed_with_sigkill_keeps_flushed_chunks(tmp_path):
     assert _standard_reader_count(fixed) == len(recovered)
     assert [r.payload for r in read_messages(fixed, strict=True)] == [r.payload for r in recovered]
     assert subprocess.run(CLI + ["info", str(fixed)], cwd=REPO, capture_output=True, timeout=60).returncode == 0
+
+
+def _replay_key(bus, src: Path, key: str, until_ns: int | None = None, eos: bool = True) -> None:
+    """Publish ``key`` of ``src`` (numbered frames, as supervised publishers send) and, unless
+    stopped at ``until_ns``, its end-of-stream."""
+    pub = bus.publisher(key, retain=True)
+    for m in read_messages(src, keys=[key]):
+        if until_ns is not None and m.stamp > until_ns:
+            return
+        pub.send_data(m.type_name, m.payload, m.stamp)
+    if eos:
+        pub.send_eos()
+
+
+def test_copied_keys_come_from_the_input_in_event_time_order_and_the_file_equals_the_input(tmp_path, bus):
+    """player.replay copied: depth_sensor over the bus, the other five keys copied from the input;
+    each copied message is written once the received event time passed its stamp (so the file's
+    order interleaves the two), the rest at the end; the file holds the input byte for byte."""
+    src = tmp_path / "in.mcap"
+    counts = six_stream_recording(src, 400, image_every=10)
+    copied = sorted(k for k in counts if k != "depth_sensor")
+    rec = Recorder(bus, tmp_path / "r.mcap", expect=["depth_sensor"], copy_from=src, copy_keys=copied)
+    t, result = _start(rec)
+    _replay_key(bus, src, "depth_sensor")
+    t.join(timeout=20)
+    assert result["stats"].recorded == counts
+    got, want = payloads_by_key(tmp_path / "r.mcap"), payloads_by_key(src)
+    assert got == want
+    order = [m.key for m in read_file_order(tmp_path / "r.mcap")[0]]
+    assert order.index("sonar_micron") < len(order) - counts["sonar_micron"]  # not all appended at the end
+    with pytest.raises(ValueError, match="is the output recording itself"):
+        Recorder(bus, src, copy_from=src, copy_keys=copied)
+
+
+def test_a_restarted_recorder_continues_the_copied_keys_after_its_checkpoint(tmp_path, bus):
+    """Stopped after its checkpoint at 1 s of event time and restarted: the final file holds every
+    copied message exactly once (those up to the checkpoint kept from the first file)."""
+    src = tmp_path / "in.mcap"
+    counts = six_stream_recording(src, 600, image_every=10)
+    copied = sorted(k for k in counts if k != "depth_sensor")
+    t0 = next(read_messages(src)).stamp
+    sup = Supervision(tmp_path / "state", {"depth_sensor": ["recorder"]}, recorder_checkpoint_interval_ns=10**9)
+    out = tmp_path / "r.mcap"
+    rec = Recorder(bus, out, expect=["depth_sensor"], supervision=sup, copy_from=src, copy_keys=copied)
+    t, result = _start(rec)
+    _replay_key(bus, src, "depth_sensor", until_ns=t0 + 1_500_000_000, eos=False)
+    deadline = time.monotonic() + 10
+    while result.get("stats") is None and rec.stats.checkpoints < 1:
+        assert time.monotonic() < deadline, "no checkpoint within 10 s"
+        time.sleep(0.02)
+    time.sleep(0.3)
+    rec.stop()
+    t.join(timeout=10)
+    state = load_checkpoint(tmp_path / "state" / "recorder.ckpt")
+    assert 0 < state["counts"]["sonar_micron"] < counts["sonar_micron"]
+    resumed = Recorder(bus, out, expect=["depth_sensor"], copy_from=src, copy_keys=copied,
+                       supervision=Supervision(tmp_path / "state", {"depth_sensor": ["recorder"]},
+                                               recorder_checkpoint_interval_ns=10**9, resume=True))
+    t, result = _start(resumed)
+    _replay_key(bus, src, "depth_sensor")  # the whole stream again: the gate drops what the file holds
+    t.join(timeout=20)
+    assert payloads_by_key(out) == payloads_by_key(src)
