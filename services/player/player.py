@@ -1,4 +1,7 @@
-"""Player: publishes every stream of an MCAP recording in event-time order.
+"""Player: publishes the streams of an MCAP recording (every one, or ``keys``) in event-time order.
+
+In ``poseidon run`` the launcher gives it the keys a started service reads, plus the ground
+truth; the recorder copies the others from the file (``player.replay``, :func:`launcher.run.plan_run`).
 
 - Pacing: ``rate`` 1 = real time, N = N x real time, 0 = as fast as the consumers take
   it: with ``wait_for`` services, at most ``flow_window_ms`` of event time is in flight
