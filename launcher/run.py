@@ -5,11 +5,10 @@ port) and starts the recorder, each algorithm service and the player as separate
 processes (``poseidon service NAME --connect tcp/127.0.0.1:PORT``).  Embedded
 (``--embedded``): the same pieces as threads on one Zenoh session in this process.
 
-The player publishes the input keys a started service reads (and the ground truth); the
-recorder copies the others from the input file itself (``player.replay`` copied, the default:
-:func:`plan_run`), so the run's recording holds the whole input.  The player waits until the
-recorder and every service are alive; the run ends when every process has finished (the
-recorder has seen end-of-stream on every expected key).  If any
+The player publishes the input keys a started service reads (and the ground truth), the
+recorder copies the others from the input (``player.replay`` copied: :func:`plan_run`).  The
+player waits until the recorder and every service are alive; the run ends when every process
+has finished (the recorder has seen end-of-stream on every expected key).  If any
 service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
 names the service.
 
