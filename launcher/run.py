@@ -181,8 +181,8 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     if not names or not read & set(inputs) - set(TRUTH_KEYS):
         replay = "all"  # nothing started reads the input: a transport run, every key over the bus
     player_keys = replayed_keys(config.player.model_copy(update={"replay": replay}), inputs, read)
-    copy_keys = [k for k in inputs if k not in player_keys and (not config.player.keys or k in config.player.keys)]
-    copy_keys = copy_keys if replay == "copied" else []
+    copy_keys = [k for k in inputs if k not in player_keys and (not config.player.keys or k in config.player.keys)
+                 and replay == "copied"]
     for n, (ins, _o) in io.items():
         for k in ins:
             if k not in produced and k not in player_keys and k not in SOURCE_KEYS:

@@ -52,7 +52,14 @@ from typing import Any
 
 from common.bus import Bus
 from common.codec import DecodeError, decode_frame, decode_header
-from common.mcap_io import RecordedMessage, RecordingError, RecordingWriter, iter_file_order, read_messages
+from common.mcap_io import (
+    ZSTD_LEVEL,
+    RecordedMessage,
+    RecordingError,
+    RecordingWriter,
+    iter_file_order,
+    read_messages,
+)
 from common.ordering import END_OF_TIME
 from common.resume import Supervision
 from common.worker import Sink, SinkStats
@@ -87,7 +94,7 @@ class Recorder(Sink):
     def __init__(self, bus: Bus, out: str | Path, expect: Iterable[str] | None = None,
                  metadata: dict[str, Any] | None = None, compression: str = "zstd", chunk_size: int = 1 << 20,
                  flush_interval_s: float = 0.5, name: str = "recorder", supervision: Supervision | None = None,
-                 copy_from: str | Path | None = None, copy_keys: Iterable[str] = (), zstd_level: int = -1):
+                 copy_from: str | Path | None = None, copy_keys: Iterable[str] = (), zstd_level: int = ZSTD_LEVEL):
         self.out = Path(out)
         self.copy_from = Path(copy_from) if copy_from is not None else None
         self.copy_keys = sorted(copy_keys) if copy_from is not None else []
