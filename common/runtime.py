@@ -217,10 +217,13 @@ class NodeRunner(Sink, Source):
     def on_frame(self, key: str, data: bytes) -> None:
         merger = self._merger
         res = self.accept(merger, key, data)
-        if res == "duplicate":
-            self.progress.repeat()
-        if res is None or res in ("duplicate", "skipped", "replay"):
+        if res is None:
             return
+        if type(res) is str:  # never compared with a message: that is pydantic's __eq__, per frame
+            if res == "duplicate":
+                self.progress.repeat()
+            if res in ("duplicate", "skipped", "replay"):
+                return
         t0 = time.perf_counter()
         for in_key, _stamp, msg in merger.pop_ready():
             self.process(in_key, msg)
