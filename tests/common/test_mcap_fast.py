@@ -154,3 +154,38 @@ def test_chunks_are_mcaps_own_but_for_the_zstd_level(tmp_path):
     ours = _chunks(b)
     assert len(ours) > 20 and _chunks(a) == ours      # every record the same once decompressed
     assert _mcap_order(a) == _mcap_order(b) == _ours(b)
+
+
+def test_mapped_chunk_reader_gives_mcaps_records_and_fails_cleanly(tmp_path):
+    """The memory-mapped reader of read_messages returns, chunk by chunk, the records of mcap's
+    own Chunk.read for every compression; a damaged chunk is a RecordingError (the map closed,
+    not a BufferError over it), and a truncated file an EOFError naming the chunk."""
+    import pytest
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+
+    from common.mcap_io import RecordingError, _chunk_records, _ChunkReader
+    for compression in ("zstd", "lz4", "none"):
+        path = tmp_path / f"{compression}.mcap"
+        _shuffled_recording(path, compression=compression)
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+            reader = _ChunkReader(f)
+            for ci in summary.chunk_indexes:
+                f.seek(ci.chunk_start_offset + 9)
+                assert reader(ci, True) == _chunk_records(Chunk.read(ReadDataStream(f)), validate_crc=True)
+            reader.close()
+        assert _ours(path) == _mcap_order(path), compression
+    path = tmp_path / "none.mcap"
+    with open(path, "rb") as f:
+        ci = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)[3]
+    data = bytearray(path.read_bytes())
+    data[ci.chunk_start_offset + ci.chunk_length - 5] ^= 0xFF      # a byte of a stored chunk's records
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(RecordingError, match="corrupt chunk"):
+        list(read_messages(bad))
+    short = tmp_path / "short.mcap"
+    short.write_bytes(path.read_bytes()[:ci.chunk_start_offset + 20])
+    with open(short, "rb") as f, pytest.raises(EOFError, match=f"chunk at byte {ci.chunk_start_offset}"):
+        _ChunkReader(f)(ci, True)
