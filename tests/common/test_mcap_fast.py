@@ -189,3 +189,24 @@ def test_mapped_chunk_reader_gives_mcaps_records_and_fails_cleanly(tmp_path):
     short.write_bytes(path.read_bytes()[:ci.chunk_start_offset + 20])
     with open(short, "rb") as f, pytest.raises(EOFError, match=f"chunk at byte {ci.chunk_start_offset}"):
         _ChunkReader(f)(ci, True)
+
+
+def test_chunk_buffer_reused_and_let_go_after_a_large_message(tmp_path):
+    """The writer rewinds its chunk buffer instead of allocating one per chunk: a chunk shorter
+    than the one before (stale bytes after it in the buffer) is written alone, and a buffer grown
+    past 4 chunks by one large message is replaced."""
+    path = tmp_path / "sizes.mcap"
+    w = RecordingWriter(path, chunk_size=1000)
+    sizes = [900, 50, 5000, 20, 900, 3, 1200, 10]
+    for i, n in enumerate(sizes):
+        img = Image(header=Header(seq=i, stamp=1000 * i), height=1, width=n, encoding="mono8",
+                    data=np.full((1, n), i, dtype=np.uint8))
+        w.write("camera/image_raw", img)
+        w.sync()   # one chunk per message
+        if n == 5000:
+            assert w._chunk_builder.record_writer._buffer.getbuffer().nbytes == 0   # let go
+    w.close()
+    got = [m.message() for m in read_messages(path)]
+    assert [m.width for m in got] == sizes
+    assert all(int(np.asarray(m.data).max()) == i for i, m in enumerate(got))
+    assert _ours(path) == _mcap_order(path)
