@@ -25,7 +25,9 @@ def fuse(sdrs: Mapping[str, np.ndarray | None], mode: str = "union") -> np.ndarr
     if mode == "union":
         if not present:
             return np.zeros(0, dtype=np.uint32)
-        return np.unique(np.concatenate(present)).astype(np.uint32)
+        bits = np.concatenate(present)  # a new array: sorted in place, then each bit once
+        bits.sort()
+        return bits[np.concatenate(([True], bits[1:] != bits[:-1]))] if bits.size else bits
     if mode == "and":
         if not present:
             return np.zeros(0, dtype=np.uint32)

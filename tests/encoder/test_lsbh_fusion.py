@@ -132,3 +132,17 @@ def test_fusion_modes_and_missing_modality() -> None:
     assert fuse(both, "union").dtype == np.uint32
     with pytest.raises(ValueError, match="fusion_mode"):
         fuse(both, "xor")
+
+
+def test_union_is_each_bit_once_sorted_and_leaves_the_inputs_alone() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        sdrs = {m: np.sort(rng.choice(2048, int(rng.integers(0, 700)), replace=False)).astype(np.uint32)
+                for m in ("camera", "sonar") if rng.random() < 0.85}
+        before = {m: v.copy() for m, v in sdrs.items()}
+        out = fuse(sdrs, "union")
+        ref = np.unique(np.concatenate(list(sdrs.values()))) if sdrs else np.zeros(0)
+        assert out.dtype == np.uint32 and out.tolist() == ref.tolist()
+        assert all(np.array_equal(sdrs[m], before[m]) for m in sdrs)
+    unsorted = np.array([9, 1, 4], dtype=np.uint32)      # a single modality, not sorted: still sorted out
+    assert fuse({"camera": unsorted}, "union").tolist() == [1, 4, 9] and unsorted.tolist() == [9, 1, 4]
