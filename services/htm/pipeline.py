@@ -224,9 +224,8 @@ class NeocortexHtm:
         tm = self._need_tm()
         winners = tm.compute(cols, learn).astype(np.int64)
         self.last_anomaly = float(tm.anomaly)
-        if self.tm_columns:  # the winner cells come sorted, so their columns do: each kept once
-            col = winners // tm.cpc
-            winners = col[np.concatenate(([True], col[1:] != col[:-1]))] if col.size else col
+        if self.tm_columns and (col := winners // tm.cpc).size:  # sorted cells: sorted columns, each once
+            winners = col[np.concatenate(([True], col[1:] != col[:-1]))]
         return winners, float(tm.anomaly)
 
     def _tm_input(self, cols: np.ndarray) -> np.ndarray:
