@@ -390,13 +390,20 @@ _RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
 
 def _chunk_records(chunk: Chunk, validate_crc: bool) -> bytes:
     """The decompressed records of ``chunk`` (CRC-checked as mcap's own reader does)."""
+    return _records(chunk, chunk.data, validate_crc)
+
+
+def _records(chunk: Chunk, packed: bytes | memoryview, validate_crc: bool) -> bytes:
+    """The records ``packed`` of ``chunk`` (its fields; ``packed`` may be a view of them instead
+    of ``chunk.data``) decompressed and CRC-checked as mcap's own reader does; one stored as is
+    comes back as bytes of its own."""
     if chunk.compression == "zstd":
-        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+        data = zstandard.decompress(packed, chunk.uncompressed_size)
     elif chunk.compression == "lz4":
         import lz4.frame
-        data = lz4.frame.decompress(chunk.data)
+        data = lz4.frame.decompress(packed)
     else:  # "" (and, as mcap's reader does, anything else) is stored as is
-        data = chunk.data
+        data = packed if isinstance(packed, bytes) else bytes(packed)
     if validate_crc and chunk.uncompressed_crc != 0:
         crc = crc32(data)
         if crc != chunk.uncompressed_crc:
@@ -411,8 +418,8 @@ class _ChunkReader:
     """The decompressed records of a summary's chunks, read through a read-only memory map of the
     file: zstd decompresses straight from the page cache, where mcap's ``Chunk.read`` copies each
     chunk into a new bytes object first (1 GB of chunks: ~0.7-1.8 against ~1.8-2.8 CPU s, decompression
-    and CRC included; docs/DECISIONS.md, CPU per mission hour).  The records are those
-    :func:`_chunk_records` returns for ``Chunk.read`` of the same record, CRC-checked the same way.
+    and CRC included; docs/DECISIONS.md, CPU per mission hour).  The records are decompressed and
+    CRC-checked by :func:`_records`, as :func:`_chunk_records` does for ``Chunk.read`` of the record.
     The file must not shrink while it is read (a mapped page past its end is SIGBUS, not an error)."""
 
     def __init__(self, f: IO[bytes]):
@@ -438,20 +445,10 @@ class _ChunkReader:
             pos += 8
             if pos + data_len > n:
                 raise McapError(f"chunk at byte {at}: {data_len} bytes of records overrun the record")
+            chunk = Chunk(compression=compression, data=b"", message_start_time=start, message_end_time=end,
+                          uncompressed_crc=crc, uncompressed_size=size)   # its fields; the records stay mapped
             with mv[pos:pos + data_len] as packed:
-                if compression == "zstd":
-                    data = zstandard.decompress(packed, size)
-                elif compression == "lz4":
-                    import lz4.frame
-                    data = lz4.frame.decompress(packed)
-                else:  # stored as is (as mcap's reader does for any other name): copied out of the map
-                    data = bytes(packed)
-        if validate_crc and crc != 0:
-            actual = crc32(data)
-            if actual != crc:
-                chunk = Chunk(compression=compression, data=b"", message_start_time=start,
-                              message_end_time=end, uncompressed_crc=crc, uncompressed_size=size)
-                raise CRCValidationError(expected=crc, actual=actual, record=chunk)
+                data = _records(chunk, packed, validate_crc)
         return data
 
 
