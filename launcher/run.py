@@ -7,8 +7,11 @@ processes (``poseidon service NAME --connect tcp/127.0.0.1:PORT``).  Embedded
 
 The player publishes the input keys a started service reads (and the ground truth), the
 recorder copies the others from the input (``player.replay`` copied: :func:`plan_run`).  The
-player waits until the recorder and every service are alive; the run ends when every process
-has finished (the recorder has seen end-of-stream on every expected key).  If any
+algorithm services start first, while a thread computes the input's SHA-256 for the recording's
+metadata (``input_sha256``; ~0.8 CPU s per GB, up to a few seconds per mission hour, no longer
+ahead of every start); the recorder and the player once it is done.  The player waits until the
+recorder and every service are alive; the run ends when every process has finished (the recorder
+has seen end-of-stream on every expected key).  If any
 service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
 names the service.
 
@@ -57,7 +60,7 @@ import yaml
 
 from common.bus import Bus, open_hub, open_local_session
 from common.live import HEALTH_KEY, LATENCY_KEY
-from common.mcap_io import RecordingError, code_revision, file_sha256, recording_keys, recording_summary
+from common.mcap_io import FileDigest, RecordingError, code_revision, recording_keys, recording_summary
 from common.resume import Supervision
 from common.worker import Worker
 from launcher.children import child_env
@@ -67,40 +70,9 @@ from system.calibration import calibrate_from_input
 from system.config import PoseidonConfig
 from system.services import WorkerSpec, available_services, build_node, build_worker, node_io
 
-__all__ = ["RunFailed", "ServiceStartError", "MAP_DIR_FILES", "use_map_dir", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "calibrate_from_input", "run_distributed", "run_embedded", "node_io"]
+__all__ = ["RunFailed", "ServiceStartError", "build_checked", "output_paths", "RunPlan", "RunResult", "plan_run", "calibrate_from_input", "run_distributed", "run_embedded", "node_io"]
 
 log = logging.getLogger(__name__)
-
-
-#: the files of a map directory (``poseidon run --map-dir DIR``) and the setting each one is
-MAP_DIR_FILES = {
-    "htm.state_path": "htm_state.npz",                               # SP/TM/LVC prototypes, sequence memory
-    "posecells.state_path": "posecells.npz",                         # pose cells, LVC associations, gates
-    "expmap.map_path": "expmap.npz",                                 # the experience map with its sessions
-    "encoder.embedding_norm.path": "embnorm_{backbone}_{modality}.npz",  # embedding statistics per modality
-}
-
-
-def use_map_dir(config: PoseidonConfig, map_dir: str | Path) -> dict[str, str]:
-    """Point every persisted state of ``config`` into ``map_dir`` (created if missing) and make
-    a loaded experience map begin a new session (``expmap.sessions.begin_on_load``) in a new odometry
-    frame (``posecells.state_new_odometry_frame``: the loaded pose cells keep their activity and
-    associations, not the other mission's odometry): a run loads what is there at start and
-    saves the merged state there at the end.  Returns the settings made."""
-    d = Path(map_dir)
-    if d.exists() and not d.is_dir():
-        raise ValueError(f"--map-dir {d}: exists and is not a directory")
-    d.mkdir(parents=True, exist_ok=True)
-    made = {}
-    for dotted, name in MAP_DIR_FILES.items():
-        *path, field_name = dotted.split(".")
-        setattr(config.get(".".join(path)), field_name, str(d / name))
-        made[dotted] = str(d / name)
-    config.expmap.sessions.begin_on_load = True
-    made["expmap.sessions.begin_on_load"] = "true"
-    config.posecells.state_new_odometry_frame = True
-    made["posecells.state_new_odometry_frame"] = "true"
-    return made
 
 
 class RunFailed(RuntimeError):
@@ -210,9 +182,10 @@ class RunResult:
                 "recording": self.recording, "restarts": self.restarts, "inputs": self.inputs, **live}
 
 
-def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:
+def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str],
+                 input_sha256: str) -> dict[str, Any]:
     return {"tool": "poseidon run", "mode": mode, "services": services, "code_revision": code_revision(),
-            "input": str(input_path), "input_sha256": file_sha256(input_path),
+            "input": str(input_path), "input_sha256": input_sha256,
             "config": config.model_dump(mode="json")}
 
 
@@ -283,6 +256,18 @@ def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path,
     return cmds
 
 
+def _supervision_args(config: PoseidonConfig, plan: RunPlan, state_dir: Path | None, tmp: Path) -> list[str]:
+    """The services' ``--supervise FILE`` (none unsupervised), with an empty state folder."""
+    if state_dir is None:
+        return []
+    if state_dir.exists():  # checkpoints of an earlier run must never be resumed from
+        shutil.rmtree(state_dir)
+    state_dir.mkdir(parents=True)
+    sup_file = tmp / "supervision.json"
+    sup_file.write_text(supervision_plan(config, plan, state_dir).to_json())
+    return ["--supervise", str(sup_file)]
+
+
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                     services: list[str] | None = None, timeout_s: float | None = None,
                     progress: bool = True, hub_port: int | None = None,
@@ -303,16 +288,8 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         cfg_file = Path(tmp) / "config.yaml"
         cfg_file.write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
         meta_file = Path(tmp) / "metadata.json"
-        meta_file.write_text(json.dumps(run_metadata(config, input_path, "distributed", plan.services)))
         common = ["--connect", endpoint, "--config", str(cfg_file), *_log_args()]
-        supervise_args: list[str] = []
-        if state_dir is not None:
-            if state_dir.exists():  # checkpoints of an earlier run must never be resumed from
-                shutil.rmtree(state_dir)
-            state_dir.mkdir(parents=True)
-            sup_file = Path(tmp) / "supervision.json"
-            sup_file.write_text(supervision_plan(config, plan, state_dir).to_json())
-            supervise_args = ["--supervise", str(sup_file)]
+        supervise_args = _supervision_args(config, plan, state_dir, Path(tmp))
         cmds = _service_commands(plan, input_path, partial, Path(tmp), [*common, *supervise_args], progress)
         env = dict(os.environ)
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
@@ -338,15 +315,22 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             time.sleep(delay)
             return _start(name, cmds[name] + ["--resume"])
 
+        digest = FileDigest(input_path)  # for the recording's metadata, while the services start
         try:
             if before_services is not None:
                 before_services()
-            for name, cmd in cmds.items():
-                # a service's stdout (and any native library writing there) goes to our stderr: our
-                # stdout carries only this command's own output (``run --json``)
-                procs[name] = _start(name, cmd)
+            # a service's stdout goes to our stderr: our stdout carries only ``run --json``.  The
+            # algorithm services start while the input is hashed; the recorder (it records the
+            # digest) and the player (it waits for the recorder) once the digest is there
+            for name in [n for n in cmds if n not in ("recorder", "player")]:
+                procs[name] = _start(name, cmds[name])
+            meta = run_metadata(config, input_path, "distributed", plan.services, digest.result())
+            meta_file.write_text(json.dumps(meta))
+            for name in ("recorder", "player"):
+                procs[name] = _start(name, cmds[name])
             failed = _monitor(procs, timeout_s, restart if max_restarts > 0 else None, restarts)
         finally:
+            digest.cancel()
             _stop_all(procs)
             hub.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
         if failed:
@@ -437,8 +421,13 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
     t0 = time.monotonic()
+    digest = FileDigest(input_path)  # for the recording's metadata, while the nodes are built
     # every node is built (and its configuration checked) before anything opens the output
-    nodes = {n: build_checked(n, config) for n in plan.services}
+    try:
+        nodes = {n: build_checked(n, config) for n in plan.services}
+    except BaseException:
+        digest.cancel()
+        raise
     session = open_local_session()
     bus = Bus(config.bus.namespace, session=session)
     errors: dict[str, BaseException] = {}
@@ -451,7 +440,8 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                  "player": WorkerSpec(input=input_path, keys=plan.player_keys, wait_for=["recorder", *plan.services],
                                       progress=progress),
                  "recorder": WorkerSpec(out=partial, expect=plan.expect,
-                                        metadata=run_metadata(config, input_path, "embedded", plan.services),
+                                        metadata=run_metadata(config, input_path, "embedded", plan.services,
+                                                              digest.result()),
                                         copy_from=input_path if plan.copy_keys else None, copy_keys=plan.copy_keys)}
         built: dict[str, Worker] = {}
         for name, spec in specs.items():
@@ -481,6 +471,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
             if st.get("aborted") and not errors:
                 errors[name] = RuntimeError(f"aborted: {st['aborted']}")
     finally:
+        digest.cancel()
         for obj in stoppable:
             obj.stop()
         for t in threads:

@@ -121,7 +121,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.rate is not None:
             config.player.rate = args.rate
         if args.map_dir:
-            from launcher.run import use_map_dir
+            from launcher.map_dir import use_map_dir
             use_map_dir(config, args.map_dir)
         services = services_arg(args)
         with view_beside(args, config, config.bus.startup_timeout_s) as (hub_port, view_ready):

@@ -1,6 +1,7 @@
 """The whole pipeline on a short simulated cave mission: every service, both modes."""
 import pytest
 
+from common.mcap_io import file_sha256, read_metadata
 from launcher.run import run_distributed, run_embedded
 from missions.sim.cli import main as sim_main
 from system.config import load_config
@@ -38,6 +39,10 @@ def test_every_service_runs_and_modes_agree_byte_for_byte(mission, tmp_path):
     pa, pb = payloads_by_key(tmp_path / "dist.mcap"), payloads_by_key(tmp_path / "emb.mcap")
     for key in OUTPUT_KEYS:
         assert pa[key] == pb[key], f"{key} differs between distributed and embedded runs"
+    # both name their input by its SHA-256 (hashed while the services start)
+    digest = file_sha256(mission)
+    for run in ("dist", "emb"):
+        assert read_metadata(tmp_path / f"{run}.mcap")["poseidon"]["input_sha256"] == digest
 
 
 def test_guard_off_on_the_on_runs_front_end_equals_the_full_pipeline(mission, tmp_path):

@@ -1,9 +1,15 @@
+import hashlib
+import threading
+from concurrent.futures import CancelledError
+
 import numpy as np
 import pytest
 
 from common.mcap_io import (
+    FileDigest,
     RecordingError,
     RecordingWriter,
+    file_sha256,
     read_messages,
     read_metadata,
     recording_keys,
@@ -101,3 +107,19 @@ def test_the_zstd_level_changes_the_file_not_the_messages(tmp_path):
     assert sizes[-1] > sizes[19]
     with pytest.raises(ValueError, match="zstd level must be in"):
         RecordingWriter(tmp_path / "bad.mcap", zstd_level=30)
+
+
+def test_the_file_digest_is_the_sha256_hands_on_its_error_and_cancels(tmp_path):
+    path = tmp_path / "blob.bin"
+    data = np.random.default_rng(5).integers(0, 256, size=3 * (1 << 20) + 17, dtype=np.uint8).tobytes()
+    path.write_bytes(data)
+    digest = FileDigest(path)
+    assert digest.result(timeout=30) == hashlib.sha256(data).hexdigest() == file_sha256(path)
+    digest.cancel()  # after the result: nothing left to stop
+    with pytest.raises(FileNotFoundError, match="missing.bin"):
+        FileDigest(tmp_path / "missing.bin").result(timeout=30)
+    stopped = FileDigest(path, chunk=1024)
+    stopped.cancel()
+    assert not any(t.name == "poseidon-sha256" for t in threading.enumerate())
+    with pytest.raises(CancelledError):  # never a digest of part of the file
+        stopped.result(timeout=30)

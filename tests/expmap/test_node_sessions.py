@@ -6,7 +6,7 @@ from pathlib import Path
 
 from common.messages import ExperienceEvent, Header, MapSessions
 from common.node import run_offline
-from launcher.run import MAP_DIR_FILES, use_map_dir
+from launcher.map_dir import MAP_DIR_FILES, use_map_dir
 from system.config import PoseidonConfig
 from system.services import build_node
 from tests.expmap.helpers import SEC
