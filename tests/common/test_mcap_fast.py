@@ -1,5 +1,6 @@
 """The fast paths of common.mcap_io give exactly what mcap's own reader and writer give."""
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from common import mcap_io
@@ -210,3 +211,32 @@ def test_chunk_buffer_reused_and_let_go_after_a_large_message(tmp_path):
     assert [m.width for m in got] == sizes
     assert all(int(np.asarray(m.data).max()) == i for i, m in enumerate(got))
     assert _ours(path) == _mcap_order(path)
+
+
+def _rss_file_kib() -> int:
+    for line in open("/proc/self/status"):
+        if line.startswith("RssFile:"):
+            return int(line.split()[1])
+    raise AssertionError("no RssFile in /proc/self/status")
+
+
+def test_a_read_recording_does_not_stay_resident_in_the_reader(tmp_path):
+    """48 MB of incompressible images read through the mapped reader: each chunk is unmapped
+    again once read, so the process's file-backed resident memory grows by a few chunks, not
+    by the file (without the unmapping it grew by the whole 48 MB)."""
+    if mcap_io._MADV_DONTNEED is None:
+        pytest.skip("no MADV_DONTNEED on this platform: mapped chunks stay resident")
+    path = tmp_path / "big.mcap"
+    rng = np.random.default_rng(11)
+    with RecordingWriter(path) as w:
+        for i in range(48):
+            px = rng.integers(0, 256, size=(512, 683, 3), dtype=np.uint8)  # ~1 MB, incompressible
+            w.write("camera/image_raw", Image(header=Header(seq=i, stamp=i * 1000), height=512, width=683,
+                                              encoding="rgb8", data=px))
+    size_kib = path.stat().st_size // 1024
+    assert size_kib > 45_000
+    before = _rss_file_kib()
+    n = sum(1 for _ in read_messages(path))
+    grown = _rss_file_kib() - before
+    assert n == 48
+    assert grown < size_kib // 4, f"file-backed RSS grew by {grown} KiB reading a {size_kib} KiB recording"
