@@ -456,6 +456,9 @@ _U64 = struct.Struct("<Q")
 
 #: unmaps pages of a file mapping from the process (Linux; None elsewhere: the pages stay mapped)
 _MADV_DONTNEED: int | None = getattr(mmap, "MADV_DONTNEED", None)
+#: a page fault on a file mapping maps up to this much of the page cache around it (Linux
+#: ``fault_around_bytes``, 64 KiB by default)
+_FAULT_AROUND = 1 << 16
 
 
 class _ChunkReader:
@@ -495,9 +498,11 @@ class _ChunkReader:
                           uncompressed_crc=crc, uncompressed_size=size)   # its fields; the records stay mapped
             with mv[pos:pos + data_len] as packed:
                 data = _records(chunk, packed, validate_crc)
-        if _MADV_DONTNEED is not None:  # the chunk's pages leave this process (they stay in the page cache)
-            lead = at % mmap.PAGESIZE
-            self._map.madvise(_MADV_DONTNEED, at - lead, n + lead)
+        if _MADV_DONTNEED is not None:  # the chunk's pages leave this process (they stay in the page cache),
+            # with the pages the kernel mapped around them (between chunks lie the message indexes)
+            lo = max(0, at - _FAULT_AROUND)
+            lo -= lo % mmap.PAGESIZE
+            self._map.madvise(_MADV_DONTNEED, lo, min(len(self._map), at + n + _FAULT_AROUND) - lo)
         return data
 
 
