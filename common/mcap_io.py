@@ -456,9 +456,9 @@ _U64 = struct.Struct("<Q")
 
 #: unmaps pages of a file mapping from the process (Linux; None elsewhere: the pages stay mapped)
 _MADV_DONTNEED: int | None = getattr(mmap, "MADV_DONTNEED", None)
-#: a page fault on a file mapping maps up to this much of the page cache around it (Linux
-#: ``fault_around_bytes``, 64 KiB by default)
-_FAULT_AROUND = 1 << 16
+#: a page fault on a file mapping maps the page cache around it: 64 KiB (Linux
+#: ``fault_around_bytes``), or a whole large folio, at most a 2 MiB huge page
+_MAP_MARGIN = 2 << 20
 
 
 class _ChunkReader:
@@ -498,11 +498,13 @@ class _ChunkReader:
                           uncompressed_crc=crc, uncompressed_size=size)   # its fields; the records stay mapped
             with mv[pos:pos + data_len] as packed:
                 data = _records(chunk, packed, validate_crc)
-        if _MADV_DONTNEED is not None:  # the chunk's pages leave this process (they stay in the page cache),
-            # with the pages the kernel mapped around them (between chunks lie the message indexes)
-            lo = max(0, at - _FAULT_AROUND)
+        if _MADV_DONTNEED is not None:
+            # the chunk's pages leave this process (they stay in the page cache), with what the
+            # kernel mapped around them: a fault maps a whole folio of the page cache, up to a huge
+            # page, and the message indexes between chunks are never read through the map
+            lo = max(0, at - _MAP_MARGIN)
             lo -= lo % mmap.PAGESIZE
-            self._map.madvise(_MADV_DONTNEED, lo, min(len(self._map), at + n + _FAULT_AROUND) - lo)
+            self._map.madvise(_MADV_DONTNEED, lo, min(len(self._map), at + n + _MAP_MARGIN) - lo)
         return data
 
 
