@@ -500,11 +500,12 @@ class _ChunkReader:
                 data = _records(chunk, packed, validate_crc)
         if _MADV_DONTNEED is not None:
             # the chunk's pages leave this process (they stay in the page cache), with what the
-            # kernel mapped around them: a fault maps a whole folio of the page cache, up to a huge
-            # page, and the message indexes between chunks are never read through the map
+            # kernel mapped before them: a fault maps a whole folio of the page cache, up to a huge
+            # page, and the message indexes between chunks are never read through the map (what it
+            # mapped past the chunk's end goes with the next chunk; a chunk read ahead is not undone)
             lo = max(0, at - _MAP_MARGIN)
             lo -= lo % mmap.PAGESIZE
-            self._map.madvise(_MADV_DONTNEED, lo, min(len(self._map), at + n + _MAP_MARGIN) - lo)
+            self._map.madvise(_MADV_DONTNEED, lo, at + n - lo)
         return data
 
 
