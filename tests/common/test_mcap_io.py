@@ -1,5 +1,7 @@
 import hashlib
+import os
 import threading
+import time
 from concurrent.futures import CancelledError
 
 import numpy as np
@@ -118,8 +120,20 @@ def test_the_file_digest_is_the_sha256_hands_on_its_error_and_cancels(tmp_path):
     digest.cancel()  # after the result: nothing left to stop
     with pytest.raises(FileNotFoundError, match="missing.bin"):
         FileDigest(tmp_path / "missing.bin").result(timeout=30)
-    stopped = FileDigest(path, chunk=1024)
-    stopped.cancel()
+    # cancelled mid-file (a pipe the test feeds, so the thread is surely still reading): no digest
+    # of part of the file, and no thread left
+    fifo = tmp_path / "feed"
+    os.mkfifo(fifo)
+    stopped = FileDigest(fifo, chunk=1024)
+    with open(fifo, "wb") as feed:
+        feed.write(data[:4096])
+        feed.flush()
+        canceller = threading.Thread(target=stopped.cancel)
+        canceller.start()
+        while not stopped._stop.is_set():
+            time.sleep(0.001)
+    canceller.join(timeout=30)  # the pipe's end woke the reader
+    assert not canceller.is_alive()
     assert not any(t.name == "poseidon-sha256" for t in threading.enumerate())
-    with pytest.raises(CancelledError):  # never a digest of part of the file
+    with pytest.raises(CancelledError):
         stopped.result(timeout=30)
