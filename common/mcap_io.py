@@ -90,11 +90,17 @@ def code_revision() -> str:
 
 
 def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
+    digest: str = _sha256(path, chunk).hexdigest()
+    return digest
+
+
+def _sha256(path: str | Path, chunk: int, stop: threading.Event | None = None) -> Any:
+    """hashlib's SHA-256 of the file read ``chunk`` bytes at a time (up to where ``stop`` was set)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
-        while block := f.read(chunk):
+        while not (stop is not None and stop.is_set()) and (block := f.read(chunk)):
             h.update(block)
-    return h.hexdigest()
+    return h
 
 
 class FileDigest:
@@ -113,10 +119,7 @@ class FileDigest:
     def _work(self) -> None:
         self._future.set_running_or_notify_cancel()
         try:
-            h = hashlib.sha256()
-            with open(self.path, "rb") as f:
-                while not self._stop.is_set() and (block := f.read(self._chunk)):
-                    h.update(block)
+            h = _sha256(self.path, self._chunk, self._stop)
         except BaseException as exc:  # handed to whoever calls result()
             self._future.set_exception(exc)
             return
