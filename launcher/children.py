@@ -1,6 +1,7 @@
 """How the launcher starts a service process: it dies with the launcher, and a replay's
 services run under Linux ``SCHED_BATCH`` (``bus.batch_scheduling``; why:
-``docs/DECISIONS.md``, "Replays under SCHED_BATCH").
+``docs/DECISIONS.md``, "Replays under SCHED_BATCH"), all but the favoured ones nicer than the
+launcher (``bus.replay_nice``, ``bus.replay_favoured``; "Replay niceness").
 
 Both are set up by the child itself, first thing in ``poseidon`` (:func:`adopt_launcher`), from
 the environment :func:`child_env` gives it, never in a ``preexec_fn``: the launcher has Zenoh
@@ -18,7 +19,7 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["adopt_launcher", "child_env", "child_pid", "children", "LAUNCHER_PID_ENV", "BATCH_ENV"]
+__all__ = ["adopt_launcher", "child_env", "child_pid", "children", "LAUNCHER_PID_ENV", "BATCH_ENV", "NICE_ENV"]
 
 PR_SET_PDEATHSIG = 1
 _SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
@@ -26,14 +27,20 @@ _SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
 LAUNCHER_PID_ENV = "POSEIDON_LAUNCHER_PID"
 #: "1" in a child's environment: the child (and every thread it starts) runs under SCHED_BATCH
 BATCH_ENV = "POSEIDON_SCHED_BATCH"
+#: an int in a child's environment: the child raises its niceness by this much, first thing
+NICE_ENV = "POSEIDON_NICE"
 
 
-def child_env(base: Mapping[str, str] | None = None, batch_scheduling: bool = False) -> dict[str, str]:
+def child_env(base: Mapping[str, str] | None = None, batch_scheduling: bool = False, nice: int = 0) -> dict[str, str]:
     """The environment of a child the launcher starts (``base``: default this process's): the
-    child dies with this process, and runs under ``SCHED_BATCH`` if ``batch_scheduling``."""
+    child dies with this process, runs under ``SCHED_BATCH`` if ``batch_scheduling``, and
+    ``nice`` (>= 0) nicer than this process."""
+    if nice < 0:
+        raise ValueError(f"child_env: nice must be >= 0 (a child can only be made nicer), got {nice}")
     env = dict(os.environ if base is None else base)
     env[LAUNCHER_PID_ENV] = str(os.getpid())
     env[BATCH_ENV] = "1" if batch_scheduling else "0"
+    env[NICE_ENV] = str(nice)
     return env
 
 
@@ -46,6 +53,7 @@ def adopt_launcher(what: str = "poseidon") -> None:
     launcher.  Without them (a process started by hand): nothing."""
     pid = os.environ.pop(LAUNCHER_PID_ENV, None)
     batch = os.environ.pop(BATCH_ENV, "0") == "1"
+    nice = os.environ.pop(NICE_ENV, "0")
     if pid is None:
         return
     libc = ctypes.CDLL(None, use_errno=True)
@@ -53,6 +61,10 @@ def adopt_launcher(what: str = "poseidon") -> None:
         raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
     if os.getppid() != int(pid):  # the launcher died before prctl took effect
         os.kill(os.getpid(), signal.SIGTERM)
+    if not nice.isdigit():
+        raise ValueError(f"poseidon {what}: {NICE_ENV}={nice!r} is not a non-negative integer")
+    if int(nice):
+        os.nice(int(nice))  # before any thread: every thread the child starts inherits it
     if not batch:
         return
     # on stderr (the launcher's console): logging is not set up yet

@@ -142,6 +142,10 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     says: the run is a test of the transport, and nothing would otherwise keep the recorder
     waiting for the player."""
     names = list(services) if services is not None else list(config.services or available_services(config))
+    unknown = set(config.bus.replay_favoured) - set(available_services(config)) - {"player", "recorder"}
+    if unknown:
+        raise ValueError(f"bus.replay_favoured: {sorted(unknown)} name no service (services: "
+                         f"{sorted(available_services(config))}, player, recorder)")
     io = {n: node_io(n, config) for n in names}
     produced = {k: n for n, (_i, outs) in io.items() for k in outs}
     rec_keys = list(recording_keys(input_path))
@@ -295,10 +299,11 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
         env.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "poseidon-numba-cache"))
         env.setdefault("PYTHONFAULTHANDLER", "1")  # a service killed by a fatal signal prints where it was
         restarts: dict[str, int] = {}
-        batch = config.bus.batch_scheduling
+        batch, favoured = config.bus.batch_scheduling, set(config.bus.replay_favoured)
 
         def _start(name: str, cmd: list[str]) -> subprocess.Popen[bytes]:
-            return subprocess.Popen(cmd, env=child_env(env, batch), stdout=2)
+            nice = 0 if name in favoured else config.bus.replay_nice
+            return subprocess.Popen(cmd, env=child_env(env, batch, nice), stdout=2)
 
         def restart(name: str, rc: int) -> subprocess.Popen[bytes] | None:
             """Supervision: start ``name`` again (resuming) unless it used its restarts."""

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from unittest import mock
 
 import pytest
 from mcap.reader import make_reader
@@ -269,6 +270,48 @@ def test_replay_children_run_under_sched_batch_die_with_the_launcher_and_a_refus
         assert int(got_policy) == policy  # a thread the child starts has the child's policy
         assert int(got_sig) == signal.SIGTERM and passed_on == "False"
         assert ("did not get SCHED_BATCH" in proc.stderr) is bool(patch), proc.stderr
+
+
+def test_replay_children_but_the_favoured_run_nicer_and_a_bad_favoured_name_is_refused(tmp_path):
+    """bus.replay_nice / bus.replay_favoured: a child started with child_env(nice=N) raises its own
+    niceness by N before any thread (a thread it starts has it too) and does not pass the setting
+    on; run_distributed gives every service but the favoured ones that niceness; a favoured name
+    that is no service is refused, naming the field."""
+    from launcher import run as run_mod
+    from launcher.children import child_env
+    from system.config import load_config
+
+    probe = ("import os, threading\n"
+             "from launcher.children import adopt_launcher\n"
+             "adopt_launcher('probe')\n"
+             "t = threading.Thread(target=lambda: print(os.nice(0), 'POSEIDON_NICE' in os.environ)); t.start(); t.join()\n")
+    base = os.nice(0)
+    for nice in (0, 5):
+        proc = subprocess.run([sys.executable, "-c", probe], env=child_env(nice=nice), cwd=REPO,
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        got, passed_on = proc.stdout.split()
+        assert int(got) == min(base + nice, 19) and passed_on == "False"
+    with pytest.raises(ValueError, match="nice must be >= 0"):
+        child_env(nice=-1)
+
+    started: dict[str, str] = {}
+    real_popen = subprocess.Popen
+
+    def record(cmd, env=None, **kw):  # noqa: ANN001, ANN202 - the launcher's Popen, recorded and run
+        if "service" in cmd:
+            started[cmd[cmd.index("service") + 1]] = env["POSEIDON_NICE"]
+        return real_popen(cmd, env=env, **kw)
+
+    mission = tmp_path / "m.mcap"
+    six_stream_recording(mission, 200)
+    cfg = load_config(overrides=["bus.replay_nice=7", "bus.replay_favoured=[recorder]"])
+    with mock.patch.object(run_mod.subprocess, "Popen", side_effect=record):
+        run_mod.run_distributed(cfg, mission, tmp_path / "run.mcap", services=[], progress=False)
+    assert started == {"recorder": "0", "player": "7"}, started
+    bad = load_config(overrides=["bus.replay_favoured=[encodr]"])
+    with pytest.raises(ValueError, match=r"bus\.replay_favoured: \['encodr'\]"):
+        run_mod.plan_run(bad, mission)
 
 
 def test_the_launcher_starts_no_child_with_a_preexec_fn():
