@@ -104,11 +104,11 @@ class BusConfig(ConfigSection):
                                    "running service: fewer context switches on a loaded machine (-9 % CPU of all "
                                    "services, -7.5 % wall on the 10-minute mission; docs/DECISIONS.md). Recordings "
                                    "identical")
-    replay_nice: int = Field(5, ge=0, le=19, description="replays (poseidon run, not --live): every service "
+    replay_nice: int = Field(0, ge=0, le=19, description="replays (poseidon run, not --live): every service "
                              "process but bus.replay_favoured runs this much nicer than the launcher, so the "
-                             "service that paces the pipeline gets a core whenever it can use one (60-minute "
-                             "mission: about -9 % wall time and CPU; docs/DECISIONS.md). Recordings identical; "
-                             "0: every service alike")
+                             "encoder gets a core whenever it can use one. 0: every service alike (the default: "
+                             "at 5, three alternating rounds on the 60-minute mission gave -11 %, -6.7 % and "
+                             "+3.4 % wall time; docs/DECISIONS.md). Recordings identical")
     replay_favoured: list[str] = Field(default_factory=lambda: ["encoder"], description="services left at the "
                                        "launcher's niceness in replays (bus.replay_nice): the encoder does the "
                                        "most work of any one process, and every later stage waits for it")

@@ -1,7 +1,7 @@
 """How the launcher starts a service process: it dies with the launcher, and a replay's
 services run under Linux ``SCHED_BATCH`` (``bus.batch_scheduling``; why:
-``docs/DECISIONS.md``, "Replays under SCHED_BATCH"), all but the favoured ones nicer than the
-launcher (``bus.replay_nice``, ``bus.replay_favoured``; "Replay niceness").
+``docs/DECISIONS.md``, "Replays under SCHED_BATCH"), and with ``bus.replay_nice`` > 0 all but
+the favoured ones (``bus.replay_favoured``) nicer than the launcher ("Replay niceness").
 
 Both are set up by the child itself, first thing in ``poseidon`` (:func:`adopt_launcher`), from
 the environment :func:`child_env` gives it, never in a ``preexec_fn``: the launcher has Zenoh
