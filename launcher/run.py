@@ -141,11 +141,12 @@ def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str]
     none``: player and recorder alone), every key goes over the bus whatever ``player.replay``
     says: the run is a test of the transport, and nothing would otherwise keep the recorder
     waiting for the player."""
-    names = list(services) if services is not None else list(config.services or available_services(config))
-    unknown = set(config.bus.replay_favoured) - set(available_services(config)) - {"player", "recorder"}
+    known = available_services(config)
+    names = list(services) if services is not None else list(config.services or known)
+    unknown = set(config.bus.replay_favoured) - set(known) - {"player", "recorder"}
     if unknown:
         raise ValueError(f"bus.replay_favoured: {sorted(unknown)} name no service (services: "
-                         f"{sorted(available_services(config))}, player, recorder)")
+                         f"{sorted(known)}, player, recorder)")
     io = {n: node_io(n, config) for n in names}
     produced = {k: n for n, (_i, outs) in io.items() for k in outs}
     rec_keys = list(recording_keys(input_path))

@@ -279,7 +279,6 @@ def test_replay_children_but_the_favoured_run_nicer_and_a_bad_favoured_name_is_r
     that is no service is refused, naming the field."""
     from launcher import run as run_mod
     from launcher.children import child_env
-    from system.config import load_config
 
     probe = ("import os, threading\n"
              "from launcher.children import adopt_launcher\n"
