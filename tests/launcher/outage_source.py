@@ -30,20 +30,20 @@ def main(argv: list[str] | None = None) -> int:
     drv2 = SensorDriver(bus, outage_frames=small)  # the DVL: one that does not
     period = 1.0 / args.rate
     t0 = time.monotonic()
-    i = 0
     slowest = 0.0
-    while (now := time.monotonic()) < t0 + args.seconds:
-        a = time.monotonic()
+    # a fixed number of ticks, each at its time: a late tick near the end must not drop the last one
+    for i in range(round(args.rate * args.seconds)):
+        now = a = time.monotonic()
         drv.imu(0.001 * i, 0.0, 0.0, gyro=(float(i), 0.0, 0.0))
         drv2.dvl((0.001 * i, 0.0, 0.0), 2.0)
         slowest = max(slowest, time.monotonic() - a)
-        i += 1
-        if args.trace and i % int(args.rate) == 0:
+        n = i + 1  # ticks sent
+        if args.trace and n % int(args.rate) == 0:
             pubs = drv.source.publishers() + drv2.source.publishers()
-            print(f"{now - t0:6.2f} s: sent {i}, matching {[p.has_subscribers() for p in pubs]}, "
+            print(f"{now - t0:6.2f} s: sent {n}, matching {[p.has_subscribers() for p in pubs]}, "
                   f"slowest publish {slowest:.3f} s", file=sys.stderr, flush=True)
             slowest = 0.0
-        time.sleep(max(0.0, t0 + i * period - time.monotonic()))
+        time.sleep(max(0.0, t0 + n * period - time.monotonic()))
     drv.close()
     drv2.close()
     a, b = drv.source.counters(), drv2.source.counters()
