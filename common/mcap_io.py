@@ -26,6 +26,7 @@ opens (``poseidon info FILE --recover FIXED.mcap``).
 from __future__ import annotations
 
 import bisect
+import functools
 import hashlib
 import io
 import json
@@ -35,6 +36,7 @@ import os
 import struct
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import CancelledError, Future
 from dataclasses import dataclass
@@ -49,6 +51,7 @@ from mcap.reader import _chunks_matching_topics, make_reader
 from mcap.records import Channel, Chunk, ChunkIndex, MessageIndex, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import CRCValidationError, StreamReader
+from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 from zstandard import ZstdError
 
@@ -57,7 +60,7 @@ from common.messages import Message, message_type
 
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
-    "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "FileDigest", "code_revision",
+    "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "FileDigest", "digest_from_file", "code_revision",
     "recording_status", "recover_recording", "read_file_order", "iter_file_order", "key_digests",
 ]
 
@@ -105,8 +108,8 @@ def _sha256(path: str | Path, chunk: int, stop: threading.Event | None = None) -
 
 class FileDigest:
     """The SHA-256 of a file, computed on a thread of its own from construction on: hashlib
-    releases the GIL while it hashes, so the caller goes on meanwhile (a launcher starts its
-    services; ~0.8 CPU s per GB from the page cache, the disk's speed otherwise)."""
+    releases the GIL while it hashes, so the caller goes on meanwhile (a launcher plans its run
+    and starts its services; ~0.8 CPU s per GB from the page cache, the disk's speed otherwise)."""
 
     def __init__(self, path: str | Path, chunk: int = 1 << 20):
         self.path = Path(path)
@@ -132,10 +135,42 @@ class FileDigest:
         """The hex digest (waits for it); raises what reading the file raised."""
         return self._future.result(timeout)
 
+    def done(self) -> bool:
+        """Whether the digest (or the error) is there: :meth:`result` would not wait."""
+        return self._future.done()
+
+    def publish_to(self, path: str | Path) -> None:
+        """Once it is there, write the digest (or ``error: ...``) to ``path`` atomically, for
+        another process (:func:`digest_from_file`: a distributed run's recorder)."""
+        target = Path(path)
+
+        def write(future: Future[str]) -> None:
+            exc = future.exception()
+            text = f"error: {type(exc).__name__}: {exc}" if exc is not None else future.result()
+            tmp = target.with_name(target.name + ".tmp")
+            tmp.write_text(text + "\n")
+            os.replace(tmp, target)
+        self._future.add_done_callback(write)
+
     def cancel(self) -> None:
         """Stop hashing and wait for the thread to end (a caller that no longer needs the digest)."""
         self._stop.set()
         self._thread.join()
+
+
+def digest_from_file(path: str | Path, timeout_s: float = 600.0, poll_s: float = 0.05) -> str:
+    """The digest :meth:`FileDigest.publish_to` wrote to ``path``, waiting for the file up to
+    ``timeout_s``; RecordingError naming the file when it holds the hashing's error or never came."""
+    p = Path(path)
+    deadline = time.monotonic() + timeout_s
+    while not p.exists():
+        if time.monotonic() > deadline:
+            raise RecordingError(f"{p}: the input's digest did not arrive within {timeout_s:.0f} s")
+        time.sleep(poll_s)
+    text = p.read_text().strip()
+    if text.startswith("error:") or len(text) != 64:
+        raise RecordingError(f"{p}: no digest of the input: {text}")
+    return text
 
 
 _MESSAGE_OPCODE = int(Opcode.MESSAGE)
@@ -321,16 +356,25 @@ class RecordingWriter:
         """Add a metadata record; values that are not strings are stored as JSON."""
         self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()})
 
-    def flush(self) -> None:
+    def flush(self, sync: bool = True) -> None:
+        """The complete chunks to the operating system (a killed process loses none of them);
+        ``sync``: and to disk (a crashed machine neither), or leave that to :meth:`fsync`."""
         self._file.flush()
-        os.fsync(self._file.fileno())
+        if sync:
+            os.fsync(self._file.fileno())
         self._since_flush = 0
 
-    def sync(self) -> None:
-        """End the chunk in progress and flush to disk: every message written so far is then
-        readable from the file even if the process dies the next instant (a recorder checkpoint)."""
+    def fsync(self) -> None:
+        """What was flushed to the operating system so far, to disk (callable from another
+        thread while this one goes on writing: the recorder's sync thread)."""
+        os.fsync(self._file.fileno())
+
+    def sync(self, to_disk: bool = True) -> None:
+        """End the chunk in progress and flush: every message written so far is then readable
+        from the file even if the process dies the next instant (a recorder checkpoint);
+        ``to_disk`` False leaves the disk to :meth:`fsync`."""
         self._writer.flush()  # type: ignore[no-untyped-call]  # mcap leaves Writer.flush() unannotated
-        self.flush()
+        self.flush(sync=to_disk)
 
     def close(self) -> None:
         if self._closed:
@@ -373,12 +417,36 @@ def _open(path: Path) -> IO[bytes]:
 _UNREADABLE = (McapError, ValueError, EOFError, KeyError, AssertionError, OSError, struct.error)
 
 
-def _has_summary(path: Path) -> bool:
-    with _open(path) as f:
+def _summary_of(path: Path) -> Summary | None:
+    """The summary section of a complete recording, None for a file without a readable one.
+    Parsed once per file version (device, inode, size, modification time): the summary of a
+    mission hour holds ~6000 chunk indexes, ~0.4 s to parse, and a run's launcher, player and
+    recorder each ask several times."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such recording") from None
+    return _summary_cached(str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _summary_cached(path: str, _dev: int, _ino: int, _size: int, _mtime_ns: int) -> Summary | None:
+    with _open(Path(path)) as f:
         try:
-            return make_reader(f).get_summary() is not None
+            return make_reader(f).get_summary()
         except _UNREADABLE:
-            return False
+            return None
+
+
+def _reader_with(f: IO[bytes], summary: Summary, validate_crcs: bool = False) -> Any:
+    """mcap's reader on ``f`` with its summary already parsed (:func:`_summary_of`)."""
+    reader: Any = make_reader(f, validate_crcs=validate_crcs)
+    reader._summary = summary  # the attribute mcap's SeekingReader.get_summary() caches it in
+    return reader
+
+
+def _has_summary(path: Path) -> bool:
+    return _summary_of(path) is not None
 
 
 def _sequential(path: Path, keys: set[str] | None, strict: bool) -> tuple[list[RecordedMessage], list[Metadata]]:
@@ -588,13 +656,10 @@ def read_messages(path: str | Path, keys: list[str] | None = None, strict: bool 
     """
     p = Path(path)
     wanted = set(keys) if keys is not None else None
+    summary = _summary_of(p)
     with _open(p) as f:
-        try:
-            reader = make_reader(f, validate_crcs=True)
-            summary = reader.get_summary()
-        except _UNREADABLE:
-            summary = None
         if summary is not None:
+            reader = _reader_with(f, summary, validate_crcs=True)
             try:
                 if summary.chunk_indexes:
                     yield from _merge_chunks(f, summary, keys, start_ns, validate_crc=True, end_ns=end_ns)
@@ -636,13 +701,10 @@ def key_digests(path: str | Path) -> dict[str, dict[str, Any]]:
 def recording_keys(path: str | Path) -> dict[str, str]:
     """Key -> message type name of every channel of a recording."""
     p = Path(path)
-    if _has_summary(p):
-        with _open(p) as f:
-            summary = make_reader(f).get_summary()
-            if summary is None:
-                raise ValueError(f"{p}: the recording's summary section cannot be read")
-            schemas = summary.schemas
-            return {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()}
+    summary = _summary_of(p)
+    if summary is not None:
+        schemas = summary.schemas
+        return {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()}
     messages, _ = _sequential(p, None, strict=False)
     return {r.key: r.type_name for r in messages}
 
@@ -650,10 +712,7 @@ def recording_keys(path: str | Path) -> dict[str, str]:
 def recording_message_count(path: str | Path, keys: list[str] | None = None) -> int | None:
     """Number of messages (of ``keys``) from the summary statistics, or None without a summary."""
     p = Path(path)
-    if not _has_summary(p):
-        return None
-    with _open(p) as f:
-        summary = make_reader(f).get_summary()
+    summary = _summary_of(p)
     if summary is None or summary.statistics is None:
         return None
     wanted = None if keys is None else set(keys)
@@ -662,11 +721,14 @@ def recording_message_count(path: str | Path, keys: list[str] | None = None) -> 
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
-    """Every metadata record of a recording, by name."""
+    """Every metadata record of a recording, by name: a name written more than once gives its
+    last record (the recorder's ``poseidon`` record is written again at the end with the input's
+    digest)."""
     p = Path(path)
-    if _has_summary(p):
+    summary = _summary_of(p)
+    if summary is not None:
         with _open(p) as f:
-            return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+            return {m.name: dict(m.metadata) for m in _reader_with(f, summary).iter_metadata()}
     _, metadata = _sequential(p, set(), strict=False)
     return {m.name: dict(m.metadata) for m in metadata}
 
@@ -721,10 +783,7 @@ def recover_recording(src: str | Path, dst: str | Path, compression: str = "zstd
 
 def _summary_statistics(path: Path) -> Any:
     """The summary of a complete recording that has a statistics record, else None."""
-    if not _has_summary(path):
-        return None
-    with _open(path) as f:
-        summary = make_reader(f).get_summary()
+    summary = _summary_of(path)
     return summary if summary is not None and summary.statistics is not None else None
 
 

@@ -16,7 +16,9 @@
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Iterable
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -102,3 +104,19 @@ def open_hub(listen: str, config_file: str | None = None, **secure: str | None) 
     """Open the hub: a router session listening on ``listen`` (e.g. ``tcp/127.0.0.1:7447``).
     ``secure``: ``tls_dir``, ``tls_host``, ``user``, ``password_file`` of :func:`zenoh_config`."""
     return zenoh.open(zenoh_config("router", connect=(), listen=[listen], config_file=config_file, **secure))
+
+
+def open_hub_in_background(listen: str, **kwargs: Any) -> Future[zenoh.Session]:
+    """:func:`open_hub` on a thread of its own (a launcher plans its run meanwhile); its error,
+    if any, comes with ``result()``."""
+    opening: Future[zenoh.Session] = Future()
+
+    def work() -> None:
+        opening.set_running_or_notify_cancel()
+        try:
+            opening.set_result(open_hub(listen, **kwargs))
+        except BaseException as exc:  # handed to whoever calls result()
+            opening.set_exception(exc)
+
+    threading.Thread(target=work, name="poseidon-hub-open", daemon=True).start()
+    return opening

@@ -13,13 +13,17 @@ with ``vfork``/``exec``, where nothing runs in between."""
 from __future__ import annotations
 
 import ctypes
+import logging
 import os
 import signal
+import subprocess
 import sys
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["adopt_launcher", "child_env", "child_pid", "children", "LAUNCHER_PID_ENV", "BATCH_ENV", "NICE_ENV"]
+log = logging.getLogger(__name__)
+
+__all__ = ["adopt_launcher", "child_env", "child_pid", "children", "describe_exit", "stop_all", "LAUNCHER_PID_ENV", "BATCH_ENV", "NICE_ENV"]
 
 PR_SET_PDEATHSIG = 1
 _SCHED_BATCH: int | None = getattr(os, "SCHED_BATCH", None)
@@ -108,3 +112,34 @@ def child_pid(launcher_pid: int, name: str) -> int | None:
         if "service" in argv and argv.index("service") + 1 < len(argv) and argv[argv.index("service") + 1] == name:
             return child
     return None
+
+
+def describe_exit(rc: int) -> str:
+    """A child's exit status in words (``killed by signal SIGKILL``, ``exit code 3``)."""
+    if rc < 0:
+        try:
+            return f"killed by signal {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"killed by signal {-rc}"
+    return f"exit code {rc}"
+
+
+def stop_all(procs: dict[str, subprocess.Popen[bytes]], grace_s: float = 10.0, recorder_grace_s: float = 60.0) -> None:
+    """SIGTERM to every process still running, then wait for each, ``grace_s`` (the recorder:
+    ``recorder_grace_s``, since it first writes what has arrived and then the file's summary,
+    which a kill would lose) before SIGKILL."""
+    # the recorder last, so that it keeps what the others flushed
+    order = [n for n in procs if n != "recorder"] + (["recorder"] if "recorder" in procs else [])
+    for name in order:
+        p = procs[name]
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for name in order:
+        p = procs[name]
+        wait_s = recorder_grace_s if name == "recorder" else grace_s
+        try:
+            p.wait(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            log.error("%s did not stop within %.0f s; killing it", name, wait_s)
+            p.kill()
+            p.wait()

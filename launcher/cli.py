@@ -230,6 +230,8 @@ def _add_service_command(sub: Any) -> None:
     p.add_argument("--metadata", help="recorder: JSON file with the run's metadata record")
     p.add_argument("--copy-from", help="recorder: input recording whose --copy-keys it copies into its output "
                    "(player.replay copied)")
+    p.add_argument("--input-digest", metavar="FILE", help="recorder: file where the launcher writes the input's "
+                   "SHA-256; the recorder writes it into the metadata record's input_sha256 at the end")
     p.add_argument("--copy-keys", help="recorder: comma-separated keys of --copy-from to copy")
     p.add_argument("--supervise", metavar="FILE", help="supervised run: checkpoints, replays (written by the "
                    "launcher, see common/resume.py)")

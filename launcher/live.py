@@ -78,18 +78,16 @@ from common.codec import encode_frame
 from common.live import HEALTH_KEY, LATENCY_KEY
 from common.mcap_io import code_revision
 from common.ordering import END_OF_TIME
-from launcher.children import child_env
+from launcher.children import child_env, describe_exit, stop_all
 from launcher.health import Recovery, ServiceHealth, checkpoint_ages, diagnostics, snapshot
 from launcher.inputs import input_report
 from launcher.run import (
     RunFailed,
     RunPlan,
     RunResult,
-    _describe_exit,
     _free_port,
     _log_args,
     _stats_file,
-    _stop_all,
     _summarise,
     plan_run,
     state_dir_of,
@@ -241,7 +239,7 @@ class _Supervisor:
             n = self.restarts.get(name, 0)
             if n >= self.max_restarts:
                 self._ended.add(name)
-                detail = _describe_exit(rc) + (f" after {n} restart(s) (supervise.max_restarts)" if n else "")
+                detail = describe_exit(rc) + (f" after {n} restart(s) (supervise.max_restarts)" if n else "")
                 log.error("supervise: %s %s; ending the run", name, detail)
                 self.given_up = (name, detail)
                 ended.append(name)
@@ -249,8 +247,8 @@ class _Supervisor:
             self.restarts[name] = n + 1
             delay = self.config.supervise.restart_backoff_s * (n + 1)
             log.warning("supervise: %s died (%s); restart %d of %d in %.1f s, resuming from its last checkpoint",
-                        name, _describe_exit(rc), n + 1, self.max_restarts, delay)
-            self.recoveries.append(Recovery(name, _describe_exit(rc), now))
+                        name, describe_exit(rc), n + 1, self.max_restarts, delay)
+            self.recoveries.append(Recovery(name, describe_exit(rc), now))
             self._pending[name] = now + delay
         return ended
 
@@ -412,10 +410,10 @@ def _live_phases(config: PoseidonConfig, plan: RunPlan, sv: _Supervisor, bridge:
             if bad:
                 failed = (bad[0][0], f"exited with code {bad[0][1]}")
     finally:
-        _stop_all({n: p for n, p in sv.procs.items() if n != HUB})
+        stop_all({n: p for n, p in sv.procs.items() if n != HUB})
         if watcher is not None:
             watcher.close()
-        _stop_all({HUB: sv.procs[HUB]})
+        stop_all({HUB: sv.procs[HUB]})
     return failed
 
 

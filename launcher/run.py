@@ -6,10 +6,11 @@ processes (``poseidon service NAME --connect tcp/127.0.0.1:PORT``).  Embedded
 (``--embedded``): the same pieces as threads on one Zenoh session in this process.
 
 The player publishes the input keys a started service reads (and the ground truth), the
-recorder copies the others from the input (``player.replay`` copied: :func:`plan_run`).  The
-algorithm services start first, while a thread computes the input's SHA-256 for the recording's
-metadata (``input_sha256``; ~0.8 CPU s per GB, up to a few seconds per mission hour, no longer
-ahead of every start); the recorder and the player once it is done.  The player waits until the
+recorder copies the others from the input (``player.replay`` copied: :func:`plan_run`).  Every
+process starts at once, while a thread of the launcher computes the input's SHA-256 (from before
+the planning on; ~0.8 CPU s per GB) and hands it to the recorder, which writes it into the
+recording's metadata (``input_sha256``) at the end (:mod:`services.recorder.recorder`): no start
+waits for it.  The player waits until the
 recorder and every service are alive; the run ends when every process has finished (the recorder
 has seen end-of-stream on every expected key).  If any
 service fails, the others are stopped, what was recorded is kept, and :class:`RunFailed`
@@ -44,7 +45,6 @@ import json
 import logging
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -52,18 +52,20 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from common.bus import Bus, open_hub, open_local_session
+from common.bus import Bus, open_local_session
 from common.live import HEALTH_KEY, LATENCY_KEY
 from common.mcap_io import FileDigest, RecordingError, code_revision, recording_keys, recording_summary
 from common.resume import Supervision
+from common.sessions import open_hub_in_background
 from common.worker import Worker
-from launcher.children import child_env
+from launcher.children import child_env, describe_exit, stop_all
 from launcher.inputs import input_report
 from services.player.player import SOURCE_KEYS, TRUTH_KEYS, replayed_keys
 from system.calibration import calibrate_from_input
@@ -187,11 +189,10 @@ class RunResult:
                 "recording": self.recording, "restarts": self.restarts, "inputs": self.inputs, **live}
 
 
-def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str],
-                 input_sha256: str) -> dict[str, Any]:
+def run_metadata(config: PoseidonConfig, input_path: str | Path, mode: str, services: list[str]) -> dict[str, Any]:
+    """The ``poseidon`` metadata record of a replay; the recorder adds ``input_sha256``."""
     return {"tool": "poseidon run", "mode": mode, "services": services, "code_revision": code_revision(),
-            "input": str(input_path), "input_sha256": input_sha256,
-            "config": config.model_dump(mode="json")}
+            "input": str(input_path), "input_sha256": "", "config": config.model_dump(mode="json")}
 
 
 def _free_port() -> int:
@@ -229,13 +230,8 @@ def _log_args() -> list[str]:
     return child_args()
 
 
-def _describe_exit(rc: int) -> str:
-    if rc < 0:
-        try:
-            return f"killed by signal {signal.Signals(-rc).name}"
-        except ValueError:
-            return f"killed by signal {-rc}"
-    return f"exit code {rc}"
+def _digest_file(tmp: Path) -> Path:
+    return tmp / "input.sha256"
 
 
 def _stats_file(tmp: Path, name: str) -> Path:
@@ -249,7 +245,8 @@ def _service_commands(plan: RunPlan, input_path: Path, partial: Path, tmp: Path,
     ``tmp`` holds the run's metadata file and receives each one's final counters."""
     base = [sys.executable, "-m", "launcher.cli", "service"]
     cmds = {"recorder": base + ["recorder", *common, "--out", str(partial), "--expect", ",".join(plan.expect),
-                                "--metadata", str(tmp / "metadata.json"), "--stats", str(_stats_file(tmp, "recorder"))]}
+                                "--metadata", str(tmp / "metadata.json"), "--input-digest", str(_digest_file(tmp)),
+                                "--stats", str(_stats_file(tmp, "recorder"))]}
     if plan.copy_keys:
         cmds["recorder"] += ["--copy-from", str(input_path), "--copy-keys", ",".join(plan.copy_keys)]
     for name in plan.services:
@@ -273,6 +270,24 @@ def _supervision_args(config: PoseidonConfig, plan: RunPlan, state_dir: Path | N
     return ["--supervise", str(sup_file)]
 
 
+def _prepare(config: PoseidonConfig, input_path: Path, services: list[str] | None,
+             hub_port: int | None) -> tuple[RunPlan, str, Future[Any], FileDigest]:
+    """The run's plan; meanwhile the hub opens (~0.5 s, mostly Zenoh's own start-up wait) and
+    the input's digest starts (the recorder needs it at the end only)."""
+    endpoint = f"tcp/127.0.0.1:{hub_port or _free_port()}"
+    opening = open_hub_in_background(endpoint)
+    digest = FileDigest(input_path)
+    try:
+        calibrate_from_input(config, input_path)
+        plan = plan_run(config, input_path, services)
+    except BaseException:
+        digest.cancel()
+        if opening.exception() is None:
+            opening.result().close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
+        raise
+    return plan, endpoint, opening, digest
+
+
 def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                     services: list[str] | None = None, timeout_s: float | None = None,
                     progress: bool = True, hub_port: int | None = None,
@@ -281,13 +296,11 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
     free port); supervised when ``supervise.max_restarts`` > 0 (see the module notes); once the
     hub listens, ``before_services()`` returns before any process starts (``run --view``: the view)."""
     input_path, (out, partial) = Path(input_path), output_paths(input_path, out)
-    calibrate_from_input(config, input_path)
-    plan = plan_run(config, input_path, services)
+    plan, endpoint, opening, digest = _prepare(config, input_path, services, hub_port)
     max_restarts = config.supervise.max_restarts
     state_dir = state_dir_of(config, out) if max_restarts > 0 else None
-    endpoint = f"tcp/127.0.0.1:{hub_port or _free_port()}"
     t0 = time.monotonic()
-    hub = open_hub(endpoint)
+    hub = opening.result()
     procs: dict[str, subprocess.Popen[bytes]] = {}
     with tempfile.TemporaryDirectory(prefix="poseidon-run-") as tmp:
         cfg_file = Path(tmp) / "config.yaml"
@@ -312,33 +325,28 @@ def run_distributed(config: PoseidonConfig, input_path: str | Path, out: str | P
             if n >= max_restarts:
                 if max_restarts:
                     log.error("supervise: service %s died (%s) and used its %d restarts (supervise.max_restarts)",
-                              name, _describe_exit(rc), max_restarts)
+                              name, describe_exit(rc), max_restarts)
                 return None
             restarts[name] = n + 1
             delay = config.supervise.restart_backoff_s * (n + 1)
             log.warning("supervise: service %s died (%s); restart %d of %d in %.1f s, resuming from its last "
-                        "checkpoint", name, _describe_exit(rc), n + 1, max_restarts, delay)
+                        "checkpoint", name, describe_exit(rc), n + 1, max_restarts, delay)
             time.sleep(delay)
             return _start(name, cmds[name] + ["--resume"])
 
-        digest = FileDigest(input_path)  # for the recording's metadata, while the services start
+        digest.publish_to(_digest_file(Path(tmp)))
         try:
+            meta_file.write_text(json.dumps(run_metadata(config, input_path, "distributed", plan.services)))
             if before_services is not None:
                 before_services()
-            # a service's stdout goes to our stderr: our stdout carries only ``run --json``.  The
-            # algorithm services start while the input is hashed; the recorder (it records the
-            # digest) and the player (it waits for the recorder) once the digest is there
-            for name in [n for n in cmds if n not in ("recorder", "player")]:
-                procs[name] = _start(name, cmds[name])
-            meta = run_metadata(config, input_path, "distributed", plan.services, digest.result())
-            meta_file.write_text(json.dumps(meta))
-            for name in ("recorder", "player"):
+            # a service's stdout goes to our stderr: our stdout carries only ``run --json``
+            for name in cmds:
                 procs[name] = _start(name, cmds[name])
             failed = _monitor(procs, timeout_s, restart if max_restarts > 0 else None, restarts)
         finally:
             digest.cancel()
-            _stop_all(procs)
-            hub.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
+            stop_all(procs)
+            hub.close()
         if failed:
             name, detail = failed
             raise RunFailed(name, detail, str(partial))
@@ -398,27 +406,6 @@ def _monitor(procs: dict[str, subprocess.Popen[bytes]], timeout_s: float | None,
         time.sleep(0.1)
 
 
-def _stop_all(procs: dict[str, subprocess.Popen[bytes]], grace_s: float = 10.0, recorder_grace_s: float = 60.0) -> None:
-    """SIGTERM to every process still running, then wait for each, ``grace_s`` (the recorder:
-    ``recorder_grace_s``, since it first writes what has arrived and then the file's summary,
-    which a kill would lose) before SIGKILL."""
-    # the recorder last, so that it keeps what the others flushed
-    order = [n for n in procs if n != "recorder"] + (["recorder"] if "recorder" in procs else [])
-    for name in order:
-        p = procs[name]
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for name in order:
-        p = procs[name]
-        wait_s = recorder_grace_s if name == "recorder" else grace_s
-        try:
-            p.wait(timeout=wait_s)
-        except subprocess.TimeoutExpired:
-            log.error("%s did not stop within %.0f s; killing it", name, wait_s)
-            p.kill()
-            p.wait()
-
-
 def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path,
                  services: list[str] | None = None, timeout_s: float | None = None,
                  progress: bool = True) -> RunResult:
@@ -427,7 +414,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
     t0 = time.monotonic()
-    digest = FileDigest(input_path)  # for the recording's metadata, while the nodes are built
+    digest = FileDigest(input_path)  # for the recording's metadata, at its end
     # every node is built (and its configuration checked) before anything opens the output
     try:
         nodes = {n: build_checked(n, config) for n in plan.services}
@@ -446,8 +433,8 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
                  "player": WorkerSpec(input=input_path, keys=plan.player_keys, wait_for=["recorder", *plan.services],
                                       progress=progress),
                  "recorder": WorkerSpec(out=partial, expect=plan.expect,
-                                        metadata=run_metadata(config, input_path, "embedded", plan.services,
-                                                              digest.result()),
+                                        metadata=run_metadata(config, input_path, "embedded", plan.services),
+                                        input_digest=digest.result,
                                         copy_from=input_path if plan.copy_keys else None, copy_keys=plan.copy_keys)}
         built: dict[str, Worker] = {}
         for name, spec in specs.items():

@@ -170,11 +170,20 @@ def worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: S
                       announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
                       wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
                       out=args.out, expect=None if args.expect is None else [k for k in args.expect.split(",") if k],
-                      copy_from=args.copy_from, copy_keys=[k for k in (args.copy_keys or "").split(",") if k])
+                      copy_from=args.copy_from, copy_keys=[k for k in (args.copy_keys or "").split(",") if k],
+                      input_digest=_digest_reader(args.input_digest))
     if args.name == RECORDER:
         spec.metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
             "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
     return spec
+
+
+def _digest_reader(path: str | None) -> Callable[[], str] | None:
+    """``--input-digest FILE``: the recorder reads the launcher's digest of the input there."""
+    if path is None:
+        return None
+    from common.mcap_io import digest_from_file
+    return lambda: digest_from_file(path)
 
 
 def run_worker(worker: Worker, signals: _Signals, duration_s: float | None = None) -> dict[str, Any]:

@@ -162,7 +162,8 @@ class WorkerSpec:
     ``wait_for`` (services it waits for and watches), ``progress`` (bar on stderr).
     Recorder: ``out`` (required), ``expect`` (keys whose end-of-stream ends the recording),
     ``metadata`` (the ``poseidon`` metadata record), ``copy_from`` and ``copy_keys`` (input keys it
-    copies from the input recording itself: ``player.replay`` copied).  ROS 1 bridge: ``announce`` (source keys
+    copies from the input recording itself: ``player.replay`` copied), ``input_digest`` (returns the SHA-256 it
+writes into the metadata's ``input_sha256`` at the end: a replay's input).  ROS 1 bridge: ``announce`` (source keys
     it keeps alive with wall-clock watermarks and ends at its stop).  ``live``: a service of a
     live run (bounded input queue ``live.queue_frames``; ``debug.slow_service`` is slowed).  Service: ``node`` already built (None:
     built here).
@@ -180,6 +181,7 @@ class WorkerSpec:
     metadata: dict[str, Any] | None = None
     copy_from: str | Path | None = None
     copy_keys: Sequence[str] = ()
+    input_digest: Callable[[], str] | None = None
     node: ServiceNode[Any] | None = None
     announce: Sequence[str] = ()
     live: bool = False
@@ -208,7 +210,7 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
         return Recorder(bus, spec.out, expect=spec.expect, metadata=spec.metadata,
                         compression=config.recorder.compression, chunk_size=config.recorder.chunk_size,
                         supervision=spec.supervision, copy_from=spec.copy_from, copy_keys=spec.copy_keys,
-                        zstd_level=config.recorder.zstd_level)
+                        zstd_level=config.recorder.zstd_level, input_digest=spec.input_digest)
     if name == LIVE_PLAYER:
         if spec.input is None:
             raise ValueError("the live player needs an input recording")

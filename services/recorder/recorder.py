@@ -2,10 +2,11 @@
 
 Payloads are written byte for byte as received, one channel per key, one schema per
 message type, log time = header stamp (event time).  The ``poseidon`` metadata record holds
-the full configuration, the code revision and the input's hash.  The file is flushed to
-disk at least every ``flush_interval_s`` (wall clock: this is transport, not algorithm), so
-a recorder killed with SIGKILL leaves every complete chunk readable
-(:func:`common.mcap_io.read_messages` recovers it).
+the full configuration, the code revision and the input's hash.  The file is flushed to the
+operating system at least every ``flush_interval_s`` (wall clock: this is transport, not
+algorithm), so a recorder killed with SIGKILL leaves every complete chunk readable
+(:func:`common.mcap_io.read_messages` recovers it), and synced to disk on a thread of its own
+(the recorder's sync thread), so that receiving never waits for the disk.
 
 The recorder stops when end-of-stream has arrived on every key in ``expect`` (the
 launcher passes the player's keys and every service output), or when stopped.
@@ -22,9 +23,10 @@ Numbered frames it already has (a replay, a restarted publisher) are not recorde
 (:class:`common.resume.SequenceGate`; ``RecorderStats.duplicates``); frames whose numbers were
 skipped never arrived: counted ``missing`` per key (see :mod:`common.live`).  Supervised
 (``supervision``), every ``supervise.recorder_checkpoint_interval_s`` of event time it ends the MCAP
-chunk in progress, syncs the file and saves per key the messages recorded and the next
-transport index (``<state_dir>/recorder.ckpt``), then reports those positions on
-``@ckpt/recorder``.  Restarted (``supervision.resume``), it rewrites its partial file
+chunk in progress; its sync thread then syncs the file and only after that saves per key the
+messages recorded and the next transport index as they were at the chunk's end
+(``<state_dir>/recorder.ckpt``) and reports those positions on ``@ckpt/recorder``, while the
+recorder goes on receiving (the next checkpoint waits for the one in flight).  Restarted (``supervision.resume``), it rewrites its partial file
 keeping, per key, exactly the messages its checkpoint counted (anything written after the
 checkpoint is received again), continues it, and asks every publisher for a replay from
 its checkpoint: the final file holds every message exactly once.
@@ -37,6 +39,12 @@ as the input does, without their publishing, routing and receiving (2/3 of the s
 messages).  Its checkpoint counts them with the rest; restarted, it continues them after its
 checkpoint's event time.  An aborted or stopped run copies nothing more.
 
+The input's digest (``input_digest``: a function returning a replay's input SHA-256, which the
+launcher computes from the run's start on, while everything else starts): the metadata record is
+written twice, at the start with ``input_sha256`` empty, so that a recording cut short still names
+its configuration and code, and at a normal end again with the digest (waiting for it if need be).
+Readers take a name's last record (:func:`common.mcap_io.read_metadata`).
+
 The recorder is a :class:`common.worker.Sink` (receive loop, de-duplication, replay
 requests, checkpoints and abort handling are shared with the services' runner).
 """
@@ -45,7 +53,8 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -94,8 +103,10 @@ class Recorder(Sink):
     def __init__(self, bus: Bus, out: str | Path, expect: Iterable[str] | None = None,
                  metadata: dict[str, Any] | None = None, compression: str = "zstd", chunk_size: int = 1 << 20,
                  flush_interval_s: float = 0.5, name: str = "recorder", supervision: Supervision | None = None,
-                 copy_from: str | Path | None = None, copy_keys: Iterable[str] = (), zstd_level: int = ZSTD_LEVEL):
+                 copy_from: str | Path | None = None, copy_keys: Iterable[str] = (), zstd_level: int = ZSTD_LEVEL,
+                 input_digest: Callable[[], str] | None = None):
         self.out = Path(out)
+        self.input_digest = input_digest
         self.copy_from = Path(copy_from) if copy_from is not None else None
         self.copy_keys = sorted(copy_keys) if copy_from is not None else []
         if self.copy_from is not None and self.copy_from.resolve() == self.out.resolve():
@@ -111,6 +122,10 @@ class Recorder(Sink):
         self._writer = None if self._resume else RecordingWriter(self.out, compression=compression,
                                                                   chunk_size=chunk_size, zstd_level=zstd_level)
         self.flush_interval_s = flush_interval_s
+        # fsync (the periodic flush, a checkpoint) on a thread of its own: 10-60 ms of waiting
+        # for the disk each, every 0.2-0.5 s of a fast replay, that the receiving need not wait
+        self._syncer = ThreadPoolExecutor(1, thread_name_prefix="poseidon-recorder-sync")
+        self._syncing: Future[None] | None = None
         self._last_flush = 0.0
         self._ended: set[str] = set()  # = set(stats.ended)
         super().__init__(name, bus, RecorderStats(path=str(self.out)), supervision)
@@ -127,12 +142,32 @@ class Recorder(Sink):
 
     # ---- supervision ------------------------------------------------------------------
     def checkpoint(self) -> None:
-        """Sync the file, then save what it holds (see the module notes)."""
+        """End the chunk, then on the sync thread: the file to disk, and only then the state
+        saved and the positions reported (see the module notes)."""
         t0 = time.perf_counter()
-        self.writer.sync()
+        self._await_sync()  # the previous checkpoint's report first: positions only go forward
+        self.writer.sync(to_disk=False)
         positions = dict(self.gate.expected)
-        self.save_state({"service": self.name, "counts": dict(self.writer.counts), "positions": positions,
-                         "seen": self._seen}, positions, self._seen, t0)
+        state = {"service": self.name, "counts": dict(self.writer.counts), "positions": positions, "seen": self._seen}
+        stamp = self._ckpt_stamp = self._seen  # the next one is due from here on
+        self._sync_in_background(lambda: self.save_state(state, positions, stamp, t0))
+
+    def _sync_in_background(self, then: Callable[[], object] | None = None) -> None:
+        """The recording to disk on the sync thread, then ``then()``; after the sync in flight."""
+        self._await_sync()
+        writer = self.writer
+
+        def work() -> None:
+            writer.fsync()
+            if then is not None:
+                then()
+        self._syncing = self._syncer.submit(work)
+
+    def _await_sync(self) -> None:
+        """Wait for the sync in flight; its error is raised here."""
+        if self._syncing is not None:
+            syncing, self._syncing = self._syncing, None
+            syncing.result()
 
     def _new_file(self, path: Path) -> RecordingWriter:
         """A recording at ``path`` holding the run's metadata record."""
@@ -184,22 +219,39 @@ class Recorder(Sink):
     def run(self) -> RecorderStats:
         """Record until end-of-stream on every expected key, a stop or an abort; the file
         is closed with its summary in every case."""
-        if self._resume:
-            self._resume_file()
-        else:
-            self.writer.add_metadata("poseidon", self.metadata)
-        self._start_copy()
-        self.writer.flush()
-        self.bus.declare_alive(self.name)
-        self._last_flush = time.monotonic()
+        if self.input_digest is not None:
+            self.metadata = {**self.metadata, "input_sha256": ""}  # until the digest is there
         try:
+            if self._resume:
+                self._resume_file()
+            else:
+                self.writer.add_metadata("poseidon", self.metadata)
+            self._start_copy()
+            self.writer.flush()
+            self.bus.declare_alive(self.name)
+            self._last_flush = time.monotonic()
             if self.receive() and not self.stats.aborted:
                 self._copy_until(END_OF_TIME)
+                self._write_digest()
         finally:
-            self.writer.close()
+            try:
+                self._await_sync()
+            finally:
+                self._syncer.shutdown()
+                if self._writer is not None:
+                    self.writer.close()
         if self.finished():
             self.progress.report(END_OF_TIME, force=True)  # finished normally (see common.bus)
         return self.stats
+
+    def _write_digest(self) -> None:
+        """The metadata record again, with the input's SHA-256 (waits for the hashing)."""
+        if self.input_digest is None:
+            return
+        t0 = time.perf_counter()
+        self.metadata = {**self.metadata, "input_sha256": self.input_digest()}
+        self.writer.add_metadata("poseidon", self.metadata)
+        log.debug("recorder: input digest written (waited %.2f s for it)", time.perf_counter() - t0)
 
     def _start_copy(self) -> None:
         """Open the copied keys of the input after what the file already holds (a resumed file:
@@ -230,7 +282,9 @@ class Recorder(Sink):
         if self._seen >= 0:
             self.progress.report(self._seen, force=self.queue.empty())
         if time.monotonic() - self._last_flush > self.flush_interval_s:
-            self.writer.flush()
+            self.writer.flush(sync=False)
+            if self._syncing is None or self._syncing.done():  # else the sync in flight will do
+                self._sync_in_background()
             self._last_flush = time.monotonic()
         sup = self.supervision
         if sup is not None and self.checkpoint_due(self._seen, sup.recorder_checkpoint_interval_ns):

@@ -11,6 +11,7 @@ from common.mcap_io import (
     FileDigest,
     RecordingError,
     RecordingWriter,
+    digest_from_file,
     file_sha256,
     read_messages,
     read_metadata,
@@ -109,6 +110,37 @@ def test_the_zstd_level_changes_the_file_not_the_messages(tmp_path):
     assert sizes[-1] > sizes[19]
     with pytest.raises(ValueError, match="zstd level must be in"):
         RecordingWriter(tmp_path / "bad.mcap", zstd_level=30)
+
+
+def test_a_published_digest_reaches_another_reader_and_so_does_its_error(tmp_path):
+    path = tmp_path / "blob.bin"
+    path.write_bytes(b"x" * 5000)
+    digest = FileDigest(path)
+    digest.publish_to(tmp_path / "input.sha256")
+    assert digest_from_file(tmp_path / "input.sha256", timeout_s=30) == hashlib.sha256(b"x" * 5000).hexdigest()
+    failed = FileDigest(tmp_path / "missing.bin")
+    failed.publish_to(tmp_path / "failed.sha256")
+    with pytest.raises(RecordingError, match=r"failed.sha256: no digest of the input: error: FileNotFoundError"):
+        digest_from_file(tmp_path / "failed.sha256", timeout_s=30)
+    with pytest.raises(RecordingError, match="never.sha256: the input's digest did not arrive within 0 s"):
+        digest_from_file(tmp_path / "never.sha256", timeout_s=0.1)
+
+
+def test_the_summary_is_read_again_when_the_file_changes(tmp_path):
+    """The parsed summary is kept per file version: a recording rewritten at the same path is
+    read again, a file cut short (no summary) is read through."""
+    path = tmp_path / "r.mcap"
+    for keys in (["depth_sensor"], ["depth_sensor", "dvl_depth"]):
+        with RecordingWriter(path) as w:
+            for i, key in enumerate(keys):
+                w.write(key, Depth(header=Header(seq=i, stamp=1000 + i), depth=1.0))
+        assert sorted(recording_keys(path)) == keys
+        assert recording_message_count(path) == len(keys)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])  # no summary any more
+    assert recording_message_count(path) is None
+    with pytest.raises(RecordingError, match="no such recording"):
+        recording_keys(tmp_path / "missing.mcap")
 
 
 def test_the_file_digest_is_the_sha256_hands_on_its_error_and_cancels(tmp_path):

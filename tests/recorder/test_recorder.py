@@ -18,7 +18,7 @@ from mcap.reader import make_reader
 
 from common.bus import Bus, open_hub
 from common.codec import encode_frame
-from common.mcap_io import read_file_order, read_messages
+from common.mcap_io import FileDigest, file_sha256, read_file_order, read_messages, read_metadata
 from common.messages import Depth, Header
 from common.ordering import END_OF_TIME
 from common.resume import Supervision, load_checkpoint
@@ -101,6 +101,38 @@ def test_a_stopped_recorder_writes_what_has_arrived_and_closes_a_complete_file(t
     assert [r.stamp for r in got] == [1000 + i for i in range(200)]
 
 
+def test_the_input_digest_is_written_at_the_end_and_a_cut_recording_still_names_its_run(tmp_path, bus):
+    """A normal end writes the metadata again with the input's SHA-256 (readers take the last
+    record); a stopped recorder does not wait for it and keeps the first record, configuration and
+    all, with ``input_sha256`` empty."""
+    src = tmp_path / "input.bin"
+    src.write_bytes(bytes(range(256)) * 4096)
+    out = tmp_path / "r.mcap"
+    digest = FileDigest(src)
+    rec = Recorder(bus, out, expect=["depth_sensor"], metadata={"tool": "test", "config": {"a": 1}},
+                   input_digest=digest.result)
+    t, _result = _start(rec)
+    pub = bus.publisher("depth_sensor")
+    for i in range(5):
+        pub.send(_depth(i, 1000 + i))
+    pub.send_eos()
+    t.join(timeout=30)
+    assert not t.is_alive()
+    meta = read_metadata(out)["poseidon"]
+    assert meta["input_sha256"] == file_sha256(src) and meta["tool"] == "test" and meta["config"] == '{"a": 1}'
+    with open(out, "rb") as f:  # both records are in the file, the empty one first
+        records = [dict(m.metadata) for m in make_reader(f).iter_metadata()]
+    assert [m["input_sha256"] for m in records] == ["", file_sha256(src)]
+
+    cut = tmp_path / "cut.mcap"
+    asked: list[str] = []
+    rec = Recorder(bus, cut, expect=["depth_sensor"], metadata={"tool": "test"},
+                   input_digest=lambda: asked.append("digest") or "0" * 64)
+    rec.stop()
+    rec.run()
+    assert read_metadata(cut)["poseidon"] == {"tool": "test", "input_sha256": ""} and asked == []
+
+
 def test_an_abort_stops_the_recorder_and_the_file_holds_what_arrived(tmp_path, bus):
     out = tmp_path / "r.mcap"
     rec = Recorder(bus, out, expect=["depth_sensor"])
@@ -159,6 +191,46 @@ def test_a_supervised_recorder_checkpoints_what_its_file_holds(tmp_path, bus):
     while len(reports) < 2 and time.monotonic() < deadline:  # the publishers learn it (they may forget)
         time.sleep(0.02)
     assert [json.loads(r) for r in reports] == [{"depth_sensor": 11}, {"depth_sensor": 21}]
+
+
+def test_the_recorder_receives_while_the_disk_syncs_and_reports_only_what_is_synced(tmp_path, bus):
+    """The fsync runs on the recorder's sync thread: with the disk held, frames are still
+    recorded, and the checkpoint is neither saved nor reported until its sync is done."""
+    sup = Supervision(tmp_path / "state", {"depth_sensor": ["recorder"]}, recorder_checkpoint_interval_ns=10**9)
+    reports: list[bytes] = []
+    bus.subscribe_callback("@ckpt/recorder", lambda _key, payload: reports.append(payload))
+    rec = Recorder(bus, tmp_path / "r.mcap", expect=["depth_sensor"], supervision=sup, flush_interval_s=3600)
+    t, result = _start(rec)
+    disk, syncing = threading.Event(), threading.Event()
+    real_fsync = rec.writer.fsync
+
+    def held_fsync() -> None:
+        syncing.set()
+        assert disk.wait(30), "the test never released the disk"
+        real_fsync()
+    rec.writer.fsync = held_fsync
+    pub = bus.publisher("depth_sensor", retain=True)
+    for i in range(12):  # 0 .. 1.1 s of event time: the checkpoint at 1.0 s starts a sync
+        pub.send(_depth(i, i * 100_000_000))
+    assert syncing.wait(10)
+    for i in range(12, 16):  # recorded while the disk is held
+        pub.send(_depth(i, i * 100_000_000))
+    deadline = time.monotonic() + 10
+    while rec.stats.recorded.get("depth_sensor", 0) < 16:
+        assert time.monotonic() < deadline, f"{rec.stats.recorded} recorded while the disk was held"
+        time.sleep(0.01)
+    time.sleep(0.2)
+    assert reports == [] and not (tmp_path / "state" / "recorder.ckpt").exists()
+    disk.set()
+    deadline = time.monotonic() + 10
+    while not reports:
+        assert time.monotonic() < deadline, "no checkpoint reported after the sync"
+        time.sleep(0.01)
+    assert json.loads(reports[0]) == {"depth_sensor": 11}  # the frames before the chunk's end
+    assert load_checkpoint(tmp_path / "state" / "recorder.ckpt")["counts"] == {"depth_sensor": 11}
+    pub.send_eos()
+    t.join(timeout=10)
+    assert result["stats"].recorded == {"depth_sensor": 16} and result["stats"].checkpoints == 1
 
 
 def test_recorder_killed_with_sigkill_keeps_flushed_chunks(tmp_path):
