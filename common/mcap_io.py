@@ -135,10 +135,6 @@ class FileDigest:
         """The hex digest (waits for it); raises what reading the file raised."""
         return self._future.result(timeout)
 
-    def done(self) -> bool:
-        """Whether the digest (or the error) is there: :meth:`result` would not wait."""
-        return self._future.done()
-
     def publish_to(self, path: str | Path) -> None:
         """Once it is there, write the digest (or ``error: ...``) to ``path`` atomically, for
         another process (:func:`digest_from_file`: a distributed run's recorder)."""

@@ -275,7 +275,7 @@ def _prepare(config: PoseidonConfig, input_path: Path, services: list[str] | Non
     """The run's plan; meanwhile the hub opens (~0.5 s, mostly Zenoh's own start-up wait) and
     the input's digest starts (the recorder needs it at the end only)."""
     endpoint = f"tcp/127.0.0.1:{hub_port or _free_port()}"
-    opening = open_hub_in_background(endpoint)
+    opening: Future[Any] = open_hub_in_background(endpoint)  # the hub, as the rest of this module holds it
     digest = FileDigest(input_path)
     try:
         calibrate_from_input(config, input_path)
@@ -283,7 +283,7 @@ def _prepare(config: PoseidonConfig, input_path: Path, services: list[str] | Non
     except BaseException:
         digest.cancel()
         if opening.exception() is None:
-            opening.result().close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
+            opening.result().close()
         raise
     return plan, endpoint, opening, digest
 

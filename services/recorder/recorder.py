@@ -26,10 +26,11 @@ skipped never arrived: counted ``missing`` per key (see :mod:`common.live`).  Su
 chunk in progress; its sync thread then syncs the file and only after that saves per key the
 messages recorded and the next transport index as they were at the chunk's end
 (``<state_dir>/recorder.ckpt``) and reports those positions on ``@ckpt/recorder``, while the
-recorder goes on receiving (the next checkpoint waits for the one in flight).  Restarted (``supervision.resume``), it rewrites its partial file
-keeping, per key, exactly the messages its checkpoint counted (anything written after the
-checkpoint is received again), continues it, and asks every publisher for a replay from
-its checkpoint: the final file holds every message exactly once.
+recorder goes on receiving (the next checkpoint waits for the one in flight).  Restarted
+(``supervision.resume``), it rewrites its partial file keeping, per key, exactly the messages
+its checkpoint counted (anything written after the checkpoint is received again), continues it,
+and asks every publisher for a replay from its checkpoint: the final file holds every message
+exactly once.
 
 Copied keys (``copy_from``, ``copy_keys``: ``player.replay: copied``, the default of a replay): the
 input recording's keys that no service reads do not travel over the bus; the recorder reads them
