@@ -13,7 +13,11 @@ truth; the recorder copies the others from the file (``player.replay``, :func:`l
 - Event-time watermarks go out every ``heartbeat_ms`` of event time on every key that has
   been silent that long (a data frame promises its own stamp, :meth:`common.bus.BusPublisher.heartbeat`),
   and end-of-stream on every key at the end.  Source keys the recording does not have get
-  end-of-stream at once, so services waiting on them (e.g. an absent IMU) are not blocked.
+  end-of-stream at once, so services waiting on them (e.g. an absent IMU) are not blocked, and no
+  watermark after it.  Held by flow control, the player promises the held stamp on every key only
+  once the slowest consumer has made no progress for ``PROMISE_AFTER_S`` (it may be waiting for
+  event time to pass: a gap in the recording longer than the window); consumers busy with what is
+  in flight need no promise (one at every hold was ~2 watermarks per key per event second).
 - In its own process (``drain_timeout_s`` > 0) it stays until its consumers have left
   (:meth:`common.bus.Bus.drain`): closing earlier would discard frames still queued.
 - Fail fast: a ``wait_for`` service whose liveliness token disappears before it reported
@@ -94,6 +98,12 @@ class PlayerStats(WorkerStats):
                 "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
 
 
+#: a player held by flow control promises the held stamp on every key (a watermark) once the
+#: slowest consumer has reported no progress for this long (wall clock, s); consumers busy with
+#: what is in flight need no promise (module notes)
+PROMISE_AFTER_S = 0.05
+
+
 class Player(Source):
     """Replay ``path`` on ``bus`` (see the module notes)."""
 
@@ -158,6 +168,7 @@ class Player(Source):
         if stamp <= self._flow_bound and not self.stop_event.is_set():
             return
         promised = False
+        seen, since = None, time.monotonic()
         while not self.stop_event.is_set():
             slowest = watcher.slowest(self.wait_for, default=-2)
             if slowest > -2:  # every consumer reported: this bound holds from now on
@@ -167,9 +178,15 @@ class Player(Source):
             if stamp <= bound:
                 return
             self._check_consumers()
-            if not promised:  # consumers may be waiting for time to pass (a gap in the recording)
+            now = time.monotonic()
+            if slowest != seen:
+                seen, since = slowest, now
+            elif not promised and now - since >= PROMISE_AFTER_S:
+                # the slowest consumer stands still: it may be waiting for event time to pass (a
+                # gap in the recording longer than the window), which only a promise moves
                 for pub in pubs.values():
-                    pub.send_watermark(stamp)
+                    if not pub.ended:
+                        pub.send_watermark(stamp)
                 promised = True
             # woken by the progress report that lets ``stamp`` go; at the latest after 10 ms, to
             # answer replays and notice an abort or a consumer that left
@@ -218,6 +235,7 @@ class Player(Source):
         nothing was)."""
         t_event0 = None
         last_hb = -1
+        beating = [p for p in pubs.values() if not p.ended]  # absent keys ended at once: nothing to promise
         last_stamp = 0
         bar = tqdm(total=total, desc="player", unit="msg", file=sys.stderr, disable=not self.progress,
                    mininterval=1.0)
@@ -238,7 +256,7 @@ class Player(Source):
                     if self.stop_event.is_set():
                         break
                 if rec.stamp - last_hb >= self.heartbeat_ns:
-                    for pub in pubs.values():
+                    for pub in beating:
                         pub.heartbeat(rec.stamp, self.heartbeat_ns)
                     last_hb = rec.stamp
                 pubs[rec.key].send_data(rec.type_name, rec.payload, rec.stamp)

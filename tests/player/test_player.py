@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from common.codec import decode_frame
+from common.codec import decode_frame, decode_header
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header
 from services.player.player import Player
@@ -118,3 +118,62 @@ def test_flow_control_holds_the_player_within_the_window_of_the_slowest_consumer
     progress.report(T0 + 100 * STEP_NS, force=True)
     t.join(timeout=10)
     assert result["stats"].published == {"depth_sensor": 20}
+
+
+class _Consumer:
+    """A consumer of ``depth_sensor`` that reports as progress the newest event time its key
+    promised (a data frame's stamp or a watermark), as a service's merger does, after ``work_s``
+    of work per data frame; it counts the watermarks it received."""
+
+    def __init__(self, bus, work_s: float):
+        self.progress = bus.progress_publisher("consumer")
+        self.work_s = work_s
+        self.watermarks: list[int] = []
+        self.data = 0
+        bus.subscribe("depth_sensor", self)
+        bus.declare_alive("consumer")
+
+    def put_nowait(self, item) -> None:  # the bus's callback: frames arrive here in order
+        frame = decode_frame(item[1])
+        if frame.kind == "watermark":
+            self.watermarks.append(frame.stamp)
+            stamp = frame.stamp
+        elif frame.kind == "data":
+            self.data += 1
+            time.sleep(self.work_s)
+            stamp = int(decode_header(frame.payload)["stamp"])
+        else:
+            return
+        self.progress.report(stamp, force=True)
+
+
+def test_a_held_player_promises_nothing_while_its_consumer_progresses(tmp_path, bus, monkeypatch):
+    """Flow control holds the player often (a 0.2-s window, 0.1 s per message), but the consumer
+    takes every frame within ms: no watermark is needed, none is sent but the first heartbeat's
+    (heartbeats are otherwise off)."""
+    import services.player.player as player_module
+    monkeypatch.setattr(player_module, "PROMISE_AFTER_S", 2.0)  # far above any wait for a frame's work
+    consumer = _Consumer(bus, work_s=0.005)
+    src = _depth_recording(tmp_path / "span.mcap", n=30)
+    stats = Player(bus, src, wait_for=["consumer"], progress=False, flow_window_ms=200, heartbeat_ms=10**6,
+                   announce_absent=()).run()
+    assert stats.published == {"depth_sensor": 30}
+    deadline = time.monotonic() + 5
+    while consumer.data < 30 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert consumer.data == 30 and consumer.watermarks == [T0]
+
+
+def test_a_gap_longer_than_the_window_is_promised_once_the_consumer_stands_still(tmp_path, bus):
+    """Five messages, a 5-s gap (the window is 0.2 s), five more: the consumer's progress stops at
+    the gap, so the held player promises the next stamp, and the replay goes on to the end."""
+    consumer = _Consumer(bus, work_s=0.0)
+    with RecordingWriter(tmp_path / "gap.mcap") as w:
+        for i in [*range(5), *range(55, 60)]:
+            w.write("depth_sensor", Depth(header=Header(seq=i, stamp=T0 + i * STEP_NS), depth=float(i)))
+    t0 = time.monotonic()
+    stats = Player(bus, tmp_path / "gap.mcap", wait_for=["consumer"], progress=False, flow_window_ms=200,
+                   heartbeat_ms=10**6, announce_absent=()).run()
+    assert time.monotonic() - t0 < 5.0
+    assert stats.published == {"depth_sensor": 10}
+    assert consumer.watermarks == [T0, T0 + 55 * STEP_NS]
