@@ -160,7 +160,7 @@ class Player(Source):
                 return
 
     def _wait_for_consumers(self, watcher: ProgressWatcher, stamp: int, first: int,
-                            pubs: dict[str, BusPublisher]) -> None:
+                            live: list[BusPublisher]) -> None:
         """Flow control: hold ``stamp`` until the slowest consumer is within the window.
 
         Once every consumer has reported, their progress only grows: a stamp within the
@@ -184,9 +184,8 @@ class Player(Source):
             elif not promised and now - since >= PROMISE_AFTER_S:
                 # the slowest consumer stands still: it may be waiting for event time to pass (a
                 # gap in the recording longer than the window), which only a promise moves
-                for pub in pubs.values():
-                    if not pub.ended:
-                        pub.send_watermark(stamp)
+                for pub in live:
+                    pub.send_watermark(stamp)
                 promised = True
             # woken by the progress report that lets ``stamp`` go; at the latest after 10 ms, to
             # answer replays and notice an abort or a consumer that left
@@ -235,7 +234,7 @@ class Player(Source):
         nothing was)."""
         t_event0 = None
         last_hb = -1
-        beating = [p for p in pubs.values() if not p.ended]  # absent keys ended at once: nothing to promise
+        live = [p for p in pubs.values() if not p.ended]  # absent keys ended at once: nothing to promise
         last_stamp = 0
         bar = tqdm(total=total, desc="player", unit="msg", file=sys.stderr, disable=not self.progress,
                    mininterval=1.0)
@@ -252,11 +251,11 @@ class Player(Source):
                         time.sleep(delay)
                 if watcher is not None:
                     self._check_consumers()
-                    self._wait_for_consumers(watcher, rec.stamp, t_event0, pubs)
+                    self._wait_for_consumers(watcher, rec.stamp, t_event0, live)
                     if self.stop_event.is_set():
                         break
                 if rec.stamp - last_hb >= self.heartbeat_ns:
-                    for pub in beating:
+                    for pub in live:
                         pub.heartbeat(rec.stamp, self.heartbeat_ns)
                     last_hb = rec.stamp
                 pubs[rec.key].send_data(rec.type_name, rec.payload, rec.stamp)

@@ -18,9 +18,10 @@ T0 = 10**18
 STEP_NS = 100_000_000  # 0.1 s of event time between messages
 
 
-def _depth_recording(path, n=16):
+def _depth_recording(path, n=16, indices=None):
+    """Depth messages at ``indices`` (default 0..n-1) times ``STEP_NS`` after ``T0``."""
     with RecordingWriter(path) as w:
-        for i in range(n):
+        for i in range(n) if indices is None else indices:
             w.write("depth_sensor", Depth(header=Header(seq=i, stamp=T0 + i * STEP_NS), depth=float(i)))
     return path
 
@@ -168,11 +169,9 @@ def test_a_gap_longer_than_the_window_is_promised_once_the_consumer_stands_still
     """Five messages, a 5-s gap (the window is 0.2 s), five more: the consumer's progress stops at
     the gap, so the held player promises the next stamp, and the replay goes on to the end."""
     consumer = _Consumer(bus, work_s=0.0)
-    with RecordingWriter(tmp_path / "gap.mcap") as w:
-        for i in [*range(5), *range(55, 60)]:
-            w.write("depth_sensor", Depth(header=Header(seq=i, stamp=T0 + i * STEP_NS), depth=float(i)))
+    src = _depth_recording(tmp_path / "gap.mcap", indices=[*range(5), *range(55, 60)])
     t0 = time.monotonic()
-    stats = Player(bus, tmp_path / "gap.mcap", wait_for=["consumer"], progress=False, flow_window_ms=200,
+    stats = Player(bus, src, wait_for=["consumer"], progress=False, flow_window_ms=200,
                    heartbeat_ms=10**6, announce_absent=()).run()
     assert time.monotonic() - t0 < 5.0
     assert stats.published == {"depth_sensor": 10}
