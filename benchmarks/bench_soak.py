@@ -34,7 +34,11 @@ service's processes summed)},
 (``--parts`` equal parts of the mission time, default 3: the hours of a 3-hour mission; where
 the pipeline was is read from the recorder's checkpoint once a second), "last_vs_first":
 {"wall": last part's wall s / first's, "cpu_s": {service: last part's CPU s / first's},
-"peak_rss_mib": {service: last part's peak RSS - first's}}}``.  The readable output ends each run
+"peak_rss_mib": {service: last part's peak RSS - first's}},
+"cpu_split": {service: {"cpu_s", "startup_s", "node_s", "frame_path_s", "rest_s"}}}`` (algorithm
+services, from the run's own counters: the process's CPU, and of it the start-up, the node's
+own work, the frames' handling around it and the rest -- Zenoh's threads, zenoh-python's callback
+threads, the receive loop's idle work: :mod:`common.runtime`).  The readable output ends each run
 with a table per service: CPU seconds and peak RSS in the mission's first part against its last.
 """
 from __future__ import annotations
@@ -272,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
         "cpu_s": {n: round(v, 1) for n, v in sorted(sampler.cpu_s.items())},
         "cpu_s_per_sixth": sampler.cpu_per_sixth(sampler.elapsed_s),
     }
+    out["cpu_split"] = cpu_split(res.services)
     parts = sampler.per_mission_part(args.parts, int(inp["start_ns"]), mission_s, sampler.elapsed_s)
     out["per_mission_part"] = parts
     first, last = parts[0], parts[-1]
@@ -286,6 +291,18 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print_report(out, args.minutes, args.parts)
     return 0
+
+
+def cpu_split(services: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per algorithm service (those with ``node_cpu_s``): its process CPU and where it went."""
+    split = {}
+    for name, st in sorted(services.items()):
+        if "node_cpu_s" not in st or "cpu_s" not in st:
+            continue
+        parts = {"startup_s": st["startup_cpu_s"], "node_s": st["node_cpu_s"], "frame_path_s": st["frame_path_cpu_s"]}
+        split[name] = {"cpu_s": round(st["cpu_s"], 1), **{k: round(v, 1) for k, v in parts.items()},
+                       "rest_s": round(st["cpu_s"] - sum(parts.values()), 1)}
+    return split
 
 
 def print_first_last(first: dict[str, Any], last: dict[str, Any], n_parts: int) -> None:
@@ -333,6 +350,12 @@ def print_report(out: dict[str, Any], minutes: float, n_parts: int) -> None:
     for name, row in sorted(peaks.items()):
         print(f"  {name:<12} " + " ".join(f"{v:7.1f}" for v in row) + f"   growth 2nd->6th {out['rss_growth_mib'][name]:+.1f}")
     print_first_last(parts[0], parts[-1], n_parts)
+    print("where each algorithm service's CPU went (s): start-up, the node's own work, the frames' handling "
+          "around it, the rest (Zenoh's and the callback threads, idle loop, end)")
+    print(f"  {'service':<12} {'CPU':>7} {'start-up':>9} {'node':>7} {'frames':>7} {'rest':>7}")
+    for n, c in out["cpu_split"].items():
+        print(f"  {n:<12} {c['cpu_s']:7.1f} {c['startup_s']:9.1f} {c['node_s']:7.1f} {c['frame_path_s']:7.1f} "
+              f"{c['rest_s']:7.1f}")
 
 
 if __name__ == "__main__":

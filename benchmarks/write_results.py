@@ -274,7 +274,22 @@ def render_soak(d: dict[str, Any]) -> str:
     return (speed + f"\nDropped messages: {dropped}. Last part of the mission against the first "
             f"({len(d.get('per_mission_part') or [])} equal parts): wall time "
             f"{fmt((d.get('last_vs_first') or {}).get('wall'), 2)}x.\n\n"
-            + table(["service", "CPU", "CPU, last part / first", "peak RSS growth, 2nd to 6th sixth"], rows))
+            + table(["service", "CPU", "CPU, last part / first", "peak RSS growth, 2nd to 6th sixth"], rows)
+            + _cpu_split_text(d.get("cpu_split") or {}))
+
+
+def _cpu_split_text(split: dict[str, Any]) -> str:
+    """Where each algorithm service's CPU went (``bench_soak.py``'s ``cpu_split``); '' when absent."""
+    if not split:
+        return ""
+    rows = [[n, f"{fmt(c.get('cpu_s'), 1)} s", f"{fmt(c.get('startup_s'), 1)} s", f"{fmt(c.get('node_s'), 1)} s",
+             f"{fmt(c.get('frame_path_s'), 1)} s", f"{fmt(c.get('rest_s'), 1)} s"]
+            for n, c in sorted(split.items(), key=lambda kv: -(kv[1].get("cpu_s") or 0))]
+    return ("\n\nWhere each algorithm service's CPU went: start-up (imports, models, kernels, Zenoh, warm-up), "
+            "the node's own work (the algorithm), the frames' handling around it (decoding, merging, encoding "
+            "and publishing, checkpoints, progress) and the rest (Zenoh's threads, the callback threads, the "
+            "idle loop, the end).\n\n"
+            + table(["service", "CPU", "start-up", "node", "frame path", "rest"], rows))
 
 
 # ---------------------------------------------------------------- the file (pure)

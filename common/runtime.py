@@ -29,6 +29,16 @@ Supervised (``supervision``, :mod:`common.resume`): the runner checkpoints the n
 ``checkpoint_bytes``, ``checkpoint_written_bytes``), keeps its outputs for replay, answers replay requests, and when
 ``supervision.resume`` restores the last checkpoint and asks its publishers for the inputs
 after it.  A node failure then does not abort the run: the launcher restarts the service.
+
+Where the service's CPU goes (``RunnerStats``, each in the run's ``--json``): ``startup_cpu_s``,
+the process's CPU when the service declared itself alive (imports, the node's models and
+kernels, Zenoh, warm-up; in an embedded run, the shared process's); ``node_cpu_s``, the main
+thread's CPU inside the node (``process``, ``finish``: the algorithm); ``frame_path_cpu_s``, the
+main thread's CPU handling frames around it (decoding, de-duplication, the event-time merge,
+encoding and publishing outputs, checkpoints, progress reports).  What the process used beyond
+the three (``cpu_s`` of :func:`launcher.service_cmd.process_usage`) is Zenoh's threads,
+zenoh-python's callback threads, the receive loop's idle work and the end (drain).  Thread CPU
+clocks, ~0.25 us per reading, four readings per frame.
 """
 from __future__ import annotations
 
@@ -67,6 +77,9 @@ class RunnerStats(SinkStats):
     checkpoint_bytes: int = 0  # size of the last checkpoint (its file and the array blocks it names)
     checkpoint_written_bytes: int = 0  # bytes the last checkpoint wrote (the file and its new blocks)
     replays_served: int = 0
+    startup_cpu_s: float = 0.0     # process CPU when alive (module notes)
+    node_cpu_s: float = 0.0        # main-thread CPU inside the node
+    handling_cpu_s: float = 0.0    # main-thread CPU handling frames, the node's included
 
     def reject(self, key: str, reason: str) -> None:
         self.invalid[key] = self.invalid.get(key, 0) + 1
@@ -80,7 +93,9 @@ class RunnerStats(SinkStats):
                 "checkpoint_ms": round(self.checkpoint_ms, 3), "checkpoint_bytes": self.checkpoint_bytes,
                 "checkpoint_written_bytes": self.checkpoint_written_bytes,
                 "replays_served": self.replays_served, "dropped": self.dropped, "missing": self.missing,
-                "lost": self.lost}
+                "lost": self.lost, "startup_cpu_s": round(self.startup_cpu_s, 3),
+                "node_cpu_s": round(self.node_cpu_s, 3),
+                "frame_path_cpu_s": round(max(0.0, self.handling_cpu_s - self.node_cpu_s), 3)}
 
 
 def _header_seq(payload: bytes | memoryview) -> str:
@@ -198,11 +213,13 @@ class NodeRunner(Sink, Source):
         self._last_stamp = msg.header.stamp
         if self.delay_s > 0:  # test setting: a service that falls behind (debug.slow_service)
             time.sleep(self.delay_s)
+        c0 = time.thread_time()
         try:
             self.node.process(key, msg)
         except Exception as exc:
             raise ServiceError(f"{self.node.name} failed on {key} seq {msg.header.seq} stamp "
                                f"{msg.header.stamp}: {type(exc).__name__}: {exc}") from exc
+        self.stats.node_cpu_s += time.thread_time() - c0
         self._publish_outbox()
 
     # ---- the receive loop (common.worker.Sink) ------------------------------------------
@@ -215,6 +232,13 @@ class NodeRunner(Sink, Source):
         self.stats.replays_served += self.serve_replays()
 
     def on_frame(self, key: str, data: bytes) -> None:
+        c0 = time.thread_time()
+        try:
+            self._handle_frame(key, data)
+        finally:
+            self.stats.handling_cpu_s += time.thread_time() - c0
+
+    def _handle_frame(self, key: str, data: bytes) -> None:
         merger = self._merger
         res = self.accept(merger, key, data)
         if res is None:
@@ -298,12 +322,17 @@ class NodeRunner(Sink, Source):
             t0 = time.perf_counter()
             node.warm_up()
             log.debug("%s: warmed up in %.2f s", node.name, time.perf_counter() - t0)
+        self.stats.startup_cpu_s = time.process_time()
         self.bus.declare_alive(node.name)
         try:
             if not self.receive():
                 log.warning("%s: stopped before end of stream (%d buffered)", node.name, merger.pending())
             if merger.finished and not finished_before:
+                c0 = time.thread_time()
                 node.finish()
+                finish_s = time.thread_time() - c0
+                self.stats.node_cpu_s += finish_s
+                self.stats.handling_cpu_s += finish_s  # node time is inside the handling total
                 self._publish_outbox()
         except BaseException as exc:
             if sup is None:

@@ -55,7 +55,10 @@ then, a one-line ``hint`` naming the recording's unread keys and the ``poseidon 
 TOPIC=KEY`` mapping (and setting) that feeds them to it (:mod:`launcher.inputs`; also printed at
 the end of the run); ``places`` (with ``local_view_cells``, else null): ``{"frames", "places",
 "revisits": [[frame, first frame of its place, LVC id]], "names": frame file names}``
-(:mod:`launcher.places`); ``log``: the run's log file).
+(:mod:`launcher.places`); ``log``: the run's log file).  Among an algorithm service's counters
+(:class:`common.runtime.RunnerStats`): ``cpu_s`` and ``peak_rss_mb`` (its process, every
+thread; distributed runs), ``startup_cpu_s``, ``node_cpu_s`` and ``frame_path_cpu_s`` (where
+that CPU went: :mod:`common.runtime`), ``busy_s`` (wall seconds inside the node and publishing).
 
 Console and log (:mod:`launcher.logs`): the console shows warnings, errors, progress bars and
 results; ``--verbose`` adds the services' INFO messages, ``--log-level LEVEL`` sets its level

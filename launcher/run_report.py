@@ -54,6 +54,15 @@ def input_hints(report: RunReport) -> list[str]:
     return [r["hint"] for r in (report.get("inputs") or {}).values() if r.get("hint")]
 
 
+def cpu_split_text(st: Mapping[str, Any]) -> str:
+    """`` (start-up a s, node b s, frame path c s)`` for an algorithm service's counters
+    (:mod:`common.runtime`), '' for the others."""
+    if "node_cpu_s" not in st:
+        return ""
+    return (f" (start-up {st['startup_cpu_s']:.2f} s, node {st['node_cpu_s']:.2f} s, "
+            f"frame path {st['frame_path_cpu_s']:.2f} s)")
+
+
 def format_service(name: str, st: Mapping[str, Any]) -> list[str]:
     """One service's counters on a line (``[name] ok`` when there is nothing to say), then its
     latency per stage."""
@@ -65,7 +74,7 @@ def format_service(name: str, st: Mapping[str, Any]) -> list[str]:
     if "busy_s" in st:
         extra.append(f"busy {st['busy_s']:.2f} s")
     if "cpu_s" in st:
-        extra.append(f"process CPU {st['cpu_s']:.2f} s")
+        extra.append(f"process CPU {st['cpu_s']:.2f} s" + cpu_split_text(st))
     if "peak_rss_mb" in st:
         extra.append(f"peak memory {st['peak_rss_mb']:.0f} MB")
     if st.get("real_time_factor"):

@@ -113,3 +113,17 @@ def test_the_results_file_has_one_section_per_topic_under_the_preamble():
     assert text.startswith(wr.PREAMBLE)
     spans = wr.split_sections(text)
     assert list(spans) == ORDER, "sections in topic order, one per topic"
+
+
+def test_the_soak_section_says_where_each_service_cpu_went():
+    d = {"pipeline": {"mission_s": 600, "wall_s": 30.0, "real_time_factor": 20.0},
+         "transport_only": {"mission_s": 600, "wall_s": 5.0, "real_time_factor": 120.0},
+         "cpu_s": {"htm": 8.0, "encoder": 18.0},
+         "cpu_split": {"htm": {"cpu_s": 8.1, "startup_s": 2.4, "node_s": 4.0, "frame_path_s": 1.0, "rest_s": 0.7},
+                       "encoder": {"cpu_s": 18.2, "startup_s": 3.7, "node_s": 12.0, "frame_path_s": 1.5,
+                                   "rest_s": 1.0}}}
+    body = wr.render_soak(d)
+    assert "| encoder | 18.2 s | 3.7 s | 12.0 s | 1.5 s | 1.0 s |" in body
+    assert body.index("| encoder | 18.2 s") < body.index("| htm | 8.1 s")   # the costliest first
+    assert "Where each algorithm service's CPU went" not in wr.render_soak({k: v for k, v in d.items()
+                                                                            if k != "cpu_split"})

@@ -96,3 +96,25 @@ class SlowWarmUp(SlowEcho):
     def warm_up(self):
         time.sleep(0.5)
         self.warmed_at = time.monotonic()
+
+
+def _burn(seconds: float) -> None:
+    """Spend ``seconds`` of this thread's CPU."""
+    t = time.thread_time()
+    while time.thread_time() - t < seconds:
+        pass
+
+
+class Burner(ServiceNode):
+    """Spends 0.15 s of CPU warming up and 0.05 s on each depth message, which it echoes."""
+
+    name = "burner"
+    inputs = ("depth_sensor",)
+    outputs = ("burner/depth",)
+
+    def warm_up(self):
+        _burn(0.15)
+
+    def process(self, key, msg):
+        _burn(0.05)
+        self.publish("burner/depth", Depth(header=self.header("burner/depth", msg.header.stamp), depth=msg.depth))

@@ -85,3 +85,11 @@ def test_a_restarted_service_keeps_the_cpu_of_its_first_process():
     assert s._carried("player", 200, 0.5) == 5.5     # restarted: a new pid counting from 0
     assert s._carried("player", 200, 1.0) == 6.0
     assert s._carried("htm", 300, 1.0) == 1.0
+
+
+def test_cpu_split_is_the_process_cpu_parted_for_algorithm_services_only():
+    services = {"htm": {"cpu_s": 8.2, "startup_cpu_s": 2.43, "node_cpu_s": 4.02, "frame_path_cpu_s": 1.03},
+                "recorder": {"cpu_s": 7.0},
+                "embedded": {"startup_cpu_s": 1.0, "node_cpu_s": 1.0, "frame_path_cpu_s": 0.1}}
+    split = bench_soak.cpu_split(services)
+    assert split == {"htm": {"cpu_s": 8.2, "startup_s": 2.4, "node_s": 4.0, "frame_path_s": 1.0, "rest_s": 0.7}}

@@ -12,3 +12,9 @@ def test_a_service_line_lists_its_counters_then_its_latency_per_stage():
     lines = format_service("encoder", st)
     assert lines[0] == "  [encoder] invalid 2; a 3, b 1; process CPU 1.23 s; peak memory 100 MB"
     assert len(lines) == 2 and lines[1].startswith("    latency arrival -> decoded   p50      1.0 ms")
+
+
+def test_an_algorithm_service_line_says_where_its_cpu_went():
+    st = {"cpu_s": 8.2, "startup_cpu_s": 1.21, "node_cpu_s": 3.14, "frame_path_cpu_s": 1.33}
+    assert format_service("posecells", st) == [
+        "  [posecells] process CPU 8.20 s (start-up 1.21 s, node 3.14 s, frame path 1.33 s)"]
