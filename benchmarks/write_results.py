@@ -285,7 +285,7 @@ def _cpu_split_text(split: dict[str, Any]) -> str:
     rows = [[n, f"{fmt(c.get('cpu_s'), 1)} s", f"{fmt(c.get('startup_s'), 1)} s", f"{fmt(c.get('node_s'), 1)} s",
              f"{fmt(c.get('frame_path_s'), 1)} s", f"{fmt(c.get('rest_s'), 1)} s"]
             for n, c in sorted(split.items(), key=lambda kv: -(kv[1].get("cpu_s") or 0))]
-    return ("\n\nWhere each algorithm service's CPU went: start-up (imports, models, kernels, Zenoh, warm-up), "
+    return ("\nWhere each algorithm service's CPU went: start-up (imports, models, kernels, Zenoh, warm-up), "
             "the node's own work (the algorithm), the frames' handling around it (decoding, merging, encoding "
             "and publishing, checkpoints, progress) and the rest (Zenoh's threads, the callback threads, the "
             "idle loop, the end).\n\n"
