@@ -2,10 +2,14 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
+from typing import Any
 
+from common.bus import Bus, open_local_session
 from common.messages import Depth
 from common.node import ServiceNode
+from common.runtime import NodeRunner
 
 
 class SlowEcho(ServiceNode):
@@ -118,3 +122,16 @@ class Burner(ServiceNode):
     def process(self, key, msg):
         _burn(0.05)
         self.publish("burner/depth", Depth(header=self.header("burner/depth", msg.header.stamp), depth=msg.depth))
+
+
+def start_local_runner(node: ServiceNode) -> tuple[Any, Bus, threading.Thread, dict[str, Any]]:
+    """``node`` run by a :class:`NodeRunner` on a thread, on a Zenoh session of its own, once it
+    is alive: (session, bus, thread, result), the runner's stats in ``result["stats"]`` at its end."""
+    session = open_local_session()
+    bus = Bus(session=session)
+    runner = NodeRunner(node, bus)
+    result: dict[str, Any] = {}
+    t = threading.Thread(target=lambda: result.setdefault("stats", runner.run()))
+    t.start()
+    bus.wait_alive([node.name], 10)
+    return session, bus, t, result

@@ -1,27 +1,18 @@
 """A runner says where its service's CPU went: start-up, the node's own work, the frames' path."""
-import threading
 import time
 
 import pytest
 
-from common.bus import Bus, open_local_session
 from common.messages import Depth, Header
-from common.runtime import NodeRunner
 from system.config import PoseidonConfig
-from tests.common.nodes import Burner
+from tests.common.nodes import Burner, start_local_runner
 
 pytestmark = pytest.mark.timeout(60)
 
 
 def test_the_node_work_the_start_up_and_the_frame_path_are_told_apart():
-    session = open_local_session()
-    bus = Bus(session=session)
-    runner = NodeRunner(Burner(PoseidonConfig()), bus)
-    result = {}
-    t = threading.Thread(target=lambda: result.setdefault("stats", runner.run()))
     cpu_before = time.process_time()
-    t.start()
-    bus.wait_alive(["burner"], 10)
+    session, bus, t, result = start_local_runner(Burner(PoseidonConfig()))
     depth = bus.publisher("depth_sensor")
     for i in range(6):
         depth.send(Depth(header=Header(seq=i, stamp=10 + i), depth=float(i)))

@@ -3,20 +3,18 @@ validation; a service that fails ends the run quickly, even without the launcher
 import json
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
 import pytest
 
-from common.bus import Bus, open_hub, open_local_session
+from common.bus import open_hub
 from common.codec import DecodeError, decode, decode_frame, encode, encode_frame
 from common.mcap_io import read_messages
 from common.messages import Depth, Header, Image, LaserScan, NeocortexSdr, RangeImageBeam, RevisitTruth, Sdr
-from common.runtime import NodeRunner
 from launcher.run import run_embedded
 from system.config import PoseidonConfig
-from tests.common.nodes import SlowEcho
+from tests.common.nodes import SlowEcho, start_local_runner
 from tests.common.recordings import HOSTILE, inconsistent_image, six_stream_recording, with_inconsistent_image
 from tests.conftest import REPO
 
@@ -63,19 +61,8 @@ def test_contradictory_messages_are_rejected_at_validation():
     Image(header=H, height=2, width=3, encoding="bgra8", data=np.zeros((2, 3, 4), np.uint8))
 
 
-def _local_runner(node):
-    session = open_local_session()
-    bus = Bus(session=session)
-    runner = NodeRunner(node, bus)
-    result = {}
-    t = threading.Thread(target=lambda: result.setdefault("stats", runner.run()))
-    t.start()
-    bus.wait_alive([node.name], 10)
-    return session, bus, t, result
-
-
 def test_runner_counts_and_logs_every_hostile_frame_and_keeps_going(caplog):
-    session, bus, t, result = _local_runner(SlowEcho(PoseidonConfig()))
+    session, bus, t, result = start_local_runner(SlowEcho(PoseidonConfig()))
     depth, camera = bus.publisher("depth_sensor"), bus.publisher("camera/image_raw")
     depth.send(Depth(header=Header(seq=0, stamp=10), depth=1.0))
     for frame in HOSTILE:
