@@ -366,7 +366,8 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
                     self._release_events(od.header.stamp)
         elif self.scan_key is not None:
             try:
-                self.sweeps.add_pose(od.position, quaternion_to_matrix(od.orientation))
+                self.sweeps.add_pose(od.position, quaternion_to_matrix(od.orientation), od.header.stamp,
+                                     od.linear_velocity, od.angular_velocity)
             except ValueError as exc:   # a zero quaternion: no attitude to place the beams with
                 log.warning("expmap: Odometry seq %d not used for the sonar sweep: %s", od.header.seq, exc)
                 self.count("odometry_without_attitude")
@@ -385,7 +386,7 @@ class ExpMapNode(ServiceNode[ExpMapConfig]):
             return
         c = self.cfg
         rng = echo_range(beam.beam_data, float(beam.max_range), c.scan.min_range_m, c.scan.echo_threshold)
-        if not self.sweeps.add_beam(beam.angle_rad, rng):
+        if not self.sweeps.add_beam(beam.angle_rad, rng, beam.header.stamp):
             self.count("scan_beams_before_odometry")
 
     def _on_scan(self, scan: LaserScan) -> None:

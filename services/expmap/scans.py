@@ -16,8 +16,11 @@ dissertation's zero displacement otherwise.
   ``scan.min_range_m`` (the transducer ring-down) if its intensity reaches
   ``scan.echo_threshold``, else no echo.
 - :class:`SweepBuffer`: beams become points in the dead-reckoning frame with the latest
-  ``Odometry`` pose (the beam direction is the body-frame head angle turned by the
-  published attitude); :meth:`SweepBuffer.sweep` returns the points of the last full turn
+  ``Odometry`` pose carried forward to the beam's own stamp by the odometry's velocity and
+  turn rate (at most ``MAX_EXTRAPOLATION_S``; the beam direction is the body-frame head angle
+  turned by the published attitude): the Micron's beams come at ~23 Hz, the odometry at
+  ``robot_state.publish_rate_hz``, and a beam placed with a pose 0.1-0.2 s old during a turn
+  lands tens of centimetres off at 10 m; :meth:`SweepBuffer.sweep` returns the points of the last full turn
   of the head (accumulated head travel >= ``scan.sweep_deg``), relative to a given position:
   an experience's sweep, motion-compensated by dead reckoning (locally accurate).
 - :func:`register_sweeps`: the translation t (and a small rotation) that lays the current
@@ -50,7 +53,10 @@ import numpy.typing as npt
 from numba import njit
 from scipy.ndimage import distance_transform_edt
 
-__all__ = ["echo_range", "SweepBuffer", "Registration", "register_sweeps"]
+__all__ = ["echo_range", "SweepBuffer", "Registration", "register_sweeps", "MAX_EXTRAPOLATION_S"]
+
+#: a beam is placed with the pose carried forward to its stamp by at most this much event time [s]
+MAX_EXTRAPOLATION_S = 0.5
 
 
 def echo_range(beam_data: np.ndarray, max_range_m: float, min_range_m: float, threshold: float) -> float:
@@ -81,22 +87,46 @@ class SweepBuffer:
         self._n = 0                             # beams ever added
         self._pos: np.ndarray | None = None
         self._rot: np.ndarray | None = None
+        self._stamp: int | None = None          # of the pose (ns); None: beams take the pose as it is
+        self._vel = np.zeros(2)                 # horizontal velocity in the odometry frame (m/s)
+        self._yaw_rate = 0.0                    # turn rate about the vertical (rad/s)
 
-    def add_pose(self, position: npt.ArrayLike, rotation: np.ndarray) -> None:
-        """The latest dead-reckoning pose: position (3, m) and body->world rotation (3x3)."""
+    def add_pose(self, position: npt.ArrayLike, rotation: np.ndarray, stamp: int | None = None,
+                 velocity: npt.ArrayLike | None = None, angular_velocity: npt.ArrayLike | None = None) -> None:
+        """The latest dead-reckoning pose: position (3, m) and body->world rotation (3x3); with its
+        ``stamp`` (ns) and the body-frame ``velocity`` (3, m/s) and ``angular_velocity`` (3, rad/s),
+        later beams are placed at the pose carried forward to their own stamps."""
         self._pos = np.asarray(position, np.float64)[:3].copy()
         self._rot = np.asarray(rotation, np.float64).reshape(3, 3).copy()
+        self._stamp = None if stamp is None or velocity is None or angular_velocity is None else int(stamp)
+        if self._stamp is not None:
+            v = self._rot @ np.asarray(velocity, np.float64)[:3]
+            w = self._rot @ np.asarray(angular_velocity, np.float64)[:3]
+            if np.all(np.isfinite(v)) and np.all(np.isfinite(w)):
+                self._vel, self._yaw_rate = v[:2].copy(), float(w[2])
+            else:
+                self._stamp = None
 
-    def add_beam(self, head_angle_rad: float, range_m: float) -> bool:
-        """One beam (head angle from body +x towards starboard, echo range or nan). False: no pose yet."""
+    def add_beam(self, head_angle_rad: float, range_m: float, stamp: int | None = None) -> bool:
+        """One beam (head angle from body +x towards starboard, echo range or nan), stamped ``stamp``
+        (ns; None: placed with the latest pose as it is). False: no pose yet."""
         if self._pos is None:
             return False
         i = self._n % self.capacity
         self._angle[i] = head_angle_rad
         if math.isfinite(range_m):
+            assert self._rot is not None
             d = self._rot @ np.array([math.cos(head_angle_rad), self.head_sign * math.sin(head_angle_rad), 0.0])
             h = math.hypot(d[0], d[1])
-            self._xy[i] = self._pos[:2] + range_m * d[:2] / h if h > 1e-9 else np.nan
+            dx, dy = float(d[0]), float(d[1])
+            x, y = float(self._pos[0]), float(self._pos[1])
+            if stamp is not None and self._stamp is not None:
+                dt = min(max((stamp - self._stamp) * 1e-9, 0.0), MAX_EXTRAPOLATION_S)
+                a = self._yaw_rate * dt
+                c, s = math.cos(a), math.sin(a)
+                dx, dy = c * dx - s * dy, s * dx + c * dy
+                x, y = x + float(self._vel[0]) * dt, y + float(self._vel[1]) * dt
+            self._xy[i] = (x + range_m * dx / h, y + range_m * dy / h) if h > 1e-9 else np.nan
         else:
             self._xy[i] = np.nan
         self._n += 1

@@ -99,7 +99,8 @@ class RobotStateConfig(ConfigSection):
                                      "[chi2]")
     max_gap_s: float = Field(30.0, gt=0, description="a gap between inputs after which the prediction is bridged "
                              "and flagged [s]")
-    publish_rate_hz: float = Field(10.0, gt=0, description="rate of the published Odometry [Hz]")
+    publish_rate_hz: float = Field(5.0, gt=0, description="rate of the published Odometry (5: one per frame of the "
+                                   "~4-5 Hz camera; the experience map carries a pose to each sonar beam's stamp) [Hz]")
     dvl: DvlConfig = Field(default_factory=DvlConfig)
     imu: ImuConfig = Field(default_factory=ImuConfig)
     depth: DepthConfig = Field(default_factory=DepthConfig)

@@ -12,8 +12,11 @@ arrives, every not yet published grid stamp ``g < t`` is published first, from t
 predicted to ``g``; the output stamped ``g`` therefore reflects every input stamped
 ``<= g`` and nothing later (causal).  The grid starts once the filter has an attitude and a
 velocity; the remaining grid stamps up to the last input are published at the end.  DVL
-updates are not published separately: the 10 Hz grid is faster than the DVL (~3 Hz on
-the Girona logs) and a regular stream is what the back-end's Eq. 4.15 differencing wants.
+updates are not published separately: the grid (5 Hz by default, one pose per frame of the
+~4-5 Hz camera) is faster than the DVL (~3 Hz on the Girona logs) and a regular stream is
+what the back-end's Eq. 4.15 differencing wants; the sonar beams between two poses are
+placed by the experience map with the pose carried to their own stamps
+(:class:`services.expmap.scans.SweepBuffer`).
 
 A silence of ``max_gap_s`` or more on every sensor is a gap (counted ``gap``): the grid
 inside it is bridged by prediction (velocity held, then decaying, covariance growing,

@@ -10,6 +10,7 @@ from common.geometry import euler_to_matrix, matrix_to_quaternion
 from common.mcap_io import RecordingWriter
 from common.messages import Header, Odometry
 from eval.deadreckon import main
+from services.robot_state.config import RobotStateConfig
 from tests.robot_state.synth import NS, T0, mission
 
 U, W = 0.5, math.pi / 10  # forward speed m/s, turn rate rad/s
@@ -58,13 +59,14 @@ def test_deadreckon_json_with_cones_and_truth(tmp_path, capsys):
     # makes the velocity follow the DVL at once, so the estimate is exact here
     assert main([str(rec), "--json", "--cones", str(cones), "--set", "robot_state.process_accel_sigma=1e4"]) == 0
     s = json.loads(capsys.readouterr().out)
-    assert s["frame"] == "enu" and s["odometry_count"] == 501
+    n_out = int(50 * RobotStateConfig().publish_rate_hz) + 1   # the 50 s on the default grid, both ends
+    assert s["frame"] == "enu" and s["odometry_count"] == n_out
     assert s["duration_s"] == 50.0
     assert abs(s["distance_travelled_m"] - 20.0) < 1e-6
     assert np.allclose(s["start_position_m"], [0.0, 0.0, 6.0], atol=1e-9)
     assert np.allclose(s["end_position_m"], [0.0, 0.0, 6.0], atol=1e-9)
     assert s["counters"]["initialised"] == 1
-    assert s["status_flags"]["attitude_imu"] == 501
+    assert s["status_flags"]["attitude_imu"] == n_out
     c = s["cones"]
     assert c["passes_used"] == 2 and c["passes_outside"] == 1
     for est in ("filter", "plain"):

@@ -10,7 +10,7 @@ import pytest
 
 from services.expmap.config import ExpMapConfig
 from services.expmap.graph import EventResult, ExperienceMap
-from services.expmap.scans import SweepBuffer, echo_range, register_sweeps
+from services.expmap.scans import MAX_EXTRAPOLATION_S, SweepBuffer, echo_range, register_sweeps
 from tests.expmap.helpers import SEC, pc_of, small_cfg
 
 # A cave chamber: polygon walls (x, y in m), irregular so a sweep fixes both axes.
@@ -89,6 +89,61 @@ def test_sweep_points_lie_on_the_walls_in_either_published_frame(enu: bool) -> N
             ds.append(np.linalg.norm(q - (a + t * e)))
         return float(min(ds))
     assert max(dist(q) for q in ned) < 1e-6
+
+
+def _wall_distance(q: np.ndarray, poly: np.ndarray) -> float:
+    """Distance (m) from point q to the boundary of polygon ``poly``."""
+    ds = []
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        e = b - a
+        t = np.clip(np.dot(q - a, e) / np.dot(e, e), 0, 1)
+        ds.append(np.linalg.norm(q - (a + t * e)))
+    return float(min(ds))
+
+
+def test_beams_are_placed_at_the_pose_carried_to_their_own_stamps() -> None:
+    """Poses at 5 Hz, beams at 23 Hz, the vehicle crabbing at 0.32 m/s while it turns at 15 deg/s:
+    each point lies where its beam met the wall; with the last pose as it was (no stamps) the
+    points are off by decimetres."""
+    v, w, p0, yaw0 = np.array([0.3, 0.1]), math.radians(15.0), np.array([4.0, 3.0]), 0.3
+
+    def rz(a: float) -> np.ndarray:
+        return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+
+    moving, stale = SweepBuffer(head_sign=1.0), SweepBuffer(head_sign=1.0)
+    next_pose = 0
+    for k in range(230):
+        t_ns = round(k * 1e9 / 23)
+        while next_pose <= t_ns:                        # the odometry's 5 Hz grid
+            ts = next_pose * 1e-9
+            p, rot = p0 + v * ts, rz(yaw0 + w * ts)
+            body_v = rot.T @ np.array([v[0], v[1], 0.0])
+            moving.add_pose([p[0], p[1], 0.0], rot, next_pose, body_v, [0.0, 0.0, w])
+            stale.add_pose([p[0], p[1], 0.0], rot)
+            next_pose += 200_000_000
+        h = math.radians((k * 1.8) % 360.0)
+        ts = t_ns * 1e-9
+        th = yaw0 + w * ts + h                          # the physical beam at the beam's own instant
+        r = _ray(p0 + v * ts, np.array([math.cos(th), math.sin(th)]), [CHAMBER])
+        for sb in (moving, stale):
+            sb.add_beam(h, r if r < 20.0 else math.nan, t_ns if sb is moving else None)
+    pts = moving.sweep([0.0, 0.0]).astype(float)
+    assert len(pts) >= 150
+    assert max(_wall_distance(q, CHAMBER) for q in pts) < 1e-4
+    assert max(_wall_distance(q, CHAMBER) for q in stale.sweep([0.0, 0.0]).astype(float)) > 0.1
+
+
+def test_a_beam_long_after_its_pose_is_carried_forward_by_the_bound_only() -> None:
+    """After a silence of the odometry the pose is carried at most MAX_EXTRAPOLATION_S; a beam
+    stamped before the pose is placed at the pose itself."""
+    sb = SweepBuffer(head_sign=1.0)
+    sb.add_pose([0.0, 0.0, 0.0], np.eye(3), 1_000_000_000, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    for k in range(201):
+        t = 6_000_000_000 if k == 0 else 900_000_000    # the first 5 s after the pose, the rest before it
+        sb.add_beam(math.radians(k * 1.8), 3.0, t)
+    pts = sb.sweep([0.0, 0.0]).astype(float)
+    assert pts[-1] == pytest.approx([MAX_EXTRAPOLATION_S + 3.0, 0.0])   # the first beam: sweep() lists newest first
+    assert np.allclose(np.linalg.norm(pts[:-1], axis=1), 3.0, atol=1e-5)
 
 
 def test_sweep_needs_a_full_turn_and_no_pose_means_no_points() -> None:

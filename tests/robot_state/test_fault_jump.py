@@ -11,7 +11,8 @@ from common.node import run_offline
 from system.config import load_config
 from system.services import build_node
 
-NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
+# the filter on a 10 Hz grid of outputs (these tests count and time its outputs on it)
+NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1", "robot_state.publish_rate_hz=10"]
 
 
 def _run(extra: list[str]):

@@ -12,7 +12,8 @@ from services.robot_state.filter import B_DVL, D_IMU
 from system.config import load_config
 from system.services import build_node
 
-NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1"]
+# the filter on a 10 Hz grid of outputs (these tests count and time its outputs on it)
+NED = ["robot_state.axis_remap=xyz", "robot_state.axis_sign_z=1", "robot_state.publish_rate_hz=10"]
 
 
 def _drifting_imu_with_compass(minutes: float, drift_deg_min: float, offset_deg: float, heading_noise_deg: float,
