@@ -81,14 +81,7 @@ def test_sweep_points_lie_on_the_walls_in_either_published_frame(enu: bool) -> N
     assert len(pts) >= 150
     ned = (_to_ned(pts) if enu else pts.astype(float)) + p
     # every point is on a wall: its distance to the polygon boundary is ~0
-    def dist(q: np.ndarray) -> float:
-        ds = []
-        for a, b in zip(CHAMBER, np.roll(CHAMBER, -1, axis=0)):
-            e = b - a
-            t = np.clip(np.dot(q - a, e) / np.dot(e, e), 0, 1)
-            ds.append(np.linalg.norm(q - (a + t * e)))
-        return float(min(ds))
-    assert max(dist(q) for q in ned) < 1e-6
+    assert max(_wall_distance(q, CHAMBER) for q in ned) < 1e-6
 
 
 def _wall_distance(q: np.ndarray, poly: np.ndarray) -> float:
