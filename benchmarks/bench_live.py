@@ -20,11 +20,12 @@ time), every service in its own process with its bounded live queue.  For each r
 
     .venv/bin/python benchmarks/bench_live.py                 # 2 min at 1x and 4x (~6 min)
     .venv/bin/python benchmarks/bench_live.py --rates 8 --json
+    .venv/bin/python benchmarks/bench_live.py --rates 4 --set robot_state.publish_rate_hz=10   # another setting
 
 Nothing else should run on the machine meanwhile (late messages and drops follow the load).
 The run recordings are deleted once measured (``--keep-outputs`` keeps them).
 
-``--json``: ``{"minutes", "mission", "floor_ms": {"lateness_ms", "watermark_interval_ms"},
+``--json``: ``{"minutes", "mission", "overrides" (``--set``), "floor_ms": {"lateness_ms", "watermark_interval_ms"},
 "rates": {"<rate>": {"pipeline": RUN, "baseline": RUN, "p50_ratio": {stage: pipeline p50 /
 baseline odometry p50}}}}`` with RUN = ``{"wall_s", "latency": {stage: {n, unmatched, p50_ms,
 p95_ms, p99_ms, max_ms}}, "dropped": {service: {key: frames}}, "late": {key: messages},
@@ -81,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default="/tmp/poseidon-live-bench")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--keep-outputs", action="store_true")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override one configuration field of both runs (repeatable), e.g. to measure a "
+                         "default against its predecessor")
     args = ap.parse_args(argv)
     rates = [float(r) for r in args.rates.split(",") if r]
     if not rates or min(rates) <= 0:
@@ -90,8 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     cache.mkdir(parents=True, exist_ok=True)
     mission = simulate_cached(cache / f"live_{args.minutes:g}min_seed{args.seed}.mcap", args.minutes, args.seed,
                               progress=False)
-    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy"])
-    out: dict[str, Any] = {"minutes": args.minutes, "mission": str(mission),
+    cfg = load_config(overrides=[f"encoder.lsbh.matrix_path={cache}/lsbh_{{backbone}}_{{modality}}.npy", *args.set])
+    out: dict[str, Any] = {"minutes": args.minutes, "mission": str(mission), "overrides": list(args.set),
                            "floor_ms": {"lateness_ms": cfg.live.lateness_ms,
                                         "watermark_interval_ms": cfg.live.watermark_interval_ms},
                            "rates": {}}
