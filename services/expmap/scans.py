@@ -20,8 +20,8 @@ dissertation's zero displacement otherwise.
   turn rate (at most ``MAX_EXTRAPOLATION_S``; the beam direction is the body-frame head angle
   turned by the published attitude): the Micron's beams come at ~23 Hz, the odometry at
   ``robot_state.publish_rate_hz``, and a beam placed with a pose 0.1-0.2 s old during a turn
-  lands tens of centimetres off at 10 m; :meth:`SweepBuffer.sweep` returns the points of the last full turn
-  of the head (accumulated head travel >= ``scan.sweep_deg``), relative to a given position:
+  lands tens of centimetres off at 10 m.  :meth:`SweepBuffer.sweep` returns the points of the
+  last full turn of the head (accumulated head travel >= ``scan.sweep_deg``), relative to a given position:
   an experience's sweep, motion-compensated by dead reckoning (locally accurate).
 - :func:`register_sweeps`: the translation t (and a small rotation) that lays the current
   sweep onto the stored one, by exhaustive search of the truncated chamfer cost
