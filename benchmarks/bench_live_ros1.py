@@ -7,18 +7,21 @@ at each of ``--rates``.  In the same run of this script, the baseline: the same 
 replayed from its recording (``poseidon run --input``, no live queues, nothing can drop).
 
 Per rate: wall time; frames dropped by each service's bounded live queue (run summary
-``dropped``, per key); source messages missing from the recording (bag count minus recorded);
-LVC ids, experiences, loop closures and map ATE beside the replay's; the first rate with a
-drop.  Nothing else should run on the machine meanwhile (drops follow the load).
+``dropped``, per key); messages a service received and rejected (run summary ``invalid``, per
+key: late, i.e. older than what their stream had already promised by its wall-clock watermark
+(``common/live.py``), or not valid); source messages missing from the recording (bag count
+minus recorded); LVC ids, experiences, loop closures and map ATE beside the replay's; the first
+rate where any input was lost (dropped, rejected or missing).  Nothing else should run on the machine meanwhile (drops follow the load).
 
     .venv/bin/python benchmarks/bench_live_ros1.py                    # 8, 12, 16, 20x: ~8 min
     .venv/bin/python benchmarks/bench_live_ros1.py --rates 16 --json
 
 ``--set KEY=VALUE`` (repeatable) applies to the live runs, not the replay.  ``--json``:
-``{"mission", "settings": those values, "replay": RUN, "rates": {"<rate>": RUN}, "drops_start_at":
-rate or null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "missing": {key: source
-messages not recorded}, "lvc_ids", "experiences", "loop_closures", "ate_m"}`` (``dropped`` and
-``missing`` empty for the replay).  Needs ROS 1 (``deploy/setup.sh`` installs it).
+``{"mission", "settings": those values, "source_messages": {key: messages in the bag}, "replay": RUN,
+"rates": {"<rate>": RUN}, "drops_start_at": the first rate with anything in ``dropped``, ``rejected``
+or ``missing``, or null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "rejected":
+{service: {key: messages}}, "missing": {key: source messages not recorded}, "lvc_ids", "experiences",
+"loop_closures", "ate_m"}`` (``dropped``, ``rejected`` and ``missing`` empty for the replay).  Needs ROS 1 (``deploy/setup.sh`` installs it).
 """
 from __future__ import annotations
 
@@ -45,12 +48,18 @@ def _counts(path: Path) -> dict[str, int]:
     return counts
 
 
-def _figures(out: Path, wall_s: float, dropped: dict[str, Any], missing: dict[str, int]) -> dict[str, Any]:
+def _figures(out: Path, wall_s: float, dropped: dict[str, Any], missing: dict[str, int],
+             rejected: dict[str, Any] | None = None) -> dict[str, Any]:
     ev = evaluate_run(out)
     counts = _counts(out)
-    return {"wall_s": round(wall_s, 1), "dropped": dropped, "missing": missing,
+    return {"wall_s": round(wall_s, 1), "dropped": dropped, "rejected": rejected or {}, "missing": missing,
             "lvc_ids": counts.get("local_view_cells", 0), "experiences": counts.get("experience_event", 0),
             "loop_closures": ev["loop_closures"]["accepted"], "ate_m": ev["ate_rmse_m"]["map"]}
+
+
+def _lost(run: dict[str, Any]) -> bool:
+    """Did the run lose any input: dropped by a queue, rejected by a service, or not recorded?"""
+    return bool(run["dropped"] or run["rejected"] or run["missing"])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -84,26 +93,28 @@ def main(argv: list[str] | None = None) -> int:
             run_out = cache / f"live_{rate:g}x.mcap"
             result = live_run(core, bag, run_out, rate, settings=args.settings)
             dropped = {n: st["dropped"] for n, st in result["services"].items() if st.get("dropped")}
+            rejected = {n: st["invalid"] for n, st in result["services"].items() if st.get("invalid")}
             recorded = result["recording"]["counts"]
             missing = {k: n - recorded.get(k, 0) for k, n in source.items() if recorded.get(k, 0) != n}
-            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, missing)
+            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, missing, rejected)
     finally:
         core.stop()
-    out["drops_start_at"] = next((float(r) for r, v in out["rates"].items() if v["dropped"] or v["missing"]), None)
+    out["drops_start_at"] = next((float(r) for r, v in out["rates"].items() if _lost(v)), None)
     if args.json:
         print(json.dumps(out, indent=1))
         return 0
     print(f"demo mission ({sum(source.values())} source messages) through ROS 1, every service in its own process")
-    print(f"{'run':>10} {'wall s':>7} {'LVC ids':>8} {'exps':>6} {'loops':>6} {'map ATE m':>10}  dropped / missing")
+    print(f"{'run':>10} {'wall s':>7} {'LVC ids':>8} {'exps':>6} {'loops':>6} {'map ATE m':>10}  "
+          "dropped / rejected / missing")
     rows = [("replay", out["replay"])] + [(f"{r}x live", v) for r, v in out["rates"].items()]
     for name, v in rows:
         ate = f"{v['ate_m']:.3f}" if v["ate_m"] is not None else "-"
-        lost = (f"{json.dumps(v['dropped'])} / {json.dumps(v['missing'])}" if v["dropped"] or v["missing"]
-                else "none")
+        lost = (f"{json.dumps(v['dropped'])} / {json.dumps(v['rejected'])} / {json.dumps(v['missing'])}"
+                if _lost(v) else "none")
         print(f"{name:>10} {v['wall_s']:>7} {v['lvc_ids']:>8} {v['experiences']:>6} {v['loop_closures']:>6} "
               f"{ate:>10}  {lost}")
     start = out["drops_start_at"]
-    print(f"drops start at {start:g}x" if start is not None else f"no drop up to {max(rates):g}x")
+    print(f"inputs lost from {start:g}x" if start is not None else f"no input lost up to {max(rates):g}x")
     return 0
 
 

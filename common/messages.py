@@ -291,9 +291,11 @@ class Sdr(Message):
         a = self.active
         _index_array(a, "active")
         if len(a):
-            _require(int(a.min()) >= 0 and int(a.max()) < self.size,
-                     f"active indices span [{int(a.min())}, {int(a.max())}], outside [0, size {self.size})")
-            _require(bool(np.all(a[1:] > a[:-1])), "active indices are not sorted strictly increasing")
+            increasing = bool((a[1:] > a[:-1]).all())
+            # strictly increasing: the ends are the extremes (one pass over the array, not three)
+            lo, hi = (int(a[0]), int(a[-1])) if increasing else (int(a.min()), int(a.max()))
+            _require(lo >= 0 and hi < self.size, f"active indices span [{lo}, {hi}], outside [0, size {self.size})")
+            _require(increasing, "active indices are not sorted strictly increasing")
         return self
 
 
