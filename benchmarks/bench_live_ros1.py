@@ -11,7 +11,8 @@ Per rate: wall time; frames dropped by each service's bounded live queue (run su
 key: late, i.e. older than what their stream had already promised by its wall-clock watermark
 (``common/live.py``), or not valid); source messages missing from the recording (bag count
 minus recorded); LVC ids, experiences, loop closures and map ATE beside the replay's; the first
-rate where any input was lost (dropped, rejected or missing).  Nothing else should run on the machine meanwhile (drops follow the load).
+rate where any input was lost (dropped, rejected or missing).  Nothing else should run on the
+machine meanwhile (drops follow the load).
 
     .venv/bin/python benchmarks/bench_live_ros1.py                    # 8, 12, 16, 20x: ~8 min
     .venv/bin/python benchmarks/bench_live_ros1.py --rates 16 --json
@@ -21,7 +22,8 @@ rate where any input was lost (dropped, rejected or missing).  Nothing else shou
 "rates": {"<rate>": RUN}, "drops_start_at": the first rate with anything in ``dropped``, ``rejected``
 or ``missing``, or null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "rejected":
 {service: {key: messages}}, "missing": {key: source messages not recorded}, "lvc_ids", "experiences",
-"loop_closures", "ate_m"}`` (``dropped``, ``rejected`` and ``missing`` empty for the replay).  Needs ROS 1 (``deploy/setup.sh`` installs it).
+"loop_closures", "ate_m"}`` (``dropped``, ``rejected`` and ``missing`` empty for the replay).  Needs
+ROS 1 (``deploy/setup.sh`` installs it).
 """
 from __future__ import annotations
 
@@ -48,11 +50,11 @@ def _counts(path: Path) -> dict[str, int]:
     return counts
 
 
-def _figures(out: Path, wall_s: float, dropped: dict[str, Any], missing: dict[str, int],
-             rejected: dict[str, Any] | None = None) -> dict[str, Any]:
+def _figures(out: Path, wall_s: float, dropped: dict[str, Any], rejected: dict[str, Any],
+             missing: dict[str, int]) -> dict[str, Any]:
     ev = evaluate_run(out)
     counts = _counts(out)
-    return {"wall_s": round(wall_s, 1), "dropped": dropped, "rejected": rejected or {}, "missing": missing,
+    return {"wall_s": round(wall_s, 1), "dropped": dropped, "rejected": rejected, "missing": missing,
             "lvc_ids": counts.get("local_view_cells", 0), "experiences": counts.get("experience_event", 0),
             "loop_closures": ev["loop_closures"]["accepted"], "ate_m": ev["ate_rmse_m"]["map"]}
 
@@ -85,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     if proc.returncode != 0:
         raise RuntimeError(f"replay failed: {proc.stderr[-3000:]}")
     out: dict[str, Any] = {"mission": str(mission), "settings": args.settings, "source_messages": source,
-                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}), "rates": {}}
+                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}, {}), "rates": {}}
     core = Roscore(cache / "roshome")
     try:
         for rate in rates:
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             rejected = {n: st["invalid"] for n, st in result["services"].items() if st.get("invalid")}
             recorded = result["recording"]["counts"]
             missing = {k: n - recorded.get(k, 0) for k, n in source.items() if recorded.get(k, 0) != n}
-            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, missing, rejected)
+            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, rejected, missing)
     finally:
         core.stop()
     out["drops_start_at"] = next((float(r) for r, v in out["rates"].items() if _lost(v)), None)
