@@ -91,53 +91,63 @@ def gaussian_kernel(sigma_cells: float, n: int) -> tuple[np.ndarray, np.ndarray]
 
 @numba.njit(cache=True)
 def _excite_list(src: np.ndarray, dst: np.ndarray, idx_src: np.ndarray, n_src: int, idx_dst: np.ndarray,
-                 flag: np.ndarray, stride: int, n: int, offsets: np.ndarray, weights: np.ndarray) -> int:
+                 stride: int, n: int, offsets: np.ndarray, weights: np.ndarray) -> int:
     """Scatter the listed non-zero cells of ``src`` into ``dst`` along one wrapped axis (flat
     C-order arrays); lists the touched cells of ``dst`` in ``idx_dst`` and returns their number.
-    ``dst`` and ``flag`` must be zero on entry; ``src`` is left zero on exit."""
+    ``dst`` must be zero on entry; ``src`` is left zero on exit.  The activity is never negative
+    and the weights are positive, so a cell of ``dst`` still at 0 has not been touched yet.
+    ``offsets`` ascend from ``-r`` to ``r``; a source at least ``r`` cells from both ends of the
+    axis takes the straight path (no wrap), with the same additions in the same order."""
     m = offsets.shape[0]
+    r = -offsets[0]
     n_dst = 0
     for t in range(n_src):
         i = idx_src[t]
         v = src[i]
         src[i] = 0.0
         c = (i // stride) % n
-        base = i - c * stride
-        for u in range(m):
-            cc = c + offsets[u]
-            if cc < 0:
-                cc += n
-            elif cc >= n:
-                cc -= n
-            j = base + cc * stride
-            if flag[j] == 0:
-                flag[j] = 1
-                idx_dst[n_dst] = j
-                n_dst += 1
-            dst[j] += v * weights[u]
-    for t in range(n_dst):
-        flag[idx_dst[t]] = 0
+        if c >= r and c + r < n:
+            j = i - r * stride
+            for u in range(m):
+                if dst[j] == 0.0:
+                    idx_dst[n_dst] = j
+                    n_dst += 1
+                dst[j] += v * weights[u]
+                j += stride
+        else:
+            base = i - c * stride
+            for u in range(m):
+                cc = c + offsets[u]
+                if cc < 0:
+                    cc += n
+                elif cc >= n:
+                    cc -= n
+                j = base + cc * stride
+                if dst[j] == 0.0:
+                    idx_dst[n_dst] = j
+                    n_dst += 1
+                dst[j] += v * weights[u]
     return n_dst
 
 
 @numba.njit(cache=True)
-def _attractor_update(p: np.ndarray, tmp: np.ndarray, idx_a: np.ndarray, idx_b: np.ndarray, flag: np.ndarray,
+def _attractor_update(p: np.ndarray, tmp: np.ndarray, idx_a: np.ndarray, idx_b: np.ndarray,
                       strides: np.ndarray, dims: np.ndarray, off0: np.ndarray, w0: np.ndarray, off1: np.ndarray,
                       w1: np.ndarray, off2: np.ndarray, w2: np.ndarray, off3: np.ndarray, w3: np.ndarray,
                       phi: float) -> float:
     """Eqs. 4.16-4.17 in place on the flat activity ``p``: separable wrapped excitation over
-    the non-zero cells only, then ``N(max(0, E - phi))``.  ``tmp`` and ``flag`` are zero
-    scratch (left zero).  Returns the total before normalisation."""
+    the non-zero cells only, then ``N(max(0, E - phi))``.  ``tmp`` is zero scratch (left
+    zero).  Returns the total before normalisation."""
     n_a = 0
     for i in range(p.shape[0]):
         if p[i] != 0.0:
             idx_a[n_a] = i
             n_a += 1
     # yaw first: the packet already spans most of the yaw axis, so the support grows least
-    n_b = _excite_list(p, tmp, idx_a, n_a, idx_b, flag, strides[3], dims[3], off3, w3)
-    n_a = _excite_list(tmp, p, idx_b, n_b, idx_a, flag, strides[0], dims[0], off0, w0)
-    n_b = _excite_list(p, tmp, idx_a, n_a, idx_b, flag, strides[1], dims[1], off1, w1)
-    n_a = _excite_list(tmp, p, idx_b, n_b, idx_a, flag, strides[2], dims[2], off2, w2)
+    n_b = _excite_list(p, tmp, idx_a, n_a, idx_b, strides[3], dims[3], off3, w3)
+    n_a = _excite_list(tmp, p, idx_b, n_b, idx_a, strides[0], dims[0], off0, w0)
+    n_b = _excite_list(p, tmp, idx_a, n_a, idx_b, strides[1], dims[1], off1, w1)
+    n_a = _excite_list(tmp, p, idx_b, n_b, idx_a, strides[2], dims[2], off2, w2)
     total = 0.0
     for t in range(n_a):
         i = idx_a[t]
@@ -238,7 +248,6 @@ class PoseCellNetwork:
         self._roll_tmp = np.zeros(self.size, dtype=np.float64)
         self._idx_a = np.zeros(self.size, dtype=np.int64)
         self._idx_b = np.zeros(self.size, dtype=np.int64)
-        self._flag = np.zeros(self.size, dtype=np.uint8)
         self.beta: dict[int, _Beta] = {}  # mature associations (injected)
         self.episode_beta: dict[int, _Beta] = {}  # learned in the LVC's current episode (not injected yet)
         self.last_active: dict[int, int] = {}  # step an LVC with an open episode was last active
@@ -267,7 +276,7 @@ class PoseCellNetwork:
     def update(self) -> None:
         """Excitation, global inhibition, rectification and normalisation (Eqs. 4.16-4.17)."""
         (o0, w0), (o1, w1), (o2, w2), (o3, w3) = self._kernels
-        total = _attractor_update(self.activity, self._tmp, self._idx_a, self._idx_b, self._flag, self._strides,
+        total = _attractor_update(self.activity, self._tmp, self._idx_a, self._idx_b, self._strides,
                                   self._dims, o0, w0, o1, w1, o2, w2, o3, w3, float(self.cfg.global_inhibition))
         if not total > 0.0:
             raise RuntimeError("pose cells: global inhibition removed all activity "
