@@ -294,3 +294,15 @@ def test_sparse_update_equals_the_dense_reference_after_moves_and_injections() -
         net.learn([1 + k % 3])
         net.steps += 1
     assert net._tmp.any() == False  # noqa: E712 - the scratch the update relies on stays zero
+
+
+@pytest.mark.parametrize("cell", [(0, 0, 0, 0), (14, 1, 13, 7), (2, 12, 7, 3)])
+def test_sparse_update_equals_the_dense_reference_where_the_packet_wraps(cell: tuple[int, int, int, int]) -> None:
+    # a packet at the lattice's ends: its excitation takes the wrapping path on every axis,
+    # the cells r or more from both ends the straight one
+    net = settled(cell=cell, updates=5)
+    for _ in range(5):
+        before = net.P.copy()
+        net.update()
+        assert np.allclose(net.P, dense_reference_update(before, net.cfg), rtol=0, atol=1e-15)
+    assert net._tmp.any() == False  # noqa: E712 - the scratch the update relies on stays zero
