@@ -10,7 +10,8 @@ Per rate: wall time; frames dropped by each service's bounded live queue (run su
 ``dropped``, per key); messages a service received and rejected (run summary ``invalid``, per
 key: late, i.e. older than what their stream had already promised by its wall-clock watermark
 (``common/live.py``), or not valid); source messages missing from the recording (bag count
-minus recorded); LVC ids, experiences, loop closures and map ATE beside the replay's; the first
+minus recorded, over the keys the bridge bridged: by default it subscribes only to the topics
+the services read and the ground truth, ``bridge_ros1.bridge_unread``); LVC ids, experiences, loop closures and map ATE beside the replay's; the first
 rate where any input was lost (dropped, rejected or missing).  Nothing else should run on the
 machine meanwhile (drops follow the load).
 
@@ -21,8 +22,9 @@ machine meanwhile (drops follow the load).
 ``{"mission", "settings": those values, "source_messages": {key: messages in the bag}, "replay": RUN,
 "rates": {"<rate>": RUN}, "drops_start_at": the first rate with anything in ``dropped``, ``rejected``
 or ``missing``, or null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "rejected":
-{service: {key: messages}}, "missing": {key: source messages not recorded}, "lvc_ids", "experiences",
-"loop_closures", "ate_m"}`` (``dropped``, ``rejected`` and ``missing`` empty for the replay).  Needs
+{service: {key: messages}}, "missing": {key: source messages not recorded}, "unread": [source keys the
+bridge did not bridge, no service reading them], "lvc_ids", "experiences", "loop_closures", "ate_m"}``
+(``dropped``, ``rejected``, ``missing`` and ``unread`` empty for the replay).  Needs
 ROS 1 (``deploy/setup.sh`` installs it).
 """
 from __future__ import annotations
@@ -51,10 +53,11 @@ def _counts(path: Path) -> dict[str, int]:
 
 
 def _figures(out: Path, wall_s: float, dropped: dict[str, Any], rejected: dict[str, Any],
-             missing: dict[str, int]) -> dict[str, Any]:
+             missing: dict[str, int], unread: list[str]) -> dict[str, Any]:
     ev = evaluate_run(out)
     counts = _counts(out)
     return {"wall_s": round(wall_s, 1), "dropped": dropped, "rejected": rejected, "missing": missing,
+            "unread": unread,
             "lvc_ids": counts.get("local_view_cells", 0), "experiences": counts.get("experience_event", 0),
             "loop_closures": ev["loop_closures"]["accepted"], "ate_m": ev["ate_rmse_m"]["map"]}
 
@@ -87,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     if proc.returncode != 0:
         raise RuntimeError(f"replay failed: {proc.stderr[-3000:]}")
     out: dict[str, Any] = {"mission": str(mission), "settings": args.settings, "source_messages": source,
-                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}, {}), "rates": {}}
+                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}, {}, []),
+                           "rates": {}}
     core = Roscore(cache / "roshome")
     try:
         for rate in rates:
@@ -97,8 +101,10 @@ def main(argv: list[str] | None = None) -> int:
             dropped = {n: st["dropped"] for n, st in result["services"].items() if st.get("dropped")}
             rejected = {n: st["invalid"] for n, st in result["services"].items() if st.get("invalid")}
             recorded = result["recording"]["counts"]
-            missing = {k: n - recorded.get(k, 0) for k, n in source.items() if recorded.get(k, 0) != n}
-            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, rejected, missing)
+            unread = sorted(t.lstrip("/") for t in result["services"]["bridge_ros1"]["unread"])
+            missing = {k: n - recorded.get(k, 0) for k, n in source.items()
+                       if recorded.get(k, 0) != n and k not in unread}
+            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, rejected, missing, unread)
     finally:
         core.stop()
     out["drops_start_at"] = next((float(r) for r, v in out["rates"].items() if _lost(v)), None)

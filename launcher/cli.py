@@ -17,7 +17,7 @@ Subcommands:
   builds them) anywhere, connected to a hub or router.  Exit 0 when its inputs
   ended, 1 when it failed, 2 on bad configuration, 4 when the run was aborted because
   another service died (see :mod:`common.bus`).
-- ``bridge ros1 [--connect ENDPOINT] [--duration S] [--announce a,b] [--json]``: the ROS 1 bridge
+- ``bridge ros1 [--connect ENDPOINT] [--duration S] [--announce a,b] [--read a,b] [--json]``: the ROS 1 bridge
   (:mod:`services.bridge_ros1.bridge`) on a hub: sensor topics of the ROS master
   (``ROS_MASTER_URI`` or ``bridge_ros1.master_uri``) onto the bus, our outputs back to ROS,
   until SIGINT/SIGTERM or ``--duration``; prints its counters (``BridgeStats``).  Exit 2 when
@@ -226,6 +226,8 @@ def _add_service_command(sub: Any) -> None:
     p.add_argument("--keys", help="player, live_player: comma-separated keys to publish")
     p.add_argument("--wait-for", help="player: comma-separated services to wait for")
     p.add_argument("--announce", help="bridge_ros1: comma-separated source keys kept alive while silent")
+    p.add_argument("--read", help="bridge_ros1: comma-separated keys the run's services read; only their topics, "
+                   "bridge_ros1.keep_keys and the grid's returns are bridged (unless bridge_ros1.bridge_unread)")
     p.add_argument("--live", action="store_true", help="a service of a live run: bounded input queue (live.*)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--out", help="recorder: output MCAP")
@@ -255,6 +257,9 @@ def _add_bridge_command(sub: Any) -> None:
     p.add_argument("--namespace", help="vehicle namespace (default from configuration)")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: at SIGINT/SIGTERM)")
     p.add_argument("--announce", help="comma-separated source keys kept alive with watermarks even while silent")
+    p.add_argument("--read", help="comma-separated keys the services on the bus read: only their topics, "
+                   "bridge_ros1.keep_keys and the grid's returns are bridged (unless bridge_ros1.bridge_unread; "
+                   "default: every topic)")
     p.add_argument("--json", action="store_true", help="print the counters indented")
     _add_config_args(p)
     p.set_defaults(func=cmd_bridge)

@@ -108,8 +108,10 @@ HUB = "hub"
 
 
 def plan_live(config: PoseidonConfig, services: list[str] | None = None) -> RunPlan:
-    """Which services run; the source keys the bridge announces (its configured topics' keys and
-    every sensor key a service reads that no service produces); what the recorder awaits."""
+    """Which services run; the keys the bridge bridges (``read``: every sensor key a service reads
+    that no service produces; None, every topic, with ``bridge_ros1.bridge_unread`` or when no
+    service reads one); the source keys it announces (those, or with every topic its configured
+    topics' keys too); what the recorder awaits."""
     names = list(services) if services is not None else list(config.services or available_services(config))
     io = {n: node_io(n, config) for n in names}
     produced = {k for _i, outs in io.values() for k in outs}
@@ -119,8 +121,9 @@ def plan_live(config: PoseidonConfig, services: list[str] | None = None) -> RunP
     if unknown:
         raise ValueError(f"live run: services {names} read {unknown}, which no service produces and no "
                          f"bridge_ros1.topics route maps to (add a route 'ROS topic: {{key: ...}}')")
-    source_keys = sorted((routed | needed) - produced)
-    return RunPlan(names, source_keys, sorted(set(source_keys) | produced | {LATENCY_KEY}), io)
+    read = None if config.bridge_ros1.bridge_unread or not needed else sorted(needed)
+    source_keys = sorted((routed | needed) - produced) if read is None else read
+    return RunPlan(names, source_keys, sorted(set(source_keys) | produced | {LATENCY_KEY}), io, read=read)
 
 
 def plan_live_mcap(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None) -> RunPlan:
@@ -166,6 +169,8 @@ def _commands(plan: RunPlan, source: str, tmp: Path, endpoint: str, partial: Pat
         cmds[name] = base + ["service", name, *common, *supervise, "--live", "--stats", str(_stats_file(tmp, name))]
     cmds[source] = base + ["service", source, *common, *supervise, "--announce", ",".join(plan.player_keys),
                            "--stats", str(_stats_file(tmp, source))]
+    if inp is None and plan.read is not None:
+        cmds[source] += ["--read", ",".join(plan.read)]
     if inp is not None:
         cmds[source] += ["--input", str(inp), "--rate", repr(rate), "--keys", ",".join(plan.player_keys)]
     return cmds

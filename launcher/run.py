@@ -126,13 +126,16 @@ def _publish_output(partial: Path, out: Path) -> None:
 @dataclass
 class RunPlan:
     """``copy_keys``: the input keys the recorder copies from the input itself (``player.replay``
-    copied); the player publishes ``player_keys``, the recorder awaits the end of ``expect``."""
+    copied); the player publishes ``player_keys``, the recorder awaits the end of ``expect``;
+    ``read``: a live ROS 1 run's keys its services read, the bridge's ``--read`` (None: every topic
+    is bridged)."""
 
     services: list[str]
     player_keys: list[str]
     expect: list[str]
     io: dict[str, tuple[tuple[str, ...], tuple[str, ...]]]
     copy_keys: list[str] = field(default_factory=list)
+    read: list[str] | None = None
 
 
 def plan_run(config: PoseidonConfig, input_path: str | Path, services: list[str] | None = None,

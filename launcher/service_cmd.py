@@ -168,6 +168,7 @@ def worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: S
     spec = WorkerSpec(supervision=supervision, drain=True, input=args.input, rate=args.rate,
                       keys=args.keys.split(",") if args.keys else None,
                       announce=[k for k in (args.announce or "").split(",") if k], live=args.live,
+                      read=_key_list(args.read),
                       wait_for=[w for w in (args.wait_for or "").split(",") if w], progress=not args.no_progress,
                       out=args.out, expect=None if args.expect is None else [k for k in args.expect.split(",") if k],
                       copy_from=args.copy_from, copy_keys=[k for k in (args.copy_keys or "").split(",") if k],
@@ -176,6 +177,11 @@ def worker_spec(args: argparse.Namespace, config: PoseidonConfig, supervision: S
         spec.metadata = json.loads(Path(args.metadata).read_text()) if args.metadata else {
             "tool": "poseidon service recorder", "config": config.model_dump(mode="json")}
     return spec
+
+
+def _key_list(value: str | None) -> list[str] | None:
+    """A comma-separated key list flag: None when not given (``--read ''`` is the empty list)."""
+    return None if value is None else [k for k in value.split(",") if k]
 
 
 def _digest_reader(path: str | None) -> Callable[[], str] | None:
@@ -297,7 +303,8 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     bus = join_bus(what, signals, config.bus.startup_timeout_s, args.namespace or config.bus.namespace, connect)
     if bus is None:
         return 0 if signals.stopped.is_set() else 2
-    spec = WorkerSpec(announce=[k for k in (args.announce or "").split(",") if k], drain=False)
+    spec = WorkerSpec(announce=[k for k in (args.announce or "").split(",") if k], drain=False,
+                      read=_key_list(args.read))
     worker = build_worker(BRIDGE_ROS1, config, bus, spec)
     try:
         stats = run_worker(worker, signals, args.duration)

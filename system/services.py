@@ -164,7 +164,8 @@ class WorkerSpec:
     ``metadata`` (the ``poseidon`` metadata record), ``copy_from`` and ``copy_keys`` (input keys it
     copies from the input recording itself: ``player.replay`` copied), ``input_digest`` (returns the SHA-256 it
 writes into the metadata's ``input_sha256`` at the end: a replay's input).  ROS 1 bridge: ``announce`` (source keys
-    it keeps alive with wall-clock watermarks and ends at its stop).  ``live``: a service of a
+    it keeps alive with wall-clock watermarks and ends at its stop), ``read`` (the keys the run's
+    services read; None: not known, every topic is bridged).  ``live``: a service of a
     live run (bounded input queue ``live.queue_frames``; ``debug.slow_service`` is slowed).  Service: ``node`` already built (None:
     built here).
     """
@@ -184,6 +185,7 @@ writes into the metadata's ``input_sha256`` at the end: a replay's input).  ROS 
     input_digest: Callable[[], str] | None = None
     node: ServiceNode[Any] | None = None
     announce: Sequence[str] = ()
+    read: Sequence[str] | None = None
     live: bool = False
 
 
@@ -228,7 +230,8 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
                            float(config.robot_state.axis_sign_z))
         return Ros1Bridge(bus, config.bridge_ros1, announce=spec.announce, drain_timeout_s=drain_s,
                           consumers=spec.supervision.consumers if spec.supervision is not None else None,
-                          retain_s=config.live.retain_s, retain_mb=config.live.retain_mb, sonar=sonar)
+                          retain_s=config.live.retain_s, retain_mb=config.live.retain_mb, sonar=sonar,
+                          read=spec.read)
     node = spec.node if spec.node is not None else build_node(name, config)
     live, debug = config.live, config.debug
     # live: a message waits for a silent stream's watermark in wall time, so the live interval

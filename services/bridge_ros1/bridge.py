@@ -7,7 +7,12 @@
   ``discover_interval_s``; ``ignore_topics`` and our own output topics excepted) is
   subscribed; each message is converted as ``poseidon import`` converts a bag message
   (:mod:`services.bridge_ros1.convert`) and published at once on our key with its ROS
-  header stamp.  A source never waits for its consumers: no flow control, no waiting for
+  header stamp.  When the launcher names the keys its services read (``read``: ``poseidon run
+  --live ros1``, or ``--read``), only the topics of those keys, of ``keep_keys`` (the ground
+  truth) and of the grid's returns are subscribed, unless ``bridge_unread``: a topic no service
+  reads costs the bridge rospy's receiving and our conversion for nothing the run uses (the
+  simulated missions' duplicate and second sonar streams are two thirds of their messages);
+  such topics are listed in the stats' ``unread``.  A source never waits for its consumers: no flow control, no waiting for
   services to be alive.
 - Event time: every ``watermark_interval_ms`` (wall) each source key (the keys published so
   far and ``announce``: the sensor keys the services wait on) gets a watermark from the wall
@@ -46,6 +51,7 @@
 """
 from __future__ import annotations
 
+import gc
 import logging
 import threading
 import time
@@ -90,7 +96,8 @@ class BridgeStats(SinkStats):
     back / frames sent again that a consumer may already have / held frames never delivered /
     outages seen); ``latency``: per stage (:meth:`LatencyTracker.summary`); ``errors``: conversion failures
     per topic (logged with the reason); ``retention``: supervised, what was kept for restarted
-    consumers (:meth:`common.live.LiveSource.retention_summary`); ``grid``: the ``/map`` grid's
+    consumers (:meth:`common.live.LiveSource.retention_summary`); ``unread``: topics configured or
+    published and not bridged because no service of the run reads their key (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's
     ``published``, ``returns`` (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``,
     ``too_large`` and ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`)."""
 
@@ -110,6 +117,7 @@ class BridgeStats(SinkStats):
     master_uri: str = ""
     retention: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, Any] = field(default_factory=dict)
+    unread: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": BRIDGE_NAME, "master_uri": self.master_uri, "received": self.received,
@@ -117,7 +125,7 @@ class BridgeStats(SinkStats):
                 "to_ros": self.to_ros, "errors": self.errors, "watermarks": self.watermarks,
                 "delivered_late": self.delivered_late, "resent": self.resent, "dropped_outage": self.dropped_outage,
                 "outages": self.outages, "latency": self.latency, "aborted": self.aborted,
-                "retention": self.retention, "grid": self.grid}
+                "retention": self.retention, "grid": self.grid, "unread": self.unread}
 
 
 def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
@@ -131,7 +139,8 @@ class Ros1Bridge(Sink, Source):
 
     def __init__(self, bus: Bus, config: BridgeRos1Config, announce: Iterable[str] = (),
                  drain_timeout_s: float = 0.0, consumers: Mapping[str, list[str]] | None = None,
-                 retain_s: float = 300.0, retain_mb: float = 256.0, sonar: SonarModel | None = None):
+                 retain_s: float = 300.0, retain_mb: float = 256.0, sonar: SonarModel | None = None,
+                 read: Iterable[str] | None = None):
         super().__init__(BRIDGE_NAME, bus, BridgeStats(), None, drain_timeout_s)
         self.config = config
         self.announce = sorted(set(announce))
@@ -153,10 +162,16 @@ class Ros1Bridge(Sink, Source):
                              config.grid_max_poses, config.grid_max_cells, sonar)
         if self.grid.enabled:  # off, a /map of someone else's is bridged in like any topic
             self._own_topics.add(config.grid_topic)
+        #: keys bridged (None: every topic): what the run reads, the ground truth, the grid's returns
+        self.wanted: frozenset[str] | None = None
+        if read is not None and not config.bridge_unread:
+            grid_keys = {LASER_KEY, SONAR_KEY} if self.grid.enabled else set()
+            self.wanted = frozenset({*read, *config.keep_keys, *grid_keys})
         self._outputs_ended: set[str] = set()
         self._pending_map: ExperienceMap | None = None
         self._grid_thread: threading.Thread | None = None
         self._last_map_wall = 0.0
+        self._last_grid_wall = -float("inf")
         self.link: RosLink | None = None
         self.subscribe(sorted({*self._out_keys, HEALTH_KEY}))
 
@@ -258,11 +273,15 @@ class Ros1Bridge(Sink, Source):
         _bump(self.stats.to_ros, self.config.markers_topic)
 
     def flush_grid(self, force: bool = False) -> None:
-        """Rebuild and publish the ``/map`` grid when due (``grid_period_s`` of event time) on a thread
-        of its own, so a large grid never holds up the bridge; with ``force`` (the end) here, after
-        the one running."""
+        """Rebuild and publish the ``/map`` grid when due (``grid_period_s`` of event time, and
+        ``grid_wall_period_s`` of wall time since the last build began) on a thread of its own, so a
+        large grid never holds up the bridge; with ``force`` (the end) here, after the one running."""
         if self.link is None or not (force or self.grid.due()):
             return
+        now = time.monotonic()
+        if not force and now - self._last_grid_wall < self.config.grid_wall_period_s:
+            return
+        self._last_grid_wall = now
         running = self._grid_thread
         if force:
             if running is not None:
@@ -308,6 +327,12 @@ class Ros1Bridge(Sink, Source):
         if self.config.discover:
             skip = set(self.config.ignore_topics) | self._own_topics
             want += [t for t, _ty in link.published_topics() if t not in skip and self.incoming.key(t) is not None]
+        if self.wanted is not None:
+            unread = sorted({t for t in want if self.incoming.key(t) not in self.wanted} - set(self.stats.unread))
+            if unread:
+                log.info("bridge_ros1: not bridged, no service reads them: %s", ", ".join(unread))
+                self.stats.unread = sorted({*self.stats.unread, *unread})
+            want = [t for t in want if self.incoming.key(t) in self.wanted]
         for t in want:
             if t not in link.subscribed():
                 log.info("bridge_ros1: subscribing to %s", t)
@@ -324,6 +349,10 @@ class Ros1Bridge(Sink, Source):
             self._advertise(link)
             self.discover(link)
             self.bus.declare_alive(self.name)
+            # start-up's objects (rospy, rosbags' types, pydantic) out of the collector's reach: a full
+            # collection then stops the rospy threads for ~30 ms, not ~140 ms, and a message it holds up
+            # is less often older than its stream's promise (late)
+            gc.freeze()
             wm_every = c.watermark_interval_ms / 1000
             next_wm = next_discover = time.monotonic()
             while not self.stop_event.is_set():

@@ -45,6 +45,14 @@ class BridgeRos1Config(ConfigSection):
                                 "rosbag play -r 8 needs more than a few hundred) [messages]")
     discover: bool = Field(True, description="also bridge every other published topic (key: the topic "
                            "without its leading slash)")
+    bridge_unread: bool = Field(False, description="also bridge the topics whose key no service of the run reads "
+                                "(the recording then holds every topic of the ROS graph); off: when the launcher names "
+                                "the keys its services read (poseidon run --live ros1, or --read), only those, the "
+                                "grid's returns and keep_keys are subscribed to; the others are listed in the stats' "
+                                "unread")
+    keep_keys: list[str] = Field(default_factory=lambda: ["truth/pose", "truth/revisits"],
+                                 description="keys bridged (and recorded) even when no service reads them: the "
+                                 "ground truth a run is scored against (poseidon eval)")
     discover_interval_s: float = Field(1.0, gt=0, description="how often the master is asked for new topics [s]")
     ignore_topics: list[str] = Field(default_factory=lambda: ["/rosout", "/rosout_agg", "/clock"],
                                      description="never bridged in (our own output topics never are)")
@@ -70,6 +78,9 @@ class BridgeRos1Config(ConfigSection):
                             "services/bridge_ros1/grid.py")
     grid_period_s: float = Field(5.0, ge=0, description="rebuild and publish the grid at most this often, in event "
                                  "time (the stamps of the returns, Odometry and map); 0 = no grid [s]")
+    grid_wall_period_s: float = Field(2.0, ge=0, description="and at most this often in wall time: a bag played "
+                                      "at 16x would otherwise be rebuilt 3 times a wall second, each build over every "
+                                      "return so far (at 1x, grid_period_s is the bound) [s]")
     grid_resolution_m: float = Field(0.05, gt=0, description="the grid's cell size, as poseidon export --grid's "
                                      "default [m]")
     grid_max_returns: int = Field(2_000_000, ge=1000, description="returns kept for the grid; beyond it they are "

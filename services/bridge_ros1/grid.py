@@ -13,7 +13,8 @@ for it; returns older than the first ``Odometry`` are never placed.
 
 Rate.  Rebuilt from everything kept and published at most once per ``period_s`` of event time
 (the newest stamp of a scan, beam, ``Odometry`` or ``map`` received), and only when something
-changed; :meth:`LiveGrid.build` with ``force`` at the end.
+changed; :meth:`LiveGrid.build` with ``force`` at the end.  The bridge also waits
+``bridge_ros1.grid_wall_period_s`` of wall time between builds (a bag played fast).
 
 Memory (bounded).  At most ``max_returns`` returns are kept: beyond that the placeable ones are
 thinned to one per experience and cell of their dead-reckoning end point (cell =

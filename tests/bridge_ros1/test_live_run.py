@@ -34,9 +34,9 @@ bridge_ros1:
 """
 
 
-def _live_run(tmp_path, core, bag, *extra, diagnostics=False):
-    """The live run of ``bag``; with ``diagnostics``, what ``rostopic echo -n 1 /diagnostics``
-    printed while the bag played (else '')."""
+def _live_run(tmp_path, core, bag, *extra, diagnostics=False, topics=TOPICS):
+    """The live run of ``bag`` (once the bridge subscribed to ``topics``); with ``diagnostics``,
+    what ``rostopic echo -n 1 /diagnostics`` printed while the bag played (else '')."""
     cfg = tmp_path / "live.yaml"
     cfg.write_text(CONFIG)
     out = tmp_path / "live.mcap"
@@ -45,7 +45,7 @@ def _live_run(tmp_path, core, bag, *extra, diagnostics=False):
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     echoed = ""
     try:
-        wait_subscribed(core.uri, TOPICS)
+        wait_subscribed(core.uri, topics)
         play = subprocess.Popen(PLAY + [str(bag)], env=core.env, stdin=subprocess.DEVNULL,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         if diagnostics:
@@ -71,7 +71,8 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     bag = require_bag()
     core = Roscore(tmp_path / "roshome")
     try:
-        out, cfg, result, echoed = _live_run(tmp_path, core, bag, diagnostics=True)
+        # robot_state on wheel odometry reads no IMU: /imu/data is not bridged (bridge_ros1.bridge_unread off)
+        out, cfg, result, echoed = _live_run(tmp_path, core, bag, diagnostics=True, topics=TOPICS[1:])
     finally:
         core.stop()
     assert result["mode"] == "live"
@@ -81,12 +82,12 @@ def test_a_live_run_ends_on_sigint_with_a_complete_recording_that_replays_to_the
     rs = result["services"]["robot_state"]
     counts = dict(result["recording"]["counts"])
     assert counts.pop("live/health") >= 1  # one sample a second (supervise.health_interval_s)
-    assert counts == {"imu_adis_ros": 3061, "wheel_odometry": 3060, "Odometry": 3060,
-                      "live/latency": 1}, (
+    assert counts == {"wheel_odometry": 3060, "Odometry": 3060, "live/latency": 1}, (
         result["services"]["bridge_ros1"]["received"], result["services"]["bridge_ros1"]["late"], rs["rejected"],
         rs["dropped"])
     bridge = result["services"]["bridge_ros1"]
     assert bridge["late"] == {} and bridge["to_ros"]["/poseidon/odom"] == 3060
+    assert bridge["unread"] == ["/imu/data"] and "/imu/data" not in bridge["received"]
     lat = bridge["latency"]["odometry"]
     print(f"live robot_state at -r 8: latency arrival -> Odometry {lat}")
     # < 5 s: the silent "odometry" input (announced, never published) did not stall robot_state; without
@@ -114,12 +115,15 @@ def test_a_service_slowed_on_purpose_drops_its_oldest_inputs_counted_and_the_rec
     core = Roscore(tmp_path / "roshome")
     try:
         _out, _cfg, result, _e = _live_run(tmp_path, core, bag, "--set", "debug.slow_service=robot_state",
-                                       "--set", "debug.slow_ms=20", "--set", "live.queue_frames=20")
+                                       "--set", "debug.slow_ms=20", "--set", "live.queue_frames=20",
+                                       "--set", "bridge_ros1.bridge_unread=true")
     finally:
         core.stop()
     counts = result["recording"]["counts"]
     published = result["services"]["bridge_ros1"]["published"]
     assert {k: counts[k] for k in published} == published  # the recorder keeps everything the source sent
+    assert published["imu_adis_ros"] == 3061  # bridged though no service reads it (bridge_unread)
+    assert result["services"]["bridge_ros1"]["unread"] == []
     dropped = result["services"]["robot_state"]["dropped"]
     print(f"slowed robot_state (20 ms/input, queue 20): dropped {dropped}, Odometry {counts['Odometry']}")
     assert dropped.get("wheel_odometry", 0) > 1000  # 400 msg/s offered, ~50/s taken

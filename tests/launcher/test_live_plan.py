@@ -17,6 +17,15 @@ def test_the_bridge_announces_every_sensor_key_the_services_read_and_the_recorde
     assert plan.expect == ["Odometry", "ground_truth", "live/latency", "odometry", "wheel_odometry"]
 
 
+def test_the_bridge_reads_only_the_keys_the_services_read_unless_told_to_bridge_every_topic():
+    plan = plan_live(load_config(), None)
+    read = ["camera/image_raw", "depth_sensor", "dvl_linkquest", "imu_adis_ros", "odometry", "sonar_micron"]
+    assert plan.read == read and plan.player_keys == read  # not sonar_seaking, imu_adis, sonar_*_ros
+    every = plan_live(load_config(None, ["bridge_ros1.bridge_unread=true"]), None)
+    assert every.read is None
+    assert {"sonar_seaking", "sonar_micron_ros", "imu_adis"} <= set(every.player_keys)
+
+
 def test_a_service_input_nobody_provides_is_named():
     config = load_config(None, ["robot_state.source=wheel_odometry", "bridge_ros1.topics={}"])
     with pytest.raises(ValueError, match="wheel_odometry"):
