@@ -12,8 +12,8 @@
   truth) and of the grid's returns are subscribed, unless ``bridge_unread``: a topic no service
   reads costs the bridge rospy's receiving and our conversion for nothing the run uses (the
   simulated missions' duplicate and second sonar streams are two thirds of their messages);
-  such topics are listed in the stats' ``unread``.  A source never waits for its consumers: no flow control, no waiting for
-  services to be alive.
+  such topics are listed in the stats' ``unread``.  A source never waits for its consumers: no
+  flow control, no waiting for services to be alive.
 - Event time: every ``watermark_interval_ms`` (wall) each source key (the keys published so
   far and ``announce``: the sensor keys the services wait on) gets a watermark from the wall
   clock (:mod:`common.live`: the mapping rule and the lateness bound), so a
@@ -97,8 +97,8 @@ class BridgeStats(SinkStats):
     outages seen); ``latency``: per stage (:meth:`LatencyTracker.summary`); ``errors``: conversion failures
     per topic (logged with the reason); ``retention``: supervised, what was kept for restarted
     consumers (:meth:`common.live.LiveSource.retention_summary`); ``unread``: topics configured or
-    published and not bridged because no service of the run reads their key (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's
-    ``published``, ``returns`` (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``,
+    published and not bridged because no service of the run reads their key
+    (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's ``published``, ``returns`` (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``,
     ``too_large`` and ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`)."""
 
     received: dict[str, int] = field(default_factory=dict)
