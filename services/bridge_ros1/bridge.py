@@ -98,8 +98,9 @@ class BridgeStats(SinkStats):
     per topic (logged with the reason); ``retention``: supervised, what was kept for restarted
     consumers (:meth:`common.live.LiveSource.retention_summary`); ``unread``: topics configured or
     published and not bridged because no service of the run reads their key
-    (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's ``published``, ``returns`` (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``,
-    ``too_large`` and ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`)."""
+    (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's ``published``, ``returns``
+    (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``, ``too_large`` and
+    ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`)."""
 
     received: dict[str, int] = field(default_factory=dict)
     published: dict[str, int] = field(default_factory=dict)
