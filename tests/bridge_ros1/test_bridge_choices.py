@@ -1,12 +1,12 @@
-"""What the ROS 1 bridge subscribes to and how often it rebuilds its grid, without ROS (a stub
-link stands for rospy; the bus is an in-process Zenoh session)."""
+"""What the ROS 1 bridge subscribes to and how often it rebuilds its grid, without ROS (a link
+that records its subscriptions stands in for rospy; the bus is an in-process Zenoh session)."""
 import threading
 
 from services.bridge_ros1.bridge import Ros1Bridge
 from services.bridge_ros1.config import BridgeRos1Config
 
 
-class StubLink:
+class RecordingLink:
     """The part of :class:`services.bridge_ros1.ros_io.RosLink` that ``discover`` uses."""
 
     def __init__(self, published):
@@ -29,7 +29,7 @@ PUBLISHED = ["/camera/image_raw", "/sonar_micron", "/sonar_seaking", "/sonar_sea
 
 def test_only_the_topics_the_services_read_the_ground_truth_and_the_grid_returns_are_bridged(bus):
     bridge = Ros1Bridge(bus, BridgeRos1Config(), read=["camera/image_raw", "imu_adis_ros"])
-    link = StubLink(PUBLISHED)
+    link = RecordingLink(PUBLISHED)
     bridge.discover(link)
     # sonar_micron: the /map grid's returns; truth/pose: bridge_ros1.keep_keys
     assert sorted(link.subs) == ["/camera/image_raw", "/imu_adis_ros", "/sonar_micron", "/truth/pose"]
@@ -42,7 +42,7 @@ def test_only_the_topics_the_services_read_the_ground_truth_and_the_grid_returns
 def test_every_topic_is_bridged_when_asked_or_when_the_readers_are_not_known(bus):
     for bridge in (Ros1Bridge(bus, BridgeRos1Config(bridge_unread=True), read=["camera/image_raw"]),
                    Ros1Bridge(bus, BridgeRos1Config())):
-        link = StubLink(PUBLISHED)
+        link = RecordingLink(PUBLISHED)
         bridge.discover(link)
         assert set(PUBLISHED) <= set(link.subs) and bridge.stats.unread == []
 
@@ -50,7 +50,7 @@ def test_every_topic_is_bridged_when_asked_or_when_the_readers_are_not_known(bus
 def test_the_grid_waits_its_wall_period_between_builds(bus):
     for wall_s, builds in ((3600.0, 1), (0.0, 3)):
         bridge = Ros1Bridge(bus, BridgeRos1Config(grid_wall_period_s=wall_s))
-        bridge.link = StubLink([])  # any link: flush_grid only checks there is one
+        bridge.link = RecordingLink([])  # any link: flush_grid only checks there is one
         done = threading.Semaphore(0)
         started: list[bool] = []
 
