@@ -99,17 +99,20 @@ class SensorDriver:
 
     def __init__(self, bus: Bus, announce: Iterable[str] = (), lateness_ms: int = 200,
                  watermark_interval_ms: int = 100, outage_frames: int = 1000, outage_bytes: int = 64 << 20,
-                 consumers: Mapping[str, list[str]] | None = None, retain_s: float = 300.0):
+                 consumers: Mapping[str, list[str]] | None = None, retain_s: float = 300.0,
+                 stall_hold_ms: int = 2000):
         """``consumers`` (key -> the services that read it, the recorder included): a supervised
         deployment, where the driver keeps each key's frames for a restarted consumer until every
         consumer checkpointed past them, at most ``retain_s`` of event time and ``outage_bytes``
-        per key (:meth:`common.live.LiveSource.serve_replays`)."""
+        per key (:meth:`common.live.LiveSource.serve_replays`).  ``stall_hold_ms``: how long a
+        silence of every key at once holds the watermarks back (:mod:`common.live`: Stalls)."""
         self.bus = bus
         if consumers is None:
-            self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, outage_frames, outage_bytes)
+            self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, outage_frames, outage_bytes,
+                                     stall_hold_ns=stall_hold_ms * 1_000_000)
         else:
             self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, 1 << 62, outage_bytes,
-                                     int(retain_s * 1e9))
+                                     int(retain_s * 1e9), stall_hold_ms * 1_000_000)
             self.source.serve_replays({k: list(v) for k, v in consumers.items()})
         self.source.start_watermarks(watermark_interval_ms / 1000)
         self._seq: dict[str, int] = {}

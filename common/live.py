@@ -12,7 +12,18 @@ any stream (one vehicle, one clock) and a wider bound, ``lateness`` + :data:`UNS
 subscription still connecting when ``rosbag play`` starts: 4 keys' first messages were late
 by ~0.2 s in a 1x live run) is not late; before any message at all there is no watermark.  Tracking the
 latest offset (not the smallest) follows a clock that runs at another rate than the wall
-(``rosbag play -r 8``: the offsets shrink, the watermarks follow).  A message older than what
+(``rosbag play -r 8``: the offsets shrink, the watermarks follow).
+
+Stalls (``stall_hold_ms``, default 2 s): when no stream at all has had a message for more than
+half the lateness bound, the source itself is taken to be held up (``rosbag play`` or the
+driver starved of CPU, the bridge's own threads descheduled, a link to the sensors' computer
+pausing), not every sensor at once falling silent.  The wall time then stops counting towards
+the watermarks, for at most ``stall_hold_ms``: what was sent before the stall stays promised,
+nothing more, so the messages that come out of the stall are not late.  After that the
+watermarks advance again (lagging by the hold), so services are never stalled by a source that
+really stopped; the first message from any stream ends the hold.  The cost: while the whole
+source is silent, the services' last buffered inputs wait up to half the lateness bound plus
+the hold.  ``stall_hold_ms: 0`` gives the plain rule.  A message older than what
 its stream already promised is *late*: it is still published (and recorded) but counted, and
 the services reject it as late (:mod:`common.runtime`).
 
@@ -83,18 +94,26 @@ HEALTH_KEY = "live/health"
 
 #: extra bound of a stream that has not had a message yet (ns; see the module doc)
 UNSEEN_GRACE_NS = 2_000_000_000
+#: longest a whole-source silence holds the watermarks back (ns; see the module doc: Stalls)
+STALL_HOLD_NS = 2_000_000_000
 
 
 class LiveClock:
     """Per-stream offset between header stamps and arrival (ns), and the watermarks it allows."""
 
-    def __init__(self, lateness_ns: int, unseen_grace_ns: int = UNSEEN_GRACE_NS):
-        if lateness_ns < 0 or unseen_grace_ns < 0:
-            raise ValueError(f"lateness and grace must be >= 0 ns, got {lateness_ns}, {unseen_grace_ns}")
+    def __init__(self, lateness_ns: int, unseen_grace_ns: int = UNSEEN_GRACE_NS, stall_hold_ns: int = STALL_HOLD_NS):
+        if lateness_ns < 0 or unseen_grace_ns < 0 or stall_hold_ns < 0:
+            raise ValueError(f"lateness, grace and stall hold must be >= 0 ns, got {lateness_ns}, {unseen_grace_ns}, "
+                             f"{stall_hold_ns}")
         self.lateness_ns = lateness_ns
         self.unseen_grace_ns = unseen_grace_ns
+        self.stall_hold_ns = stall_hold_ns
+        self.stalls = 0  # whole-source silences that held the watermarks back
+        self.stalled_ns = 0  # wall time they held them back, in all
         self._offset: dict[str, int] = {}
         self._latest: int | None = None  # offset of the latest message of any stream
+        self._last_arrival: int | None = None  # arrival of the latest message of any stream
+        self._held: tuple[int, int] = (-1, 0)  # (last arrival, hold so far) of the latest silence counted
         self._promised: dict[str, int] = {}  # key -> watermark sent
         self._last_stamp: dict[str, int] = {}
 
@@ -103,6 +122,7 @@ class LiveClock:
         late (older than what the stream already promised, or than its previous message)."""
         late = stamp_ns < self._promised.get(key, -1) or stamp_ns < self._last_stamp.get(key, -1)
         self._offset[key] = self._latest = arrival_ns - stamp_ns
+        self._last_arrival = arrival_ns if self._last_arrival is None else max(self._last_arrival, arrival_ns)
         self._last_stamp[key] = max(stamp_ns, self._last_stamp.get(key, -1))
         return late
 
@@ -115,11 +135,28 @@ class LiveClock:
             offset, bound = self._latest, self.lateness_ns + self.unseen_grace_ns
         if offset is None:
             return None
-        wm = now_ns - offset - bound
+        wm = now_ns - offset - bound - self.hold(now_ns)
         if wm <= self._promised.get(key, -1) or wm <= self._last_stamp.get(key, -1):
             return None
         self._promised[key] = wm
         return wm
+
+    def hold(self, now_ns: int) -> int:
+        """How much wall time the watermarks are held back at ``now_ns`` (module notes: Stalls):
+        the whole source's silence beyond half the lateness bound, at most ``stall_hold_ns``.
+        Counts the silences (``stalls``) and the time held back (``stalled_ns``)."""
+        if self._last_arrival is None:
+            return 0
+        held = min(max(now_ns - self._last_arrival - self.lateness_ns // 2, 0), self.stall_hold_ns)
+        if held:
+            since, before = self._held
+            if since != self._last_arrival:  # a new silence
+                self.stalls += 1
+                before = 0
+            if held > before:
+                self.stalled_ns += held - before
+                self._held = (self._last_arrival, held)
+        return held
 
 
 
@@ -133,12 +170,12 @@ class LiveSource:
     ``watermarks`` (:meth:`counters`)."""
 
     def __init__(self, bus: Bus, lateness_ns: int, announce: Iterable[str] = (), outage_frames: int = 1000,
-                 outage_bytes: int = 64 << 20, retain_ns: int = 0):
+                 outage_bytes: int = 64 << 20, retain_ns: int = 0, stall_hold_ns: int = STALL_HOLD_NS):
         if outage_frames < 1 or outage_bytes < 1 or retain_ns < 0:
             raise ValueError(f"the outage buffer needs >= 1 frame and byte and a retention >= 0 ns, got "
                              f"{outage_frames}, {outage_bytes}, {retain_ns}")
         self.bus = bus
-        self.clock = LiveClock(lateness_ns)
+        self.clock = LiveClock(lateness_ns, stall_hold_ns=stall_hold_ns)
         self.announce = set(announce)
         self.outage_frames, self.outage_bytes = outage_frames, outage_bytes
         self.retention = Retention(retain_ns, 0)  # the age bound; outage_* bound frames and bytes
@@ -318,13 +355,16 @@ class LiveSource:
                 self._publisher(key).send_eos()
 
     def counters(self) -> dict[str, Any]:
-        """The counters as JSON-ready values (per key; ``watermarks``: how many were sent)."""
+        """The counters as JSON-ready values (per key; ``watermarks``: how many were sent;
+        ``stalls`` / ``stalled_s``: whole-source silences that held the watermarks back, and for how
+        long in all [s of wall time], module notes: Stalls)."""
         with self._lock:
             out: dict[str, Any] = {
                 "published": dict(self.published), "late": dict(self.late),
                 "delivered_late": dict(self.delivered_late), "resent": dict(self.resent),
                 "dropped_outage": dict(self.dropped_outage), "outages": dict(self.outages),
-                "watermarks": self.watermarks, "retained_peak_bytes": self.retained_peak}
+                "watermarks": self.watermarks, "retained_peak_bytes": self.retained_peak,
+                "stalls": self.clock.stalls, "stalled_s": round(self.clock.stalled_ns / 1e9, 3)}
             if self._replay is not None:
                 out["replays_served"] = self._replay.served
                 out["replay_short"] = dict(self._replay.short)

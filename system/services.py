@@ -222,7 +222,7 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
                           watermark_interval_ms=config.live.watermark_interval_ms, announce=spec.announce,
                           consumers=spec.supervision.consumers if spec.supervision is not None else None,
                           retain_s=config.live.retain_s, retain_mb=config.live.retain_mb,
-                          end_wait_s=config.live.stop_timeout_s)
+                          end_wait_s=config.live.stop_timeout_s, stall_hold_ms=config.live.stall_hold_ms)
     if name == BRIDGE_ROS1:
         from services.bridge_ros1.bridge import Ros1Bridge  # rospy is imported only when it runs
         from services.bridge_ros1.grid import SonarModel

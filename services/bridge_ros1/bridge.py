@@ -100,7 +100,9 @@ class BridgeStats(SinkStats):
     published and not bridged because no service of the run reads their key
     (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's ``published``, ``returns``
     (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``, ``too_large`` and
-    ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`)."""
+    ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`); ``stalls`` / ``stalled_s``: times
+    no topic had a message for over half the lateness bound (``rosbag play`` or the bridge held
+    up) and the wall time the watermarks were held back by them [s] (:mod:`common.live`: Stalls)."""
 
     received: dict[str, int] = field(default_factory=dict)
     published: dict[str, int] = field(default_factory=dict)
@@ -119,6 +121,8 @@ class BridgeStats(SinkStats):
     retention: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, Any] = field(default_factory=dict)
     unread: list[str] = field(default_factory=list)
+    stalls: int = 0
+    stalled_s: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": BRIDGE_NAME, "master_uri": self.master_uri, "received": self.received,
@@ -126,7 +130,8 @@ class BridgeStats(SinkStats):
                 "to_ros": self.to_ros, "errors": self.errors, "watermarks": self.watermarks,
                 "delivered_late": self.delivered_late, "resent": self.resent, "dropped_outage": self.dropped_outage,
                 "outages": self.outages, "latency": self.latency, "aborted": self.aborted,
-                "retention": self.retention, "grid": self.grid, "unread": self.unread}
+                "retention": self.retention, "grid": self.grid, "unread": self.unread, "stalls": self.stalls,
+                "stalled_s": self.stalled_s}
 
 
 def _bump(d: dict[str, int], k: str, n: int = 1) -> None:
@@ -149,10 +154,11 @@ class Ros1Bridge(Sink, Source):
         self.outgoing = Outgoing()
         if consumers is None:
             self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce,
-                                     config.outage_buffer_frames, int(config.outage_buffer_mb * 1e6))
+                                     config.outage_buffer_frames, int(config.outage_buffer_mb * 1e6),
+                                     stall_hold_ns=config.stall_hold_ms * 1_000_000)
         else:  # a supervised live run: frames kept for restarted consumers (common/live.py)
             self.source = LiveSource(bus, config.lateness_ms * 1_000_000, self.announce, 1 << 62,
-                                     int(retain_mb * 1e6), int(retain_s * 1e9))
+                                     int(retain_mb * 1e6), int(retain_s * 1e9), config.stall_hold_ms * 1_000_000)
             self.source.serve_replays({k: list(v) for k, v in consumers.items()})
         self.latency = LatencyTracker()
         self._lock = threading.Lock()  # stats and latency: rospy threads and the main loop
@@ -386,6 +392,7 @@ class Ros1Bridge(Sink, Source):
             self.stats.delivered_late, self.stats.resent = counters["delivered_late"], counters["resent"]
             self.stats.dropped_outage, self.stats.outages = counters["dropped_outage"], counters["outages"]
             self.stats.watermarks = counters["watermarks"]
+            self.stats.stalls, self.stats.stalled_s = counters["stalls"], counters["stalled_s"]
             self.stats.retention = self.source.retention_summary()
             link.close()
             self.drain(self.source.publishers())  # a no-op after a stop: see the module notes

@@ -55,7 +55,9 @@ class LivePlayerStats(SinkStats):
     recording was published (False when stopped before its end); ``retention`` (supervised):
     :meth:`common.live.LiveSource.retention_summary`; ``outages`` / ``delivered_late`` per key:
     the outage rule of :mod:`common.live` (a hub that restarted: every key's consumers were gone
-    for a while, its frames held and sent when they were back)."""
+    for a while, its frames held and sent when they were back); ``stalls`` / ``stalled_s``: times
+    no key had a message for over half the lateness bound (the player held up) and the wall time
+    the watermarks were held back by them [s] (:mod:`common.live`: Stalls)."""
 
     input: str = ""
     rate: float = 1.0
@@ -68,13 +70,15 @@ class LivePlayerStats(SinkStats):
     retention: dict[str, Any] = field(default_factory=dict)
     outages: dict[str, int] = field(default_factory=dict)
     delivered_late: dict[str, int] = field(default_factory=dict)
+    stalls: int = 0
+    stalled_s: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": LIVE_PLAYER_NAME, "input": self.input, "rate": self.rate, "published": self.published,
                 "late": self.late, "watermarks": self.watermarks, "behind_ms": self.behind_ms,
                 "latency": self.latency, "complete": self.complete, "dropped": self.dropped,
                 "aborted": self.aborted, "retention": self.retention, "outages": self.outages,
-                "delivered_late": self.delivered_late}
+                "delivered_late": self.delivered_late, "stalls": self.stalls, "stalled_s": self.stalled_s}
 
 
 class LivePlayer(Sink, Source):
@@ -88,7 +92,7 @@ class LivePlayer(Sink, Source):
                  keys: Iterable[str] | None = None, lateness_ms: int = 200, watermark_interval_ms: int = 100,
                  announce: Iterable[str] = (), report_wait_s: float = 10.0,
                  consumers: Mapping[str, list[str]] | None = None, retain_s: float = 300.0,
-                 retain_mb: float = 256.0, end_wait_s: float = 120.0):
+                 retain_mb: float = 256.0, end_wait_s: float = 120.0, stall_hold_ms: int = 2000):
         if not rate > 0:
             raise ValueError(f"live player: --rate must be > 0 (x real time), got {rate}")
         super().__init__(LIVE_PLAYER_NAME, bus, LivePlayerStats(input=str(path), rate=rate), None, 0.0)
@@ -99,10 +103,11 @@ class LivePlayer(Sink, Source):
         self.absent = sorted(k for k in set(announce) | set(SOURCE_KEYS) if k not in self.keys)
         self.interval_s = watermark_interval_ms / 1000
         if consumers is None:
-            self.source = LiveSource(bus, lateness_ms * 1_000_000)
+            self.source = LiveSource(bus, lateness_ms * 1_000_000, stall_hold_ns=stall_hold_ms * 1_000_000)
         else:  # supervised: keep frames for restarted consumers (bounded by retain_s / retain_mb)
             self.source = LiveSource(bus, lateness_ms * 1_000_000, announce=self.keys, outage_frames=1 << 62,
-                                     outage_bytes=int(retain_mb * 1e6), retain_ns=int(retain_s * 1e9))
+                                     outage_bytes=int(retain_mb * 1e6), retain_ns=int(retain_s * 1e9),
+                                     stall_hold_ns=stall_hold_ms * 1_000_000)
             self.source.serve_replays({k: list(v) for k, v in consumers.items()})
         self.consumers = sorted({c for k in self.keys for c in (consumers or {}).get(k, [])})
         self.end_wait_s = end_wait_s
@@ -175,6 +180,7 @@ class LivePlayer(Sink, Source):
             counters = self.source.counters()
             self.stats.published, self.stats.late = counters["published"], counters["late"]
             self.stats.watermarks = counters["watermarks"]
+            self.stats.stalls, self.stats.stalled_s = counters["stalls"], counters["stalled_s"]
             self.stats.retention = self.source.retention_summary()
             self.stats.outages, self.stats.delivered_late = counters["outages"], counters["delivered_late"]
             if behind:

@@ -83,22 +83,29 @@ def test_the_live_player_keeps_the_wall_clock_pace_and_reports_latency_matched_b
     assert report.stages["odometry"].n == 16 and report.stages["odometry"].p50_ms == lat["p50_ms"]
 
 
-def test_sensors_the_recording_lacks_end_at_once_and_watermarks_keep_a_silent_gap_moving(tmp_path, bus):
+@pytest.mark.parametrize("stall_hold_ms", [0, 300, 2000])
+def test_sensors_the_recording_lacks_end_at_once_and_watermarks_keep_a_silent_gap_moving(tmp_path, bus, stall_hold_ms):
     """An absent source key gets end-of-stream before the first message (nobody waits for it);
-    while the recording has a 1 s gap, wall-clock watermarks still advance its key."""
+    while the recording has a 1.1 s gap, wall-clock watermarks still advance its key, once the
+    whole-source silence has held them back for ``stall_hold_ms`` (common/live.py: Stalls)."""
     with RecordingWriter(tmp_path / "gap.mcap") as w:
         for i, t in enumerate([0, 1, 12]):  # 0, 0.1 s, then 1.2 s
             w.write("depth_sensor", Depth(header=Header(seq=i, stamp=T0 + t * STEP_NS), depth=0.0))
     imu = _frames(bus, "imu_adis")
     depth = _frames(bus, "depth_sensor")
-    stats = LivePlayer(bus, tmp_path / "gap.mcap", STAGES, rate=1.0, report_wait_s=0.1).run()
+    stats = LivePlayer(bus, tmp_path / "gap.mcap", STAGES, rate=1.0, report_wait_s=0.1,
+                       stall_hold_ms=stall_hold_ms).run()
     time.sleep(0.2)
     assert [f.kind for f in _drain(imu)] == ["eos"]
     kinds = [f.kind for f in _drain(depth)]
     assert kinds.count("data") == 3 and kinds[-1] == "eos"
     between = kinds[kinds.index("data") + 2:kinds.index("data", kinds.index("data") + 2)]
-    assert between.count("watermark") >= 3  # 1.1 s of silence, a watermark every 100 ms once past the lateness
-    assert stats.watermarks >= 3
+    if stall_hold_ms < 1000:  # 1.1 s of silence: a watermark every 100 ms once past the lateness and the hold
+        assert between.count("watermark") >= 3 and stats.watermarks >= 3
+    else:  # held through the whole gap
+        assert between.count("watermark") == 0
+    assert stats.stalls == (1 if stall_hold_ms else 0) and stats.late == {}
+    assert stats.stalled_s == pytest.approx(min(stall_hold_ms / 1000, 1.0), abs=0.15)
 
 
 def test_a_stopped_live_player_ends_its_streams_and_still_reports(tmp_path, bus):
