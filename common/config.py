@@ -158,11 +158,11 @@ class LiveConfig(ConfigSection):
                             "service's queue memory (the simulated camera's frames are 0.33 MB each) [MB]")
     lateness_ms: int = Field(200, ge=0, description="the live player's lateness bound (--live mcap; the rule: "
                              "common/live.py); the ROS bridge has its own, bridge_ros1.lateness_ms [ms]")
-    stall_hold_ms: int = Field(2000, ge=0, description="the live player's watermarks stop advancing for at most "
-                               "this long while no key at all has had a message for over half lateness_ms (the "
-                               "player held up), so the messages after the stall are not late; 0: they follow "
-                               "the wall clock throughout (common/live.py: Stalls); the ROS bridge has its own, "
-                               "bridge_ros1.stall_hold_ms [ms]")
+    stall_hold_ms: int = Field(2000, ge=0, description="the live player: a key silent for over 4 of its mean "
+                               "gaps and half lateness_ms is taken to be held up, and its watermark stops advancing "
+                               "for at most this long, so its messages after the stall are not late; 0: watermarks "
+                               "follow the wall clock throughout (common/live.py: Stalls); the ROS bridge has its "
+                               "own, bridge_ros1.stall_hold_ms [ms]")
     watermark_interval_ms: int = Field(100, ge=1, description="the live player sends wall-clock watermarks this "
                                        "often; the services' heartbeat in live runs (bus.heartbeat_interval_ms in "
                                        "replays) [ms]")

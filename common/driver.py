@@ -105,7 +105,7 @@ class SensorDriver:
         deployment, where the driver keeps each key's frames for a restarted consumer until every
         consumer checkpointed past them, at most ``retain_s`` of event time and ``outage_bytes``
         per key (:meth:`common.live.LiveSource.serve_replays`).  ``stall_hold_ms``: how long a
-        silence of every key at once holds the watermarks back (:mod:`common.live`: Stalls)."""
+        stalled key's watermark is held back at most (:mod:`common.live`: Stalls)."""
         self.bus = bus
         if consumers is None:
             self.source = LiveSource(bus, lateness_ms * 1_000_000, announce, outage_frames, outage_bytes,

@@ -12,20 +12,20 @@ any stream (one vehicle, one clock) and a wider bound, ``lateness`` + :data:`UNS
 subscription still connecting when ``rosbag play`` starts: 4 keys' first messages were late
 by ~0.2 s in a 1x live run) is not late; before any message at all there is no watermark.  Tracking the
 latest offset (not the smallest) follows a clock that runs at another rate than the wall
-(``rosbag play -r 8``: the offsets shrink, the watermarks follow).
-
-Stalls (``stall_hold_ms``, default 2 s): when no stream at all has had a message for more than
-half the lateness bound, the source itself is taken to be held up (``rosbag play`` or the
-driver starved of CPU, the bridge's own threads descheduled, a link to the sensors' computer
-pausing), not every sensor at once falling silent.  The wall time then stops counting towards
-the watermarks, for at most ``stall_hold_ms``: what was sent before the stall stays promised,
-nothing more, so the messages that come out of the stall are not late.  After that the
-watermarks advance again (lagging by the hold), so services are never stalled by a source that
-really stopped; the first message from any stream ends the hold.  The cost: while the whole
-source is silent, the services' last buffered inputs wait up to half the lateness bound plus
-the hold.  ``stall_hold_ms: 0`` gives the plain rule.  A message older than what
+(``rosbag play -r 8``: the offsets shrink, the watermarks follow).  A message older than what
 its stream already promised is *late*: it is still published (and recorded) but counted, and
 the services reject it as late (:mod:`common.runtime`).
+
+Stalls (``stall_hold_ms``, default 2 s): a stream that has been silent for longer than
+``STALL_GAPS`` (4) of its usual gaps between messages (a mean over its recent arrivals), and at
+least half the lateness bound, is taken to be held up on its way (``rosbag play`` or the
+driver starved of CPU, a rospy thread descheduled, a link pausing), not to have stopped.  Its
+watermark then stays where it was at that moment, for at most ``stall_hold_ms``, so the
+messages that come out of the stall are not late; its first message ends the hold.  After the
+hold the plain rule applies again (the watermark jumps to it), so a sensor that really stopped
+holds the services back once, by at most the threshold plus the hold, and never after.  A
+stream's gaps are known from its second message on; before that it is never held.  ``0`` gives
+the plain rule.
 
 Outages (also in README, "Live on the vehicle"): a live source never waits, but it does not
 lose data silently when its consumers become unreachable (its own link to the hub, or the
@@ -94,8 +94,12 @@ HEALTH_KEY = "live/health"
 
 #: extra bound of a stream that has not had a message yet (ns; see the module doc)
 UNSEEN_GRACE_NS = 2_000_000_000
-#: longest a whole-source silence holds the watermarks back (ns; see the module doc: Stalls)
+#: longest a stalled stream's watermark is held back (ns; see the module doc: Stalls)
 STALL_HOLD_NS = 2_000_000_000
+#: a stream silent for more than this many of its mean gaps (and half the lateness bound) is stalled
+STALL_GAPS = 4
+#: weight of the latest gap in a stream's mean gap (exponential mean over ~20 arrivals)
+GAP_WEIGHT = 0.05
 
 
 class LiveClock:
@@ -108,12 +112,13 @@ class LiveClock:
         self.lateness_ns = lateness_ns
         self.unseen_grace_ns = unseen_grace_ns
         self.stall_hold_ns = stall_hold_ns
-        self.stalls = 0  # whole-source silences that held the watermarks back
-        self.stalled_ns = 0  # wall time they held them back, in all
+        self.stalls: dict[str, int] = {}  # key -> silences that held its watermark back
+        self.stalled_ns: dict[str, int] = {}  # key -> wall time they held it back, in all
         self._offset: dict[str, int] = {}
         self._latest: int | None = None  # offset of the latest message of any stream
-        self._last_arrival: int | None = None  # arrival of the latest message of any stream
-        self._held: tuple[int, int] = (-1, 0)  # (last arrival, hold so far) of the latest silence counted
+        self._arrival: dict[str, int] = {}  # key -> arrival of its latest message
+        self._gap: dict[str, float] = {}  # key -> mean wall time between its arrivals (exponential, ns)
+        self._held: dict[str, int] = {}  # key -> how long its current silence has held it back so far
         self._promised: dict[str, int] = {}  # key -> watermark sent
         self._last_stamp: dict[str, int] = {}
 
@@ -122,7 +127,13 @@ class LiveClock:
         late (older than what the stream already promised, or than its previous message)."""
         late = stamp_ns < self._promised.get(key, -1) or stamp_ns < self._last_stamp.get(key, -1)
         self._offset[key] = self._latest = arrival_ns - stamp_ns
-        self._last_arrival = arrival_ns if self._last_arrival is None else max(self._last_arrival, arrival_ns)
+        before = self._arrival.get(key)
+        if before is not None:
+            gap = max(arrival_ns - before, 0)
+            mean = self._gap.get(key)
+            self._gap[key] = gap if mean is None else mean + GAP_WEIGHT * (gap - mean)
+        self._arrival[key] = arrival_ns if before is None else max(before, arrival_ns)
+        self._held.pop(key, None)
         self._last_stamp[key] = max(stamp_ns, self._last_stamp.get(key, -1))
         return late
 
@@ -135,27 +146,31 @@ class LiveClock:
             offset, bound = self._latest, self.lateness_ns + self.unseen_grace_ns
         if offset is None:
             return None
-        wm = now_ns - offset - bound - self.hold(now_ns)
+        else:
+            now_ns -= self.hold(key, now_ns)
+        wm = now_ns - offset - bound
         if wm <= self._promised.get(key, -1) or wm <= self._last_stamp.get(key, -1):
             return None
         self._promised[key] = wm
         return wm
 
-    def hold(self, now_ns: int) -> int:
-        """How much wall time the watermarks are held back at ``now_ns`` (module notes: Stalls):
-        the whole source's silence beyond half the lateness bound, at most ``stall_hold_ns``.
-        Counts the silences (``stalls``) and the time held back (``stalled_ns``)."""
-        if self._last_arrival is None:
+    def hold(self, key: str, now_ns: int) -> int:
+        """How much wall time stream ``key``'s watermark is held back at ``now_ns`` (module notes:
+        Stalls): its silence beyond ``STALL_GAPS`` of its mean gaps (at least half the lateness
+        bound), while that is at most ``stall_hold_ns``; else 0.  Counts ``stalls``/``stalled_ns``."""
+        gap = self._gap.get(key)
+        if gap is None or not self.stall_hold_ns:
             return 0
-        held = min(max(now_ns - self._last_arrival - self.lateness_ns // 2, 0), self.stall_hold_ns)
-        if held:
-            since, before = self._held
-            if since != self._last_arrival:  # a new silence
-                self.stalls += 1
-                before = 0
-            if held > before:
-                self.stalled_ns += held - before
-                self._held = (self._last_arrival, held)
+        held = now_ns - self._arrival[key] - max(self.lateness_ns // 2, int(STALL_GAPS * gap))
+        if held <= 0 or held > self.stall_hold_ns:
+            return 0
+        before = self._held.get(key)
+        if before is None:
+            self.stalls[key] = self.stalls.get(key, 0) + 1
+            before = 0
+        if held > before:
+            self.stalled_ns[key] = self.stalled_ns.get(key, 0) + held - before
+            self._held[key] = held
         return held
 
 
@@ -356,7 +371,7 @@ class LiveSource:
 
     def counters(self) -> dict[str, Any]:
         """The counters as JSON-ready values (per key; ``watermarks``: how many were sent;
-        ``stalls`` / ``stalled_s``: whole-source silences that held the watermarks back, and for how
+        ``stalls`` / ``stalled_s``: per key, the silences that held its watermark back, and for how
         long in all [s of wall time], module notes: Stalls)."""
         with self._lock:
             out: dict[str, Any] = {
@@ -364,7 +379,8 @@ class LiveSource:
                 "delivered_late": dict(self.delivered_late), "resent": dict(self.resent),
                 "dropped_outage": dict(self.dropped_outage), "outages": dict(self.outages),
                 "watermarks": self.watermarks, "retained_peak_bytes": self.retained_peak,
-                "stalls": self.clock.stalls, "stalled_s": round(self.clock.stalled_ns / 1e9, 3)}
+                "stalls": dict(self.clock.stalls),
+                "stalled_s": {k: round(v / 1e9, 3) for k, v in self.clock.stalled_ns.items()}}
             if self._replay is not None:
                 out["replays_served"] = self._replay.served
                 out["replay_short"] = dict(self._replay.short)

@@ -100,9 +100,9 @@ class BridgeStats(SinkStats):
     published and not bridged because no service of the run reads their key
     (``bridge_ros1.bridge_unread`` off); ``grid``: the ``/map`` grid's ``published``, ``returns``
     (traced in the last), ``build_ms_max`` (wall), ``thinned``, ``dropped``, ``too_large`` and
-    ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`); ``stalls`` / ``stalled_s``: times
-    no topic had a message for over half the lateness bound (``rosbag play`` or the bridge held
-    up) and the wall time the watermarks were held back by them [s] (:mod:`common.live`: Stalls)."""
+    ``bad_odometry`` (:class:`services.bridge_ros1.grid.LiveGrid`); ``stalls`` / ``stalled_s`` per
+    key: silences long enough to be taken for a stall (``rosbag play`` or a rospy thread held up)
+    and the wall time they held its watermark back [s] (:mod:`common.live`: Stalls)."""
 
     received: dict[str, int] = field(default_factory=dict)
     published: dict[str, int] = field(default_factory=dict)
@@ -121,8 +121,8 @@ class BridgeStats(SinkStats):
     retention: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, Any] = field(default_factory=dict)
     unread: list[str] = field(default_factory=list)
-    stalls: int = 0
-    stalled_s: float = 0.0
+    stalls: dict[str, int] = field(default_factory=dict)
+    stalled_s: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": BRIDGE_NAME, "master_uri": self.master_uri, "received": self.received,

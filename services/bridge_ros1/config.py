@@ -58,10 +58,11 @@ class BridgeRos1Config(ConfigSection):
                                      description="never bridged in (our own output topics never are)")
     lateness_ms: int = Field(200, ge=0, description="live watermarks: a stream promises nothing older than "
                              "its wall-clock-mapped time minus this; see bridge.py [ms]")
-    stall_hold_ms: int = Field(2000, ge=0, description="when no topic at all has had a message for over half "
-                               "lateness_ms (rosbag play or the bridge held up), the watermarks stop advancing for "
-                               "at most this long, so the messages after the stall are not late; 0: they follow "
-                               "the wall clock throughout (common/live.py: Stalls) [ms]")
+    stall_hold_ms: int = Field(2000, ge=0, description="a topic silent for over 4 of its mean gaps and half "
+                               "lateness_ms is taken to be held up (rosbag play or a rospy thread starved): its "
+                               "watermark stops advancing for at most this long, so its messages after the stall "
+                               "are not late; 0: watermarks follow the wall clock throughout (common/live.py: "
+                               "Stalls) [ms]")
     outage_buffer_frames: int = Field(1000, ge=1, description="per key, the last frames kept to send again "
                                       "after its consumers were unreachable (common/live.py: the outage rule); "
                                       "held frames beyond it are dropped oldest first, counted dropped_outage [frames]")

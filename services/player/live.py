@@ -55,9 +55,9 @@ class LivePlayerStats(SinkStats):
     recording was published (False when stopped before its end); ``retention`` (supervised):
     :meth:`common.live.LiveSource.retention_summary`; ``outages`` / ``delivered_late`` per key:
     the outage rule of :mod:`common.live` (a hub that restarted: every key's consumers were gone
-    for a while, its frames held and sent when they were back); ``stalls`` / ``stalled_s``: times
-    no key had a message for over half the lateness bound (the player held up) and the wall time
-    the watermarks were held back by them [s] (:mod:`common.live`: Stalls)."""
+    for a while, its frames held and sent when they were back); ``stalls`` / ``stalled_s`` per
+    key: silences long enough to be taken for a stall (the player held up) and the wall time
+    they held its watermark back [s] (:mod:`common.live`: Stalls)."""
 
     input: str = ""
     rate: float = 1.0
@@ -70,8 +70,8 @@ class LivePlayerStats(SinkStats):
     retention: dict[str, Any] = field(default_factory=dict)
     outages: dict[str, int] = field(default_factory=dict)
     delivered_late: dict[str, int] = field(default_factory=dict)
-    stalls: int = 0
-    stalled_s: float = 0.0
+    stalls: dict[str, int] = field(default_factory=dict)
+    stalled_s: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"service": LIVE_PLAYER_NAME, "input": self.input, "rate": self.rate, "published": self.published,

@@ -33,9 +33,7 @@ def test_each_kind_of_record_is_published_with_its_stamp_and_the_streams_end_at_
     t, result = _record(bus, out, KEYS + ["depth_sensor"])
     watch: queue.SimpleQueue = queue.SimpleQueue()
     bus.subscribe("depth_sensor", watch)
-    # stall_hold_ms=0: the records below are all there is, so the whole driver falls silent after
-    # them, which would otherwise hold the watermarks back for 2 s (common.live: Stalls)
-    with SensorDriver(bus, announce=["depth_sensor"], watermark_interval_ms=20, stall_hold_ms=0) as drv:
+    with SensorDriver(bus, announce=["depth_sensor"], watermark_interval_ms=20) as drv:
         drv.camera_frame(np.zeros((4, 6, 3), np.uint8), stamp_ns=1_000)
         drv.camera_frame(np.full((4, 6), 7, np.uint8), stamp_ns=2_000)
         drv.sonar_beam(0.5, [1, 2, 3], 20, stamp_ns=1_500)

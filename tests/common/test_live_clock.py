@@ -47,38 +47,50 @@ def test_negative_lateness_is_refused():
         LiveClock(100 * MS, stall_hold_ns=-1)
 
 
-def test_a_whole_source_stall_holds_the_watermarks_so_what_comes_after_it_is_not_late():
-    # imu and dvl arrive 4 s after their stamps; then nothing at all from 5.0 s to 5.5 s of wall
-    # time (rosbag play starved): the imu message due at 5.1 s arrives at 5.5 s
+def _flow(c: LiveClock, key: str, t0_ms: int, t1_ms: int, every_ms: int, delay_ms: int = 4_000) -> None:
+    """Messages of ``key`` arriving every ``every_ms`` from ``t0_ms`` up to ``t1_ms``, ``delay_ms`` after their stamps."""
+    for t in range(t0_ms, t1_ms + 1, every_ms):
+        c.observe(key, (t - delay_ms) * MS, t * MS)
+
+
+def test_a_stalled_stream_holds_its_watermark_so_what_comes_after_the_stall_is_not_late():
+    # sonar every 10 ms and imu every 20 ms, 4 s after their stamps; then no sonar from 5.0 s to
+    # 5.5 s of wall time (its thread starved) while the imu goes on: the beam due at 5.01 s comes at 5.5 s
     for hold_ns, late in ((0, True), (2_000 * MS, False)):
         c = LiveClock(lateness_ns=200 * MS, stall_hold_ns=hold_ns)
-        c.observe("dvl", 990 * MS, 4_990 * MS)
-        c.observe("imu", 1_000 * MS, 5_000 * MS)
-        # the plain rule promises 1.2 s at 5.4 s; held since 5.1 s of wall time, 0.9 s: not past the last stamp
-        assert c.watermark("imu", 5_400 * MS) == (1_200 * MS if hold_ns == 0 else None)
-        assert c.observe("imu", 1_100 * MS, 5_500 * MS) is late
-        c.observe("imu", 1_500 * MS, 5_520 * MS)  # the backlog comes through, then the flow as before
-        c.observe("dvl", 1_690 * MS, 5_700 * MS)
-        assert c.watermark("imu", 5_750 * MS) == 1_530 * MS  # the stall is over: the plain rule again
-    assert (c.stalls, c.stalled_ns) == (1, 300 * MS)  # the hold's largest, at 5.4 s: 5.4 - 5.0 - 0.1
+        _flow(c, "sonar", 4_000, 5_000, 10)
+        _flow(c, "imu", 4_000, 5_480, 20)
+        # the plain rule promises 1.2 s at 5.4 s; held since 5.1 s of wall time (4 gaps < half the bound)
+        assert c.watermark("sonar", 5_400 * MS) == (1_200 * MS if hold_ns == 0 else None)
+        assert c.hold("imu", 5_480 * MS) == 0  # the stream that flows is not held
+        assert c.observe("sonar", 1_010 * MS, 5_500 * MS) is late
+        _flow(c, "sonar", 5_510, 5_600, 10, delay_ms=4_500)  # the backlog, then the flow as before
+        _flow(c, "sonar", 5_610, 5_700, 10)
+        assert c.hold("sonar", 5_750 * MS) == 0  # the stall is over: the plain rule again
+        assert c.watermark("sonar", 5_750 * MS) is None  # (which promises nothing past its last stamp yet)
+    assert c.stalls == {"sonar": 1} and c.stalled_ns == {"sonar": 300 * MS}  # at 5.4 s: 5.4 - 5.0 - 0.1
 
 
-def test_the_hold_is_bounded_so_a_source_that_stopped_does_not_stall_the_services():
+def test_the_hold_is_bounded_so_a_stream_that_stopped_holds_the_services_back_once():
     c = LiveClock(lateness_ns=200 * MS, stall_hold_ns=2_000 * MS)
-    c.observe("imu", 1_000 * MS, 5_000 * MS)
-    assert c.watermark("imu", 5_200 * MS) is None       # held since 5.1 s
-    assert c.watermark("imu", 7_100 * MS) is None       # 2 s of silence beyond 5.1 s: the hold's bound
-    assert c.watermark("imu", 7_600 * MS) == 1_400 * MS  # then the watermark advances again, 2 s behind
-    assert c.stalls == 1 and c.stalled_ns == 2_000 * MS
+    _flow(c, "dvl", 4_000, 5_000, 100)
+    assert c.watermark("dvl", 5_300 * MS) == 1_100 * MS  # the plain rule until 4 mean gaps (0.4 s) of silence
+    assert c.watermark("dvl", 5_500 * MS) == 1_200 * MS  # held since 5.4 s
+    assert c.watermark("dvl", 6_000 * MS) is None
+    assert c.watermark("dvl", 7_400 * MS) is None       # 2 s held: the hold's bound
+    assert c.watermark("dvl", 7_500 * MS) == 3_300 * MS  # then the plain rule: a stopped sensor, not a stall
+    assert c.watermark("dvl", 7_600 * MS) == 3_400 * MS  # and no lag after it
+    assert c.stalls == {"dvl": 1} and c.stalled_ns == {"dvl": 2_000 * MS}
 
 
-def test_one_silent_stream_among_others_that_arrive_is_not_a_stall():
+def test_a_slow_stream_is_not_held_between_its_messages_nor_a_stream_before_its_second():
     c = LiveClock(lateness_ns=200 * MS, stall_hold_ns=2_000 * MS)
-    c.observe("dvl", 1_000 * MS, 5_000 * MS)
-    for t in range(5_000, 6_000, 50):
-        c.observe("imu", (t - 4_000) * MS, t * MS)
-    assert c.watermark("dvl", 5_960 * MS) == 1_760 * MS  # a dead sensor's promise follows the wall clock
-    assert c.stalls == 0
+    c.observe("depth", 1_000 * MS, 5_000 * MS)
+    assert c.watermark("depth", 5_500 * MS) == 1_300 * MS  # one message: its gaps are unknown, never held
+    _flow(c, "dvl", 4_000, 5_000, 330)                     # a 3 Hz sensor: held only past 1.32 s of silence
+    assert c.watermark("dvl", 5_250 * MS) == 1_050 * MS
+    assert c.watermark("dvl", 6_300 * MS) == 2_100 * MS
+    assert c.stalls == {}
 
 
 def test_latency_matches_outputs_to_inputs_by_stamp_once_per_stage():
