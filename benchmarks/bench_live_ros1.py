@@ -23,8 +23,10 @@ machine meanwhile (drops follow the load).
 "rates": {"<rate>": RUN}, "drops_start_at": the first rate with anything in ``dropped``, ``rejected``
 or ``missing``, or null}`` with RUN = ``{"wall_s", "dropped": {service: {key: frames}}, "rejected":
 {service: {key: messages}}, "missing": {key: source messages not recorded}, "unread": [source keys the
-bridge did not bridge, no service reading them], "lvc_ids", "experiences", "loop_closures", "ate_m"}``
-(``dropped``, ``rejected``, ``missing`` and ``unread`` empty for the replay).  Needs
+bridge did not bridge, no service reading them], "stalls": {key: times the bridge took the key's
+silence for a stall and held its watermark, ``common/live.py``}, "lvc_ids", "experiences",
+"loop_closures", "ate_m"}`` (``dropped``, ``rejected``, ``missing``, ``unread`` and ``stalls`` empty
+for the replay).  Needs
 ROS 1 (``deploy/setup.sh`` installs it).
 """
 from __future__ import annotations
@@ -53,11 +55,11 @@ def _counts(path: Path) -> dict[str, int]:
 
 
 def _figures(out: Path, wall_s: float, dropped: dict[str, Any], rejected: dict[str, Any],
-             missing: dict[str, int], unread: list[str]) -> dict[str, Any]:
+             missing: dict[str, int], unread: list[str], stalls: dict[str, int]) -> dict[str, Any]:
     ev = evaluate_run(out)
     counts = _counts(out)
     return {"wall_s": round(wall_s, 1), "dropped": dropped, "rejected": rejected, "missing": missing,
-            "unread": unread,
+            "unread": unread, "stalls": stalls,
             "lvc_ids": counts.get("local_view_cells", 0), "experiences": counts.get("experience_event", 0),
             "loop_closures": ev["loop_closures"]["accepted"], "ate_m": ev["ate_rmse_m"]["map"]}
 
@@ -90,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     if proc.returncode != 0:
         raise RuntimeError(f"replay failed: {proc.stderr[-3000:]}")
     out: dict[str, Any] = {"mission": str(mission), "settings": args.settings, "source_messages": source,
-                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}, {}, []),
+                           "replay": _figures(replay_out, json.loads(proc.stdout)["wall_s"], {}, {}, {}, [], {}),
                            "rates": {}}
     core = Roscore(cache / "roshome")
     try:
@@ -104,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
             unread = sorted(t.lstrip("/") for t in result["services"]["bridge_ros1"]["unread"])
             missing = {k: n - recorded.get(k, 0) for k, n in source.items()
                        if recorded.get(k, 0) != n and k not in unread}
-            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, rejected, missing, unread)
+            stalls = result["services"]["bridge_ros1"]["stalls"]
+            out["rates"][f"{rate:g}"] = _figures(run_out, result["wall_s"], dropped, rejected, missing, unread, stalls)
     finally:
         core.stop()
     out["drops_start_at"] = next((float(r) for r, v in out["rates"].items() if _lost(v)), None)
