@@ -59,7 +59,10 @@ def _echo_map(env: dict[str, str], stamp: int, timeout_s: float = 60.0) -> dict[
 
 def test_ros_sees_the_export_grid_of_the_live_messages_latched_on_map(tmp_path: Path) -> None:
     require_ros1()
-    run = drift_run(tmp_path, trigger_s=PERIOD_S)     # the last Odometry sample moves event time on by a period
+    # the last Odometry sample moves event time on by more than a period: past the last build's clock
+    # even when that build came at the last scan, whose stamp (ROS secs/nsecs) may be 1 ns past the
+    # last Odometry's; a trigger of exactly one period then falls 1 ns short, and /map keeps that build
+    run = drift_run(tmp_path, trigger_s=PERIOD_S + 1.0)
     bag = tmp_path / "scans.bag"
     export_rosbag(run, bag, ros2=False)
     odom = [r.message() for r in read_messages(run, keys=["Odometry"])]
