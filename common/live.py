@@ -146,9 +146,7 @@ class LiveClock:
             offset, bound = self._latest, self.lateness_ns + self.unseen_grace_ns
         if offset is None:
             return None
-        else:
-            now_ns -= self.hold(key, now_ns)
-        wm = now_ns - offset - bound
+        wm = now_ns - self.hold(key, now_ns) - offset - bound  # hold: 0 for a stream that has not spoken
         if wm <= self._promised.get(key, -1) or wm <= self._last_stamp.get(key, -1):
             return None
         self._promised[key] = wm
