@@ -12,6 +12,12 @@ Decisions (see ../shared/design/ARCHITECTURE.md):
   callbacks therefore never block.  (Blocking a callback, the obvious way to push back,
   stalls the Zenoh runtime that routes the consumer's own outputs: with a hub between
   services that deadlocks as soon as a service both consumes and publishes.)
+- Bundles: a publisher with ``bundle_max`` > 1 (the player replaying at full speed,
+  ``player.bundle_frames``) holds its small data frames and sends up to that many in one sample
+  (:func:`common.codec.encode_bundle`); any other frame on the key, :meth:`BusPublisher.flush`
+  or a full bundle sends what it holds first, so the order on the key never changes.
+  :meth:`Bus.subscribe` splits a bundle into its frames.  Each sample costs every receiver a
+  wake-up and a callback, the recorder included; ``docs/DECISIONS.md``, "Bundles".
 - ``@`` chunks (``@alive``, ``@progress``, ``@abort``) are verbatim in Zenoh: ``**`` does
   not match them, so the recorder never records control traffic.
 - Failing fast without a launcher: a consumer that finishes normally reports progress
@@ -32,7 +38,16 @@ from typing import Any, Protocol
 
 import zenoh
 
-from common.codec import ENCODED_EOS, encode, encode_replay_start, encode_sequenced, encode_watermark
+from common.codec import (
+    ENCODED_EOS,
+    DecodeError,
+    encode,
+    encode_bundle,
+    encode_replay_start,
+    encode_sequenced,
+    encode_watermark,
+    split_frames,
+)
 from common.messages import Message
 from common.sessions import open_hub, open_local_session, zenoh_config  # re-exported: services import them from here
 
@@ -44,6 +59,8 @@ log = logging.getLogger(__name__)
 ALIVE = "@alive"
 PROGRESS = "@progress"
 ABORT = "@abort"
+#: a data frame larger than this is never bundled (camera images: one sample each)
+BUNDLE_FRAME_BYTES = 16384
 class FrameSink(Protocol):
     """Where :meth:`Bus.subscribe` puts ``(relative key, frame bytes)``: a queue that never blocks."""
 
@@ -71,6 +88,19 @@ class BusPublisher:
         self.retained: deque[tuple[int, bytes]] = deque()
         self.retained_bytes = 0
         self._lock = threading.Lock()
+        self.bundle_max = 0   # > 1: data frames go out in bundles of up to this many (see :meth:`flush`)
+        self._pending: list[bytes] = []
+        self.pending_since = -1  # stamp of the oldest data frame held for a bundle (-1: none held)
+        self.data_samples = 0    # samples that carried data frames (a bundle counts once)
+
+    def flush(self) -> None:
+        """Send the data frames held for a bundle (one sample; a single frame as itself)."""
+        pending = self._pending
+        if pending:
+            self._pending = []
+            self.pending_since = -1
+            self._pub.put(pending[0] if len(pending) == 1 else encode_bundle(pending))
+            self.data_samples += 1
 
     def send(self, msg: Message) -> None:
         self.send_data(msg.type_name, encode(msg), msg.header.stamp)
@@ -79,7 +109,16 @@ class BusPublisher:
         """A numbered data frame of an encoded message (``stamp``: its header stamp, for
         :meth:`heartbeat`; -1 when unknown)."""
         frame = encode_sequenced(self.index, type_name, payload)
-        self._pub.put(frame)
+        if self.bundle_max > 1 and len(frame) <= BUNDLE_FRAME_BYTES:
+            if not self._pending:
+                self.pending_since = stamp
+            self._pending.append(frame)
+            if len(self._pending) >= self.bundle_max:
+                self.flush()
+        else:
+            self.flush()
+            self._pub.put(frame)
+            self.data_samples += 1
         self.data_stamp = max(self.data_stamp, stamp)
         if self.retain:
             with self._lock:
@@ -110,11 +149,13 @@ class BusPublisher:
         return gone
 
     def send_raw(self, frame: bytes) -> None:
+        self.flush()
         self._pub.put(frame)
         self.sent += 1
 
     def send_watermark(self, stamp: int) -> None:
         if stamp > self.watermark:
+            self.flush()
             self._pub.put(encode_watermark(stamp))
             self.watermark = stamp
 
@@ -130,6 +171,7 @@ class BusPublisher:
             self.send_watermark(stamp)
 
     def send_eos(self) -> None:
+        self.flush()
         self._pub.put(ENCODED_EOS)
         self.ended = True
 
@@ -146,6 +188,7 @@ class BusPublisher:
         from index ``first`` when they are kept elsewhere (the player re-reads its recording);
         default: the retained ones; ``by``: the consumer that asked (named in the ``R`` frame).
         Returns the index the replay started from (> ``start``: frames before it are lost)."""
+        self.flush()
         if frames is None:
             with self._lock:
                 kept = [(i, f) for i, f in self.retained if i >= start]
@@ -323,7 +366,16 @@ class Bus:
                 rel = self.relative_key(full)
                 if len(relative) < 4096:  # a wildcard subscription meets a bounded number of keys
                     relative[full] = rel
-            sink.put_nowait((rel, sample.payload.to_bytes()))
+            data = sample.payload.to_bytes()
+            if data[:1] == b"B":
+                try:
+                    frames = split_frames(data)
+                except DecodeError:
+                    frames = [data]  # the consumer's decode names what is wrong with it
+                for f in frames:
+                    sink.put_nowait((rel, f))
+            else:
+                sink.put_nowait((rel, data))
         self._keepalive.append(self.session.declare_subscriber(self.full_key(key), on_sample))
 
     def subscribe_callback(self, key: str, callback: Callable[[str, bytes], None]) -> None:

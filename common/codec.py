@@ -10,7 +10,10 @@ int64 stamp, ``E`` (end of stream).  Publishers of a run number their data frame
 (``S`` + uint64 index + type name + message: the *transport index*, 0, 1, 2 ... in publish
 order), so a consumer can drop a frame it already has when a restarted service or a replay
 sends it again; ``R`` + uint64 index starts a replay ("the next data frame on this key is
-index n"), see :mod:`common.resume`.
+index n"), see :mod:`common.resume`.  A replay at full speed may carry several consecutive
+frames of one key in one sample, ``B`` + per frame a uint32 length and the frame
+(:func:`encode_bundle`); every receiver splits it (:func:`split_frames`, done by
+:meth:`common.bus.Bus.subscribe`) and sees the same frames in the same order.
 
 Robustness contract: :func:`decode_frame`, :func:`decode_dict`, :func:`decode` and
 :meth:`Frame.message` raise :class:`DecodeError` (a ``ValueError``) for *any* malformed
@@ -33,7 +36,7 @@ from common.messages import MESSAGE_TYPES, Message
 __all__ = [
     "encode", "decode", "decode_dict", "pack_obj", "unpack_obj", "encode_frame", "encode_watermark",
     "ENCODED_EOS", "decode_frame", "Frame", "DecodeError", "encode_sequenced", "encode_replay_start",
-    "decode_header",
+    "decode_header", "encode_bundle", "split_frames",
 ]
 
 
@@ -138,8 +141,10 @@ def decode(data: bytes | memoryview, cls: type[M]) -> M:
         raise DecodeError(f"{cls.type_name}: {type(exc).__name__}: {exc}") from None
 
 
-_TAG_DATA, _TAG_WM, _TAG_EOS, _TAG_SEQ, _TAG_REPLAY = b"D", b"W", b"E", b"S", b"R"
+_TAG_DATA, _TAG_WM, _TAG_EOS, _TAG_SEQ, _TAG_REPLAY, _TAG_BUNDLE = b"D", b"W", b"E", b"S", b"R", b"B"
 _PACK_Q = struct.Struct("<Q").pack
+_PACK_I = struct.Struct("<I").pack
+_UNPACK_I = struct.Struct("<I").unpack_from
 ENCODED_EOS = _TAG_EOS
 
 
@@ -154,6 +159,37 @@ def encode_sequenced(index: int, type_name: str | bytes, payload: bytes | memory
     name = type_name.encode() if isinstance(type_name, str) else type_name
     # one join: the payload (up to an image) is copied once, not once per concatenation
     return b"".join((_TAG_SEQ, _PACK_Q(index), bytes([len(name)]), name, payload))
+
+
+def encode_bundle(frames: list[bytes]) -> bytes:
+    """One wire sample carrying several frames of one key, in order (``B`` + per frame a uint32
+    length and the frame); :func:`split_frames` gives them back one by one."""
+    parts = [_TAG_BUNDLE]
+    for f in frames:
+        parts.append(_PACK_I(len(f)))
+        parts.append(f)
+    return b"".join(parts)
+
+
+def split_frames(data: bytes) -> list[bytes]:
+    """The frames of one wire sample: those of a bundle (:func:`encode_bundle`), or the sample
+    itself.  A bundle that does not split exactly raises :class:`DecodeError`."""
+    if not data or data[0] != _T_BUNDLE:
+        return [data]
+    out: list[bytes] = []
+    pos, size = 1, len(data)
+    while pos < size:
+        if pos + 4 > size:
+            raise DecodeError(f"bundle frame truncated at byte {pos} of {size} (no frame length)")
+        n = _UNPACK_I(data, pos)[0]
+        pos += 4
+        if n == 0 or pos + n > size:
+            raise DecodeError(f"bundle frame: a frame of {n} bytes at byte {pos} of {size}")
+        out.append(data[pos:pos + n])
+        pos += n
+    if not out:
+        raise DecodeError("empty bundle frame")
+    return out
 
 
 def encode_replay_start(index: int, by: str = "") -> bytes:
@@ -197,7 +233,8 @@ class Frame:
 
 _UNPACK_Q = struct.Struct("<Q").unpack_from
 _UNPACK_q = struct.Struct("<q").unpack_from
-_T_DATA, _T_WM, _T_EOS, _T_SEQ, _T_REPLAY = _TAG_DATA[0], _TAG_WM[0], _TAG_EOS[0], _TAG_SEQ[0], _TAG_REPLAY[0]
+_T_DATA, _T_WM, _T_EOS, _T_SEQ, _T_REPLAY, _T_BUNDLE = (_TAG_DATA[0], _TAG_WM[0], _TAG_EOS[0], _TAG_SEQ[0],
+                                                     _TAG_REPLAY[0], _TAG_BUNDLE[0])
 _TYPE_NAMES: dict[bytes, str] = {}  # encoded type name -> type name, for the known types seen so far
 
 
@@ -267,4 +304,7 @@ def decode_frame(data: bytes | memoryview) -> Frame:
         if size != 1:
             raise DecodeError(f"end-of-stream frame of {size} bytes (expected 1)")
         return Frame("eos")
+    if tag == _T_BUNDLE:
+        split_frames(bytes(buf))  # raises naming what is wrong with a malformed bundle
+        raise DecodeError(f"a bundle of frames ({size} bytes) where one frame was expected: split_frames splits it")
     raise DecodeError(f"unknown frame tag {bytes([tag])!r}")

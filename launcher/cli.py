@@ -59,6 +59,8 @@ the end of the run); ``places`` (with ``local_view_cells``, else null): ``{"fram
 (:class:`common.runtime.RunnerStats`): ``cpu_s`` and ``peak_rss_mb`` (its process, every
 thread; distributed runs), ``startup_cpu_s``, ``node_cpu_s`` and ``frame_path_cpu_s`` (where
 that CPU went: :mod:`common.runtime`), ``busy_s`` (wall seconds inside the node and publishing).
+The player's: ``published`` (data frames per key) and ``samples`` (the bus samples that carried
+them: fewer when a replay at full speed bundles them, ``player.bundle_frames``).
 
 Console and log (:mod:`launcher.logs`): the console shows warnings, errors, progress bars and
 results; ``--verbose`` adds the services' INFO messages, ``--log-level LEVEL`` sets its level

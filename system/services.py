@@ -205,7 +205,8 @@ def build_worker(name: str, config: PoseidonConfig, bus: Bus, spec: WorkerSpec |
                       wait_for=spec.wait_for, heartbeat_ms=config.bus.heartbeat_interval_ms,
                       startup_timeout_s=config.bus.startup_timeout_s, progress=spec.progress,
                       drain_timeout_s=drain_s, flow_window_ms=config.bus.flow_window_ms,
-                      supervision=spec.supervision)
+                      supervision=spec.supervision, bundle_frames=config.player.bundle_frames,
+                      bundle_ms=config.player.bundle_ms)
     if name == RECORDER:
         if spec.out is None:
             raise ValueError("the recorder needs an output file")

@@ -26,3 +26,12 @@ class PlayerConfig(ConfigSection):
         "messages) from the input recording itself, so the run's recording holds the whole input again; all = "
         "every key over the bus (what a live run does: there copied means all); consumed = as copied, but the "
         "other keys stay in the input recording only. player.keys still narrows each")
+    bundle_frames: int = Field(
+        16, ge=0, le=1024, description="a replay as fast as taken (rate 0) sends up to this many consecutive data frames "
+        "of a key (each at most 16 KiB: not camera images) in one bus sample (a bundle), which the receiver splits again: "
+        "the same frames in the same order, about a tenth as many deliveries of the frequent keys; once flow control "
+        "held it, the player waits for room for bundle_ms of event time before it goes on (0 or 1: one sample "
+        "per frame; paced and live runs always send one per frame) [frames]")
+    bundle_ms: int = Field(
+        1000, ge=1, le=60000, description="a bundle goes out at the latest when the replay has moved this much "
+        "event time past it, and whenever the player waits for its consumers (flow control) [ms]")

@@ -7,6 +7,11 @@ truth; the recorder copies the others from the file (``player.replay``, :func:`l
   it: with ``wait_for`` services, at most ``flow_window_ms`` of event time is in flight
   ahead of the slowest one (they report progress on ``@progress``), so nothing is dropped
   and memory stays bounded at any rate.
+- Bundles (``bundle_frames`` > 1, rate 0 only): consecutive data frames of a key up to 16 KiB
+  each go out up to ``bundle_frames`` in one sample (:mod:`common.bus`); a bundle is sent when
+  full, when its first frame is ``bundle_ms`` of event time old, and before every wait for the
+  consumers.  Once held, the player waits for room for ``bundle_ms`` of event time (at most half
+  the window), so that what follows goes in full bundles, not one frame per progress report.
 - Before the first message it waits until every expected service is alive (Zenoh drops
   what is published before a subscriber exists).
 - Payloads are sent byte for byte as recorded (no re-encoding).
@@ -88,12 +93,13 @@ def replayed_keys(cfg: PlayerConfig, keys: list[str], read: set[str]) -> list[st
 @dataclass
 class PlayerStats(WorkerStats):
     published: dict[str, int] = field(default_factory=dict)
+    samples: dict[str, int] = field(default_factory=dict)  # bus samples that carried them (bundles: fewer)
     wall_s: float = 0.0
     event_s: float = 0.0
     replays: int = 0
 
     def as_dict(self) -> dict[str, Any]:
-        return {"service": "player", "published": self.published, "wall_s": round(self.wall_s, 3),
+        return {"service": "player", "published": self.published, "samples": self.samples, "wall_s": round(self.wall_s, 3),
                 "event_s": round(self.event_s, 3), "aborted": self.aborted, "replays": self.replays,
                 "real_time_factor": round(self.event_s / self.wall_s, 3) if self.wall_s > 0 else None}
 
@@ -113,7 +119,7 @@ class Player(Source):
                  wait_for: Iterable[str] = (), heartbeat_ms: int = 100, startup_timeout_s: float = 60.0,
                  progress: bool = True, announce_absent: Iterable[str] = SOURCE_KEYS,
                  drain_timeout_s: float = 0.0, flow_window_ms: int = 3000,
-                 supervision: Supervision | None = None):
+                 supervision: Supervision | None = None, bundle_frames: int = 0, bundle_ms: int = 1000):
         if rate < 0:
             raise ValueError(f"player rate must be >= 0, got {rate}")
         self.path = Path(path)
@@ -126,6 +132,9 @@ class Player(Source):
         self.startup_timeout_s = startup_timeout_s
         self.progress = progress
         self.flow_window_ns = flow_window_ms * 1_000_000
+        self.bundle_frames = bundle_frames if rate == 0 else 0  # paced replays: one sample per frame
+        self.bundle_ns = bundle_ms * 1_000_000
+        self._burst_ns = min(self.bundle_ns, self.flow_window_ns // 2) if self.bundle_frames > 1 else 0
         self._alive: AliveWatcher | None = None
         self._watcher: ProgressWatcher | None = None
         self._left_since: dict[str, float] = {}
@@ -167,7 +176,9 @@ class Player(Source):
         last bound seen then needs no new look."""
         if stamp <= self._flow_bound and not self.stop_event.is_set():
             return
-        promised = False
+        # bundling: once held, wait for room for a burst (bundle_ms of event time) so that bundles form
+        stamp_due = stamp + self._burst_ns
+        flushed = promised = False
         seen, since = None, time.monotonic()
         while not self.stop_event.is_set():
             slowest = watcher.slowest(self.wait_for, default=-2)
@@ -175,8 +186,12 @@ class Player(Source):
                 self._flow_bound = bound = slowest + self.flow_window_ns
             else:
                 bound = watcher.slowest(self.wait_for, default=first) + self.flow_window_ns
-            if stamp <= bound:
+            if stamp_due <= bound:
                 return
+            if not flushed:  # what is held for a bundle goes out before the player waits for it to be taken
+                for pub in live:
+                    pub.flush()
+                flushed = True
             self._check_consumers()
             now = time.monotonic()
             if slowest != seen:
@@ -189,7 +204,7 @@ class Player(Source):
                 promised = True
             # woken by the progress report that lets ``stamp`` go; at the latest after 10 ms, to
             # answer replays and notice an abort or a consumer that left
-            watcher.wait_slowest(self.wait_for, first, stamp - self.flow_window_ns, 0.01)
+            watcher.wait_slowest(self.wait_for, first, stamp_due - self.flow_window_ns, 0.01)
 
     def _replay_source(self, key: str, start: int) -> tuple[int, Iterator[bytes]]:
         """Frames of ``key`` from transport index ``start`` up to the last one sent, read again
@@ -215,6 +230,8 @@ class Player(Source):
         """Publishers (absent source keys get end-of-stream at once), replay answers when
         supervised, and the consumers: alive before the first message, then watched."""
         pubs = {k: self.bus.publisher(k) for k in self.keys + self.absent}
+        for pub in pubs.values():
+            pub.bundle_max = self.bundle_frames
         if self.supervision is not None:
             self.serve_replays_for(pubs)
         watcher = self.bus.watch_progress() if self.wait_for else None
@@ -233,7 +250,7 @@ class Player(Source):
         ``t_wall0``, flow-controlled); returns the first and the last stamp sent (None, 0 if
         nothing was)."""
         t_event0 = None
-        last_hb = -1
+        last_hb = last_flush = -1
         live = [p for p in pubs.values() if not p.ended]  # absent keys ended at once: nothing to promise
         last_stamp = 0
         bar = tqdm(total=total, desc="player", unit="msg", file=sys.stderr, disable=not self.progress,
@@ -258,6 +275,11 @@ class Player(Source):
                     for pub in live:
                         pub.heartbeat(rec.stamp, self.heartbeat_ns)
                     last_hb = rec.stamp
+                if self.bundle_frames > 1 and rec.stamp - last_flush >= self.bundle_ns // 4:
+                    for pub in live:  # a bundle goes out at the latest bundle_ms after its first frame
+                        if 0 <= pub.pending_since <= rec.stamp - self.bundle_ns:
+                            pub.flush()
+                    last_flush = rec.stamp
                 pubs[rec.key].send_data(rec.type_name, rec.payload, rec.stamp)
                 self._stamps[rec.key].append(rec.stamp)
                 self.stats.published[rec.key] = self.stats.published.get(rec.key, 0) + 1
@@ -270,6 +292,7 @@ class Player(Source):
                     pubs[k].send_eos()
             elif not self.stats.aborted:  # stopped early: the streams are incomplete, no end-of-stream
                 self.abort_run("player stopped before the end of the recording")
+            self.stats.samples = {k: pubs[k].data_samples for k in self.keys if pubs[k].data_samples}
         return t_event0, last_stamp
 
     def run(self) -> PlayerStats:

@@ -52,7 +52,7 @@ from typing import Any
 import zenoh
 
 from common.bus import ABORT, ALIVE, PROGRESS, Bus
-from common.codec import DecodeError, Frame, decode_frame, decode_header
+from common.codec import DecodeError, Frame, decode_frame, decode_header, split_frames
 from common.live import HEALTH_KEY
 from common.messages import DiagnosticArray
 from common.sessions import VIEWER_IDS, zenoh_config
@@ -176,11 +176,22 @@ class LiveFeed:
     def _declare_latest(self, key: str) -> Any:
         return self.bus.session.declare_subscriber(self.bus.full_key(key), zenoh.handlers.RingChannel(LATEST_RING))
 
-    def _take(self, key: str, sample: zenoh.Sample) -> Frame | None:
-        """Count one sample of ``key``; its frame if it is a data frame the page shows."""
+    def _take(self, key: str, sample: zenoh.Sample) -> list[Frame]:
+        """Count one sample of ``key``; its data frames the page shows (a replay's bundle holds several)."""
         data = sample.payload.to_bytes()
         self.received_bytes += len(data)
         self.received_by_key[key] = self.received_by_key.get(key, 0) + len(data)
+        try:
+            frames = split_frames(data)
+        except DecodeError as exc:
+            self.invalid += 1
+            log.error("view: bad frame on %s skipped: %s", key, exc)
+            return []
+        ts = sample.timestamp  # the hub's time of routing it, when the hub stamps (a router does)
+        wall_ns = int(ts.get_time().timestamp() * 1e9) if ts is not None else time.time_ns()
+        return [f for f in (self._take_frame(key, d, wall_ns) for d in frames) if f is not None]
+
+    def _take_frame(self, key: str, data: bytes, wall_ns: int) -> Frame | None:
         try:
             frame = decode_frame(data)
             if frame.kind == "eos":
@@ -199,8 +210,6 @@ class LiveFeed:
             return None
         if key == HEALTH_KEY:  # read for the lags only: neither a source nor an output
             return frame
-        ts = sample.timestamp  # the hub's time of routing it, when the hub stamps (a router does)
-        wall_ns = int(ts.get_time().timestamp() * 1e9) if ts is not None else time.time_ns()
         self.figures.data(key, frame.index, stamp if isinstance(stamp, int) else -1, wall_ns)
         if key not in self.shown:
             return None
@@ -211,11 +220,11 @@ class LiveFeed:
         return frame
 
     def _take_latest(self, key: str, sample: zenoh.Sample) -> bool:
-        """Keep ``sample`` of a sampled key as its latest frame; whether it was a data frame."""
-        frame = self._take(key, sample)
-        if frame is not None:
-            self._latest[key] = frame
-        return frame is not None
+        """Keep the newest data frame of ``sample`` of a sampled key as its latest; whether it held one."""
+        frames = self._take(key, sample)
+        if frames:
+            self._latest[key] = frames[-1]
+        return bool(frames)
 
     def _heavy(self, key: str) -> None:
         """``key`` carries heavy frames: leave its subscription; sample it if it is shown or an input."""
@@ -308,13 +317,11 @@ class LiveFeed:
         batch: list[tuple[str, Frame]] = []
         for key, sub in subs:
             while (sample := sub.try_recv()) is not None:
-                frame = self._take(key, sample)
-                if frame is None:
-                    continue
-                if key in self._latest_keys:
-                    self._latest[key] = frame
-                else:
-                    batch.append((key, frame))
+                for frame in self._take(key, sample):
+                    if key in self._latest_keys:
+                        self._latest[key] = frame
+                    else:
+                        batch.append((key, frame))
         return batch
 
     def update(self) -> None:

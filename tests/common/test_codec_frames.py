@@ -8,10 +8,12 @@ from common.codec import (
     DecodeError,
     decode_frame,
     encode,
+    encode_bundle,
     encode_frame,
     encode_replay_start,
     encode_sequenced,
     encode_watermark,
+    split_frames,
 )
 from common.messages import Depth, Header
 
@@ -44,6 +46,11 @@ BAD = [
     (b"R" + struct.pack("<Q", 1 << 63), f"replay start {1 << 63} out of range"),
     (b"EE", "end-of-stream frame of 2 bytes (expected 1)"),
     (b"Zjunk", "unknown frame tag b'Z'"),
+    (b"B", "empty bundle frame"),
+    (b"B\x01\x00", "bundle frame truncated at byte 1 of 3 (no frame length)"),
+    (b"B" + struct.pack("<I", 5) + b"ab", "bundle frame: a frame of 5 bytes at byte 5 of 7"),
+    (b"B" + struct.pack("<I", 0), "bundle frame: a frame of 0 bytes at byte 5 of 5"),
+    (encode_bundle([ENCODED_EOS]), "a bundle of frames (6 bytes) where one frame was expected: split_frames splits it"),
 ]
 
 
@@ -85,3 +92,13 @@ def test_decode_header_reads_the_header_alone_and_falls_back_to_the_whole_payloa
     for bad in (b"", b"\x80", b"\xc1", b"\x81\xa6header\x05", msgpack.packb([1, 2]), pack_obj({"depth": 1.0})):
         with pytest.raises(DecodeError):
             decode_header(bad)
+
+
+def test_a_bundle_splits_into_the_same_frames_in_order():
+    frames = [data for data, _ in GOOD]
+    assert split_frames(encode_bundle(frames)) == frames
+    assert split_frames(encode_bundle(frames[:1])) == frames[:1]
+    for data in frames:  # a frame that is no bundle is its own only frame
+        assert split_frames(data) == [data]
+    with pytest.raises(DecodeError, match="truncated at byte"):
+        split_frames(encode_bundle(frames)[:-len(ENCODED_EOS) - 2])

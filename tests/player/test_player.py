@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from common.codec import decode_frame, decode_header
+from common.codec import decode_frame, decode_header, split_frames
 from common.mcap_io import RecordingWriter
 from common.messages import Depth, Header
 from services.player.player import Player
@@ -176,3 +176,27 @@ def test_a_gap_longer_than_the_window_is_promised_once_the_consumer_stands_still
     assert time.monotonic() - t0 < 5.0
     assert stats.published == {"depth_sensor": 10}
     assert consumer.watermarks == [T0, T0 + 55 * STEP_NS]
+
+
+def test_a_bundling_player_sends_the_same_frames_in_fewer_samples_and_within_the_window(tmp_path, bus):
+    """At rate 0 with bundles of up to 8 frames: the consumer gets every frame, in order, as
+    without bundles, in a fraction of the samples; the player still waits within the window (what
+    it holds for a bundle goes out before it waits, or the consumer could never catch up)."""
+    samples: list[bytes] = []
+    raw = bus.session.declare_subscriber(bus.full_key("depth_sensor"), lambda s: samples.append(s.payload.to_bytes()))
+    consumer = _Consumer(bus, work_s=0.0)
+    src = _depth_recording(tmp_path / "many.mcap", n=200)
+    stats = Player(bus, src, wait_for=["consumer"], progress=False, flow_window_ms=1000, heartbeat_ms=10**6,
+                   announce_absent=(), bundle_frames=8, bundle_ms=500).run()
+    deadline = time.monotonic() + 5
+    while consumer.data < 200 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    raw.undeclare()
+    assert stats.published == {"depth_sensor": 200} and consumer.data == 200
+    data = [decode_frame(f) for s in samples for f in split_frames(s)]
+    data = [f for f in data if f.kind == "data"]
+    assert [f.index for f in data] == list(range(200))
+    assert [decode_header(f.payload)["stamp"] for f in data] == [T0 + i * STEP_NS for i in range(200)]
+    assert len(samples) < 200 / 3  # bundles of up to 8 (5 steps of 0.1 s a bundle_ms), flushed at each wait
+    data_samples = sum(1 for s in samples if s[:1] in (b"B", b"S"))
+    assert stats.samples == {"depth_sensor": data_samples}

@@ -24,7 +24,9 @@ def _wait(cond, timeout_s: float = 10.0) -> None:  # type: ignore[no-untyped-def
         time.sleep(0.02)
 
 
-def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_path: Path) -> None:
+@pytest.mark.parametrize("bundle", [0, 4])
+def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_path: Path, bundle: int) -> None:
+    """``bundle`` 4: the frames come in a replay's bundles of up to 4 (the feed splits them)."""
     run = tmp_path / "run.mcap"
     write_run(run, seconds=6.0)
     feed = LiveFeed(bus, ViewConfig(), io={"expmap": (("experience_event",), ("map", "dead_reckoning"))})
@@ -33,7 +35,10 @@ def test_the_feed_follows_the_bus_and_leaves_each_key_at_its_end(bus: Bus, tmp_p
         pubs = {}
         for rec in read_messages(run):
             pub = pubs.get(rec.key) or pubs.setdefault(rec.key, bus.publisher(rec.key))
+            pub.bundle_max = bundle
             pub.send_data(rec.type_name, rec.payload, rec.stamp)
+        for pub in pubs.values():
+            pub.flush()
         expected = {k: p.sent - 1 for k, p in pubs.items()}
         _wait(lambda: {k: feed.figures.newest_index(k) for k in pubs} == expected)
         # the latest-only keys (camera, map, activity) keep their newest frame; every other is taken
