@@ -39,6 +39,7 @@ from typing import Any, Protocol
 import zenoh
 
 from common.codec import (
+    BUNDLE_TAG,
     ENCODED_EOS,
     DecodeError,
     encode,
@@ -367,7 +368,7 @@ class Bus:
                 if len(relative) < 4096:  # a wildcard subscription meets a bounded number of keys
                     relative[full] = rel
             data = sample.payload.to_bytes()
-            if data[:1] == b"B":
+            if data[:1] == BUNDLE_TAG:
                 try:
                     frames = split_frames(data)
                 except DecodeError:

@@ -36,7 +36,7 @@ from common.messages import MESSAGE_TYPES, Message
 __all__ = [
     "encode", "decode", "decode_dict", "pack_obj", "unpack_obj", "encode_frame", "encode_watermark",
     "ENCODED_EOS", "decode_frame", "Frame", "DecodeError", "encode_sequenced", "encode_replay_start",
-    "decode_header", "encode_bundle", "split_frames",
+    "decode_header", "encode_bundle", "split_frames", "BUNDLE_TAG",
 ]
 
 
@@ -146,6 +146,7 @@ _PACK_Q = struct.Struct("<Q").pack
 _PACK_I = struct.Struct("<I").pack
 _UNPACK_I = struct.Struct("<I").unpack_from
 ENCODED_EOS = _TAG_EOS
+BUNDLE_TAG = _TAG_BUNDLE  # the first byte of a bundle (:func:`encode_bundle`)
 
 
 def encode_frame(msg: Message) -> bytes:
