@@ -33,6 +33,7 @@ import json
 import logging
 import mmap
 import os
+import stat
 import struct
 import subprocess
 import threading
@@ -60,7 +61,7 @@ from common.messages import Message, message_type
 
 __all__ = [
     "RecordingWriter", "RecordedMessage", "RecordingError", "read_messages", "read_metadata",
-    "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "FileDigest", "digest_from_file", "code_revision",
+    "recording_summary", "recording_keys", "recording_message_count", "file_sha256", "FileDigest", "DigestCache", "digest_from_file", "code_revision",
     "recording_status", "recover_recording", "read_file_order", "iter_file_order", "key_digests",
 ]
 
@@ -106,23 +107,153 @@ def _sha256(path: str | Path, chunk: int, stop: threading.Event | None = None) -
     return h
 
 
+#: environment variable: where :class:`DigestCache` keeps its entries, or ``off``
+DIGEST_CACHE_ENV = "POSEIDON_DIGEST_CACHE"
+#: files smaller than this are always hashed (a few ms): the cache holds the large recordings only
+DIGEST_CACHE_MIN_BYTES = 64 << 20
+#: entries kept at most; the least recently used go first
+DIGEST_CACHE_ENTRIES = 256
+
+
+class DigestCache:
+    """SHA-256 digests of large files, kept between runs so that a recording replayed again is
+    not hashed again (~0.9 CPU s per GB on a core the services need: ~6 s for a 60-minute
+    mission's 6 GB).
+
+    One JSON entry per file (named by the SHA-1 of its resolved path) holds the digest beside the
+    file's size, inode, device, and modification and status-change times in ns, as ``os.stat``
+    gave them just before and just after it was hashed.  An entry is used only while all of them
+    still match: any write changes the status-change time, which no tool can set back, so a
+    changed file is hashed again.  A file that changed while it was hashed is not cached.
+    Directory: ``$POSEIDON_DIGEST_CACHE`` (``off``: no cache), else
+    ``$XDG_CACHE_HOME/poseidonslam/digests``, else ``~/.cache/poseidonslam/digests``."""
+
+    def __init__(self, directory: str | Path, min_bytes: int = DIGEST_CACHE_MIN_BYTES,
+                 max_entries: int = DIGEST_CACHE_ENTRIES):
+        self.directory = Path(directory)
+        self.min_bytes = int(min_bytes)
+        self.max_entries = int(max_entries)
+
+    @classmethod
+    def default(cls) -> DigestCache | None:
+        """The cache the environment names (module doc), or None when it says ``off``."""
+        env = os.environ.get(DIGEST_CACHE_ENV, "")
+        if env.strip().lower() == "off":
+            return None
+        if env:
+            return cls(env)
+        home = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        return cls(Path(home) / "poseidonslam" / "digests")
+
+    @staticmethod
+    def _identity(st: os.stat_result) -> list[int]:
+        return [st.st_size, st.st_ino, st.st_dev, st.st_mtime_ns, st.st_ctime_ns]
+
+    def _entry(self, path: Path) -> Path:
+        return self.directory / (hashlib.sha1(str(path.resolve()).encode()).hexdigest() + ".json")
+
+    def lookup(self, path: str | Path) -> str | None:
+        """The cached digest of ``path`` when the file is unchanged since it was hashed, else None
+        (an unreadable or malformed entry is logged and ignored: the file is hashed again)."""
+        p = Path(path)
+        st = os.stat(p)
+        if not _cacheable(st, self.min_bytes):
+            return None
+        entry = self._entry(p)
+        try:
+            data = json.loads(entry.read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            log.warning("digest cache: entry %s for %s unreadable (%s); hashing the file again", entry, p, exc)
+            return None
+        digest = data.get("sha256") if isinstance(data, dict) else None
+        if (not isinstance(digest, str) or len(digest) != 64 or data.get("path") != str(p.resolve())
+                or data.get("stat") != self._identity(st)):
+            return None
+        try:
+            os.utime(entry)  # most recently used
+        except OSError as exc:
+            log.debug("digest cache: cannot touch %s: %s", entry, exc)
+        return digest
+
+    def store(self, path: str | Path, before: os.stat_result, digest: str) -> bool:
+        """Keep ``digest`` of ``path`` if the file still is what ``before`` described (True when
+        kept).  A cache that cannot be written (read-only home) is logged, and the run goes on."""
+        p = Path(path)
+        if not _cacheable(before, self.min_bytes):
+            return False
+        try:
+            if self._identity(os.stat(p)) != self._identity(before):  # written to while it was hashed
+                return False
+            entry = self._entry(p)
+            text = json.dumps({"path": str(p.resolve()), "stat": self._identity(before), "sha256": digest})
+            self.directory.mkdir(parents=True, exist_ok=True)
+            tmp = entry.with_name(f"{entry.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+            tmp.write_text(text + "\n")
+            os.replace(tmp, entry)
+            self._prune()
+        except OSError as exc:
+            log.warning("digest cache: cannot keep the digest of %s in %s: %s", p, self.directory, exc)
+            return False
+        return True
+
+    def _prune(self) -> None:
+        """Remove the least recently used entries beyond ``max_entries`` (another process may
+        remove one meanwhile)."""
+        entries = []
+        for e in self.directory.glob("*.json"):
+            try:
+                entries.append((e.stat().st_mtime_ns, e))
+            except FileNotFoundError:
+                continue
+        for _, old in sorted(entries, reverse=True)[self.max_entries:]:
+            old.unlink(missing_ok=True)
+
+
+def _cacheable(st: os.stat_result, min_bytes: int) -> bool:
+    return stat.S_ISREG(st.st_mode) and st.st_size >= min_bytes
+
+
 class FileDigest:
     """The SHA-256 of a file, computed on a thread of its own from construction on: hashlib
     releases the GIL while it hashes, so the caller goes on meanwhile (a launcher plans its run
-    and starts its services; ~0.8 CPU s per GB from the page cache, the disk's speed otherwise)."""
+    and starts its services; ~0.9 CPU s per GB from the page cache, the disk's speed otherwise).
+    With a ``cache`` (:class:`DigestCache`) an unchanged file hashed before is not read again
+    (:attr:`cached` True) and a file hashed in full is remembered."""
 
-    def __init__(self, path: str | Path, chunk: int = 1 << 20):
+    def __init__(self, path: str | Path, chunk: int = 1 << 20, cache: DigestCache | None = None):
         self.path = Path(path)
         self._chunk = chunk
+        self._cache = cache
         self._stop = threading.Event()
         self._future: Future[str] = Future()
-        self._thread = threading.Thread(target=self._work, name="poseidon-sha256", daemon=True)
+        self.cached = False
+        known = self._lookup()
+        if known is not None:
+            self.cached = True
+            self._future.set_running_or_notify_cancel()
+            self._future.set_result(known)
+            self._thread = threading.Thread(target=lambda: None, name="poseidon-sha256", daemon=True)
+        else:
+            self._thread = threading.Thread(target=self._work, name="poseidon-sha256", daemon=True)
         self._thread.start()
+
+    def _lookup(self) -> str | None:
+        if self._cache is None:
+            return None
+        try:
+            return self._cache.lookup(self.path)
+        except OSError:  # no such file, or not readable: the thread raises it to result()'s caller
+            return None
 
     def _work(self) -> None:
         self._future.set_running_or_notify_cancel()
         try:
+            before = os.stat(self.path) if self._cache is not None else None
             h = _sha256(self.path, self._chunk, self._stop)
+            if self._cache is not None and before is not None and not self._stop.is_set():
+                self._cache.store(self.path, before, h.hexdigest())
         except BaseException as exc:  # handed to whoever calls result()
             self._future.set_exception(exc)
             return

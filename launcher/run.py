@@ -61,7 +61,7 @@ import yaml
 
 from common.bus import Bus, open_local_session
 from common.live import HEALTH_KEY, LATENCY_KEY
-from common.mcap_io import FileDigest, RecordingError, code_revision, recording_keys, recording_summary
+from common.mcap_io import DigestCache, FileDigest, RecordingError, code_revision, recording_keys, recording_summary
 from common.resume import Supervision
 from common.sessions import open_hub_in_background
 from common.worker import Worker
@@ -279,7 +279,7 @@ def _prepare(config: PoseidonConfig, input_path: Path, services: list[str] | Non
     the input's digest starts (the recorder needs it at the end only)."""
     endpoint = f"tcp/127.0.0.1:{hub_port or _free_port()}"
     opening: Future[Any] = open_hub_in_background(endpoint)  # the hub, as the rest of this module holds it
-    digest = FileDigest(input_path)
+    digest = FileDigest(input_path, cache=DigestCache.default())
     try:
         calibrate_from_input(config, input_path)
         plan = plan_run(config, input_path, services)
@@ -417,7 +417,7 @@ def run_embedded(config: PoseidonConfig, input_path: str | Path, out: str | Path
     calibrate_from_input(config, input_path)
     plan = plan_run(config, input_path, services)
     t0 = time.monotonic()
-    digest = FileDigest(input_path)  # for the recording's metadata, at its end
+    digest = FileDigest(input_path, cache=DigestCache.default())  # for the recording's metadata, at its end
     # every node is built (and its configuration checked) before anything opens the output
     try:
         nodes = {n: build_checked(n, config) for n in plan.services}

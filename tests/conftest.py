@@ -7,6 +7,8 @@ import pytest
 from common.bus import Bus, open_local_session
 
 os.environ.setdefault("NUMBA_CACHE_DIR", "/tmp/poseidon-numba-cache")
+# runs in the tests remember their inputs' digests here, not in the user's cache (common.mcap_io.DigestCache)
+os.environ.setdefault("POSEIDON_DIGEST_CACHE", "/tmp/poseidon-digest-cache-tests")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from common.mcap_io import (
+    DIGEST_CACHE_ENV,
+    DigestCache,
     FileDigest,
     RecordingError,
     RecordingWriter,
@@ -141,6 +143,62 @@ def test_the_summary_is_read_again_when_the_file_changes(tmp_path):
     assert recording_message_count(path) is None
     with pytest.raises(RecordingError, match="no such recording"):
         recording_keys(tmp_path / "missing.mcap")
+
+
+def test_an_unchanged_file_is_not_hashed_again_and_a_changed_one_is(tmp_path, caplog):
+    """The digest cache: the second digest of a file comes from the cache and is the file's
+    SHA-256; a file written again (same size, its modification time set back) is hashed again;
+    a malformed entry is logged and the file hashed; small files and pipes are never cached."""
+    cache = DigestCache(tmp_path / "cache", min_bytes=1024)
+    path = tmp_path / "mission.mcap"
+    data = np.random.default_rng(7).integers(0, 256, size=200_000, dtype=np.uint8).tobytes()
+    path.write_bytes(data)
+    first = FileDigest(path, cache=cache)
+    assert first.result(timeout=30) == hashlib.sha256(data).hexdigest() and not first.cached
+    entries = list((tmp_path / "cache").glob("*.json"))
+    assert len(entries) == 1
+    again = FileDigest(path, cache=cache)
+    assert again.cached and again.result(timeout=30) == hashlib.sha256(data).hexdigest()
+    # the same size and modification time, other bytes: the status-change time gives it away
+    st = os.stat(path)
+    changed = bytes([data[0] ^ 1]) + data[1:]
+    time.sleep(0.01)
+    path.write_bytes(changed)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert os.stat(path).st_mtime_ns == st.st_mtime_ns and os.stat(path).st_size == st.st_size
+    third = FileDigest(path, cache=cache)
+    assert not third.cached and third.result(timeout=30) == hashlib.sha256(changed).hexdigest()
+    assert FileDigest(path, cache=cache).cached
+    entries[0].write_text("{not json")
+    with caplog.at_level("WARNING", logger="common.mcap_io"):
+        fourth = FileDigest(path, cache=cache)
+        assert not fourth.cached and fourth.result(timeout=30) == hashlib.sha256(changed).hexdigest()
+    assert "unreadable" in caplog.text and str(path) in caplog.text
+    small = tmp_path / "small.bin"
+    small.write_bytes(b"x" * 100)
+    assert FileDigest(small, cache=cache).result(timeout=30) == hashlib.sha256(b"x" * 100).hexdigest()
+    assert not FileDigest(small, cache=cache).cached
+    with pytest.raises(FileNotFoundError, match="missing.bin"):
+        FileDigest(tmp_path / "missing.bin", cache=cache).result(timeout=30)
+
+
+def test_the_digest_cache_keeps_its_newest_entries_and_obeys_the_environment(tmp_path, monkeypatch):
+    cache = DigestCache(tmp_path / "cache", min_bytes=10, max_entries=2)
+    for i in range(4):
+        f = tmp_path / f"f{i}.bin"
+        f.write_bytes(bytes([i]) * 100)
+        assert FileDigest(f, cache=cache).result(timeout=30) == hashlib.sha256(bytes([i]) * 100).hexdigest()
+        time.sleep(0.01)
+    assert len(list((tmp_path / "cache").glob("*.json"))) == 2
+    assert FileDigest(tmp_path / "f3.bin", cache=cache).cached
+    assert not FileDigest(tmp_path / "f0.bin", cache=cache).cached
+    monkeypatch.setenv(DIGEST_CACHE_ENV, "off")
+    assert DigestCache.default() is None
+    monkeypatch.setenv(DIGEST_CACHE_ENV, str(tmp_path / "elsewhere"))
+    assert DigestCache.default().directory == tmp_path / "elsewhere"
+    monkeypatch.delenv(DIGEST_CACHE_ENV)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert DigestCache.default().directory == tmp_path / "xdg" / "poseidonslam" / "digests"
 
 
 def test_the_file_digest_is_the_sha256_hands_on_its_error_and_cancels(tmp_path):
