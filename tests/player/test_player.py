@@ -2,6 +2,7 @@
 
 Pacing, stopping on an abort, aborting the run when stopped early, waiting for its
 consumers, flow control against the slowest one."""
+import math
 import threading
 import time
 
@@ -178,25 +179,46 @@ def test_a_gap_longer_than_the_window_is_promised_once_the_consumer_stands_still
     assert consumer.watermarks == [T0, T0 + 55 * STEP_NS]
 
 
-def test_a_bundling_player_sends_the_same_frames_in_fewer_samples_and_within_the_window(tmp_path, bus):
-    """At rate 0 with bundles of up to 8 frames: the consumer gets every frame, in order, as
-    without bundles, in a fraction of the samples; the player still waits within the window (what
-    it holds for a bundle goes out before it waits, or the consumer could never catch up)."""
+def _bundled_replay(tmp_path, bus, flow_window_ms, bundle_frames, bundle_ms, n=200):
+    """Replay ``n`` depth messages at rate 0 with bundles; the frames of each data sample the
+    bus carried (heartbeats and watermarks left out) and the player's stats."""
     samples: list[bytes] = []
     raw = bus.session.declare_subscriber(bus.full_key("depth_sensor"), lambda s: samples.append(s.payload.to_bytes()))
     consumer = _Consumer(bus, work_s=0.0)
-    src = _depth_recording(tmp_path / "many.mcap", n=200)
-    stats = Player(bus, src, wait_for=["consumer"], progress=False, flow_window_ms=1000, heartbeat_ms=10**6,
-                   announce_absent=(), bundle_frames=8, bundle_ms=500).run()
+    src = _depth_recording(tmp_path / "many.mcap", n=n)
+    stats = Player(bus, src, wait_for=["consumer"], progress=False, flow_window_ms=flow_window_ms,
+                   heartbeat_ms=10**6, announce_absent=(), bundle_frames=bundle_frames, bundle_ms=bundle_ms).run()
     deadline = time.monotonic() + 5
-    while consumer.data < 200 and time.monotonic() < deadline:
+    while consumer.data < n and time.monotonic() < deadline:
         time.sleep(0.02)
     raw.undeclare()
-    assert stats.published == {"depth_sensor": 200} and consumer.data == 200
-    data = [decode_frame(f) for s in samples for f in split_frames(s)]
-    data = [f for f in data if f.kind == "data"]
-    assert [f.index for f in data] == list(range(200))
-    assert [decode_header(f.payload)["stamp"] for f in data] == [T0 + i * STEP_NS for i in range(200)]
-    assert len(samples) < 200 / 3  # bundles of up to 8 (5 steps of 0.1 s a bundle_ms), flushed at each wait
-    data_samples = sum(1 for s in samples if s[:1] in (b"B", b"S"))
-    assert stats.samples == {"depth_sensor": data_samples}
+    assert stats.published == {"depth_sensor": n} and consumer.data == n
+    bundles = [[decode_frame(f) for f in split_frames(s)] for s in samples]
+    bundles = [b for b in bundles if b[0].kind == "data"]
+    data = [f for b in bundles for f in b]
+    assert [f.index for f in data] == list(range(n))
+    assert [decode_header(f.payload)["stamp"] for f in data] == [T0 + i * STEP_NS for i in range(n)]
+    assert stats.samples == {"depth_sensor": len(bundles)}
+    return [len(b) for b in bundles]
+
+
+@pytest.mark.parametrize(("bundle_frames", "bundle_ms", "sizes"), [
+    (4, 1000, [4] * 50),        # full at 4 frames, long before the first is 1 s old
+    (8, 300, [3] * 66 + [2]),   # the first frame 0.3 s old (checked every 75 ms of event time)
+])
+def test_a_bundling_player_that_is_never_held_sends_full_or_aged_bundles(tmp_path, bus, bundle_frames,
+                                                                         bundle_ms, sizes):
+    """At rate 0 with a window wider than the recording: no hold, so the bundles are set by the
+    two rules alone, whatever the machine's speed: full, or its first frame ``bundle_ms`` old
+    (the last goes out at the end of the stream)."""
+    assert _bundled_replay(tmp_path, bus, 100_000, bundle_frames, bundle_ms) == sizes
+
+
+def test_a_bundling_player_held_by_its_window_still_delivers_everything_in_bundles(tmp_path, bus):
+    """A 1-s window (10 messages), bundles of up to 8 or 0.5 s: the player is held often, and
+    what it holds for a bundle goes out before it waits (or the consumer could never catch up).
+    Each hold lets a burst of at least 0.5 s go (6 messages), and the age rule cuts R messages
+    sent between two holds into at most ceil(R / 5) samples: at most 2 samples per 6 messages,
+    however the holds fall on a loaded machine (a sample per message without bundles)."""
+    sizes = _bundled_replay(tmp_path, bus, 1000, 8, 500)
+    assert max(sizes) <= 8 and len(sizes) <= 2 * math.ceil(200 / 6)
