@@ -271,7 +271,12 @@ def render_soak(d: dict[str, Any]) -> str:
     rows = [[n, f"{fmt(v, 1)} s", f"{fmt(last.get(n), 2)}x", f"{fmt(growth.get(n), 1)} MiB"]
             for n, v in sorted(cpu.items(), key=lambda kv: -kv[1])]
     rows.append(["all", f"{fmt(sum(cpu.values()), 1)} s", "", ""])
-    return (speed + f"\nDropped messages: {dropped}. Last part of the mission against the first "
+    per_frame = d.get("encoder_ms_per_frame")
+    machine = ("" if per_frame is None else
+               f" The encoder's own work per camera frame: {fmt(per_frame, 2)} ms of CPU; the work is the same "
+               "in every run of this mission, so this moves only with the machine's speed (compare it before "
+               "comparing two runs' real-time factors).")
+    return (speed + f"\nDropped messages: {dropped}.{machine} Last part of the mission against the first "
             f"({len(d.get('per_mission_part') or [])} equal parts): wall time "
             f"{fmt((d.get('last_vs_first') or {}).get('wall'), 2)}x.\n\n"
             + table(["service", "CPU", "CPU, last part / first", "peak RSS growth, 2nd to 6th sixth"], rows)

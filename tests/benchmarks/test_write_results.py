@@ -127,3 +127,12 @@ def test_the_soak_section_says_where_each_service_cpu_went():
     assert body.index("| encoder | 18.2 s") < body.index("| htm | 8.1 s")   # the costliest first
     assert "Where each algorithm service's CPU went" not in wr.render_soak({k: v for k, v in d.items()
                                                                             if k != "cpu_split"})
+
+
+def test_the_soak_section_gives_the_encoders_work_per_frame_when_measured():
+    d = {"pipeline": {"mission_s": 600, "wall_s": 30.0, "real_time_factor": 20.0},
+         "transport_only": {"mission_s": 600, "wall_s": 5.0, "real_time_factor": 120.0},
+         "cpu_s": {"encoder": 18.0}, "encoder_ms_per_frame": 4.172}
+    assert "The encoder's own work per camera frame: 4.17 ms of CPU" in wr.render_soak(d)
+    assert "work per camera frame" not in wr.render_soak({**d, "encoder_ms_per_frame": None})
+    assert "work per camera frame" not in wr.render_soak({k: v for k, v in d.items() if k != "encoder_ms_per_frame"})

@@ -93,3 +93,10 @@ def test_cpu_split_is_the_process_cpu_parted_for_algorithm_services_only():
                 "embedded": {"startup_cpu_s": 1.0, "node_cpu_s": 1.0, "frame_path_cpu_s": 0.1}}
     split = bench_soak.cpu_split(services)
     assert split == {"htm": {"cpu_s": 8.2, "startup_s": 2.4, "node_s": 4.0, "frame_path_s": 1.0, "rest_s": 0.7}}
+
+
+def test_the_encoders_work_per_frame_is_its_node_cpu_over_the_camera_frames():
+    split = {"encoder": {"cpu_s": 91.8, "startup_s": 2.6, "node_s": 75.1, "frame_path_s": 8.6, "rest_s": 5.5}}
+    assert bench_soak.encoder_ms_per_frame(split, 17999) == 4.172
+    assert bench_soak.encoder_ms_per_frame(split, 0) is None            # no camera frame recorded
+    assert bench_soak.encoder_ms_per_frame({"htm": split["encoder"]}, 17999) is None   # no encoder started
