@@ -42,8 +42,9 @@ the rest -- Zenoh's threads, zenoh-python's callback threads, the receive loop's
 :mod:`common.runtime`; ``encoder_ms_per_frame``: the encoder node's own CPU ms per camera frame,
 null without the encoder or a camera frame).  The encoder's work per frame is fixed by the mission
 and the configuration, so on one mission ``encoder_ms_per_frame`` moves only with the machine's
-speed: compare it before comparing two runs' real-time factors (the same code has run the
-60-minute mission at 16x and 23x on one machine within an hour, its encoder at 5.8 and 4.2 ms).
+speed: compare it before comparing two runs' real-time factors (the same code ran the 60-minute
+mission at 16.19x to 27.14x on one 2-core machine within 75 minutes, its encoder at 5.82 to 3.52
+ms per frame; the real-time factor times this stayed at 92.5-95.8).
 The readable output ends each run with a table per service: CPU seconds and peak RSS in the
 mission's first part against its last.
 """

@@ -180,8 +180,9 @@ def test_a_gap_longer_than_the_window_is_promised_once_the_consumer_stands_still
 
 
 def _bundled_replay(tmp_path, bus, flow_window_ms, bundle_frames, bundle_ms, n=200):
-    """Replay ``n`` depth messages at rate 0 with bundles; the frames of each data sample the
-    bus carried (heartbeats and watermarks left out) and the player's stats."""
+    """Replay ``n`` depth messages at rate 0 with bundles, check that every frame arrived in
+    order and that the player counted the data samples; the number of frames in each data
+    sample the bus carried (heartbeats and watermarks left out)."""
     samples: list[bytes] = []
     raw = bus.session.declare_subscriber(bus.full_key("depth_sensor"), lambda s: samples.append(s.payload.to_bytes()))
     consumer = _Consumer(bus, work_s=0.0)
